@@ -1,0 +1,197 @@
+//! A job is what the server hands to a sandboxed `d3il worker` (as one JSON
+//! document on stdin); the worker answers with JSON lines of [`WorkerMessage`].
+
+use crate::results::EvalResult;
+use crate::task::{ObsType, TaskId};
+use serde::{Deserialize, Serialize};
+
+/// Which evaluation protocol to run.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum ProtocolKind {
+    /// The paper's protocol: all fixed initial states x rollouts per state.
+    #[default]
+    Paper,
+    /// A small subset for smoke tests and dry runs (first few initial states, few rollouts).
+    Quick,
+}
+
+impl std::str::FromStr for ProtocolKind {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        match s {
+            "paper" => Ok(ProtocolKind::Paper),
+            "quick" => Ok(ProtocolKind::Quick),
+            o => Err(format!("unknown protocol `{o}`; expected `paper` or `quick`")),
+        }
+    }
+}
+
+/// Normalisation statistics a policy expects if they are not baked into the graph.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
+pub struct Normalisation {
+    pub obs_mean: Option<Vec<f32>>,
+    pub obs_std: Option<Vec<f32>>,
+    pub act_mean: Option<Vec<f32>>,
+    pub act_std: Option<Vec<f32>>,
+}
+
+/// The small JSON manifest that travels with an ONNX file (docs/submission.md).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct PolicyManifest {
+    pub task: TaskId,
+    #[serde(default = "default_obs_type")]
+    pub obs_type: ObsType,
+    /// History length k (observations per query).
+    #[serde(default = "one")]
+    pub history: usize,
+    /// Action chunk length H returned per query.
+    #[serde(default = "one")]
+    pub horizon: usize,
+    /// Actions executed per query, E <= H.
+    #[serde(default = "one")]
+    pub execute: usize,
+    #[serde(default)]
+    pub normalisation: Option<Normalisation>,
+}
+
+fn one() -> usize {
+    1
+}
+fn default_obs_type() -> ObsType {
+    ObsType::State
+}
+
+/// Where the policy comes from.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "lowercase")]
+pub enum PolicySource {
+    /// An ONNX file on disk that the worker may read (the only file it may read
+    /// besides the assets).
+    Onnx { path: String, sha256: String },
+    /// A remote endpoint speaking docs/remote-protocol.md.
+    Remote { url: String },
+    /// A built-in scripted reference policy (sanity baselines), e.g. `avoiding:path=3`.
+    Scripted { name: String },
+}
+
+/// Resource limits for one worker. Every field has a default and a config knob.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Limits {
+    /// Address-space limit in bytes.
+    pub memory_bytes: u64,
+    /// CPU seconds.
+    pub cpu_seconds: u64,
+    /// Wall-clock seconds (enforced by the parent).
+    pub wall_seconds: u64,
+    /// Maximum open file descriptors.
+    pub open_files: u64,
+    /// Maximum size of any file the worker writes.
+    pub file_size_bytes: u64,
+    /// Per-request deadline for remote policies, milliseconds.
+    pub remote_deadline_ms: u64,
+    /// Maximum size of one remote frame, bytes.
+    pub remote_frame_bytes: u64,
+    /// Allow remote endpoints on loopback/private addresses (tests, trusted set-ups).
+    pub allow_private_endpoints: bool,
+}
+
+impl Default for Limits {
+    fn default() -> Self {
+        Limits {
+            memory_bytes: 4 << 30,
+            cpu_seconds: 3600,
+            wall_seconds: 3600,
+            open_files: 256,
+            file_size_bytes: 64 << 20,
+            remote_deadline_ms: 10_000,
+            remote_frame_bytes: 64 << 20,
+            allow_private_endpoints: false,
+        }
+    }
+}
+
+/// One evaluation job.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Job {
+    /// Opaque id chosen by the caller (the server's job id).
+    pub job_id: String,
+    pub task: TaskId,
+    #[serde(default)]
+    pub protocol: ProtocolKind,
+    pub policy: PolicySource,
+    pub manifest: PolicyManifest,
+    /// Seed of the evaluator's RNG (policy noise, rollout sampling).
+    #[serde(default)]
+    pub seed: u64,
+    #[serde(default)]
+    pub limits: Limits,
+    /// Directory holding the project's assets (MJCF, context sets). The worker
+    /// may read it and nothing else besides the policy file.
+    pub assets_dir: String,
+}
+
+/// Categories of failure a submitter can act on.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ErrorKind {
+    /// The job document itself was invalid.
+    BadJob,
+    /// The ONNX file could not be parsed or does not match the task.
+    BadModel,
+    /// The policy produced NaN/inf or wrongly shaped actions.
+    BadAction,
+    /// A remote endpoint misbehaved (late, oversized, malformed, disconnected).
+    Remote,
+    /// The endpoint URL was refused (scheme, host or address range).
+    BadEndpoint,
+    /// A resource limit was exceeded.
+    MemoryLimit,
+    CpuLimit,
+    WallClock,
+    /// The worker died from a signal or exited without a result.
+    Crashed,
+    /// The worker printed something that is not the protocol.
+    ProtocolViolation,
+    /// A bug or environment problem on our side.
+    Internal,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct WorkerError {
+    pub kind: ErrorKind,
+    /// A message the submitter can act on.
+    pub message: String,
+}
+
+/// One line the worker prints on stdout.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "type", rename_all = "snake_case")]
+pub enum WorkerMessage {
+    /// Which confinement mechanisms are in force (first line).
+    Sandbox { mechanisms: Vec<SandboxMechanism> },
+    Progress {
+        rollouts_done: usize,
+        rollouts_total: usize,
+    },
+    Result(Box<EvalResult>),
+    Error(WorkerError),
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct SandboxMechanism {
+    pub name: String,
+    pub active: bool,
+    pub detail: String,
+}
+
+/// Documented worker exit codes.
+pub mod exit_code {
+    pub const OK: i32 = 0;
+    /// The job failed with a structured error (printed as the last line).
+    pub const JOB_FAILED: i32 = 2;
+    /// The job document could not be read.
+    pub const BAD_JOB: i32 = 3;
+    /// The sandbox could not be set up and confinement was required.
+    pub const SANDBOX_FAILED: i32 = 4;
+}

@@ -1,0 +1,11 @@
+//! The contract between the evaluator/worker (which know MuJoCo) and the
+//! server/tables (which know HTTP and SQL). Everything here is plain serde data.
+
+pub mod job;
+pub mod paper;
+pub mod results;
+pub mod task;
+
+pub use job::*;
+pub use results::*;
+pub use task::*;

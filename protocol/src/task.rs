@@ -1,0 +1,155 @@
+use serde::{Deserialize, Serialize};
+use std::fmt;
+use std::str::FromStr;
+
+/// The D3IL task variants the leaderboard evaluates.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum TaskId {
+    Avoiding,
+    Aligning,
+    Pushing,
+    #[serde(rename = "sorting-2")]
+    Sorting2,
+    #[serde(rename = "sorting-4")]
+    Sorting4,
+    #[serde(rename = "sorting-6")]
+    Sorting6,
+    Stacking,
+    Inserting,
+}
+
+impl TaskId {
+    pub const ALL: [TaskId; 8] = [
+        TaskId::Avoiding,
+        TaskId::Aligning,
+        TaskId::Pushing,
+        TaskId::Sorting2,
+        TaskId::Sorting4,
+        TaskId::Sorting6,
+        TaskId::Stacking,
+        TaskId::Inserting,
+    ];
+
+    /// URL/CLI slug, e.g. `sorting-4`.
+    pub fn slug(self) -> &'static str {
+        match self {
+            TaskId::Avoiding => "avoiding",
+            TaskId::Aligning => "aligning",
+            TaskId::Pushing => "pushing",
+            TaskId::Sorting2 => "sorting-2",
+            TaskId::Sorting4 => "sorting-4",
+            TaskId::Sorting6 => "sorting-6",
+            TaskId::Stacking => "stacking",
+            TaskId::Inserting => "inserting",
+        }
+    }
+
+    /// Human title as the paper prints it, e.g. `Sorting-4 (T4)`.
+    pub fn title(self) -> &'static str {
+        match self {
+            TaskId::Avoiding => "Avoiding (T1)",
+            TaskId::Aligning => "Aligning (T2)",
+            TaskId::Pushing => "Pushing (T3)",
+            TaskId::Sorting2 => "Sorting-2 (T4)",
+            TaskId::Sorting4 => "Sorting-4 (T4)",
+            TaskId::Sorting6 => "Sorting-6 (T4)",
+            TaskId::Stacking => "Stacking (T5)",
+            TaskId::Inserting => "Inserting (T6)",
+        }
+    }
+
+    /// Number of behaviours |B| (log base of the entropies).
+    pub fn n_behaviours(self) -> usize {
+        match self {
+            TaskId::Avoiding => 24,
+            TaskId::Aligning => 2,
+            TaskId::Pushing => 4,
+            TaskId::Sorting2 => 2,
+            TaskId::Sorting4 => 6,
+            TaskId::Sorting6 => 20,
+            TaskId::Stacking => 6,
+            TaskId::Inserting => 6,
+        }
+    }
+
+    /// Whether the paper reports image-based results for this task.
+    pub fn has_image_variant(self) -> bool {
+        matches!(
+            self,
+            TaskId::Aligning | TaskId::Sorting4 | TaskId::Sorting6 | TaskId::Stacking
+        )
+    }
+}
+
+impl fmt::Display for TaskId {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.slug())
+    }
+}
+
+#[derive(Debug, thiserror::Error)]
+#[error("unknown task `{0}`; expected one of: avoiding, aligning, pushing, sorting-2, sorting-4, sorting-6, stacking, inserting")]
+pub struct UnknownTask(pub String);
+
+impl FromStr for TaskId {
+    type Err = UnknownTask;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        let norm = s.trim().to_ascii_lowercase().replace('_', "-");
+        TaskId::ALL
+            .into_iter()
+            .find(|t| t.slug() == norm)
+            .ok_or_else(|| UnknownTask(s.to_string()))
+    }
+}
+
+/// Observation modality of a policy.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum ObsType {
+    State,
+    Image,
+}
+
+impl ObsType {
+    pub fn as_str(self) -> &'static str {
+        match self {
+            ObsType::State => "state",
+            ObsType::Image => "image",
+        }
+    }
+}
+
+impl FromStr for ObsType {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        match s.trim().to_ascii_lowercase().as_str() {
+            "state" => Ok(ObsType::State),
+            "image" => Ok(ObsType::Image),
+            other => Err(format!(
+                "unknown observation type `{other}`; expected `state` or `image`"
+            )),
+        }
+    }
+}
+
+impl fmt::Display for ObsType {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.as_str())
+    }
+}
+
+/// Dimensions a policy must match for a task (spec/10, spec/11: the policy input
+/// prepends the previous command to the environment observation).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct TaskSpec {
+    pub task: TaskId,
+    /// Length of the policy-level observation vector (state part).
+    pub obs_dim: usize,
+    /// Length of one policy-level action (e.g. 2 xy deltas for Avoiding).
+    pub act_dim: usize,
+    /// Maximum env steps per episode.
+    pub max_steps: usize,
+    /// |B|.
+    pub n_behaviours: usize,
+}
