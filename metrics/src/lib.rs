@@ -1,0 +1,1 @@
+//! d3il-metrics (placeholder; owned by its issue).

@@ -1,0 +1,1 @@
+//! d3il-policy (placeholder; owned by its issue).

@@ -1,0 +1,1 @@
+//! d3il-sandbox (placeholder; owned by its issue).

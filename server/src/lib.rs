@@ -1,0 +1,1 @@
+//! d3il-server (placeholder; owned by its issue).

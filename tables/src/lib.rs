@@ -1,0 +1,1 @@
+//! d3il-tables (placeholder; owned by its issue).
