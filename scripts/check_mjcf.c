@@ -717,6 +717,263 @@ static void check_dynamics(const mjModel* m, int has_rod) {
   mj_deleteData(d);
 }
 
+/* ---------------------------------------------------------------------------------------------
+ * spec/01 §8 Test A, end to end on our MJCF: reset (§4.4), then the Cartesian tracking controller
+ * (§3.4) with MuJoCo-MJCF kinematics, stale bias (§3.5), finger law (§3.7), 35 substeps per step.
+ * The spec says MJCF kinematics agree with the reference to <= 3.5e-8 m of TCP on free motion; this
+ * exercises every dynamics-relevant number in the robot file (inertials, damping, force ranges,
+ * finger contacts), not only the kinematics.
+ * ------------------------------------------------------------------------------------------- */
+
+/* Cyclic Jacobi eigen-decomposition of a symmetric 6x6 matrix: A = V diag(w) V^T. */
+static void sym_eig6(const double A_in[36], double w[6], double V[36]) {
+  double A[36];
+  memcpy(A, A_in, sizeof A);
+  for (int i = 0; i < 36; i++) V[i] = (i % 7 == 0) ? 1 : 0;
+  for (int sweep = 0; sweep < 100; sweep++) {
+    double off = 0;
+    for (int p = 0; p < 6; p++)
+      for (int q = p + 1; q < 6; q++) off += A[6 * p + q] * A[6 * p + q];
+    if (off < 1e-40) break;
+    for (int p = 0; p < 6; p++)
+      for (int q = p + 1; q < 6; q++) {
+        double apq = A[6 * p + q];
+        if (fabs(apq) < 1e-300) continue;
+        double theta = (A[6 * q + q] - A[6 * p + p]) / (2 * apq);
+        double t = (theta >= 0 ? 1 : -1) / (fabs(theta) + sqrt(theta * theta + 1));
+        double c = 1 / sqrt(t * t + 1), sn = t * c;
+        for (int k = 0; k < 6; k++) { /* A <- A G */
+          double akp = A[6 * k + p], akq = A[6 * k + q];
+          A[6 * k + p] = c * akp - sn * akq;
+          A[6 * k + q] = sn * akp + c * akq;
+        }
+        for (int k = 0; k < 6; k++) { /* A <- G^T A */
+          double apk = A[6 * p + k], aqk = A[6 * q + k];
+          A[6 * p + k] = c * apk - sn * aqk;
+          A[6 * q + k] = sn * apk + c * aqk;
+        }
+        for (int k = 0; k < 6; k++) {
+          double vkp = V[6 * k + p], vkq = V[6 * k + q];
+          V[6 * k + p] = c * vkp - sn * vkq;
+          V[6 * k + q] = sn * vkp + c * vkq;
+        }
+      }
+  }
+  for (int i = 0; i < 6; i++) w[i] = A[7 * i];
+}
+
+typedef struct {
+  const mjModel* m;
+  mjData* kin; /* scratch data for FK and the Jacobian at the IK iterate */
+  int tcp, arm_q[7], arm_v[7], fq[2], fv[2];
+  double qhat[7];
+  int have_qhat;
+} CartCtl;
+
+static void fk_jac(CartCtl* c, const double q[7], double x[3], double Q[4], double J[42]) {
+  for (int i = 0; i < 7; i++) c->kin->qpos[c->arm_q[i]] = q[i];
+  mj_kinematics(c->m, c->kin);
+  mj_comPos(c->m, c->kin);
+  mju_copy3(x, c->kin->xpos + 3 * c->tcp);
+  mju_copy4(Q, c->kin->xquat + 4 * c->tcp);
+  int nv = c->m->nv;
+  mjtNum* jp = malloc(sizeof(mjtNum) * 3 * nv);
+  mjtNum* jr = malloc(sizeof(mjtNum) * 3 * nv);
+  mj_jacBody(c->m, c->kin, jp, jr, c->tcp);
+  for (int r = 0; r < 3; r++)
+    for (int k = 0; k < 7; k++) {
+      J[7 * r + k] = jp[nv * r + c->arm_v[k]];
+      J[7 * (r + 3) + k] = jr[nv * r + c->arm_v[k]];
+    }
+  free(jp);
+  free(jr);
+}
+
+static double clipd(double v, double lo, double hi) { return v < lo ? lo : (v > hi ? hi : v); }
+
+/* One substep of §3.4 -> q_d, qd_d. */
+static void cart_ik(CartCtl* c, const mjData* d, const double xd[3], const double Qd_in[4], double q_d[7],
+                    double qd_d[7]) {
+  static const double QMIN[7] = {-2.8973, -1.7628, -2.8973, -3.0718, -2.8973, -0.0175, -2.8973};
+  static const double QMAX[7] = {2.8973, 1.7628, 2.0, -0.0698, 2.8973, 3.7525, 2.8973};
+  static const double QREST[7] = {0, 0.174, 0, -0.872, 0, 1.222, 0.785};
+  static const double KX[3] = {200, 200, 800};
+  if (!c->have_qhat) {
+    for (int i = 0; i < 7; i++) c->qhat[i] = d->qpos[c->arm_q[i]];
+    c->have_qhat = 1;
+  }
+  double q[7], Qd[4];
+  memcpy(q, c->qhat, sizeof q);
+  memcpy(Qd, Qd_in, sizeof Qd);
+  for (int it = 0; it < 3; it++) {
+    double x[3], Q[4], J[42];
+    fk_jac(c, q, x, Q, J);
+    double dm = 0, dp = 0;
+    for (int k = 0; k < 4; k++) {
+      dm += (Q[k] - Qd[k]) * (Q[k] - Qd[k]);
+      dp += (Q[k] + Qd[k]) * (Q[k] + Qd[k]);
+    }
+    if (sqrt(dm) > sqrt(dp))
+      for (int k = 0; k < 4; k++) Qd[k] = -Qd[k];
+    double v[6];
+    for (int k = 0; k < 3; k++) v[k] = KX[k] * clipd(xd[k] - x[k], -0.01, 0.01);
+    /* e_o = c_w d_v - d_w c_v + c_v x d_v (spec/01 §3.3) */
+    double cv[3] = {Q[1], Q[2], Q[3]}, dv[3] = {Qd[1], Qd[2], Qd[3]}, cr[3];
+    mju_cross(cr, cv, dv);
+    for (int k = 0; k < 3; k++) v[3 + k] = 30 * clipd(Q[0] * dv[k] - Qd[0] * cv[k] + cr[k], -0.1, 0.1);
+    double A[36], w[6], V[36], Ainv[36];
+    for (int r = 0; r < 6; r++)
+      for (int k = 0; k < 6; k++) {
+        double sum = 0;
+        for (int j = 0; j < 7; j++) sum += J[7 * r + j] * J[7 * k + j];
+        A[6 * r + k] = sum + (r == k ? 1e-12 : 0);
+      }
+    sym_eig6(A, w, V);
+    for (int i = 0; i < 6; i++) w[i] = clipd(w[i], 0.01, 100);
+    for (int r = 0; r < 6; r++)
+      for (int k = 0; k < 6; k++) {
+        double sum = 0;
+        for (int i = 0; i < 6; i++) sum += V[6 * r + i] * V[6 * k + i] / w[i];
+        Ainv[6 * r + k] = sum;
+      }
+    double qd0[7], rhs[6], y[6], qd[7];
+    for (int j = 0; j < 7; j++) qd0[j] = 40 * clipd(QREST[j] - q[j], -0.2, 0.2);
+    for (int r = 0; r < 6; r++) {
+      double sum = 0;
+      for (int j = 0; j < 7; j++) sum += J[7 * r + j] * qd0[j];
+      rhs[r] = v[r] - sum;
+    }
+    for (int r = 0; r < 6; r++) {
+      double sum = 0;
+      for (int k = 0; k < 6; k++) sum += Ainv[6 * r + k] * rhs[k];
+      y[r] = sum;
+    }
+    double nrm = 0;
+    for (int j = 0; j < 7; j++) {
+      double sum = 0;
+      for (int r = 0; r < 6; r++) sum += J[7 * r + j] * y[r];
+      qd[j] = sum + qd0[j];
+      nrm += qd[j] * qd[j];
+    }
+    nrm = sqrt(nrm);
+    if (nrm > 3)
+      for (int j = 0; j < 7; j++) qd[j] *= 3 / nrm;
+    for (int j = 0; j < 7; j++) q[j] = clipd(q[j] + 0.001 * qd[j], QMIN[j], QMAX[j]);
+  }
+  for (int j = 0; j < 7; j++) {
+    q_d[j] = q[j];
+    qd_d[j] = (q[j] - c->qhat[j]) / 0.001;
+    c->qhat[j] = q[j];
+  }
+}
+
+static void substep(CartCtl* c, mjData* d, const double q_d[7], const double qd_d[7], double w, int g) {
+  static const double KP[7] = {120, 120, 120, 120, 50, 30, 10}, KD[7] = {10, 10, 10, 10, 6, 5, 3};
+  for (int i = 0; i < 7; i++)
+    d->ctrl[i] = KP[i] * (q_d[i] - d->qpos[c->arm_q[i]]) + KD[i] * (qd_d[i] - d->qvel[c->arm_v[i]]) +
+                 d->qfrc_bias[c->arm_v[i]];
+  double f[2];
+  finger_law(d, c->fq, c->fv, w, g, f);
+  d->ctrl[7] = f[0];
+  d->ctrl[8] = f[1];
+  mj_step(c->m, d);
+}
+
+static void check_test_a(const char* dir) {
+  printf("\n== spec/01 §8 Test A (Avoiding hold, then an 8 cm y step) on panda_rod.xml ==\n");
+  mjModel* m = load_vfs(dir, "panda_rod.xml");
+  if (!m) {
+    check(0, "Test A: model loads");
+    return;
+  }
+  mjData* d = mj_makeData(m);
+  CartCtl c = {.m = m, .kin = mj_makeData(m), .tcp = mj_name2id(m, mjOBJ_BODY, "tcp_rb0"), .have_qhat = 0};
+  for (int i = 0; i < 7; i++) {
+    int j = mj_name2id(m, mjOBJ_JOINT, ARM_JOINTS[i]);
+    c.arm_q[i] = m->jnt_qposadr[j];
+    c.arm_v[i] = m->jnt_dofadr[j];
+  }
+  for (int i = 0; i < 2; i++) {
+    int j = mj_name2id(m, mjOBJ_JOINT, FINGER_JOINTS[i]);
+    c.fq[i] = m->jnt_qposadr[j];
+    c.fv[i] = m->jnt_dofadr[j];
+  }
+  const double* q0 = INIT_POSES[0].q;
+  /* §4.4 reset: scene qpos, forward twice; beam; one hold substep with finger target 0.001. */
+  mj_resetData(m, d);
+  for (int i = 0; i < 7; i++) d->qpos[c.arm_q[i]] = Q_SCENE[i];
+  mj_forward(m, d);
+  mj_forward(m, d);
+  for (int i = 0; i < 7; i++) {
+    d->qpos[c.arm_q[i]] = q0[i];
+    d->qvel[c.arm_v[i]] = 0;
+  }
+  mj_forward(m, d);
+  double zero[7] = {0};
+  substep(&c, d, q0, zero, 0.001, 0);
+  double z0 = d->xpos[3 * c.tcp + 2];
+
+  static const struct {
+    int step;
+    double x, y, z;
+  } REF[] = {
+      {0, 0.524928466, -0.279736728, 0.122359306},  {1, 0.527391345, -0.276939761, 0.122808764},
+      {2, 0.527556312, -0.277321468, 0.123610431},  {3, 0.527429411, -0.278203453, 0.124290654},
+      {5, 0.527123030, -0.279864680, 0.125150210},  {10, 0.525678095, -0.282201811, 0.124684327},
+      {11, 0.514489264, -0.276200666, 0.123796949}, {12, 0.503922645, -0.258571570, 0.122768088},
+      {13, 0.500578778, -0.242759975, 0.122228255}, {15, 0.507465455, -0.218701597, 0.121958927},
+      {20, 0.531948874, -0.178726410, 0.121774527},
+  };
+  static const double FREF[6][2] = {{2.29e-5, 2.29e-5}, {0.015866, 0.016138}, {0.030042, 0.030144},
+                                    {0.036015, 0.036032}, {0.039361, 0.039358}, {0.039995, 0.039991}};
+  static const int FSTEP[6] = {0, 1, 2, 3, 5, 10};
+  static const double J10[7] = {-0.41999458, 0.425227924, -0.073605311, -2.051083053, 0.048849179, 2.480547687,
+                                0.261997662};
+  static const double J20[7] = {-0.254905847, 0.351757395, -0.068931859, -2.180057615, 0.052691416, 2.527560040,
+                                0.396449759};
+  double max_tcp = 0, max_f = 0, max_j10 = 0, max_j20 = 0;
+  int ri = 0, fi = 0;
+  for (int step = 0; step <= 20; step++) {
+    if (step > 0) {
+      double xd[3] = {0.525, step <= 10 ? -0.28 : -0.20, z0}, Qd[4] = {0, 1, 0, 0};
+      for (int s = 0; s < 35; s++) {
+        double q_d[7], qd_d[7];
+        cart_ik(&c, d, xd, Qd, q_d, qd_d);
+        substep(&c, d, q_d, qd_d, 0.04, 0);
+      }
+    }
+    const mjtNum* p = d->xpos + 3 * c.tcp; /* current_c_pos: stale by one substep, as in the reference */
+    if (ri < (int)(sizeof REF / sizeof REF[0]) && REF[ri].step == step) {
+      double e = fmax(fabs(p[0] - REF[ri].x), fmax(fabs(p[1] - REF[ri].y), fabs(p[2] - REF[ri].z)));
+      printf("    step %2d: tcp (%.9f, %.9f, %.9f)  ref (%.9f, %.9f, %.9f)  max|diff| %.2e\n", step, p[0], p[1], p[2],
+             REF[ri].x, REF[ri].y, REF[ri].z, e);
+      max_tcp = fmax(max_tcp, e);
+      ri++;
+    }
+    if (fi < 6 && FSTEP[fi] == step) {
+      double f1 = d->qpos[c.fq[0]], f2 = d->qpos[c.fq[1]];
+      printf("             fingers (%.6g, %.6g)  ref (%.6g, %.6g)\n", f1, f2, FREF[fi][0], FREF[fi][1]);
+      max_f = fmax(max_f, fmax(fabs(f1 - FREF[fi][0]), fabs(f2 - FREF[fi][1])));
+      fi++;
+    }
+    if (step == 10 || step == 20)
+      for (int i = 0; i < 7; i++) {
+        double e = fabs(d->qpos[c.arm_q[i]] - (step == 10 ? J10[i] : J20[i]));
+        if (step == 10) max_j10 = fmax(max_j10, e);
+        else max_j20 = fmax(max_j20, e);
+      }
+  }
+  /* spec/01 §8: with MJCF kinematics the reference agreement is <= 3.5e-8 m TCP and ~1.2e-6 rad joints
+     (the six-digit hand quaternion); the finger reference is printed with 5-6 digits. */
+  check(max_tcp < 1e-7, "Test A TCP rows (steps 0-20) within 1e-7 m of the reference (max |diff| %.2e)", max_tcp);
+  check(max_f < 2e-6, "Test A finger positions within 2e-6 of the reference (max |diff| %.2e)", max_f);
+  check(max_j10 < 5e-6 && max_j20 < 5e-6,
+        "Test A arm joints after steps 10 and 20 within 5e-6 rad (max |diff| %.2e, %.2e)", max_j10, max_j20);
+  mj_deleteData(c.kin);
+  mj_deleteData(d);
+  mj_deleteModel(m);
+}
+
 /* The object marker: one free 6 cm cube placed at z = 0 (1.1 cm inside the table, spec/01 §1.4) and the task
    camera bp_cam. Free objects must come first in qpos, and the cube must pop up to rest at z ~ 0.011. */
 static void check_assembly(const char* dir) {
@@ -791,6 +1048,7 @@ int main(int argc, char** argv) {
     mj_deleteModel(m);
   }
   check_assembly(dir);
+  check_test_a(dir);
   printf("\nSUMMARY: %d passed, %d failed\n", g_pass, g_fail);
   return g_fail ? 1 : 0;
 }
