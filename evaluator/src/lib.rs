@@ -1,1 +1,5 @@
+//! Everything that runs a policy in the D3IL re-implementation.
+
 pub mod mujoco;
+pub mod robot;
+pub mod sim;

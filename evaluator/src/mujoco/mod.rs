@@ -14,6 +14,7 @@
     non_snake_case,
     non_upper_case_globals,
     dead_code,
+    unused_imports,
     clippy::all,
     unsafe_op_in_unsafe_fn
 )]

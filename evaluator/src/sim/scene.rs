@@ -1,0 +1,174 @@
+//! Assembles a task scene as one MJCF string plus in-memory include files
+//! (spec/01 §1.1): base file, primitive objects and camera bodies in the base
+//! worldbody, then includes of the table, the task's XML objects and the robot.
+
+use crate::mujoco::{MjError, Model};
+use crate::robot::RobotVariant;
+use sha2::{Digest, Sha256};
+use std::fmt::Write;
+
+const BASE_XML: &str = include_str!("../../../assets/mjcf/base.xml");
+const TABLE_XML: &str = include_str!("../../../assets/mjcf/table.xml");
+const PANDA_ROD_XML: &str = include_str!("../../../assets/mjcf/panda_rod.xml");
+const PANDA_GRIPPER_XML: &str = include_str!("../../../assets/mjcf/panda_gripper.xml");
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Shape {
+    Box,
+    Cylinder,
+    Sphere,
+}
+
+/// A code-defined object (spec/01 §1.6).
+#[derive(Debug, Clone)]
+pub struct Primitive {
+    pub name: String,
+    pub shape: Shape,
+    pub pos: [f64; 3],
+    /// (w, x, y, z)
+    pub quat: [f64; 4],
+    pub size: Vec<f64>,
+    /// Set only when non-zero; MuJoCo computes the inertia for the shape.
+    pub mass: f64,
+    pub rgba: [f64; 4],
+    pub is_static: bool,
+    pub visual_only: bool,
+    pub solref: Option<[f64; 2]>,
+    pub solimp: Option<Vec<f64>>,
+    /// Extra geom attributes a task needs (friction, priority, ...), verbatim.
+    pub geom_attrs: String,
+}
+
+impl Primitive {
+    pub fn new(name: &str, shape: Shape, pos: [f64; 3], size: &[f64]) -> Self {
+        Primitive {
+            name: name.to_string(),
+            shape,
+            pos,
+            quat: [1.0, 0.0, 0.0, 0.0],
+            size: size.to_vec(),
+            mass: 0.1,
+            rgba: [0.5, 0.5, 0.5, 1.0],
+            is_static: false,
+            visual_only: false,
+            solref: None,
+            solimp: None,
+            geom_attrs: String::new(),
+        }
+    }
+}
+
+fn join(v: &[f64]) -> String {
+    v.iter().map(|x| format!("{x}")).collect::<Vec<_>>().join(" ")
+}
+
+/// Everything that defines one task's compiled model.
+#[derive(Debug, Clone)]
+pub struct SceneSpec {
+    pub robot: RobotVariant,
+    pub primitives: Vec<Primitive>,
+    /// Bodies added after the primitives (e.g. the task's `bp_cam`), verbatim MJCF.
+    pub extra_bodies: String,
+    /// Task XML objects as (file name, `<mujoco>` include contents), in order.
+    pub includes: Vec<(String, String)>,
+}
+
+/// The bp_cam body every task adds (spec/01 §6).
+pub const BP_CAM: &str = r#"<body name="bp_cam" pos="1.05 0 1.2" quat="0.6830127 0.1830127 0.1830127 0.683012"><camera name="bp_cam" mode="fixed" fovy="45" pos="0 0 0" quat="1 0 0 0"/></body>"#;
+
+impl SceneSpec {
+    pub fn new(robot: RobotVariant) -> Self {
+        SceneSpec {
+            robot,
+            primitives: Vec::new(),
+            extra_bodies: BP_CAM.to_string(),
+            includes: Vec::new(),
+        }
+    }
+
+    /// The root MJCF and the include files.
+    pub fn assemble(&self) -> (String, Vec<(String, String)>) {
+        let mut prims = String::new();
+        for p in &self.primitives {
+            let _ = write!(
+                prims,
+                r#"<body name="{}" pos="{}" quat="{}">"#,
+                p.name,
+                join(&p.pos),
+                join(&p.quat)
+            );
+            let kind = match p.shape {
+                Shape::Box => "box",
+                Shape::Cylinder => "cylinder",
+                Shape::Sphere => "sphere",
+            };
+            let _ = write!(
+                prims,
+                r#"<geom name="{}:geom" type="{kind}" size="{}" rgba="{}""#,
+                p.name,
+                join(&p.size),
+                join(&p.rgba)
+            );
+            if p.mass != 0.0 {
+                let _ = write!(prims, r#" mass="{}""#, p.mass);
+            }
+            if p.visual_only {
+                prims.push_str(r#" contype="0" conaffinity="0""#);
+            }
+            if let Some(s) = p.solref {
+                let _ = write!(prims, r#" solref="{}""#, join(&s));
+            }
+            if let Some(s) = &p.solimp {
+                let _ = write!(prims, r#" solimp="{}""#, join(s));
+            }
+            if !p.geom_attrs.is_empty() {
+                let _ = write!(prims, " {}", p.geom_attrs);
+            }
+            prims.push_str("/>");
+            if !p.is_static {
+                let _ = write!(prims, r#"<freejoint name="{}:joint"/>"#, p.name);
+            }
+            prims.push_str("</body>\n");
+        }
+        let robot_file = match self.robot {
+            RobotVariant::Rod => "panda_rod.xml",
+            RobotVariant::Gripper => "panda_gripper.xml",
+        };
+        let mut includes = String::from("<include file=\"table.xml\"/>\n");
+        for (name, _) in &self.includes {
+            let _ = writeln!(includes, "<include file=\"{name}\"/>");
+        }
+        let _ = writeln!(includes, "<include file=\"{robot_file}\"/>");
+        let main = BASE_XML
+            .replace("<!-- D3IL:PRIMITIVES -->", &prims)
+            .replace("<!-- D3IL:OBJECTS -->", &self.extra_bodies)
+            .replace("<!-- D3IL:INCLUDES -->", &includes);
+        let mut files = vec![("table.xml".to_string(), TABLE_XML.to_string())];
+        files.extend(self.includes.iter().cloned());
+        let robot_xml = match self.robot {
+            RobotVariant::Rod => PANDA_ROD_XML,
+            RobotVariant::Gripper => PANDA_GRIPPER_XML,
+        };
+        files.push((robot_file.to_string(), robot_xml.to_string()));
+        (main, files)
+    }
+
+    /// sha256 over the root MJCF and every include, in order (for manifests).
+    pub fn sha256(&self) -> String {
+        let (main, files) = self.assemble();
+        let mut h = Sha256::new();
+        h.update(main.as_bytes());
+        for (n, c) in &files {
+            h.update(n.as_bytes());
+            h.update([0u8]);
+            h.update(c.as_bytes());
+        }
+        hex::encode(h.finalize())
+    }
+
+    pub fn compile(&self) -> Result<Model, MjError> {
+        let (main, files) = self.assemble();
+        let refs: Vec<(&str, &str)> = files.iter().map(|(n, c)| (n.as_str(), c.as_str())).collect();
+        Model::from_xml(&main, &refs)
+    }
+}
