@@ -1,1 +1,25 @@
-//! d3il-sandbox (placeholder; owned by its issue).
+//! d3il-sandbox: everything that keeps an untrusted submission from hurting the
+//! host (issue 6, docs/sandbox.md).
+//!
+//! Two sides:
+//! - the **child** (`d3il worker`): [`confine`] applies rlimits, a fresh network
+//!   namespace (file policies), landlock and a seccomp filter to its own process
+//!   before anything from the submission is parsed; [`worker_main`] is the whole
+//!   worker flow (read the job, confine, stream JSON lines, exit codes);
+//! - the **parent** (server, `d3il eval --sandbox`): [`run_worker`] spawns the
+//!   worker in its own process group, enforces the wall clock, caps the output and
+//!   turns every way the worker can end into a typed [`Outcome`].
+//!
+//! Remote endpoints are checked by [`validate_endpoint`] (scheme, host, and no
+//! loopback/link-local/private addresses unless the job allows them).
+
+pub mod child;
+pub mod confine;
+pub mod endpoint;
+pub mod parent;
+pub mod selftest;
+
+pub use child::{check_sandbox, worker_main, WorkerOptions};
+pub use confine::{confine, SandboxError};
+pub use endpoint::{validate_endpoint, EndpointError};
+pub use parent::{run_worker, Outcome, WorkerCommand, WorkerRun, DEFAULT_MAX_OUTPUT_BYTES};

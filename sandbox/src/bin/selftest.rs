@@ -1,0 +1,21 @@
+//! Test-only hostile worker: `d3il-sandbox-selftest <mode> [--require all]`.
+//! Runs the real worker flow (stdin job, confinement, JSON lines, exit codes)
+//! with a misbehaving "evaluation" from `d3il_sandbox::selftest`.
+
+fn main() {
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    let mode = args.first().cloned().unwrap_or_default();
+    let mut opts = d3il_sandbox::WorkerOptions::default();
+    if let Some(i) = args.iter().position(|a| a == "--require") {
+        if let Some(r) = args.get(i + 1) {
+            opts.require = r.split(',').map(str::to_string).collect();
+        }
+    }
+    if let Some(code) = d3il_sandbox::selftest::before_worker(&mode) {
+        std::process::exit(code);
+    }
+    let code = d3il_sandbox::worker_main(&opts, |job, progress| {
+        d3il_sandbox::selftest::evaluate(&mode, job, progress)
+    });
+    std::process::exit(code);
+}
