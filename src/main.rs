@@ -16,11 +16,17 @@ struct Cli {
 enum Command {
     /// Benchmarks that print ratios (physics, eval, render).
     Bench(cmd::bench::Args),
+    /// Generate or verify the fixed initial-state sets.
+    Contexts(cmd::contexts::Args),
+    /// Replay an episode open-loop from policy-level actions and print JSON.
+    Replay(cmd::replay::Args),
 }
 
 fn main() -> anyhow::Result<()> {
     let cli = Cli::parse();
     match cli.command {
         Command::Bench(a) => cmd::bench::run(a),
+        Command::Contexts(a) => cmd::contexts::run(a),
+        Command::Replay(a) => cmd::replay::run(a),
     }
 }

@@ -3,3 +3,4 @@
 pub mod mujoco;
 pub mod robot;
 pub mod sim;
+pub mod tasks;

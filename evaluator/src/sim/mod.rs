@@ -70,6 +70,8 @@ pub struct Sim {
     pub arm: ArmController,
     pub fingers: FingerCommand,
     pub n_substeps: usize,
+    /// When set, the controls of every substep are appended here (benchmarks).
+    pub ctrl_recorder: Option<Vec<[f64; 9]>>,
 }
 
 fn pick<const N: usize>(v: &[f64], idx: &[usize; N]) -> [f64; N] {
@@ -85,6 +87,7 @@ impl Sim {
             arm: ArmController::Hold(Q_SCENE),
             fingers: FingerCommand::RESET,
             n_substeps,
+            ctrl_recorder: None,
         })
     }
 
@@ -135,6 +138,10 @@ impl Sim {
         }
         ctrl[act[7]] = f[0];
         ctrl[act[8]] = f[1];
+        if let Some(rec) = &mut self.ctrl_recorder {
+            let c = self.data.ctrl();
+            rec.push(act.map(|i| c[i]));
+        }
         self.data.step()
     }
 

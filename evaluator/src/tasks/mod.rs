@@ -1,0 +1,330 @@
+//! The D3IL tasks on top of the simulation core. A task is a static
+//! definition ([`TaskDef`]: scene, constants, contexts, command convention)
+//! plus per-episode logic ([`TaskLogic`]: observation, termination, success,
+//! behaviour). [`Env`] runs the generic step of spec/01 §4.2 / spec/10 §1.5
+//! for any task.
+
+pub mod avoiding;
+pub mod contexts;
+pub mod geometry;
+
+use crate::mujoco::{Data, MjError, Model, ObjKind};
+use crate::robot::control::FingerCommand;
+use crate::sim::scene::SceneSpec;
+use crate::sim::{RobotIds, Sim};
+use d3il_protocol::{TaskId, TaskSpec};
+use serde_json::Value;
+use std::sync::Arc;
+
+pub use contexts::ContextSet;
+
+/// Errors from task set-up and stepping.
+#[derive(Debug, thiserror::Error)]
+pub enum TaskError {
+    #[error(transparent)]
+    MuJoCo(#[from] MjError),
+    #[error("invalid context for task {task}: {message}")]
+    Context { task: TaskId, message: String },
+    #[error("action has {got} values but task {task} expects {expected} ({meaning})")]
+    ActionWidth {
+        task: TaskId,
+        got: usize,
+        expected: usize,
+        meaning: &'static str,
+    },
+    #[error("action value {index} is {value} at step {step}; actions must be finite numbers")]
+    NonFinite { index: usize, value: f32, step: usize },
+    #[error("initial-state set `{name}`: {message}")]
+    ContextSet { name: String, message: String },
+    #[error("the episode is over (done was returned); reset before stepping again")]
+    EpisodeOver,
+    #[error("task {0} is not available in this build")]
+    Unavailable(TaskId),
+}
+
+/// What the arm controller gets for one env step.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Command {
+    /// Absolute Cartesian target (position, quaternion wxyz) for the IK tracker.
+    Cartesian { pos: [f64; 3], quat: [f64; 4] },
+    /// Absolute joint targets (float32-rounded) and the gripper value (Stacking).
+    Joint { q: [f64; 7], gripper: f64 },
+}
+
+/// The hand points straight down in every Cartesian task (spec/01 §3.1).
+pub const QUAT_DOWN: [f64; 4] = [0.0, 1.0, 0.0, 0.0];
+
+/// Static definition of a task.
+pub trait TaskDef: Send + Sync {
+    fn id(&self) -> TaskId;
+    /// Version of our implementation of the task (scene + logic + contexts).
+    fn version(&self) -> &'static str;
+    fn scene(&self) -> SceneSpec;
+    fn n_substeps(&self) -> usize;
+    fn init_qpos(&self) -> [f64; 7];
+    fn max_steps(&self) -> usize;
+    /// Width of the environment observation.
+    fn env_obs_dim(&self) -> usize;
+    /// Width of the "previous command" prefix of the policy input.
+    fn cmd_dim(&self) -> usize;
+    /// Width of one policy action.
+    fn act_dim(&self) -> usize;
+    /// What the action means, for error messages.
+    fn act_meaning(&self) -> &'static str;
+    /// The fixed test set (file bytes and its expected sha256).
+    fn context_set(&self) -> Result<ContextSet, TaskError>;
+    /// Rollouts per initial state in the paper's protocol.
+    fn rollouts_per_context(&self) -> usize;
+    /// Draws one context from the task's distribution.
+    fn sample_context(&self, rng: &mut dyn rand::RngCore) -> Value;
+    /// Fresh per-episode logic bound to a compiled model.
+    fn new_logic(&self, model: &Model) -> Result<Box<dyn TaskLogic>, TaskError>;
+    /// The first "previous command" after reset (e.g. the measured TCP xy).
+    fn initial_command(&self, sim: &Sim) -> Vec<f64>;
+    /// Previous command + policy action -> (new previous command, controller command).
+    fn command(&self, prev: &[f64], action: &[f32], fixed_z: f64) -> (Vec<f64>, Command);
+
+    fn spec(&self) -> TaskSpec {
+        TaskSpec {
+            task: self.id(),
+            obs_dim: self.cmd_dim() + self.env_obs_dim(),
+            act_dim: self.act_dim(),
+            max_steps: self.max_steps(),
+            n_behaviours: self.id().n_behaviours(),
+        }
+    }
+}
+
+/// Per-episode task logic.
+pub trait TaskLogic: Send {
+    /// Places the context's objects (free-joint qpos or model poses, no forward)
+    /// and runs the reset sequence through `sim.reset`.
+    fn reset(&mut self, sim: &mut Sim, init_qpos: &[f64; 7], context: &Value) -> Result<(), TaskError>;
+    /// Environment observation from the current (pre-physics) state, float32.
+    fn observe(&self, sim: &Sim) -> Vec<f32>;
+    /// Termination test before the physics; returns true when the episode ends
+    /// with this step (the step's physics still run).
+    fn pre_physics_done(&mut self, sim: &Sim) -> bool;
+    /// Bookkeeping after the physics of a step (modes, success).
+    fn post_physics(&mut self, sim: &Sim);
+    fn success(&self) -> bool;
+    /// Behaviour in the reference's encoding (vector, integer or string).
+    fn behaviour(&self) -> Value;
+    /// Behaviour label for the metrics, None for failures and unlabeled successes.
+    fn behaviour_key(&self) -> Option<String>;
+    /// Positions of the task's objects, for replay output and plots.
+    fn objects(&self, sim: &Sim) -> Vec<(String, [f64; 3])>;
+}
+
+/// A compiled task, shared read-only by all rollouts of an evaluation.
+#[derive(Clone)]
+pub struct LoadedTask {
+    pub def: Arc<dyn TaskDef>,
+    pub model: Arc<Model>,
+    pub ids: Arc<RobotIds>,
+    pub mjcf_sha256: String,
+}
+
+impl LoadedTask {
+    pub fn load(id: TaskId) -> Result<LoadedTask, TaskError> {
+        let def = task_def(id)?;
+        let scene = def.scene();
+        let model = Arc::new(scene.compile()?);
+        let ids = Arc::new(RobotIds::lookup(&model)?);
+        Ok(LoadedTask {
+            mjcf_sha256: scene.sha256(),
+            def,
+            model,
+            ids,
+        })
+    }
+
+    pub fn env(&self) -> Result<Env, TaskError> {
+        Env::new(self)
+    }
+}
+
+/// All tasks implemented in this build.
+pub fn task_def(id: TaskId) -> Result<Arc<dyn TaskDef>, TaskError> {
+    match id {
+        TaskId::Avoiding => Ok(Arc::new(avoiding::Avoiding)),
+        other => Err(TaskError::Unavailable(other)),
+    }
+}
+
+/// Result of one env step.
+#[derive(Debug, Clone)]
+pub struct StepOutcome {
+    /// The observation `step` returns: the state at which the action was issued (spec/01 §4.2).
+    pub obs: Vec<f32>,
+    pub done: bool,
+}
+
+/// One rollout: a simulation plus the task logic and the evaluation loop's
+/// bookkeeping (previous command, fixed z, step counter).
+pub struct Env {
+    pub sim: Sim,
+    def: Arc<dyn TaskDef>,
+    logic: Box<dyn TaskLogic>,
+    step_counter: usize,
+    finished: bool,
+    prev_cmd: Vec<f64>,
+    fixed_z: f64,
+    last_obs: Vec<f32>,
+}
+
+impl Env {
+    pub fn new(task: &LoadedTask) -> Result<Env, TaskError> {
+        let sim = Sim::new(task.model.clone(), task.ids.clone(), task.def.n_substeps())?;
+        Ok(Env {
+            sim,
+            logic: task.def.new_logic(&task.model)?,
+            def: task.def.clone(),
+            step_counter: 0,
+            finished: false,
+            prev_cmd: Vec::new(),
+            fixed_z: f64::NAN,
+            last_obs: Vec::new(),
+        })
+    }
+
+    /// Reset to `context` (spec/01 §4.4) and return the first observation.
+    pub fn reset(&mut self, context: &Value) -> Result<Vec<f32>, TaskError> {
+        self.logic = self.def.new_logic(self.sim.data.model())?;
+        self.logic
+            .reset(&mut self.sim, &self.def.init_qpos(), context)?;
+        self.step_counter = 0;
+        self.finished = false;
+        // spec/10 §1.7: d <- measured TCP after reset; z is frozen at its value.
+        self.fixed_z = self.sim.tcp_pos()[2];
+        self.prev_cmd = self.def.initial_command(&self.sim);
+        self.last_obs = self.logic.observe(&self.sim);
+        Ok(self.last_obs.clone())
+    }
+
+    /// The policy input: concat(previous command, last observation), float32.
+    pub fn policy_obs(&self) -> Vec<f32> {
+        let mut v: Vec<f32> = self.prev_cmd.iter().map(|&x| x as f32).collect();
+        v.extend_from_slice(&self.last_obs);
+        v
+    }
+
+    pub fn fixed_z(&self) -> f64 {
+        self.fixed_z
+    }
+
+    pub fn steps(&self) -> usize {
+        self.step_counter
+    }
+
+    pub fn is_done(&self) -> bool {
+        self.finished
+    }
+
+    /// One policy-level step: previous command + action -> command -> env step.
+    pub fn step(&mut self, action: &[f32]) -> Result<StepOutcome, TaskError> {
+        if self.finished {
+            return Err(TaskError::EpisodeOver);
+        }
+        let expected = self.def.act_dim();
+        if action.len() != expected {
+            return Err(TaskError::ActionWidth {
+                task: self.def.id(),
+                got: action.len(),
+                expected,
+                meaning: self.def.act_meaning(),
+            });
+        }
+        if let Some((index, &value)) = action.iter().enumerate().find(|(_, v)| !v.is_finite()) {
+            return Err(TaskError::NonFinite {
+                index,
+                value,
+                step: self.step_counter,
+            });
+        }
+        let (new_cmd, command) = self.def.command(&self.prev_cmd, action, self.fixed_z);
+        let outcome = self.env_step(command)?;
+        self.prev_cmd = new_cmd;
+        Ok(outcome)
+    }
+
+    /// The generic env step of spec/01 §4.2 with an absolute command.
+    pub fn env_step(&mut self, command: Command) -> Result<StepOutcome, TaskError> {
+        match command {
+            Command::Cartesian { pos, quat } => {
+                self.sim.fingers = FingerCommand::OPEN;
+                self.sim.set_cartesian_target(pos, quat);
+            }
+            Command::Joint { q, gripper } => {
+                // spec/01 §3.6: > 0.075 opens, otherwise close with constant squeeze.
+                self.sim.fingers = if gripper > 0.075 {
+                    FingerCommand::OPEN
+                } else {
+                    FingerCommand::CLOSE
+                };
+                self.sim.arm = crate::sim::ArmController::Joint(q);
+            }
+        }
+        // Observation and done BEFORE the physics (spec/01 §4.2 step 3).
+        let obs = self.logic.observe(&self.sim);
+        let early = self.logic.pre_physics_done(&self.sim);
+        let done = early || self.step_counter + 1 >= self.def.max_steps();
+        self.sim.step_physics()?;
+        self.step_counter += 1;
+        self.logic.post_physics(&self.sim);
+        self.finished = done;
+        self.last_obs = obs.clone();
+        Ok(StepOutcome { obs, done })
+    }
+
+    pub fn success(&self) -> bool {
+        self.logic.success()
+    }
+    pub fn behaviour(&self) -> Value {
+        self.logic.behaviour()
+    }
+    pub fn behaviour_key(&self) -> Option<String> {
+        self.logic.behaviour_key()
+    }
+    pub fn objects(&self) -> Vec<(String, [f64; 3])> {
+        self.logic.objects(&self.sim)
+    }
+    pub fn task(&self) -> TaskId {
+        self.def.id()
+    }
+    pub fn def(&self) -> &Arc<dyn TaskDef> {
+        &self.def
+    }
+}
+
+/// Default Cartesian command convention (spec/10 §1.7): previous desired xy +
+/// delta, z frozen at the post-reset TCP z, hand pointing down. The delta is
+/// float32 and added to the float64 previous command (spec/01 §7.12).
+pub fn xy_delta_command(prev: &[f64], action: &[f32], fixed_z: f64) -> (Vec<f64>, Command) {
+    let x = prev[0] + action[0] as f64;
+    let y = prev[1] + action[1] as f64;
+    (
+        vec![x, y],
+        Command::Cartesian {
+            pos: [x, y, fixed_z],
+            quat: QUAT_DOWN,
+        },
+    )
+}
+
+/// Position of a free-joint body (its qpos), spec/01 §5.
+pub fn free_body_pos(data: &Data, qpos_adr: usize) -> [f64; 3] {
+    let q = &data.qpos()[qpos_adr..qpos_adr + 3];
+    [q[0], q[1], q[2]]
+}
+
+/// Quaternion (wxyz) of a free-joint body.
+pub fn free_body_quat(data: &Data, qpos_adr: usize) -> [f64; 4] {
+    let q = &data.qpos()[qpos_adr + 3..qpos_adr + 7];
+    [q[0], q[1], q[2], q[3]]
+}
+
+/// Geom id of `<name>:geom`.
+pub fn geom_id(model: &Model, name: &str) -> Result<usize, TaskError> {
+    Ok(model.id(ObjKind::Geom, name)?)
+}

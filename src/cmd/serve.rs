@@ -1,0 +1,69 @@
+//! `d3il serve`: the leaderboard web service (pages, plots, JSON API, worker pool).
+
+use anyhow::Context;
+use std::net::SocketAddr;
+use std::path::PathBuf;
+
+#[derive(clap::Args, Debug)]
+pub struct Args {
+    /// SQLite database file (created and migrated if missing; the paper's
+    /// results are loaded on first start).
+    #[arg(long, default_value = "d3il.sqlite")]
+    pub db: PathBuf,
+    /// Address to listen on (port 0 picks a free port).
+    #[arg(long, default_value = "127.0.0.1:8080")]
+    pub bind: SocketAddr,
+    /// Concurrent evaluations (sandboxed worker processes); default: number of cores.
+    #[arg(long)]
+    pub workers: Option<usize>,
+    /// Project assets (MJCF, initial-state sets, CSS); default: $D3IL_ASSETS or the repository's assets/.
+    #[arg(long)]
+    pub assets: Option<PathBuf>,
+    /// Largest accepted upload, MiB.
+    #[arg(long, default_value_t = 256)]
+    pub max_upload_mb: usize,
+    /// Authenticated API requests per token per minute.
+    #[arg(long, default_value_t = 60)]
+    pub rate_limit: u32,
+    /// Attempts per evaluation before a crashing job fails.
+    #[arg(long, default_value_t = 3)]
+    pub max_attempts: i64,
+    /// Wall-clock limit of one evaluation, seconds.
+    #[arg(long, default_value_t = 3600)]
+    pub wall_seconds: u64,
+    /// Accept remote endpoints on loopback/private addresses (tests, trusted set-ups).
+    #[arg(long)]
+    pub allow_private_endpoints: bool,
+    /// Worker executable (default: this binary, run as `d3il worker`).
+    #[arg(long, hide = true)]
+    pub worker_exe: Option<PathBuf>,
+}
+
+pub fn run(args: Args) -> anyhow::Result<()> {
+    let exe = match args.worker_exe {
+        Some(p) => p,
+        None => std::env::current_exe().context("cannot find the d3il executable to start workers")?,
+    };
+    let mut cfg = d3il_server::app::ServerConfig::new(args.db, args.bind, exe);
+    if let Some(w) = args.workers {
+        cfg.workers = w;
+    }
+    if let Some(a) = args.assets {
+        cfg.assets_dir = a;
+    }
+    anyhow::ensure!(
+        cfg.assets_dir.is_dir(),
+        "assets directory {} does not exist; pass --assets or set D3IL_ASSETS",
+        cfg.assets_dir.display()
+    );
+    cfg.assets_dir = cfg.assets_dir.canonicalize().unwrap_or(cfg.assets_dir);
+    cfg.max_upload_bytes = args.max_upload_mb.max(1) << 20;
+    cfg.rate_limit_per_minute = args.rate_limit.max(1);
+    anyhow::ensure!(args.max_attempts >= 1, "--max-attempts must be at least 1");
+    cfg.max_attempts = args.max_attempts;
+    cfg.limits.wall_seconds = args.wall_seconds;
+    cfg.worker.wall_clock = std::time::Duration::from_secs(args.wall_seconds + 30);
+    cfg.limits.allow_private_endpoints = args.allow_private_endpoints;
+    d3il_server::cli::serve_blocking(cfg).context("d3il serve failed")?;
+    Ok(())
+}

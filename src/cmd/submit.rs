@@ -1,0 +1,125 @@
+//! `d3il submit`: submit a policy to a leaderboard server through its API.
+
+use anyhow::Context;
+use std::path::PathBuf;
+use std::time::Duration;
+
+#[derive(clap::Args, Debug)]
+pub struct Args {
+    /// Server root URL.
+    #[arg(long, default_value = "http://127.0.0.1:8080")]
+    pub server: String,
+    /// API token (or set D3IL_TOKEN).
+    #[arg(long)]
+    pub token: Option<String>,
+    /// Method name.
+    #[arg(long)]
+    pub method: String,
+    /// Task slug (avoiding, aligning, pushing, sorting-2/4/6, stacking, inserting).
+    #[arg(long)]
+    pub task: String,
+    #[arg(long, default_value = "state")]
+    pub obs_type: String,
+    #[arg(long)]
+    pub training_seed: i64,
+    #[arg(long, default_value_t = 1.0)]
+    pub data_fraction: f64,
+    /// `paper` (full protocol) or `quick` (smoke test).
+    #[arg(long, default_value = "paper")]
+    pub protocol: String,
+    /// ONNX policy file.
+    #[arg(long, conflicts_with = "endpoint")]
+    pub onnx: Option<PathBuf>,
+    /// Policy manifest JSON file (required with --onnx).
+    #[arg(long)]
+    pub manifest: Option<PathBuf>,
+    /// Remote policy endpoint URL (instead of --onnx).
+    #[arg(long)]
+    pub endpoint: Option<String>,
+    /// Method metadata.
+    #[arg(long)]
+    pub history: Option<u32>,
+    #[arg(long)]
+    pub backbone: Option<String>,
+    #[arg(long)]
+    pub prediction: Option<String>,
+    #[arg(long)]
+    pub diversity: Option<String>,
+    #[arg(long)]
+    pub code_url: Option<String>,
+    #[arg(long)]
+    pub paper_url: Option<String>,
+    /// Wait for the evaluation and print the result.
+    #[arg(long)]
+    pub wait: bool,
+    /// Give up waiting after this many seconds.
+    #[arg(long, default_value_t = 7200)]
+    pub timeout: u64,
+}
+
+pub fn run(a: Args) -> anyhow::Result<()> {
+    let token = match a.token.clone() {
+        Some(t) => t,
+        None => std::env::var("D3IL_TOKEN")
+            .context("give --token or set D3IL_TOKEN (mint one with `d3il token create --name <you>`)")?,
+    };
+    let client = d3il_server::client::Client::new(&a.server, Some(token))?;
+    let mut fields: Vec<(&str, String)> = vec![
+        ("method", a.method.clone()),
+        ("task", a.task.clone()),
+        ("obs_type", a.obs_type.clone()),
+        ("training_seed", a.training_seed.to_string()),
+        ("data_fraction", a.data_fraction.to_string()),
+        ("protocol", a.protocol.clone()),
+    ];
+    for (k, v) in [
+        ("history", a.history.map(|h| h.to_string())),
+        ("backbone", a.backbone.clone()),
+        ("prediction", a.prediction.clone()),
+        ("diversity", a.diversity.clone()),
+        ("code_url", a.code_url.clone()),
+        ("paper_url", a.paper_url.clone()),
+        ("endpoint_url", a.endpoint.clone()),
+    ] {
+        if let Some(v) = v {
+            fields.push((k, v));
+        }
+    }
+    if let Some(m) = &a.manifest {
+        let text = std::fs::read_to_string(m)
+            .with_context(|| format!("cannot read the manifest {}", m.display()))?;
+        fields.push(("manifest", text));
+    }
+    anyhow::ensure!(
+        a.onnx.is_some() || a.endpoint.is_some(),
+        "give --onnx FILE (with --manifest) or --endpoint URL"
+    );
+    let created = client.submit(&fields, a.onnx.as_deref())?;
+    let id = created["id"]
+        .as_i64()
+        .context("the server's answer has no submission id")?;
+    println!("submission {id} accepted: {}{}", a.server.trim_end_matches('/'), created["url"].as_str().unwrap_or(""));
+    if !a.wait {
+        return Ok(());
+    }
+    let mut last = String::new();
+    let done = client.wait(id, Duration::from_secs(a.timeout), |v| {
+        let line = format!(
+            "{} {}/{}",
+            v["status"].as_str().unwrap_or("?"),
+            v["progress"]["rollouts_done"],
+            v["progress"]["rollouts_total"]
+        );
+        if line != last {
+            eprintln!("{line}");
+            last = line;
+        }
+    })?;
+    println!("{}", serde_json::to_string_pretty(&done)?);
+    anyhow::ensure!(
+        done["status"] == "completed",
+        "the evaluation failed: {}",
+        done["error"]
+    );
+    Ok(())
+}
