@@ -48,7 +48,9 @@ impl Style {
 
 fn seeds(set: &BTreeSet<usize>) -> String {
     match (set.first(), set.last()) {
-        (Some(a), Some(b)) if a == b => format!("{a} training seed{}", if *a == 1 { "" } else { "s" }),
+        (Some(a), Some(b)) if a == b => {
+            format!("{a} training seed{}", if *a == 1 { "" } else { "s" })
+        }
         (Some(a), Some(b)) => format!("{a} to {b} training seeds"),
         _ => "no training seeds".to_string(),
     }
@@ -64,7 +66,12 @@ fn join_tasks(tasks: &[String]) -> String {
 
 /// The paper's protocol for the task families shown (spec: paper JSON `protocol`).
 fn protocol_list(m: &TableModel, style: Style) -> Vec<String> {
-    let shown: BTreeSet<u32> = m.facts.tasks.iter().filter_map(|t| task_number(t)).collect();
+    let shown: BTreeSet<u32> = m
+        .facts
+        .tasks
+        .iter()
+        .filter_map(|t| task_number(t))
+        .collect();
     let Some(obj) = m.facts.paper_protocol.as_object() else {
         return Vec::new();
     };
@@ -129,7 +136,9 @@ pub fn caption(m: &TableModel, style: Style) -> String {
     if !f.reported_seeds.is_empty() {
         let list = protocol_list(m, style);
         if list.is_empty() {
-            s.push("Reported rows are the numbers published by Jia et al. (ICLR 2024).".to_string());
+            s.push(
+                "Reported rows are the numbers published by Jia et al. (ICLR 2024).".to_string(),
+            );
         } else {
             s.push(format!(
                 "Reported rows are the numbers published by Jia et al. (ICLR 2024), measured with the paper's protocol: {}.",

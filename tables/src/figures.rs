@@ -183,7 +183,8 @@ fn marker<DB: DrawingBackend>(
         area.draw(&TriangleMarker::new(at, 5, s.colour.filled()))
             .map_err(pe)
     } else {
-        area.draw(&Circle::new(at, 3, s.colour.filled())).map_err(pe)
+        area.draw(&Circle::new(at, 3, s.colour.filled()))
+            .map_err(pe)
     }
 }
 
@@ -241,7 +242,8 @@ fn datasize(model: &TableModel) -> Result<String, TablesError> {
     let series = series_for(&rows, model.annotate_source());
     let tasks = model.facts.tasks.clone();
     // points[task][row] = [(fraction, success, entropy)]
-    let mut points: Vec<Vec<Vec<(f64, f64, f64)>>> = vec![vec![Vec::new(); rows.len()]; tasks.len()];
+    let mut points: Vec<Vec<Vec<(f64, f64, f64)>>> =
+        vec![vec![Vec::new(); rows.len()]; tasks.len()];
     for b in &model.blocks {
         for r in &b.rows {
             let Some(ri) = rows.iter().position(|o| same_row(o, r)) else {
@@ -423,7 +425,11 @@ fn pareto(model: &TableModel) -> Result<String, TablesError> {
                 let Some(p) = points[ti][ri] else { continue };
                 if s.evaluated {
                     chart
-                        .draw_series(std::iter::once(TriangleMarker::new(p, 6, s.colour.filled())))
+                        .draw_series(std::iter::once(TriangleMarker::new(
+                            p,
+                            6,
+                            s.colour.filled(),
+                        )))
                         .map_err(pe)?;
                 } else {
                     chart
@@ -436,6 +442,16 @@ fn pareto(model: &TableModel) -> Result<String, TablesError> {
         root.present().map_err(pe)?;
     }
     Ok(buf)
+}
+
+/// Axis tick text with one decimal and no `-0.0`.
+fn tick(v: &f64) -> String {
+    let s = format!("{v:.1}");
+    if s == "-0.0" {
+        "0.0".to_string()
+    } else {
+        s
+    }
 }
 
 /// Avoiding obstacles (spec/10 §2.1): centre (x, y) and radius.
@@ -475,16 +491,27 @@ pub fn render_avoiding_paths(
             });
         }
     }
-    // Behaviours in a stable order (compact JSON is deterministic).
-    let mut behaviours: BTreeMap<String, usize> = BTreeMap::new();
+    // Behaviours in a stable order: numeric codes (Avoiding's mode code)
+    // numerically, anything else by its compact JSON, which is deterministic.
+    let mut counts: BTreeMap<String, (usize, Option<f64>)> = BTreeMap::new();
     for (b, _) in paths {
-        *behaviours.entry(b.to_string()).or_default() += 1;
+        counts.entry(b.to_string()).or_insert((0, b.as_f64())).0 += 1;
     }
+    let mut behaviours: Vec<(String, usize, Option<f64>)> = counts
+        .into_iter()
+        .map(|(k, (c, num))| (k, c, num))
+        .collect();
+    behaviours.sort_by(|a, b| match (a.2, b.2) {
+        (Some(x), Some(y)) => x.total_cmp(&y).then_with(|| a.0.cmp(&b.0)),
+        (Some(_), None) => std::cmp::Ordering::Less,
+        (None, Some(_)) => std::cmp::Ordering::Greater,
+        (None, None) => a.0.cmp(&b.0),
+    });
     let n = behaviours.len();
     let colour_of: BTreeMap<&str, RGBColor> = behaviours
-        .keys()
+        .iter()
         .enumerate()
-        .map(|(i, k)| (k.as_str(), hue(i, n)))
+        .map(|(i, (k, _, _))| (k.as_str(), hue(i, n)))
         .collect();
 
     let (x0, x1, y0, y1) = (0.2f64, 0.85f64, -0.35f64, 0.42f64);
@@ -509,6 +536,8 @@ pub fn render_avoiding_paths(
             .configure_mesh()
             .x_desc("x (m)")
             .y_desc("y (m)")
+            .x_label_formatter(&tick)
+            .y_label_formatter(&tick)
             .label_style(font(11))
             .light_line_style(RGBColor(240, 240, 240))
             .draw()
@@ -551,7 +580,7 @@ pub fn render_avoiding_paths(
         let entries: Vec<Series> = behaviours
             .iter()
             .take(MAX_LEGEND_BEHAVIOURS)
-            .map(|(k, count)| Series {
+            .map(|(k, count, _)| Series {
                 label: format!("{k} ({count})"),
                 colour: colour_of[k.as_str()],
                 evaluated: false,
@@ -579,7 +608,14 @@ mod tests {
 
     #[test]
     fn pareto_front_keeps_only_undominated_points() {
-        let pts = [(0.1, 0.9), (0.5, 0.5), (0.4, 0.4), (0.9, 0.1), (0.5, 0.5), (0.2, 0.2)];
+        let pts = [
+            (0.1, 0.9),
+            (0.5, 0.5),
+            (0.4, 0.4),
+            (0.9, 0.1),
+            (0.5, 0.5),
+            (0.2, 0.2),
+        ];
         assert_eq!(pareto_front(&pts), vec![(0.1, 0.9), (0.5, 0.5), (0.9, 0.1)]);
     }
 

@@ -441,8 +441,13 @@ fn control_rank(control: Option<&str>) -> u8 {
 }
 
 /// Groups per block as (task, data fraction).
-fn block_layout(kind: TableKind, obs: ObsType, selected: &[&ResultCell]) -> Vec<Vec<(String, f64)>> {
-    let present: BTreeSet<(u32, String)> = selected.iter().map(|c| task_sort_key(&c.task)).collect();
+fn block_layout(
+    kind: TableKind,
+    obs: ObsType,
+    selected: &[&ResultCell],
+) -> Vec<Vec<(String, f64)>> {
+    let present: BTreeSet<(u32, String)> =
+        selected.iter().map(|c| task_sort_key(&c.task)).collect();
     let present_tasks: Vec<String> = present.into_iter().map(|(_, t)| t).collect();
     let chunk = |tasks: &[String]| -> Vec<Vec<(String, f64)>> {
         tasks
@@ -618,11 +623,21 @@ mod tests {
         assert_eq!(task_number("Sorting-4 (T4)"), Some(4));
         assert_eq!(task_number("Arranging (T7)"), Some(7));
         assert_eq!(task_number("Whatever"), None);
-        let mut t = vec!["Stacking-2 (T5)", "Avoiding (T1)", "Sorting-6 (T4)", "Sorting-2 (T4)"];
+        let mut t = vec![
+            "Stacking-2 (T5)",
+            "Avoiding (T1)",
+            "Sorting-6 (T4)",
+            "Sorting-2 (T4)",
+        ];
         t.sort_by_key(|t| task_sort_key(t));
         assert_eq!(
             t,
-            ["Avoiding (T1)", "Sorting-2 (T4)", "Sorting-6 (T4)", "Stacking-2 (T5)"]
+            [
+                "Avoiding (T1)",
+                "Sorting-2 (T4)",
+                "Sorting-6 (T4)",
+                "Stacking-2 (T5)"
+            ]
         );
     }
 }
