@@ -155,7 +155,7 @@ pub(crate) fn format_bytes(b: u64) -> String {
     const GIB: u64 = 1 << 30;
     const MIB: u64 = 1 << 20;
     const KIB: u64 = 1 << 10;
-    if b >= GIB && b % (GIB / 4) == 0 {
+    if b >= GIB && b.is_multiple_of(GIB / 4) {
         format!("{} GiB", fmt_frac(b as f64 / GIB as f64))
     } else if b >= MIB {
         format!("{} MiB", fmt_frac(b as f64 / MIB as f64))

@@ -176,13 +176,16 @@ pub fn run_worker(
     let mut final_msg: Option<Outcome> = None;
     let mut violation: Option<String> = None;
     let mut timed_out = false;
+    let mut leader_exited = false;
     loop {
         let now = Instant::now();
         if now >= deadline {
             timed_out = true;
             break;
         }
-        match rx.recv_timeout(deadline - now) {
+        // Wake up regularly to notice the worker's exit even if something it left
+        // behind keeps its stdout open.
+        match rx.recv_timeout((deadline - now).min(Duration::from_millis(50))) {
             Ok(Event::Message(m)) => match *m {
                 WorkerMessage::Sandbox { mechanisms: m } => mechanisms = m,
                 WorkerMessage::Progress {
@@ -214,8 +217,12 @@ pub fn run_worker(
             }
             Ok(Event::Eof) | Err(RecvTimeoutError::Disconnected) => break,
             Err(RecvTimeoutError::Timeout) => {
-                timed_out = true;
-                break;
+                if !leader_exited && has_exited(pid) {
+                    // Whatever is still in the pipe stays readable; killing the
+                    // rest of the group closes the last writers so EOF comes.
+                    leader_exited = true;
+                    kill_group(pid);
+                }
             }
         }
     }
@@ -281,21 +288,28 @@ fn kill_group(pid: libc::pid_t) {
     }
 }
 
+/// Whether the worker has exited, without reaping it (its pid keeps naming the
+/// process group until we reap it).
+fn has_exited(pid: libc::pid_t) -> bool {
+    // SAFETY: zeroed siginfo is a valid out-parameter for waitid.
+    let mut info: libc::siginfo_t = unsafe { std::mem::zeroed() };
+    // SAFETY: valid pointer to a local.
+    let rc = unsafe {
+        libc::waitid(
+            libc::P_PID,
+            pid as libc::id_t,
+            &mut info,
+            libc::WEXITED | libc::WNOWAIT | libc::WNOHANG,
+        )
+    };
+    // SAFETY: si_pid is valid to read after waitid.
+    rc != 0 || unsafe { info.si_pid() } != 0
+}
+
 /// Wait (without reaping) until the worker has exited or the deadline passed.
 fn wait_exited(pid: libc::pid_t, deadline: Instant) -> bool {
     loop {
-        // SAFETY: zeroed siginfo is a valid out-parameter for waitid.
-        let mut info: libc::siginfo_t = unsafe { std::mem::zeroed() };
-        let rc = unsafe {
-            libc::waitid(
-                libc::P_PID,
-                pid as libc::id_t,
-                &mut info,
-                libc::WEXITED | libc::WNOWAIT | libc::WNOHANG,
-            )
-        };
-        // SAFETY: si_pid is valid to read for waitid results.
-        if rc != 0 || unsafe { info.si_pid() } != 0 {
+        if has_exited(pid) {
             return true;
         }
         if Instant::now() >= deadline {

@@ -1,0 +1,114 @@
+//! Helpers shared by the sandbox's integration tests: jobs for the self-test
+//! child, and a /proc scan for processes left in a worker's process group.
+#![allow(dead_code)]
+
+use d3il_protocol::{Job, Limits, ObsType, PolicyManifest, PolicySource, TaskId};
+use d3il_sandbox::{run_worker, Outcome, WorkerCommand, WorkerRun};
+use std::path::PathBuf;
+use std::time::Duration;
+
+pub fn assets_dir() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../assets")
+}
+
+pub fn limits() -> Limits {
+    Limits {
+        memory_bytes: 512 << 20,
+        cpu_seconds: 30,
+        wall_seconds: 60,
+        open_files: 64,
+        file_size_bytes: 1 << 20,
+        remote_deadline_ms: 2000,
+        remote_frame_bytes: 1 << 20,
+        allow_private_endpoints: false,
+    }
+}
+
+pub fn job(policy: PolicySource, limits: Limits) -> Job {
+    Job {
+        job_id: "selftest".into(),
+        task: TaskId::Avoiding,
+        protocol: Default::default(),
+        policy,
+        manifest: PolicyManifest {
+            task: TaskId::Avoiding,
+            obs_type: ObsType::State,
+            history: 1,
+            horizon: 1,
+            execute: 1,
+            normalisation: None,
+        },
+        seed: 7,
+        limits,
+        assets_dir: assets_dir().display().to_string(),
+    }
+}
+
+pub fn scripted() -> PolicySource {
+    PolicySource::Scripted {
+        name: "selftest".into(),
+    }
+}
+
+pub fn selftest_command(mode: &str, wall: Duration) -> WorkerCommand {
+    WorkerCommand {
+        exe: PathBuf::from(env!("CARGO_BIN_EXE_d3il-sandbox-selftest")),
+        args: vec![mode.to_string()],
+        wall_clock: wall,
+        max_output_bytes: 1 << 20,
+    }
+}
+
+/// Run a self-test mode; also asserts that nothing of the worker is left running.
+pub fn run_mode(mode: &str, job: &Job, wall: Duration) -> (WorkerRun, Vec<(usize, usize)>) {
+    let mut seen = Vec::new();
+    let run = run_worker(&selftest_command(mode, wall), job, &mut |d, t| {
+        seen.push((d, t))
+    });
+    assert_no_stray(&run);
+    (run, seen)
+}
+
+pub fn assert_no_stray(run: &WorkerRun) {
+    assert!(run.pid > 0, "worker was not started: {:?}", run.outcome);
+    let left = group_members(run.pid as i32);
+    assert!(
+        left.is_empty(),
+        "processes left in the worker's group {}: {left:?}",
+        run.pid
+    );
+}
+
+/// Pids of live (not zombie) processes whose process group is `pgid`.
+pub fn group_members(pgid: i32) -> Vec<i32> {
+    let mut out = Vec::new();
+    let Ok(dir) = std::fs::read_dir("/proc") else {
+        return out;
+    };
+    for e in dir.flatten() {
+        let Ok(pid) = e.file_name().to_string_lossy().parse::<i32>() else {
+            continue;
+        };
+        let Ok(stat) = std::fs::read_to_string(format!("/proc/{pid}/stat")) else {
+            continue;
+        };
+        // "pid (comm) state ppid pgrp ..." — comm may contain spaces.
+        let Some(rest) = stat.rfind(')').map(|i| &stat[i + 1..]) else {
+            continue;
+        };
+        let f: Vec<&str> = rest.split_whitespace().collect();
+        if f.len() > 2 && f[2].parse::<i32>() == Ok(pgid) && f[0] != "Z" {
+            out.push(pid);
+        }
+    }
+    out
+}
+
+pub fn expect_failed(run: &WorkerRun) -> &d3il_protocol::WorkerError {
+    match &run.outcome {
+        Outcome::Failed(e) => e,
+        Outcome::Completed(_) => {
+            panic!("expected a failure, got a result (stderr: {})", run.stderr)
+        }
+    }
+}
