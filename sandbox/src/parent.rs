@@ -170,6 +170,9 @@ pub fn run_worker(
     }
     // We reap the child ourselves (wait4, for rusage); std must not.
     drop(child);
+    // If anything below unwinds (a panicking on_progress), the worker group is
+    // still killed and reaped.
+    let mut guard = ReapGuard { pid, armed: true };
 
     let mut mechanisms = Vec::new();
     let mut progress: Option<(usize, usize)> = None;
@@ -240,6 +243,7 @@ pub fn run_worker(
     // names the group, cannot have been reused.
     kill_group(pid);
     let (status, cpu) = reap(pid);
+    guard.armed = false;
     // stderr ends when the last writer is gone; give a moment for the tail.
     let _ = stderr_done.recv_timeout(Duration::from_secs(2));
     let stderr = stderr_tail.lock().map(|t| t.text()).unwrap_or_default();
@@ -278,6 +282,20 @@ pub fn run_worker(
         mechanisms,
         stderr,
         pid: pid as u32,
+    }
+}
+
+struct ReapGuard {
+    pid: libc::pid_t,
+    armed: bool,
+}
+
+impl Drop for ReapGuard {
+    fn drop(&mut self) {
+        if self.armed {
+            kill_group(self.pid);
+            reap(self.pid);
+        }
     }
 }
 

@@ -360,3 +360,78 @@ fn a_missing_worker_executable_is_an_internal_error() {
     assert_eq!(e.kind, ErrorKind::Internal);
     assert!(e.message.contains("/nonexistent/d3il"), "{}", e.message);
 }
+
+#[test]
+fn check_sandbox_reports_every_mechanism_and_every_probe_stopped() {
+    let out = Command::new(env!("CARGO_BIN_EXE_d3il-sandbox-selftest"))
+        .args(["check-sandbox", &assets_dir().display().to_string()])
+        .stdin(Stdio::null())
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let ms: Vec<d3il_protocol::SandboxMechanism> = serde_json::from_slice(&out.stdout).unwrap();
+    let names: Vec<&str> = ms.iter().map(|m| m.name.as_str()).collect();
+    for n in d3il_sandbox::confine::names::ALL {
+        assert!(names.contains(&n), "{n} missing from {names:?}");
+    }
+    for p in [
+        "probe:tcp-connect-127.0.0.1",
+        "probe:fork",
+        "probe:exec",
+        "probe:write-tmp",
+        "probe:read-etc-passwd",
+        "probe:signal-parent",
+        "probe:read-assets",
+        "probe:threads",
+    ] {
+        let m = ms
+            .iter()
+            .find(|m| m.name == p)
+            .unwrap_or_else(|| panic!("{p} missing"));
+        assert!(m.active, "{p}: {}", m.detail);
+    }
+}
+
+fn pids_with_arg(tag: &str) -> Vec<i32> {
+    std::fs::read_dir("/proc")
+        .unwrap()
+        .flatten()
+        .filter_map(|e| e.file_name().to_string_lossy().parse::<i32>().ok())
+        .filter(|pid| {
+            std::fs::read(format!("/proc/{pid}/cmdline"))
+                .map(|c| c.split(|&b| b == 0).any(|a| a == tag.as_bytes()))
+                .unwrap_or(false)
+        })
+        .collect()
+}
+
+#[test]
+fn a_panicking_progress_callback_still_cleans_up_the_worker() {
+    // A unique extra argument (ignored by the child) to find this test's worker.
+    let tag = format!("--tag=panic-cleanup-{}", std::process::id());
+    let mut cmd = selftest_command("progress-then-alloc", WALL);
+    cmd.args.push(tag.clone());
+    let job = job(scripted(), limits());
+    let mut seen_alive = Vec::new();
+    let r = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+        d3il_sandbox::run_worker(&cmd, &job, &mut |_, _| {
+            seen_alive = pids_with_arg(&tag);
+            panic!("the caller's progress handler failed");
+        })
+    }));
+    assert!(r.is_err(), "the panic propagates to the caller");
+    assert_eq!(
+        seen_alive.len(),
+        1,
+        "the worker was running during the callback"
+    );
+    assert!(
+        pids_with_arg(&tag).is_empty(),
+        "the worker survived the caller's panic"
+    );
+    assert!(group_members(seen_alive[0]).is_empty());
+}

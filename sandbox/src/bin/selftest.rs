@@ -11,6 +11,20 @@ fn main() {
             opts.require = r.split(',').map(str::to_string).collect();
         }
     }
+    if mode == "check-sandbox" {
+        // What `d3il worker --check-sandbox` does, as JSON.
+        let assets = args.get(1).map(String::as_str).unwrap_or("assets");
+        match d3il_sandbox::check_sandbox(std::path::Path::new(assets)) {
+            Ok(m) => {
+                println!("{}", serde_json::to_string(&m).unwrap_or_default());
+                std::process::exit(0);
+            }
+            Err(e) => {
+                eprintln!("{e}");
+                std::process::exit(d3il_protocol::exit_code::SANDBOX_FAILED);
+            }
+        }
+    }
     if let Some(code) = d3il_sandbox::selftest::before_worker(&mode) {
         std::process::exit(code);
     }
