@@ -1,1 +1,530 @@
-//! d3il-metrics (placeholder; owned by its issue).
+//! D3IL metrics as pure functions over per-rollout outcomes.
+//!
+//! The reference code computes the "entropy" differently per task, and the
+//! leaderboard reproduces each variant exactly (see [`EntropyConvention`]):
+//!
+//! * Avoiding (spec/10 §2.6): one start state; entropy over the codes of all
+//!   successful rollouts, `-Σ p ln p / ln 24`, no numerical guard, every observed
+//!   code counted (codes with a missed row are separate behaviours).
+//! * Aligning, Pushing (spec/10 §3.6, §4.6): per context
+//!   `p = k / (Σk + N·1e-12)`, `H_c = -Σ p ln(p + 1e-12) / ln|B|`, averaged over
+//!   **all** contexts; contexts without a (labelled) success contribute 0.
+//! * Sorting, Stacking (spec/11 §6) and Inserting (spec/11 §3.6, assumed like
+//!   Stacking-3): same per-context formula, but contexts without a counted success
+//!   are **dropped** from the average.
+//!
+//! Unlabeled successes (`behaviour == None`, e.g. Pushing's mode −1 or a Sorting
+//! code outside the mode set) count for the success rate but for no behaviour bin.
+//!
+//! Seed aggregation uses the **sample** standard deviation (ddof = 1): the paper's
+//! Avoiding rows (BC-MLP 0.666 ± 0.512, BC-GPT 0.833 ± 0.408 over 6 seeds) exceed
+//! the largest population std a mean of values in [0, 1] allows (0.472, 0.373)
+//! and match the sample std (BC-GPT: five seeds at 1, one at 0 → 0.408).
+
+use d3il_protocol::{ContextResult, Estimate, Metrics, Stat, TaskId};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use std::collections::BTreeMap;
+
+/// What one rollout produced, as the metrics need it.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Outcome {
+    /// Index of the fixed initial state (0 for Avoiding).
+    pub context_index: usize,
+    /// Final success flag (Stacking: the full three-box stack, "Stacking-3").
+    pub success: bool,
+    /// Behaviour label in the reference encoding as a string key; `None` for a
+    /// success the reference puts in no behaviour bin. Stacking: the letters
+    /// `r`/`g`/`b` of the boxes registered so far, in order (spec/11 §2.6), e.g.
+    /// `"gbr"`, `"g"`, or `None`/`""` when none registered.
+    pub behaviour: Option<String>,
+}
+
+impl Outcome {
+    pub fn new(context_index: usize, success: bool, behaviour: Option<&str>) -> Self {
+        Outcome {
+            context_index,
+            success,
+            behaviour: behaviour.map(str::to_string),
+        }
+    }
+}
+
+#[derive(Debug, thiserror::Error, PartialEq)]
+pub enum MetricsError {
+    #[error("no rollout outcomes were given; an evaluation needs at least one rollout")]
+    NoOutcomes,
+    #[error(
+        "the entropy log base |B| is {0}; it must be at least 2 (number of behaviours of the task)"
+    )]
+    BadBehaviourCount(usize),
+    #[error("stacking behaviour `{label}` of rollout {rollout} (context {context}) is not a registration order; expected up to three distinct letters from r, g, b (e.g. `gbr`)")]
+    BadStackingLabel {
+        label: String,
+        rollout: usize,
+        context: usize,
+    },
+    #[error("bootstrap confidence level {0} is outside (0, 1); use e.g. 0.95")]
+    BadConfidence(f64),
+    #[error("seed aggregation needs at least one value")]
+    NoSeeds,
+}
+
+/// How contexts without any labelled success enter the conditional entropy.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum EmptyContexts {
+    /// Counted with H_c = 0 (Avoiding, Aligning, Pushing; spec/10 §6.3).
+    CountAsZero,
+    /// Dropped from the average (Sorting, Stacking, Inserting; spec/11 §6).
+    Drop,
+}
+
+/// The reference's per-task way of computing the conditional entropy.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct EntropyConvention {
+    /// Log base |B|.
+    pub n_behaviours: usize,
+    pub empty_contexts: EmptyContexts,
+    /// Whether the reference's 1e-12 guards are applied
+    /// (`p = k/(Σk + N·1e-12)`, `ln(p + 1e-12)`); Avoiding's code has none.
+    pub reference_guard: bool,
+}
+
+impl EntropyConvention {
+    /// The convention the reference uses for `task` (for Stacking: Stacking-3,
+    /// see [`stacking_levels`] for the other two levels).
+    pub fn for_task(task: TaskId) -> Self {
+        let n_behaviours = task.n_behaviours();
+        match task {
+            TaskId::Avoiding => EntropyConvention {
+                n_behaviours,
+                empty_contexts: EmptyContexts::CountAsZero,
+                reference_guard: false,
+            },
+            TaskId::Aligning | TaskId::Pushing => EntropyConvention {
+                n_behaviours,
+                empty_contexts: EmptyContexts::CountAsZero,
+                reference_guard: true,
+            },
+            TaskId::Sorting2
+            | TaskId::Sorting4
+            | TaskId::Sorting6
+            | TaskId::Stacking
+            | TaskId::Inserting => EntropyConvention {
+                n_behaviours,
+                empty_contexts: EmptyContexts::Drop,
+                reference_guard: true,
+            },
+        }
+    }
+
+    fn check(&self) -> Result<(), MetricsError> {
+        if self.n_behaviours < 2 {
+            return Err(MetricsError::BadBehaviourCount(self.n_behaviours));
+        }
+        Ok(())
+    }
+}
+
+/// Fraction of successful rollouts over all rollouts (failures and timeouts are 0).
+pub fn success_rate(outcomes: &[Outcome]) -> f64 {
+    if outcomes.is_empty() {
+        return 0.0;
+    }
+    outcomes.iter().filter(|o| o.success).count() as f64 / outcomes.len() as f64
+}
+
+/// Counts of each behaviour label among the labelled successful rollouts.
+pub fn behaviour_counts<'a>(
+    outcomes: impl IntoIterator<Item = &'a Outcome>,
+) -> BTreeMap<String, usize> {
+    let mut counts = BTreeMap::new();
+    for o in outcomes {
+        if let (true, Some(b)) = (o.success, &o.behaviour) {
+            *counts.entry(b.clone()).or_insert(0) += 1;
+        }
+    }
+    counts
+}
+
+/// H(π(β)): entropy of the behaviour distribution pooled over all labelled
+/// successful rollouts, log base `n_behaviours`; 0 without any.
+/// Equals the reference's Avoiding entropy (spec/10 §2.6); the reference computes
+/// no marginal entropy for the other tasks, this is the natural pooling
+/// (spec/11 §6 last item).
+pub fn behaviour_entropy(outcomes: &[Outcome], n_behaviours: usize) -> Result<f64, MetricsError> {
+    if n_behaviours < 2 {
+        return Err(MetricsError::BadBehaviourCount(n_behaviours));
+    }
+    let counts = behaviour_counts(outcomes);
+    let total: usize = counts.values().sum();
+    if total == 0 {
+        return Ok(0.0);
+    }
+    let ln_b = (n_behaviours as f64).ln();
+    let h: f64 = counts
+        .values()
+        .map(|&n| {
+            let p = n as f64 / total as f64;
+            -p * p.ln()
+        })
+        .sum();
+    Ok(h / ln_b)
+}
+
+/// Entropy of one context as the reference computes it; `None` when the context
+/// has no labelled success (the caller's [`EmptyContexts`] rule decides).
+fn context_entropy(
+    counts: &BTreeMap<String, usize>,
+    n_rollouts: usize,
+    conv: &EntropyConvention,
+) -> Option<f64> {
+    let k: usize = counts.values().sum();
+    if k == 0 {
+        return None;
+    }
+    let ln_b = (conv.n_behaviours as f64).ln();
+    let h: f64 = if conv.reference_guard {
+        // (k/N) / (Σk/N + 1e-12), then -p ln(p + 1e-12): spec/10 §3.6, spec/11 §6.
+        let n = n_rollouts as f64;
+        let denom = k as f64 / n + 1e-12;
+        counts
+            .values()
+            .map(|&c| {
+                let p = (c as f64 / n) / denom;
+                -p * (p + 1e-12).ln()
+            })
+            .sum()
+    } else {
+        counts
+            .values()
+            .map(|&c| {
+                let p = c as f64 / k as f64;
+                -p * p.ln()
+            })
+            .sum()
+    };
+    Some(h / ln_b)
+}
+
+/// Outcomes grouped by context index (ascending).
+fn by_context(outcomes: &[Outcome]) -> BTreeMap<usize, Vec<&Outcome>> {
+    let mut m: BTreeMap<usize, Vec<&Outcome>> = BTreeMap::new();
+    for o in outcomes {
+        m.entry(o.context_index).or_default().push(o);
+    }
+    m
+}
+
+fn conditional_from_groups<'a>(
+    groups: impl Iterator<Item = &'a [&'a Outcome]>,
+    conv: &EntropyConvention,
+) -> f64 {
+    let mut sum = 0.0;
+    let mut n = 0usize;
+    for g in groups {
+        match context_entropy(&behaviour_counts(g.iter().copied()), g.len(), conv) {
+            Some(h) => {
+                sum += h;
+                n += 1;
+            }
+            None => {
+                if conv.empty_contexts == EmptyContexts::CountAsZero {
+                    n += 1;
+                }
+            }
+        }
+    }
+    if n == 0 {
+        0.0
+    } else {
+        sum / n as f64
+    }
+}
+
+/// E_s0[H(π(β|s0))] exactly as the reference computes it for the convention.
+pub fn conditional_entropy(
+    outcomes: &[Outcome],
+    conv: &EntropyConvention,
+) -> Result<f64, MetricsError> {
+    conv.check()?;
+    let groups = by_context(outcomes);
+    Ok(conditional_from_groups(
+        groups.values().map(|v| v.as_slice()),
+        conv,
+    ))
+}
+
+/// Per-context breakdown: success rate, the context's entropy (0 when it has no
+/// labelled success) and its behaviour counts among successful rollouts.
+pub fn per_context(
+    outcomes: &[Outcome],
+    conv: &EntropyConvention,
+) -> Result<Vec<ContextResult>, MetricsError> {
+    conv.check()?;
+    Ok(by_context(outcomes)
+        .into_iter()
+        .map(|(c, g)| {
+            let counts = behaviour_counts(g.iter().copied());
+            let successes = g.iter().filter(|o| o.success).count();
+            ContextResult {
+                context_index: c,
+                success_rate: successes as f64 / g.len() as f64,
+                conditional_entropy: context_entropy(&counts, g.len(), conv).unwrap_or(0.0),
+                behaviours: counts.into_iter().collect(),
+            }
+        })
+        .collect())
+}
+
+/// The three Stacking levels (spec/11 §2.5–2.7): level X ∈ {1, 2, 3} is a success
+/// when at least X boxes registered (X = 1, 2, sticky proximity events) or on the
+/// full stack (X = 3); its behaviour is the first X letters of the registration
+/// order, log base 3 / 6 / 6. A rollout with fewer than X letters gets code 0
+/// (`r`, `rg`, `rgb`) like the reference (spec/11 §2.6); this only matters for a
+/// full-stack success with fewer than three registrations.
+pub fn stacking_levels(
+    outcomes: &[Outcome],
+) -> Result<[(Vec<Outcome>, EntropyConvention); 3], MetricsError> {
+    for (i, o) in outcomes.iter().enumerate() {
+        let s = o.behaviour.as_deref().unwrap_or("");
+        let mut seen = [false; 3];
+        let ok = s.len() <= 3
+            && s.chars().all(|ch| {
+                let idx = match ch {
+                    'r' => 0,
+                    'g' => 1,
+                    'b' => 2,
+                    _ => return false,
+                };
+                !std::mem::replace(&mut seen[idx], true)
+            });
+        if !ok {
+            return Err(MetricsError::BadStackingLabel {
+                label: s.to_string(),
+                rollout: i,
+                context: o.context_index,
+            });
+        }
+    }
+    let level = |x: usize| -> (Vec<Outcome>, EntropyConvention) {
+        let code0 = &"rgb"[..x];
+        let v = outcomes
+            .iter()
+            .map(|o| {
+                let s = o.behaviour.as_deref().unwrap_or("");
+                let success = if x == 3 { o.success } else { s.len() >= x };
+                let label = if s.len() >= x { &s[..x] } else { code0 };
+                Outcome {
+                    context_index: o.context_index,
+                    success,
+                    behaviour: Some(label.to_string()),
+                }
+            })
+            .collect();
+        let conv = EntropyConvention {
+            n_behaviours: if x == 1 { 3 } else { 6 },
+            empty_contexts: EmptyContexts::Drop,
+            reference_guard: true,
+        };
+        (v, conv)
+    };
+    Ok([level(1), level(2), level(3)])
+}
+
+/// Bootstrap settings for confidence intervals over initial states.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Bootstrap {
+    pub resamples: usize,
+    /// Two-sided confidence level, e.g. 0.95.
+    pub confidence: f64,
+    pub seed: u64,
+}
+
+impl Default for Bootstrap {
+    fn default() -> Self {
+        Bootstrap {
+            resamples: 1000,
+            confidence: 0.95,
+            seed: 0,
+        }
+    }
+}
+
+/// Percentile bootstrap of `stat` over initial states: contexts are drawn with
+/// replacement (each draw a separate context even if drawn twice) and `stat`
+/// recomputed. With a single initial state (Avoiding) the rollouts are resampled
+/// instead, since resampling one context would give a zero-width interval.
+/// Deterministic for a given seed (ChaCha8, portable).
+pub fn bootstrap<F>(
+    outcomes: &[Outcome],
+    cfg: &Bootstrap,
+    stat: F,
+) -> Result<Estimate, MetricsError>
+where
+    F: Fn(&[Outcome]) -> Result<f64, MetricsError>,
+{
+    if outcomes.is_empty() {
+        return Err(MetricsError::NoOutcomes);
+    }
+    if !(cfg.confidence > 0.0 && cfg.confidence < 1.0) {
+        return Err(MetricsError::BadConfidence(cfg.confidence));
+    }
+    let value = stat(outcomes)?;
+    if cfg.resamples == 0 {
+        return Ok(Estimate {
+            value,
+            ci_low: value,
+            ci_high: value,
+        });
+    }
+    let groups: Vec<Vec<Outcome>> = by_context(outcomes)
+        .into_values()
+        .map(|g| g.into_iter().cloned().collect())
+        .collect();
+    // Units of resampling: contexts, or single rollouts when there is only one.
+    let single_context = groups.len() == 1;
+    let units: Vec<Vec<Outcome>> = if single_context {
+        outcomes.iter().map(|o| vec![o.clone()]).collect()
+    } else {
+        groups
+    };
+    let mut rng = ChaCha8Rng::seed_from_u64(cfg.seed);
+    let mut stats = Vec::with_capacity(cfg.resamples);
+    let mut sample: Vec<Outcome> = Vec::with_capacity(outcomes.len());
+    for _ in 0..cfg.resamples {
+        sample.clear();
+        for draw in 0..units.len() {
+            // u64 range keeps the stream identical on 32- and 64-bit hosts.
+            let pick = rng.random_range(0..units.len() as u64) as usize;
+            for o in &units[pick] {
+                let mut o = o.clone();
+                if !single_context {
+                    // Renumber so a context drawn twice counts as two contexts.
+                    o.context_index = draw;
+                }
+                sample.push(o);
+            }
+        }
+        stats.push(stat(&sample)?);
+    }
+    stats.sort_by(f64::total_cmp);
+    let alpha = (1.0 - cfg.confidence) / 2.0;
+    Ok(Estimate {
+        value,
+        ci_low: percentile(&stats, alpha),
+        ci_high: percentile(&stats, 1.0 - alpha),
+    })
+}
+
+/// Linear-interpolation percentile of sorted data (numpy's default method).
+fn percentile(sorted: &[f64], q: f64) -> f64 {
+    let pos = q * (sorted.len() - 1) as f64;
+    let lo = pos.floor() as usize;
+    let hi = pos.ceil() as usize;
+    sorted[lo] + (sorted[hi] - sorted[lo]) * (pos - lo as f64)
+}
+
+/// Everything one evaluation reports.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Evaluation {
+    pub metrics: Metrics,
+    pub per_context: Vec<ContextResult>,
+    /// Stacking only: Stacking-1/2/3 success rate and conditional entropy each
+    /// (the protocol's `Metrics` has room for the three rates only).
+    pub stacking_levels: Option<[StackingLevel; 3]>,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct StackingLevel {
+    pub success_rate: Estimate,
+    pub conditional_entropy: Estimate,
+    pub behaviour_entropy: Estimate,
+}
+
+/// Build the protocol's [`Metrics`] and per-context breakdown for one evaluation.
+/// For Stacking, `success_rate`/entropies in `Metrics` are Stacking-3's and
+/// `stacking` holds the three rates; see [`Outcome::behaviour`] for the encoding.
+pub fn evaluate(
+    task: TaskId,
+    outcomes: &[Outcome],
+    inference_ms: f64,
+    cfg: &Bootstrap,
+) -> Result<Evaluation, MetricsError> {
+    if outcomes.is_empty() {
+        return Err(MetricsError::NoOutcomes);
+    }
+    if task == TaskId::Stacking {
+        let levels = stacking_levels(outcomes)?;
+        let mut out = Vec::with_capacity(3);
+        for (x, (lv, conv)) in levels.iter().enumerate() {
+            // Distinct bootstrap streams per level and metric keep them independent
+            // yet reproducible.
+            let c = |k: u64| Bootstrap {
+                seed: cfg.seed.wrapping_add(10 * x as u64 + k),
+                ..*cfg
+            };
+            out.push(StackingLevel {
+                success_rate: bootstrap(lv, &c(0), |o| Ok(success_rate(o)))?,
+                conditional_entropy: bootstrap(lv, &c(1), |o| conditional_entropy(o, conv))?,
+                behaviour_entropy: bootstrap(lv, &c(2), |o| {
+                    behaviour_entropy(o, conv.n_behaviours)
+                })?,
+            });
+        }
+        let levels_arr = [out[0], out[1], out[2]];
+        let top = levels_arr[2];
+        return Ok(Evaluation {
+            metrics: Metrics {
+                success_rate: top.success_rate,
+                behaviour_entropy: top.behaviour_entropy,
+                conditional_entropy: top.conditional_entropy,
+                stacking: Some([
+                    levels_arr[0].success_rate.value,
+                    levels_arr[1].success_rate.value,
+                    levels_arr[2].success_rate.value,
+                ]),
+                inference_ms,
+            },
+            per_context: per_context(&levels[2].0, &levels[2].1)?,
+            stacking_levels: Some(levels_arr),
+        });
+    }
+    let conv = EntropyConvention::for_task(task);
+    let c = |k: u64| Bootstrap {
+        seed: cfg.seed.wrapping_add(k),
+        ..*cfg
+    };
+    Ok(Evaluation {
+        metrics: Metrics {
+            success_rate: bootstrap(outcomes, &c(0), |o| Ok(success_rate(o)))?,
+            behaviour_entropy: bootstrap(outcomes, &c(1), |o| {
+                behaviour_entropy(o, conv.n_behaviours)
+            })?,
+            conditional_entropy: bootstrap(outcomes, &c(2), |o| conditional_entropy(o, &conv))?,
+            stacking: None,
+            inference_ms,
+        },
+        per_context: per_context(outcomes, &conv)?,
+        stacking_levels: None,
+    })
+}
+
+/// Mean and **sample** standard deviation (ddof = 1) over training seeds, as the
+/// paper reports them (see the crate docs for the evidence). One seed → std 0.
+pub fn aggregate_seeds(values: &[f64]) -> Result<Stat, MetricsError> {
+    if values.is_empty() {
+        return Err(MetricsError::NoSeeds);
+    }
+    let n = values.len() as f64;
+    let mean = values.iter().sum::<f64>() / n;
+    let std = if values.len() < 2 {
+        0.0
+    } else {
+        (values.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / (n - 1.0)).sqrt()
+    };
+    Ok(Stat { mean, std })
+}
+
+#[cfg(test)]
+mod tests;

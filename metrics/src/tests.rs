@@ -1,0 +1,300 @@
+//! Hand-computed values; each comment shows the arithmetic.
+
+use super::*;
+
+fn o(c: usize, s: bool, b: Option<&str>) -> Outcome {
+    Outcome::new(c, s, b)
+}
+
+fn close(a: f64, b: f64) -> bool {
+    (a - b).abs() < 1e-9
+}
+
+#[test]
+fn success_rate_counts_all_rollouts() {
+    let v = [
+        o(0, true, None),
+        o(0, false, Some("1")),
+        o(1, true, Some("0")),
+        o(1, false, None),
+    ];
+    assert_eq!(success_rate(&v), 0.5);
+    assert_eq!(success_rate(&[]), 0.0);
+}
+
+#[test]
+fn avoiding_entropy_over_successes_log24() {
+    // Successes: 138, 138, 37, 37 → p = (1/2, 1/2) → H = ln 2 / ln 24 = 0.2181...
+    // The failure with code 37 is ignored.
+    let v = [
+        o(0, true, Some("138")),
+        o(0, true, Some("138")),
+        o(0, true, Some("37")),
+        o(0, true, Some("37")),
+        o(0, false, Some("37")),
+    ];
+    let expected = 2f64.ln() / 24f64.ln();
+    assert!(close(behaviour_entropy(&v, 24).unwrap(), expected));
+    let conv = EntropyConvention::for_task(TaskId::Avoiding);
+    // Single start: the conditional entropy is the marginal one (spec/10 §2.6).
+    assert!(close(conditional_entropy(&v, &conv).unwrap(), expected));
+    assert!((expected - 0.218104).abs() < 1e-6);
+}
+
+#[test]
+fn avoiding_counts_codes_with_missed_rows_and_may_exceed_one() {
+    // 30 distinct codes, one success each: H = ln 30 / ln 24 = 1.0702 > 1
+    // (spec/10 §6.4: the reference does not guard against this).
+    let labels: Vec<String> = (0..30).map(|i| format!("{i}")).collect();
+    let v: Vec<Outcome> = labels.iter().map(|l| o(0, true, Some(l))).collect();
+    let h = behaviour_entropy(&v, 24).unwrap();
+    assert!(close(h, 30f64.ln() / 24f64.ln()));
+    assert!(h > 1.0);
+}
+
+#[test]
+fn no_success_gives_zero_entropy() {
+    let v = [o(0, false, Some("1")), o(1, false, Some("2"))];
+    assert_eq!(behaviour_entropy(&v, 2).unwrap(), 0.0);
+    for t in [TaskId::Aligning, TaskId::Sorting4] {
+        assert_eq!(
+            conditional_entropy(&v, &EntropyConvention::for_task(t)).unwrap(),
+            0.0
+        );
+    }
+}
+
+/// Three contexts × 4 rollouts:
+/// c0: successes with modes 0, 0, 1, 1 → H_0 = 1 (log 2)
+/// c1: successes 0, 0, 0 and one failure → H_1 = 0
+/// c2: no success
+fn three_contexts() -> Vec<Outcome> {
+    vec![
+        o(0, true, Some("0")),
+        o(0, true, Some("0")),
+        o(0, true, Some("1")),
+        o(0, true, Some("1")),
+        o(1, true, Some("0")),
+        o(1, true, Some("0")),
+        o(1, true, Some("0")),
+        o(1, false, Some("1")),
+        o(2, false, Some("0")),
+        o(2, false, Some("1")),
+        o(2, false, Some("0")),
+        o(2, false, Some("1")),
+    ]
+}
+
+#[test]
+fn aligning_counts_contexts_without_success_as_zero() {
+    // (1 + 0 + 0) / 3 = 1/3 (spec/10 §3.6); the 1e-12 guards move it by < 1e-11.
+    let conv = EntropyConvention::for_task(TaskId::Aligning);
+    let h = conditional_entropy(&three_contexts(), &conv).unwrap();
+    assert!(close(h, 1.0 / 3.0), "{h}");
+}
+
+#[test]
+fn sorting_drops_contexts_without_success() {
+    // Same data with |B| = 2 and the Drop rule: (1 + 0) / 2 = 1/2 (spec/11 §6).
+    let conv = EntropyConvention {
+        n_behaviours: 2,
+        ..EntropyConvention::for_task(TaskId::Sorting2)
+    };
+    assert_eq!(conv.empty_contexts, EmptyContexts::Drop);
+    let h = conditional_entropy(&three_contexts(), &conv).unwrap();
+    assert!(close(h, 0.5), "{h}");
+}
+
+#[test]
+fn pushing_unlabeled_successes_are_dropped_but_count_as_success() {
+    // c0: successes with modes 0, 3, -1(None), -1(None) → p = (1/2, 1/2) → H = ln2/ln4 = 0.5
+    // c1: two successes both None → no labelled success → 0, still counted.
+    // Conditional = (0.5 + 0) / 2 = 0.25; success rate = 6/8.
+    let v = [
+        o(0, true, Some("0")),
+        o(0, true, Some("3")),
+        o(0, true, None),
+        o(0, true, None),
+        o(1, true, None),
+        o(1, true, None),
+        o(1, false, Some("1")),
+        o(1, false, Some("2")),
+    ];
+    let conv = EntropyConvention::for_task(TaskId::Pushing);
+    assert!(close(conditional_entropy(&v, &conv).unwrap(), 0.25));
+    assert_eq!(success_rate(&v), 0.75);
+    // Marginal: labelled successes 0, 3 → ln2/ln4 = 0.5.
+    assert!(close(behaviour_entropy(&v, 4).unwrap(), 0.5));
+}
+
+#[test]
+fn marginal_and_conditional_differ_when_each_context_is_pure() {
+    // c0 always mode 0, c1 always mode 1: every H_c = 0, but pooled p = (1/2, 1/2) → 1.
+    let v = [
+        o(0, true, Some("0")),
+        o(0, true, Some("0")),
+        o(1, true, Some("1")),
+        o(1, true, Some("1")),
+    ];
+    let conv = EntropyConvention::for_task(TaskId::Aligning);
+    assert!(conditional_entropy(&v, &conv).unwrap().abs() < 1e-9);
+    assert!(close(behaviour_entropy(&v, 2).unwrap(), 1.0));
+}
+
+#[test]
+fn reference_guard_matches_reference_arithmetic() {
+    // One context, N = 4, modes 0, 0, 0, 1 (all successful), log 2, computed the
+    // way aligning_sim.py does: p = (k/N) / (Σk/N + 1e-12); -Σ p ln(p + 1e-12) / ln 2.
+    let v = [
+        o(0, true, Some("0")),
+        o(0, true, Some("0")),
+        o(0, true, Some("0")),
+        o(0, true, Some("1")),
+    ];
+    let conv = EntropyConvention::for_task(TaskId::Aligning);
+    let p0: f64 = 0.75 / (1.0 + 1e-12);
+    let p1: f64 = 0.25 / (1.0 + 1e-12);
+    let expected = -(p0 * (p0 + 1e-12).ln() + p1 * (p1 + 1e-12).ln()) / 2f64.ln();
+    assert_eq!(conditional_entropy(&v, &conv).unwrap(), expected);
+    // ≈ 0.811278 = H(0.75, 0.25) in bits.
+    assert!((expected - 0.811278).abs() < 1e-6);
+}
+
+#[test]
+fn per_context_breakdown() {
+    let conv = EntropyConvention::for_task(TaskId::Aligning);
+    let pc = per_context(&three_contexts(), &conv).unwrap();
+    assert_eq!(pc.len(), 3);
+    assert_eq!(pc[0].context_index, 0);
+    assert_eq!(pc[0].success_rate, 1.0);
+    assert!(close(pc[0].conditional_entropy, 1.0));
+    assert_eq!(
+        pc[0].behaviours,
+        vec![("0".to_string(), 2), ("1".to_string(), 2)]
+    );
+    assert_eq!(pc[1].success_rate, 0.75);
+    assert_eq!(pc[1].behaviours, vec![("0".to_string(), 3)]);
+    assert_eq!(pc[2].success_rate, 0.0);
+    assert_eq!(pc[2].conditional_entropy, 0.0);
+    assert!(pc[2].behaviours.is_empty());
+}
+
+#[test]
+fn stacking_levels_and_rates() {
+    // Context 0: "gbr" full stack; "gb" (2 registered, no stack); "r" (1); "" (none).
+    // Context 1: "rgb" full stack; "rg" (2, no stack).
+    // Stacking-1 rate: 5/6; Stacking-2: 4/6; Stacking-3: 2/6.
+    let v = [
+        o(0, true, Some("gbr")),
+        o(0, false, Some("gb")),
+        o(0, false, Some("r")),
+        o(0, false, None),
+        o(1, true, Some("rgb")),
+        o(1, false, Some("rg")),
+    ];
+    let ev = evaluate(TaskId::Stacking, &v, 1.5, &Bootstrap::default()).unwrap();
+    let s = ev.metrics.stacking.unwrap();
+    assert!(close(s[0], 5.0 / 6.0) && close(s[1], 4.0 / 6.0) && close(s[2], 2.0 / 6.0));
+    assert!(close(ev.metrics.success_rate.value, 2.0 / 6.0));
+    let lv = ev.stacking_levels.unwrap();
+    // Level 1, log 3: c0 first letters g, g, r → p=(2/3,1/3) → H = 0.9183 bits / log2(3)
+    // = 0.579380; c1: r, r → 0. Mean over both (both have successes) = 0.289690.
+    let h1 = -(2.0 / 3.0 * (2.0f64 / 3.0).ln() + 1.0 / 3.0 * (1.0f64 / 3.0).ln()) / 3f64.ln();
+    assert!((lv[0].conditional_entropy.value - h1 / 2.0).abs() < 1e-9);
+    // Level 2, log 6: c0 gb, gb → 0; c1 rg, rg → 0.
+    assert!(lv[1].conditional_entropy.value.abs() < 1e-9);
+    // Level 3, log 6: c0 gbr → 0; c1 rgb → 0; marginal pooled (gbr, rgb) = ln2/ln6.
+    assert!(lv[2].conditional_entropy.value.abs() < 1e-9);
+    assert!(close(
+        ev.metrics.behaviour_entropy.value,
+        2f64.ln() / 6f64.ln()
+    ));
+    assert_eq!(ev.metrics.inference_ms, 1.5);
+}
+
+#[test]
+fn stacking_rejects_bad_labels() {
+    let v = [o(3, true, Some("rrg"))];
+    let e = evaluate(TaskId::Stacking, &v, 0.0, &Bootstrap::default()).unwrap_err();
+    assert!(
+        e.to_string().contains("`rrg`") && e.to_string().contains("context 3"),
+        "{e}"
+    );
+    let v = [o(0, true, Some("rgbx"))];
+    assert!(stacking_levels(&v).is_err());
+}
+
+#[test]
+fn seed_aggregation_uses_sample_std() {
+    // Five seeds at 1, one at 0: mean 5/6, sample std sqrt((5·(1/6)² + (5/6)²)/5)
+    // = sqrt(1/6) = 0.408248 — the paper's BC-GPT Avoiding cell (0.833 ± 0.408).
+    let s = aggregate_seeds(&[1.0, 1.0, 1.0, 1.0, 1.0, 0.0]).unwrap();
+    assert!(close(s.mean, 5.0 / 6.0));
+    assert!(close(s.std, (1.0f64 / 6.0).sqrt()));
+    assert_eq!(aggregate_seeds(&[0.4]).unwrap().std, 0.0);
+    assert_eq!(aggregate_seeds(&[]).unwrap_err(), MetricsError::NoSeeds);
+}
+
+#[test]
+fn bootstrap_is_seeded_and_brackets_the_estimate() {
+    // 10 contexts, context c has c successes out of 9 rollouts.
+    let mut v = vec![];
+    for c in 0..10 {
+        for r in 0..9 {
+            v.push(o(c, r < c, Some(if r % 2 == 0 { "0" } else { "1" })));
+        }
+    }
+    let cfg = Bootstrap {
+        resamples: 500,
+        confidence: 0.9,
+        seed: 7,
+    };
+    let a = bootstrap(&v, &cfg, |x| Ok(success_rate(x))).unwrap();
+    let b = bootstrap(&v, &cfg, |x| Ok(success_rate(x))).unwrap();
+    assert_eq!(a, b);
+    assert!(close(a.value, 45.0 / 90.0));
+    assert!(a.ci_low < a.value && a.value < a.ci_high, "{a:?}");
+    // The spread of per-context rates (0..1) gives a wide interval, inside [0, 1].
+    assert!(a.ci_low > 0.2 && a.ci_high < 0.8, "{a:?}");
+    let c = bootstrap(&v, &Bootstrap { seed: 8, ..cfg }, |x| Ok(success_rate(x))).unwrap();
+    assert_ne!((a.ci_low, a.ci_high), (c.ci_low, c.ci_high));
+    // Everything succeeded → a degenerate interval at 1.
+    let all: Vec<Outcome> = (0..20).map(|i| o(i % 4, true, Some("0"))).collect();
+    let e = bootstrap(&all, &cfg, |x| Ok(success_rate(x))).unwrap();
+    assert_eq!((e.value, e.ci_low, e.ci_high), (1.0, 1.0, 1.0));
+    assert_eq!(
+        bootstrap(
+            &all,
+            &Bootstrap {
+                confidence: 1.5,
+                ..cfg
+            },
+            |x| Ok(success_rate(x))
+        )
+        .unwrap_err(),
+        MetricsError::BadConfidence(1.5)
+    );
+}
+
+#[test]
+fn bootstrap_over_rollouts_for_single_start() {
+    // Avoiding: 480 rollouts of context 0, half succeed → CI around 0.5 with non-zero width.
+    let v: Vec<Outcome> = (0..480).map(|i| o(0, i % 2 == 0, Some("37"))).collect();
+    let ev = evaluate(TaskId::Avoiding, &v, 0.0, &Bootstrap::default()).unwrap();
+    let s = ev.metrics.success_rate;
+    assert_eq!(s.value, 0.5);
+    assert!(
+        s.ci_low < 0.48 && s.ci_high > 0.52 && s.ci_low > 0.4 && s.ci_high < 0.6,
+        "{s:?}"
+    );
+    assert_eq!(ev.per_context.len(), 1);
+    assert!(ev.metrics.stacking.is_none());
+}
+
+#[test]
+fn evaluate_rejects_empty_input() {
+    assert_eq!(
+        evaluate(TaskId::Aligning, &[], 0.0, &Bootstrap::default()).unwrap_err(),
+        MetricsError::NoOutcomes
+    );
+}
