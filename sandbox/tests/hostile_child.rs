@@ -272,7 +272,26 @@ fn private_endpoints_are_refused_unless_allowed() {
     assert!(e.message.contains("loopback"), "{}", e.message);
     let mut l = limits();
     l.allow_private_endpoints = true;
-    let (run, _) = run_mode("ok", &job(remote, l), WALL);
+    let (run, _) = run_mode("ok", &job(remote, l.clone()), WALL);
+    assert!(
+        matches!(run.outcome, Outcome::Completed(_)),
+        "{:?}",
+        run.outcome
+    );
+    // A host name is resolved inside the sandbox (landlock allows the resolver
+    // files) and every address is checked.
+    let by_name = PolicySource::Remote {
+        url: "ws://localhost:9/policy".into(),
+    };
+    let (run, _) = run_mode("ok", &job(by_name.clone(), limits()), WALL);
+    let e = expect_failed(&run);
+    assert_eq!(e.kind, ErrorKind::BadEndpoint);
+    assert!(
+        e.message.contains("`localhost` resolves to"),
+        "{}",
+        e.message
+    );
+    let (run, _) = run_mode("ok", &job(by_name, l), WALL);
     assert!(
         matches!(run.outcome, Outcome::Completed(_)),
         "{:?}",
