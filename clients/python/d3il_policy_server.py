@@ -1,0 +1,213 @@
+#!/usr/bin/env python3
+"""Reference server for D3IL leaderboard remote policies (docs/remote-protocol.md).
+
+Serve any Python callable to the evaluator over a WebSocket with msgpack frames:
+
+    import numpy as np
+    from d3il_policy_server import serve
+
+    def policy(obs, request):
+        # obs: float32 [B, k, obs_dim] (oldest first); request.rollout_ids, .steps,
+        # .images (image policies), .spec (the task spec the evaluator sent)
+        return np.zeros((obs.shape[0], 1, request.spec["act_dim"]), np.float32)
+
+    serve(policy, host="0.0.0.0", port=8765, history=1, horizon=1, execute=1)
+
+The callable returns float32 actions [B, H, act_dim] (or [B, act_dim] when H = 1).
+An optional `reset(rollout_ids)` callable is told when episodes start.
+
+Command line: `python d3il_policy_server.py --demo zeros --port 8765` serves a
+built-in demo policy (see --help). Requirements: numpy, websockets, msgpack.
+"""
+
+import argparse
+import asyncio
+import dataclasses
+import sys
+import traceback
+from typing import Any, Callable, Optional
+
+import msgpack
+import numpy as np
+from websockets.asyncio.server import serve as ws_serve
+from websockets.exceptions import ConnectionClosed
+
+PROTOCOL_VERSION = 1
+
+
+def pack_array(a: np.ndarray) -> dict:
+    """openpi-style array: {"__ndarray__": True, "data", "dtype", "shape"}."""
+    a = np.ascontiguousarray(a)
+    return {"__ndarray__": True, "data": a.tobytes(), "dtype": a.dtype.str, "shape": list(a.shape)}
+
+
+def _key(d: dict, k: str):
+    # Accept str and bytes keys (openpi's packer writes bytes keys).
+    if k in d:
+        return d[k]
+    return d.get(k.encode())
+
+
+def unpack_array(d: dict) -> np.ndarray:
+    if not isinstance(d, dict) or not _key(d, "__ndarray__"):
+        raise ValueError("expected an {__ndarray__, data, dtype, shape} array")
+    dtype = _key(d, "dtype")
+    if isinstance(dtype, bytes):
+        dtype = dtype.decode()
+    return np.frombuffer(_key(d, "data"), dtype=np.dtype(dtype)).reshape(_key(d, "shape"))
+
+
+def packb(msg: dict) -> bytes:
+    return msgpack.packb(msg, use_bin_type=True)
+
+
+def unpackb(data: bytes) -> dict:
+    return msgpack.unpackb(data, raw=False, strict_map_key=False)
+
+
+@dataclasses.dataclass
+class Request:
+    rollout_ids: np.ndarray  # uint64 [B]
+    steps: np.ndarray  # uint64 [B]
+    spec: dict  # the task spec the evaluator sent (task, obs_dim, act_dim, seed, ...)
+    images: Optional[np.ndarray] = None  # float32 [B, k, 2, 3, 96, 96] for image policies
+
+
+class PolicyServer:
+    """Serves one callable; one evaluator connection at a time is typical, but
+    each connection gets its own spec."""
+
+    def __init__(
+        self,
+        policy: Callable[[np.ndarray, Request], Any],
+        *,
+        history: int = 1,
+        horizon: int = 1,
+        execute: int = 1,
+        reset: Optional[Callable[[np.ndarray], None]] = None,
+        max_frame_bytes: int = 64 << 20,
+        log=sys.stderr,
+    ):
+        if not (1 <= execute <= horizon) or history < 1:
+            raise ValueError("need history >= 1 and 1 <= execute <= horizon")
+        self.policy = policy
+        self.history, self.horizon, self.execute = history, horizon, execute
+        self.reset_fn = reset
+        self.max_frame_bytes = max_frame_bytes
+        self.log = log
+
+    def hello(self) -> dict:
+        return {
+            "type": "hello",
+            "protocol": PROTOCOL_VERSION,
+            "history": self.history,
+            "horizon": self.horizon,
+            "execute": self.execute,
+        }
+
+    async def handle(self, msg: dict, state: dict) -> dict:
+        """Answer one decoded request; raising turns into an `error` message."""
+        kind = _key(msg, "type")
+        if kind == "spec":
+            state["spec"] = {k if isinstance(k, str) else k.decode(): v for k, v in msg.items()}
+            return {"type": "ready"}
+        if "spec" not in state:
+            raise ValueError("the first message must be `spec`")
+        if kind == "reset":
+            ids = np.asarray(_key(msg, "rollout_ids"), dtype=np.uint64)
+            if self.reset_fn is not None:
+                await asyncio.to_thread(self.reset_fn, ids)
+            return {"type": "ok"}
+        if kind == "infer":
+            spec = state["spec"]
+            obs = unpack_array(_key(msg, "obs")).astype(np.float32, copy=False)
+            images = _key(msg, "images")
+            req = Request(
+                rollout_ids=np.asarray(_key(msg, "rollout_ids"), dtype=np.uint64),
+                steps=np.asarray(_key(msg, "steps"), dtype=np.uint64),
+                spec=spec,
+                images=unpack_array(images) if images is not None else None,
+            )
+            # Run the model off the event loop so pings keep being answered.
+            actions = await asyncio.to_thread(self.policy, obs, req)
+            actions = np.asarray(actions, dtype=np.float32)
+            if actions.ndim == 2:
+                actions = actions[:, None, :]
+            return {"type": "actions", "id": _key(msg, "id"), "actions": pack_array(actions)}
+        raise ValueError(f"unknown message type {kind!r}")
+
+    async def reply(self, ws, request_type, reply: dict):
+        """Send one reply (a hook so test servers can misbehave)."""
+        await ws.send(packb(reply))
+
+    async def connection(self, ws):
+        state: dict = {}
+        try:
+            await self.reply(ws, "hello", self.hello())
+            async for frame in ws:
+                if isinstance(frame, str):
+                    await ws.send(packb({"type": "error", "message": "send binary msgpack frames"}))
+                    continue
+                try:
+                    msg = unpackb(frame)
+                    kind = _key(msg, "type")
+                    reply = await self.handle(msg, state)
+                except Exception as e:  # report to the evaluator, keep serving
+                    traceback.print_exc(file=self.log)
+                    kind = "error"
+                    reply = {"type": "error", "message": f"{type(e).__name__}: {e}"}
+                await self.reply(ws, kind, reply)
+        except ConnectionClosed:
+            pass
+
+    async def run(self, host: str, port: int, ready: Optional[Callable[[int], None]] = None):
+        async with ws_serve(self.connection, host, port, max_size=self.max_frame_bytes) as server:
+            bound = server.sockets[0].getsockname()[1]
+            if ready is not None:
+                ready(bound)
+            await server.serve_forever()
+
+
+def serve(policy, host="0.0.0.0", port=8765, **kwargs):
+    """Blocking: serve `policy` until interrupted. Prints the bound port."""
+    server = PolicyServer(policy, **kwargs)
+
+    def ready(p):
+        print(f"listening on {host}:{p}", flush=True)
+
+    asyncio.run(server.run(host, port, ready))
+
+
+# ---- demo policies -------------------------------------------------------------
+
+
+def zeros_policy(obs, req):
+    return np.zeros((obs.shape[0], 1, req.spec["act_dim"]), np.float32)
+
+
+def avoiding_policy(obs, req):
+    """Avoiding steering of assets/fixtures/avoiding_path.onnx in numpy: desired x
+    towards 0.57 / 0.50 / 0.575 by desired y, |dx| <= 0.008, dy = 0.008."""
+    x, y = obs[:, -1, 0], obs[:, -1, 1]
+    tx = np.where(y < -0.04, 0.57, np.where(y < 0.16, 0.50, 0.575))
+    dx = np.clip(tx - x, -0.008, 0.008)
+    return np.stack([dx, np.full_like(dx, 0.008)], axis=1).astype(np.float32)
+
+
+DEMOS = {"zeros": zeros_policy, "avoiding": avoiding_policy}
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--demo", choices=sorted(DEMOS), default="zeros", help="built-in policy to serve")
+    ap.add_argument("--host", default="127.0.0.1")
+    ap.add_argument("--port", type=int, default=8765, help="0 picks a free port (printed)")
+    ap.add_argument("--history", type=int, default=1)
+    ap.add_argument("--horizon", type=int, default=1)
+    ap.add_argument("--execute", type=int, default=1)
+    a = ap.parse_args(argv)
+    serve(DEMOS[a.demo], host=a.host, port=a.port, history=a.history, horizon=a.horizon, execute=a.execute)
+
+
+if __name__ == "__main__":
+    main()

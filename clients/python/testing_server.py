@@ -1,0 +1,130 @@
+#!/usr/bin/env python3
+"""A deliberately misbehaving variant of the reference server, used by the Rust
+tests of the evaluator's remote client (policy/tests/remote.rs).
+
+    python testing_server.py --mode MODE [--horizon H]
+
+Serves the `avoiding` demo policy on 127.0.0.1 (free port, printed as
+`listening on 127.0.0.1:PORT`), except that on the first `infer` (or at the
+stage named by the mode) it:
+
+  ok            behaves (with a reset log, for checking reset calls)
+  hang          never answers
+  slow-drip     sends the reply one byte per 50 ms (past any short deadline)
+  nan           returns NaN actions
+  wrong-shape   returns actions with the wrong act_dim
+  oversized     returns a 2 MiB reply
+  garbage       returns bytes that are not msgpack
+  text          returns a text frame
+  disconnect    closes the connection
+  error         returns an `error` message
+  bad-version   announces protocol version 99 in the hello
+  bad-hello     sends a hello without `history`
+  wrong-id      answers with a different request id
+  noisy         returns actions drawn from a RNG seeded with the spec's seed
+                and the rollout ids/steps (determinism check)
+"""
+
+import argparse
+import asyncio
+import sys
+
+import numpy as np
+
+from d3il_policy_server import PolicyServer, avoiding_policy, pack_array, packb
+
+
+class MisbehavingServer(PolicyServer):
+    def __init__(self, mode, **kw):
+        super().__init__(self.policy, reset=self.on_reset, **kw)
+        self.mode = mode
+        self.resets = []
+
+    def on_reset(self, ids):
+        self.resets.append(ids.tolist())
+
+    def policy(self, obs, req):
+        if self.mode == "nan":
+            return np.full((obs.shape[0], self.horizon, req.spec["act_dim"]), np.nan, np.float32)
+        if self.mode == "wrong-shape":
+            return np.zeros((obs.shape[0], self.horizon, req.spec["act_dim"] + 1), np.float32)
+        if self.mode == "oversized":
+            return np.zeros((obs.shape[0], 1 << 19), np.float32)  # 2 MiB per row
+        if self.mode == "noisy":
+            out = np.empty((obs.shape[0], self.horizon, req.spec["act_dim"]), np.float32)
+            for i, (r, s) in enumerate(zip(req.rollout_ids, req.steps)):
+                rng = np.random.default_rng([int(req.spec["seed"]), int(r), int(s)])
+                out[i] = rng.standard_normal(out[i].shape)
+            return out
+        a = avoiding_policy(obs, req)
+        # A chunk of H copies of the action.
+        return np.repeat(a[:, None, :], self.horizon, axis=1)
+
+    def hello(self):
+        h = super().hello()
+        if self.mode == "bad-version":
+            h["protocol"] = 99
+        if self.mode == "bad-hello":
+            del h["history"]
+        return h
+
+    async def handle(self, msg, state):
+        if msg.get("type") == "infer" and msg.get("obs") is not None and self.mode == "ok":
+            # Let the test see that resets arrived: answer an infer for rollout id
+            # 999 with an error listing them.
+            if 999 in list(msg["rollout_ids"]):
+                raise ValueError(f"resets seen: {self.resets}")
+        return await super().handle(msg, state)
+
+    async def reply(self, ws, request_type, reply):
+        if request_type == "infer":
+            m = self.mode
+            if m == "hang":
+                await asyncio.sleep(3600)
+            if m == "slow-drip":
+                # A valid reply, dribbled out one byte per WebSocket fragment.
+                data = packb(reply)
+
+                async def frags():
+                    for i in range(len(data)):
+                        await asyncio.sleep(0.05)
+                        yield data[i : i + 1]
+
+                await ws.send(frags())
+                return
+            if m == "garbage":
+                await ws.send(b"\xc1\xc1\xc1 not msgpack")
+                return
+            if m == "text":
+                await ws.send("hello there")
+                return
+            if m == "disconnect":
+                await ws.close()
+                return
+            if m == "error":
+                reply = {"type": "error", "message": "model exploded"}
+            if m == "wrong-id":
+                reply = dict(reply, id=12345)
+        await super().reply(ws, request_type, reply)
+
+
+def main():
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--mode", default="ok")
+    ap.add_argument("--history", type=int, default=1)
+    ap.add_argument("--horizon", type=int, default=1)
+    ap.add_argument("--execute", type=int, default=1)
+    a = ap.parse_args()
+    server = MisbehavingServer(a.mode, history=a.history, horizon=a.horizon, execute=a.execute)
+
+    def ready(port):
+        print(f"listening on 127.0.0.1:{port}", flush=True)
+
+    try:
+        asyncio.run(server.run("127.0.0.1", 0, ready))
+    except KeyboardInterrupt:
+        pass
+
+
+if __name__ == "__main__":
+    sys.exit(main())
