@@ -1,0 +1,146 @@
+//! Blocking HTTP client for the `/api/v1` API (used by `d3il submit` and tests).
+
+use crate::error::ErrorBody;
+/// Re-exported so that callers (the root package's tests) need no own dependency.
+pub use reqwest;
+use serde_json::Value;
+use std::path::Path;
+use std::time::{Duration, Instant};
+
+#[derive(Debug, thiserror::Error)]
+pub enum ClientError {
+    #[error("cannot reach the server: {0}")]
+    Http(#[from] reqwest::Error),
+    #[error("the server refused the request ({status}, {code}){}: {message}", field.as_ref().map(|f| format!(" field `{f}`")).unwrap_or_default())]
+    Api {
+        status: u16,
+        code: String,
+        message: String,
+        field: Option<String>,
+    },
+    #[error("cannot read {path}: {source}")]
+    Io {
+        path: String,
+        source: std::io::Error,
+    },
+    #[error("gave up waiting for submission {0} after {1:?}")]
+    Timeout(i64, Duration),
+}
+
+pub struct Client {
+    base: String,
+    token: Option<String>,
+    http: reqwest::blocking::Client,
+}
+
+impl Client {
+    /// `base` is the server root, e.g. `http://127.0.0.1:8080`.
+    pub fn new(base: &str, token: Option<String>) -> Result<Client, ClientError> {
+        Ok(Client {
+            base: base.trim_end_matches('/').to_string(),
+            token,
+            http: reqwest::blocking::Client::builder()
+                .timeout(Duration::from_secs(600))
+                .build()?,
+        })
+    }
+
+    fn auth(&self, rb: reqwest::blocking::RequestBuilder) -> reqwest::blocking::RequestBuilder {
+        match &self.token {
+            Some(t) => rb.bearer_auth(t),
+            None => rb,
+        }
+    }
+
+    fn decode(resp: reqwest::blocking::Response) -> Result<Value, ClientError> {
+        let status = resp.status();
+        let text = resp.text()?;
+        if status.is_success() {
+            return Ok(serde_json::from_str(&text).unwrap_or(Value::String(text)));
+        }
+        match serde_json::from_str::<ErrorBody>(&text) {
+            Ok(b) => Err(ClientError::Api {
+                status: status.as_u16(),
+                code: b.error.code,
+                message: b.error.message,
+                field: b.error.field,
+            }),
+            Err(_) => Err(ClientError::Api {
+                status: status.as_u16(),
+                code: "unexpected".into(),
+                message: text.chars().take(500).collect(),
+                field: None,
+            }),
+        }
+    }
+
+    /// Creates a submission: text `fields` plus an optional ONNX file.
+    pub fn submit(
+        &self,
+        fields: &[(&str, String)],
+        onnx: Option<&Path>,
+    ) -> Result<Value, ClientError> {
+        let mut form = reqwest::blocking::multipart::Form::new();
+        for (k, v) in fields {
+            form = form.text(k.to_string(), v.clone());
+        }
+        if let Some(p) = onnx {
+            let bytes = std::fs::read(p).map_err(|source| ClientError::Io {
+                path: p.display().to_string(),
+                source,
+            })?;
+            let part = reqwest::blocking::multipart::Part::bytes(bytes)
+                .file_name(
+                    p.file_name()
+                        .map(|f| f.to_string_lossy().into_owned())
+                        .unwrap_or_else(|| "policy.onnx".into()),
+                )
+                .mime_str("application/octet-stream")?;
+            form = form.part("onnx", part);
+        }
+        let rb = self
+            .http
+            .post(format!("{}/api/v1/submissions", self.base))
+            .multipart(form);
+        Self::decode(self.auth(rb).send()?)
+    }
+
+    pub fn get(&self, path: &str) -> Result<Value, ClientError> {
+        let rb = self.http.get(format!("{}{path}", self.base));
+        Self::decode(self.auth(rb).send()?)
+    }
+
+    /// GET returning status and body text (pages, CSV, SVG).
+    pub fn get_text(&self, path: &str) -> Result<(u16, String), ClientError> {
+        let r = self
+            .auth(self.http.get(format!("{}{path}", self.base)))
+            .send()?;
+        let status = r.status().as_u16();
+        Ok((status, r.text()?))
+    }
+
+    pub fn submission(&self, id: i64) -> Result<Value, ClientError> {
+        self.get(&format!("/api/v1/submissions/{id}"))
+    }
+
+    /// Polls until the submission is completed or failed.
+    pub fn wait(
+        &self,
+        id: i64,
+        timeout: Duration,
+        mut on_update: impl FnMut(&Value),
+    ) -> Result<Value, ClientError> {
+        let start = Instant::now();
+        loop {
+            let v = self.submission(id)?;
+            on_update(&v);
+            if matches!(v["status"].as_str(), Some("completed") | Some("failed")) {
+                return Ok(v);
+            }
+            if start.elapsed() > timeout {
+                return Err(ClientError::Timeout(id, timeout));
+            }
+            std::thread::sleep(Duration::from_millis(500));
+        }
+    }
+}

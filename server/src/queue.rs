@@ -1,0 +1,401 @@
+//! The worker pool: N slots lease jobs from the durable queue in the database,
+//! run them through a [`JobRunner`] (a sandboxed `d3il worker` process in
+//! production), heartbeat while they run and write the result idempotently.
+
+use crate::store::{ClaimedJob, Store, StoreError};
+use d3il_protocol::{
+    ErrorKind, EvalResult, Job, Limits, PolicyManifest, PolicySource, ProtocolKind,
+    SandboxMechanism, TaskId, WorkerError, WorkerMessage,
+};
+use std::io::{BufRead, BufReader, Read, Write};
+use std::path::PathBuf;
+use std::process::{Command, Stdio};
+use std::str::FromStr;
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+use tokio::sync::{mpsc, Notify};
+
+/// What one run of a job produced.
+#[derive(Debug, Clone)]
+pub struct RunReport {
+    pub outcome: Result<Box<EvalResult>, WorkerError>,
+    /// Confinement mechanisms that were in force (shown on the submission page).
+    pub mechanisms: Vec<SandboxMechanism>,
+}
+
+/// Runs one job to completion. Blocking: the pool calls it on a blocking thread.
+pub trait JobRunner: Send + Sync + 'static {
+    fn run(&self, job: &Job, on_progress: &mut dyn FnMut(usize, usize)) -> RunReport;
+}
+
+/// How to start a worker process.
+#[derive(Debug, Clone)]
+pub struct WorkerProcess {
+    pub exe: PathBuf,
+    pub args: Vec<String>,
+    pub wall_clock: Duration,
+    pub max_output_bytes: usize,
+}
+
+/// Runs `d3il worker` as a child process: the job as one JSON document on
+/// stdin, JSON lines of [`WorkerMessage`] on stdout. Enforces the wall clock
+/// and an output cap from the parent side; the OS-level confinement is the
+/// sandbox crate's job (see [`crate::runner`]).
+#[derive(Debug, Clone)]
+pub struct ProcessRunner {
+    pub cmd: WorkerProcess,
+}
+
+impl JobRunner for ProcessRunner {
+    fn run(&self, job: &Job, on_progress: &mut dyn FnMut(usize, usize)) -> RunReport {
+        let fail = |kind, message: String| RunReport {
+            outcome: Err(WorkerError { kind, message }),
+            mechanisms: vec![],
+        };
+        let doc = match serde_json::to_vec(job) {
+            Ok(d) => d,
+            Err(e) => return fail(ErrorKind::Internal, format!("cannot encode job: {e}")),
+        };
+        let mut child = match Command::new(&self.cmd.exe)
+            .args(&self.cmd.args)
+            .stdin(Stdio::piped())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+        {
+            Ok(c) => c,
+            Err(e) => {
+                return fail(
+                    ErrorKind::Internal,
+                    format!("cannot start worker {}: {e}", self.cmd.exe.display()),
+                )
+            }
+        };
+        if let Some(mut stdin) = child.stdin.take() {
+            // A worker that exits early closes the pipe; its exit status says why.
+            let _ = stdin.write_all(&doc);
+        }
+        let deadline = Instant::now() + self.cmd.wall_clock;
+        let (tx, rx) = std::sync::mpsc::channel::<Option<String>>();
+        let stdout = child.stdout.take();
+        let cap = self.cmd.max_output_bytes;
+        let reader = std::thread::spawn(move || {
+            let Some(out) = stdout else { return };
+            let mut r = BufReader::new(out.take(cap as u64));
+            let mut line = String::new();
+            loop {
+                line.clear();
+                match r.read_line(&mut line) {
+                    Ok(0) | Err(_) => break,
+                    Ok(_) => {
+                        if tx.send(Some(line.trim_end().to_string())).is_err() {
+                            break;
+                        }
+                    }
+                }
+            }
+            let _ = tx.send(None);
+        });
+        let mut stderr_buf = String::new();
+        let stderr = child.stderr.take();
+        let err_reader = std::thread::spawn(move || {
+            if let Some(e) = stderr {
+                let _ = e.take(64 << 10).read_to_string(&mut stderr_buf);
+            }
+            stderr_buf
+        });
+        let mut mechanisms = vec![];
+        let mut outcome: Option<Result<Box<EvalResult>, WorkerError>> = None;
+        let mut timed_out = false;
+        loop {
+            let left = deadline.saturating_duration_since(Instant::now());
+            if left.is_zero() {
+                timed_out = true;
+                break;
+            }
+            match rx.recv_timeout(left.min(Duration::from_millis(500))) {
+                Ok(Some(line)) if line.is_empty() => {}
+                Ok(Some(line)) => match serde_json::from_str::<WorkerMessage>(&line) {
+                    Ok(WorkerMessage::Sandbox { mechanisms: m }) => mechanisms = m,
+                    Ok(WorkerMessage::Progress {
+                        rollouts_done,
+                        rollouts_total,
+                    }) => on_progress(rollouts_done, rollouts_total),
+                    Ok(WorkerMessage::Result(r)) => outcome = Some(Ok(r)),
+                    Ok(WorkerMessage::Error(e)) => outcome = Some(Err(e)),
+                    Err(e) => {
+                        outcome = Some(Err(WorkerError {
+                            kind: ErrorKind::ProtocolViolation,
+                            message: format!(
+                                "worker printed a line that is not the protocol ({e})"
+                            ),
+                        }));
+                        break;
+                    }
+                },
+                Ok(None) => break,
+                Err(std::sync::mpsc::RecvTimeoutError::Timeout) => {}
+                Err(std::sync::mpsc::RecvTimeoutError::Disconnected) => break,
+            }
+        }
+        if timed_out
+            || matches!(outcome, Some(Err(ref e)) if e.kind == ErrorKind::ProtocolViolation)
+        {
+            let _ = child.kill();
+        }
+        let status = child.wait();
+        let _ = reader.join();
+        let stderr = err_reader.join().unwrap_or_default();
+        if timed_out {
+            return RunReport {
+                outcome: Err(WorkerError {
+                    kind: ErrorKind::WallClock,
+                    message: format!(
+                        "the evaluation did not finish within {} s and was stopped",
+                        self.cmd.wall_clock.as_secs()
+                    ),
+                }),
+                mechanisms,
+            };
+        }
+        let outcome = outcome.unwrap_or_else(|| {
+            let how = match status {
+                Ok(s) => describe_exit(s),
+                Err(e) => format!("could not be waited for: {e}"),
+            };
+            let tail: String = stderr.lines().rev().take(5).collect::<Vec<_>>().join(" | ");
+            Err(WorkerError {
+                kind: ErrorKind::Crashed,
+                message: format!("the worker {how} without a result; last stderr: {tail}"),
+            })
+        });
+        RunReport {
+            outcome,
+            mechanisms,
+        }
+    }
+}
+
+fn describe_exit(s: std::process::ExitStatus) -> String {
+    #[cfg(unix)]
+    {
+        use std::os::unix::process::ExitStatusExt;
+        if let Some(sig) = s.signal() {
+            return format!("was killed by signal {sig}");
+        }
+    }
+    match s.code() {
+        Some(c) => format!("exited with code {c}"),
+        None => "exited".into(),
+    }
+}
+
+/// Pool settings.
+#[derive(Debug, Clone)]
+pub struct PoolConfig {
+    pub workers: usize,
+    /// Lease length; heartbeats renew it every third of it.
+    pub lease_seconds: i64,
+    pub assets_dir: PathBuf,
+    pub limits: Limits,
+}
+
+/// Failures worth another attempt: the process died or our side broke, or the
+/// remote endpoint had a transient problem. Everything else is about the
+/// policy and would fail the same way again.
+pub fn is_retryable(kind: ErrorKind) -> bool {
+    matches!(
+        kind,
+        ErrorKind::Crashed | ErrorKind::Internal | ErrorKind::Remote
+    )
+}
+
+/// Builds the worker's job document from a claimed submission.
+pub fn job_from_claim(
+    c: &ClaimedJob,
+    assets_dir: &std::path::Path,
+    limits: &Limits,
+) -> Result<Job, String> {
+    let s = &c.submission;
+    let task = TaskId::from_str(&s.task).map_err(|e| e.to_string())?;
+    let manifest: PolicyManifest = serde_json::from_str(&s.manifest_json)
+        .map_err(|e| format!("stored manifest is invalid: {e}"))?;
+    let policy = match s.policy_kind.as_str() {
+        "onnx" => PolicySource::Onnx {
+            path: s
+                .onnx_path
+                .clone()
+                .ok_or("onnx submission without a stored file")?,
+            sha256: s.onnx_sha256.clone().unwrap_or_default(),
+        },
+        "remote" => PolicySource::Remote {
+            url: s
+                .endpoint_url
+                .clone()
+                .ok_or("remote submission without a URL")?,
+        },
+        o => return Err(format!("unknown policy kind `{o}`")),
+    };
+    Ok(Job {
+        job_id: c.job.id.to_string(),
+        task,
+        protocol: ProtocolKind::from_str(&s.protocol)?,
+        policy,
+        manifest,
+        // The evaluator seed is the training seed, so each seed's policy noise
+        // is independent and every evaluation is reproducible.
+        seed: s.training_seed.max(0) as u64,
+        limits: limits.clone(),
+        assets_dir: assets_dir.to_string_lossy().into_owned(),
+    })
+}
+
+/// Handle to wake the pool when a job was queued.
+#[derive(Clone, Default)]
+pub struct QueueSignal(Arc<Notify>);
+
+impl QueueSignal {
+    pub fn job_queued(&self) {
+        self.0.notify_waiters();
+    }
+}
+
+/// Requeues abandoned jobs, then starts `cfg.workers` slots.
+pub async fn start_pool(
+    store: Store,
+    runner: Arc<dyn JobRunner>,
+    cfg: PoolConfig,
+    signal: QueueSignal,
+) -> Result<(), StoreError> {
+    let n = store.requeue_abandoned().await?;
+    if n > 0 {
+        tracing::info!("requeued {n} job(s) interrupted by the previous shutdown");
+    }
+    let cfg = Arc::new(cfg);
+    for slot in 0..cfg.workers {
+        let owner = format!("{}-slot{slot}", std::process::id());
+        tokio::spawn(slot_loop(
+            store.clone(),
+            runner.clone(),
+            cfg.clone(),
+            signal.clone(),
+            owner,
+        ));
+    }
+    Ok(())
+}
+
+async fn slot_loop(
+    store: Store,
+    runner: Arc<dyn JobRunner>,
+    cfg: Arc<PoolConfig>,
+    signal: QueueSignal,
+    owner: String,
+) {
+    loop {
+        let notified = signal.0.notified();
+        match store.claim_job(&owner, cfg.lease_seconds).await {
+            Ok(Some(c)) => {
+                if let Err(e) = run_claimed(&store, &runner, &cfg, &owner, c).await {
+                    tracing::error!("worker slot {owner}: {e}");
+                    tokio::time::sleep(Duration::from_secs(1)).await;
+                }
+            }
+            Ok(None) => {
+                // Also poll: expired leases become runnable without a signal.
+                let _ = tokio::time::timeout(Duration::from_secs(2), notified).await;
+            }
+            Err(e) => {
+                tracing::error!("worker slot {owner}: cannot claim a job: {e}");
+                tokio::time::sleep(Duration::from_secs(2)).await;
+            }
+        }
+    }
+}
+
+async fn run_claimed(
+    store: &Store,
+    runner: &Arc<dyn JobRunner>,
+    cfg: &PoolConfig,
+    owner: &str,
+    c: ClaimedJob,
+) -> Result<(), StoreError> {
+    let job_id = c.job.id;
+    let submission_id = c.submission.id;
+    let job = match job_from_claim(&c, &cfg.assets_dir, &cfg.limits) {
+        Ok(j) => j,
+        Err(message) => {
+            let err = WorkerError {
+                kind: ErrorKind::BadJob,
+                message,
+            };
+            store.fail_attempt(job_id, &err, false).await?;
+            return Ok(());
+        }
+    };
+    tracing::info!(
+        "job {job_id} (submission {submission_id}, attempt {}) started on {owner}",
+        c.job.attempts
+    );
+    let (ptx, mut prx) = mpsc::unbounded_channel::<(usize, usize)>();
+    let r = runner.clone();
+    let mut handle = tokio::task::spawn_blocking(move || {
+        let mut cb = |done: usize, total: usize| {
+            let _ = ptx.send((done, total));
+        };
+        r.run(&job, &mut cb)
+    });
+    let beat = Duration::from_secs((cfg.lease_seconds / 3).max(1) as u64);
+    let mut ticker = tokio::time::interval(beat);
+    let mut latest: Option<(usize, usize)> = None;
+    let mut last_written = Instant::now() - beat;
+    let report = loop {
+        tokio::select! {
+            res = &mut handle => break res,
+            Some(p) = prx.recv() => {
+                latest = Some(p);
+                // Progress is written at most once a second.
+                if last_written.elapsed() >= Duration::from_secs(1) {
+                    store.heartbeat(job_id, owner, cfg.lease_seconds, latest).await?;
+                    last_written = Instant::now();
+                }
+            }
+            _ = ticker.tick() => {
+                if !store.heartbeat(job_id, owner, cfg.lease_seconds, latest).await? {
+                    tracing::warn!("job {job_id}: lease lost; its result will be written idempotently");
+                }
+                last_written = Instant::now();
+            }
+        }
+    };
+    let report = match report {
+        Ok(r) => r,
+        Err(e) => RunReport {
+            outcome: Err(WorkerError {
+                kind: ErrorKind::Internal,
+                message: format!("the job runner panicked: {e}"),
+            }),
+            mechanisms: vec![],
+        },
+    };
+    match report.outcome {
+        Ok(result) => {
+            store
+                .complete_job(job_id, submission_id, &result, &report.mechanisms)
+                .await?;
+            tracing::info!("job {job_id} completed");
+        }
+        Err(err) => {
+            let requeued = store
+                .fail_attempt(job_id, &err, is_retryable(err.kind))
+                .await?;
+            tracing::warn!(
+                "job {job_id} failed ({:?}: {}){}",
+                err.kind,
+                err.message,
+                if requeued { "; requeued" } else { "" }
+            );
+        }
+    }
+    Ok(())
+}

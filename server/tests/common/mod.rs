@@ -1,0 +1,140 @@
+//! spawn_app(): the real server on 127.0.0.1 port 0 with a fresh SQLite file.
+#![allow(dead_code)]
+
+use d3il_server::app::{prepare, router, ServerConfig};
+use d3il_server::queue::{JobRunner, ProcessRunner};
+use std::net::SocketAddr;
+use std::path::PathBuf;
+use std::sync::Arc;
+
+pub struct TestApp {
+    pub addr: SocketAddr,
+    pub base: String,
+    pub db: PathBuf,
+    pub token: String,
+    pub state: d3il_server::app::AppState,
+    pub http: reqwest::Client,
+    pub dir: tempfile::TempDir,
+}
+
+impl TestApp {
+    pub fn url(&self, path: &str) -> String {
+        format!("{}{path}", self.base)
+    }
+
+    pub async fn get_text(&self, path: &str) -> (u16, String) {
+        let r = self.http.get(self.url(path)).send().await.expect("GET");
+        let s = r.status().as_u16();
+        (s, r.text().await.expect("body"))
+    }
+
+    pub async fn get_json(&self, path: &str) -> (u16, serde_json::Value) {
+        let r = self.http.get(self.url(path)).send().await.expect("GET");
+        let s = r.status().as_u16();
+        (s, r.json().await.expect("json body"))
+    }
+
+    /// POSTs a submission form with the app's token.
+    pub async fn submit(
+        &self,
+        fields: &[(&str, &str)],
+        onnx: Option<Vec<u8>>,
+    ) -> reqwest::Response {
+        let mut form = reqwest::multipart::Form::new();
+        for (k, v) in fields {
+            form = form.text(k.to_string(), v.to_string());
+        }
+        if let Some(b) = onnx {
+            form = form.part(
+                "onnx",
+                reqwest::multipart::Part::bytes(b).file_name("p.onnx"),
+            );
+        }
+        self.http
+            .post(self.url("/api/v1/submissions"))
+            .bearer_auth(&self.token)
+            .multipart(form)
+            .send()
+            .await
+            .expect("POST")
+    }
+}
+
+pub struct Options {
+    pub workers: usize,
+    pub worker_exe: Option<PathBuf>,
+    pub rate_limit: u32,
+    pub max_upload: usize,
+    pub db: Option<PathBuf>,
+}
+
+impl Default for Options {
+    fn default() -> Self {
+        Options {
+            workers: 0,
+            worker_exe: None,
+            rate_limit: 1000,
+            max_upload: 1 << 20,
+            db: None,
+        }
+    }
+}
+
+pub async fn spawn_app() -> TestApp {
+    spawn_app_with(Options::default()).await
+}
+
+pub async fn spawn_app_with(o: Options) -> TestApp {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let db =
+        o.db.clone()
+            .unwrap_or_else(|| dir.path().join("test.sqlite"));
+    let exe = o
+        .worker_exe
+        .clone()
+        .unwrap_or_else(|| PathBuf::from("/bin/false"));
+    let mut cfg = ServerConfig::new(db.clone(), "127.0.0.1:0".parse().unwrap(), exe);
+    cfg.workers = o.workers;
+    cfg.rate_limit_per_minute = o.rate_limit;
+    cfg.max_upload_bytes = o.max_upload;
+    cfg.lease_seconds = 3;
+    cfg.worker.args = vec![];
+    cfg.worker.wall_clock = std::time::Duration::from_secs(60);
+    let runner: Arc<dyn JobRunner> = Arc::new(ProcessRunner {
+        cmd: cfg.worker.clone(),
+    });
+    let (listener, running) = prepare(cfg, runner).await.expect("server starts");
+    let app = router(running.state.clone());
+    tokio::spawn(async move {
+        axum::serve(listener, app).await.expect("serve");
+    });
+    let token = running
+        .state
+        .store
+        .create_token("tester")
+        .await
+        .expect("token");
+    TestApp {
+        addr: running.addr,
+        base: format!("http://{}", running.addr),
+        db,
+        token,
+        state: running.state,
+        http: reqwest::Client::new(),
+        dir,
+    }
+}
+
+/// A valid manifest for `task`.
+pub fn manifest(task: &str) -> String {
+    format!(
+        r#"{{"task": "{task}", "obs_type": "state", "history": 1, "horizon": 1, "execute": 1}}"#
+    )
+}
+
+/// Bytes that pass the server's size check (the worker judges ONNX validity).
+pub fn fake_onnx() -> Vec<u8> {
+    let mut v = b"\x08\x07\x12\x04test".to_vec();
+    v.resize(64, 0);
+    v
+}

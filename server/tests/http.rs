@@ -1,0 +1,408 @@
+//! The HTTP layer against a real server on 127.0.0.1 (port 0) with a fresh
+//! SQLite file: validation, auth, rate limits, pages, CSV, plots.
+
+mod common;
+use common::*;
+use serde_json::Value;
+
+fn err(v: &Value) -> (&str, Option<&str>) {
+    (
+        v["error"]["code"].as_str().expect("error.code"),
+        v["error"]["field"].as_str(),
+    )
+}
+
+#[tokio::test]
+async fn auth_is_required_and_errors_share_one_format() {
+    let app = spawn_app().await;
+    let r = app
+        .http
+        .post(app.url("/api/v1/submissions"))
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status(), 401);
+    assert_eq!(r.headers()["www-authenticate"], "Bearer realm=\"d3il\"");
+    let v: Value = r.json().await.unwrap();
+    assert_eq!(err(&v), ("unauthorized", None));
+    assert!(v["error"]["message"]
+        .as_str()
+        .unwrap()
+        .contains("d3il token create"));
+
+    let r = app
+        .http
+        .get(app.url("/api/v1/whoami"))
+        .bearer_auth("d3il_not-a-token")
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status(), 401);
+    let r = app
+        .http
+        .get(app.url("/api/v1/whoami"))
+        .bearer_auth(&app.token)
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status(), 200);
+    assert_eq!(r.json::<Value>().await.unwrap()["submitter"], "tester");
+    let (s, v) = app.get_json("/api/v1/nothing-here").await;
+    assert_eq!((s, err(&v)), (404, ("not_found", None)));
+}
+
+#[tokio::test]
+async fn every_bad_field_is_named() {
+    let app = spawn_app().await;
+    let m = manifest("avoiding");
+    let good: Vec<(&str, &str)> = vec![
+        ("method", "MyPolicy"),
+        ("task", "avoiding"),
+        ("training_seed", "0"),
+        ("manifest", &m),
+    ];
+    let with = |k: &str, v: &'static str| {
+        let mut f: Vec<(&str, &str)> = good.iter().filter(|(kk, _)| *kk != k).cloned().collect();
+        f.push((Box::leak(k.to_string().into_boxed_str()), v));
+        f
+    };
+    let cases: Vec<(Vec<(&str, &str)>, &str)> = vec![
+        (with("task", "juggling"), "task"),
+        (with("data_fraction", "1.5"), "data_fraction"),
+        (with("data_fraction", "0"), "data_fraction"),
+        (with("data_fraction", "abc"), "data_fraction"),
+        (with("training_seed", "-1"), "training_seed"),
+        (with("training_seed", "x"), "training_seed"),
+        (with("obs_type", "image"), "obs_type"),
+        (with("obs_type", "lidar"), "obs_type"),
+        (with("protocol", "fast"), "protocol"),
+        (with("method", "<script>"), "method"),
+        (with("history", "0"), "history"),
+        (with("code_url", "javascript:alert(1)"), "code_url"),
+        (with("manifest", "{not json"), "manifest"),
+        (with("manifest", r#"{"task": "pushing"}"#), "manifest"),
+        (
+            with(
+                "manifest",
+                r#"{"task": "avoiding", "horizon": 2, "execute": 3}"#,
+            ),
+            "manifest",
+        ),
+        (with("endpoint_url", "ws://127.0.0.1:9/"), "endpoint_url"),
+        (with("unexpected", "1"), "unexpected"),
+    ];
+    for (fields, field) in cases {
+        let r = app.submit(&fields, Some(fake_onnx())).await;
+        assert_eq!(r.status(), 400, "{field}: {fields:?}");
+        let v: Value = r.json().await.unwrap();
+        assert_eq!(err(&v), ("invalid_field", Some(field)), "{v}");
+    }
+    // No policy at all.
+    let r = app.submit(&good, None).await;
+    let v: Value = r.json().await.unwrap();
+    assert_eq!(err(&v), ("invalid_field", Some("onnx")));
+    // A private endpoint is refused before any dry-run.
+    let r = app
+        .submit(
+            &[
+                ("method", "Remote"),
+                ("task", "avoiding"),
+                ("training_seed", "0"),
+                ("endpoint_url", "ws://10.0.0.1/"),
+            ],
+            None,
+        )
+        .await;
+    let v: Value = r.json().await.unwrap();
+    assert_eq!(err(&v), ("invalid_field", Some("endpoint_url")));
+    // Nothing was stored by any of the refused requests.
+    let n: i64 = sqlx::query_scalar("SELECT COUNT(*) FROM submissions")
+        .fetch_one(app.state.store.pool())
+        .await
+        .unwrap();
+    assert_eq!(n, 0);
+}
+
+#[tokio::test]
+async fn accepted_submission_is_durable_queued_and_duplicate_seed_conflicts() {
+    let app = spawn_app().await;
+    let m = manifest("aligning");
+    let fields = [
+        ("method", "QueuePolicy"),
+        ("task", "aligning"),
+        ("training_seed", "3"),
+        ("data_fraction", "0.5"),
+        ("protocol", "quick"),
+        ("manifest", m.as_str()),
+    ];
+    let r = app.submit(&fields, Some(fake_onnx())).await;
+    assert_eq!(r.status(), 201);
+    let loc = r.headers()["location"].to_str().unwrap().to_string();
+    let v: Value = r.json().await.unwrap();
+    assert_eq!(v["status"], "queued");
+    assert_eq!(v["queue_position"], 0);
+    assert_eq!(v["data_fraction"], 0.5);
+    assert_eq!(v["policy"]["kind"], "onnx");
+    assert_eq!(loc, format!("/api/v1/submissions/{}", v["id"]));
+    // The file is stored under its hash.
+    let sha = v["policy"]["sha256"].as_str().unwrap();
+    assert!(app
+        .state
+        .store
+        .data_dir()
+        .join(format!("policies/{sha}.onnx"))
+        .is_file());
+    let r = app.submit(&fields, Some(fake_onnx())).await;
+    assert_eq!(r.status(), 409);
+    let e: Value = r.json().await.unwrap();
+    assert_eq!(err(&e), ("conflict", Some("training_seed")));
+    // The page shows the queue position.
+    let (s, page) = app.get_text(&format!("/submissions/{}", v["id"])).await;
+    assert_eq!(s, 200);
+    assert!(page.contains("Queue position: 1"), "{page}");
+    assert!(page.contains("http-equiv=\"refresh\""));
+    // Another submitter may not use this method name.
+    let other = app.state.store.create_token("someone-else").await.unwrap();
+    let mut form = reqwest::multipart::Form::new();
+    for (k, v) in [
+        ("method", "QueuePolicy"),
+        ("task", "aligning"),
+        ("training_seed", "4"),
+        ("manifest", m.as_str()),
+    ] {
+        form = form.text(k, v.to_string());
+    }
+    form = form.part("onnx", reqwest::multipart::Part::bytes(fake_onnx()));
+    let r = app
+        .http
+        .post(app.url("/api/v1/submissions"))
+        .bearer_auth(other)
+        .multipart(form)
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status(), 409);
+    assert_eq!(
+        err(&r.json::<Value>().await.unwrap()),
+        ("conflict", Some("method"))
+    );
+}
+
+#[tokio::test]
+async fn oversized_uploads_are_refused() {
+    let app = spawn_app_with(Options {
+        max_upload: 1 << 20,
+        ..Default::default()
+    })
+    .await;
+    let m = manifest("avoiding");
+    let fields = [
+        ("method", "Big"),
+        ("task", "avoiding"),
+        ("training_seed", "0"),
+        ("manifest", m.as_str()),
+    ];
+    let r = app.submit(&fields, Some(vec![1u8; 3 << 20])).await;
+    assert_eq!(r.status(), 413);
+    let v: Value = r.json().await.unwrap();
+    assert_eq!(err(&v), ("payload_too_large", None));
+    // Declared length over the limit: refused before the body is read.
+    let r = app
+        .http
+        .post(app.url("/api/v1/submissions"))
+        .bearer_auth(&app.token)
+        .header("content-type", "multipart/form-data; boundary=x")
+        .header("content-length", (64u64 << 20).to_string())
+        .body(vec![0u8; 16])
+        .send()
+        .await;
+    // The server answers 413 and closes; the client may see either the
+    // answer or a reset because it announced more bytes than it sent.
+    if let Ok(r) = r {
+        assert_eq!(r.status(), 413);
+    }
+}
+
+#[tokio::test]
+async fn rate_limit_answers_429_with_retry_after() {
+    let app = spawn_app_with(Options {
+        rate_limit: 3,
+        ..Default::default()
+    })
+    .await;
+    for _ in 0..3 {
+        let r = app
+            .http
+            .get(app.url("/api/v1/whoami"))
+            .bearer_auth(&app.token)
+            .send()
+            .await
+            .unwrap();
+        assert_eq!(r.status(), 200);
+    }
+    let r = app
+        .http
+        .get(app.url("/api/v1/whoami"))
+        .bearer_auth(&app.token)
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status(), 429);
+    let retry: u64 = r.headers()["retry-after"]
+        .to_str()
+        .unwrap()
+        .parse()
+        .unwrap();
+    assert!((1..=60).contains(&retry));
+    assert_eq!(
+        err(&r.json::<Value>().await.unwrap()),
+        ("rate_limited", None)
+    );
+}
+
+#[tokio::test]
+async fn paper_rows_are_on_the_pages_csv_and_api() {
+    let app = spawn_app().await;
+    let (s, home) = app.get_text("/").await;
+    assert_eq!(s, 200);
+    assert!(home.contains("Aligning (T2)"));
+    let (s, page) = app.get_text("/tasks/aligning").await;
+    assert_eq!(s, 200);
+    assert_eq!(
+        page.matches("badge-reported").count(),
+        11,
+        "11 paper methods on Aligning (state)"
+    );
+    assert!(page.contains("<svg"), "the Pareto plot is embedded");
+    let (s, page) = app.get_text("/tasks/stacking?obs=image").await;
+    assert_eq!(s, 200);
+    for t in ["Stacking-1 (T5)", "Stacking-2 (T5)", "Stacking-3 (T5)"] {
+        assert!(page.contains(t));
+    }
+    let (s, csv) = app.get_text("/api/v1/leaderboards/avoiding/csv").await;
+    assert_eq!(s, 200);
+    assert_eq!(csv.lines().count(), 12);
+    assert!(csv.contains(
+        "Avoiding (T1),state,BC-MLP,reported,,1,,0.6660,0.5120,0.0000,0.0000,,,6,0.4600"
+    ));
+    let (s, v) = app
+        .get_json("/api/v1/leaderboards/aligning?obs=state")
+        .await;
+    assert_eq!(s, 200);
+    assert_eq!(v["rows"].as_array().unwrap().len(), 11);
+    let (s, v) = app.get_json("/api/v1/leaderboards").await;
+    assert_eq!(s, 200);
+    assert_eq!(v["leaderboards"].as_array().unwrap().len(), 12);
+    let (s, v) = app.get_json("/api/v1/openapi.json").await;
+    assert_eq!(s, 200);
+    assert_eq!(v["openapi"], "3.1.0");
+    let (s, page) = app.get_text("/tasks/aligning/data-fraction").await;
+    assert_eq!(s, 200);
+    assert!(page.contains("0.25"));
+    let (s, svg) = app
+        .get_text("/plots/tasks/aligning/data-fraction.svg")
+        .await;
+    assert_eq!(s, 200);
+    assert!(svg.starts_with("<svg"));
+    let (s, page) = app.get_text("/methods/DDPM-ACT").await;
+    assert_eq!(s, 200);
+    assert!(page.contains("Transformer encoder-decoder") || page.contains("ACT"));
+    let (s, _) = app.get_text("/tasks/juggling").await;
+    assert_eq!(s, 404);
+    let (s, page) = app.get_text("/tasks/aligning?sort=bogus").await;
+    assert_eq!(s, 400);
+    assert!(page.contains("sort"));
+}
+
+#[tokio::test]
+async fn sorting_links_reorder_the_table() {
+    let app = spawn_app().await;
+    let order = |page: &str| -> Vec<String> {
+        page.split("<td class=\"method\"><a href=\"/methods/")
+            .skip(1)
+            .map(|s| s.split('"').next().unwrap().to_string())
+            .collect()
+    };
+    let (_, asc) = app.get_text("/tasks/pushing?sort=success&dir=asc").await;
+    let (_, desc) = app.get_text("/tasks/pushing?sort=success&dir=desc").await;
+    let mut rev = order(&asc);
+    rev.reverse();
+    assert_eq!(order(&asc).len(), 11);
+    // Ties aside, descending is ascending reversed: compare first and last.
+    assert_eq!(order(&desc).first(), rev.first());
+    let (_, by_name) = app.get_text("/tasks/pushing?sort=method&dir=asc").await;
+    let names = order(&by_name);
+    let mut sorted = names.clone();
+    sorted.sort_by_key(|s| s.to_lowercase());
+    assert_eq!(names, sorted);
+}
+
+#[tokio::test]
+async fn html_output_is_escaped() {
+    let app = spawn_app().await;
+    let m = manifest("avoiding");
+    let r = app
+        .submit(
+            &[
+                ("method", "Escaper"),
+                ("task", "avoiding"),
+                ("training_seed", "0"),
+                ("description", "<script>alert('x')</script>"),
+                ("backbone", "<b>bold</b>"),
+                ("manifest", m.as_str()),
+            ],
+            Some(fake_onnx()),
+        )
+        .await;
+    assert_eq!(r.status(), 201);
+    let (_, page) = app.get_text("/methods/Escaper").await;
+    assert!(!page.contains("<script>alert"));
+    assert!(
+        page.contains("&lt;script&gt;") || page.contains("&#60;script&#62;"),
+        "{page}"
+    );
+    assert!(!page.contains("<b>bold</b>"));
+}
+
+#[tokio::test]
+async fn html_form_submits_and_reports_field_errors() {
+    let app = spawn_app().await;
+    let (s, form) = app.get_text("/submit").await;
+    assert_eq!(s, 200);
+    assert!(form.contains("name=\"training_seed\""));
+    let m = manifest("pushing");
+    let mk = |seed: &str| {
+        reqwest::multipart::Form::new()
+            .text("token", app.token.clone())
+            .text("method", "FormPolicy")
+            .text("task", "pushing")
+            .text("training_seed", seed.to_string())
+            .text("manifest", m.clone())
+            .part(
+                "onnx",
+                reqwest::multipart::Part::bytes(fake_onnx()).file_name("p.onnx"),
+            )
+    };
+    let client = reqwest::Client::builder()
+        .redirect(reqwest::redirect::Policy::none())
+        .build()
+        .unwrap();
+    let r = client
+        .post(app.url("/submit"))
+        .multipart(mk("1"))
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status(), 303);
+    let loc = r.headers()["location"].to_str().unwrap().to_string();
+    assert!(loc.starts_with("/submissions/"));
+    let r = client
+        .post(app.url("/submit"))
+        .multipart(mk("minus one"))
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status(), 400);
+    let page = r.text().await.unwrap();
+    assert!(page.contains("<strong>training_seed</strong>"), "{page}");
+}

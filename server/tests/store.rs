@@ -1,0 +1,257 @@
+//! Store tests on real SQLite files.
+
+use d3il_protocol::*;
+use d3il_server::store::{NewMethod, NewPolicy, NewSubmission, Store};
+
+fn eval_result(task: TaskId, success: f64, cond: f64, paths: bool) -> EvalResult {
+    let manifest = ProtocolManifest {
+        task,
+        task_version: "test".into(),
+        obs_type: ObsType::State,
+        protocol: ProtocolKind::Paper,
+        mjcf_sha256: "m".into(),
+        initial_states_sha256: "i".into(),
+        mujoco_version: "2.2.2".into(),
+        evaluator_version: "0".into(),
+        n_contexts: 2,
+        rollouts_per_context: 2,
+        max_steps: 10,
+        policy_sha256: "p".into(),
+        history: 1,
+        horizon: 1,
+        execute: 1,
+        seed: 0,
+    };
+    let est = |v| Estimate {
+        value: v,
+        ci_low: v - 0.1,
+        ci_high: v + 0.1,
+    };
+    let rollouts = (0..4)
+        .map(|i| RolloutRecord {
+            context_index: i / 2,
+            rollout_index: i % 2,
+            success: i % 2 == 0,
+            behaviour: serde_json::json!([i % 2, 0, 1]),
+            steps: 5,
+            path: paths.then(|| vec![[0.5, -0.3], [0.52, -0.1 + i as f32 * 0.01]]),
+        })
+        .collect();
+    EvalResult {
+        manifest,
+        metrics: Metrics {
+            success_rate: est(success),
+            behaviour_entropy: est(0.5),
+            conditional_entropy: est(cond),
+            stacking: (task == TaskId::Stacking).then_some([success, success / 2.0, success / 4.0]),
+            inference_ms: 1.5,
+        },
+        per_context: vec![],
+        rollouts,
+    }
+}
+
+async fn submit(store: &Store, method: &str, task: TaskId, seed: i64) -> (i64, i64) {
+    let m = store
+        .ensure_method(
+            &NewMethod {
+                name: method.into(),
+                ..Default::default()
+            },
+            None,
+        )
+        .await
+        .unwrap();
+    let id = store
+        .create_submission(
+            &NewSubmission {
+                method_id: m.id,
+                submitter_id: None,
+                task,
+                obs_type: ObsType::State,
+                training_seed: seed,
+                data_fraction: 1.0,
+                protocol: ProtocolKind::Paper,
+                policy: NewPolicy::Remote {
+                    url: "ws://127.0.0.1:1/".into(),
+                },
+                manifest_json: "{}".into(),
+            },
+            3,
+        )
+        .await
+        .unwrap();
+    let job = store.job_for(id).await.unwrap();
+    (id, job.id)
+}
+
+#[tokio::test]
+async fn paper_rows_load_once_and_match_the_embedded_cells() {
+    let dir = tempfile::tempdir().unwrap();
+    let db = dir.path().join("lb.sqlite");
+    let store = Store::open(&db).await.unwrap();
+    let cells = store.result_cells().await.unwrap();
+    let paper = paper::load_embedded();
+    assert_eq!(cells, paper.cells());
+    assert_eq!(store.methods().await.unwrap().len(), 11);
+    drop(store);
+    // A second start must not duplicate anything.
+    let store = Store::open(&db).await.unwrap();
+    assert_eq!(
+        store.result_cells().await.unwrap().len(),
+        paper.cells().len()
+    );
+    let bc = store.method_by_name("BC-MLP").await.unwrap().unwrap();
+    assert_eq!(bc.history, Some(1));
+    assert_eq!(bc.backbone.as_deref(), Some("MLP"));
+    assert!(bc.from_paper);
+}
+
+#[tokio::test]
+async fn evaluated_rows_aggregate_over_seeds_with_sample_std() {
+    let dir = tempfile::tempdir().unwrap();
+    let store = Store::open(&dir.path().join("lb.sqlite")).await.unwrap();
+    for (seed, s) in [(0, 0.6), (1, 0.8)] {
+        let (sub, job) = submit(&store, "MyPolicy", TaskId::Aligning, seed).await;
+        let claimed = store.claim_job("w0", 60).await.unwrap().unwrap();
+        assert_eq!(claimed.job.id, job);
+        let r = eval_result(TaskId::Aligning, s, 0.2 * (seed as f64 + 1.0), false);
+        store.complete_job(job, sub, &r, &[]).await.unwrap();
+        // A second (duplicate) result write changes nothing.
+        let r2 = eval_result(TaskId::Aligning, 0.0, 0.0, false);
+        store.complete_job(job, sub, &r2, &[]).await.unwrap();
+    }
+    let cells = store.result_cells().await.unwrap();
+    let mine: Vec<_> = cells.iter().filter(|c| c.method == "MyPolicy").collect();
+    assert_eq!(mine.len(), 1);
+    let c = mine[0];
+    assert_eq!(c.source, Source::Evaluated);
+    assert_eq!(c.task, "Aligning (T2)");
+    assert_eq!(c.table, "main");
+    assert_eq!(c.n_seeds, 2);
+    assert!((c.success_rate.mean - 0.7).abs() < 1e-12);
+    // sample std of {0.6, 0.8} = 0.1414...
+    assert!((c.success_rate.std - 0.02f64.sqrt()).abs() < 1e-12);
+    assert!((c.entropy.mean - 0.3).abs() < 1e-12);
+}
+
+#[tokio::test]
+async fn duplicate_seed_is_refused_and_stacking_expands() {
+    let dir = tempfile::tempdir().unwrap();
+    let store = Store::open(&dir.path().join("lb.sqlite")).await.unwrap();
+    let (sub, job) = submit(&store, "Stacker", TaskId::Stacking, 7).await;
+    let m = store.method_by_name("Stacker").await.unwrap().unwrap();
+    let dup = store
+        .create_submission(
+            &NewSubmission {
+                method_id: m.id,
+                submitter_id: None,
+                task: TaskId::Stacking,
+                obs_type: ObsType::State,
+                training_seed: 7,
+                data_fraction: 1.0,
+                protocol: ProtocolKind::Paper,
+                policy: NewPolicy::Remote {
+                    url: "ws://127.0.0.1:1/".into(),
+                },
+                manifest_json: "{}".into(),
+            },
+            3,
+        )
+        .await;
+    assert!(
+        matches!(dup, Err(d3il_server::store::StoreError::Conflict(_))),
+        "{dup:?}"
+    );
+    store.claim_job("w", 60).await.unwrap().unwrap();
+    store
+        .complete_job(
+            job,
+            sub,
+            &eval_result(TaskId::Stacking, 0.8, 0.4, false),
+            &[],
+        )
+        .await
+        .unwrap();
+    let cells = store.result_cells().await.unwrap();
+    let titles: Vec<_> = cells
+        .iter()
+        .filter(|c| c.method == "Stacker")
+        .map(|c| (c.task.clone(), c.success_rate.mean))
+        .collect();
+    assert_eq!(
+        titles,
+        vec![
+            ("Stacking-1 (T5)".to_string(), 0.8),
+            ("Stacking-2 (T5)".to_string(), 0.4),
+            ("Stacking-3 (T5)".to_string(), 0.2)
+        ]
+    );
+}
+
+#[tokio::test]
+async fn avoiding_paths_come_back_with_behaviours() {
+    let dir = tempfile::tempdir().unwrap();
+    let store = Store::open(&dir.path().join("lb.sqlite")).await.unwrap();
+    let (sub, job) = submit(&store, "Avoider", TaskId::Avoiding, 0).await;
+    store.claim_job("w", 60).await.unwrap().unwrap();
+    store
+        .complete_job(
+            job,
+            sub,
+            &eval_result(TaskId::Avoiding, 0.5, 0.1, true),
+            &[],
+        )
+        .await
+        .unwrap();
+    let paths = store.avoiding_paths(sub).await.unwrap();
+    assert_eq!(paths.len(), 4);
+    assert_eq!(paths[1].0, serde_json::json!([1, 0, 1]));
+    assert_eq!(paths[1].1[0], [0.5, -0.3]);
+}
+
+#[tokio::test]
+async fn leases_expire_retries_are_bounded_and_restart_requeues() {
+    let dir = tempfile::tempdir().unwrap();
+    let db = dir.path().join("lb.sqlite");
+    let store = Store::open(&db).await.unwrap();
+    let (sub, job) = submit(&store, "Flaky", TaskId::Pushing, 0).await;
+    assert_eq!(store.queue_position(job).await.unwrap(), Some(0));
+    let c = store.claim_job("w0", 60).await.unwrap().unwrap();
+    assert_eq!(c.job.attempts, 1);
+    assert!(
+        store.claim_job("w1", 60).await.unwrap().is_none(),
+        "a leased job is not handed out twice"
+    );
+    assert!(store.heartbeat(job, "w0", 60, Some((3, 10))).await.unwrap());
+    assert!(!store
+        .heartbeat(job, "someone-else", 60, None)
+        .await
+        .unwrap());
+    // Simulated restart: the lease is abandoned and the job goes back to the queue.
+    drop(store);
+    let store = Store::open(&db).await.unwrap();
+    assert_eq!(store.requeue_abandoned().await.unwrap(), 1);
+    assert_eq!(store.submission(sub).await.unwrap().status, "queued");
+    let err = WorkerError {
+        kind: ErrorKind::Crashed,
+        message: "worker killed by signal 9".into(),
+    };
+    let c = store.claim_job("w0", 60).await.unwrap().unwrap();
+    assert_eq!(c.job.attempts, 2);
+    assert!(
+        store.fail_attempt(job, &err, true).await.unwrap(),
+        "attempt 2 of 3 is retried"
+    );
+    store.claim_job("w0", 60).await.unwrap().unwrap();
+    assert!(
+        !store.fail_attempt(job, &err, true).await.unwrap(),
+        "attempt 3 of 3 is final"
+    );
+    let s = store.submission(sub).await.unwrap();
+    assert_eq!(s.status, "failed");
+    assert_eq!(s.error_kind.as_deref(), Some("crashed"));
+    assert!(store.claim_job("w0", 60).await.unwrap().is_none());
+    // A failed submission does not block resubmitting the same seed.
+    submit(&store, "Flaky", TaskId::Pushing, 0).await;
+}
