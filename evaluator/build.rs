@@ -4,7 +4,8 @@ use std::path::Path;
 fn main() {
     println!("cargo:rerun-if-changed=build.rs");
     println!("cargo:rerun-if-env-changed=MUJOCO_LIB_DIR");
-    let lib_dir = std::env::var("MUJOCO_LIB_DIR").unwrap_or_else(|_| "/usr/lib/x86_64-linux-gnu".into());
+    let lib_dir =
+        std::env::var("MUJOCO_LIB_DIR").unwrap_or_else(|_| "/usr/lib/x86_64-linux-gnu".into());
     let header = Path::new("/usr/include/mujoco/mujoco.h");
     let lib = Path::new(&lib_dir).join("libmujoco.so");
     if !lib.exists() || !header.exists() {

@@ -14,7 +14,12 @@ fn run_script(task: &LoadedTask, script: &AvoidingScript) -> (bool, Value, Optio
             break;
         }
     }
-    (env.success(), env.behaviour(), env.behaviour_key(), env.steps())
+    (
+        env.success(),
+        env.behaviour(),
+        env.behaviour_key(),
+        env.steps(),
+    )
 }
 
 #[test]
@@ -27,7 +32,12 @@ fn every_path_succeeds_with_its_label() {
         if !success || key.as_deref() != Some(want.as_str()) {
             failures.push(format!("path {path}: success {success}, key {key:?} (want {want}), bits {bits}, {steps} steps"));
         }
-        let ones = bits.as_array().unwrap().iter().filter(|b| b.as_f64() == Some(1.0)).count();
+        let ones = bits
+            .as_array()
+            .unwrap()
+            .iter()
+            .filter(|b| b.as_f64() == Some(1.0))
+            .count();
         assert!(ones <= 3);
     }
     assert!(failures.is_empty(), "{failures:#?}");

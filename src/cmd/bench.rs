@@ -60,7 +60,11 @@ fn physics(env_steps: usize) -> anyhow::Result<()> {
         recorded += 1;
         if out.done || recorded == env_steps {
             episode += 1;
-            let mut log = env.sim.ctrl_recorder.replace(Vec::new()).unwrap_or_default();
+            let mut log = env
+                .sim
+                .ctrl_recorder
+                .replace(Vec::new())
+                .unwrap_or_default();
             // The reset's own hold substep is not part of the env steps.
             log.remove(0);
             ctrl_log.push(log);
@@ -98,7 +102,10 @@ fn physics(env_steps: usize) -> anyhow::Result<()> {
         env_steps as f64 / controlled,
         ctrl_rate
     );
-    println!("raw mj_step: {:.0} physics steps/s (same model, recorded controls)", raw_rate);
+    println!(
+        "raw mj_step: {:.0} physics steps/s (same model, recorded controls)",
+        raw_rate
+    );
     println!(
         "ratio controlled/raw (physics steps per second): {:.3}",
         ctrl_rate / raw_rate

@@ -48,7 +48,12 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         }
         Action::Verify { task } => {
             let set = task_def(task)?.context_set()?;
-            println!("{}: {} initial states, sha256 {} (ok)", set.name, set.len(), set.sha256);
+            println!(
+                "{}: {} initial states, sha256 {} (ok)",
+                set.name,
+                set.len(),
+                set.sha256
+            );
         }
     }
     Ok(())

@@ -58,7 +58,8 @@ pub fn replay(task: TaskId, input_json: &str) -> anyhow::Result<Value> {
     let mut observations = vec![first];
     let mut tcp = vec![env.sim.tcp_pos()];
     let mut objects: BTreeMap<String, Vec<[f64; 3]>> = BTreeMap::new();
-    let record = |env: &d3il_evaluator::tasks::Env, objects: &mut BTreeMap<String, Vec<[f64; 3]>>| {
+    let record = |env: &d3il_evaluator::tasks::Env,
+                  objects: &mut BTreeMap<String, Vec<[f64; 3]>>| {
         for (name, p) in env.objects() {
             objects.entry(name).or_default().push(p);
         }

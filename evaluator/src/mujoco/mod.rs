@@ -239,7 +239,12 @@ impl Model {
         let mut err = vec![0 as std::os::raw::c_char; 1024];
         let raw = guarded(|| unsafe {
             // SAFETY: valid VFS and error buffer; MuJoCo copies what it needs.
-            ffi::mj_loadXML(cmain.as_ptr(), vfs.ptr(), err.as_mut_ptr(), err.len() as i32)
+            ffi::mj_loadXML(
+                cmain.as_ptr(),
+                vfs.ptr(),
+                err.as_mut_ptr(),
+                err.len() as i32,
+            )
         })?;
         // SAFETY: the buffer is NUL-terminated by MuJoCo (or still all zeros).
         let msg = unsafe { CStr::from_ptr(err.as_ptr()) }

@@ -18,10 +18,18 @@ const TWO_BOXES: &str = r#"
 
 #[test]
 fn malformed_mjcf_returns_mujocos_message() {
-    let err = Model::from_xml("<mujoco><worldbody><body></mujoco>", &[]).err().unwrap();
+    let err = Model::from_xml("<mujoco><worldbody><body></mujoco>", &[])
+        .err()
+        .unwrap();
     let msg = err.to_string();
-    assert!(msg.starts_with("MuJoCo could not compile the model"), "{msg}");
-    assert!(msg.to_lowercase().contains("xml"), "MuJoCo's own text expected: {msg}");
+    assert!(
+        msg.starts_with("MuJoCo could not compile the model"),
+        "{msg}"
+    );
+    assert!(
+        msg.to_lowercase().contains("xml"),
+        "MuJoCo's own text expected: {msg}"
+    );
 
     let err = Model::from_xml(
         r#"<mujoco><worldbody><geom type="box" size="-1 1 1" name="g"/><geom type="nonsense"/></worldbody></mujoco>"#,
@@ -29,7 +37,10 @@ fn malformed_mjcf_returns_mujocos_message() {
     )
     .err()
     .unwrap();
-    assert!(err.to_string().contains("nonsense") || err.to_string().contains("type"), "{err}");
+    assert!(
+        err.to_string().contains("nonsense") || err.to_string().contains("type"),
+        "{err}"
+    );
 }
 
 #[test]
@@ -71,7 +82,11 @@ fn contacts_between_named_geoms_are_reported() {
     assert!((d.time() - 0.1).abs() < 1e-9);
     // The box rests on the floor: its z stays near 0.05.
     let adr = m.joint_qpos_addr("box_joint").unwrap();
-    assert!((d.qpos()[adr + 2] - 0.05).abs() < 2e-3, "{}", d.qpos()[adr + 2]);
+    assert!(
+        (d.qpos()[adr + 2] - 0.05).abs() < 2e-3,
+        "{}",
+        d.qpos()[adr + 2]
+    );
 }
 
 #[test]
@@ -89,7 +104,10 @@ fn data_is_send_and_steps_on_other_threads() {
         })
         .collect();
     let r: Vec<_> = handles.into_iter().map(|h| h.join().unwrap()).collect();
-    assert_eq!(r[0], r[1], "same model and start must give identical states");
+    assert_eq!(
+        r[0], r[1],
+        "same model and start must give identical states"
+    );
 }
 
 #[test]

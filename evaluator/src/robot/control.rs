@@ -25,7 +25,9 @@ const ORI_ERR_CLIP: f64 = 0.1;
 const NULL_CLIP: f64 = 0.2;
 const QDOT_NORM_MAX: f64 = 3.0;
 /// The robot's software limits used by the IK clip (not the MJCF ranges; q3 <= 2.0).
-pub const Q_MIN: [f64; 7] = [-2.8973, -1.7628, -2.8973, -3.0718, -2.8973, -0.0175, -2.8973];
+pub const Q_MIN: [f64; 7] = [
+    -2.8973, -1.7628, -2.8973, -3.0718, -2.8973, -0.0175, -2.8973,
+];
 pub const Q_MAX: [f64; 7] = [2.8973, 1.7628, 2.0, -0.0698, 2.8973, 3.7525, 2.8973];
 /// Physics time step used for the velocity reference.
 pub const H: f64 = 0.001;
@@ -38,23 +40,26 @@ pub fn orientation_error(c: &[f64; 4], d: &[f64; 4]) -> Vector3<f64> {
 }
 
 fn quat_dist(a: &[f64; 4], b: &[f64; 4], sign: f64) -> f64 {
-    (0..4).map(|i| (a[i] - sign * b[i]).powi(2)).sum::<f64>().sqrt()
+    (0..4)
+        .map(|i| (a[i] - sign * b[i]).powi(2))
+        .sum::<f64>()
+        .sqrt()
 }
 
-/// Inverse of J Jᵀ + λI with its eigenvalues clipped to [0.01, 100] (spec/01
-/// §3.4 step 5). A is symmetric PSD, so SVD clipping equals eigenvalue clipping.
-/// Fast path: two Cholesky tests prove no eigenvalue needs clipping.
-fn clipped_inverse(a: &M6) -> M6 {
-    let lower_ok = (a - M6::identity() * SV_MIN).cholesky().is_some();
-    let upper_ok = (M6::identity() * SV_MAX - a).cholesky().is_some();
-    if lower_ok && upper_ok {
+/// Solves (J Jᵀ + λI) x = rhs with the eigenvalues of the matrix clipped to
+/// [0.01, 100] (spec/01 §3.4 step 5). A is symmetric PSD, so SVD clipping
+/// equals eigenvalue clipping. Fast path, exact up to round-off: λ_max ≤ trace
+/// ≤ 100, and a Cholesky factorisation of A − 0.01·I proves λ_min > 0.01, so
+/// nothing is clipped and a Cholesky solve of A suffices.
+fn clipped_solve(a: &M6, rhs: &V6) -> V6 {
+    if a.trace() <= SV_MAX && (a - M6::identity() * SV_MIN).cholesky().is_some() {
         if let Some(ch) = a.cholesky() {
-            return ch.inverse();
+            return ch.solve(rhs);
         }
     }
     let eig = a.symmetric_eigen();
     let inv = eig.eigenvalues.map(|l| 1.0 / l.clamp(SV_MIN, SV_MAX));
-    eig.eigenvectors * M6::from_diagonal(&inv) * eig.eigenvectors.transpose()
+    eig.eigenvectors * M6::from_diagonal(&inv) * (eig.eigenvectors.transpose() * rhs)
 }
 
 /// The Cartesian position+quaternion tracking controller of the rod tasks
@@ -109,9 +114,8 @@ impl CartesianTracker {
             );
             let j: Jacobian = fk.jacobian();
             let a = j * j.transpose() + M6::identity() * LAMBDA;
-            let a_inv = clipped_inverse(&a);
             let qdot0 = (q_rest - q).map(|e| NULL_GAIN * e.clamp(-NULL_CLIP, NULL_CLIP));
-            let mut qdot = j.transpose() * (a_inv * (v - j * qdot0)) + qdot0;
+            let mut qdot = j.transpose() * clipped_solve(&a, &(v - j * qdot0)) + qdot0;
             let norm = qdot.norm();
             if norm > QDOT_NORM_MAX {
                 qdot *= QDOT_NORM_MAX / norm;
@@ -188,4 +192,58 @@ pub fn finger_forces(cmd: FingerCommand, p: [f64; 2], pdot: [f64; 2]) -> [f64; 2
         f[i] = 500.0 * (mean - p[i]) + f2;
     }
     f
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn clipped_solve_matches_eigen_clipping_on_both_paths() {
+        let reference = |a: &M6, rhs: &V6| {
+            let eig = a.symmetric_eigen();
+            let inv = eig.eigenvalues.map(|l| 1.0 / l.clamp(SV_MIN, SV_MAX));
+            eig.eigenvectors * M6::from_diagonal(&inv) * eig.eigenvectors.transpose() * rhs
+        };
+        let kin = PandaKinematics::new();
+        let rhs = V6::new(1.0, -2.0, 0.5, 0.1, 0.2, -0.3);
+        // A comfortable pose (no clipping) and a far-reach pose whose smallest
+        // eigenvalue falls below 0.01 (clipping active, spec/01 §3.4).
+        for q in [
+            crate::robot::init_qpos::AVOIDING,
+            [0.0, 1.5, 0.0, -0.1, 0.0, 1.6, 0.785],
+        ] {
+            let j = kin.fk(&q).jacobian();
+            let a = j * j.transpose() + M6::identity() * LAMBDA;
+            let got = clipped_solve(&a, &rhs);
+            let want = reference(&a, &rhs);
+            assert!(
+                (got - want).norm() < 1e-9 * want.norm().max(1.0),
+                "{got} vs {want}"
+            );
+        }
+        let j = kin.fk(&[0.0, 1.5, 0.0, -0.1, 0.0, 1.6, 0.785]).jacobian();
+        let a = j * j.transpose();
+        assert!(
+            a.symmetric_eigen().eigenvalues.min() < SV_MIN,
+            "far pose must exercise clipping"
+        );
+    }
+
+    #[test]
+    fn orientation_error_is_sign_invariant_and_half_angle() {
+        let c = [0.0, 1.0, 0.0, 0.0];
+        let small = 0.01_f64;
+        // d = rotation of c by `small` about world z.
+        let d = [
+            -(small / 2.0).sin() * 0.0,
+            (small / 2.0).cos(),
+            (small / 2.0).sin(),
+            0.0,
+        ];
+        let e = orientation_error(&c, &d);
+        let e_neg = orientation_error(&c.map(|v| -v), &d.map(|v| -v));
+        assert!((e - e_neg).norm() < 1e-15);
+        assert!((e.norm() - (small / 2.0).sin()).abs() < 1e-12, "{e}");
+    }
 }

@@ -59,7 +59,10 @@ impl Primitive {
 }
 
 fn join(v: &[f64]) -> String {
-    v.iter().map(|x| format!("{x}")).collect::<Vec<_>>().join(" ")
+    v.iter()
+        .map(|x| format!("{x}"))
+        .collect::<Vec<_>>()
+        .join(" ")
 }
 
 /// Everything that defines one task's compiled model.
@@ -168,7 +171,10 @@ impl SceneSpec {
 
     pub fn compile(&self) -> Result<Model, MjError> {
         let (main, files) = self.assemble();
-        let refs: Vec<(&str, &str)> = files.iter().map(|(n, c)| (n.as_str(), c.as_str())).collect();
+        let refs: Vec<(&str, &str)> = files
+            .iter()
+            .map(|(n, c)| (n.as_str(), c.as_str()))
+            .collect();
         Model::from_xml(&main, &refs)
     }
 }

@@ -89,18 +89,37 @@ fn test_a_avoiding_hold_then_step() {
     }
     for (step, f1, f2) in FINGERS {
         let tol = if step == 0 { 1e-7 } else { 2e-6 };
-        assert!((fingers[step][0] - f1).abs() < tol, "finger1 at {step}: {:?}", fingers[step]);
-        assert!((fingers[step][1] - f2).abs() < tol, "finger2 at {step}: {:?}", fingers[step]);
+        assert!(
+            (fingers[step][0] - f1).abs() < tol,
+            "finger1 at {step}: {:?}",
+            fingers[step]
+        );
+        assert!(
+            (fingers[step][1] - f2).abs() < tol,
+            "finger2 at {step}: {:?}",
+            fingers[step]
+        );
     }
     for (step, want) in [(10, JOINTS_10), (20, JOINTS_20)] {
         for i in 0..7 {
             let err = (joints[step][i] - want[i]).abs();
-            assert!(err < 1e-5, "joint {i} after step {step}: {} vs {}", joints[step][i], want[i]);
+            assert!(
+                err < 1e-5,
+                "joint {i} after step {step}: {} vs {}",
+                joints[step][i],
+                want[i]
+            );
         }
     }
     // One-step observation lag: obs of step k = TCP after step k-1, as float32.
     for k in 1..=20 {
-        assert_eq!(observations[k - 1], [tcp[k - 1][0] as f32, tcp[k - 1][1] as f32]);
+        assert_eq!(
+            observations[k - 1],
+            [tcp[k - 1][0] as f32, tcp[k - 1][1] as f32]
+        );
     }
-    assert_eq!(observations[0], [0.524928466_f64 as f32, -0.279736728_f64 as f32]);
+    assert_eq!(
+        observations[0],
+        [0.524928466_f64 as f32, -0.279736728_f64 as f32]
+    );
 }

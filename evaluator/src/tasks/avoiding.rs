@@ -1,9 +1,7 @@
 //! Avoiding (spec/10 §2): move the rod through three rows of cylinders to the
 //! finish line; the path through the rows is the behaviour (|B| = 24).
 
-use super::{
-    geom_id, xy_delta_command, Command, ContextSet, TaskDef, TaskError, TaskLogic,
-};
+use super::{geom_id, xy_delta_command, Command, ContextSet, TaskDef, TaskError, TaskLogic};
 use crate::mujoco::Model;
 use crate::robot::control::FingerCommand;
 use crate::robot::{init_qpos, RobotVariant};
@@ -30,7 +28,13 @@ fn obstacles() -> [(&'static str, f64, f64, f64, f64); 6] {
         ("l2_bottom_obs", MID_X + OFFSET, row_y(1.0), 0.025, 0.1),
         ("l3_top_obs", MID_X - 2.0 * OFFSET, row_y(2.0), 0.025, 0.1),
         ("l3_mid_obs", MID_X, row_y(2.0), 0.025, 0.1),
-        ("l3_bottom_obs", MID_X + 2.0 * OFFSET, row_y(2.0), 0.025, 0.1),
+        (
+            "l3_bottom_obs",
+            MID_X + 2.0 * OFFSET,
+            row_y(2.0),
+            0.025,
+            0.1,
+        ),
     ]
 }
 
@@ -60,7 +64,12 @@ impl TaskDef for Avoiding {
             p.is_static = true;
             s.primitives.push(p);
         }
-        let mut fl = Primitive::new("finish_line", Shape::Box, [0.4, finish_y(), 0.0], &[0.5, 0.01, 0.005]);
+        let mut fl = Primitive::new(
+            "finish_line",
+            Shape::Box,
+            [0.4, finish_y(), 0.0],
+            &[0.5, 0.01, 0.005],
+        );
         fl.rgba = [0.0, 1.0, 0.0, 0.3];
         fl.is_static = true;
         fl.visual_only = true;
@@ -184,7 +193,12 @@ impl AvoidingLogic {
 }
 
 impl TaskLogic for AvoidingLogic {
-    fn reset(&mut self, sim: &mut Sim, init_qpos: &[f64; 7], context: &Value) -> Result<(), TaskError> {
+    fn reset(
+        &mut self,
+        sim: &mut Sim,
+        init_qpos: &[f64; 7],
+        context: &Value,
+    ) -> Result<(), TaskError> {
         if !context.is_null() && context != &json!({}) {
             return Err(TaskError::Context {
                 task: TaskId::Avoiding,

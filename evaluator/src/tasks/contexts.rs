@@ -34,7 +34,11 @@ pub fn sha256_hex(bytes: &[u8]) -> String {
 
 impl ContextSet {
     /// Parses `bytes` after checking their sha256 against `expected_sha256`.
-    pub fn verify(name: &str, bytes: &[u8], expected_sha256: &str) -> Result<ContextSet, TaskError> {
+    pub fn verify(
+        name: &str,
+        bytes: &[u8],
+        expected_sha256: &str,
+    ) -> Result<ContextSet, TaskError> {
         let got = sha256_hex(bytes);
         if got != expected_sha256 {
             return Err(TaskError::ContextSet {
@@ -45,10 +49,11 @@ impl ContextSet {
                 ),
             });
         }
-        let file: ContextFile = serde_json::from_slice(bytes).map_err(|e| TaskError::ContextSet {
-            name: name.into(),
-            message: format!("not a valid context file: {e}"),
-        })?;
+        let file: ContextFile =
+            serde_json::from_slice(bytes).map_err(|e| TaskError::ContextSet {
+                name: name.into(),
+                message: format!("not a valid context file: {e}"),
+            })?;
         Ok(ContextSet {
             name: name.into(),
             sha256: got,
@@ -113,7 +118,9 @@ mod tests {
         let mut bad = bytes.clone();
         let i = bad.iter().position(|&b| b == b'1').unwrap();
         bad[i] = b'2';
-        let err = ContextSet::verify("t.json", &bad, &sha).unwrap_err().to_string();
+        let err = ContextSet::verify("t.json", &bad, &sha)
+            .unwrap_err()
+            .to_string();
         assert!(err.contains("sha256") && err.contains("modified"), "{err}");
     }
 }

@@ -33,7 +33,11 @@ pub enum TaskError {
         meaning: &'static str,
     },
     #[error("action value {index} is {value} at step {step}; actions must be finite numbers")]
-    NonFinite { index: usize, value: f32, step: usize },
+    NonFinite {
+        index: usize,
+        value: f32,
+        step: usize,
+    },
     #[error("initial-state set `{name}`: {message}")]
     ContextSet { name: String, message: String },
     #[error("the episode is over (done was returned); reset before stepping again")]
@@ -99,7 +103,12 @@ pub trait TaskDef: Send + Sync {
 pub trait TaskLogic: Send {
     /// Places the context's objects (free-joint qpos or model poses, no forward)
     /// and runs the reset sequence through `sim.reset`.
-    fn reset(&mut self, sim: &mut Sim, init_qpos: &[f64; 7], context: &Value) -> Result<(), TaskError>;
+    fn reset(
+        &mut self,
+        sim: &mut Sim,
+        init_qpos: &[f64; 7],
+        context: &Value,
+    ) -> Result<(), TaskError>;
     /// Environment observation from the current (pre-physics) state, float32.
     fn observe(&self, sim: &Sim) -> Vec<f32>;
     /// Termination test before the physics; returns true when the episode ends
