@@ -42,6 +42,8 @@ pub enum TaskError {
     ContextSet { name: String, message: String },
     #[error("the episode is over (done was returned); reset before stepping again")]
     EpisodeOver,
+    #[error("the simulation raised MuJoCo warnings at step {step} ({warnings}); the result would not be trustworthy, so the rollout is stopped")]
+    SimulationWarning { step: usize, warnings: String },
     #[error("task {0} is not available in this build")]
     Unavailable(TaskId),
 }
@@ -280,6 +282,16 @@ impl Env {
         let done = early || self.step_counter + 1 >= self.def.max_steps();
         self.sim.step_physics()?;
         self.step_counter += 1;
+        // Buffer overflows and instabilities (MuJoCo then resets the state by
+        // itself) must never pass silently.
+        if self.sim.data.warning_count() > 0 {
+            let mut w = crate::mujoco::take_warnings();
+            w.dedup();
+            return Err(TaskError::SimulationWarning {
+                step: self.step_counter,
+                warnings: if w.is_empty() { "see MuJoCo's warning counters".into() } else { w.join("; ") },
+            });
+        }
         self.logic.post_physics(&self.sim);
         self.finished = done;
         self.last_obs = obs.clone();
