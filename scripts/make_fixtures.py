@@ -221,12 +221,13 @@ def wrong_act_dim_graph():
 
 
 def nan_graph():
-    """Avoiding shapes; every action is 0/0 = NaN (depends on the input, so not folded)."""
+    """Avoiding shapes; every action is sqrt(-1 - |x|) = NaN (depends on the input,
+    so it cannot be folded away; tract simplifies x*0/x*0 to a finite value)."""
     g = Graph()
     flat = g.op("Flatten", ["obs"], axis=1)
     two = g.op("Slice", [flat, g.const([0], np.int64), g.const([2], np.int64), g.const([1], np.int64)])
-    zero = g.op("Mul", [two, g.const(0.0)])
-    g.op_to("Div", [zero, zero], "actions")
+    negative = g.op("Sub", [g.const(-1.0), g.op("Abs", [two])])
+    g.op_to("Sqrt", [negative], "actions")
     inputs = [helper.make_tensor_value_info("obs", TensorProto.FLOAT, ["B", 1, 4])]
     outputs = [helper.make_tensor_value_info("actions", TensorProto.FLOAT, ["B", 2])]
     return g.model(inputs, outputs, "nan_output")
