@@ -42,7 +42,7 @@ pub fn pareto_front(points: &[ParetoPoint]) -> Vec<usize> {
             best_entropy = points[i].entropy;
         }
     }
-    front.reverse();
+    // Walking down in success, entropy only increases along the front.
     front
 }
 
