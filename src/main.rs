@@ -20,6 +20,12 @@ enum Command {
     Contexts(cmd::contexts::Args),
     /// Replay an episode open-loop from policy-level actions and print JSON.
     Replay(cmd::replay::Args),
+    /// Run the leaderboard web service (pages, plots, JSON API, worker pool).
+    Serve(cmd::serve::Args),
+    /// Manage API tokens (`d3il token create --name NAME`).
+    Token(cmd::token::Args),
+    /// Submit a policy to a leaderboard server.
+    Submit(cmd::submit::Args),
 }
 
 fn main() -> anyhow::Result<()> {
@@ -28,5 +34,8 @@ fn main() -> anyhow::Result<()> {
         Command::Bench(a) => cmd::bench::run(a),
         Command::Contexts(a) => cmd::contexts::run(a),
         Command::Replay(a) => cmd::replay::run(a),
+        Command::Serve(a) => cmd::serve::run(a),
+        Command::Token(a) => cmd::token::run(a),
+        Command::Submit(a) => cmd::submit::run(a),
     }
 }

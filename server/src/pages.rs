@@ -285,7 +285,7 @@ fn sort_rows(rows: &mut [BoardRow], key: &str, desc: bool) {
         }
     };
     match key {
-        "method" => rows.sort_by(|a, b| a.method.to_lowercase().cmp(&b.method.to_lowercase())),
+        "method" => rows.sort_by_key(|a| a.method.to_lowercase()),
         "source" => rows.sort_by_key(|r| r.source),
         _ => rows.sort_by(|a, b| val(a).total_cmp(&val(b))),
     }
@@ -493,7 +493,8 @@ pub fn fraction_rows(rows: &[BoardRow], task: TaskId, obs: ObsType) -> Vec<Board
 }
 
 pub fn fraction_series(rows: &[BoardRow]) -> Vec<FractionSeries> {
-    let mut by: BTreeMap<(String, String), Vec<(f64, f64, f64)>> = BTreeMap::new();
+    type Points = Vec<(f64, f64, f64)>;
+    let mut by: BTreeMap<(String, String), Points> = BTreeMap::new();
     for r in rows {
         let label = match r.source {
             Source::Reported => r.method.clone(),

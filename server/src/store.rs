@@ -1042,7 +1042,7 @@ impl Store {
             .bind(r.success)
             .bind(r.behaviour.to_string())
             .bind(r.steps as i64)
-            .bind(r.path.as_ref().map(|p| to_json(p)))
+            .bind(r.path.as_ref().map(to_json))
             .execute(&mut *tx)
             .await?;
         }

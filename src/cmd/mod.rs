@@ -1,3 +1,6 @@
 pub mod bench;
 pub mod contexts;
 pub mod replay;
+pub mod serve;
+pub mod submit;
+pub mod token;

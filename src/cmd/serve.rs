@@ -42,7 +42,9 @@ pub struct Args {
 pub fn run(args: Args) -> anyhow::Result<()> {
     let exe = match args.worker_exe {
         Some(p) => p,
-        None => std::env::current_exe().context("cannot find the d3il executable to start workers")?,
+        None => {
+            std::env::current_exe().context("cannot find the d3il executable to start workers")?
+        }
     };
     let mut cfg = d3il_server::app::ServerConfig::new(args.db, args.bind, exe);
     if let Some(w) = args.workers {

@@ -60,8 +60,9 @@ pub struct Args {
 pub fn run(a: Args) -> anyhow::Result<()> {
     let token = match a.token.clone() {
         Some(t) => t,
-        None => std::env::var("D3IL_TOKEN")
-            .context("give --token or set D3IL_TOKEN (mint one with `d3il token create --name <you>`)")?,
+        None => std::env::var("D3IL_TOKEN").context(
+            "give --token or set D3IL_TOKEN (mint one with `d3il token create --name <you>`)",
+        )?,
     };
     let client = d3il_server::client::Client::new(&a.server, Some(token))?;
     let mut fields: Vec<(&str, String)> = vec![
@@ -98,7 +99,11 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     let id = created["id"]
         .as_i64()
         .context("the server's answer has no submission id")?;
-    println!("submission {id} accepted: {}{}", a.server.trim_end_matches('/'), created["url"].as_str().unwrap_or(""));
+    println!(
+        "submission {id} accepted: {}{}",
+        a.server.trim_end_matches('/'),
+        created["url"].as_str().unwrap_or("")
+    );
     if !a.wait {
         return Ok(());
     }
