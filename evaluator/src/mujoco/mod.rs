@@ -321,6 +321,9 @@ impl Model {
     model_slice!(
         /// Geom sizes (3 per geom).
         geom_size, geom_size, f64, |m: &ffi::mjModel| 3 * m.ngeom);
+    model_slice!(
+        /// Mocap index of each body (-1 for bodies that are not mocap bodies).
+        body_mocapid, body_mocapid, i32, |m: &ffi::mjModel| m.nbody);
 
     /// qpos address of the named joint.
     pub fn joint_qpos_addr(&self, joint: &str) -> Result<usize, MjError> {
@@ -436,6 +439,14 @@ impl Data {
     data_slice!(
         /// Body world quaternions (wxyz), 4 per body.
         xquat_all, xquat_all_mut, xquat, |m: &ffi::mjModel| 4 * m.nbody);
+    data_slice!(
+        /// Mocap body positions, 3 per mocap body. Per-Data poses for bodies the
+        /// model marks `mocap="true"` (e.g. Aligning's target), so a rollout can
+        /// move them without writing the shared read-only Model.
+        mocap_pos, mocap_pos_mut, mocap_pos, |m: &ffi::mjModel| 3 * m.nmocap);
+    data_slice!(
+        /// Mocap body quaternions (wxyz), 4 per mocap body.
+        mocap_quat, mocap_quat_mut, mocap_quat, |m: &ffi::mjModel| 4 * m.nmocap);
 
     pub fn xpos(&self, body: usize) -> [f64; 3] {
         let s = &self.xpos_all()[3 * body..3 * body + 3];
