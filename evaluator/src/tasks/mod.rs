@@ -4,9 +4,14 @@
 //! behaviour). [`Env`] runs the generic step of spec/01 §4.2 / spec/10 §1.5
 //! for any task.
 
+pub mod aligning;
 pub mod avoiding;
 pub mod contexts;
 pub mod geometry;
+pub mod inserting;
+pub mod pushing;
+pub mod sorting;
+pub mod stacking;
 
 use crate::mujoco::{Data, MjError, Model, ObjKind};
 use crate::robot::control::FingerCommand;
@@ -81,6 +86,11 @@ pub trait TaskDef: Send + Sync {
     fn context_set(&self) -> Result<ContextSet, TaskError>;
     /// Rollouts per initial state in the paper's protocol.
     fn rollouts_per_context(&self) -> usize;
+    /// Initial states the paper's protocol uses out of a set of `set_len`
+    /// (e.g. Pushing uses the first 30 of 60).
+    fn n_contexts_paper(&self, set_len: usize) -> usize {
+        set_len
+    }
     /// Draws one context from the task's distribution.
     fn sample_context(&self, rng: &mut dyn rand::RngCore) -> Value;
     /// Fresh per-episode logic bound to a compiled model.
@@ -125,6 +135,10 @@ pub trait TaskLogic: Send {
     fn behaviour_key(&self) -> Option<String>;
     /// Positions of the task's objects, for replay output and plots.
     fn objects(&self, sim: &Sim) -> Vec<(String, [f64; 3])>;
+    /// Stacking only: Stacking-1/2/3 (≥ 1 / ≥ 2 boxes registered, full stack), spec/11 §2.5.
+    fn stacking_levels(&self) -> Option<[bool; 3]> {
+        None
+    }
 }
 
 /// A compiled task, shared read-only by all rollouts of an evaluation.
@@ -159,7 +173,13 @@ impl LoadedTask {
 pub fn task_def(id: TaskId) -> Result<Arc<dyn TaskDef>, TaskError> {
     match id {
         TaskId::Avoiding => Ok(Arc::new(avoiding::Avoiding)),
-        other => Err(TaskError::Unavailable(other)),
+        TaskId::Aligning => Ok(Arc::new(aligning::Aligning)),
+        TaskId::Pushing => Ok(Arc::new(pushing::Pushing)),
+        TaskId::Sorting2 => Ok(Arc::new(sorting::Sorting::new(2))),
+        TaskId::Sorting4 => Ok(Arc::new(sorting::Sorting::new(4))),
+        TaskId::Sorting6 => Ok(Arc::new(sorting::Sorting::new(6))),
+        TaskId::Stacking => Ok(Arc::new(stacking::Stacking)),
+        TaskId::Inserting => Ok(Arc::new(inserting::Inserting)),
     }
 }
 
@@ -309,6 +329,9 @@ impl Env {
     }
     pub fn objects(&self) -> Vec<(String, [f64; 3])> {
         self.logic.objects(&self.sim)
+    }
+    pub fn stacking_levels(&self) -> Option<[bool; 3]> {
+        self.logic.stacking_levels()
     }
     pub fn task(&self) -> TaskId {
         self.def.id()
