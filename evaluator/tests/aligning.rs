@@ -199,7 +199,9 @@ fn reference_rollout_replays() {
     for (t, a) in actions.iter().enumerate() {
         let out = env.step(a).unwrap();
         let p = env.sim.tcp_pos();
-        let dev = (0..3).map(|k| (p[k] - ee[t + 1][k]).abs()).fold(0.0, f64::max);
+        let dev = (0..3)
+            .map(|k| (p[k] - ee[t + 1][k]).abs())
+            .fold(0.0, f64::max);
         all_max = all_max.max(dev);
         if t + 1 < contact {
             free_max = free_max.max(dev);
@@ -223,4 +225,19 @@ fn reference_rollout_replays() {
     assert_eq!(env.behaviour(), r["mode"]);
     // Loose: the box ends within a few centimetres of the reference's box.
     assert!(box_dev < 0.05, "final box xy deviation {box_dev}");
+}
+
+/// Success rate of each script over the whole fixed set (slow: 120 rollouts;
+/// `cargo test --test aligning -- --ignored`). The rates are reported in
+/// docs/tasks.md; the floor guards against regressions of the scripts.
+#[test]
+#[ignore]
+fn script_success_rates_over_the_fixed_set() {
+    let task = LoadedTask::load(TaskId::Aligning).unwrap();
+    let n = task.def.context_set().unwrap().len();
+    for style in [AligningStyle::Inside, AligningStyle::Outside] {
+        let (ok, report) = success_count(&task, style, n);
+        eprintln!("aligning {style:?}: {ok}/{n} successes");
+        assert!(ok * 2 >= n, "{style:?}: {ok}/{n}\n{report:#?}");
+    }
 }

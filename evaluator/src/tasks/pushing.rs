@@ -363,7 +363,11 @@ fn seg_dist(a: V2, b: V2, o: V2) -> f64 {
 fn navigate(q: V2, goal: V2, obstacles: &[V2]) -> V2 {
     let around = |o: V2| {
         let w = sub(q, o);
-        let side = if cross(w, sub(goal, o)) >= 0.0 { 1.0 } else { -1.0 };
+        let side = if cross(w, sub(goal, o)) >= 0.0 {
+            1.0
+        } else {
+            -1.0
+        };
         add(o, scale(rot(unit(w), side * 0.6), KEEP_OUT + 0.02))
     };
     if let Some(&o) = obstacles.iter().find(|&&o| norm(sub(q, o)) < KEEP_OUT) {
@@ -417,8 +421,7 @@ impl PushingScript {
             _ => [(green, rt), (red, gt)],
         };
         let swapped = self.mode >= 2;
-        let Some(&((b, psi), t)) = plan.iter().find(|((b, _), t)| norm(sub(*t, *b)) > 0.02)
-        else {
+        let Some(&((b, psi), t)) = plan.iter().find(|((b, _), t)| norm(sub(*t, *b)) > 0.02) else {
             return [0.0, 0.0];
         };
         let dist = norm(sub(t, b));
