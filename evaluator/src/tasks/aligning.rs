@@ -535,7 +535,7 @@ impl AligningScript {
         // The hold region lies just inside the success region (with the
         // settled tray 9 mm below the target origin, 15 mm horizontally is
         // 17.6 mm in 3-D), so the step after a success always holds.
-        if dist < 0.015 && yaw_err.abs() < 0.145 {
+        if dist < 0.015 && yaw_err.abs() < 0.15 {
             return match self.style {
                 AligningStyle::Inside => step_towards(d, [b[0], b[1], d[2]], MAX_STEP),
                 AligningStyle::Outside => step_towards(d, [d[0], d[1], Z_SAFE], MAX_STEP),
@@ -564,7 +564,7 @@ impl AligningScript {
         let p = (-0.06 * yaw_err).clamp(-0.03, 0.03);
         let perp_l = [-m_l[1], m_l[0]];
         // Tray speed: slow down close to the target, keep turning if needed.
-        let speed = (0.15 * dist)
+        let speed = (0.3 * dist)
             .max(if yaw_err.abs() > 0.04 { 0.004 } else { 0.002 })
             .min(MAX_STEP);
 
@@ -585,15 +585,21 @@ impl AligningScript {
                 let theta = yaw_err.clamp(-1.0, 1.0);
                 let dir = rot(m_l, -theta);
                 let mut c = scale(dir, lim / dir[0].abs().max(dir[1].abs()));
-                // Stay off the corners: there the rod axis would be ≈ 0.05
-                // from the centre, right at the 0.051 inside/outside border
-                // of the behaviour label (spec/10 §3.6).
+                // On the final approach stay off the corners and press less:
+                // at a corner the rod axis is ≈ 0.05 from the centre, and the
+                // hand tilts under load, moving the TCP further out, right at
+                // the 0.051 inside/outside border of the label (spec/10 §3.6).
+                let (side, lead) = if dist < 0.04 && yaw_err.abs() < 0.2 {
+                    (0.012, 0.03)
+                } else {
+                    (lim, LEAD)
+                };
                 for v in c.iter_mut() {
                     if v.abs() < lim - 1e-9 {
-                        *v = v.clamp(-0.025, 0.025);
+                        *v = v.clamp(-side, side);
                     }
                 }
-                let goal = add(to_world(c), scale(m, LEAD));
+                let goal = add(to_world(c), scale(m, lead));
                 step_towards(d, [goal[0], goal[1], Z_PUSH], speed)
             }
             AligningStyle::Outside => {
