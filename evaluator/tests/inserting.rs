@@ -8,7 +8,7 @@ use serde_json::{json, Value};
 fn context(poses: [(f64, f64, f64); 3]) -> Value {
     let mut c = serde_json::Map::new();
     for (name, (x, y, deg)) in ["red", "green", "blue"].iter().zip(poses) {
-        let t = (deg as f64).to_radians();
+        let t = deg.to_radians();
         c.insert(format!("{name}_xy_deg"), json!([x, y, deg]));
         c.insert(
             format!("{name}_quat"),

@@ -26,7 +26,7 @@ fn reference(rel: &str) -> Value {
 fn context(poses: &[(f64, f64, f64)]) -> Value {
     json!({
         "entries": poses.iter().map(|&(x, y, deg)| {
-            let t = (deg as f64).to_radians();
+            let t = deg.to_radians();
             json!({"xy_deg": [x, y, deg], "quat": [(t / 2.0).cos(), 0.0, 0.0, (t / 2.0).sin()]})
         }).collect::<Vec<_>>()
     })

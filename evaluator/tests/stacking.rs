@@ -44,7 +44,7 @@ fn f64s(v: &Value) -> Vec<f64> {
 fn context(poses: [(f64, f64, f64); 3]) -> Value {
     let mut c = serde_json::Map::new();
     for (name, (x, y, deg)) in ["red", "green", "blue"].iter().zip(poses) {
-        let t = (deg as f64).to_radians();
+        let t = deg.to_radians();
         c.insert(format!("{name}_xy_deg"), json!([x, y, deg]));
         c.insert(
             format!("{name}_quat"),

@@ -177,10 +177,7 @@ impl TaskDef for Stacking {
     /// and becomes index 7 of the next "previous command" (the prediction, not
     /// the measured width, spec/11 §2.3).
     fn command(&self, prev: &[f64], action: &[f32], _fixed_z: f64) -> (Vec<f64>, Command) {
-        let mut q = [0.0; 7];
-        for i in 0..7 {
-            q[i] = (prev[i] as f32 + action[i]) as f64;
-        }
+        let q: [f64; 7] = std::array::from_fn(|i| (prev[i] as f32 + action[i]) as f64);
         let gripper = action[7] as f64;
         let mut next = q.to_vec();
         next.push(gripper);
@@ -418,15 +415,10 @@ impl StackingScript {
     /// Policy input (20 values) -> action (7 joint increments, gripper).
     pub fn act(&mut self, obs: &[f32]) -> [f32; 8] {
         let q: [f64; 7] = std::array::from_fn(|i| obs[i] as f64);
-        let last_gripper = obs[7];
         if self.plan.is_empty() {
             if self.next_box >= self.order.len() {
                 let mut a = [0.0; 8];
-                a[7] = if last_gripper > 0.075 {
-                    OPEN
-                } else {
-                    last_gripper.max(OPEN)
-                };
+                a[7] = OPEN;
                 return a;
             }
             let level = self.next_box;
@@ -466,11 +458,13 @@ impl StackingScript {
             Some(ch) => j.transpose() * ch.solve(&v),
             None => SVector::<f64, 7>::zeros(),
         };
-        let mut out = [0.0f32; 8];
-        for k in 0..7 {
-            out[k] = dq[k].clamp(-0.05, 0.05) as f32;
-        }
-        out[7] = w.gripper;
+        let out: [f32; 8] = std::array::from_fn(|k| {
+            if k < 7 {
+                dq[k].clamp(-0.05, 0.05) as f32
+            } else {
+                w.gripper
+            }
+        });
         if reached {
             self.waited += 1;
             if self.waited >= w.hold {
