@@ -1,6 +1,6 @@
 //! Application state, configuration, the router and `serve`.
 
-use crate::queue::{start_pool, JobRunner, PoolConfig, ProcessRunner, QueueSignal, WorkerProcess};
+use crate::queue::{start_pool, JobRunner, PoolConfig, QueueSignal, WorkerProcess};
 use crate::ratelimit::RateLimiter;
 use crate::store::{Store, StoreError};
 use axum::Router;
@@ -52,7 +52,7 @@ impl ServerConfig {
                 exe: worker_exe,
                 args: vec!["worker".into()],
                 wall_clock: Duration::from_secs(limits.wall_seconds + 30),
-                max_output_bytes: 512 << 20,
+                max_output_bytes: d3il_sandbox::DEFAULT_MAX_OUTPUT_BYTES,
             },
             limits,
         }
@@ -156,12 +156,4 @@ pub async fn prepare(
         runner,
     };
     Ok((listener, Running { addr, state }))
-}
-
-/// A process runner for `cfg` without the OS sandbox (used only where the
-/// sandbox crate is unavailable; see [`crate::runner`]).
-pub fn unsandboxed_runner(cfg: &ServerConfig) -> Arc<dyn JobRunner> {
-    Arc::new(ProcessRunner {
-        cmd: cfg.worker.clone(),
-    })
 }

@@ -52,7 +52,8 @@ pub fn check_declared_length(headers: &HeaderMap, max: usize) -> Result<(), AppE
         .and_then(|v| v.to_str().ok())
         .and_then(|v| v.parse::<u64>().ok())
     {
-        if len > max as u64 {
+        // The limit is on the file; allow 1 MiB for the form fields around it.
+        if len > (max + (1 << 20)) as u64 {
             return Err(too_large(max));
         }
     }

@@ -319,7 +319,9 @@ impl Store {
             .file_stem()
             .map(|s| s.to_string_lossy().into_owned())
             .unwrap_or_else(|| "d3il".into());
-        let data_dir = path.with_file_name(format!("{stem}-data"));
+        // Absolute, because the sandboxed worker is given this path to read.
+        let data_dir = std::path::absolute(path.with_file_name(format!("{stem}-data")))
+            .map_err(io_err(path))?;
         std::fs::create_dir_all(data_dir.join("policies")).map_err(io_err(&data_dir))?;
 
         // FULL synchronous: an accepted submission must survive a power cut

@@ -173,7 +173,7 @@ async fn crashing_worker_is_retried_then_fails_with_a_typed_error() {
     assert_eq!(v["status"], "failed");
     assert_eq!(v["error"]["kind"], "crashed");
     assert!(
-        v["error"]["message"].as_str().unwrap().contains("signal 9"),
+        v["error"]["message"].as_str().unwrap().contains("SIGKILL"),
         "{v}"
     );
     assert_eq!(v["attempts"], 3);

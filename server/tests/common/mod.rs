@@ -2,7 +2,7 @@
 #![allow(dead_code)]
 
 use d3il_server::app::{prepare, router, ServerConfig};
-use d3il_server::queue::{JobRunner, ProcessRunner};
+use d3il_server::queue::JobRunner;
 use std::net::SocketAddr;
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -100,9 +100,8 @@ pub async fn spawn_app_with(o: Options) -> TestApp {
     cfg.lease_seconds = 3;
     cfg.worker.args = vec![];
     cfg.worker.wall_clock = std::time::Duration::from_secs(60);
-    let runner: Arc<dyn JobRunner> = Arc::new(ProcessRunner {
-        cmd: cfg.worker.clone(),
-    });
+    // The production runner: the sandbox supervisor.
+    let runner: Arc<dyn JobRunner> = d3il_server::runner::production_runner(&cfg.worker);
     let (listener, running) = prepare(cfg, runner).await.expect("server starts");
     let app = router(running.state.clone());
     tokio::spawn(async move {
