@@ -20,6 +20,8 @@ enum Command {
     Contexts(cmd::contexts::Args),
     /// Replay an episode open-loop from policy-level actions and print JSON.
     Replay(cmd::replay::Args),
+    /// Regenerate the paper's result tables (LaTeX/Markdown/CSV) and figures (SVG) from the database.
+    Tables(cmd::tables::Args),
     /// Run the leaderboard web service (pages, plots, JSON API, worker pool).
     Serve(cmd::serve::Args),
     /// Manage API tokens (`d3il token create --name NAME`).
@@ -34,6 +36,7 @@ fn main() -> anyhow::Result<()> {
         Command::Bench(a) => cmd::bench::run(a),
         Command::Contexts(a) => cmd::contexts::run(a),
         Command::Replay(a) => cmd::replay::run(a),
+        Command::Tables(a) => cmd::tables::run(a),
         Command::Serve(a) => cmd::serve::run(a),
         Command::Token(a) => cmd::token::run(a),
         Command::Submit(a) => cmd::submit::run(a),

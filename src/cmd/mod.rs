@@ -3,4 +3,5 @@ pub mod contexts;
 pub mod replay;
 pub mod serve;
 pub mod submit;
+pub mod tables;
 pub mod token;
