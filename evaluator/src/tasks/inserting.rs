@@ -43,7 +43,9 @@ pub const REGIONS: [([f32; 2], [f32; 2]); 3] = [
 const AXIS: [f64; 4] = [1.0, 0.0, 0.0, 0.0];
 const DIAG_L: [f64; 4] = [0.0, 0.5, 1.0, 0.0];
 const DIAG_R: [f64; 4] = [0.0, 0.5, -1.0, 0.0];
-const WALLS: [(&str, [f64; 2], [f64; 2], [f64; 4]); 17] = [
+/// (name, centre xy, half-sizes xy, quaternion).
+type Wall = (&'static str, [f64; 2], [f64; 2], [f64; 4]);
+const WALLS: [Wall; 17] = [
     ("maze_3", [0.400, 0.170], [0.03, 0.01], DIAG_L),
     ("maze_4", [0.650, 0.170], [0.03, 0.01], DIAG_R),
     ("maze_5", [0.383, 0.2185], [0.01, 0.03], AXIS),
