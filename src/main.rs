@@ -6,7 +6,11 @@ use clap::{Parser, Subcommand};
 mod cmd;
 
 #[derive(Parser)]
-#[command(name = "d3il", version, about = "D3IL leaderboard: evaluate imitation-learning policies on the D3IL benchmark")]
+#[command(
+    name = "d3il",
+    version,
+    about = "D3IL leaderboard: evaluate imitation-learning policies on the D3IL benchmark"
+)]
 struct Cli {
     #[command(subcommand)]
     command: Command,
@@ -18,6 +22,8 @@ enum Command {
     Bench(cmd::bench::Args),
     /// Generate or verify the fixed initial-state sets.
     Contexts(cmd::contexts::Args),
+    /// Evaluate a policy (ONNX file, ws:// endpoint or scripted) on a task and print the D3IL metrics.
+    Eval(cmd::eval::Args),
     /// Replay an episode open-loop from policy-level actions and print JSON.
     Replay(cmd::replay::Args),
     /// Regenerate the paper's result tables (LaTeX/Markdown/CSV) and figures (SVG) from the database.
@@ -28,6 +34,8 @@ enum Command {
     Token(cmd::token::Args),
     /// Submit a policy to a leaderboard server.
     Submit(cmd::submit::Args),
+    /// Evaluate one job from stdin inside the sandbox (started by the server; see docs/sandbox.md).
+    Worker(cmd::worker::Args),
 }
 
 fn main() -> anyhow::Result<()> {
@@ -36,9 +44,11 @@ fn main() -> anyhow::Result<()> {
         Command::Bench(a) => cmd::bench::run(a),
         Command::Contexts(a) => cmd::contexts::run(a),
         Command::Replay(a) => cmd::replay::run(a),
+        Command::Eval(a) => cmd::eval::run(a),
         Command::Tables(a) => cmd::tables::run(a),
         Command::Serve(a) => cmd::serve::run(a),
         Command::Token(a) => cmd::token::run(a),
         Command::Submit(a) => cmd::submit::run(a),
+        Command::Worker(a) => cmd::worker::run(a),
     }
 }

@@ -5,7 +5,10 @@ use d3il_evaluator::tasks::{LoadedTask, TaskError};
 use d3il_protocol::TaskId;
 use serde_json::{json, Value};
 
-const REFERENCE: &str = "/work/shared/reference-rollouts/aligning/ctx0_inside_push.json";
+const REFERENCE: &str = concat!(
+    env!("CARGO_MANIFEST_DIR"),
+    "/../tests/data/reference-rollouts/aligning/ctx0_inside_push.json"
+);
 
 struct Run {
     success: bool,

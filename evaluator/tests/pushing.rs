@@ -5,8 +5,10 @@ use d3il_evaluator::tasks::{LoadedTask, TaskError};
 use d3il_protocol::TaskId;
 use serde_json::{json, Value};
 
-const REFERENCE: &str =
-    "/work/shared/reference-rollouts/pushing/ctx0_red_to_red_green_to_green.json";
+const REFERENCE: &str = concat!(
+    env!("CARGO_MANIFEST_DIR"),
+    "/../tests/data/reference-rollouts/pushing/ctx0_red_to_red_green_to_green.json"
+);
 
 struct Run {
     success: bool,

@@ -10,7 +10,7 @@ fn reference(rel: &str) -> Value {
     let dir = std::env::var_os("D3IL_REFERENCE_ROLLOUTS")
         .map(PathBuf::from)
         .unwrap_or_else(|| {
-            PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared/reference-rollouts")
+            PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../tests/data/reference-rollouts")
         });
     let path = dir.join(rel);
     let text = std::fs::read_to_string(&path).unwrap_or_else(|e| {

@@ -22,7 +22,9 @@ impl std::str::FromStr for ProtocolKind {
         match s {
             "paper" => Ok(ProtocolKind::Paper),
             "quick" => Ok(ProtocolKind::Quick),
-            o => Err(format!("unknown protocol `{o}`; expected `paper` or `quick`")),
+            o => Err(format!(
+                "unknown protocol `{o}`; expected `paper` or `quick`"
+            )),
         }
     }
 }
@@ -169,7 +171,9 @@ pub struct WorkerError {
 #[serde(tag = "type", rename_all = "snake_case")]
 pub enum WorkerMessage {
     /// Which confinement mechanisms are in force (first line).
-    Sandbox { mechanisms: Vec<SandboxMechanism> },
+    Sandbox {
+        mechanisms: Vec<SandboxMechanism>,
+    },
     Progress {
         rollouts_done: usize,
         rollouts_total: usize,

@@ -15,8 +15,17 @@ pub struct PaperResults {
 
 /// The paper's row order of the eleven baselines.
 pub const PAPER_METHOD_ORDER: [&str; 11] = [
-    "BC-MLP", "VAE-State", "BeT-MLP", "IBC", "DDPM-MLP", "VAE-ACT", "BC-GPT", "BeT", "DDPM-GPT",
-    "BESO", "DDPM-ACT",
+    "BC-MLP",
+    "VAE-State",
+    "BeT-MLP",
+    "IBC",
+    "DDPM-MLP",
+    "VAE-ACT",
+    "BC-GPT",
+    "BeT",
+    "DDPM-GPT",
+    "BESO",
+    "DDPM-ACT",
 ];
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]

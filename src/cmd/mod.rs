@@ -1,7 +1,15 @@
 pub mod bench;
 pub mod contexts;
+pub mod eval;
 pub mod replay;
 pub mod serve;
 pub mod submit;
 pub mod tables;
 pub mod token;
+pub mod worker;
+
+/// The assets directory (MJCF, context sets, fixtures): `$D3IL_ASSETS` or the
+/// repository's `assets/`.
+pub fn assets_dir() -> std::path::PathBuf {
+    d3il_server::app::default_assets_dir()
+}

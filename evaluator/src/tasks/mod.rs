@@ -309,7 +309,11 @@ impl Env {
             w.dedup();
             return Err(TaskError::SimulationWarning {
                 step: self.step_counter,
-                warnings: if w.is_empty() { "see MuJoCo's warning counters".into() } else { w.join("; ") },
+                warnings: if w.is_empty() {
+                    "see MuJoCo's warning counters".into()
+                } else {
+                    w.join("; ")
+                },
             });
         }
         self.logic.post_physics(&self.sim);

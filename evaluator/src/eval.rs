@@ -1,0 +1,433 @@
+//! The lockstep evaluation engine (DESIGN.md "Evaluation engine"): all
+//! rollouts of an evaluation advance together — gather every live rollout's
+//! observation window, one batched policy call, scatter the actions, step all
+//! rollouts in parallel (rayon), retire finished ones and start pending ones.
+
+use crate::scripted::ScriptedPolicy;
+use crate::tasks::{Env, LoadedTask, TaskError};
+use d3il_metrics::{Bootstrap, Outcome};
+use d3il_policy::{
+    validate_actions, HistoryBuffer, OnnxPolicy, Policy, PolicyError, Query, RemotePolicy,
+};
+use d3il_protocol::{
+    ErrorKind, EvalResult, Job, ObsType, PolicySource, ProtocolKind, ProtocolManifest,
+    RolloutRecord, TaskId, WorkerError,
+};
+use rayon::prelude::*;
+use serde_json::Value;
+use sha2::{Digest, Sha256};
+use std::collections::VecDeque;
+use std::time::Instant;
+
+#[derive(Debug, thiserror::Error)]
+pub enum EvalError {
+    #[error(transparent)]
+    Policy(#[from] PolicyError),
+    #[error("rollout {rollout} (initial state {context}) at step {step}: {source}")]
+    Rollout {
+        rollout: usize,
+        context: usize,
+        step: usize,
+        #[source]
+        source: TaskError,
+    },
+    #[error(transparent)]
+    Task(#[from] TaskError),
+    #[error("metrics: {0}")]
+    Metrics(#[from] d3il_metrics::MetricsError),
+    #[error("{0}")]
+    Setup(String),
+}
+
+impl EvalError {
+    pub fn kind(&self) -> ErrorKind {
+        match self {
+            EvalError::Policy(p) => p.kind(),
+            EvalError::Rollout { source, .. } => match source {
+                TaskError::NonFinite { .. } | TaskError::ActionWidth { .. } => ErrorKind::BadAction,
+                _ => ErrorKind::Internal,
+            },
+            EvalError::Setup(_) => ErrorKind::BadJob,
+            _ => ErrorKind::Internal,
+        }
+    }
+}
+
+/// How many initial states and rollouts per state a protocol uses.
+pub fn protocol_size(task: &LoadedTask, protocol: ProtocolKind, n_set: usize) -> (usize, usize) {
+    let paper = (
+        task.def.n_contexts_paper(n_set),
+        task.def.rollouts_per_context(),
+    );
+    match protocol {
+        ProtocolKind::Paper => paper,
+        // A smoke-test subset: the first few initial states, few rollouts each.
+        ProtocolKind::Quick => {
+            if paper.0 == 1 {
+                (1, paper.1.min(8))
+            } else {
+                (paper.0.min(3), paper.1.min(2))
+            }
+        }
+    }
+}
+
+/// Knobs of one evaluation.
+#[derive(Debug, Clone)]
+pub struct EvalOptions {
+    pub protocol: ProtocolKind,
+    pub seed: u64,
+    /// Maximum rollouts simulated at once (bounds memory; each holds one mjData).
+    pub max_live: usize,
+    /// Bootstrap resamples for the confidence intervals.
+    pub bootstrap_resamples: usize,
+}
+
+impl Default for EvalOptions {
+    fn default() -> Self {
+        EvalOptions {
+            protocol: ProtocolKind::Paper,
+            seed: 0,
+            max_live: 96,
+            bootstrap_resamples: 1000,
+        }
+    }
+}
+
+/// Identity of the policy for the manifest.
+#[derive(Debug, Clone)]
+pub struct PolicyInfo {
+    pub sha256: String,
+    pub obs_type: ObsType,
+}
+
+/// Wall-clock split of an evaluation.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct Timing {
+    pub total_s: f64,
+    pub policy_s: f64,
+    /// Wall time of the parallel stepping phases (physics + controller + task logic).
+    pub physics_s: f64,
+    pub policy_calls: usize,
+}
+
+struct Slot {
+    env: Env,
+    rollout: Option<(usize, usize, usize)>, // (id, context, index within context)
+    history: HistoryBuffer,
+    queue: VecDeque<Vec<f32>>,
+    path: Vec<[f32; 2]>,
+}
+
+/// Runs `policy` on `task` under the protocol and computes the D3IL metrics.
+pub fn evaluate(
+    task: &LoadedTask,
+    policy: &mut dyn Policy,
+    info: &PolicyInfo,
+    opts: &EvalOptions,
+    on_progress: &mut dyn FnMut(usize, usize),
+) -> Result<(EvalResult, Timing), EvalError> {
+    let t0 = Instant::now();
+    let mut timing = Timing::default();
+    let set = task.def.context_set()?;
+    let (n_ctx, per_ctx) = protocol_size(task, opts.protocol, set.len());
+    let total = n_ctx * per_ctx;
+    let shape = policy.shape();
+    let spec = task.def.spec();
+    if shape.obs_dim != spec.obs_dim || shape.act_dim != spec.act_dim {
+        return Err(EvalError::Setup(format!(
+            "policy dimensions obs {} / act {} do not match task {} (obs {}, act {})",
+            shape.obs_dim, shape.act_dim, spec.task, spec.obs_dim, spec.act_dim
+        )));
+    }
+    let record_paths = task.def.id() == TaskId::Avoiding;
+    let live = total.min(opts.max_live.max(1));
+    let mut slots = Vec::with_capacity(live);
+    for _ in 0..live {
+        slots.push(Slot {
+            env: task.env()?,
+            rollout: None,
+            history: HistoryBuffer::new(shape.history, spec.obs_dim),
+            queue: VecDeque::new(),
+            path: Vec::new(),
+        });
+    }
+    let mut next = 0usize;
+    let mut records: Vec<Option<RolloutRecord>> = vec![None; total];
+    let mut outcomes: Vec<Option<Outcome>> = vec![None; total];
+    let contexts: Vec<Value> = (0..n_ctx)
+        .map(|i| set.get(i).cloned().unwrap_or(Value::Null))
+        .collect();
+
+    // Starts the next pending rollout in `slot`; returns its id.
+    let start = |slot: &mut Slot, next: &mut usize| -> Result<Option<u64>, EvalError> {
+        if *next >= total {
+            slot.rollout = None;
+            return Ok(None);
+        }
+        let id = *next;
+        *next += 1;
+        let (ctx, r) = (id / per_ctx, id % per_ctx);
+        slot.env.reset(&contexts[ctx])?;
+        slot.history.reset();
+        slot.history.push(&slot.env.policy_obs())?;
+        slot.queue.clear();
+        slot.path.clear();
+        if record_paths {
+            let p = slot.env.sim.tcp_pos();
+            slot.path.push([p[0] as f32, p[1] as f32]);
+        }
+        slot.rollout = Some((id, ctx, r));
+        Ok(Some(id as u64))
+    };
+
+    let mut new_ids = Vec::new();
+    for slot in slots.iter_mut() {
+        if let Some(id) = start(slot, &mut next)? {
+            new_ids.push(id);
+        }
+    }
+    policy.reset(&new_ids)?;
+    let mut done_count = 0;
+    let mut ids = Vec::new();
+    let mut steps = Vec::new();
+    let mut obs = Vec::new();
+
+    while slots.iter().any(|s| s.rollout.is_some()) {
+        // 1. One batched query for every live rollout whose action queue is empty.
+        ids.clear();
+        steps.clear();
+        obs.clear();
+        let mut rows = Vec::new();
+        for (i, s) in slots.iter().enumerate() {
+            if let Some((id, ..)) = s.rollout {
+                if s.queue.is_empty() {
+                    ids.push(id as u64);
+                    steps.push(s.env.steps() as u64);
+                    s.history.write_window(&mut obs)?;
+                    rows.push(i);
+                }
+            }
+        }
+        if !rows.is_empty() {
+            let query = Query::new(&ids, &steps, &obs);
+            let tp = Instant::now();
+            let chunks = policy.infer(&query)?;
+            timing.policy_s += tp.elapsed().as_secs_f64();
+            timing.policy_calls += 1;
+            validate_actions(&query, &shape, &chunks)?;
+            for (row, &i) in rows.iter().enumerate() {
+                for h in 0..shape.execute.min(shape.horizon) {
+                    slots[i].queue.push_back(chunks.action(row, h).to_vec());
+                }
+            }
+        }
+        // 2. Step every live rollout in parallel.
+        let ts = Instant::now();
+        let results: Vec<Result<bool, EvalError>> = slots
+            .par_iter_mut()
+            .filter(|s| s.rollout.is_some())
+            .map(|s| {
+                let (id, ctx, _) = s.rollout.expect("filtered to live slots");
+                let action = s.queue.pop_front().unwrap_or_default();
+                let step = s.env.steps();
+                let out = s.env.step(&action).map_err(|source| EvalError::Rollout {
+                    rollout: id,
+                    context: ctx,
+                    step,
+                    source,
+                })?;
+                s.history.push(&s.env.policy_obs())?;
+                if record_paths {
+                    let p = s.env.sim.tcp_pos();
+                    s.path.push([p[0] as f32, p[1] as f32]);
+                }
+                Ok(out.done)
+            })
+            .collect();
+        timing.physics_s += ts.elapsed().as_secs_f64();
+        for r in results {
+            r?;
+        }
+        // 3. Retire finished rollouts and start pending ones in their slots.
+        new_ids.clear();
+        for slot in slots.iter_mut() {
+            let Some((id, ctx, r)) = slot.rollout else {
+                continue;
+            };
+            if !slot.env.is_done() {
+                continue;
+            }
+            let success = slot.env.success();
+            let behaviour = slot.env.behaviour();
+            let key = if task.def.id() == TaskId::Stacking {
+                // Stacking's levels need the registration order of every rollout.
+                behaviour.as_str().map(str::to_string)
+            } else {
+                slot.env.behaviour_key()
+            };
+            outcomes[id] = Some(Outcome {
+                context_index: ctx,
+                success,
+                behaviour: key,
+            });
+            records[id] = Some(RolloutRecord {
+                context_index: ctx,
+                rollout_index: r,
+                success,
+                behaviour,
+                steps: slot.env.steps(),
+                path: record_paths.then(|| std::mem::take(&mut slot.path)),
+            });
+            done_count += 1;
+            if let Some(nid) = start(slot, &mut next)? {
+                new_ids.push(nid);
+            }
+        }
+        if !new_ids.is_empty() {
+            policy.reset(&new_ids)?;
+        }
+        on_progress(done_count, total);
+    }
+
+    let outcomes: Vec<Outcome> = outcomes.into_iter().flatten().collect();
+    let rollouts: Vec<RolloutRecord> = records.into_iter().flatten().collect();
+    let inference_ms = if timing.policy_calls > 0 {
+        1000.0 * timing.policy_s / timing.policy_calls as f64
+    } else {
+        0.0
+    };
+    let evaluation = d3il_metrics::evaluate(
+        task.def.id(),
+        &outcomes,
+        inference_ms,
+        &Bootstrap {
+            resamples: opts.bootstrap_resamples,
+            confidence: 0.95,
+            seed: opts.seed,
+        },
+    )?;
+    let manifest = ProtocolManifest {
+        task: task.def.id(),
+        task_version: task.def.version().into(),
+        obs_type: info.obs_type,
+        protocol: opts.protocol,
+        mjcf_sha256: task.mjcf_sha256.clone(),
+        initial_states_sha256: set.sha256.clone(),
+        mujoco_version: crate::mujoco::version(),
+        evaluator_version: env!("CARGO_PKG_VERSION").into(),
+        n_contexts: n_ctx,
+        rollouts_per_context: per_ctx,
+        max_steps: task.def.max_steps(),
+        policy_sha256: info.sha256.clone(),
+        history: shape.history,
+        horizon: shape.horizon,
+        execute: shape.execute,
+        seed: opts.seed,
+    };
+    timing.total_s = t0.elapsed().as_secs_f64();
+    Ok((
+        EvalResult {
+            manifest,
+            metrics: evaluation.metrics,
+            per_context: evaluation.per_context,
+            rollouts,
+        },
+        timing,
+    ))
+}
+
+pub fn sha256_hex(bytes: &[u8]) -> String {
+    hex::encode(Sha256::digest(bytes))
+}
+
+/// Builds the policy a job names. ONNX bytes are checked against the job's sha256.
+pub fn load_policy(
+    job: &Job,
+    task: &LoadedTask,
+) -> Result<(Box<dyn Policy>, PolicyInfo), EvalError> {
+    let spec = task.def.spec();
+    if job.manifest.task != job.task {
+        return Err(EvalError::Setup(format!(
+            "the manifest says task `{}` but the job is for `{}`; submit the policy for the task it was trained on",
+            job.manifest.task, job.task
+        )));
+    }
+    if job.manifest.obs_type == ObsType::Image {
+        return Err(EvalError::Setup(
+            "image-observation policies are not supported by this evaluator yet (state only)"
+                .into(),
+        ));
+    }
+    match &job.policy {
+        PolicySource::Onnx { path, sha256 } => {
+            let bytes = std::fs::read(path).map_err(|e| {
+                EvalError::Setup(format!("cannot read the ONNX file `{path}`: {e}"))
+            })?;
+            let got = sha256_hex(&bytes);
+            if !sha256.is_empty() && &got != sha256 {
+                return Err(EvalError::Setup(format!(
+                    "the ONNX file's sha256 is {got}, but the job expects {sha256}"
+                )));
+            }
+            let p = OnnxPolicy::load(&bytes, &job.manifest, &spec, job.seed)?;
+            Ok((
+                Box::new(p),
+                PolicyInfo {
+                    sha256: got,
+                    obs_type: job.manifest.obs_type,
+                },
+            ))
+        }
+        PolicySource::Remote { url } => {
+            let p =
+                RemotePolicy::connect(url, &spec, job.manifest.obs_type, job.seed, &job.limits)?;
+            Ok((
+                Box::new(p),
+                PolicyInfo {
+                    sha256: sha256_hex(url.as_bytes()),
+                    obs_type: job.manifest.obs_type,
+                },
+            ))
+        }
+        PolicySource::Scripted { name } => {
+            let p = ScriptedPolicy::from_name(name, spec)
+                .map_err(|e| EvalError::Setup(e.to_string()))?;
+            Ok((
+                Box::new(p),
+                PolicyInfo {
+                    sha256: sha256_hex(name.as_bytes()),
+                    obs_type: ObsType::State,
+                },
+            ))
+        }
+    }
+}
+
+/// Everything a worker does for one job (called by `d3il worker` after it has
+/// confined itself): load the task and the policy, evaluate, report.
+pub fn run_job(
+    job: &Job,
+    on_progress: &mut dyn FnMut(usize, usize),
+) -> Result<EvalResult, WorkerError> {
+    let to_worker = |e: EvalError| WorkerError {
+        kind: e.kind(),
+        message: e.to_string(),
+    };
+    let task = LoadedTask::load(job.task).map_err(|e| WorkerError {
+        kind: match e {
+            TaskError::Unavailable(_) => ErrorKind::BadJob,
+            _ => ErrorKind::Internal,
+        },
+        message: e.to_string(),
+    })?;
+    let (mut policy, info) = load_policy(job, &task).map_err(to_worker)?;
+    let opts = EvalOptions {
+        protocol: job.protocol,
+        seed: job.seed,
+        ..EvalOptions::default()
+    };
+    evaluate(&task, policy.as_mut(), &info, &opts, on_progress)
+        .map(|(r, _)| r)
+        .map_err(to_worker)
+}

@@ -1,0 +1,222 @@
+//! `d3il eval`: run a policy on a task under the paper's (or the quick)
+//! protocol, with a progress bar, a metrics table and a JSON record.
+
+use anyhow::{bail, Context};
+use d3il_evaluator::eval::{self, EvalOptions, PolicyInfo};
+use d3il_evaluator::tasks::LoadedTask;
+use d3il_protocol::{Job, Limits, ObsType, PolicyManifest, PolicySource, ProtocolKind, TaskId};
+use std::io::Write;
+use std::path::PathBuf;
+use std::time::Instant;
+
+#[derive(clap::Args)]
+pub struct Args {
+    /// Task: avoiding, aligning, pushing, sorting-2/4/6, stacking, inserting.
+    #[arg(long)]
+    pub task: TaskId,
+    /// `file.onnx` (manifest next to it as `file.json`, or --manifest),
+    /// `ws://host:port/path` for a remote endpoint, or `scripted:<name>`
+    /// (e.g. `scripted:avoiding:all-paths`).
+    #[arg(long)]
+    pub policy: String,
+    /// Manifest for an ONNX file (default: the .onnx path with .json).
+    #[arg(long)]
+    pub manifest: Option<PathBuf>,
+    /// Seed of the evaluator's RNG (policy noise, bootstrap).
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    #[arg(long, default_value = "paper")]
+    pub protocol: ProtocolKind,
+    /// Write the full result (metrics, manifest, per-rollout records) here.
+    #[arg(long)]
+    pub json: Option<PathBuf>,
+    /// Rollouts simulated at once.
+    #[arg(long, default_value_t = 96)]
+    pub max_live: usize,
+    /// Run the evaluation in a sandboxed `d3il worker` process.
+    #[arg(long)]
+    pub sandbox: bool,
+    /// Allow remote endpoints on loopback/private addresses.
+    #[arg(long)]
+    pub allow_private_endpoints: bool,
+}
+
+fn progress_bar(done: usize, total: usize, started: Instant) {
+    let frac = done as f64 / total.max(1) as f64;
+    let width = 30;
+    let filled = (frac * width as f64).round() as usize;
+    let elapsed = started.elapsed().as_secs_f64();
+    let eta = if done > 0 {
+        elapsed / done as f64 * (total - done) as f64
+    } else {
+        f64::NAN
+    };
+    eprint!(
+        "\r[{}{}] {done}/{total} rollouts, {elapsed:.0}s elapsed, ETA {}",
+        "#".repeat(filled),
+        " ".repeat(width - filled),
+        if eta.is_finite() {
+            format!("{eta:.0}s")
+        } else {
+            "?".into()
+        }
+    );
+    let _ = std::io::stderr().flush();
+}
+
+pub fn build_job(args: &Args) -> anyhow::Result<Job> {
+    let (policy, manifest) = if let Some(name) = args.policy.strip_prefix("scripted:") {
+        (
+            PolicySource::Scripted { name: name.into() },
+            PolicyManifest {
+                task: args.task,
+                obs_type: ObsType::State,
+                history: 1,
+                horizon: 1,
+                execute: 1,
+                normalisation: None,
+            },
+        )
+    } else if args.policy.starts_with("ws://") || args.policy.starts_with("wss://") {
+        (
+            PolicySource::Remote {
+                url: args.policy.clone(),
+            },
+            // k/H/E of a remote policy come from the server's hello.
+            PolicyManifest {
+                task: args.task,
+                obs_type: ObsType::State,
+                history: 1,
+                horizon: 1,
+                execute: 1,
+                normalisation: None,
+            },
+        )
+    } else {
+        let path = PathBuf::from(&args.policy);
+        let bytes = std::fs::read(&path).with_context(|| format!("reading {}", path.display()))?;
+        let mpath = args
+            .manifest
+            .clone()
+            .unwrap_or_else(|| path.with_extension("json"));
+        let mtext = std::fs::read_to_string(&mpath).with_context(|| {
+            format!(
+                "reading the policy manifest {} (pass --manifest; format in docs/submission.md)",
+                mpath.display()
+            )
+        })?;
+        let manifest: PolicyManifest = serde_json::from_str(&mtext)
+            .with_context(|| format!("{} is not a valid policy manifest", mpath.display()))?;
+        let abs = std::fs::canonicalize(&path)?;
+        (
+            PolicySource::Onnx {
+                path: abs.to_string_lossy().into_owned(),
+                sha256: eval::sha256_hex(&bytes),
+            },
+            manifest,
+        )
+    };
+    if manifest.task != args.task {
+        bail!(
+            "the manifest is for task `{}` but --task is `{}`",
+            manifest.task,
+            args.task
+        );
+    }
+    Ok(Job {
+        job_id: "cli".into(),
+        task: args.task,
+        protocol: args.protocol,
+        policy,
+        manifest,
+        seed: args.seed,
+        limits: Limits {
+            allow_private_endpoints: args.allow_private_endpoints,
+            ..Limits::default()
+        },
+        assets_dir: crate::cmd::assets_dir().to_string_lossy().into_owned(),
+    })
+}
+
+pub fn run(args: Args) -> anyhow::Result<()> {
+    let job = build_job(&args)?;
+    let started = Instant::now();
+    let mut last = usize::MAX;
+    let mut on_progress = |d: usize, t: usize| {
+        if d != last {
+            last = d;
+            progress_bar(d, t, started);
+        }
+    };
+    let result = if args.sandbox {
+        let cmd = d3il_sandbox::WorkerCommand {
+            exe: std::env::current_exe()?,
+            args: vec!["worker".into()],
+            wall_clock: std::time::Duration::from_secs(job.limits.wall_seconds),
+            max_output_bytes: 256 << 20,
+        };
+        let run = d3il_sandbox::run_worker(&cmd, &job, &mut on_progress);
+        eprintln!();
+        for m in &run.mechanisms {
+            eprintln!(
+                "sandbox: {} {} ({})",
+                m.name,
+                if m.active { "active" } else { "INACTIVE" },
+                m.detail
+            );
+        }
+        match run.outcome {
+            d3il_sandbox::Outcome::Completed(r) => *r,
+            d3il_sandbox::Outcome::Failed(e) => bail!("{:?}: {}", e.kind, e.message),
+        }
+    } else {
+        let task = LoadedTask::load(job.task)?;
+        let (mut policy, info): (_, PolicyInfo) = eval::load_policy(&job, &task)?;
+        let opts = EvalOptions {
+            protocol: job.protocol,
+            seed: job.seed,
+            max_live: args.max_live,
+            ..EvalOptions::default()
+        };
+        let (r, t) = eval::evaluate(&task, policy.as_mut(), &info, &opts, &mut on_progress)?;
+        eprintln!();
+        eprintln!(
+            "time {:.1}s: stepping {:.1}s, policy {:.2}s over {} batched calls",
+            t.total_s, t.physics_s, t.policy_s, t.policy_calls
+        );
+        r
+    };
+    let m = &result.metrics;
+    println!(
+        "task {} ({} x {} rollouts, protocol {:?}, seed {})",
+        result.manifest.task,
+        result.manifest.n_contexts,
+        result.manifest.rollouts_per_context,
+        result.manifest.protocol,
+        result.manifest.seed
+    );
+    println!("{:<28} {:>8} {:>20}", "metric", "value", "95% CI");
+    for (name, e) in [
+        ("success rate", m.success_rate),
+        ("conditional entropy", m.conditional_entropy),
+        ("behaviour entropy", m.behaviour_entropy),
+    ] {
+        println!(
+            "{name:<28} {:>8.3} {:>9.3} – {:<8.3}",
+            e.value, e.ci_low, e.ci_high
+        );
+    }
+    if let Some(s) = m.stacking {
+        println!(
+            "{:<28} {:.3} / {:.3} / {:.3}",
+            "stacking-1/2/3 success", s[0], s[1], s[2]
+        );
+    }
+    println!("{:<28} {:>8.3}", "inference ms per call", m.inference_ms);
+    if let Some(path) = &args.json {
+        std::fs::write(path, serde_json::to_vec_pretty(&result)?)
+            .with_context(|| format!("writing {}", path.display()))?;
+        eprintln!("wrote {}", path.display());
+    }
+    Ok(())
+}
