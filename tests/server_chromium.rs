@@ -48,7 +48,6 @@ fn dump_dom(browser: &str, url: &str, profile: &std::path::Path) -> String {
 }
 
 #[test]
-#[ignore = "not yet run by its author: the d3il binary (tract + MuJoCo) could not be built in the session that wrote it; run with `cargo test --test server_chromium -- --ignored` and drop this"]
 fn chromium_renders_the_leaderboard_table_and_plot() {
     let browser = chromium();
     let dir = TempDir::new("chromium");

@@ -14,7 +14,6 @@ fn fixture(name: &str) -> std::path::PathBuf {
 }
 
 #[test]
-#[ignore = "not yet run by its author: the d3il binary (tract + MuJoCo) could not be built in the session that wrote it; run with `cargo test --test server_e2e -- --ignored` and drop this"]
 fn onnx_submission_is_evaluated_and_published() {
     let dir = TempDir::new("e2e");
     let db = dir.path().join("lb.sqlite");

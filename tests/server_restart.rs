@@ -79,7 +79,6 @@ fn write_slow_worker(dir: &std::path::Path) -> std::path::PathBuf {
 }
 
 #[test]
-#[ignore = "not yet run by its author: the d3il binary (tract + MuJoCo) could not be built in the session that wrote it; run with `cargo test --test server_restart -- --ignored` and drop this"]
 fn server_killed_mid_job_finishes_it_after_restart() {
     let dir = TempDir::new("restart");
     let db = dir.path().join("lb.sqlite");
