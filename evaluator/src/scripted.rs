@@ -1,7 +1,9 @@
 //! Scripted reference policies as [`Policy`] implementations: the leaderboard's
 //! sanity baselines. They act on the policy observation only, like a submission.
 
+use crate::tasks::aligning::{AligningScript, AligningStyle};
 use crate::tasks::avoiding::AvoidingScript;
+use crate::tasks::pushing::PushingScript;
 use d3il_policy::{ActionChunks, Policy, PolicyError, PolicyShape, Query};
 use d3il_protocol::{ObsType, TaskId, TaskSpec};
 
@@ -16,6 +18,18 @@ impl Script for AvoidingScript {
     }
 }
 
+impl Script for AligningScript {
+    fn act(&self, obs: &[f32]) -> Vec<f32> {
+        AligningScript::act(self, obs).to_vec()
+    }
+}
+
+impl Script for PushingScript {
+    fn act(&self, obs: &[f32]) -> Vec<f32> {
+        PushingScript::act(self, obs).to_vec()
+    }
+}
+
 /// Runs one script per rollout (chosen by rollout id, so a set of scripts
 /// covers several behaviours deterministically).
 pub struct ScriptedPolicy {
@@ -25,7 +39,7 @@ pub struct ScriptedPolicy {
 }
 
 #[derive(Debug, thiserror::Error)]
-#[error("unknown scripted policy `{0}`; available: avoiding:path=<0..23>, avoiding:all-paths")]
+#[error("unknown scripted policy `{0}`; available: avoiding:path=<0..23>, avoiding:all-paths, aligning:inside, aligning:outside, aligning:both, pushing:mode=<0..3>, pushing:all-modes")]
 pub struct UnknownScript(pub String);
 
 impl ScriptedPolicy {
@@ -48,6 +62,27 @@ impl ScriptedPolicy {
                     .and_then(|p| p.parse().ok())
                     .ok_or_else(unknown)?;
                 vec![Box::new(AvoidingScript::new(path).ok_or_else(unknown)?)]
+            }
+            (TaskId::Aligning, "inside") => {
+                vec![Box::new(AligningScript::new(AligningStyle::Inside))]
+            }
+            (TaskId::Aligning, "outside") => {
+                vec![Box::new(AligningScript::new(AligningStyle::Outside))]
+            }
+            (TaskId::Aligning, "both") => vec![
+                Box::new(AligningScript::new(AligningStyle::Inside)),
+                Box::new(AligningScript::new(AligningStyle::Outside)),
+            ],
+            (TaskId::Pushing, "all-modes") => (0..4)
+                .filter_map(PushingScript::new)
+                .map(|s| Box::new(s) as Box<dyn Script>)
+                .collect(),
+            (TaskId::Pushing, w) => {
+                let mode: u8 = w
+                    .strip_prefix("mode=")
+                    .and_then(|p| p.parse().ok())
+                    .ok_or_else(unknown)?;
+                vec![Box::new(PushingScript::new(mode).ok_or_else(unknown)?)]
             }
             _ => return Err(unknown()),
         };
