@@ -60,14 +60,11 @@ fn avoiding_route_replays_within_1e4_of_the_original() {
         let a32: Vec<f32> = a.iter().map(|&x| x as f32).collect();
         let out = env.step(&a32).unwrap();
         let p = env.sim.tcp_pos();
-        for k in 0..3 {
-            max_dev = max_dev.max((p[k] - ee[t + 1][k]).abs());
+        for (ours, theirs) in p.iter().zip(&ee[t + 1]) {
+            max_dev = max_dev.max((ours - theirs).abs());
         }
-        for k in 0..2 {
-            assert!(
-                (out.obs[k] as f64 - ref_obs[t][k]).abs() < 1e-4,
-                "obs at step {t}"
-            );
+        for (ours, theirs) in out.obs.iter().zip(&ref_obs[t]) {
+            assert!((*ours as f64 - theirs).abs() < 1e-4, "obs at step {t}");
         }
         if out.done {
             break;

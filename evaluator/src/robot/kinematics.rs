@@ -18,6 +18,9 @@ const JOINT_XYZ: [[f64; 3]; 7] = [
     [0.0, 0.0, 0.0],
     [0.088, 0.0, 0.0],
 ];
+// These are the URDF's printed (rounded) angles, not π/2 and π/4: the reference
+// kinematics use exactly these values (spec/01 §2.8).
+#[allow(clippy::approx_constant)]
 const JOINT_ROLL: [f64; 7] = [
     0.0,
     -1.57079632679,
@@ -29,6 +32,7 @@ const JOINT_ROLL: [f64; 7] = [
 ];
 /// Flange (link8) offset, hand yaw and grasp-target offset (spec/01 §2.8).
 const FLANGE_Z: f64 = 0.107;
+#[allow(clippy::approx_constant)]
 const HAND_YAW: f64 = -0.785398163397;
 const GRASP_Z: f64 = 0.105;
 

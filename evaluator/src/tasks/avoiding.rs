@@ -261,7 +261,7 @@ const ROW3_X: [f64; 4] = [0.28, 0.425, 0.575, 0.72];
 
 /// The 24 behaviours as (row-1 side, row-2 corridor, row-3 corridor).
 pub fn path_choice(path: usize) -> Option<(usize, usize, usize)> {
-    (path < 24).then(|| (path / 12, (path / 4) % 3, path % 4))
+    (path < 24).then_some((path / 12, (path / 4) % 3, path % 4))
 }
 
 /// Mode code of a path index, as the detector would produce it.

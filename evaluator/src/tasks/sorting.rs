@@ -196,7 +196,9 @@ pub const REGIONS: [([f32; 2], [f32; 2]); 6] = [
 ];
 
 /// Bin walls (name, centre, half-sizes, rgba), spec/11 §1.1.
-const WALLS: [(&str, [f64; 3], [f64; 3], [f64; 4]); 8] = [
+/// (name, position, half-size, rgba) of a static wall.
+type WallSpec = (&'static str, [f64; 3], [f64; 3], [f64; 4]);
+const WALLS: [WallSpec; 8] = [
     (
         "target_box_1",
         [0.4, 0.41, 0.0],

@@ -290,7 +290,7 @@ impl TaskLogic for StackingLogic {
     }
 
     fn stacking_levels(&self) -> Option<[bool; 3]> {
-        Some([self.order.len() >= 1, self.order.len() >= 2, self.success])
+        Some([!self.order.is_empty(), self.order.len() >= 2, self.success])
     }
 
     fn objects(&self, sim: &Sim) -> Vec<(String, [f64; 3])> {
