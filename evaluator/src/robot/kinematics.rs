@@ -102,7 +102,9 @@ impl Fk {
     /// TCP orientation as a quaternion (w, x, y, z). The sign is irrelevant to
     /// the controller (spec/01 §2.8, §3.3).
     pub fn quat_wxyz(&self) -> [f64; 4] {
-        let q = UnitQuaternion::from_matrix(&self.rot);
+        // Direct (Shepperd/Eigen-style) conversion: `rot` is orthonormal by
+        // construction, so nalgebra's iterative `from_matrix` is not needed.
+        let q = UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix_unchecked(self.rot));
         [q.w, q.i, q.j, q.k]
     }
 
