@@ -15,7 +15,6 @@ use d3il_protocol::{
 };
 use rayon::prelude::*;
 use serde_json::Value;
-use sha2::{Digest, Sha256};
 use std::collections::VecDeque;
 use std::time::Instant;
 
@@ -337,9 +336,8 @@ pub fn evaluate(
     ))
 }
 
-pub fn sha256_hex(bytes: &[u8]) -> String {
-    hex::encode(Sha256::digest(bytes))
-}
+/// The one sha256 helper of the crate (also used for the context sets).
+pub use crate::tasks::contexts::sha256_hex;
 
 /// Builds the policy a job names. ONNX bytes are checked against the job's sha256.
 pub fn load_policy(
