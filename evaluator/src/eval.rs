@@ -42,10 +42,10 @@ impl EvalError {
     pub fn kind(&self) -> ErrorKind {
         match self {
             EvalError::Policy(p) => p.kind(),
-            EvalError::Rollout { source, .. } => match source {
-                TaskError::NonFinite { .. } | TaskError::ActionWidth { .. } => ErrorKind::BadAction,
-                _ => ErrorKind::Internal,
-            },
+            EvalError::Rollout {
+                source: TaskError::NonFinite { .. } | TaskError::ActionWidth { .. },
+                ..
+            } => ErrorKind::BadAction,
             EvalError::Setup(_) => ErrorKind::BadJob,
             _ => ErrorKind::Internal,
         }
