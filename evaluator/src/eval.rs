@@ -420,6 +420,12 @@ pub fn run_job(
         message: e.to_string(),
     })?;
     let (mut policy, info) = load_policy(job, &task).map_err(to_worker)?;
+    // "Loaded, 0 done": the supervisor then attributes a limit hit in the first
+    // query to running the rollouts, not to loading the policy.
+    if let Ok(set) = task.def.context_set() {
+        let (n_ctx, per_ctx) = protocol_size(&task, job.protocol, set.len());
+        on_progress(0, n_ctx * per_ctx);
+    }
     let opts = EvalOptions {
         protocol: job.protocol,
         seed: job.seed,
