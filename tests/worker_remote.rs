@@ -99,11 +99,12 @@ fn run_against(mode: &str) -> d3il_sandbox::WorkerRun {
     r
 }
 
-fn expect(mode: &str, kinds: &[ErrorKind]) -> String {
+/// The one outcome `mode` must produce: `kind`, with exactly `message`.
+fn expect(mode: &str, kind: ErrorKind, message: &str) {
     let r = run_against(mode);
     let e = failure(&r);
-    assert!(kinds.contains(&e.kind), "{mode}: {e:?}\n{}", r.stderr);
-    e.message.clone()
+    assert_eq!(e.kind, kind, "{mode}: {e:?}\n{}", r.stderr);
+    assert_eq!(e.message, message, "{mode}");
 }
 
 #[test]
@@ -137,34 +138,63 @@ fn a_well_behaved_endpoint_completes_with_network_only_for_it() {
 
 #[test]
 fn a_hanging_endpoint_misses_the_deadline() {
-    expect("hang", &[ErrorKind::Remote]);
+    expect(
+        "hang",
+        ErrorKind::Remote,
+        "the policy server did not answer the infer within 2000 ms; answer every request within the deadline (batch your inference, or ask for a larger deadline)",
+    );
 }
 
 #[test]
 fn oversized_frames_are_refused() {
-    expect("oversized", &[ErrorKind::Remote]);
+    expect(
+        "oversized",
+        ErrorKind::Remote,
+        "the policy server sent a infer reply larger than the 1048576 byte frame limit; send float32 arrays and nothing else large",
+    );
 }
 
 #[test]
 fn garbage_frames_are_refused() {
-    expect("garbage", &[ErrorKind::Remote]);
+    expect(
+        "garbage",
+        ErrorKind::Remote,
+        "the policy server sent a malformed infer reply: not valid msgpack (starts with the reserved byte 0xc1) (see docs/remote-protocol.md)",
+    );
 }
 
 #[test]
 fn a_disconnect_mid_episode_is_a_remote_error() {
-    let m = expect("disconnect", &[ErrorKind::Remote]);
-    assert!(m.contains("closed the connection"), "{m}");
+    expect(
+        "disconnect",
+        ErrorKind::Remote,
+        "the policy server closed the connection during the infer (close code 1000: ); it must stay connected for the whole evaluation",
+    );
 }
 
 #[test]
-fn a_wrong_batch_size_is_refused() {
-    expect("wrong-batch", &[ErrorKind::Remote, ErrorKind::BadAction]);
+fn a_wrong_batch_size_is_a_bad_action() {
+    // The reply decodes fine, so it is the policy's output that is wrong (as
+    // for an ONNX policy), not the protocol.
+    expect(
+        "wrong-batch",
+        ErrorKind::BadAction,
+        "policy returned actions [9, 1, 2] for a query of 8 rollouts (first rollout 0 at step 0); expected [8, 1, 2]",
+    );
 }
 
 #[test]
 fn nan_and_wrongly_shaped_remote_actions_are_bad_actions() {
-    expect("nan", &[ErrorKind::BadAction]);
-    expect("wrong-shape", &[ErrorKind::BadAction, ErrorKind::Remote]);
+    expect(
+        "nan",
+        ErrorKind::BadAction,
+        "policy returned a non-finite action (NaN) for rollout 0 at step 0 (action 0 of the chunk, component 0); actions must be finite numbers",
+    );
+    expect(
+        "wrong-shape",
+        ErrorKind::BadAction,
+        "policy returned actions [8, 1, 3] for a query of 8 rollouts (first rollout 0 at step 0); expected [8, 1, 2]",
+    );
 }
 
 #[test]

@@ -5,7 +5,7 @@
 mod worker_common;
 
 use d3il_protocol::{exit_code, ErrorKind, SandboxMechanism, WorkerMessage};
-use d3il_sandbox::{run_worker, WorkerCommand};
+use d3il_sandbox::WorkerCommand;
 use std::io::{Read, Write};
 use std::net::TcpListener;
 use std::process::{Command, Stdio};
@@ -58,9 +58,7 @@ fn self_test(mode: &str, job: &d3il_protocol::Job) -> d3il_sandbox::WorkerRun {
     let mut cmd = WorkerCommand::for_job(d3il(), job);
     cmd.args = vec!["worker".into(), "--self-test".into(), mode.into()];
     cmd.wall_clock = Duration::from_secs(120);
-    let r = run_worker(&cmd, job, &mut |_, _| {});
-    assert!(group_members(r.pid as i32).is_empty(), "stray processes");
-    r
+    run_cmd(&cmd, job).0
 }
 
 #[test]
@@ -194,5 +192,7 @@ fn exit_codes_are_the_documented_ones() {
         .unwrap();
     let out = child.wait_with_output().unwrap();
     assert_eq!(out.status.code(), Some(exit_code::SANDBOX_FAILED));
+    let files = leftover_files();
+    assert!(files.is_empty(), "files left behind: {files:?}");
     std::fs::remove_dir_all(&dir).unwrap();
 }
