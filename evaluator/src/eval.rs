@@ -114,6 +114,8 @@ struct Slot {
     env: Env,
     rollout: Option<(usize, usize, usize)>, // (id, context, index within context)
     history: HistoryBuffer,
+    /// Image policies: the last k image observations.
+    images: Option<HistoryBuffer>,
     queue: VecDeque<Vec<f32>>,
     path: Vec<[f32; 2]>,
 }
@@ -132,7 +134,14 @@ pub fn evaluate(
     let (n_ctx, per_ctx) = protocol_size(task, opts.protocol, set.len());
     let total = n_ctx * per_ctx;
     let shape = policy.shape();
-    let spec = task.def.spec();
+    let spec = task.spec();
+    if shape.obs_type != task.obs_type {
+        return Err(EvalError::Setup(format!(
+            "the policy takes {} observations but the task was loaded for {} observations",
+            shape.obs_type, task.obs_type
+        )));
+    }
+    let image = task.obs_type == ObsType::Image;
     if shape.obs_dim != spec.obs_dim || shape.act_dim != spec.act_dim {
         return Err(EvalError::Setup(format!(
             "policy dimensions obs {} / act {} do not match task {} (obs {}, act {})",
@@ -147,6 +156,7 @@ pub fn evaluate(
             env: task.env()?,
             rollout: None,
             history: HistoryBuffer::new(shape.history, spec.obs_dim),
+            images: image.then(|| HistoryBuffer::new(shape.history, crate::camera::OBS_LEN)),
             queue: VecDeque::new(),
             path: Vec::new(),
         });
@@ -170,6 +180,7 @@ pub fn evaluate(
         slot.env.reset(&contexts[ctx])?;
         slot.history.reset();
         slot.history.push(&slot.env.policy_obs())?;
+        push_images(slot)?;
         slot.queue.clear();
         slot.path.clear();
         if record_paths {
@@ -191,12 +202,14 @@ pub fn evaluate(
     let mut ids = Vec::new();
     let mut steps = Vec::new();
     let mut obs = Vec::new();
+    let mut images = Vec::new();
 
     while slots.iter().any(|s| s.rollout.is_some()) {
         // 1. One batched query for every live rollout whose action queue is empty.
         ids.clear();
         steps.clear();
         obs.clear();
+        images.clear();
         let mut rows = Vec::new();
         for (i, s) in slots.iter().enumerate() {
             if let Some((id, ..)) = s.rollout {
@@ -204,12 +217,18 @@ pub fn evaluate(
                     ids.push(id as u64);
                     steps.push(s.env.steps() as u64);
                     s.history.write_window(&mut obs)?;
+                    if let Some(h) = &s.images {
+                        h.write_window(&mut images)?;
+                    }
                     rows.push(i);
                 }
             }
         }
         if !rows.is_empty() {
-            let query = Query::new(&ids, &steps, &obs);
+            let mut query = Query::new(&ids, &steps, &obs);
+            if image {
+                query.images = Some(&images);
+            }
             let tp = Instant::now();
             let chunks = policy.infer(&query)?;
             timing.policy_s += tp.elapsed().as_secs_f64();
@@ -237,6 +256,7 @@ pub fn evaluate(
                     source,
                 })?;
                 s.history.push(&s.env.policy_obs())?;
+                push_images(s)?;
                 if record_paths {
                     let p = s.env.sim.tcp_pos();
                     s.path.push([p[0] as f32, p[1] as f32]);
@@ -317,7 +337,7 @@ pub fn evaluate(
         evaluator_version: env!("CARGO_PKG_VERSION").into(),
         n_contexts: n_ctx,
         rollouts_per_context: per_ctx,
-        max_steps: task.def.max_steps(),
+        max_steps: spec.max_steps,
         policy_sha256: info.sha256.clone(),
         history: shape.history,
         horizon: shape.horizon,
@@ -336,6 +356,14 @@ pub fn evaluate(
     ))
 }
 
+/// Appends the slot's current image observation to its image history.
+fn push_images(slot: &mut Slot) -> Result<(), EvalError> {
+    if let (Some(h), Some(im)) = (slot.images.as_mut(), slot.env.policy_images()) {
+        h.push(im)?;
+    }
+    Ok(())
+}
+
 /// The one sha256 helper of the crate (also used for the context sets).
 pub use crate::tasks::contexts::sha256_hex;
 
@@ -344,18 +372,18 @@ pub fn load_policy(
     job: &Job,
     task: &LoadedTask,
 ) -> Result<(Box<dyn Policy>, PolicyInfo), EvalError> {
-    let spec = task.def.spec();
+    let spec = task.spec();
     if job.manifest.task != job.task {
         return Err(EvalError::Setup(format!(
             "the manifest says task `{}` but the job is for `{}`; submit the policy for the task it was trained on",
             job.manifest.task, job.task
         )));
     }
-    if job.manifest.obs_type == ObsType::Image {
-        return Err(EvalError::Setup(
-            "image-observation policies are not supported by this evaluator yet (state only)"
-                .into(),
-        ));
+    if job.manifest.obs_type != task.obs_type {
+        return Err(EvalError::Setup(format!(
+            "the manifest says observation type `{}` but the task was loaded for `{}`",
+            job.manifest.obs_type, task.obs_type
+        )));
     }
     match &job.policy {
         PolicySource::Onnx { path, sha256 } => {
@@ -412,9 +440,9 @@ pub fn run_job(
         kind: e.kind(),
         message: e.to_string(),
     };
-    let task = LoadedTask::load(job.task).map_err(|e| WorkerError {
+    let task = LoadedTask::load_obs(job.task, job.manifest.obs_type).map_err(|e| WorkerError {
         kind: match e {
-            TaskError::Unavailable(_) => ErrorKind::BadJob,
+            TaskError::Unavailable(_) | TaskError::NoImageVariant(_) => ErrorKind::BadJob,
             _ => ErrorKind::Internal,
         },
         message: e.to_string(),

@@ -2,6 +2,7 @@
 
 #[cfg(feature = "engine")]
 pub mod eval;
+pub mod camera;
 pub mod mujoco;
 pub mod robot;
 #[cfg(feature = "engine")]

@@ -129,11 +129,13 @@ pub fn confine(
         PolicySource::Remote { url } => endpoint_port(url),
         _ => None,
     };
+    let rendering = job.manifest.obs_type == d3il_protocol::ObsType::Image;
     out.extend(apply_landlock(
         Path::new(&job.assets_dir),
         policy_file,
         network_allowed,
         connect_port,
+        rendering,
     )?);
     out.push(apply_seccomp(network_allowed)?);
     Ok(out)
@@ -383,6 +385,11 @@ const SYSTEM_READ: &[&str] = &[
     "/dev/urandom",
 ];
 
+/// Headless rendering for image jobs (libglvnd's EGL vendor list and Mesa's
+/// driver configuration; the driver libraries are under /usr/lib). No /dev/dri:
+/// image jobs render in software, which gives the same pixels on every host.
+const RENDER_READ: &[&str] = &["/usr/share/glvnd", "/usr/share/drirc.d", "/etc/drirc"];
+
 /// Name resolution for remote endpoints.
 const RESOLVER_READ: &[&str] = &[
     "/etc/resolv.conf",
@@ -398,6 +405,7 @@ fn apply_landlock(
     policy_file: Option<&Path>,
     network_allowed: bool,
     connect_port: Option<u16>,
+    rendering: bool,
 ) -> Result<Vec<SandboxMechanism>, SandboxError> {
     let abi = match landlock_abi() {
         Ok(v) => v,
@@ -435,6 +443,9 @@ fn apply_landlock(
     }
     if network_allowed {
         readable.extend(RESOLVER_READ.iter().map(PathBuf::from));
+    }
+    if rendering {
+        readable.extend(RENDER_READ.iter().map(PathBuf::from));
     }
     if let Ok(extra) = std::env::var(EXTRA_READ_ENV) {
         readable.extend(

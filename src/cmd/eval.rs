@@ -36,6 +36,10 @@ pub struct Args {
     /// Run the evaluation in a sandboxed `d3il worker` process.
     #[arg(long)]
     pub sandbox: bool,
+    /// Observation type of a remote endpoint (`state` or `image`); an ONNX
+    /// policy's manifest says it itself.
+    #[arg(long, default_value = "state")]
+    pub obs_type: ObsType,
     /// Allow remote endpoints on loopback/private addresses.
     #[arg(long)]
     pub allow_private_endpoints: bool,
@@ -85,7 +89,7 @@ pub fn build_job(args: &Args) -> anyhow::Result<Job> {
             // k/H/E of a remote policy come from the server's hello.
             PolicyManifest {
                 task: args.task,
-                obs_type: ObsType::State,
+                obs_type: args.obs_type,
                 history: 1,
                 horizon: 1,
                 execute: 1,
@@ -170,7 +174,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             d3il_sandbox::Outcome::Failed(e) => bail!("{:?}: {}", e.kind, e.message),
         }
     } else {
-        let task = LoadedTask::load(job.task)?;
+        let task = LoadedTask::load_obs(job.task, job.manifest.obs_type)?;
         let (mut policy, info): (_, PolicyInfo) = eval::load_policy(&job, &task)?;
         let opts = EvalOptions {
             protocol: job.protocol,

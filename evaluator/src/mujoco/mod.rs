@@ -19,6 +19,9 @@
     unsafe_op_in_unsafe_fn
 )]
 mod bindings;
+mod render;
+
+pub use render::{egl_vendor, Renderer};
 
 use std::ffi::{CStr, CString};
 use std::ptr::NonNull;
@@ -37,6 +40,8 @@ pub enum MjError {
     Runtime(String),
     #[error("invalid model input: {0}")]
     Input(String),
+    #[error("rendering failed: {0}")]
+    Render(String),
 }
 
 /// Kinds of named objects we look up.
@@ -280,6 +285,14 @@ impl Model {
     pub fn ngeom(&self) -> usize {
         self.raw().ngeom as usize
     }
+    /// Vertical field of view of camera `camera`, degrees.
+    pub fn cam_fovy(&self, camera: usize) -> f64 {
+        let m = self.raw();
+        assert!(camera < m.ncam as usize, "camera id out of range");
+        // SAFETY: `cam_fovy` holds `ncam` values; the index was checked.
+        unsafe { *m.cam_fovy.add(camera) }
+    }
+
     pub fn timestep(&self) -> f64 {
         self.raw().opt.timestep
     }
@@ -447,6 +460,24 @@ impl Data {
     data_slice!(
         /// Mocap body quaternions (wxyz), 4 per mocap body.
         mocap_quat, mocap_quat_mut, mocap_quat, |m: &ffi::mjModel| 4 * m.nmocap);
+
+    data_slice!(
+        /// Camera world positions, 3 per camera.
+        cam_xpos_all, cam_xpos_all_mut, cam_xpos, |m: &ffi::mjModel| 3 * m.ncam);
+    data_slice!(
+        /// Camera world orientations, row-major 3x3 per camera.
+        cam_xmat_all, cam_xmat_all_mut, cam_xmat, |m: &ffi::mjModel| 9 * m.ncam);
+
+    pub fn cam_xpos(&self, camera: usize) -> [f64; 3] {
+        let s = &self.cam_xpos_all()[3 * camera..3 * camera + 3];
+        [s[0], s[1], s[2]]
+    }
+
+    pub fn cam_xmat(&self, camera: usize) -> [f64; 9] {
+        let mut r = [0.0; 9];
+        r.copy_from_slice(&self.cam_xmat_all()[9 * camera..9 * camera + 9]);
+        r
+    }
 
     pub fn xpos(&self, body: usize) -> [f64; 3] {
         let s = &self.xpos_all()[3 * body..3 * body + 3];

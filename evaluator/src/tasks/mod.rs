@@ -17,7 +17,7 @@ use crate::mujoco::{Data, MjError, Model, ObjKind};
 use crate::robot::control::FingerCommand;
 use crate::sim::scene::SceneSpec;
 use crate::sim::{RobotIds, Sim};
-use d3il_protocol::{TaskId, TaskSpec};
+use d3il_protocol::{ObsType, TaskId, TaskSpec};
 use serde_json::Value;
 use std::sync::Arc;
 
@@ -51,6 +51,8 @@ pub enum TaskError {
     SimulationWarning { step: usize, warnings: String },
     #[error("task {0} is not available in this build")]
     Unavailable(TaskId),
+    #[error("task {0} has no image-observation variant (image tasks: aligning, sorting-4, sorting-6, stacking)")]
+    NoImageVariant(TaskId),
 }
 
 /// What the arm controller gets for one env step.
@@ -100,6 +102,11 @@ pub trait TaskDef: Send + Sync {
     /// Previous command + policy action -> (new previous command, controller command).
     fn command(&self, prev: &[f64], action: &[f32], fixed_z: f64) -> (Vec<f64>, Command);
 
+    /// Episode limit of the image variant (the reference's vision configs).
+    fn max_steps_image(&self) -> usize {
+        self.max_steps()
+    }
+
     fn spec(&self) -> TaskSpec {
         TaskSpec {
             task: self.id(),
@@ -107,6 +114,21 @@ pub trait TaskDef: Send + Sync {
             act_dim: self.act_dim(),
             max_steps: self.max_steps(),
             n_behaviours: self.id().n_behaviours(),
+        }
+    }
+
+    /// The policy interface for an observation type. Image variants get the
+    /// previous command as their low-dimensional `obs` (spec/11 §1.3, §2.3:
+    /// desired TCP xy for Sorting, desired joints + gripper for Stacking; the
+    /// desired TCP xyz for Aligning by the same convention) plus the images.
+    fn spec_for(&self, obs: ObsType) -> TaskSpec {
+        match obs {
+            ObsType::State => self.spec(),
+            ObsType::Image => TaskSpec {
+                obs_dim: self.cmd_dim(),
+                max_steps: self.max_steps_image(),
+                ..self.spec()
+            },
         }
     }
 }
@@ -148,15 +170,26 @@ pub struct LoadedTask {
     pub model: Arc<Model>,
     pub ids: Arc<RobotIds>,
     pub mjcf_sha256: String,
+    /// State or image observations (image: rollouts render both cameras).
+    pub obs_type: ObsType,
 }
 
 impl LoadedTask {
     pub fn load(id: TaskId) -> Result<LoadedTask, TaskError> {
+        Self::load_obs(id, ObsType::State)
+    }
+
+    /// Loads the task for policies with observation type `obs`.
+    pub fn load_obs(id: TaskId, obs: ObsType) -> Result<LoadedTask, TaskError> {
+        if obs == ObsType::Image && !id.has_image_variant() {
+            return Err(TaskError::NoImageVariant(id));
+        }
         let def = task_def(id)?;
         let scene = def.scene();
         let model = Arc::new(scene.compile()?);
         let ids = Arc::new(RobotIds::lookup(&model)?);
         Ok(LoadedTask {
+            obs_type: obs,
             mjcf_sha256: scene.sha256(),
             def,
             model,
@@ -166,6 +199,11 @@ impl LoadedTask {
 
     pub fn env(&self) -> Result<Env, TaskError> {
         Env::new(self)
+    }
+
+    /// The policy interface of this task and observation type.
+    pub fn spec(&self) -> TaskSpec {
+        self.def.spec_for(self.obs_type)
     }
 }
 
@@ -202,12 +240,23 @@ pub struct Env {
     prev_cmd: Vec<f64>,
     fixed_z: f64,
     last_obs: Vec<f32>,
+    max_steps: usize,
+    /// Image variants: the two policy cameras and the last image observation.
+    cameras: Option<[usize; 2]>,
+    last_images: Vec<f32>,
 }
 
 impl Env {
     pub fn new(task: &LoadedTask) -> Result<Env, TaskError> {
         let sim = Sim::new(task.model.clone(), task.ids.clone(), task.def.n_substeps())?;
+        let cameras = match task.obs_type {
+            ObsType::State => None,
+            ObsType::Image => Some(crate::camera::camera_ids(&task.model)?),
+        };
         Ok(Env {
+            max_steps: task.spec().max_steps,
+            cameras,
+            last_images: Vec::new(),
             sim,
             logic: task.def.new_logic(&task.model)?,
             def: task.def.clone(),
@@ -230,14 +279,28 @@ impl Env {
         self.fixed_z = self.sim.tcp_pos()[2];
         self.prev_cmd = self.def.initial_command(&self.sim);
         self.last_obs = self.logic.observe(&self.sim);
+        if let Some(cams) = self.cameras {
+            self.last_images.clear();
+            crate::camera::capture(&mut self.sim.data, &cams, &mut self.last_images)?;
+        }
         Ok(self.last_obs.clone())
     }
 
     /// The policy input: concat(previous command, last observation), float32.
+    /// Image variants get the previous command only (their `obs`), the rest
+    /// is in [`Env::policy_images`].
     pub fn policy_obs(&self) -> Vec<f32> {
         let mut v: Vec<f32> = self.prev_cmd.iter().map(|&x| x as f32).collect();
-        v.extend_from_slice(&self.last_obs);
+        if self.cameras.is_none() {
+            v.extend_from_slice(&self.last_obs);
+        }
         v
+    }
+
+    /// Image variants: the last image observation, `[2, 3, 96, 96]` (BGR,
+    /// [0, 1]), rendered at the same moment as the state observation.
+    pub fn policy_images(&self) -> Option<&[f32]> {
+        self.cameras.map(|_| self.last_images.as_slice())
     }
 
     pub fn fixed_z(&self) -> f64 {
@@ -298,8 +361,12 @@ impl Env {
         }
         // Observation and done BEFORE the physics (spec/01 §4.2 step 3).
         let obs = self.logic.observe(&self.sim);
+        let mut images = Vec::new();
+        if let Some(cams) = self.cameras {
+            crate::camera::capture(&mut self.sim.data, &cams, &mut images)?;
+        }
         let early = self.logic.pre_physics_done(&self.sim);
-        let done = early || self.step_counter + 1 >= self.def.max_steps();
+        let done = early || self.step_counter + 1 >= self.max_steps;
         self.sim.step_physics()?;
         self.step_counter += 1;
         // Buffer overflows and instabilities (MuJoCo then resets the state by
@@ -319,6 +386,9 @@ impl Env {
         self.logic.post_physics(&self.sim);
         self.finished = done;
         self.last_obs = obs.clone();
+        if self.cameras.is_some() {
+            self.last_images = images;
+        }
         Ok(StepOutcome { obs, done })
     }
 

@@ -124,6 +124,10 @@ impl TaskDef for Stacking {
     fn max_steps(&self) -> usize {
         1000
     }
+    /// spec/11 §2: the vision config runs 1200 steps.
+    fn max_steps_image(&self) -> usize {
+        1200
+    }
     fn env_obs_dim(&self) -> usize {
         12
     }
@@ -324,6 +328,7 @@ struct Waypoint {
 /// previous command in the observation), exactly the interface a learned
 /// policy has. Picks the boxes in the given order (letters r/g/b) and stacks
 /// them on the target.
+#[derive(Debug, Clone)]
 pub struct StackingScript {
     order: Vec<usize>,
     kin: PandaKinematics,

@@ -1,0 +1,426 @@
+//! Headless offscreen rendering with MuJoCo 2.2's OpenGL renderer on an EGL
+//! context from Mesa (surfaceless platform, PBUFFER config), spec/01 §6.
+//!
+//! A [`Renderer`] owns one EGL context and one `mjrContext`; it is bound to the
+//! thread that created it (OpenGL contexts are current per thread), so it is
+//! neither `Send` nor `Sync`. The evaluator keeps one per worker thread and all
+//! rollouts on that thread share it.
+
+use super::{ffi, guarded, install_handlers, Data, MjError, Model};
+use std::ffi::{c_char, c_void, CStr};
+use std::marker::PhantomData;
+use std::sync::Arc;
+
+type EglDisplay = *mut c_void;
+type EglConfig = *mut c_void;
+type EglSurface = *mut c_void;
+type EglContext = *mut c_void;
+type EglBoolean = u32;
+type EglInt = i32;
+
+#[link(name = "EGL")]
+extern "C" {
+    fn eglGetProcAddress(name: *const c_char) -> *mut c_void;
+    fn eglGetDisplay(native: *mut c_void) -> EglDisplay;
+    fn eglInitialize(dpy: EglDisplay, major: *mut EglInt, minor: *mut EglInt) -> EglBoolean;
+    fn eglQueryString(dpy: EglDisplay, name: EglInt) -> *const c_char;
+    fn eglChooseConfig(
+        dpy: EglDisplay,
+        attrib: *const EglInt,
+        configs: *mut EglConfig,
+        size: EglInt,
+        num: *mut EglInt,
+    ) -> EglBoolean;
+    fn eglCreatePbufferSurface(
+        dpy: EglDisplay,
+        config: EglConfig,
+        attrib: *const EglInt,
+    ) -> EglSurface;
+    fn eglBindAPI(api: u32) -> EglBoolean;
+    fn eglCreateContext(
+        dpy: EglDisplay,
+        config: EglConfig,
+        share: EglContext,
+        attrib: *const EglInt,
+    ) -> EglContext;
+    fn eglMakeCurrent(
+        dpy: EglDisplay,
+        draw: EglSurface,
+        read: EglSurface,
+        ctx: EglContext,
+    ) -> EglBoolean;
+    fn eglDestroyContext(dpy: EglDisplay, ctx: EglContext) -> EglBoolean;
+    fn eglDestroySurface(dpy: EglDisplay, surface: EglSurface) -> EglBoolean;
+    fn eglGetError() -> EglInt;
+}
+
+const EGL_NONE: EglInt = 0x3038;
+const EGL_SURFACE_TYPE: EglInt = 0x3033;
+const EGL_PBUFFER_BIT: EglInt = 0x0001;
+const EGL_RENDERABLE_TYPE: EglInt = 0x3040;
+const EGL_OPENGL_BIT: EglInt = 0x0008;
+const EGL_RED_SIZE: EglInt = 0x3024;
+const EGL_GREEN_SIZE: EglInt = 0x3023;
+const EGL_BLUE_SIZE: EglInt = 0x3022;
+const EGL_DEPTH_SIZE: EglInt = 0x3025;
+const EGL_WIDTH: EglInt = 0x3057;
+const EGL_HEIGHT: EglInt = 0x3056;
+const EGL_OPENGL_API: u32 = 0x30A2;
+const EGL_EXTENSIONS: EglInt = 0x3055;
+const EGL_VENDOR: EglInt = 0x3053;
+const EGL_PLATFORM_SURFACELESS_MESA: u32 = 0x31DD;
+const EGL_PLATFORM_DEVICE_EXT: u32 = 0x313F;
+
+type QueryDevicesExt =
+    unsafe extern "C" fn(max: EglInt, devices: *mut *mut c_void, num: *mut EglInt) -> EglBoolean;
+type QueryDeviceStringExt =
+    unsafe extern "C" fn(device: *mut c_void, name: EglInt) -> *const c_char;
+
+/// Mesa's software (llvmpipe) EGL device, if the EGL device extensions are
+/// there. Rendering on it gives the same pixels on every host, GPU or not.
+///
+/// # Safety
+/// EGL must be loaded (it is linked).
+unsafe fn software_device(client: &str) -> Option<*mut c_void> {
+    if !client.contains("EGL_EXT_device_enumeration") && !client.contains("EGL_EXT_device_base") {
+        return None;
+    }
+    let q = eglGetProcAddress(c"eglQueryDevicesEXT".as_ptr());
+    let qs = eglGetProcAddress(c"eglQueryDeviceStringEXT".as_ptr());
+    if q.is_null() || qs.is_null() {
+        return None;
+    }
+    let q: QueryDevicesExt = std::mem::transmute(q);
+    let qs: QueryDeviceStringExt = std::mem::transmute(qs);
+    let mut devices = [std::ptr::null_mut(); 16];
+    let mut n = 0;
+    if q(devices.len() as EglInt, devices.as_mut_ptr(), &mut n) == 0 {
+        return None;
+    }
+    devices[..n.clamp(0, 16) as usize]
+        .iter()
+        .copied()
+        .find(|&d| {
+            let ext = qs(d, EGL_EXTENSIONS);
+            !ext.is_null()
+                && CStr::from_ptr(ext)
+                    .to_string_lossy()
+                    .contains("EGL_MESA_device_software")
+        })
+}
+
+type GetPlatformDisplayExt =
+    unsafe extern "C" fn(platform: u32, native: *mut c_void, attrib: *const EglInt) -> EglDisplay;
+
+fn egl_error(what: &str) -> MjError {
+    MjError::Render(egl_message(what))
+}
+
+fn egl_message(what: &str) -> String {
+    // SAFETY: plain query of the thread's last EGL error.
+    let code = unsafe { eglGetError() };
+    format!(
+        "{what} failed (EGL error 0x{code:04x}); headless rendering needs Mesa's EGL: \
+         apt-get install -y libegl1 libegl-mesa0 libgl1-mesa-dri libgbm1"
+    )
+}
+
+/// The process-wide EGL display (surfaceless platform when available).
+struct Display(EglDisplay, &'static str);
+// SAFETY: an EGLDisplay handle is process-global and thread-safe by the EGL spec.
+unsafe impl Send for Display {}
+unsafe impl Sync for Display {}
+
+static DISPLAY: std::sync::OnceLock<Result<Display, String>> = std::sync::OnceLock::new();
+
+fn display() -> Result<EglDisplay, MjError> {
+    display_and_platform().map(|d| d.0)
+}
+
+fn display_and_platform() -> Result<(EglDisplay, &'static str), MjError> {
+    let d = DISPLAY.get_or_init(|| {
+        // SAFETY: EGL entry points with valid arguments; the returned pointers
+        // are checked before use.
+        unsafe {
+            let client = eglQueryString(std::ptr::null_mut(), EGL_EXTENSIONS);
+            let client = if client.is_null() {
+                String::new()
+            } else {
+                CStr::from_ptr(client).to_string_lossy().into_owned()
+            };
+            let mut dpy: EglDisplay = std::ptr::null_mut();
+            let mut platform = "default display";
+            let f = eglGetProcAddress(c"eglGetPlatformDisplayEXT".as_ptr());
+            if !f.is_null() {
+                let f: GetPlatformDisplayExt = std::mem::transmute(f);
+                // Prefer Mesa's software device (deterministic pixels on any
+                // host), else the surfaceless platform.
+                if let Some(dev) = software_device(&client) {
+                    dpy = f(EGL_PLATFORM_DEVICE_EXT, dev, std::ptr::null());
+                    platform = "software device";
+                }
+                if dpy.is_null() && client.contains("EGL_MESA_platform_surfaceless") {
+                    dpy = f(
+                        EGL_PLATFORM_SURFACELESS_MESA,
+                        std::ptr::null_mut(),
+                        std::ptr::null(),
+                    );
+                    platform = "surfaceless platform";
+                }
+            }
+            if dpy.is_null() {
+                dpy = eglGetDisplay(std::ptr::null_mut());
+            }
+            if dpy.is_null() {
+                return Err(egl_message("eglGetPlatformDisplayEXT"));
+            }
+            let (mut major, mut minor) = (0, 0);
+            if eglInitialize(dpy, &mut major, &mut minor) == 0 {
+                return Err(egl_message("eglInitialize"));
+            }
+            Ok(Display(dpy, platform))
+        }
+    });
+    match d {
+        Ok(d) => Ok((d.0, d.1)),
+        Err(e) => Err(MjError::Render(e.clone())),
+    }
+}
+
+/// EGL vendor and platform (e.g. "Mesa Project, software device"), for logs
+/// and `d3il bench render`.
+pub fn egl_vendor() -> Result<String, MjError> {
+    let (dpy, platform) = display_and_platform()?;
+    // SAFETY: initialised display; the string is static.
+    let v = unsafe { eglQueryString(dpy, EGL_VENDOR) };
+    let vendor = if v.is_null() {
+        "unknown vendor".into()
+    } else {
+        // SAFETY: non-null, NUL-terminated static string.
+        unsafe { CStr::from_ptr(v) }.to_string_lossy().into_owned()
+    };
+    Ok(format!("{vendor}, {platform}"))
+}
+
+/// One offscreen renderer: EGL context + MuJoCo render context + scene.
+pub struct Renderer {
+    model: Arc<Model>,
+    /// Private copy of the model whose offscreen buffer is exactly the frame
+    /// size (the shared model is read-only). Rendering reads only visual
+    /// fields, identical in both; a smaller buffer gives the same pixels in
+    /// the bottom-left viewport and makes multisample resolves much cheaper.
+    own: std::ptr::NonNull<ffi::mjModel>,
+    dpy: EglDisplay,
+    surface: EglSurface,
+    ctx: EglContext,
+    con: Box<ffi::mjrContext>,
+    scn: Box<ffi::mjvScene>,
+    opt: Box<ffi::mjvOption>,
+    cam: Box<ffi::mjvCamera>,
+    pert: Box<ffi::mjvPerturb>,
+    width: usize,
+    height: usize,
+    // The GL context is current on the creating thread only.
+    _not_send: PhantomData<*mut ()>,
+}
+
+impl Renderer {
+    /// Creates an EGL context on this thread and MuJoCo's render context for
+    /// `model`, for frames of `width` × `height` pixels.
+    pub fn new(model: Arc<Model>, width: usize, height: usize) -> Result<Renderer, MjError> {
+        install_handlers();
+        let dpy = display()?;
+        // SAFETY: valid display; attribute lists are EGL_NONE-terminated; every
+        // returned handle is checked; the MuJoCo structs are boxed (stable
+        // addresses) and initialised with their default functions before use.
+        unsafe {
+            let attrs = [
+                EGL_SURFACE_TYPE,
+                EGL_PBUFFER_BIT,
+                EGL_RENDERABLE_TYPE,
+                EGL_OPENGL_BIT,
+                EGL_RED_SIZE,
+                8,
+                EGL_GREEN_SIZE,
+                8,
+                EGL_BLUE_SIZE,
+                8,
+                EGL_DEPTH_SIZE,
+                24,
+                EGL_NONE,
+            ];
+            let mut config: EglConfig = std::ptr::null_mut();
+            let mut n = 0;
+            if eglChooseConfig(dpy, attrs.as_ptr(), &mut config, 1, &mut n) == 0 || n < 1 {
+                return Err(egl_error(
+                    "eglChooseConfig (PBUFFER, OpenGL, RGB8, depth 24)",
+                ));
+            }
+            let pb = [
+                EGL_WIDTH,
+                width as EglInt,
+                EGL_HEIGHT,
+                height as EglInt,
+                EGL_NONE,
+            ];
+            let surface = eglCreatePbufferSurface(dpy, config, pb.as_ptr());
+            if surface.is_null() {
+                return Err(egl_error("eglCreatePbufferSurface"));
+            }
+            if eglBindAPI(EGL_OPENGL_API) == 0 {
+                eglDestroySurface(dpy, surface);
+                return Err(egl_error("eglBindAPI(OpenGL)"));
+            }
+            let none = [EGL_NONE];
+            let ctx = eglCreateContext(dpy, config, std::ptr::null_mut(), none.as_ptr());
+            if ctx.is_null() {
+                eglDestroySurface(dpy, surface);
+                return Err(egl_error("eglCreateContext"));
+            }
+            if eglMakeCurrent(dpy, surface, surface, ctx) == 0 {
+                eglDestroyContext(dpy, ctx);
+                eglDestroySurface(dpy, surface);
+                return Err(egl_error("eglMakeCurrent"));
+            }
+            let own =
+                std::ptr::NonNull::new(ffi::mj_copyModel(std::ptr::null_mut(), model.ptr.as_ptr()))
+                    .ok_or_else(|| MjError::Render("mj_copyModel could not allocate".into()))?;
+            (*own.as_ptr()).vis.global.offwidth = width as i32;
+            (*own.as_ptr()).vis.global.offheight = height as i32;
+            let mut r = Renderer {
+                model,
+                own,
+                dpy,
+                surface,
+                ctx,
+                con: Box::default(),
+                scn: Box::default(),
+                opt: Box::default(),
+                cam: Box::default(),
+                pert: Box::default(),
+                width,
+                height,
+                _not_send: PhantomData,
+            };
+            ffi::mjv_defaultOption(&mut *r.opt);
+            ffi::mjv_defaultCamera(&mut *r.cam);
+            ffi::mjv_defaultPerturb(&mut *r.pert);
+            ffi::mjv_defaultScene(&mut *r.scn);
+            ffi::mjr_defaultContext(&mut *r.con);
+            let m = r.own.as_ptr();
+            let (scn, con) = (&mut *r.scn as *mut _, &mut *r.con as *mut _);
+            // spec/01 §6: a visual scene with at most 1000 geoms.
+            guarded(|| ffi::mjv_makeScene(m, scn, 1000))?;
+            // No light in our scenes casts shadows and no material reflects,
+            // so these passes would only cost time (same pixels).
+            r.scn.flags[ffi::mjtRndFlag__mjRND_SHADOW as usize] = 0;
+            r.scn.flags[ffi::mjtRndFlag__mjRND_REFLECTION as usize] = 0;
+            guarded(|| ffi::mjr_makeContext(m, con, ffi::mjtFontScale__mjFONTSCALE_150 as i32))?;
+            if r.con.offWidth < width as i32 || r.con.offHeight < height as i32 {
+                return Err(MjError::Render(format!(
+                    "the offscreen buffer is {}x{} but {width}x{height} was requested; raise visual/global offwidth/offheight",
+                    r.con.offWidth, r.con.offHeight
+                )));
+            }
+            ffi::mjr_setBuffer(ffi::mjtFramebuffer__mjFB_OFFSCREEN as i32, con);
+            Ok(r)
+        }
+    }
+
+    pub fn model(&self) -> &Arc<Model> {
+        &self.model
+    }
+
+    pub fn width(&self) -> usize {
+        self.width
+    }
+
+    pub fn height(&self) -> usize {
+        self.height
+    }
+
+    /// Renders fixed camera `camera` (a camera id of the model) from the
+    /// current derived quantities of `data` (no `mj_forward`, like the
+    /// reference) into `rgb`: width × height × 3 bytes, rows bottom-up, as
+    /// OpenGL returns them.
+    pub fn render_raw(
+        &mut self,
+        data: &mut Data,
+        camera: usize,
+        rgb: &mut [u8],
+    ) -> Result<(), MjError> {
+        if !Arc::ptr_eq(&self.model, data.model()) {
+            return Err(MjError::Input(
+                "the renderer was made for a different model than the data's".into(),
+            ));
+        }
+        let ncam = self.model.raw().ncam as usize;
+        if camera >= ncam {
+            return Err(MjError::Input(format!(
+                "camera id {camera} out of range (the model has {ncam})"
+            )));
+        }
+        let n = self.width * self.height * 3;
+        if rgb.len() != n {
+            return Err(MjError::Input(format!(
+                "pixel buffer has {} bytes; {}x{}x3 = {n} expected",
+                rgb.len(),
+                self.width,
+                self.height
+            )));
+        }
+        self.cam.type_ = ffi::mjtCamera__mjCAMERA_FIXED as i32;
+        self.cam.fixedcamid = camera as i32;
+        let viewport = ffi::mjrRect {
+            left: 0,
+            bottom: 0,
+            width: self.width as i32,
+            height: self.height as i32,
+        };
+        let m = self.own.as_ptr();
+        let d = data.ptr.as_ptr();
+        let (opt, pert, cam) = (
+            &*self.opt as *const _,
+            &*self.pert as *const _,
+            &mut *self.cam as *mut _,
+        );
+        let (scn, con) = (&mut *self.scn as *mut _, &mut *self.con as *mut _);
+        let dpy = self.dpy;
+        let (surface, ctx) = (self.surface, self.ctx);
+        // SAFETY: all pointers are valid and owned by `self`/`data`; the
+        // buffer size was checked; the context is made current first (cheap
+        // when already current on this thread).
+        unsafe {
+            if eglMakeCurrent(dpy, surface, surface, ctx) == 0 {
+                return Err(egl_error("eglMakeCurrent"));
+            }
+            guarded(|| {
+                ffi::mjv_updateScene(m, d, opt, pert, cam, ffi::mjtCatBit__mjCAT_ALL as i32, scn);
+                ffi::mjr_setBuffer(ffi::mjtFramebuffer__mjFB_OFFSCREEN as i32, con);
+                ffi::mjr_render(viewport, scn, con);
+                ffi::mjr_readPixels(rgb.as_mut_ptr(), std::ptr::null_mut(), viewport, con);
+            })
+        }
+    }
+}
+
+impl Drop for Renderer {
+    fn drop(&mut self) {
+        // SAFETY: we own these objects; MuJoCo's free functions need the
+        // context current.
+        unsafe {
+            eglMakeCurrent(self.dpy, self.surface, self.surface, self.ctx);
+            ffi::mjr_freeContext(&mut *self.con);
+            ffi::mjv_freeScene(&mut *self.scn);
+            eglMakeCurrent(
+                self.dpy,
+                std::ptr::null_mut(),
+                std::ptr::null_mut(),
+                std::ptr::null_mut(),
+            );
+            eglDestroyContext(self.dpy, self.ctx);
+            eglDestroySurface(self.dpy, self.surface);
+            ffi::mj_deleteModel(self.own.as_ptr());
+        }
+    }
+}
