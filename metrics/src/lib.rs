@@ -21,6 +21,7 @@
 //! the largest population std a mean of values in [0, 1] allows (0.472, 0.373)
 //! and match the sample std (BC-GPT: five seeds at 1, one at 0 → 0.408).
 
+pub use d3il_protocol::StackingLevel;
 use d3il_protocol::{ContextResult, Estimate, Metrics, Stat, TaskId};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -430,21 +431,13 @@ fn percentile(sorted: &[f64], q: f64) -> f64 {
 pub struct Evaluation {
     pub metrics: Metrics,
     pub per_context: Vec<ContextResult>,
-    /// Stacking only: Stacking-1/2/3 success rate and conditional entropy each
-    /// (the protocol's `Metrics` has room for the three rates only).
-    pub stacking_levels: Option<[StackingLevel; 3]>,
-}
-
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct StackingLevel {
-    pub success_rate: Estimate,
-    pub conditional_entropy: Estimate,
-    pub behaviour_entropy: Estimate,
 }
 
 /// Build the protocol's [`Metrics`] and per-context breakdown for one evaluation.
-/// For Stacking, `success_rate`/entropies in `Metrics` are Stacking-3's and
-/// `stacking` holds the three rates; see [`Outcome::behaviour`] for the encoding.
+/// For Stacking, `success_rate`/entropies in `Metrics` are Stacking-3's,
+/// `stacking_levels` holds Stacking-1/2/3 each with its own success rate and
+/// entropies, and `stacking` the three rates; see [`Outcome::behaviour`] for
+/// the encoding.
 pub fn evaluate(
     task: TaskId,
     outcomes: &[Outcome],
@@ -484,10 +477,10 @@ pub fn evaluate(
                     levels_arr[1].success_rate.value,
                     levels_arr[2].success_rate.value,
                 ]),
+                stacking_levels: Some(levels_arr),
                 inference_ms,
             },
             per_context: per_context(&levels[2].0, &levels[2].1)?,
-            stacking_levels: Some(levels_arr),
         });
     }
     let conv = EntropyConvention::for_task(task);
@@ -503,10 +496,10 @@ pub fn evaluate(
             })?,
             conditional_entropy: bootstrap(outcomes, &c(2), |o| conditional_entropy(o, &conv))?,
             stacking: None,
+            stacking_levels: None,
             inference_ms,
         },
         per_context: per_context(outcomes, &conv)?,
-        stacking_levels: None,
     })
 }
 

@@ -196,7 +196,7 @@ fn stacking_levels_and_rates() {
     let s = ev.metrics.stacking.unwrap();
     assert!(close(s[0], 5.0 / 6.0) && close(s[1], 4.0 / 6.0) && close(s[2], 2.0 / 6.0));
     assert!(close(ev.metrics.success_rate.value, 2.0 / 6.0));
-    let lv = ev.stacking_levels.unwrap();
+    let lv = ev.metrics.stacking_levels.unwrap();
     // Level 1, log 3: c0 first letters g, g, r → p=(2/3,1/3) → H = 0.9183 bits / log2(3)
     // = 0.579380; c1: r, r → 0. Mean over both (both have successes) = 0.289690.
     let h1 = -(2.0 / 3.0 * (2.0f64 / 3.0).ln() + 1.0 / 3.0 * (1.0f64 / 3.0).ln()) / 3f64.ln();
@@ -210,6 +210,77 @@ fn stacking_levels_and_rates() {
         2f64.ln() / 6f64.ln()
     ));
     assert_eq!(ev.metrics.inference_ms, 1.5);
+}
+
+/// −Σ p ln p / ln base over counts.
+fn h(counts: &[f64], base: f64) -> f64 {
+    let n: f64 = counts.iter().sum();
+    -counts.iter().map(|c| c / n * (c / n).ln()).sum::<f64>() / base.ln()
+}
+
+#[test]
+fn stacking_levels_each_have_their_own_success_and_entropies() {
+    // Context 0: full stacks gbr, rgb; two registered gb, bg; one r; none.
+    // Context 1: full stacks rbg, rbg; two registered gr; one b.
+    let v = [
+        o(0, true, Some("gbr")),
+        o(0, true, Some("rgb")),
+        o(0, false, Some("gb")),
+        o(0, false, Some("bg")),
+        o(0, false, Some("r")),
+        o(0, false, None),
+        o(1, true, Some("rbg")),
+        o(1, true, Some("rbg")),
+        o(1, false, Some("gr")),
+        o(1, false, Some("b")),
+    ];
+    let ev = evaluate(TaskId::Stacking, &v, 0.0, &Bootstrap::default()).unwrap();
+    let lv = ev.metrics.stacking_levels.unwrap();
+
+    // Stacking-1 (>= 1 registered, first letter, log 3): 9 of 10.
+    // c0: g, r, g, b, r → (2, 2, 1); c1: r, r, g, b → (2, 1, 1); pooled r 4, g 3, b 2.
+    assert!(close(lv[0].success_rate.value, 0.9));
+    let c1 = (h(&[2.0, 2.0, 1.0], 3.0) + h(&[2.0, 1.0, 1.0], 3.0)) / 2.0;
+    assert!(close(lv[0].conditional_entropy.value, c1), "{lv:?}");
+    assert!(close(
+        lv[0].behaviour_entropy.value,
+        h(&[4.0, 3.0, 2.0], 3.0)
+    ));
+
+    // Stacking-2 (>= 2 registered, first two letters, log 6): 7 of 10.
+    // c0: gb, rg, gb, bg → (2, 1, 1); c1: rb, rb, gr → (2, 1); pooled gb 2, rg 1, bg 1, rb 2, gr 1.
+    assert!(close(lv[1].success_rate.value, 0.7));
+    let c2 = (h(&[2.0, 1.0, 1.0], 6.0) + h(&[2.0, 1.0], 6.0)) / 2.0;
+    assert!(close(lv[1].conditional_entropy.value, c2));
+    assert!(close(
+        lv[1].behaviour_entropy.value,
+        h(&[2.0, 1.0, 1.0, 2.0, 1.0], 6.0)
+    ));
+
+    // Stacking-3 (full stack, permutation, log 6): 4 of 10.
+    // c0: gbr, rgb → ln 2 / ln 6; c1: rbg, rbg → 0; pooled gbr 1, rgb 1, rbg 2.
+    assert!(close(lv[2].success_rate.value, 0.4));
+    assert!(close(
+        lv[2].conditional_entropy.value,
+        h(&[1.0, 1.0], 6.0) / 2.0
+    ));
+    assert!(close(
+        lv[2].behaviour_entropy.value,
+        h(&[1.0, 1.0, 2.0], 6.0)
+    ));
+
+    // All three differ, and the top-level metrics are Stacking-3's.
+    assert!(lv[0].conditional_entropy.value > lv[1].conditional_entropy.value);
+    assert!(lv[1].conditional_entropy.value > lv[2].conditional_entropy.value);
+    assert_eq!(ev.metrics.success_rate, lv[2].success_rate);
+    assert_eq!(ev.metrics.conditional_entropy, lv[2].conditional_entropy);
+    assert_eq!(ev.metrics.behaviour_entropy, lv[2].behaviour_entropy);
+    assert_eq!(ev.metrics.stacking, Some([0.9, 0.7, 0.4]));
+    // Bootstrap intervals are per level too.
+    for l in &lv {
+        let e = l.conditional_entropy;
+        assert!(e.ci_low <= e.value && e.value <= e.ci_high, "{e:?}");
+    }
 }
 
 #[test]

@@ -39,11 +39,31 @@ pub struct Metrics {
     pub behaviour_entropy: Estimate,
     /// E_s0[H(pi(beta|s0))] as the reference computes it.
     pub conditional_entropy: Estimate,
-    /// Stacking only: fraction of rollouts with >= 1, 2, 3 boxes stacked.
+    /// Stacking only: success rates of Stacking-1/2/3 (>= 1, >= 2 boxes
+    /// registered at the target, full stack); the same numbers as
+    /// `stacking_levels[i].success_rate.value`, kept for results stored before
+    /// the levels carried their own entropies.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub stacking: Option<[f64; 3]>,
+    /// Stacking only: Stacking-1/2/3 each with its own success rate, behaviour
+    /// entropy and conditional entropy (spec/11 §2.7: level X uses the first X
+    /// letters of the registration order over the rollouts with that level's
+    /// success flag, log base 3 / 6 / 6). The top-level fields above are
+    /// Stacking-3's. Absent in results stored before it existed.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub stacking_levels: Option<[StackingLevel; 3]>,
     /// Mean policy inference time per batched query, milliseconds.
     pub inference_ms: f64,
+}
+
+/// One Stacking level's metrics (Stacking-1, -2 or -3).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct StackingLevel {
+    pub success_rate: Estimate,
+    /// H(pi(beta)) of the level's X-box codes over its successful rollouts.
+    pub behaviour_entropy: Estimate,
+    /// E_s0[H(pi(beta|s0))] of the level's X-box codes, as the reference computes it.
+    pub conditional_entropy: Estimate,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -116,4 +136,42 @@ pub struct ResultCell {
     /// As the paper printed them (reported rows only).
     pub bold_success: Option<bool>,
     pub bold_entropy: Option<bool>,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn metrics_without_stacking_levels_still_parse() {
+        // A Stacking result stored before the levels carried their own entropies.
+        let old = r#"{"success_rate":{"value":0.4,"ci_low":0.3,"ci_high":0.5},
+            "behaviour_entropy":{"value":0.1,"ci_low":0.0,"ci_high":0.2},
+            "conditional_entropy":{"value":0.2,"ci_low":0.1,"ci_high":0.3},
+            "stacking":[0.9,0.7,0.4],"inference_ms":1.0}"#;
+        let m: Metrics = serde_json::from_str(old).unwrap();
+        assert_eq!(m.stacking, Some([0.9, 0.7, 0.4]));
+        assert_eq!(m.stacking_levels, None);
+        // And the levels round-trip when present.
+        let e = |v| Estimate {
+            value: v,
+            ci_low: v,
+            ci_high: v,
+        };
+        let level = |s, b, c| StackingLevel {
+            success_rate: e(s),
+            behaviour_entropy: e(b),
+            conditional_entropy: e(c),
+        };
+        let m = Metrics {
+            stacking_levels: Some([
+                level(0.9, 0.5, 0.6),
+                level(0.7, 0.3, 0.4),
+                level(0.4, 0.1, 0.2),
+            ]),
+            ..m
+        };
+        let back: Metrics = serde_json::from_str(&serde_json::to_string(&m).unwrap()).unwrap();
+        assert_eq!(back, m);
+    }
 }

@@ -289,6 +289,7 @@ fn fake_result(job: &Job) -> EvalResult {
             behaviour_entropy: zero,
             conditional_entropy: zero,
             stacking: None,
+            stacking_levels: None,
             inference_ms: 0.0,
         },
         per_context: vec![],

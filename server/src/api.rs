@@ -233,6 +233,7 @@ pub async fn results_json(
             "behaviour_entropy": {"value": r.behaviour_entropy, "ci_low": r.behaviour_ci_low, "ci_high": r.behaviour_ci_high},
             "conditional_entropy": {"value": r.conditional_entropy, "ci_low": r.conditional_ci_low, "ci_high": r.conditional_ci_high},
             "stacking": r.stacking_json.as_deref().map(parse),
+            "stacking_levels": r.stacking_levels_json.as_deref().map(parse),
             "inference_ms": r.inference_ms,
         },
         "protocol_manifest": parse(&r.manifest_json),

@@ -806,11 +806,46 @@ async fn submission_page(
                 ci: String::new(),
             },
         ];
-        if let Some(st) = r
+        let levels = r
+            .stacking_levels_json
+            .as_deref()
+            .and_then(|j| serde_json::from_str::<[d3il_protocol::StackingLevel; 3]>(j).ok());
+        if let Some(levels) = levels {
+            const NAMES: [[&str; 3]; 3] = [
+                [
+                    "Stacking-1 (≥ 1 box): success rate",
+                    "Stacking-1: conditional behaviour entropy",
+                    "Stacking-1: behaviour entropy H(π(β))",
+                ],
+                [
+                    "Stacking-2 (≥ 2 boxes): success rate",
+                    "Stacking-2: conditional behaviour entropy",
+                    "Stacking-2: behaviour entropy H(π(β))",
+                ],
+                [
+                    "Stacking-3 (full stack): success rate",
+                    "Stacking-3: conditional behaviour entropy",
+                    "Stacking-3: behaviour entropy H(π(β))",
+                ],
+            ];
+            for (l, names) in levels.iter().zip(NAMES) {
+                for (e, name) in [l.success_rate, l.conditional_entropy, l.behaviour_entropy]
+                    .into_iter()
+                    .zip(names)
+                {
+                    metrics.push(MetricLine {
+                        name,
+                        value: format!("{:.3}", e.value),
+                        ci: ci(e.ci_low, e.ci_high),
+                    });
+                }
+            }
+        } else if let Some(st) = r
             .stacking_json
             .as_deref()
             .and_then(|j| serde_json::from_str::<[f64; 3]>(j).ok())
         {
+            // Stored before the levels carried their own entropies.
             for (k, name) in [
                 "Stacking: ≥ 1 box",
                 "Stacking: ≥ 2 boxes",

@@ -7,8 +7,8 @@
 use crate::stats::{mean_std, Agg};
 use d3il_protocol::paper::PaperResults;
 use d3il_protocol::{
-    EvalResult, ObsType, ProtocolKind, ResultCell, SandboxMechanism, Source, Stat, TaskId,
-    WorkerError,
+    EvalResult, ObsType, ProtocolKind, ResultCell, SandboxMechanism, Source, StackingLevel, Stat,
+    TaskId, WorkerError,
 };
 use sha2::{Digest, Sha256};
 use sqlx::sqlite::{SqliteConnectOptions, SqliteJournalMode, SqlitePoolOptions, SqliteSynchronous};
@@ -168,6 +168,8 @@ pub struct ResultRow {
     pub conditional_ci_low: f64,
     pub conditional_ci_high: f64,
     pub stacking_json: Option<String>,
+    /// Stacking-1/2/3 metrics (JSON `[StackingLevel; 3]`), see migration 0002.
+    pub stacking_levels_json: Option<String>,
     pub inference_ms: f64,
     pub manifest_json: String,
     pub per_context_json: String,
@@ -299,6 +301,7 @@ struct EvaluatedDbRow {
     behaviour_entropy: f64,
     conditional_entropy: f64,
     stacking_json: Option<String>,
+    stacking_levels_json: Option<String>,
     inference_ms: f64,
 }
 
@@ -486,7 +489,7 @@ impl Store {
         let db: Vec<EvaluatedDbRow> = sqlx::query_as(
             "SELECT s.id AS submission_id, m.name AS method, m.id AS method_id, s.task, s.obs_type, s.training_seed, \
              s.data_fraction, s.protocol, r.success_rate, r.behaviour_entropy, r.conditional_entropy, r.stacking_json, \
-             r.inference_ms FROM submissions s JOIN results r ON r.submission_id = s.id \
+             r.stacking_levels_json, r.inference_ms FROM submissions s JOIN results r ON r.submission_id = s.id \
              JOIN methods m ON m.id = s.method_id WHERE s.status = 'completed' ORDER BY s.id",
         )
         .fetch_all(&self.pool)
@@ -513,22 +516,53 @@ impl Store {
                 .map_err(|e| StoreError::Corrupt(format!("submission {}: {e}", r.submission_id)))?;
             let obs = parse_obs(&r.obs_type)?;
             let protocol = ProtocolKind::from_str(&r.protocol).map_err(StoreError::Corrupt)?;
-            // Stacking reports three success levels (>= 1, 2, 3 boxes) as the
-            // paper's Stacking-1/2/3 rows (spec/11, Stacking metrics). The
-            // result carries one conditional entropy, used for all three.
-            let stacking: Option<[f64; 3]> = match &r.stacking_json {
-                Some(s) => Some(serde_json::from_str(s).map_err(|e| {
-                    StoreError::Corrupt(format!("submission {} stacking: {e}", r.submission_id))
-                })?),
+            // Stacking is reported as the paper's Stacking-1/2/3 rows (spec/11
+            // §2.7), each with its own success rate and entropies.
+            let corrupt = |what: &str, e: serde_json::Error| {
+                StoreError::Corrupt(format!("submission {} {what}: {e}", r.submission_id))
+            };
+            let levels: Option<[StackingLevel; 3]> = match &r.stacking_levels_json {
+                Some(s) => {
+                    Some(serde_json::from_str(s).map_err(|e| corrupt("stacking levels", e))?)
+                }
                 None => None,
             };
-            let variants: Vec<(String, f64)> = match (task, stacking) {
-                (TaskId::Stacking, Some(s)) => (0..3)
-                    .map(|k| (format!("Stacking-{} (T5)", k + 1), s[k]))
-                    .collect(),
-                _ => vec![(task.title().to_string(), r.success_rate)],
+            let rates: Option<[f64; 3]> = match &r.stacking_json {
+                Some(s) => Some(serde_json::from_str(s).map_err(|e| corrupt("stacking", e))?),
+                None => None,
             };
-            for (title, success) in variants {
+            // (title, success, conditional entropy, behaviour entropy)
+            let variants: Vec<(String, f64, f64, f64)> = match (task, levels, rates) {
+                (TaskId::Stacking, Some(l), _) => (0..3)
+                    .map(|k| {
+                        (
+                            format!("Stacking-{} (T5)", k + 1),
+                            l[k].success_rate.value,
+                            l[k].conditional_entropy.value,
+                            l[k].behaviour_entropy.value,
+                        )
+                    })
+                    .collect(),
+                // Stored before the levels had their own entropies: the three
+                // rates with the one (Stacking-3) entropy the result carries.
+                (TaskId::Stacking, None, Some(s)) => (0..3)
+                    .map(|k| {
+                        (
+                            format!("Stacking-{} (T5)", k + 1),
+                            s[k],
+                            r.conditional_entropy,
+                            r.behaviour_entropy,
+                        )
+                    })
+                    .collect(),
+                _ => vec![(
+                    task.title().to_string(),
+                    r.success_rate,
+                    r.conditional_entropy,
+                    r.behaviour_entropy,
+                )],
+            };
+            for (title, success, conditional, behaviour) in variants {
                 let key: Key = (
                     r.method_id,
                     title.clone(),
@@ -553,8 +587,8 @@ impl Store {
                     }
                 });
                 g.success.push(success);
-                g.entropy.push(r.conditional_entropy);
-                g.behaviour.push(r.behaviour_entropy);
+                g.entropy.push(conditional);
+                g.behaviour.push(behaviour);
                 g.inference.push(r.inference_ms);
                 g.seeds.push(r.training_seed);
                 g.submissions.push(r.submission_id);
@@ -863,7 +897,7 @@ impl Store {
         Ok(sqlx::query_as(
             "SELECT submission_id, success_rate, success_ci_low, success_ci_high, behaviour_entropy, behaviour_ci_low, \
              behaviour_ci_high, conditional_entropy, conditional_ci_low, conditional_ci_high, stacking_json, \
-             inference_ms, manifest_json, per_context_json, created_at FROM results WHERE submission_id = ?",
+             stacking_levels_json, inference_ms, manifest_json, per_context_json, created_at FROM results WHERE submission_id = ?",
         )
         .bind(submission_id)
         .fetch_optional(&self.pool)
@@ -1013,8 +1047,8 @@ impl Store {
         sqlx::query(
             "INSERT INTO results (submission_id, success_rate, success_ci_low, success_ci_high, behaviour_entropy, \
              behaviour_ci_low, behaviour_ci_high, conditional_entropy, conditional_ci_low, conditional_ci_high, \
-             stacking_json, inference_ms, manifest_json, per_context_json, created_at) \
-             VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?) ON CONFLICT(submission_id) DO NOTHING",
+             stacking_json, stacking_levels_json, inference_ms, manifest_json, per_context_json, created_at) \
+             VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?) ON CONFLICT(submission_id) DO NOTHING",
         )
         .bind(submission_id)
         .bind(m.success_rate.value)
@@ -1027,6 +1061,7 @@ impl Store {
         .bind(m.conditional_entropy.ci_low)
         .bind(m.conditional_entropy.ci_high)
         .bind(m.stacking.map(|s| to_json(&s)))
+        .bind(m.stacking_levels.map(|s| to_json(&s)))
         .bind(m.inference_ms)
         .bind(to_json(&result.manifest))
         .bind(to_json(&result.per_context))

@@ -48,6 +48,7 @@ fn result_line(task: TaskId) -> String {
             behaviour_entropy: est(0.9),
             conditional_entropy: est(0.4),
             stacking: None,
+            stacking_levels: None,
             inference_ms: 2.0,
         },
         per_context: vec![ContextResult {

@@ -44,6 +44,7 @@ fn eval_result(task: TaskId, success: f64, cond: f64, paths: bool) -> EvalResult
             behaviour_entropy: est(0.5),
             conditional_entropy: est(cond),
             stacking: (task == TaskId::Stacking).then_some([success, success / 2.0, success / 4.0]),
+            stacking_levels: None,
             inference_ms: 1.5,
         },
         per_context: vec![],
@@ -164,6 +165,105 @@ async fn duplicate_seed_is_refused_and_stacking_expands() {
         "{dup:?}"
     );
     store.claim_job("w", 60).await.unwrap().unwrap();
+    let result = stacking_result(&[
+        ("gbr", true),
+        ("rgb", true),
+        ("gb", false),
+        ("bg", false),
+        ("r", false),
+        ("", false),
+    ]);
+    let levels = result.metrics.stacking_levels.unwrap();
+    store.complete_job(job, sub, &result, &[]).await.unwrap();
+    let cells = store.result_cells().await.unwrap();
+    let rows: Vec<_> = cells
+        .iter()
+        .filter(|c| c.method == "Stacker")
+        .map(|c| (c.task.clone(), c.success_rate.mean, c.entropy.mean))
+        .collect();
+    assert_eq!(
+        rows,
+        vec![
+            (
+                "Stacking-1 (T5)".to_string(),
+                levels[0].success_rate.value,
+                levels[0].conditional_entropy.value
+            ),
+            (
+                "Stacking-2 (T5)".to_string(),
+                levels[1].success_rate.value,
+                levels[1].conditional_entropy.value
+            ),
+            (
+                "Stacking-3 (T5)".to_string(),
+                levels[2].success_rate.value,
+                levels[2].conditional_entropy.value
+            ),
+        ]
+    );
+    // The data differ per level, so do the rows: 5/6, 4/6, 2/6 succeed, and
+    // the entropies are those of the first letter (g, r, g, b, r), the first
+    // two (gb, rg, gb, bg) and the full order (gbr, rgb).
+    assert!((rows[0].1 - 5.0 / 6.0).abs() < 1e-12 && (rows[2].1 - 2.0 / 6.0).abs() < 1e-12);
+    assert!(rows[0].2 != rows[1].2 && rows[1].2 != rows[2].2 && rows[0].2 != rows[2].2);
+    let behaviour: Vec<f64> = store
+        .board_rows()
+        .await
+        .unwrap()
+        .iter()
+        .filter(|r| r.method == "Stacker")
+        .map(|r| r.behaviour_entropy.unwrap().mean)
+        .collect();
+    assert_eq!(
+        behaviour,
+        levels
+            .iter()
+            .map(|l| l.behaviour_entropy.value)
+            .collect::<Vec<_>>()
+    );
+}
+
+/// A Stacking result whose metrics are computed by d3il-metrics from one
+/// context's rollouts given as (registration order, full stack).
+fn stacking_result(rollouts: &[(&str, bool)]) -> EvalResult {
+    let outcomes: Vec<d3il_metrics::Outcome> = rollouts
+        .iter()
+        .map(|(order, full)| {
+            d3il_metrics::Outcome::new(0, *full, (!order.is_empty()).then_some(*order))
+        })
+        .collect();
+    let ev = d3il_metrics::evaluate(
+        TaskId::Stacking,
+        &outcomes,
+        1.0,
+        &d3il_metrics::Bootstrap::default(),
+    )
+    .unwrap();
+    let mut r = eval_result(TaskId::Stacking, 0.0, 0.0, false);
+    r.metrics = ev.metrics;
+    r.per_context = ev.per_context;
+    r.rollouts = rollouts
+        .iter()
+        .enumerate()
+        .map(|(i, (order, full))| RolloutRecord {
+            context_index: 0,
+            rollout_index: i,
+            success: *full,
+            behaviour: serde_json::json!(order),
+            steps: 10,
+            path: None,
+        })
+        .collect();
+    r
+}
+
+#[tokio::test]
+async fn stacking_results_stored_before_the_levels_share_one_entropy() {
+    let dir = tempfile::tempdir().unwrap();
+    let store = Store::open(&dir.path().join("lb.sqlite")).await.unwrap();
+    let (sub, job) = submit(&store, "OldStacker", TaskId::Stacking, 1).await;
+    store.claim_job("w", 60).await.unwrap().unwrap();
+    // Rates only, as results were stored before migration 0002.
     store
         .complete_job(
             job,
@@ -174,17 +274,17 @@ async fn duplicate_seed_is_refused_and_stacking_expands() {
         .await
         .unwrap();
     let cells = store.result_cells().await.unwrap();
-    let titles: Vec<_> = cells
+    let rows: Vec<_> = cells
         .iter()
-        .filter(|c| c.method == "Stacker")
-        .map(|c| (c.task.clone(), c.success_rate.mean))
+        .filter(|c| c.method == "OldStacker")
+        .map(|c| (c.task.clone(), c.success_rate.mean, c.entropy.mean))
         .collect();
     assert_eq!(
-        titles,
+        rows,
         vec![
-            ("Stacking-1 (T5)".to_string(), 0.8),
-            ("Stacking-2 (T5)".to_string(), 0.4),
-            ("Stacking-3 (T5)".to_string(), 0.2)
+            ("Stacking-1 (T5)".to_string(), 0.8, 0.4),
+            ("Stacking-2 (T5)".to_string(), 0.4, 0.4),
+            ("Stacking-3 (T5)".to_string(), 0.2, 0.4)
         ]
     );
 }
