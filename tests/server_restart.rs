@@ -40,6 +40,7 @@ fn fixture_result() -> EvalResult {
             behaviour_entropy: est(0.5),
             conditional_entropy: est(0.25),
             stacking: None,
+            stacking_levels: None,
             inference_ms: 0.8,
         },
         per_context: vec![],
