@@ -197,4 +197,145 @@ mod tests {
         assert!(err.contains("--submission"), "{err}");
         let _ = std::fs::remove_dir_all(&dir);
     }
+
+    /// An evaluated Stacking submission shows as three rows whose success and
+    /// entropy are each level's own (computed by d3il-metrics from rollouts in
+    /// which the levels differ).
+    #[test]
+    fn evaluated_stacking_levels_have_their_own_entropies_in_the_tables() {
+        use d3il_protocol::*;
+        use d3il_server::store::{NewMethod, NewPolicy, NewSubmission};
+        let dir = scratch("stacking");
+        let db = dir.join("d3il.sqlite");
+        // Context 0: gbr, rgb stacked; gb, bg two registered; r one; none.
+        // Context 1: rbg, rbg stacked; gr two; b one.
+        let rollouts = [
+            (0, "gbr", true),
+            (0, "rgb", true),
+            (0, "gb", false),
+            (0, "bg", false),
+            (0, "r", false),
+            (0, "", false),
+            (1, "rbg", true),
+            (1, "rbg", true),
+            (1, "gr", false),
+            (1, "b", false),
+        ];
+        let outcomes: Vec<d3il_metrics::Outcome> = rollouts
+            .iter()
+            .map(|&(c, order, full)| {
+                d3il_metrics::Outcome::new(c, full, (!order.is_empty()).then_some(order))
+            })
+            .collect();
+        let ev = d3il_metrics::evaluate(
+            TaskId::Stacking,
+            &outcomes,
+            2.0,
+            &d3il_metrics::Bootstrap::default(),
+        )
+        .unwrap();
+        let levels = ev.metrics.stacking_levels.unwrap();
+        let result = EvalResult {
+            manifest: ProtocolManifest {
+                task: TaskId::Stacking,
+                task_version: "test".into(),
+                obs_type: ObsType::State,
+                protocol: ProtocolKind::Paper,
+                mjcf_sha256: "m".into(),
+                initial_states_sha256: "i".into(),
+                mujoco_version: "2.2.2".into(),
+                evaluator_version: "0".into(),
+                n_contexts: 2,
+                rollouts_per_context: 6,
+                max_steps: 1000,
+                policy_sha256: "p".into(),
+                history: 1,
+                horizon: 1,
+                execute: 1,
+                seed: 0,
+            },
+            metrics: ev.metrics.clone(),
+            per_context: ev.per_context,
+            rollouts: vec![],
+        };
+        let rt = tokio::runtime::Builder::new_current_thread()
+            .enable_all()
+            .build()
+            .unwrap();
+        rt.block_on(async {
+            let store = Store::open(&db).await.unwrap();
+            let m = store
+                .ensure_method(
+                    &NewMethod {
+                        name: "Stack-X".into(),
+                        ..Default::default()
+                    },
+                    None,
+                )
+                .await
+                .unwrap();
+            let sub = store
+                .create_submission(
+                    &NewSubmission {
+                        method_id: m.id,
+                        submitter_id: None,
+                        task: TaskId::Stacking,
+                        obs_type: ObsType::State,
+                        training_seed: 0,
+                        data_fraction: 1.0,
+                        protocol: ProtocolKind::Paper,
+                        policy: NewPolicy::Remote {
+                            url: "ws://127.0.0.1:1/".into(),
+                        },
+                        manifest_json: "{}".into(),
+                    },
+                    3,
+                )
+                .await
+                .unwrap();
+            let claimed = store.claim_job("test", 60).await.unwrap().unwrap();
+            store
+                .complete_job(claimed.job.id, sub, &result, &[])
+                .await
+                .unwrap();
+        });
+        let out = dir.join("main.csv");
+        let mut a = args(db, out.clone());
+        a.format = Format::Csv;
+        a.source = SourceFilter::Evaluated;
+        run(a).expect("d3il tables");
+        let csv = std::fs::read_to_string(&out).unwrap();
+        // Long format: one line per (task, metric) value.
+        let header: Vec<&str> = csv.lines().next().unwrap().split(',').collect();
+        let col = |name: &str| {
+            header
+                .iter()
+                .position(|h| *h == name)
+                .unwrap_or_else(|| panic!("no column {name} in {header:?}"))
+        };
+        let (method, task, metric, mean) = (col("method"), col("task"), col("metric"), col("mean"));
+        let value = |title: &str, what: &str| -> f64 {
+            csv.lines()
+                .map(|l| l.split(',').collect::<Vec<_>>())
+                .find(|f| f[method] == "Stack-X" && f[task] == title && f[metric] == what)
+                .unwrap_or_else(|| panic!("no {title} {what} in\n{csv}"))[mean]
+                .parse()
+                .unwrap()
+        };
+        let mut seen = vec![];
+        for (k, l) in levels.iter().enumerate() {
+            let title = format!("Stacking-{} (T5)", k + 1);
+            let s = value(&title, "success_rate");
+            let e = value(&title, "entropy");
+            // The tables print three decimals.
+            assert!((s - l.success_rate.value).abs() < 5e-4, "{title}: {s}");
+            assert!(
+                (e - l.conditional_entropy.value).abs() < 5e-4,
+                "{title}: {e}"
+            );
+            seen.push(e);
+        }
+        assert!(seen[0] != seen[1] && seen[1] != seen[2], "{seen:?}");
+        let _ = std::fs::remove_dir_all(&dir);
+    }
 }
