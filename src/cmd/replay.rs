@@ -57,6 +57,8 @@ pub fn replay(task: TaskId, input_json: &str) -> anyhow::Result<Value> {
     let first = env.reset(&input.context).context("field `context`")?;
     let mut observations = vec![first];
     let mut tcp = vec![env.sim.tcp_pos()];
+    let mut joints = vec![env.sim.joint_pos()];
+    let mut fingers = vec![env.sim.finger_pos()];
     let mut objects: BTreeMap<String, Vec<[f64; 3]>> = BTreeMap::new();
     let record = |env: &d3il_evaluator::tasks::Env,
                   objects: &mut BTreeMap<String, Vec<[f64; 3]>>| {
@@ -69,6 +71,8 @@ pub fn replay(task: TaskId, input_json: &str) -> anyhow::Result<Value> {
         let out = env.step(a).with_context(|| format!("actions[{i}]"))?;
         observations.push(out.obs);
         tcp.push(env.sim.tcp_pos());
+        joints.push(env.sim.joint_pos());
+        fingers.push(env.sim.finger_pos());
         record(&env, &mut objects);
         if out.done {
             break;
@@ -78,6 +82,8 @@ pub fn replay(task: TaskId, input_json: &str) -> anyhow::Result<Value> {
         "task": task,
         "observations": observations,
         "tcp": tcp,
+        "joints": joints,
+        "fingers": fingers,
         "objects": objects,
         "success": env.success(),
         "behaviour": env.behaviour(),
