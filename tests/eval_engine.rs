@@ -97,3 +97,149 @@ fn malformed_onnx_is_a_bad_model_error() {
     let e = run_job(&onnx_job("hostile_truncated", 0), &mut |_, _| {}).unwrap_err();
     assert_eq!(e.kind, ErrorKind::BadModel, "{}", e.message);
 }
+
+// ---------------------------------------------------------------------------
+// Scripted policies through the engine (quick protocol: 3 initial states × 2
+// rollouts, or 1 × 8 for Avoiding). `max_live` 5 < 6 rollouts, so a slot is
+// reused and a script instance must start fresh for its new rollout.
+// ---------------------------------------------------------------------------
+
+fn scripted_job(task: TaskId, name: &str) -> Job {
+    Job {
+        job_id: "scripted".into(),
+        task,
+        protocol: ProtocolKind::Quick,
+        policy: PolicySource::Scripted { name: name.into() },
+        manifest: PolicyManifest {
+            task,
+            obs_type: d3il_protocol::ObsType::State,
+            history: 1,
+            horizon: 1,
+            execute: 1,
+            normalisation: None,
+        },
+        seed: 0,
+        limits: Limits::default(),
+        assets_dir: concat!(env!("CARGO_MANIFEST_DIR"), "/assets").into(),
+    }
+}
+
+/// Sorting code of an order like "RBBR" (MSB first, 1 = blue).
+fn sorting_code(order: &str) -> u64 {
+    order
+        .chars()
+        .enumerate()
+        .map(|(i, c)| u64::from(c == 'B') << (7 - i))
+        .sum()
+}
+
+#[test]
+fn scripted_sorting_2_both_orders_run_through_the_engine_with_their_labels() {
+    for (name, order) in [("sorting-2:order=RB", "RB"), ("sorting-2:order=br", "BR")] {
+        let r = run(&scripted_job(TaskId::Sorting2, name));
+        assert_eq!(r.rollouts.len(), 6);
+        for x in &r.rollouts {
+            assert!(x.success, "{name}: rollout {x:?}");
+            assert_eq!(x.behaviour, sorting_code(order), "{name}");
+            assert!(x.steps < 500, "{name}: ended by success");
+        }
+        assert_eq!(r.metrics.success_rate.value, 1.0);
+    }
+    // all-orders alternates the two orders by rollout id.
+    let r = run(&scripted_job(TaskId::Sorting2, "sorting-2:all-orders"));
+    let labels: std::collections::BTreeSet<u64> = r
+        .rollouts
+        .iter()
+        .filter(|x| x.success)
+        .map(|x| x.behaviour.as_u64().unwrap())
+        .collect();
+    assert_eq!(labels, [64, 128].into(), "{:?}", r.rollouts);
+    assert!(r.metrics.behaviour_entropy.value > 0.0, "{:?}", r.metrics);
+}
+
+#[test]
+fn scripted_sorting_4_and_6_run_through_the_engine_with_complete_labels() {
+    let r = run(&scripted_job(TaskId::Sorting4, "sorting-4:order=RBRB"));
+    assert_eq!(r.rollouts.len(), 6);
+    let ok = r.rollouts.iter().filter(|x| x.success).count();
+    assert!(ok >= 4, "{:?}", r.rollouts);
+    for x in r.rollouts.iter().filter(|x| x.success) {
+        // Every success carries a complete label: two red, two blue slots.
+        let code = x.behaviour.as_u64().unwrap();
+        assert_eq!(code & 0x0f, 0);
+        assert_eq!(code.count_ones(), 2, "{code:#010b}");
+    }
+    let r = run(&scripted_job(TaskId::Sorting6, "sorting-6:order=RBRBRB"));
+    assert_eq!(r.rollouts.len(), 6);
+    for x in &r.rollouts {
+        let code = x.behaviour.as_u64().unwrap();
+        if x.success {
+            assert_eq!(code & 0b11, 0);
+            assert_eq!(code.count_ones(), 3, "{code:#010b}");
+        } else {
+            assert!(x.steps == 1200, "failure only at the step limit");
+        }
+    }
+}
+
+#[test]
+fn scripted_stacking_runs_through_the_engine_with_order_strings() {
+    let r = run(&scripted_job(TaskId::Stacking, "stacking:order=rgb"));
+    assert_eq!(r.rollouts.len(), 6);
+    let ok: Vec<_> = r.rollouts.iter().filter(|x| x.success).collect();
+    assert!(ok.len() >= 4, "{:?}", r.rollouts);
+    for x in ok {
+        assert_eq!(x.behaviour, "rgb");
+    }
+    // One block: never a full stack, the label names the block.
+    let r = run(&scripted_job(TaskId::Stacking, "stacking:order=r"));
+    assert!(r.rollouts.iter().all(|x| !x.success));
+    let labelled = r.rollouts.iter().filter(|x| x.behaviour == "r").count();
+    assert!(labelled >= 4, "{:?}", r.rollouts);
+    // all-orders: rollout i stacks order i of six.
+    let r = run(&scripted_job(TaskId::Stacking, "stacking:all-orders"));
+    let orders = ["rgb", "rbg", "grb", "gbr", "brg", "bgr"];
+    for (i, x) in r.rollouts.iter().enumerate() {
+        if x.success {
+            assert_eq!(x.behaviour, orders[i % 6], "rollout {i}");
+        }
+    }
+    assert!(r.rollouts.iter().filter(|x| x.success).count() >= 3);
+}
+
+#[test]
+fn unknown_scripted_names_list_what_exists() {
+    use d3il_evaluator::scripted::ScriptedPolicy;
+    let spec = LoadedTask::load(TaskId::Sorting4).unwrap().spec();
+    for bad in [
+        "sorting-4:order=RB",
+        "sorting-4:order=RRRB",
+        "sorting-4:order=",
+        "sorting-2:order=RB",
+        "sorting-4:whatever",
+    ] {
+        let e = ScriptedPolicy::from_name(bad, spec.clone())
+            .err()
+            .unwrap_or_else(|| panic!("{bad} accepted"));
+        let msg = e.to_string();
+        assert!(
+            msg.contains(bad) && msg.contains("sorting-2|sorting-4|sorting-6:order="),
+            "{msg}"
+        );
+    }
+    let p = ScriptedPolicy::from_name("sorting-4:all-orders", spec).unwrap();
+    assert_eq!(p.variants(), 6);
+    let spec = LoadedTask::load(TaskId::Stacking).unwrap().spec();
+    for bad in ["stacking:order=rr", "stacking:order=x", "stacking:order="] {
+        assert!(
+            ScriptedPolicy::from_name(bad, spec.clone()).is_err(),
+            "{bad}"
+        );
+    }
+    assert_eq!(
+        ScriptedPolicy::from_name("stacking:all-orders", spec)
+            .unwrap()
+            .variants(),
+        6
+    );
+}

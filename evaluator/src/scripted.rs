@@ -1,49 +1,137 @@
 //! Scripted reference policies as [`Policy`] implementations: the leaderboard's
 //! sanity baselines. They act on the policy observation only, like a submission.
+//!
+//! Names (`scripted:<name>` in `d3il eval` and jobs; docs/tasks.md):
+//! `avoiding:path=<0..23>`, `avoiding:all-paths`, `aligning:inside|outside|both`,
+//! `pushing:mode=<0..3>`, `pushing:all-modes`, `sorting-X:order=<R/B sequence>`,
+//! `sorting-X:all-orders`, `stacking:order=<r/g/b sequence>`, `stacking:all-orders`,
+//! `inserting:box=g`.
 
 use crate::tasks::aligning::{AligningScript, AligningStyle};
 use crate::tasks::avoiding::AvoidingScript;
+use crate::tasks::inserting::InsertingScript;
 use crate::tasks::pushing::PushingScript;
+use crate::tasks::sorting::{parse_order, SortingScript};
+use crate::tasks::stacking::StackingScript;
 use d3il_policy::{ActionChunks, Policy, PolicyError, PolicyShape, Query};
 use d3il_protocol::{ObsType, TaskId, TaskSpec};
+use std::collections::HashMap;
 
-/// A per-rollout scripted controller: policy observation -> one action.
-pub trait Script: Send + Sync {
-    fn act(&self, obs: &[f32]) -> Vec<f32>;
+/// A scripted controller for one rollout: policy observation -> one action.
+/// May keep state (a plan, a phase); a fresh instance is made per rollout.
+pub trait Script: Send {
+    fn act(&mut self, obs: &[f32]) -> Vec<f32>;
 }
 
 impl Script for AvoidingScript {
-    fn act(&self, obs: &[f32]) -> Vec<f32> {
+    fn act(&mut self, obs: &[f32]) -> Vec<f32> {
         AvoidingScript::act(self, obs).to_vec()
     }
 }
 
 impl Script for AligningScript {
-    fn act(&self, obs: &[f32]) -> Vec<f32> {
+    fn act(&mut self, obs: &[f32]) -> Vec<f32> {
         AligningScript::act(self, obs).to_vec()
     }
 }
 
 impl Script for PushingScript {
-    fn act(&self, obs: &[f32]) -> Vec<f32> {
+    fn act(&mut self, obs: &[f32]) -> Vec<f32> {
         PushingScript::act(self, obs).to_vec()
     }
 }
 
-/// Runs one script per rollout (chosen by rollout id, so a set of scripts
-/// covers several behaviours deterministically).
+impl Script for SortingScript {
+    fn act(&mut self, obs: &[f32]) -> Vec<f32> {
+        SortingScript::act(self, obs).to_vec()
+    }
+}
+
+impl Script for StackingScript {
+    fn act(&mut self, obs: &[f32]) -> Vec<f32> {
+        StackingScript::act(self, obs).to_vec()
+    }
+}
+
+impl Script for InsertingScript {
+    fn act(&mut self, obs: &[f32]) -> Vec<f32> {
+        InsertingScript::act(self, obs).to_vec()
+    }
+}
+
+/// Makes a fresh script for a new rollout.
+type Factory = Box<dyn Fn() -> Box<dyn Script> + Send + Sync>;
+
+/// A factory that clones a prototype script (which must be in its start state).
+fn cloning<S: Script + Clone + Sync + 'static>(proto: S) -> Factory {
+    Box::new(move || Box::new(proto.clone()))
+}
+
+/// Runs one script variant per rollout, chosen by rollout id (so a set of
+/// variants covers several behaviours deterministically). Each rollout gets
+/// its own script instance, created when the engine announces the rollout's
+/// start through [`Policy::reset`].
 pub struct ScriptedPolicy {
     name: String,
-    scripts: Vec<Box<dyn Script>>,
+    variants: Vec<Factory>,
+    live: HashMap<u64, Box<dyn Script>>,
     spec: TaskSpec,
 }
 
 #[derive(Debug, thiserror::Error)]
-#[error("unknown scripted policy `{0}`; available: avoiding:path=<0..23>, avoiding:all-paths, aligning:inside, aligning:outside, aligning:both, pushing:mode=<0..3>, pushing:all-modes")]
+#[error(
+    "unknown scripted policy `{0}`; available: avoiding:path=<0..23>, avoiding:all-paths, \
+     aligning:inside, aligning:outside, aligning:both, pushing:mode=<0..3>, pushing:all-modes, \
+     sorting-2|sorting-4|sorting-6:order=<sequence of R and B, X/2 of each, e.g. RB, RBBR>, \
+     sorting-2|sorting-4|sorting-6:all-orders, stacking:order=<sequence of distinct r, g, b, e.g. r, rgb>, \
+     stacking:all-orders, inserting:box=g \
+     (the task before the colon must be the task evaluated)"
+)]
 pub struct UnknownScript(pub String);
 
+/// Every distinct arrangement of `n` R and `n` B, in lexicographic order.
+fn sorting_orders(n: usize) -> Vec<String> {
+    let mut out = Vec::new();
+    for bits in 0u32..(1 << (2 * n)) {
+        if bits.count_ones() as usize == n {
+            let s: String = (0..2 * n)
+                .rev()
+                .map(|i| if bits >> i & 1 == 1 { 'B' } else { 'R' })
+                .collect();
+            out.push(s);
+        }
+    }
+    out.sort();
+    out
+}
+
+fn sorting_script(order: &str, boxes: usize) -> Option<SortingScript> {
+    let colours = parse_order(order)?;
+    let reds = order
+        .chars()
+        .filter(|c| c.eq_ignore_ascii_case(&'r'))
+        .count();
+    (colours.len() == boxes && reds * 2 == boxes)
+        .then(|| SortingScript::new(order))
+        .flatten()
+}
+
+fn stacking_script(order: &str) -> Option<StackingScript> {
+    let mut seen = String::new();
+    for c in order.chars() {
+        if !"rgb".contains(c) || seen.contains(c) {
+            return None;
+        }
+        seen.push(c);
+    }
+    (!seen.is_empty())
+        .then(|| StackingScript::new(order))
+        .flatten()
+}
+
 impl ScriptedPolicy {
-    /// Parses names like `avoiding:path=3` or `avoiding:all-paths`.
+    /// Parses names like `avoiding:path=3`, `sorting-4:order=RBBR` or
+    /// `stacking:all-orders`; the task part must be `spec.task`.
     pub fn from_name(name: &str, spec: TaskSpec) -> Result<Self, UnknownScript> {
         let unknown = || UnknownScript(name.to_string());
         let (task, what) = name.split_once(':').ok_or_else(unknown)?;
@@ -51,50 +139,99 @@ impl ScriptedPolicy {
         if task != spec.task {
             return Err(unknown());
         }
-        let scripts: Vec<Box<dyn Script>> = match (task, what) {
+        let param = |key: &str| what.strip_prefix(key).filter(|v| !v.is_empty());
+        let variants: Vec<Factory> = match (task, what) {
             (TaskId::Avoiding, "all-paths") => (0..24)
                 .filter_map(AvoidingScript::new)
-                .map(|s| Box::new(s) as Box<dyn Script>)
+                .map(cloning)
                 .collect(),
-            (TaskId::Avoiding, w) => {
-                let path: usize = w
-                    .strip_prefix("path=")
+            (TaskId::Avoiding, _) => {
+                let path: usize = param("path=")
                     .and_then(|p| p.parse().ok())
                     .ok_or_else(unknown)?;
-                vec![Box::new(AvoidingScript::new(path).ok_or_else(unknown)?)]
+                vec![cloning(AvoidingScript::new(path).ok_or_else(unknown)?)]
             }
             (TaskId::Aligning, "inside") => {
-                vec![Box::new(AligningScript::new(AligningStyle::Inside))]
+                vec![cloning(AligningScript::new(AligningStyle::Inside))]
             }
             (TaskId::Aligning, "outside") => {
-                vec![Box::new(AligningScript::new(AligningStyle::Outside))]
+                vec![cloning(AligningScript::new(AligningStyle::Outside))]
             }
             (TaskId::Aligning, "both") => vec![
-                Box::new(AligningScript::new(AligningStyle::Inside)),
-                Box::new(AligningScript::new(AligningStyle::Outside)),
+                cloning(AligningScript::new(AligningStyle::Inside)),
+                cloning(AligningScript::new(AligningStyle::Outside)),
             ],
-            (TaskId::Pushing, "all-modes") => (0..4)
-                .filter_map(PushingScript::new)
-                .map(|s| Box::new(s) as Box<dyn Script>)
-                .collect(),
-            (TaskId::Pushing, w) => {
-                let mode: u8 = w
-                    .strip_prefix("mode=")
+            (TaskId::Pushing, "all-modes") => {
+                (0..4).filter_map(PushingScript::new).map(cloning).collect()
+            }
+            (TaskId::Pushing, _) => {
+                let mode: u8 = param("mode=")
                     .and_then(|p| p.parse().ok())
                     .ok_or_else(unknown)?;
-                vec![Box::new(PushingScript::new(mode).ok_or_else(unknown)?)]
+                vec![cloning(PushingScript::new(mode).ok_or_else(unknown)?)]
             }
-            _ => return Err(unknown()),
+            (TaskId::Sorting2 | TaskId::Sorting4 | TaskId::Sorting6, _) => {
+                let boxes = match task {
+                    TaskId::Sorting2 => 2,
+                    TaskId::Sorting4 => 4,
+                    _ => 6,
+                };
+                let orders = if what == "all-orders" {
+                    sorting_orders(boxes / 2)
+                } else {
+                    vec![param("order=").ok_or_else(unknown)?.to_string()]
+                };
+                orders
+                    .iter()
+                    .map(|o| sorting_script(o, boxes).map(cloning).ok_or_else(unknown))
+                    .collect::<Result<_, _>>()?
+            }
+            (TaskId::Stacking, _) => {
+                let orders: Vec<String> = if what == "all-orders" {
+                    ["rgb", "rbg", "grb", "gbr", "brg", "bgr"]
+                        .map(String::from)
+                        .into()
+                } else {
+                    vec![param("order=").ok_or_else(unknown)?.to_string()]
+                };
+                orders
+                    .iter()
+                    .map(|o| stacking_script(o).map(cloning).ok_or_else(unknown))
+                    .collect::<Result<_, _>>()?
+            }
+            (TaskId::Inserting, _) => {
+                let b = match param("box=").ok_or_else(unknown)? {
+                    "r" => 0,
+                    "g" => 1,
+                    "b" => 2,
+                    _ => return Err(unknown()),
+                };
+                vec![cloning(InsertingScript::new(b).ok_or_else(unknown)?)]
+            }
+            (TaskId::Aligning, _) => return Err(unknown()),
         };
+        if variants.is_empty() {
+            return Err(unknown());
+        }
         Ok(ScriptedPolicy {
             name: name.to_string(),
-            scripts,
+            variants,
+            live: HashMap::new(),
             spec,
         })
     }
 
     pub fn name(&self) -> &str {
         &self.name
+    }
+
+    /// Number of script variants the rollouts cycle through.
+    pub fn variants(&self) -> usize {
+        self.variants.len()
+    }
+
+    fn fresh(&self, rollout_id: u64) -> Box<dyn Script> {
+        (self.variants[rollout_id as usize % self.variants.len()])()
     }
 }
 
@@ -110,7 +247,12 @@ impl Policy for ScriptedPolicy {
         }
     }
 
-    fn reset(&mut self, _rollout_ids: &[u64]) -> Result<(), PolicyError> {
+    /// New episodes: a fresh script instance for each of these rollouts.
+    fn reset(&mut self, rollout_ids: &[u64]) -> Result<(), PolicyError> {
+        for &id in rollout_ids {
+            let s = self.fresh(id);
+            self.live.insert(id, s);
+        }
         Ok(())
     }
 
@@ -119,7 +261,13 @@ impl Policy for ScriptedPolicy {
         let d = self.spec.obs_dim;
         let mut data = Vec::with_capacity(query.batch() * self.spec.act_dim);
         for (row, id) in query.rollout_ids.iter().enumerate() {
-            let script = &self.scripts[*id as usize % self.scripts.len()];
+            // A rollout the engine did not announce (or one restarting at
+            // step 0 under an old id) gets a fresh script too.
+            if query.steps[row] == 0 || !self.live.contains_key(id) {
+                let s = self.fresh(*id);
+                self.live.insert(*id, s);
+            }
+            let script = self.live.get_mut(id).expect("inserted above");
             data.extend(script.act(&query.obs[row * d..(row + 1) * d]));
         }
         Ok(ActionChunks {
@@ -128,5 +276,18 @@ impl Policy for ScriptedPolicy {
             act_dim: self.spec.act_dim,
             data,
         })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::sorting_orders;
+
+    #[test]
+    fn sorting_orders_are_all_arrangements() {
+        assert_eq!(sorting_orders(1), ["BR", "RB"]);
+        assert_eq!(sorting_orders(2).len(), 6);
+        assert_eq!(sorting_orders(3).len(), 20);
+        assert!(sorting_orders(3).contains(&"RBBRRB".to_string()));
     }
 }

@@ -282,6 +282,12 @@ pub struct InsertingScript {
 }
 
 impl InsertingScript {
+    /// A script for box `box_idx` (0 red, 1 green, 2 blue); only the green
+    /// box (the top slot) has a script so far.
+    pub fn new(box_idx: usize) -> Option<InsertingScript> {
+        (box_idx == 1).then(InsertingScript::green)
+    }
+
     /// Pushes the green box straight into the top slot.
     pub fn green() -> InsertingScript {
         InsertingScript {
