@@ -24,6 +24,8 @@ enum Command {
     Contexts(cmd::contexts::Args),
     /// Evaluate a policy (ONNX file, ws:// endpoint or scripted) on a task and print the D3IL metrics.
     Eval(cmd::eval::Args),
+    /// Render what an image policy sees (both 96x96 cameras) to a PNG.
+    Render(cmd::render::Args),
     /// Replay an episode open-loop from policy-level actions and print JSON.
     Replay(cmd::replay::Args),
     /// Regenerate the paper's result tables (LaTeX/Markdown/CSV) and figures (SVG) from the database.
@@ -43,6 +45,7 @@ fn main() -> anyhow::Result<()> {
     match cli.command {
         Command::Bench(a) => cmd::bench::run(a),
         Command::Contexts(a) => cmd::contexts::run(a),
+        Command::Render(a) => cmd::render::run(a),
         Command::Replay(a) => cmd::replay::run(a),
         Command::Eval(a) => cmd::eval::run(a),
         Command::Tables(a) => cmd::tables::run(a),

@@ -1,27 +1,201 @@
 //! `d3il bench <which>`: benchmarks that print rates and the ratio the issue
 //! tracks on their last line. Speed goals live here, never in tests.
 
-use anyhow::bail;
+use anyhow::{bail, Context};
+use d3il_evaluator::camera;
+use d3il_evaluator::eval::{self, EvalOptions, PolicyInfo};
 use d3il_evaluator::tasks::avoiding::AvoidingScript;
 use d3il_evaluator::tasks::LoadedTask;
-use d3il_protocol::TaskId;
+use d3il_policy::{ActionChunks, OnnxPolicy, Policy, PolicyError, PolicyShape, Query};
+use d3il_protocol::{ObsType, PolicyManifest, ProtocolKind, TaskId};
 use serde_json::Value;
 use std::time::Instant;
 
 #[derive(clap::Args)]
 pub struct Args {
-    /// Which benchmark: `physics`.
+    /// Which benchmark: `physics`, `eval` or `render`.
     pub which: String,
-    /// Env steps to run (physics).
+    /// Env steps to run (physics, render).
     #[arg(long, default_value_t = 3000)]
     pub steps: usize,
+    /// Protocol of `eval` (paper: Aligning's 60 x 8 = 480 rollouts).
+    #[arg(long, default_value = "paper")]
+    pub protocol: ProtocolKind,
+    /// Rollouts simulated at once in `eval`.
+    #[arg(long, default_value_t = 96)]
+    pub max_live: usize,
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
     match args.which.as_str() {
         "physics" => physics(args.steps),
-        other => bail!("unknown benchmark `{other}`; available: physics"),
+        "eval" => eval_bench(args.protocol, args.max_live),
+        "render" => render_bench(args.steps),
+        other => bail!("unknown benchmark `{other}`; available: physics, eval, render"),
     }
+}
+
+/// Runs a policy one row at a time: the "unbatched" evaluation, with a model
+/// exported for a fixed batch of 1.
+struct RowByRow(OnnxPolicy);
+
+impl Policy for RowByRow {
+    fn shape(&self) -> PolicyShape {
+        self.0.shape()
+    }
+    fn reset(&mut self, ids: &[u64]) -> Result<(), PolicyError> {
+        self.0.reset(ids)
+    }
+    fn infer(&mut self, q: &Query<'_>) -> Result<ActionChunks, PolicyError> {
+        let s = self.0.shape();
+        let w = s.history * s.obs_dim;
+        let mut out = ActionChunks {
+            batch: q.batch(),
+            horizon: s.horizon,
+            act_dim: s.act_dim,
+            data: Vec::with_capacity(q.batch() * s.horizon * s.act_dim),
+        };
+        for r in 0..q.batch() {
+            let row = Query::new(
+                &q.rollout_ids[r..r + 1],
+                &q.steps[r..r + 1],
+                &q.obs[r * w..(r + 1) * w],
+            );
+            out.data.extend_from_slice(&self.0.infer(&row)?.data);
+        }
+        Ok(out)
+    }
+}
+
+fn load_fixture(task: &LoadedTask, name: &str) -> anyhow::Result<(OnnxPolicy, PolicyInfo)> {
+    let dir = super::assets_dir().join("fixtures");
+    let onnx = dir.join(format!("{name}.onnx"));
+    let bytes = std::fs::read(&onnx).with_context(|| format!("reading {}", onnx.display()))?;
+    let manifest: PolicyManifest =
+        serde_json::from_slice(&std::fs::read(dir.join(format!("{name}.json")))?)?;
+    let policy = OnnxPolicy::load(&bytes, &manifest, &task.spec(), 0)?;
+    let info = PolicyInfo {
+        sha256: eval::sha256_hex(&bytes),
+        obs_type: ObsType::State,
+    };
+    Ok((policy, info))
+}
+
+/// The full Aligning protocol with a BC-MLP-sized ONNX policy (20 -> 6 x 128
+/// -> 3), batched (one call per lockstep step) and unbatched (one call per
+/// rollout and step). Physics time is the wall time of the parallel stepping
+/// phases of the same run.
+fn eval_bench(protocol: ProtocolKind, max_live: usize) -> anyhow::Result<()> {
+    let task = LoadedTask::load(TaskId::Aligning)?;
+    let threads = rayon::current_num_threads();
+    println!(
+        "aligning, protocol {protocol:?}, BC-MLP-sized ONNX policy (6 x 128), {max_live} live rollouts, {threads} threads"
+    );
+    let opts = EvalOptions {
+        protocol,
+        seed: 0,
+        max_live,
+        ..EvalOptions::default()
+    };
+    let mut ratios = Vec::new();
+    for (label, name) in [
+        ("batched", "aligning_mlp"),
+        ("unbatched", "aligning_mlp_batch1"),
+    ] {
+        let (policy, info) = load_fixture(&task, name)?;
+        let mut policy: Box<dyn Policy> = if label == "batched" {
+            Box::new(policy)
+        } else {
+            Box::new(RowByRow(policy))
+        };
+        let (r, t) = eval::evaluate(&task, policy.as_mut(), &info, &opts, &mut |_, _| {})?;
+        let n = r.rollouts.len();
+        let steps: usize = r.rollouts.iter().map(|x| x.steps).sum();
+        let other = t.total_s - t.physics_s - t.policy_s;
+        println!(
+            "{label:>9}: {n} rollouts ({steps} env steps) in {:.1} s = {:.2} rollouts/s; \
+             physics {:.1} s, policy {:.2} s over {} calls ({:.3} ms/call, {:.1}% of physics), engine {:.2} s",
+            t.total_s,
+            n as f64 / t.total_s,
+            t.physics_s,
+            t.policy_s,
+            t.policy_calls,
+            1000.0 * t.policy_s / t.policy_calls.max(1) as f64,
+            100.0 * t.policy_s / t.physics_s,
+            other
+        );
+        ratios.push((label, t.total_s / t.physics_s));
+    }
+    println!(
+        "ratio total/physics-only time: batched {:.3}, unbatched {:.3} (goal: policy < 10% of physics, i.e. batched <= 1.10)",
+        ratios[0].1, ratios[1].1
+    );
+    Ok(())
+}
+
+/// Frames per second of both 96 x 96 policy cameras, and the ratio of
+/// rendering time to physics time in an image-based Aligning episode
+/// (one render of both cameras per env step, as the image variant does).
+fn render_bench(env_steps: usize) -> anyhow::Result<()> {
+    let task = LoadedTask::load_obs(TaskId::Aligning, ObsType::Image)?;
+    let set = task.def.context_set()?;
+    let cams = camera::camera_ids(&task.model)?;
+    println!(
+        "aligning, cameras {} + {} at {}x{}, EGL: {}",
+        camera::CAMERAS[0],
+        camera::CAMERAS[1],
+        camera::SIZE,
+        camera::SIZE,
+        d3il_evaluator::mujoco::egl_vendor()?
+    );
+    // Rendering alone: both cameras of one state, repeatedly.
+    let mut env = task.env()?;
+    env.reset(&set.get(0).cloned().unwrap_or(Value::Null))?;
+    let mut buf = Vec::with_capacity(camera::OBS_LEN);
+    let reps = (env_steps / 10).max(20);
+    let t = Instant::now();
+    for _ in 0..reps {
+        buf.clear();
+        camera::capture(&mut env.sim.data, &cams, &mut buf)?;
+    }
+    let fps = 2.0 * reps as f64 / t.elapsed().as_secs_f64();
+    println!(
+        "render only: {fps:.0} frames/s ({:.2} ms per frame, one thread)",
+        1000.0 / fps
+    );
+
+    // An image episode on one thread: physics (env step without cameras)
+    // and the per-step capture timed separately, on the same states.
+    let state_task = LoadedTask::load(TaskId::Aligning)?;
+    let mut env = state_task.env()?;
+    let (mut physics, mut render, mut steps, mut ctx) = (0.0, 0.0, 0, 0);
+    env.reset(&set.get(0).cloned().unwrap_or(Value::Null))?;
+    while steps < env_steps {
+        let a = [
+            0.002 * ((steps as f32) / 20.0).sin(),
+            0.002 * ((steps as f32) / 30.0).cos(),
+            0.0,
+        ];
+        let t = Instant::now();
+        buf.clear();
+        camera::capture(&mut env.sim.data, &cams, &mut buf)?;
+        render += t.elapsed().as_secs_f64();
+        let t = Instant::now();
+        let out = env.step(&a)?;
+        physics += t.elapsed().as_secs_f64();
+        steps += 1;
+        if out.done {
+            ctx += 1;
+            env.reset(&set.get(ctx % set.len()).cloned().unwrap_or(Value::Null))?;
+        }
+    }
+    println!(
+        "image episode: {steps} env steps, physics {:.2} ms/step, rendering {:.2} ms/step (2 frames)",
+        1000.0 * physics / steps as f64,
+        1000.0 * render / steps as f64
+    );
+    println!("ratio rendering/physics time: {:.3}", render / physics);
+    Ok(())
 }
 
 /// Controlled stepping of the Avoiding scene (IK + PD + finger law every
