@@ -2,6 +2,7 @@
 
 use crate::queue::{start_pool, JobRunner, PoolConfig, QueueSignal, WorkerProcess};
 use crate::ratelimit::RateLimiter;
+use crate::sandbox_status::SandboxStatus;
 use crate::store::{Store, StoreError};
 use axum::Router;
 use d3il_protocol::Limits;
@@ -74,6 +75,8 @@ pub struct AppState {
     pub limiter: Arc<RateLimiter>,
     /// Used for endpoint conformance dry-runs.
     pub runner: Arc<dyn JobRunner>,
+    /// The sandbox mechanisms in force (admin page).
+    pub sandbox: Arc<SandboxStatus>,
 }
 
 pub fn router(state: AppState) -> Router {
@@ -148,7 +151,9 @@ pub async fn prepare(
         signal.clone(),
     )
     .await?;
+    let sandbox = Arc::new(SandboxStatus::new(runner.clone(), cfg.assets_dir.clone()));
     let state = AppState {
+        sandbox,
         store,
         limiter: Arc::new(RateLimiter::new(cfg.rate_limit_per_minute)),
         cfg: Arc::new(cfg),

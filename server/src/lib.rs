@@ -17,5 +17,6 @@ pub mod plots;
 pub mod queue;
 pub mod ratelimit;
 pub mod runner;
+pub mod sandbox_status;
 pub mod stats;
 pub mod store;

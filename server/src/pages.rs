@@ -34,6 +34,7 @@ pub fn router(max_upload: usize) -> Router<AppState> {
                 .layer(DefaultBodyLimit::max(max_upload + (1 << 20))),
         )
         .route("/docs/api", get(api_docs))
+        .route("/admin", get(admin_page))
         .route("/static/style.css", get(stylesheet))
         .fallback(not_found)
 }
@@ -1080,5 +1081,112 @@ mod tests {
     fn civil_time_formatting() {
         assert_eq!(super::fmt_time(0), "1970-01-01 00:00 UTC");
         assert_eq!(super::fmt_time(1_700_000_000), "2023-11-14 22:13 UTC");
+    }
+}
+
+// ----------------------------------------------------------------------- admin
+
+struct MechanismLine {
+    name: String,
+    active: bool,
+    detail: String,
+}
+
+fn mechanism_lines(ms: &[d3il_protocol::SandboxMechanism]) -> Vec<MechanismLine> {
+    ms.iter()
+        .map(|m| MechanismLine {
+            name: m.name.clone(),
+            active: m.active,
+            detail: m.detail.clone(),
+        })
+        .collect()
+}
+
+#[derive(Template)]
+#[template(path = "admin.html")]
+struct AdminPage {
+    checked_at: String,
+    /// Why the check could not run, if it could not.
+    check_error: Option<String>,
+    /// Mechanisms first, then probes (`probe:...`), as the worker lists them.
+    mechanisms: Vec<MechanismLine>,
+    missing: Vec<String>,
+    breached: Vec<String>,
+    last_job: Option<(i64, String)>,
+    last_job_mechanisms: Vec<MechanismLine>,
+    queued: i64,
+    running: i64,
+    workers: usize,
+    limits: Vec<(&'static str, String)>,
+}
+
+/// Operators' view: the sandbox mechanisms in force on this host (what
+/// `d3il worker --check-sandbox` reports, including what the kernel lacks),
+/// the mechanisms the last finished job ran under, the queue and the limits.
+async fn admin_page(State(state): State<AppState>) -> Result<Html<String>, PageError> {
+    let check = state.sandbox.get().await;
+    let (mechanisms, check_error) = match &check.result {
+        Ok(ms) => (mechanism_lines(ms), None),
+        Err(e) => (vec![], Some(e.clone())),
+    };
+    let missing = check
+        .missing()
+        .iter()
+        .filter(|m| !m.name.starts_with("probe:"))
+        .map(|m| m.name.clone())
+        .collect();
+    let breached = check
+        .missing()
+        .iter()
+        .filter(|m| m.name.starts_with("probe:"))
+        .map(|m| m.name.clone())
+        .collect();
+    let (last_job, last_job_mechanisms) = match state.store.latest_sandbox_report().await? {
+        Some((sub, at, json)) => {
+            let ms: Vec<d3il_protocol::SandboxMechanism> =
+                serde_json::from_str(&json).unwrap_or_default();
+            (Some((sub, fmt_time(at))), mechanism_lines(&ms))
+        }
+        None => (None, vec![]),
+    };
+    let (queued, running) = state.store.queue_counts().await?;
+    let l = &state.cfg.limits;
+    let limits = vec![
+        ("Memory (address space)", bytes_text(l.memory_bytes)),
+        ("CPU time", format!("{} s", l.cpu_seconds)),
+        ("Wall clock", format!("{} s", l.wall_seconds)),
+        ("Open files", l.open_files.to_string()),
+        ("File size", bytes_text(l.file_size_bytes)),
+        (
+            "Private/loopback endpoints",
+            if l.allow_private_endpoints {
+                "allowed (trusted set-up)".to_string()
+            } else {
+                "refused".to_string()
+            },
+        ),
+    ];
+    render(&AdminPage {
+        checked_at: fmt_time(check.checked_at),
+        check_error,
+        mechanisms,
+        missing,
+        breached,
+        last_job,
+        last_job_mechanisms,
+        queued,
+        running,
+        workers: state.cfg.workers,
+        limits,
+    })
+}
+
+fn bytes_text(b: u64) -> String {
+    if b == 0 {
+        "unlimited".into()
+    } else if b.is_multiple_of(1 << 30) {
+        format!("{} GiB", b >> 30)
+    } else {
+        format!("{} MiB", b >> 20)
     }
 }

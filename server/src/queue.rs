@@ -24,6 +24,15 @@ pub struct RunReport {
 /// Runs one job to completion. Blocking: the pool calls it on a blocking thread.
 pub trait JobRunner: Send + Sync + 'static {
     fn run(&self, job: &Job, on_progress: &mut dyn FnMut(usize, usize)) -> RunReport;
+
+    /// The sandbox mechanisms a job would run under on this host (and the
+    /// probes that they hold), for the admin page. Blocking.
+    fn check_sandbox(
+        &self,
+        _assets_dir: &std::path::Path,
+    ) -> Result<Vec<SandboxMechanism>, String> {
+        Err("this job runner does not run jobs in a sandbox".into())
+    }
 }
 
 /// How to start a worker process.

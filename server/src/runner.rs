@@ -3,7 +3,7 @@
 //! server, wall clock, output cap, rlimits/namespaces/landlock/seccomp inside).
 
 use crate::queue::{JobRunner, RunReport, WorkerProcess};
-use d3il_protocol::Job;
+use d3il_protocol::{Job, SandboxMechanism};
 use d3il_sandbox::{run_worker, Outcome, WorkerCommand};
 use std::sync::Arc;
 
@@ -25,6 +25,39 @@ impl JobRunner for SandboxRunner {
             },
             mechanisms: run.mechanisms,
         }
+    }
+
+    /// `d3il worker --check-sandbox --json --assets DIR`: confines a process
+    /// as for an ONNX job and probes it. Its JSON is used even when it exits
+    /// non-zero (a probe that was not stopped is shown as such).
+    fn check_sandbox(&self, assets_dir: &std::path::Path) -> Result<Vec<SandboxMechanism>, String> {
+        let exe = &self.cmd.exe;
+        let out = std::process::Command::new(exe)
+            .args(&self.cmd.args)
+            .args(["--check-sandbox", "--json", "--assets"])
+            .arg(assets_dir)
+            .stdin(std::process::Stdio::null())
+            .output()
+            .map_err(|e| format!("could not start `{} --check-sandbox`: {e}", exe.display()))?;
+        serde_json::from_slice(&out.stdout).map_err(|e| {
+            let stderr = String::from_utf8_lossy(&out.stderr);
+            let last = stderr
+                .lines()
+                .rev()
+                .find(|l| !l.trim().is_empty())
+                .unwrap_or("");
+            format!(
+                "`{} {} --check-sandbox` ({}) printed no mechanism list ({e}){}",
+                exe.display(),
+                self.cmd.args.join(" "),
+                out.status,
+                if last.is_empty() {
+                    String::new()
+                } else {
+                    format!(": {last}")
+                }
+            )
+        })
     }
 }
 

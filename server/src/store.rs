@@ -1175,6 +1175,17 @@ impl Store {
         .await?)
     }
 
+    /// The sandbox report of the most recently finished job that has one:
+    /// (submission id, finished at, mechanisms JSON).
+    pub async fn latest_sandbox_report(&self) -> Result<Option<(i64, i64, String)>, StoreError> {
+        Ok(sqlx::query_as(
+            "SELECT submission_id, COALESCE(finished_at, 0), sandbox_json FROM jobs \
+             WHERE sandbox_json IS NOT NULL ORDER BY finished_at DESC, id DESC LIMIT 1",
+        )
+        .fetch_optional(&self.pool)
+        .await?)
+    }
+
     pub async fn queue_counts(&self) -> Result<(i64, i64), StoreError> {
         Ok(sqlx::query_as(
             "SELECT COALESCE(SUM(state = 'queued'), 0), COALESCE(SUM(state = 'leased'), 0) FROM jobs",
