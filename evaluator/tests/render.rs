@@ -44,13 +44,9 @@ fn both_cameras_render_non_blank_frames_in_the_policy_layout() {
             images.iter().all(|v| (0.0..=1.0).contains(v)),
             "{task}: scaled to [0, 1]"
         );
-        for cam in 0..2 {
+        for (cam, name) in CAMERAS.iter().enumerate() {
             let sd = channel_std(images, cam);
-            assert!(
-                sd > 0.05,
-                "{task} camera {}: blank frame (std {sd})",
-                CAMERAS[cam]
-            );
+            assert!(sd > 0.05, "{task} camera {name}: blank frame (std {sd})");
         }
         // The image variant's low-dimensional input is the previous command.
         assert_eq!(env.policy_obs().len(), t.def.cmd_dim(), "{task}");
