@@ -1,8 +1,8 @@
 //! Everything that runs a policy in the D3IL re-implementation.
 
+pub mod camera;
 #[cfg(feature = "engine")]
 pub mod eval;
-pub mod camera;
 pub mod mujoco;
 pub mod robot;
 #[cfg(feature = "engine")]
