@@ -400,7 +400,7 @@ pub fn validate(raw: &RawSubmission, limits: &Limits) -> Result<ValidSubmission,
             ValidPolicy::Onnx(bytes.clone())
         }
         (None, Some(u)) => {
-            let url = check_url("endpoint_url", &u, &["ws", "wss", "http", "https"])?;
+            let url = check_url("endpoint_url", &u, &["ws", "wss"])?;
             if !limits.allow_private_endpoints {
                 let host = url.host_str().unwrap_or_default();
                 let private = host.eq_ignore_ascii_case("localhost")

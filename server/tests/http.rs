@@ -115,6 +115,25 @@ async fn every_bad_field_is_named() {
         .await;
     let v: Value = r.json().await.unwrap();
     assert_eq!(err(&v), ("invalid_field", Some("endpoint_url")));
+    // Policy servers speak WebSocket only (docs/remote-protocol.md).
+    let r = app
+        .submit(
+            &[
+                ("method", "Remote"),
+                ("task", "avoiding"),
+                ("training_seed", "0"),
+                ("endpoint_url", "http://policy.example.org/"),
+            ],
+            None,
+        )
+        .await;
+    assert_eq!(r.status(), 400);
+    let v: Value = r.json().await.unwrap();
+    assert_eq!(err(&v), ("invalid_field", Some("endpoint_url")));
+    assert_eq!(
+        v["error"]["message"],
+        "`endpoint_url` must use one of: ws, wss"
+    );
     // Nothing was stored by any of the refused requests.
     let n: i64 = sqlx::query_scalar("SELECT COUNT(*) FROM submissions")
         .fetch_one(app.state.store.pool())
