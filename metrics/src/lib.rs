@@ -170,7 +170,8 @@ pub fn behaviour_entropy(outcomes: &[Outcome], n_behaviours: usize) -> Result<f6
             -p * p.ln()
         })
         .sum();
-    Ok(h / ln_b)
+    // A single behaviour sums to -0.0 (-1 * ln 1); report it as 0.
+    Ok(if h > 0.0 { h / ln_b } else { 0.0 })
 }
 
 /// Entropy of one context as the reference computes it; `None` when the context

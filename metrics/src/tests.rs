@@ -369,3 +369,11 @@ fn evaluate_rejects_empty_input() {
         MetricsError::NoOutcomes
     );
 }
+
+#[test]
+fn a_single_behaviour_has_entropy_plus_zero() {
+    let v = [o(0, true, Some("138")), o(0, true, Some("138"))];
+    let h = behaviour_entropy(&v, 24).unwrap();
+    assert_eq!(h, 0.0);
+    assert!(h.is_sign_positive(), "printed as -0.000 otherwise");
+}
