@@ -218,3 +218,177 @@ async fn policy_errors_fail_at_once_and_garbage_output_is_a_protocol_violation()
     let v = wait_final(&app, id).await;
     assert_eq!(v["error"]["kind"], "protocol_violation", "{v}");
 }
+
+#[tokio::test]
+async fn stacking_levels_are_stored_and_shown_each_with_its_own_numbers() {
+    // Two initial states; per rollout the registration order and whether the
+    // full stack stood. The levels see different data: Stacking-1 the first
+    // letters, Stacking-2 the first two, Stacking-3 the full stacks.
+    let rollouts = [
+        (0, "gbr", true),
+        (0, "rgb", true),
+        (0, "gb", false),
+        (0, "bg", false),
+        (0, "r", false),
+        (0, "", false),
+        (1, "rbg", true),
+        (1, "rbg", true),
+        (1, "gr", false),
+        (1, "b", false),
+    ];
+    let outcomes: Vec<d3il_metrics::Outcome> = rollouts
+        .iter()
+        .map(|&(c, order, full)| {
+            d3il_metrics::Outcome::new(c, full, (!order.is_empty()).then_some(order))
+        })
+        .collect();
+    let ev = d3il_metrics::evaluate(
+        TaskId::Stacking,
+        &outcomes,
+        1.0,
+        &d3il_metrics::Bootstrap::default(),
+    )
+    .unwrap();
+    let levels = ev.metrics.stacking_levels.unwrap();
+    let result = EvalResult {
+        manifest: ProtocolManifest {
+            task: TaskId::Stacking,
+            task_version: "fixture".into(),
+            obs_type: ObsType::State,
+            protocol: ProtocolKind::Quick,
+            mjcf_sha256: "a".repeat(64),
+            initial_states_sha256: "b".repeat(64),
+            mujoco_version: "2.2.2".into(),
+            evaluator_version: "fixture".into(),
+            n_contexts: 2,
+            rollouts_per_context: 5,
+            max_steps: 1000,
+            policy_sha256: "c".repeat(64),
+            history: 1,
+            horizon: 1,
+            execute: 1,
+            seed: 0,
+        },
+        metrics: ev.metrics.clone(),
+        per_context: ev.per_context.clone(),
+        rollouts: rollouts
+            .iter()
+            .enumerate()
+            .map(|(i, &(c, order, full))| RolloutRecord {
+                context_index: c,
+                rollout_index: i,
+                success: full,
+                behaviour: serde_json::json!(order),
+                steps: 1000,
+                path: None,
+            })
+            .collect(),
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let line = dir.path().join("result.jsonl");
+    std::fs::write(
+        &line,
+        serde_json::to_string(&WorkerMessage::Result(Box::new(result))).unwrap() + "\n",
+    )
+    .unwrap();
+    let worker = script(
+        dir.path(),
+        "stacking.sh",
+        &format!(
+            "cat > /dev/null\necho '{{\"type\":\"sandbox\",\"mechanisms\":[]}}'\ncat '{}'",
+            line.display()
+        ),
+    );
+    let app = spawn_app_with(Options {
+        workers: 1,
+        worker_exe: Some(worker),
+        ..Default::default()
+    })
+    .await;
+    let id = submit_one(&app, "Stacker", "stacking").await;
+    let v = wait_final(&app, id).await;
+    assert_eq!(v["status"], "completed", "{v}");
+
+    // The API returns the three levels as computed.
+    let api_levels: [StackingLevel; 3] =
+        serde_json::from_value(v["result"]["metrics"]["stacking_levels"].clone()).unwrap();
+    // (serde_json's default float parsing may differ in the last bit.)
+    for (got, want) in api_levels.iter().zip(&levels) {
+        for (g, w) in [
+            (got.success_rate, want.success_rate),
+            (got.behaviour_entropy, want.behaviour_entropy),
+            (got.conditional_entropy, want.conditional_entropy),
+        ] {
+            for (a, b) in [
+                (g.value, w.value),
+                (g.ci_low, w.ci_low),
+                (g.ci_high, w.ci_high),
+            ] {
+                assert!((a - b).abs() < 1e-12, "{got:?} vs {want:?}");
+            }
+        }
+    }
+
+    // The leaderboard CSV has three rows, each with its level's numbers.
+    let (s, csv) = app
+        .get_text("/api/v1/leaderboards/stacking/csv?obs=state")
+        .await;
+    assert_eq!(s, 200);
+    let header: Vec<&str> = csv.lines().next().unwrap().split(',').collect();
+    let col = |name: &str| header.iter().position(|h| *h == name).unwrap();
+    let (task, method, success, cond, behaviour) = (
+        col("task"),
+        col("method"),
+        col("success_mean"),
+        col("conditional_entropy_mean"),
+        col("behaviour_entropy_mean"),
+    );
+    let mut seen = vec![];
+    for (k, l) in levels.iter().enumerate() {
+        let title = format!("Stacking-{} (T5)", k + 1);
+        let row: Vec<&str> = csv
+            .lines()
+            .map(|l| l.split(',').collect::<Vec<_>>())
+            .find(|f| f[method] == "Stacker" && f[task] == title)
+            .unwrap_or_else(|| panic!("no {title} row:\n{csv}"));
+        let num = |i: usize| row[i].parse::<f64>().unwrap();
+        // The CSV prints four decimals.
+        assert!(
+            (num(success) - l.success_rate.value).abs() < 5e-5,
+            "{title}"
+        );
+        assert!(
+            (num(cond) - l.conditional_entropy.value).abs() < 5e-5,
+            "{title}"
+        );
+        assert!(
+            (num(behaviour) - l.behaviour_entropy.value).abs() < 5e-5,
+            "{title}"
+        );
+        seen.push((num(success), num(cond), num(behaviour)));
+    }
+    // Different data per level, different rows.
+    assert!(
+        seen[0] != seen[1] && seen[1] != seen[2] && seen[0] != seen[2],
+        "{seen:?}"
+    );
+    assert!(seen[0].1 != seen[1].1 && seen[1].1 != seen[2].1, "{seen:?}");
+
+    // The submission page lists every level's three metrics.
+    let (_, page) = app.get_text(&format!("/submissions/{id}")).await;
+    for (k, l) in levels.iter().enumerate() {
+        let name = format!("Stacking-{}: conditional behaviour entropy", k + 1);
+        let cell = page
+            .split(&format!("<td>{name}</td>"))
+            .nth(1)
+            .unwrap_or_else(|| panic!("no `{name}` on the submission page"));
+        assert!(
+            cell.starts_with(&format!(
+                "<td class=\"num\">{:.3}</td>",
+                l.conditional_entropy.value
+            )),
+            "{name}: {}",
+            &cell[..80.min(cell.len())]
+        );
+    }
+}
