@@ -210,7 +210,21 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             e.value, e.ci_low, e.ci_high
         );
     }
-    if let Some(s) = m.stacking {
+    if let Some(levels) = &m.stacking_levels {
+        for (i, l) in levels.iter().enumerate() {
+            for (what, e) in [
+                ("success", l.success_rate),
+                ("cond. entropy", l.conditional_entropy),
+                ("behaviour entropy", l.behaviour_entropy),
+            ] {
+                let name = format!("stacking-{} {what}", i + 1);
+                println!(
+                    "{name:<28} {:>8.3} {:>9.3} – {:<8.3}",
+                    e.value, e.ci_low, e.ci_high
+                );
+            }
+        }
+    } else if let Some(s) = m.stacking {
         println!(
             "{:<28} {:.3} / {:.3} / {:.3}",
             "stacking-1/2/3 success", s[0], s[1], s[2]
