@@ -243,3 +243,17 @@ fn unknown_scripted_names_list_what_exists() {
         6
     );
 }
+
+#[test]
+fn scripted_inserting_runs_through_the_engine_and_labels_the_pushed_box() {
+    let r = run(&scripted_job(TaskId::Inserting, "inserting:box=g"));
+    assert_eq!(r.rollouts.len(), 6);
+    // One box is never a success; the order label is recorded per rollout.
+    assert!(r.rollouts.iter().all(|x| !x.success && x.steps == 2000));
+    for x in &r.rollouts {
+        assert!(x.behaviour == "g" || x.behaviour == "", "{x:?}");
+    }
+    let inserted = r.rollouts.iter().filter(|x| x.behaviour == "g").count();
+    assert!(inserted >= 4, "{:?}", r.rollouts);
+    assert_eq!(r.metrics.success_rate.value, 0.0);
+}

@@ -330,3 +330,19 @@ fn sorting_6_zero_actions_replay_with_the_nothing_sorted_label() {
     );
     assert_eq!(out["steps"], 1200);
 }
+
+#[test]
+fn inserting_scripted_episode_replays_with_its_label() {
+    use d3il_evaluator::tasks::inserting::InsertingScript;
+    let mut script = InsertingScript::green();
+    // Initial state 3: the green script inserts its box there.
+    let out = scripted_run_replays(d3il_protocol::TaskId::Inserting, 3, |o| {
+        script.act(o).to_vec()
+    });
+    assert_eq!(out["behaviour"], "g");
+    assert_eq!(out["success"], false, "one box of three");
+    assert_eq!(out["steps"], 2000);
+    let green = rows(&out["objects"]["push_box2"]);
+    let (a, b) = (&green[0], green.last().unwrap());
+    assert!((b[1] - a[1]) > 0.4, "green moved {a:?} -> {b:?}");
+}

@@ -5,7 +5,7 @@
 //! `avoiding:path=<0..23>`, `avoiding:all-paths`, `aligning:inside|outside|both`,
 //! `pushing:mode=<0..3>`, `pushing:all-modes`, `sorting-X:order=<R/B sequence>`,
 //! `sorting-X:all-orders`, `stacking:order=<r/g/b sequence>`, `stacking:all-orders`,
-//! `inserting:box=g`.
+//! `inserting:box=<r|g|b>`.
 
 use crate::tasks::aligning::{AligningScript, AligningStyle};
 use crate::tasks::avoiding::AvoidingScript;
@@ -84,7 +84,7 @@ pub struct ScriptedPolicy {
      aligning:inside, aligning:outside, aligning:both, pushing:mode=<0..3>, pushing:all-modes, \
      sorting-2|sorting-4|sorting-6:order=<sequence of R and B, X/2 of each, e.g. RB, RBBR>, \
      sorting-2|sorting-4|sorting-6:all-orders, stacking:order=<sequence of distinct r, g, b, e.g. r, rgb>, \
-     stacking:all-orders, inserting:box=g \
+     stacking:all-orders, inserting:box=<r|g|b> \
      (the task before the colon must be the task evaluated)"
 )]
 pub struct UnknownScript(pub String);

@@ -3,70 +3,86 @@
 use d3il_evaluator::tasks::inserting::{mode_code, InsertingScript, TARGETS};
 use d3il_evaluator::tasks::LoadedTask;
 use d3il_protocol::TaskId;
-use serde_json::{json, Value};
+use serde_json::json;
 
-fn context(poses: [(f64, f64, f64); 3]) -> Value {
-    let mut c = serde_json::Map::new();
-    for (name, (x, y, deg)) in ["red", "green", "blue"].iter().zip(poses) {
-        let t = deg.to_radians();
-        c.insert(format!("{name}_xy_deg"), json!([x, y, deg]));
-        c.insert(
-            format!("{name}_quat"),
-            json!([(t / 2.0).cos(), 0.0, 0.0, (t / 2.0).sin()]),
-        );
+/// Runs `script` until the episode ends, checking after every step that the
+/// label is exactly the registration rule (3-D distance <= 0.01 to the box's
+/// own target, sticky). Returns the box's start and end positions.
+fn run_checked(
+    env: &mut d3il_evaluator::tasks::Env,
+    script: &mut InsertingScript,
+    box_idx: usize,
+) -> ([f64; 3], [f64; 3]) {
+    let letter = ["r", "g", "b"][box_idx];
+    let start = env.objects()[box_idx].1;
+    let mut ever_inside = false;
+    loop {
+        let a = script.act(&env.policy_obs());
+        let done = env.step(&a).unwrap().done;
+        let p = env.objects()[box_idx].1;
+        ever_inside |= dist3(p, TARGETS[box_idx]) <= 0.01;
+        let want = if ever_inside {
+            json!(letter)
+        } else {
+            json!("")
+        };
+        assert_eq!(env.behaviour(), want, "box {letter} at {p:?}");
+        if done {
+            break;
+        }
     }
-    Value::Object(c)
+    (start, env.objects()[box_idx].1)
+}
+
+fn dist3(p: [f64; 3], q: [f64; 3]) -> f64 {
+    ((p[0] - q[0]).powi(2) + (p[1] - q[1]).powi(2) + (p[2] - q[2]).powi(2)).sqrt()
 }
 
 #[test]
-fn scripted_push_moves_the_green_box_into_the_enclosure_and_the_label_follows() {
+fn scripted_push_inserts_the_green_box_and_the_label_follows() {
     let task = LoadedTask::load(TaskId::Inserting).unwrap();
+    let set = task.def.context_set().unwrap();
     let mut env = task.env().unwrap();
-    let ctx = context([
-        (0.42, -0.17, 30.0),
-        (0.60, -0.075, 5.0),
-        (0.42, 0.025, -40.0),
-    ]);
-    env.reset(&ctx).unwrap();
-    let start = env.objects()[1].1;
+    // Initial state 3 of the fixed set (the script inserts in most, not all,
+    // initial states: see the rate test below).
+    env.reset(set.get(3).unwrap()).unwrap();
     let mut script = InsertingScript::green();
-    let dist = |p: [f64; 3]| {
-        ((p[0] - TARGETS[1][0]).powi(2)
-            + (p[1] - TARGETS[1][1]).powi(2)
-            + (p[2] - TARGETS[1][2]).powi(2))
-        .sqrt()
-    };
-    let mut ever_inside = false;
-    for _ in 0..600 {
-        let a = script.act(&env.policy_obs());
-        env.step(&a).unwrap();
-        let p = env.objects()[1].1;
-        ever_inside |= dist(p) <= 0.01;
-        // The label is exactly the registration rule (3-D distance <= 0.01, sticky).
-        let want = if ever_inside { json!("g") } else { json!("") };
-        assert_eq!(env.behaviour(), want, "green at {p:?}");
-    }
-    let end = env.objects()[1].1;
-    // Through the entrance (y ≈ 0.14–0.20) and up the funnel toward the top slot.
-    assert!(
-        end[1] > 0.3,
-        "green stayed outside the barrier: {start:?} -> {end:?}"
+    let (start, end) = run_checked(&mut env, &mut script, 1);
+    eprintln!(
+        "green pushed from {start:?} to {end:?} ({:.4} m from its target), label {}, {} steps",
+        dist3(end, TARGETS[1]),
+        env.behaviour(),
+        env.steps()
     );
+    // Through the entrance and into the top slot: within 0.01 m (3-D) of
+    // its target, so the label is "g".
     assert!(
-        dist(end) < 0.08,
-        "green ended {} m from its slot",
-        dist(end)
+        dist3(end, TARGETS[1]) <= 0.01,
+        "green ended {} m from its target",
+        dist3(end, TARGETS[1])
     );
-    // The red and blue boxes never register, one box is not a success.
+    assert_eq!(env.behaviour(), json!("g"));
+    // The red and blue boxes never register, one box is not a success, and
+    // an incomplete order has no metrics label or reference mode.
     assert!(!env.success());
+    assert_eq!(env.steps(), 2000);
     assert_eq!(env.behaviour_key(), None);
     assert_eq!(mode_code("g"), 0);
     assert_eq!(mode_code("gbr"), 4);
-    eprintln!(
-        "green pushed from {start:?} to {end:?} ({:.4} m from its target), label {}",
-        dist(end),
-        env.behaviour()
-    );
+}
+
+#[test]
+fn scripted_push_inserts_the_blue_box_from_a_fixed_state() {
+    let task = LoadedTask::load(TaskId::Inserting).unwrap();
+    let set = task.def.context_set().unwrap();
+    let mut env = task.env().unwrap();
+    env.reset(set.get(1).unwrap()).unwrap();
+    let mut script = InsertingScript::new(2).unwrap();
+    let (start, end) = run_checked(&mut env, &mut script, 2);
+    assert!(dist3(start, end) > 0.2, "blue moved {start:?} -> {end:?}");
+    assert!(dist3(end, TARGETS[2]) <= 0.01, "blue ended at {end:?}");
+    assert_eq!(env.behaviour(), json!("b"));
+    assert!(!env.success());
 }
 
 #[test]
@@ -98,43 +114,47 @@ fn fixed_set_loads_and_verifies() {
     }
 }
 
-/// How far the scripted green push gets over the fixed set (slow; run with
-/// `-- --ignored --nocapture`): fraction inserted (label "g") and fraction
-/// brought inside the barrier.
+/// How often each one-box script inserts its box over the fixed set (slow:
+/// 3 × 60 episodes of 2000 steps; `-- --ignored --nocapture`). The rates
+/// are reported in docs/tasks.md; the floor guards the green script.
 #[test]
 #[ignore]
 fn scripted_push_rates_over_the_fixed_set() {
     let task = LoadedTask::load(TaskId::Inserting).unwrap();
     let set = task.def.context_set().unwrap();
-    let results: Vec<(bool, bool)> = std::thread::scope(|s| {
-        let hs: Vec<_> = (0..2)
-            .map(|w| {
-                let (task, set) = (&task, &set);
-                s.spawn(move || {
-                    let mut env = task.env().unwrap();
-                    (w..set.len())
-                        .step_by(2)
-                        .map(|i| {
-                            env.reset(set.get(i).unwrap()).unwrap();
-                            let mut script = InsertingScript::green();
-                            for _ in 0..600 {
-                                let a = script.act(&env.policy_obs());
-                                if env.step(&a).unwrap().done {
-                                    break;
+    let mut green = 0.0;
+    for (box_idx, letter) in ["r", "g", "b"].iter().enumerate() {
+        let results: Vec<bool> = std::thread::scope(|s| {
+            let hs: Vec<_> = (0..2)
+                .map(|w| {
+                    let (task, set) = (&task, &set);
+                    s.spawn(move || {
+                        let mut env = task.env().unwrap();
+                        (w..set.len())
+                            .step_by(2)
+                            .map(|i| {
+                                env.reset(set.get(i).unwrap()).unwrap();
+                                let mut script = InsertingScript::new(box_idx).unwrap();
+                                loop {
+                                    let a = script.act(&env.policy_obs());
+                                    if env.step(&a).unwrap().done {
+                                        break;
+                                    }
                                 }
-                            }
-                            let p = env.objects()[1].1;
-                            (env.behaviour() == json!("g"), p[1] > 0.3)
-                        })
-                        .collect::<Vec<_>>()
+                                env.behaviour() == json!(letter)
+                            })
+                            .collect::<Vec<_>>()
+                    })
                 })
-            })
-            .collect();
-        hs.into_iter().flat_map(|h| h.join().unwrap()).collect()
-    });
-    let n = results.len() as f64;
-    let ins = results.iter().filter(|r| r.0).count() as f64 / n;
-    let inside = results.iter().filter(|r| r.1).count() as f64 / n;
-    println!("RATE inserting green push: inserted {ins:.3}, inside the barrier {inside:.3} over {n} initial states");
-    assert!(inside > 0.0);
+                .collect();
+            hs.into_iter().flat_map(|h| h.join().unwrap()).collect()
+        });
+        let n = results.len() as f64;
+        let rate = results.iter().filter(|&&r| r).count() as f64 / n;
+        println!("RATE inserting box={letter}: inserted (label \"{letter}\") {rate:.3} over {n} initial states");
+        if box_idx == 1 {
+            green = rate;
+        }
+    }
+    assert!(green >= 0.5, "green inserted in {green}");
 }

@@ -270,98 +270,261 @@ impl TaskLogic for InsertingLogic {
     }
 }
 
-/// Scripted reference policy: pushes one box with the rod through a list of
-/// xy subgoals (through the entrance, then into its slot), steering on the
-/// box position from the observation.
+/// Where each box is pushed from and into: the slot's centre line runs
+/// through its target along `dir` (the push direction into the slot), and the
+/// box is first brought to `staging` on that line, inside the enclosure.
+struct Slot {
+    dir: [f64; 2],
+    staging: [f64; 2],
+}
+
+const SLOTS: [Slot; 3] = [
+    // Red: left slot, opens toward +x, pushed toward −x.
+    Slot {
+        dir: [-1.0, 0.0],
+        staging: [0.4875, 0.276],
+    },
+    // Green: top slot, opens toward −y, pushed toward +y.
+    Slot {
+        dir: [0.0, 1.0],
+        staging: [0.525, 0.26],
+    },
+    // Blue: right slot, opens toward −x, pushed toward +x.
+    Slot {
+        dir: [1.0, 0.0],
+        staging: [0.5625, 0.276],
+    },
+];
+
+/// Radius of the circle the rod travels around a box to change sides.
+const ORBIT: f64 = 0.075;
+
+fn sub(a: [f64; 2], b: [f64; 2]) -> [f64; 2] {
+    [a[0] - b[0], a[1] - b[1]]
+}
+fn add(a: [f64; 2], b: [f64; 2], k: f64) -> [f64; 2] {
+    [a[0] + k * b[0], a[1] + k * b[1]]
+}
+fn dot(a: [f64; 2], b: [f64; 2]) -> f64 {
+    a[0] * b[0] + a[1] * b[1]
+}
+fn norm(a: [f64; 2]) -> f64 {
+    a[0].hypot(a[1])
+}
+fn unit(a: [f64; 2]) -> [f64; 2] {
+    let n = norm(a).max(1e-12);
+    [a[0] / n, a[1] / n]
+}
+/// `a` turned by +90°.
+fn left(a: [f64; 2]) -> [f64; 2] {
+    [-a[1], a[0]]
+}
+/// Angle wrapped into (−π, π].
+fn wrap(a: f64) -> f64 {
+    let t = std::f64::consts::TAU;
+    let r = a.rem_euclid(t);
+    if r > std::f64::consts::PI {
+        r - t
+    } else {
+        r
+    }
+}
+
+/// Scripted reference policy: pushes one box (red, green or blue) through
+/// the barrier's entrance, brings it onto its slot's centre line and pushes it
+/// into the slot until it registers (3-D distance ≤ 0.01 to its target), then
+/// backs off and waits. It steers on the box pose from the observation: the
+/// push direction pursues a point ahead on the current route leg, the rod
+/// pushes through the box centre along that direction, offset sideways on the
+/// face in proportion to the box's yaw (mod 90°) to keep the cube square —
+/// the slot is only 2.5 mm wider than the box on each side. When the rod is
+/// not behind the box for the wanted direction it backs off and travels
+/// around the box on a circle before pushing again. Other boxes are not
+/// planned around.
 #[derive(Debug, Clone)]
 pub struct InsertingScript {
     box_idx: usize,
-    subgoals: Vec<[f64; 2]>,
-    approach: Vec<[f64; 2]>,
+    /// Route legs for the box centre; the last is the target.
+    route: Vec<[f64; 2]>,
     started: bool,
+    /// Waypoints of the current repositioning move (rod centre).
+    moves: Vec<[f64; 2]>,
+    /// Go around the box the long way (the short way was blocked by a wall).
+    flip: bool,
+    /// Correcting the lateral offset from the slot line with a side push.
+    sideways: bool,
+    finished: bool,
 }
 
 impl InsertingScript {
-    /// A script for box `box_idx` (0 red, 1 green, 2 blue); only the green
-    /// box (the top slot) has a script so far.
+    /// Pushes box `box_idx` (0 red, 1 green, 2 blue) into its own slot.
     pub fn new(box_idx: usize) -> Option<InsertingScript> {
-        (box_idx == 1).then(InsertingScript::green)
-    }
-
-    /// Pushes the green box straight into the top slot.
-    pub fn green() -> InsertingScript {
-        InsertingScript {
-            box_idx: 1,
-            subgoals: vec![[0.525, 0.10], [0.525, 0.50]],
-            approach: Vec::new(),
+        (box_idx < 3).then(|| InsertingScript {
+            box_idx,
+            route: Vec::new(),
             started: false,
-        }
+            moves: Vec::new(),
+            flip: false,
+            sideways: false,
+            finished: false,
+        })
     }
 
-    fn box_xy(&self, obs: &[f32]) -> [f64; 2] {
+    /// Pushes the green box into the top slot.
+    pub fn green() -> InsertingScript {
+        InsertingScript::new(1).expect("box 1 exists")
+    }
+
+    fn box_pose(&self, obs: &[f32]) -> ([f64; 2], f64) {
         let b = &obs[4 + 3 * self.box_idx..];
-        [b[0] as f64, b[1] as f64]
+        ([b[0] as f64, b[1] as f64], (b[2] as f64).atan())
     }
 
     /// Policy input (13 values) -> xy delta.
     pub fn act(&mut self, obs: &[f32]) -> [f32; 2] {
         let d = [obs[0] as f64, obs[1] as f64];
-        let b = self.box_xy(obs);
+        let m = [obs[2] as f64, obs[3] as f64];
+        let (b, yaw) = self.box_pose(obs);
+        let target = [TARGETS[self.box_idx][0], TARGETS[self.box_idx][1]];
+        let slot = &SLOTS[self.box_idx];
         let toward = |t: [f64; 2], max: f64| -> [f32; 2] {
-            let e = [t[0] - d[0], t[1] - d[1]];
-            let n = (e[0] * e[0] + e[1] * e[1]).sqrt();
+            let e = sub(t, d);
+            let n = norm(e);
             let s = if n > max { max / n } else { 1.0 };
             [(e[0] * s) as f32, (e[1] * s) as f32]
         };
-        // Drop reached subgoals (the last one is behind the slot's back wall,
-        // so the push ends with the box pressed into the slot).
-        while self.subgoals.len() > 1 && b[1] > self.subgoals[0][1] - 0.02 {
-            self.subgoals.remove(0);
-        }
-        let mut g = self.subgoals[0];
-        if self.subgoals.len() == 1 {
-            // Last leg: follow the slot's centre line, steering back onto it.
-            g = [g[0], b[1] + 0.025];
-        }
-        let u = {
-            let v = [g[0] - b[0], g[1] - b[1]];
-            let n = (v[0] * v[0] + v[1] * v[1]).sqrt().max(1e-9);
-            [v[0] / n, v[1] / n]
-        };
         if !self.started {
-            let pre = [b[0] - u[0] * 0.06, b[1] - u[1] * 0.06];
-            self.approach = vec![[pre[0], d[1].min(pre[1] - 0.05)], pre];
             self.started = true;
-        }
-        if let Some(&w) = self.approach.first() {
-            if ((w[0] - d[0]).powi(2) + (w[1] - d[1]).powi(2)).sqrt() > 0.003 {
-                return toward(w, 0.008);
+            // Through the entrance (y 0.14–0.20, x ≈ 0.45–0.60 for a box
+            // centre), on the side away from the blue box's start region.
+            if b[1] < 0.12 {
+                let x = if self.box_idx == 2 { 0.50 } else { 0.55 };
+                self.route.push([x, 0.08]);
             }
-            self.approach.remove(0);
+            self.route.push(slot.staging);
+            self.route.push(target);
         }
-        let mut aim = [b[0] - u[0] * 0.02, b[1] - u[1] * 0.02];
-        if self.subgoals.len() == 1 {
-            // The slot takes the box only within ≈6° of square: push off-centre
-            // on the back face to turn it (a push at +x of the centre turns it
-            // counter-clockwise), yaw taken modulo 90° for the cube.
-            let b_yaw = obs[6 + 3 * self.box_idx] as f64;
-            let mut yaw = b_yaw.atan();
-            let q = std::f64::consts::FRAC_PI_4;
-            if yaw > q {
-                yaw -= 2.0 * q;
-            } else if yaw < -q {
-                yaw += 2.0 * q;
+        if self.finished || norm(sub(b, target)) < 0.004 {
+            // Inserted: back off along the slot line once, then hold still.
+            if !self.finished {
+                self.finished = true;
+                self.moves = vec![add(b, slot.dir, -0.09)];
             }
-            // Centre the box on the slot line first, square it once centred.
-            let centred = (b[0] - self.subgoals[0][0]).abs() < 0.005;
-            let off = if centred {
-                -0.015 * (yaw / 10f64.to_radians()).clamp(-1.0, 1.0)
+            if let Some(&w) = self.moves.first() {
+                if norm(sub(w, d)) > 0.002 {
+                    return toward(w, 0.004);
+                }
+                self.moves.clear();
+            }
+            return [0.0, 0.0];
+        }
+        // Advance the route (not past the staging point until the box is on
+        // the slot line there).
+        while self.route.len() > 2 && norm(sub(b, self.route[0])) < 0.02 {
+            self.route.remove(0);
+        }
+        if self.route.len() == 2 && norm(sub(b, self.route[0])) < 0.012 {
+            self.route.remove(0);
+        }
+        // Wanted box motion: pursue a point ahead on the current leg.
+        let v = if self.route.len() == 1 {
+            // Final leg: straight along the slot line; before the mouth, a
+            // lateral error of more than 3 mm is first pushed out sideways
+            // (to within 1 mm): pushing at an angle barely moves the cube
+            // sideways, the rod slides along its face.
+            let along = dot(sub(b, target), slot.dir);
+            let lat = dot(sub(b, target), left(slot.dir));
+            let before_mouth = along < -0.063;
+            if self.sideways {
+                self.sideways = before_mouth && lat.abs() > 0.001;
             } else {
-                0.0
-            };
-            aim = [aim[0] + u[1] * off, aim[1] - u[0] * off];
-            return toward(aim, 0.003);
+                self.sideways = before_mouth && lat.abs() > 0.0025;
+            }
+            if self.sideways {
+                add([0.0, 0.0], left(slot.dir), -lat.signum())
+            } else {
+                slot.dir
+            }
+        } else {
+            unit(sub(self.route[0], b))
+        };
+        // Yaw error modulo 90° (cube), positive = turned counter-clockwise.
+        let q = std::f64::consts::FRAC_PI_2;
+        let mut err = yaw;
+        while err > q / 2.0 {
+            err -= q;
         }
-        toward(aim, 0.005)
+        while err < -q / 2.0 {
+            err += q;
+        }
+        // The face the rod pushes: the one whose inward normal is closest to
+        // v; the rod sits on the line through the centre along v, where it
+        // crosses that face, shifted along the face to turn the box back.
+        let face_angle = (0..4)
+            .map(|k| yaw + k as f64 * q)
+            .max_by(|a, c| dot([a.cos(), a.sin()], v).total_cmp(&dot([c.cos(), c.sin()], v)))
+            .unwrap();
+        let n = [face_angle.cos(), face_angle.sin()];
+        let tf = left(n);
+        let cos_a = dot(n, v).max(0.7);
+        // Where the line through the centre along v leaves the back face,
+        // as an offset along the face, plus the yaw correction; the rod
+        // stays on the face.
+        let s_line = dot(v, tf) * -0.025 / cos_a;
+        let shift = 0.008 * (err / 6f64.to_radians()).clamp(-1.0, 1.0);
+        let s = (s_line + shift).clamp(-0.018, 0.018);
+        let contact = add(add(b, n, -0.035), tf, s);
+        // Is the rod (measured) behind that face?
+        let w = sub(m, b);
+        let behind = -dot(w, n);
+        let lateral = dot(w, tf) - s;
+        if !self.moves.is_empty() && norm(sub(d, m)) > 0.03 {
+            // The rod is held back by a wall while repositioning: give up
+            // this move, bring the desired point back to the rod and go
+            // around the other way next time.
+            self.moves.clear();
+            self.flip = !self.flip;
+            return toward(m, 0.01);
+        }
+        if let Some(&wp) = self.moves.first() {
+            // A waypoint counts as reached once the rod itself (not only the
+            // desired point) is there.
+            if norm(sub(wp, d)) > 0.003 || norm(sub(wp, m)) > 0.004 {
+                return toward(wp, 0.005);
+            }
+            self.moves.remove(0);
+            if !self.moves.is_empty() {
+                return toward(self.moves[0], 0.005);
+            }
+        }
+        if behind < 0.025 || lateral.abs() > 0.012 {
+            // Reposition: around the box on a circle to the pre-push point.
+            let pre = add(contact, n, -0.03);
+            let phi_rod = w[1].atan2(w[0]);
+            let phi_goal = (-n[1]).atan2(-n[0]);
+            let mut moves = Vec::new();
+            if norm(w) < ORBIT - 0.01 {
+                moves.push(add(b, unit(w), ORBIT));
+            }
+            let mut total = wrap(phi_goal - phi_rod);
+            if self.flip && total.abs() > 0.5 {
+                total -= total.signum() * std::f64::consts::TAU;
+            }
+            let n_arc = (total.abs() / 0.5).ceil() as usize;
+            for k in 1..n_arc {
+                let phi = phi_rod + total * k as f64 / n_arc as f64;
+                moves.push(add(b, [phi.cos(), phi.sin()], ORBIT));
+            }
+            moves.push(pre);
+            self.moves = moves;
+            return toward(self.moves[0], 0.006);
+        }
+        // Push: the desired point leads the contact point by a few mm.
+        if self.route.len() == 1 {
+            // Final leg: slow and gentle, the slot has millimetres to spare.
+            toward(add(contact, v, 0.010), 0.002)
+        } else {
+            toward(add(contact, v, 0.015), 0.004)
+        }
     }
 }
