@@ -284,7 +284,17 @@ impl Renderer {
             }
             let own =
                 std::ptr::NonNull::new(ffi::mj_copyModel(std::ptr::null_mut(), model.ptr.as_ptr()))
-                    .ok_or_else(|| MjError::Render("mj_copyModel could not allocate".into()))?;
+                    .ok_or_else(|| {
+                        eglMakeCurrent(
+                            dpy,
+                            std::ptr::null_mut(),
+                            std::ptr::null_mut(),
+                            std::ptr::null_mut(),
+                        );
+                        eglDestroyContext(dpy, ctx);
+                        eglDestroySurface(dpy, surface);
+                        MjError::Render("mj_copyModel could not allocate".into())
+                    })?;
             (*own.as_ptr()).vis.global.offwidth = width as i32;
             (*own.as_ptr()).vis.global.offheight = height as i32;
             let mut r = Renderer {
