@@ -17,12 +17,14 @@ The callable returns float32 actions [B, H, act_dim] (or [B, act_dim] when H = 1
 An optional `reset(rollout_ids)` callable is told when episodes start.
 
 Command line: `python d3il_policy_server.py --demo zeros --port 8765` serves a
-built-in demo policy (see --help). Requirements: numpy, websockets, msgpack.
+built-in demo policy (see --help); add `--certfile cert.pem --keyfile key.pem`
+to serve TLS (wss://). Requirements: numpy, websockets, msgpack.
 """
 
 import argparse
 import asyncio
 import dataclasses
+import ssl as ssl_module
 import sys
 import traceback
 from typing import Any, Callable, Optional
@@ -160,22 +162,42 @@ class PolicyServer:
         except ConnectionClosed:
             pass
 
-    async def run(self, host: str, port: int, ready: Optional[Callable[[int], None]] = None):
-        async with ws_serve(self.connection, host, port, max_size=self.max_frame_bytes) as server:
+    async def run(
+        self,
+        host: str,
+        port: int,
+        ready: Optional[Callable[[int], None]] = None,
+        ssl: Optional["ssl_module.SSLContext"] = None,
+    ):
+        """Serve until cancelled; with `ssl` (a server-side SSLContext) the
+        endpoint is wss:// instead of ws://."""
+        async with ws_serve(self.connection, host, port, max_size=self.max_frame_bytes, ssl=ssl) as server:
             bound = server.sockets[0].getsockname()[1]
             if ready is not None:
                 ready(bound)
             await server.serve_forever()
 
 
-def serve(policy, host="0.0.0.0", port=8765, **kwargs):
-    """Blocking: serve `policy` until interrupted. Prints the bound port."""
+def tls_context(certfile: str, keyfile: Optional[str] = None) -> "ssl_module.SSLContext":
+    """A server-side TLS context from a PEM certificate chain (leaf first) and its key."""
+    ctx = ssl_module.SSLContext(ssl_module.PROTOCOL_TLS_SERVER)
+    ctx.minimum_version = ssl_module.TLSVersion.TLSv1_2
+    ctx.load_cert_chain(certfile, keyfile)
+    return ctx
+
+
+def serve(policy, host="0.0.0.0", port=8765, certfile=None, keyfile=None, **kwargs):
+    """Blocking: serve `policy` until interrupted. Prints the bound port.
+
+    With `certfile` (PEM chain, leaf first) and `keyfile` the server speaks TLS,
+    i.e. submit it as wss://host:port/."""
     server = PolicyServer(policy, **kwargs)
+    ctx = tls_context(certfile, keyfile) if certfile else None
 
     def ready(p):
         print(f"listening on {host}:{p}", flush=True)
 
-    asyncio.run(server.run(host, port, ready))
+    asyncio.run(server.run(host, port, ready, ssl=ctx))
 
 
 # ---- demo policies -------------------------------------------------------------
@@ -205,8 +227,21 @@ def main(argv=None):
     ap.add_argument("--history", type=int, default=1)
     ap.add_argument("--horizon", type=int, default=1)
     ap.add_argument("--execute", type=int, default=1)
+    ap.add_argument("--certfile", help="PEM certificate chain (leaf first): serve TLS (wss://)")
+    ap.add_argument("--keyfile", help="PEM private key of --certfile (if not in the same file)")
     a = ap.parse_args(argv)
-    serve(DEMOS[a.demo], host=a.host, port=a.port, history=a.history, horizon=a.horizon, execute=a.execute)
+    if a.keyfile and not a.certfile:
+        ap.error("--keyfile needs --certfile")
+    serve(
+        DEMOS[a.demo],
+        host=a.host,
+        port=a.port,
+        certfile=a.certfile,
+        keyfile=a.keyfile,
+        history=a.history,
+        horizon=a.horizon,
+        execute=a.execute,
+    )
 
 
 if __name__ == "__main__":

@@ -17,6 +17,9 @@ pub enum PolicyError {
     // ---- Wrong use of the API by the evaluator itself (ErrorKind::Internal) ----
     #[error("evaluator bug: {0}")]
     Caller(String),
+    /// The operator's set-up is wrong (e.g. an unusable extra CA).
+    #[error("the evaluator's configuration is invalid: {0}")]
+    Config(String),
 
     // ---- Runtime problems with the policy output (ErrorKind::BadAction) ----
     #[error("policy returned a non-finite action ({value}) for rollout {rollout} at step {step} (action {action} of the chunk, component {component}); actions must be finite numbers")]
@@ -45,6 +48,10 @@ pub enum PolicyError {
     // ---- Remote endpoints ----
     #[error("endpoint `{url}` refused: {reason}")]
     BadEndpoint { url: String, reason: String },
+    /// A failed TLS handshake or a ws/wss mismatch; `reason` is the whole
+    /// submitter-facing message (names the host and what to fix).
+    #[error("{reason}")]
+    Tls { url: String, reason: String },
     #[error("could not connect to the policy server at `{url}`: {reason}; check that the server is running and reachable")]
     Connect { url: String, reason: String },
     #[error("the policy server did not answer the {request} within {deadline_ms} ms; answer every request within the deadline (batch your inference, or ask for a larger deadline)")]
@@ -69,9 +76,10 @@ impl PolicyError {
         use PolicyError::*;
         match self {
             Unparsable(_) | Unsupported(_) | Mismatch(_) | BadManifest(_) => ErrorKind::BadModel,
-            Caller(_) => ErrorKind::Internal,
+            Caller(_) | Config(_) => ErrorKind::Internal,
             NonFinite { .. } | WrongShape { .. } | Inference { .. } => ErrorKind::BadAction,
-            BadEndpoint { .. } => ErrorKind::BadEndpoint,
+            // A certificate or ws/wss mismatch fails the same way on a retry.
+            BadEndpoint { .. } | Tls { .. } => ErrorKind::BadEndpoint,
             Connect { .. }
             | Late { .. }
             | Oversized { .. }

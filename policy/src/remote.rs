@@ -8,6 +8,7 @@ use d3il_protocol::{Limits, ObsType, TaskSpec};
 use rmpv::Value;
 use std::io::{self, Read, Write};
 use std::net::{IpAddr, SocketAddr, TcpStream, ToSocketAddrs};
+use std::sync::{Arc, OnceLock};
 use std::time::{Duration, Instant};
 use tungstenite::protocol::WebSocketConfig;
 use tungstenite::{Message, WebSocket};
@@ -21,6 +22,10 @@ const MAX_HORIZON: u64 = 1024;
 struct DeadlineStream {
     inner: TcpStream,
     deadline: Instant,
+    /// The first byte the server sent, if any (tells a TLS answer to a ws://
+    /// client apart from other handshake failures); shared so that it outlives
+    /// a failed handshake, which consumes the stream.
+    first_byte: Arc<OnceLock<u8>>,
 }
 
 impl DeadlineStream {
@@ -38,7 +43,11 @@ impl Read for DeadlineStream {
     fn read(&mut self, buf: &mut [u8]) -> io::Result<usize> {
         let t = self.remaining()?;
         self.inner.set_read_timeout(Some(t))?;
-        self.inner.read(buf)
+        let n = self.inner.read(buf)?;
+        if n > 0 && self.first_byte.get().is_none() {
+            let _ = self.first_byte.set(buf[0]);
+        }
+        Ok(n)
     }
 }
 
@@ -50,6 +59,172 @@ impl Write for DeadlineStream {
     }
     fn flush(&mut self) -> io::Result<()> {
         self.inner.flush()
+    }
+}
+
+/// What the WebSocket runs over: the TCP stream itself (`ws://`) or a TLS
+/// session on it (`wss://`); both obey the same deadlines.
+enum Transport {
+    Plain(DeadlineStream),
+    Tls(Box<rustls::StreamOwned<rustls::ClientConnection, DeadlineStream>>),
+}
+
+impl Transport {
+    fn set_deadline(&mut self, deadline: Instant) {
+        match self {
+            Transport::Plain(s) => s.deadline = deadline,
+            Transport::Tls(t) => t.sock.deadline = deadline,
+        }
+    }
+}
+
+impl Read for Transport {
+    fn read(&mut self, buf: &mut [u8]) -> io::Result<usize> {
+        match self {
+            Transport::Plain(s) => s.read(buf),
+            Transport::Tls(t) => t.read(buf),
+        }
+    }
+}
+
+impl Write for Transport {
+    fn write(&mut self, buf: &[u8]) -> io::Result<usize> {
+        match self {
+            Transport::Plain(s) => s.write(buf),
+            Transport::Tls(t) => t.write(buf),
+        }
+    }
+    fn flush(&mut self) -> io::Result<()> {
+        match self {
+            Transport::Plain(s) => s.flush(),
+            Transport::Tls(t) => t.flush(),
+        }
+    }
+}
+
+/// A handshake that ended because the server closed the connection.
+fn closed_silently(e: &tungstenite::Error) -> bool {
+    use tungstenite::Error as E;
+    match e {
+        E::Protocol(tungstenite::error::ProtocolError::HandshakeIncomplete)
+        | E::ConnectionClosed
+        | E::AlreadyClosed => true,
+        E::Io(io) => matches!(
+            io.kind(),
+            io::ErrorKind::UnexpectedEof
+                | io::ErrorKind::ConnectionReset
+                | io::ErrorKind::ConnectionAborted
+                | io::ErrorKind::BrokenPipe
+        ),
+        _ => false,
+    }
+}
+
+/// First bytes of a TLS record a server sends: handshake (0x16) or alert (0x15).
+fn looks_like_tls(first: Option<u8>) -> bool {
+    matches!(first, Some(0x15 | 0x16))
+}
+
+/// The trust store for `wss://`: Mozilla's roots compiled into the binary (the
+/// sandboxed worker reads no CA file) plus the operator's extra CA, if any.
+fn tls_config(extra_ca_pem: Option<&str>) -> Result<rustls::ClientConfig, String> {
+    use rustls::pki_types::pem::PemObject;
+    use rustls::pki_types::CertificateDer;
+    let mut roots = rustls::RootCertStore {
+        roots: webpki_roots::TLS_SERVER_ROOTS.to_vec(),
+    };
+    if let Some(pem) = extra_ca_pem {
+        let certs: Vec<CertificateDer<'static>> = CertificateDer::pem_slice_iter(pem.as_bytes())
+            .collect::<Result<_, _>>()
+            .map_err(|e| {
+                format!("the extra CA (extra_ca_pem / $D3IL_EXTRA_CA_FILE) is not valid PEM: {e}")
+            })?;
+        if certs.is_empty() {
+            return Err(
+                "the extra CA (extra_ca_pem / $D3IL_EXTRA_CA_FILE) holds no `-----BEGIN CERTIFICATE-----` block"
+                    .into(),
+            );
+        }
+        for c in certs {
+            roots.add(c).map_err(|e| {
+                format!("the extra CA (extra_ca_pem / $D3IL_EXTRA_CA_FILE) is not a usable CA certificate: {e}")
+            })?;
+        }
+    }
+    let provider = Arc::new(rustls::crypto::ring::default_provider());
+    Ok(rustls::ClientConfig::builder_with_provider(provider)
+        .with_safe_default_protocol_versions()
+        .map_err(|e| format!("TLS set-up failed: {e}"))?
+        .with_root_certificates(roots)
+        .with_no_client_auth())
+}
+
+/// A submitter-facing explanation of a failed TLS handshake with `host`.
+fn tls_error(
+    e: io::Error,
+    url: &str,
+    host: &str,
+    deadline: Duration,
+    first_byte: Option<u8>,
+) -> PolicyError {
+    use rustls::{CertificateError as C, Error as R};
+    if matches!(
+        e.kind(),
+        io::ErrorKind::TimedOut | io::ErrorKind::WouldBlock
+    ) {
+        return PolicyError::Late {
+            request: "TLS handshake".into(),
+            deadline_ms: deadline.as_millis() as u64,
+        };
+    }
+    let tls = |reason: String| PolicyError::Tls {
+        url: url.into(),
+        reason,
+    };
+    let Some(r) = e.get_ref().and_then(|i| i.downcast_ref::<R>()) else {
+        return match e.kind() {
+            io::ErrorKind::UnexpectedEof
+            | io::ErrorKind::ConnectionReset
+            | io::ErrorKind::ConnectionAborted
+            | io::ErrorKind::BrokenPipe => PolicyError::Connect {
+                url: url.into(),
+                reason: format!(
+                    "the server closed the connection during the TLS handshake ({e}); if it serves plain WebSocket, use ws:// instead of wss://"
+                ),
+            },
+            _ => PolicyError::Connect {
+                url: url.into(),
+                reason: format!("TLS handshake: {e}"),
+            },
+        };
+    };
+    match r {
+        R::InvalidCertificate(c) => {
+            let hint = match c {
+                C::UnknownIssuer => "it is not signed by a publicly trusted CA (a self-signed or private-CA certificate?); use a certificate from a public CA such as Let's Encrypt and serve its full chain (intermediates included)".to_string(),
+                C::NotValidForName | C::NotValidForNameContext { .. } => format!(
+                    "it does not name `{host}`; serve a certificate whose subject alternative names include `{host}`, or use the host name the certificate is for in the URL"
+                ),
+                C::Expired | C::ExpiredContext { .. } => "it has expired; renew it".into(),
+                C::NotValidYet | C::NotValidYetContext { .. } => {
+                    "it is not valid yet (check the server's clock)".into()
+                }
+                _ => "serve a valid certificate from a public CA for this host".into(),
+            };
+            tls(format!(
+                "the endpoint's TLS certificate is not valid for host `{host}`: {r}; {hint}"
+            ))
+        }
+        R::InvalidMessage(_) | R::InappropriateHandshakeMessage { .. } | R::InappropriateMessage { .. }
+            if !looks_like_tls(first_byte) =>
+        {
+            tls(format!(
+                "the policy server at `{url}` did not answer with TLS ({r}); it seems to serve plain WebSocket: use ws:// instead of wss://, or serve TLS on this port"
+            ))
+        }
+        other => tls(format!(
+            "the TLS handshake with the policy server at `{url}` failed: {other}; serve TLS 1.2 or 1.3 with a certificate for `{host}` from a public CA"
+        )),
     }
 }
 
@@ -97,7 +272,7 @@ pub fn is_private(ip: IpAddr) -> bool {
 }
 
 pub struct RemotePolicy {
-    ws: WebSocket<DeadlineStream>,
+    ws: WebSocket<Transport>,
     url: String,
     shape: PolicyShape,
     deadline: Duration,
@@ -167,23 +342,23 @@ impl RemotePolicy {
         };
         let parsed = url::Url::parse(url)
             .map_err(|e| bad(format!("not a valid URL ({e}); use ws://host:port/path")))?;
-        match parsed.scheme() {
-            "ws" => {}
-            "wss" => {
-                return Err(bad(
-                    "wss:// (TLS) is not supported yet; serve plain ws:// (e.g. behind your own TLS-terminating proxy on a public address)"
-                        .into(),
-                ))
+        let tls = match parsed.scheme() {
+            "ws" => false,
+            "wss" => true,
+            s => {
+                return Err(bad(format!(
+                    "scheme `{s}` is not supported; use ws:// or wss://"
+                )))
             }
-            s => return Err(bad(format!("scheme `{s}` is not supported; use ws://"))),
-        }
+        };
         let host = parsed
             .host_str()
             .ok_or_else(|| bad("the URL has no host".into()))?
             .trim_start_matches('[')
             .trim_end_matches(']')
             .to_string();
-        let port = parsed.port().unwrap_or(80);
+        // ws = 80, wss = 443 unless the URL says otherwise.
+        let port = parsed.port_or_known_default().unwrap_or(80);
         let deadline = Duration::from_millis(limits.remote_deadline_ms.max(1));
         let frame_limit = limits.remote_frame_bytes.max(1024);
 
@@ -216,9 +391,38 @@ impl RemotePolicy {
                 reason: e.to_string(),
             })?;
         let _ = tcp.set_nodelay(true);
+        // One deadline covers the TLS handshake (wss://) and the WebSocket handshake.
+        let first_byte = Arc::new(OnceLock::new());
         let stream = DeadlineStream {
             inner: tcp,
             deadline: Instant::now() + deadline,
+            first_byte: Arc::clone(&first_byte),
+        };
+        let stream = if tls {
+            let config = tls_config(limits.extra_ca_pem.as_deref()).map_err(PolicyError::Config)?;
+            let name = rustls::pki_types::ServerName::try_from(host.clone())
+                .map_err(|e| bad(format!("`{host}` is not a valid TLS server name ({e})")))?;
+            let conn = rustls::ClientConnection::new(Arc::new(config), name).map_err(|e| {
+                PolicyError::Connect {
+                    url: url.into(),
+                    reason: format!("TLS set-up failed: {e}"),
+                }
+            })?;
+            let mut t = rustls::StreamOwned::new(conn, stream);
+            while t.conn.is_handshaking() {
+                if let Err(e) = t.conn.complete_io(&mut t.sock) {
+                    return Err(tls_error(
+                        e,
+                        url,
+                        &host,
+                        deadline,
+                        first_byte.get().copied(),
+                    ));
+                }
+            }
+            Transport::Tls(Box::new(t))
+        } else {
+            Transport::Plain(stream)
         };
         let limit = usize::try_from(frame_limit).unwrap_or(usize::MAX);
         let config = WebSocketConfig::default()
@@ -226,6 +430,25 @@ impl RemotePolicy {
             .max_frame_size(Some(limit));
         let (ws, _resp) = tungstenite::client::client_with_config(url, stream, Some(config))
             .map_err(|e| match e {
+                tungstenite::HandshakeError::Failure(_) if !tls && looks_like_tls(first_byte.get().copied()) => {
+                    PolicyError::Tls {
+                        url: url.into(),
+                        reason: format!(
+                            "the policy server at `{url}` answered with TLS; use wss:// instead of ws://"
+                        ),
+                    }
+                }
+                tungstenite::HandshakeError::Failure(e)
+                    if !tls && first_byte.get().is_none() && closed_silently(&e) =>
+                {
+                    // What a TLS-only server does with a plain HTTP request.
+                    PolicyError::Connect {
+                        url: url.into(),
+                        reason: format!(
+                            "the server closed the connection without answering the WebSocket handshake ({e}); if it serves TLS, use wss:// instead of ws://"
+                        ),
+                    }
+                }
                 tungstenite::HandshakeError::Failure(e) => {
                     match ws_error(e, "WebSocket handshake", deadline, frame_limit) {
                         PolicyError::Malformed { reason, .. } => PolicyError::Connect {
@@ -256,7 +479,7 @@ impl RemotePolicy {
             next_id: 0,
             broken: false,
         };
-        p.ws.get_mut().deadline = Instant::now() + deadline;
+        p.ws.get_mut().set_deadline(Instant::now() + deadline);
         let hello = p.receive("hello")?;
         p.expect_type(&hello, "hello", "hello")?;
         let malformed = |reason: String| PolicyError::Malformed {
@@ -349,7 +572,9 @@ impl RemotePolicy {
                 detail: " (the connection was already unusable after an earlier error)".into(),
             });
         }
-        self.ws.get_mut().deadline = Instant::now() + self.deadline;
+        self.ws
+            .get_mut()
+            .set_deadline(Instant::now() + self.deadline);
         let (deadline, limit) = (self.deadline, self.frame_limit);
         if let Err(e) = self.ws.send(Message::Binary(wire::encode(&msg).into())) {
             self.broken = true;
@@ -477,9 +702,15 @@ impl Drop for RemotePolicy {
     fn drop(&mut self) {
         if !self.broken {
             // Best effort: tell the server we are done, without waiting long.
-            self.ws.get_mut().deadline = Instant::now() + Duration::from_millis(200);
+            self.ws
+                .get_mut()
+                .set_deadline(Instant::now() + Duration::from_millis(200));
             let _ = self.ws.close(None);
             let _ = self.ws.flush();
+            if let Transport::Tls(t) = self.ws.get_mut() {
+                t.conn.send_close_notify();
+                let _ = t.flush();
+            }
         }
     }
 }
@@ -533,17 +764,34 @@ mod tests {
         .unwrap_err();
         assert_eq!(e.kind(), d3il_protocol::ErrorKind::BadEndpoint);
         assert!(e.to_string().contains("loopback/private"), "{e}");
+        // wss:// gets the same address checks before any TLS.
         let e = RemotePolicy::connect(
-            "wss://example.org/",
+            "wss://127.0.0.1:9/",
             &spec,
             ObsType::State,
             0,
             &Limits::default(),
         )
         .unwrap_err();
-        assert!(e.to_string().contains("wss://"), "{e}");
+        assert_eq!(e.kind(), d3il_protocol::ErrorKind::BadEndpoint);
+        assert!(e.to_string().contains("loopback/private"), "{e}");
         let e = RemotePolicy::connect("http://x/", &spec, ObsType::State, 0, &Limits::default())
             .unwrap_err();
-        assert!(e.to_string().contains("use ws://"), "{e}");
+        assert!(e.to_string().contains("use ws:// or wss://"), "{e}");
+    }
+
+    #[test]
+    fn extra_ca_must_be_pem_certificates() {
+        assert!(tls_config(None).is_ok());
+        let e = tls_config(Some("not a certificate")).unwrap_err();
+        assert!(
+            e.contains("holds no `-----BEGIN CERTIFICATE-----` block"),
+            "{e}"
+        );
+        let e = tls_config(Some(
+            "-----BEGIN CERTIFICATE-----\nbm90IGEgY2VydA==\n-----END CERTIFICATE-----\n",
+        ))
+        .unwrap_err();
+        assert!(e.contains("not a usable CA certificate"), "{e}");
     }
 }

@@ -96,6 +96,11 @@ pub struct Limits {
     pub remote_frame_bytes: u64,
     /// Allow remote endpoints on loopback/private addresses (tests, trusted set-ups).
     pub allow_private_endpoints: bool,
+    /// Extra CA certificate(s), PEM text, trusted for `wss://` endpoints besides
+    /// the public web roots (tests, private deployments). The parent fills it
+    /// from `$D3IL_EXTRA_CA_FILE`; the worker itself reads no CA file.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub extra_ca_pem: Option<String>,
 }
 
 impl Default for Limits {
@@ -109,6 +114,7 @@ impl Default for Limits {
             remote_deadline_ms: 10_000,
             remote_frame_bytes: 64 << 20,
             allow_private_endpoints: false,
+            extra_ca_pem: None,
         }
     }
 }

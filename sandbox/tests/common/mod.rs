@@ -21,6 +21,7 @@ pub fn limits() -> Limits {
         remote_deadline_ms: 2000,
         remote_frame_bytes: 1 << 20,
         allow_private_endpoints: false,
+        extra_ca_pem: None,
     }
 }
 
