@@ -257,3 +257,43 @@ fn scripted_inserting_runs_through_the_engine_and_labels_the_pushed_box() {
     assert!(inserted >= 4, "{:?}", r.rollouts);
     assert_eq!(r.metrics.success_rate.value, 0.0);
 }
+
+#[test]
+fn scripted_avoiding_aligning_and_pushing_run_through_the_engine_with_their_labels() {
+    use d3il_evaluator::tasks::avoiding::path_code;
+    // Avoiding quick: 8 rollouts of the single start; rollout i takes path i.
+    let r = run(&scripted_job(TaskId::Avoiding, "avoiding:all-paths"));
+    assert_eq!(r.rollouts.len(), 8);
+    for (i, x) in r.rollouts.iter().enumerate() {
+        assert!(x.success, "path {i}: {x:?}");
+        let bits: Vec<f64> = serde_json::from_value(x.behaviour.clone()).unwrap();
+        let code: u32 = bits.iter().enumerate().map(|(k, b)| (*b as u32) << k).sum();
+        assert_eq!(Some(code), path_code(i), "path {i}");
+    }
+    assert!(r.metrics.behaviour_entropy.value > 0.0);
+    // Aligning: rollout ids alternate inside (0) and outside (1).
+    let r = run(&scripted_job(TaskId::Aligning, "aligning:both"));
+    assert_eq!(r.rollouts.len(), 6);
+    for (i, x) in r.rollouts.iter().enumerate() {
+        if x.success {
+            assert_eq!(x.behaviour, (i % 2) as u64, "rollout {i}");
+        }
+    }
+    assert!(
+        r.rollouts.iter().filter(|x| x.success).count() >= 3,
+        "{:?}",
+        r.rollouts
+    );
+    // Pushing: rollout i pushes in order i mod 4.
+    let r = run(&scripted_job(TaskId::Pushing, "pushing:all-modes"));
+    for (i, x) in r.rollouts.iter().enumerate() {
+        if x.success {
+            assert_eq!(x.behaviour, (i % 4) as i64, "rollout {i}");
+        }
+    }
+    assert!(
+        r.rollouts.iter().filter(|x| x.success).count() >= 4,
+        "{:?}",
+        r.rollouts
+    );
+}
