@@ -201,7 +201,7 @@ fn tls_error(
     match r {
         R::InvalidCertificate(c) => {
             let hint = match c {
-                C::UnknownIssuer => "it is not signed by a publicly trusted CA (a self-signed or private-CA certificate?); use a certificate from a public CA such as Let's Encrypt and serve its full chain (intermediates included)".to_string(),
+                C::UnknownIssuer | C::BadSignature => "it is not signed by a publicly trusted CA (a self-signed or private-CA certificate?); use a certificate from a public CA such as Let's Encrypt and serve its full chain (intermediates included)".to_string(),
                 C::NotValidForName | C::NotValidForNameContext { .. } => format!(
                     "it does not name `{host}`; serve a certificate whose subject alternative names include `{host}`, or use the host name the certificate is for in the URL"
                 ),
@@ -399,7 +399,14 @@ impl RemotePolicy {
             first_byte: Arc::clone(&first_byte),
         };
         let stream = if tls {
-            let config = tls_config(limits.extra_ca_pem.as_deref()).map_err(PolicyError::Config)?;
+            // In a sandboxed worker the parent has put $D3IL_EXTRA_CA_FILE into
+            // the job (and removed the variable); an unsandboxed run reads it here.
+            let env_ca = match &limits.extra_ca_pem {
+                Some(_) => None,
+                None => Limits::extra_ca_from_env().map_err(PolicyError::Config)?,
+            };
+            let extra_ca = limits.extra_ca_pem.as_deref().or(env_ca.as_deref());
+            let config = tls_config(extra_ca).map_err(PolicyError::Config)?;
             let name = rustls::pki_types::ServerName::try_from(host.clone())
                 .map_err(|e| bad(format!("`{host}` is not a valid TLS server name ({e})")))?;
             let conn = rustls::ClientConnection::new(Arc::new(config), name).map_err(|e| {

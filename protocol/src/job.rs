@@ -103,6 +103,27 @@ pub struct Limits {
     pub extra_ca_pem: Option<String>,
 }
 
+impl Limits {
+    /// Environment variable naming a PEM file of extra CA certificates for
+    /// `wss://` endpoints. Read by the parent (and by an unsandboxed
+    /// `d3il eval`), which passes the PEM in [`Limits::extra_ca_pem`].
+    pub const EXTRA_CA_ENV: &'static str = "D3IL_EXTRA_CA_FILE";
+
+    /// The PEM text of the file `$D3IL_EXTRA_CA_FILE` names, if it is set.
+    pub fn extra_ca_from_env() -> Result<Option<String>, String> {
+        let Some(path) = std::env::var_os(Self::EXTRA_CA_ENV).filter(|p| !p.is_empty()) else {
+            return Ok(None);
+        };
+        std::fs::read_to_string(&path).map(Some).map_err(|e| {
+            format!(
+                "cannot read the extra CA file {} named by ${} ({e}); give a readable PEM file of CA certificates or unset it",
+                std::path::Path::new(&path).display(),
+                Self::EXTRA_CA_ENV
+            )
+        })
+    }
+}
+
 impl Default for Limits {
     fn default() -> Self {
         Limits {

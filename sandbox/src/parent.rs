@@ -10,7 +10,7 @@
 
 use crate::confine::format_bytes;
 use d3il_protocol::{
-    exit_code, ErrorKind, EvalResult, Job, PolicySource, SandboxMechanism, WorkerError,
+    exit_code, ErrorKind, EvalResult, Job, Limits, PolicySource, SandboxMechanism, WorkerError,
     WorkerMessage,
 };
 use std::io::{BufRead, BufReader, Read, Write};
@@ -85,6 +85,22 @@ fn failed(kind: ErrorKind, message: impl Into<String>) -> Outcome {
     })
 }
 
+/// The PEM of `$D3IL_EXTRA_CA_FILE` for a `wss://` job that does not carry an
+/// extra CA already (other jobs are passed on unchanged).
+fn extra_ca_for(job: &Job) -> Result<Option<String>, String> {
+    match &job.policy {
+        PolicySource::Remote { url }
+            if job.limits.extra_ca_pem.is_none()
+                && url
+                    .get(..6)
+                    .is_some_and(|s| s.eq_ignore_ascii_case("wss://")) =>
+        {
+            Limits::extra_ca_from_env()
+        }
+        _ => Ok(None),
+    }
+}
+
 /// Run `job` in a worker started with `cmd`. Blocks until the worker has ended
 /// and its process group is gone. `on_progress(done, total)` is called on this
 /// thread for every progress line.
@@ -93,6 +109,26 @@ pub fn run_worker(
     job: &Job,
     on_progress: &mut dyn FnMut(usize, usize),
 ) -> WorkerRun {
+    // The operator's extra CA for wss:// endpoints travels in the job: the
+    // worker may not read the file itself.
+    let with_ca;
+    let job = match extra_ca_for(job) {
+        Ok(Some(pem)) => {
+            let mut j = job.clone();
+            j.limits.extra_ca_pem = Some(pem);
+            with_ca = j;
+            &with_ca
+        }
+        Ok(None) => job,
+        Err(e) => {
+            return WorkerRun {
+                outcome: failed(ErrorKind::Internal, e),
+                mechanisms: vec![],
+                stderr: String::new(),
+                pid: 0,
+            }
+        }
+    };
     let job_json = match serde_json::to_vec(job) {
         Ok(j) => j,
         Err(e) => {
@@ -113,6 +149,7 @@ pub fn run_worker(
         .stdin(Stdio::piped())
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())
+        .env_remove(Limits::EXTRA_CA_ENV)
         .process_group(0);
     // SAFETY: the closure only calls prctl, which is async-signal-safe.
     unsafe {
