@@ -226,3 +226,28 @@ pub mod exit_code {
     /// The sandbox could not be set up and confinement was required.
     pub const SANDBOX_FAILED: i32 = 4;
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn limits_without_an_extra_ca_keep_their_json() {
+        // A job's limits as written before the field existed still parse.
+        let old = r#"{"memory_bytes":1,"cpu_seconds":2,"wall_seconds":3,"open_files":4,
+            "file_size_bytes":5,"remote_deadline_ms":6,"remote_frame_bytes":7,
+            "allow_private_endpoints":true}"#;
+        let l: Limits = serde_json::from_str(old).unwrap();
+        assert_eq!(l.extra_ca_pem, None);
+        assert_eq!(l.remote_frame_bytes, 7);
+        // And without a CA nothing new is written.
+        let json = serde_json::to_string(&Limits::default()).unwrap();
+        assert!(!json.contains("extra_ca_pem"), "{json}");
+        let with = Limits {
+            extra_ca_pem: Some("-----BEGIN CERTIFICATE-----\n".into()),
+            ..Limits::default()
+        };
+        let back: Limits = serde_json::from_str(&serde_json::to_string(&with).unwrap()).unwrap();
+        assert_eq!(back, with);
+    }
+}
