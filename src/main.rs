@@ -24,7 +24,7 @@ enum Command {
     Bench(cmd::bench::Args),
     /// Generate or verify the fixed initial-state sets.
     Contexts(cmd::contexts::Args),
-    /// Evaluate a policy (ONNX file, ws:// endpoint or scripted) on a task and print the D3IL metrics.
+    /// Evaluate a policy (ONNX file, ws:// or wss:// endpoint, or scripted) on a task and print the D3IL metrics.
     Eval(cmd::eval::Args),
     /// Render what an image policy sees (both 96x96 cameras) to a PNG.
     Render(cmd::render::Args),

@@ -15,7 +15,7 @@ pub struct Args {
     #[arg(long)]
     pub task: TaskId,
     /// `file.onnx` (manifest next to it as `file.json`, or --manifest),
-    /// `ws://host:port/path` for a remote endpoint, or `scripted:<name>`
+    /// `ws://host:port/path` or `wss://host/path` for a remote endpoint, or `scripted:<name>`
     /// (e.g. `scripted:avoiding:all-paths`).
     #[arg(long)]
     pub policy: String,
