@@ -47,3 +47,22 @@ fn every_committed_set_verifies_and_one_changed_byte_is_refused() {
         );
     }
 }
+
+/// The protocol the pages announce (`TaskId::paper_protocol`, in the crate the
+/// server uses) is the one the task definitions actually run.
+#[test]
+fn announced_protocol_matches_the_task_definitions() {
+    for task in TaskId::ALL {
+        let def = task_def(task).unwrap();
+        let set = def.context_set().unwrap();
+        let p = task.paper_protocol();
+        assert_eq!(p.contexts, def.n_contexts_paper(set.len()), "{task}");
+        assert_eq!(p.rollouts, def.rollouts_per_context(), "{task}");
+        assert_eq!(p.max_steps, def.max_steps(), "{task}");
+        assert_eq!(
+            p.max_steps_image,
+            task.has_image_variant().then(|| def.max_steps_image()),
+            "{task}"
+        );
+    }
+}

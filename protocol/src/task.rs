@@ -73,6 +73,33 @@ impl TaskId {
         }
     }
 
+    /// The leaderboard's evaluation protocol for this task, as shown on its
+    /// pages. The evaluator's task definitions must agree (tested in
+    /// evaluator/tests/context_sets.rs).
+    pub fn paper_protocol(self) -> PaperProtocol {
+        let (contexts, rollouts, max_steps) = match self {
+            TaskId::Avoiding => (1, 480, 250),
+            TaskId::Aligning => (60, 8, 400),
+            TaskId::Pushing => (30, 16, 400),
+            TaskId::Sorting2 => (60, 18, 500),
+            TaskId::Sorting4 => (60, 18, 700),
+            TaskId::Sorting6 => (60, 18, 1200),
+            TaskId::Stacking => (60, 18, 1000),
+            TaskId::Inserting => (60, 8, 2000),
+        };
+        PaperProtocol {
+            contexts,
+            rollouts,
+            max_steps,
+            max_steps_image: match self {
+                TaskId::Stacking => Some(1200),
+                t if t.has_image_variant() => Some(max_steps),
+                _ => None,
+            },
+            ours: self == TaskId::Inserting,
+        }
+    }
+
     /// Whether the paper reports image-based results for this task.
     pub fn has_image_variant(self) -> bool {
         matches!(
@@ -152,4 +179,40 @@ pub struct TaskSpec {
     pub max_steps: usize,
     /// |B|.
     pub n_behaviours: usize,
+}
+
+/// Size and limits of a task's full ("paper") evaluation protocol.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct PaperProtocol {
+    /// Fixed initial states used.
+    pub contexts: usize,
+    /// Rollouts per initial state.
+    pub rollouts: usize,
+    /// Episode limit in env steps (state observations).
+    pub max_steps: usize,
+    /// Episode limit with image observations, if the task has that variant.
+    pub max_steps_image: Option<usize>,
+    /// True when the protocol is this project's own definition because the
+    /// reference has no evaluation loop for the task (Inserting).
+    pub ours: bool,
+}
+
+impl PaperProtocol {
+    /// One line for pages: "60 initial states × 8 rollouts (480), at most 400 steps".
+    pub fn describe(&self, obs: ObsType) -> String {
+        let steps = match obs {
+            ObsType::Image => self.max_steps_image.unwrap_or(self.max_steps),
+            ObsType::State => self.max_steps,
+        };
+        let states = if self.contexts == 1 {
+            "1 initial state".to_string()
+        } else {
+            format!("{} initial states", self.contexts)
+        };
+        format!(
+            "{states} × {} rollouts ({} in all), at most {steps} steps per episode",
+            self.rollouts,
+            self.contexts * self.rollouts
+        )
+    }
 }

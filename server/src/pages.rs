@@ -325,6 +325,10 @@ struct LeaderboardPage {
     csv_url: String,
     fraction_url: String,
     plot_url: String,
+    /// "60 initial states × 8 rollouts (480 in all), at most 400 steps per episode".
+    protocol: String,
+    /// The protocol is this project's definition (the reference has none).
+    protocol_ours: bool,
 }
 
 fn obs_tabs(task: TaskId, obs: ObsType, base: &str) -> Vec<Tab> {
@@ -460,6 +464,8 @@ async fn leaderboard(
         csv_url: format!("{base}/csv?obs={obs}"),
         fraction_url: format!("{base}/data-fraction?obs={obs}"),
         plot_url: format!("/plots/tasks/{}/pareto.svg?obs={obs}", task.slug()),
+        protocol: task.paper_protocol().describe(obs),
+        protocol_ours: task.paper_protocol().ours,
     })
 }
 

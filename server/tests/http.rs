@@ -293,11 +293,25 @@ async fn paper_rows_are_on_the_pages_csv_and_api() {
         "11 paper methods on Aligning (state)"
     );
     assert!(page.contains("<svg"), "the Pareto plot is embedded");
+    assert!(
+        page.contains("60 initial states × 8 rollouts (480 in all), at most 400 steps per episode")
+    );
+    assert!(!page.contains("our definition"));
+    // Inserting's protocol is ours (the reference has no evaluation loop):
+    // the page says so.
+    let (s, page) = app.get_text("/tasks/inserting").await;
+    assert_eq!(s, 200);
+    assert!(page.contains("at most 2000 steps per episode"));
+    assert!(page.contains("This protocol is our definition, not the paper"));
     let (s, page) = app.get_text("/tasks/stacking?obs=image").await;
     assert_eq!(s, 200);
     for t in ["Stacking-1 (T5)", "Stacking-2 (T5)", "Stacking-3 (T5)"] {
         assert!(page.contains(t));
     }
+    assert!(
+        page.contains("at most 1200 steps per episode"),
+        "image limit"
+    );
     let (s, csv) = app.get_text("/api/v1/leaderboards/avoiding/csv").await;
     assert_eq!(s, 200);
     assert_eq!(csv.lines().count(), 12);

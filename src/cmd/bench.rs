@@ -98,6 +98,7 @@ fn eval_bench(protocol: ProtocolKind, max_live: usize) -> anyhow::Result<()> {
         ..EvalOptions::default()
     };
     let mut ratios = Vec::new();
+    let mut total_env_steps = 0;
     for (label, name) in [
         ("batched", "aligning_mlp"),
         ("unbatched", "aligning_mlp_batch1"),
@@ -125,12 +126,54 @@ fn eval_bench(protocol: ProtocolKind, max_live: usize) -> anyhow::Result<()> {
             other
         );
         ratios.push((label, t.total_s / t.physics_s));
+        total_env_steps = steps;
     }
+    // What the physics alone costs: the same number of raw mj_step calls on
+    // this scene, spread over all threads, with no controller and no policy.
+    let mj_steps = total_env_steps * task.def.n_substeps();
+    let raw_rate = raw_step_rate(&task, threads)?;
+    println!(
+        "floor: {mj_steps} mj_step calls; raw mj_step on this scene runs {raw_rate:.0}/s on {threads} threads, \
+         so no faithful evaluation of these rollouts can take less than {:.1} s here",
+        mj_steps as f64 / raw_rate
+    );
     println!(
         "ratio total/physics-only time: batched {:.3}, unbatched {:.3} (goal: policy < 10% of physics, i.e. batched <= 1.10)",
         ratios[0].1, ratios[1].1
     );
     Ok(())
+}
+
+/// Raw `mj_step` calls per second on the task's scene, one environment per
+/// thread: segments of 500 steps holding the controls of a fresh reset (the
+/// resets are not timed), two seconds of stepping per thread.
+fn raw_step_rate(task: &LoadedTask, threads: usize) -> anyhow::Result<f64> {
+    use rayon::prelude::*;
+    let set = task.def.context_set()?;
+    let rates: Vec<anyhow::Result<f64>> = (0..threads)
+        .into_par_iter()
+        .map(|i| {
+            let mut env = task.env()?;
+            let (mut n, mut secs) = (0usize, 0.0);
+            let mut ctx = i;
+            while secs < 2.0 {
+                env.reset(&set.get(ctx % set.len()).cloned().unwrap_or(Value::Null))?;
+                ctx += threads;
+                let start = Instant::now();
+                for _ in 0..500 {
+                    env.sim.data.step()?;
+                }
+                secs += start.elapsed().as_secs_f64();
+                n += 500;
+            }
+            Ok(n as f64 / secs)
+        })
+        .collect();
+    let mut total = 0.0;
+    for r in rates {
+        total += r?;
+    }
+    Ok(total)
 }
 
 /// Frames per second of both 96 x 96 policy cameras, and the ratio of
