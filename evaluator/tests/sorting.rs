@@ -1,6 +1,8 @@
 //! Sorting-2/4/6 end to end in real MuJoCo (spec/11 §1).
 
-use d3il_evaluator::tasks::sorting::{pack_code, parse_order, SortingScript};
+use d3il_evaluator::tasks::sorting::{
+    is_sequence_code, pack_code, parse_order, Colour, SortingScript,
+};
 use d3il_evaluator::tasks::{Env, LoadedTask};
 use d3il_protocol::TaskId;
 use serde_json::{json, Value};
@@ -46,6 +48,29 @@ fn run_script(env: &mut Env, ctx: &Value, order: &str) -> usize {
 fn code(order: &str) -> u32 {
     let slots: Vec<_> = parse_order(order).unwrap().into_iter().map(Some).collect();
     pack_code(&slots)
+}
+
+#[test]
+fn only_complete_colour_sequences_are_behaviours() {
+    // |B| = 2, 6, 20 (spec/11 §1.6): the codes of every complete sequence.
+    for (n, expected) in [(2, 2), (4, 6), (6, 20)] {
+        let valid = (0..256u32).filter(|&c| is_sequence_code(c, n)).count();
+        assert_eq!(valid, expected, "Sorting-{n}");
+    }
+    assert!(is_sequence_code(code("RB"), 2));
+    assert!(is_sequence_code(code("RBBR"), 4));
+    // Nothing registered (192 for Sorting-2) or R,B,B,- for Sorting-4 (112):
+    // successes with these codes are unlabelled, as the reference ignores them.
+    assert!(!is_sequence_code(pack_code(&[None, None]), 2));
+    let rbb_ = [
+        Some(Colour::Red),
+        Some(Colour::Blue),
+        Some(Colour::Blue),
+        None,
+    ];
+    assert_eq!(pack_code(&rbb_), 112);
+    assert!(!is_sequence_code(112, 4));
+    assert!(!is_sequence_code(code("RRRBBB"), 4));
 }
 
 #[test]

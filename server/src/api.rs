@@ -33,6 +33,17 @@ pub fn router(max_upload: usize) -> Router<AppState> {
         .route("/whoami", get(whoami))
         .route("/openapi.json", get(openapi))
         .fallback(api_not_found)
+        .method_not_allowed_fallback(api_method_not_allowed)
+}
+
+async fn api_method_not_allowed(
+    method: axum::http::Method,
+    axum::extract::OriginalUri(uri): axum::extract::OriginalUri,
+) -> AppError {
+    AppError::MethodNotAllowed(format!(
+        "{method} is not allowed on {}; see /api/v1/openapi.json for the methods each endpoint takes",
+        uri.path()
+    ))
 }
 
 async fn api_not_found() -> AppError {
@@ -56,9 +67,11 @@ impl FromRequestParts<AppState> for Authed {
             })?
             .to_str()
             .map_err(|_| AppError::Unauthorized("the Authorization header is not text".into()))?;
+        // The auth scheme is case-insensitive (RFC 9110 §11.1).
         let token = header
-            .strip_prefix("Bearer ")
-            .map(str::trim)
+            .split_once(' ')
+            .filter(|(scheme, _)| scheme.eq_ignore_ascii_case("bearer"))
+            .map(|(_, t)| t.trim())
             .filter(|t| !t.is_empty())
             .ok_or_else(|| {
                 AppError::Unauthorized("the Authorization header must be `Bearer <token>`".into())
@@ -442,7 +455,7 @@ pub fn openapi_document() -> Value {
             "schemas": {
                 "Error": {"type": "object", "required": ["error"], "properties": {"error": {
                     "type": "object", "required": ["code", "message"], "properties": {
-                        "code": {"type": "string", "enum": ["invalid_field", "unauthorized", "not_found", "conflict", "payload_too_large", "rate_limited", "endpoint_rejected", "internal"]},
+                        "code": {"type": "string", "enum": ["invalid_field", "unauthorized", "not_found", "method_not_allowed", "conflict", "payload_too_large", "rate_limited", "endpoint_rejected", "internal"]},
                         "message": {"type": "string"},
                         "field": {"type": ["string", "null"]}}}}},
                 "Submission": {"type": "object", "properties": {

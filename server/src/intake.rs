@@ -4,7 +4,7 @@
 use crate::app::AppState;
 use crate::error::AppError;
 use crate::queue::JobRunner;
-use crate::store::{NewMethod, NewPolicy, NewSubmission, Submitter};
+use crate::store::{NewMethod, NewPolicy, NewSubmission, SeedKey, Submitter};
 use axum::extract::multipart::{Field, Multipart, MultipartError};
 use axum::http::{header, HeaderMap, StatusCode};
 use d3il_protocol::{
@@ -80,10 +80,54 @@ fn multipart_err(e: MultipartError, max: usize) -> AppError {
 
 /// Streams the multipart body, keeping at most `max` bytes of upload: the
 /// file is read chunk by chunk and refused as soon as it passes the limit.
-pub async fn read_multipart(mut mp: Multipart, max: usize) -> Result<RawSubmission, AppError> {
+pub async fn read_multipart(mp: Multipart, max: usize) -> Result<RawSubmission, AppError> {
+    Ok(read_multipart_inner(mp, max, None).await?.0)
+}
+
+/// Like [`read_multipart`] for the HTML form, whose credentials travel in its
+/// `token` field: the token is authenticated before the first byte of a file
+/// field is read (the form puts it first), so a request without a valid token
+/// is refused before any upload is buffered.
+pub async fn read_form_authenticated(
+    mp: Multipart,
+    max: usize,
+    state: &AppState,
+) -> Result<(RawSubmission, Submitter), AppError> {
+    let (raw, who) = read_multipart_inner(mp, max, Some(state)).await?;
+    let who = who.ok_or_else(|| AppError::Unauthorized("the `token` field is required".into()))?;
+    Ok((raw, who))
+}
+
+async fn authenticate_form_token(
+    state: &AppState,
+    raw: &RawSubmission,
+) -> Result<Submitter, AppError> {
+    let token = raw
+        .text
+        .get("token")
+        .map(|t| t.trim().to_string())
+        .filter(|t| !t.is_empty())
+        .ok_or_else(|| {
+            AppError::Unauthorized(
+                "the `token` field is required (before the file fields): paste the API token from `d3il token create --name <you>`"
+                    .into(),
+            )
+        })?;
+    crate::api::authenticate_token(state, &token).await
+}
+
+async fn read_multipart_inner(
+    mut mp: Multipart,
+    max: usize,
+    auth: Option<&AppState>,
+) -> Result<(RawSubmission, Option<Submitter>), AppError> {
     let mut raw = RawSubmission::default();
+    let mut who = None;
     while let Some(mut field) = mp.next_field().await.map_err(|e| multipart_err(e, max))? {
         let name = field.name().unwrap_or_default().to_string();
+        if let (Some(state), None, true) = (auth, &who, name == "onnx" || name == "manifest_file") {
+            who = Some(authenticate_form_token(state, &raw).await?);
+        }
         if name == "onnx" {
             let bytes = read_limited(&mut field, max, &name).await?;
             // Browsers send an empty file part when no file was chosen.
@@ -113,7 +157,10 @@ pub async fn read_multipart(mut mp: Multipart, max: usize) -> Result<RawSubmissi
             ));
         }
     }
-    Ok(raw)
+    if let (Some(state), None) = (auth, &who) {
+        who = Some(authenticate_form_token(state, &raw).await?);
+    }
+    Ok((raw, who))
 }
 
 async fn read_limited(field: &mut Field<'_>, max: usize, name: &str) -> Result<Vec<u8>, AppError> {
@@ -489,10 +536,21 @@ pub async fn accept(
             });
         }
     }
+    let method = store.ensure_method(&v.method, Some(who.id)).await?;
+    let key = SeedKey {
+        method_id: method.id,
+        task: v.task,
+        obs_type: v.obs_type,
+        data_fraction: v.data_fraction,
+        protocol: v.protocol,
+        training_seed: v.training_seed,
+    };
+    // A duplicate seed is refused before an endpoint's dry-run (up to minutes)
+    // or an ONNX write; create_submission checks again under the write lock.
+    store.check_seed_free(&key).await?;
     if let ValidPolicy::Remote(url) = &v.policy {
         endpoint_dry_run(state.runner.clone(), state, &v, url).await?;
     }
-    let method = store.ensure_method(&v.method, Some(who.id)).await?;
     let policy = match &v.policy {
         ValidPolicy::Onnx(bytes) => {
             let (sha256, path) = store.store_onnx(bytes).await?;
@@ -509,13 +567,13 @@ pub async fn accept(
     let id = store
         .create_submission(
             &NewSubmission {
-                method_id: method.id,
+                method_id: key.method_id,
                 submitter_id: Some(who.id),
-                task: v.task,
-                obs_type: v.obs_type,
-                training_seed: v.training_seed,
-                data_fraction: v.data_fraction,
-                protocol: v.protocol,
+                task: key.task,
+                obs_type: key.obs_type,
+                training_seed: key.training_seed,
+                data_fraction: key.data_fraction,
+                protocol: key.protocol,
                 policy,
                 manifest_json,
             },

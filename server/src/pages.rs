@@ -205,9 +205,11 @@ async fn home(State(state): State<AppState>) -> Result<Html<String>, PageError> 
         .into_iter()
         .map(|t| {
             let mine: Vec<&BoardRow> = rows.iter().filter(|r| r.task == Some(t)).collect();
+            // "Best" ranks paper-protocol and reported rows only, not quick smoke runs.
             let best = board_for(&rows, t, ObsType::State)
                 .into_iter()
                 .filter(|r| r.success.mean.is_finite())
+                .filter(|r| r.protocol != Some(d3il_protocol::ProtocolKind::Quick))
                 .max_by(|a, b| a.success.mean.total_cmp(&b.success.mean))
                 .map(|r| format!("{} ({:.3})", r.method, r.success.mean))
                 .unwrap_or_else(|| "—".into());
@@ -503,9 +505,13 @@ pub fn fraction_series(rows: &[BoardRow]) -> Vec<FractionSeries> {
     type Points = Vec<(f64, f64, f64)>;
     let mut by: BTreeMap<(String, String), Points> = BTreeMap::new();
     for r in rows {
-        let label = match r.source {
-            Source::Reported => r.method.clone(),
-            Source::Evaluated => format!("{} (evaluated)", r.method),
+        let label = match (r.source, r.protocol) {
+            (Source::Reported, _) => r.method.clone(),
+            // Quick smoke runs get their own line: never mixed with paper-protocol points.
+            (Source::Evaluated, Some(d3il_protocol::ProtocolKind::Quick)) => {
+                format!("{} (evaluated, quick)", r.method)
+            }
+            (Source::Evaluated, _) => format!("{} (evaluated)", r.method),
         };
         by.entry((r.task_title.clone(), label)).or_default().push((
             r.data_fraction,
@@ -574,11 +580,15 @@ async fn data_fraction(
             .iter()
             .position(|f| *f == r.data_fraction)
             .unwrap_or(0);
-        let label = if r.task_title == task.title() {
+        let mut label = if r.task_title == task.title() {
             key.0.clone()
         } else {
             format!("{} [{}]", key.0, key.2)
         };
+        if r.protocol == Some(d3il_protocol::ProtocolKind::Quick) {
+            // A quick smoke run is its own row, never a cell of the paper-protocol row.
+            label.push_str(" (quick protocol)");
+        }
         let row = match table
             .iter_mut()
             .position(|t| t.method == label && t.reported == key.1)
@@ -1016,14 +1026,8 @@ async fn submit_post(
             field: None,
             message: format!("expected a multipart/form-data body: {e}"),
         })?;
-        let raw = intake::read_multipart(mp, max).await?;
-        let token = raw
-            .text
-            .get("token")
-            .map(|t| t.trim().to_string())
-            .filter(|t| !t.is_empty())
-            .ok_or_else(|| AppError::Unauthorized("the `token` field is required: paste the API token from `d3il token create --name <you>`".into()))?;
-        let who = api::authenticate_token(&state, &token).await?;
+        // The token is checked before any file part is read.
+        let (raw, who) = intake::read_form_authenticated(mp, max, &state).await?;
         let valid = intake::validate(&raw, &state.cfg.limits)?;
         intake::accept(&state, valid, &who).await
     }

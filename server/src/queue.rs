@@ -210,14 +210,12 @@ async fn run_claimed(
                 latest = Some(p);
                 // Progress is written at most once a second.
                 if last_written.elapsed() >= Duration::from_secs(1) {
-                    store.heartbeat(job_id, owner, cfg.lease_seconds, latest).await?;
+                    beat_or_warn(store, job_id, owner, cfg.lease_seconds, latest).await;
                     last_written = Instant::now();
                 }
             }
             _ = ticker.tick() => {
-                if !store.heartbeat(job_id, owner, cfg.lease_seconds, latest).await? {
-                    tracing::warn!("job {job_id}: lease lost; its result will be written idempotently");
-                }
+                beat_or_warn(store, job_id, owner, cfg.lease_seconds, latest).await;
                 last_written = Instant::now();
             }
         }
@@ -252,4 +250,27 @@ async fn run_claimed(
         }
     }
     Ok(())
+}
+
+/// A heartbeat that fails (a busy or briefly unavailable database) must not
+/// abandon the running worker: returning early would leave its process
+/// running while the slot claims another job. The job goes on; if the lease
+/// does expire meanwhile, the result write is idempotent.
+async fn beat_or_warn(
+    store: &Store,
+    job_id: i64,
+    owner: &str,
+    lease_seconds: i64,
+    progress: Option<(usize, usize)>,
+) {
+    match store
+        .heartbeat(job_id, owner, lease_seconds, progress)
+        .await
+    {
+        Ok(true) => {}
+        Ok(false) => {
+            tracing::warn!("job {job_id}: lease lost; its result will be written idempotently")
+        }
+        Err(e) => tracing::warn!("job {job_id}: heartbeat not written ({e}); the job goes on"),
+    }
 }

@@ -151,6 +151,7 @@ pub struct JobRow {
     pub error_message: Option<String>,
     pub sandbox_json: Option<String>,
     pub created_at: i64,
+    /// When the current (latest) attempt started: ETAs extrapolate from it.
     pub started_at: Option<i64>,
     pub finished_at: Option<i64>,
 }
@@ -199,6 +200,30 @@ pub struct NewSubmission {
     pub protocol: ProtocolKind,
     pub policy: NewPolicy,
     pub manifest_json: String,
+}
+
+/// What makes a training seed unique (the `submissions_unique_seed` index).
+#[derive(Debug, Clone)]
+pub struct SeedKey {
+    pub method_id: i64,
+    pub task: TaskId,
+    pub obs_type: ObsType,
+    pub data_fraction: f64,
+    pub protocol: ProtocolKind,
+    pub training_seed: i64,
+}
+
+impl NewSubmission {
+    pub fn seed_key(&self) -> SeedKey {
+        SeedKey {
+            method_id: self.method_id,
+            task: self.task,
+            obs_type: self.obs_type,
+            data_fraction: self.data_fraction,
+            protocol: self.protocol,
+            training_seed: self.training_seed,
+        }
+    }
 }
 
 #[derive(Debug, Clone)]
@@ -778,6 +803,16 @@ impl Store {
         Ok((sha, path))
     }
 
+    /// The submission that already holds this seed, if any (checked before an
+    /// endpoint's dry-run so a duplicate is refused at once; the insert checks
+    /// again under the write lock).
+    pub async fn check_seed_free(&self, s: &SeedKey) -> Result<(), StoreError> {
+        match duplicate_seed(&self.pool, s).await? {
+            Some(id) => Err(duplicate_seed_error(s.training_seed, Some(id))),
+            None => Ok(()),
+        }
+    }
+
     /// Inserts the submission and its queued job in one transaction; when this
     /// returns the submission is durable.
     pub async fn create_submission(
@@ -785,25 +820,12 @@ impl Store {
         s: &NewSubmission,
         max_attempts: i64,
     ) -> Result<i64, StoreError> {
-        let mut tx = self.pool.begin().await?;
-        let dup: Option<i64> = sqlx::query_scalar(
-            "SELECT id FROM submissions WHERE method_id = ? AND task = ? AND obs_type = ? AND data_fraction = ? \
-             AND protocol = ? AND training_seed = ? AND status != 'failed'",
-        )
-        .bind(s.method_id)
-        .bind(s.task.slug())
-        .bind(s.obs_type.as_str())
-        .bind(s.data_fraction)
-        .bind(protocol_str(s.protocol))
-        .bind(s.training_seed)
-        .fetch_optional(&mut *tx)
-        .await?;
-        if let Some(id) = dup {
-            return Err(StoreError::Conflict(format!(
-                "training seed {} was already submitted for this method, task, observation type, data fraction \
-                 and protocol (submission {id}); use a different training_seed",
-                s.training_seed
-            )));
+        // IMMEDIATE takes the write lock before the duplicate check, so two
+        // concurrent submissions of the same seed cannot both pass it (the
+        // second waits on the busy timeout, then sees the first).
+        let mut tx = self.pool.begin_with("BEGIN IMMEDIATE").await?;
+        if let Some(id) = duplicate_seed(&mut *tx, &s.seed_key()).await? {
+            return Err(duplicate_seed_error(s.training_seed, Some(id)));
         }
         let (kind, sha, bytes, path, url) = match &s.policy {
             NewPolicy::Onnx {
@@ -841,7 +863,14 @@ impl Store {
         .bind(t)
         .bind(t)
         .fetch_one(&mut *tx)
-        .await?;
+        .await
+        .map_err(|e| match &e {
+            // The unique index is the last word on duplicate seeds.
+            sqlx::Error::Database(d) if d.is_unique_violation() => {
+                duplicate_seed_error(s.training_seed, None)
+            }
+            _ => e.into(),
+        })?;
         sqlx::query(
             "INSERT INTO jobs (submission_id, state, max_attempts, created_at) VALUES (?, 'queued', ?, ?)",
         )
@@ -968,7 +997,7 @@ impl Store {
             }
             let updated = sqlx::query(
                 "UPDATE jobs SET state = 'leased', lease_owner = ?, lease_expires_at = ?, heartbeat_at = ?, \
-                 attempts = attempts + 1, started_at = COALESCE(started_at, ?), rollouts_done = 0 \
+                 attempts = attempts + 1, started_at = ?, rollouts_done = 0 \
                  WHERE id = ? AND (state = 'queued' OR (state = 'leased' AND lease_expires_at < ?))",
             )
             .bind(owner)
@@ -1243,4 +1272,32 @@ fn parse_obs(s: &str) -> Result<ObsType, StoreError> {
 /// JSON encoding of plain data (these types always serialise).
 fn to_json<T: serde::Serialize + ?Sized>(v: &T) -> String {
     serde_json::to_string(v).unwrap_or_else(|_| "null".into())
+}
+
+async fn duplicate_seed<'e>(
+    db: impl sqlx::SqliteExecutor<'e>,
+    s: &SeedKey,
+) -> Result<Option<i64>, StoreError> {
+    Ok(sqlx::query_scalar(
+        "SELECT id FROM submissions WHERE method_id = ? AND task = ? AND obs_type = ? AND data_fraction = ? \
+         AND protocol = ? AND training_seed = ? AND status != 'failed'",
+    )
+    .bind(s.method_id)
+    .bind(s.task.slug())
+    .bind(s.obs_type.as_str())
+    .bind(s.data_fraction)
+    .bind(protocol_str(s.protocol))
+    .bind(s.training_seed)
+    .fetch_optional(db)
+    .await?)
+}
+
+fn duplicate_seed_error(seed: i64, existing: Option<i64>) -> StoreError {
+    let which = existing
+        .map(|id| format!(" (submission {id})"))
+        .unwrap_or_default();
+    StoreError::Conflict(format!(
+        "training seed {seed} was already submitted for this method, task, observation type, data fraction \
+         and protocol{which}; use a different training_seed"
+    ))
 }

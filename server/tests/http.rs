@@ -515,3 +515,92 @@ async fn admin_page_names_mechanisms_the_kernel_lacks() {
     assert!(page.contains("<tr data-mechanism=\"probe:fork\">"));
     assert!(!page.contains("sandbox-breached"));
 }
+
+#[tokio::test]
+async fn concurrent_duplicate_seeds_give_one_201_and_409s_never_500() {
+    let app = spawn_app().await;
+    let m = manifest("pushing");
+    let fields = [
+        ("method", "RacePolicy"),
+        ("task", "pushing"),
+        ("training_seed", "7"),
+        ("manifest", m.as_str()),
+    ];
+    let mut statuses: Vec<u16> =
+        futures_util::future::join_all((0..6).map(|_| app.submit(&fields, Some(fake_onnx()))))
+            .await
+            .into_iter()
+            .map(|r| r.status().as_u16())
+            .collect();
+    statuses.sort();
+    assert_eq!(statuses, vec![201, 409, 409, 409, 409, 409]);
+}
+
+#[tokio::test]
+async fn a_wrong_http_method_gets_the_json_error_format() {
+    let app = spawn_app().await;
+    let r = app
+        .http
+        .delete(app.url("/api/v1/leaderboards"))
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status(), 405);
+    let v: Value = r.json().await.unwrap();
+    assert_eq!(err(&v), ("method_not_allowed", None));
+    let msg = v["error"]["message"].as_str().unwrap();
+    assert!(
+        msg.starts_with("DELETE is not allowed on /api/v1/leaderboards"),
+        "{msg}"
+    );
+}
+
+/// The form's token is checked before the file part is read: a request with a
+/// wrong token and an upload that never finishes is answered 401 at once,
+/// without waiting for (or buffering) the upload.
+#[tokio::test]
+async fn the_form_refuses_a_wrong_token_before_reading_the_upload() {
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+    let app = spawn_app_with(Options {
+        max_upload: 64 << 20,
+        ..Options::default()
+    })
+    .await;
+    let mut sock = tokio::net::TcpStream::connect(app.addr).await.unwrap();
+    let b = "d3ilboundary";
+    let head = format!(
+        "--{b}\r\nContent-Disposition: form-data; name=\"token\"\r\n\r\nd3il_wrong\r\n\
+         --{b}\r\nContent-Disposition: form-data; name=\"onnx\"; filename=\"p.onnx\"\r\n\
+         Content-Type: application/octet-stream\r\n\r\n"
+    );
+    let mut first = head.into_bytes();
+    first.extend(std::iter::repeat_n(0u8, 64 << 10));
+    let req = format!(
+        "POST /submit HTTP/1.1\r\nHost: {}\r\nContent-Type: multipart/form-data; boundary={b}\r\n\
+         Content-Length: {}\r\n\r\n",
+        app.addr,
+        32 << 20
+    );
+    sock.write_all(req.as_bytes()).await.unwrap();
+    sock.write_all(&first).await.unwrap();
+    // The remaining ~32 MiB are never sent: only an early answer can arrive.
+    let mut buf = vec![0u8; 64 << 10];
+    let mut got = Vec::new();
+    let read = tokio::time::timeout(std::time::Duration::from_secs(30), async {
+        loop {
+            let n = sock.read(&mut buf).await.unwrap();
+            if n == 0 {
+                break;
+            }
+            got.extend_from_slice(&buf[..n]);
+            if String::from_utf8_lossy(&got).contains("</html>") {
+                break;
+            }
+        }
+    })
+    .await;
+    assert!(read.is_ok(), "no answer while the upload was still pending");
+    let text = String::from_utf8_lossy(&got);
+    assert!(text.starts_with("HTTP/1.1 401"), "{text}");
+    assert!(text.contains("d3il token create"), "{text}");
+}

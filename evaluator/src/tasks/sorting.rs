@@ -314,6 +314,13 @@ pub fn pack_code(slots: &[Option<Colour>]) -> u32 {
         .sum()
 }
 
+/// Whether `code` packs a complete Sorting-`n_boxes` colour sequence: of its
+/// `n_boxes` leading bits exactly half are blue (1), the rest zero.
+pub fn is_sequence_code(code: u32, n_boxes: usize) -> bool {
+    let used = (0xFFu32 << (8 - n_boxes)) & 0xFF;
+    code & !used == 0 && code.count_ones() as usize == n_boxes / 2
+}
+
 /// Parses an order like "RBBR" into colours.
 pub fn parse_order(order: &str) -> Option<Vec<Colour>> {
     order
@@ -595,8 +602,13 @@ impl TaskLogic for SortingLogic {
         json!(self.code())
     }
 
+    /// Only codes of a complete colour sequence (X/2 red, X/2 blue: the keys
+    /// of the reference's `<X>_mode_prob.pkl`) are behaviours; a success whose
+    /// tracker missed a box packs to another code, which the reference ignores
+    /// in its entropies (spec/11 §1.7), so it is an unlabelled success here.
     fn behaviour_key(&self) -> Option<String> {
-        self.success.then(|| self.code().to_string())
+        let code = self.code();
+        (self.success && is_sequence_code(code, self.boxes.len())).then(|| code.to_string())
     }
 
     fn objects(&self, sim: &Sim) -> Vec<(String, [f64; 3])> {
