@@ -105,9 +105,15 @@ pub struct PolicyInfo {
 pub struct Timing {
     pub total_s: f64,
     pub policy_s: f64,
-    /// Wall time of the parallel stepping phases (physics + controller + task logic).
+    /// Wall time of the parallel stepping phases (physics + controller + task
+    /// logic, and camera rendering for image tasks).
     pub physics_s: f64,
     pub policy_calls: usize,
+    /// Image tasks: time spent rendering during the stepping phases, summed
+    /// over threads (CPU seconds, part of `step_cpu_s`).
+    pub render_cpu_s: f64,
+    /// Time spent stepping envs, summed over threads (CPU seconds, rendering included).
+    pub step_cpu_s: f64,
 }
 
 struct Slot {
@@ -118,6 +124,9 @@ struct Slot {
     images: Option<HistoryBuffer>,
     queue: VecDeque<Vec<f32>>,
     path: Vec<[f32; 2]>,
+    /// Seconds spent in [`step_slot`], and rendering within it (benchmarks).
+    step_cpu_s: f64,
+    render_cpu_s: f64,
 }
 
 /// Runs `policy` on `task` under the protocol and computes the D3IL metrics.
@@ -159,6 +168,8 @@ pub fn evaluate(
             images: image.then(|| HistoryBuffer::new(shape.history, crate::camera::OBS_LEN)),
             queue: VecDeque::new(),
             path: Vec::new(),
+            step_cpu_s: 0.0,
+            render_cpu_s: 0.0,
         });
     }
     let mut next = 0usize;
@@ -246,22 +257,11 @@ pub fn evaluate(
             .par_iter_mut()
             .filter(|s| s.rollout.is_some())
             .map(|s| {
-                let (id, ctx, _) = s.rollout.expect("filtered to live slots");
-                let action = s.queue.pop_front().unwrap_or_default();
-                let step = s.env.steps();
-                let out = s.env.step(&action).map_err(|source| EvalError::Rollout {
-                    rollout: id,
-                    context: ctx,
-                    step,
-                    source,
-                })?;
-                s.history.push(&s.env.policy_obs())?;
-                push_images(s)?;
-                if record_paths {
-                    let p = s.env.sim.tcp_pos();
-                    s.path.push([p[0] as f32, p[1] as f32]);
-                }
-                Ok(out.done)
+                let (started, rendered) = (Instant::now(), s.env.render_seconds());
+                let r = step_slot(s, record_paths);
+                s.step_cpu_s += started.elapsed().as_secs_f64();
+                s.render_cpu_s += s.env.render_seconds() - rendered;
+                r
             })
             .collect();
         timing.physics_s += ts.elapsed().as_secs_f64();
@@ -345,6 +345,8 @@ pub fn evaluate(
         seed: opts.seed,
     };
     timing.total_s = t0.elapsed().as_secs_f64();
+    timing.step_cpu_s = slots.iter().map(|s| s.step_cpu_s).sum();
+    timing.render_cpu_s = slots.iter().map(|s| s.render_cpu_s).sum();
     Ok((
         EvalResult {
             manifest,
@@ -357,6 +359,27 @@ pub fn evaluate(
 }
 
 /// Appends the slot's current image observation to its image history.
+/// One env step of a live slot: the next queued action, then the new
+/// observation into the history. Returns whether the rollout is done.
+fn step_slot(s: &mut Slot, record_paths: bool) -> Result<bool, EvalError> {
+    let (id, ctx, _) = s.rollout.expect("filtered to live slots");
+    let action = s.queue.pop_front().unwrap_or_default();
+    let step = s.env.steps();
+    let out = s.env.step(&action).map_err(|source| EvalError::Rollout {
+        rollout: id,
+        context: ctx,
+        step,
+        source,
+    })?;
+    s.history.push(&s.env.policy_obs())?;
+    push_images(s)?;
+    if record_paths {
+        let p = s.env.sim.tcp_pos();
+        s.path.push([p[0] as f32, p[1] as f32]);
+    }
+    Ok(out.done)
+}
+
 fn push_images(slot: &mut Slot) -> Result<(), EvalError> {
     if let (Some(h), Some(im)) = (slot.images.as_mut(), slot.env.policy_images()) {
         h.push(im)?;

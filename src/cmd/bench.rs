@@ -21,7 +21,10 @@ pub struct Args {
     /// Protocol of `eval` (paper: Aligning's 60 x 8 = 480 rollouts).
     #[arg(long, default_value = "paper")]
     pub protocol: ProtocolKind,
-    /// Rollouts simulated at once in `eval`.
+    /// Protocol of the image evaluation in `render` (quick: 3 initial states x 2 rollouts).
+    #[arg(long, default_value = "quick")]
+    pub render_protocol: ProtocolKind,
+    /// Rollouts simulated at once in `eval` and `render`.
     #[arg(long, default_value_t = 96)]
     pub max_live: usize,
 }
@@ -30,7 +33,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     match args.which.as_str() {
         "physics" => physics(args.steps),
         "eval" => eval_bench(args.protocol, args.max_live),
-        "render" => render_bench(args.steps),
+        "render" => render_bench(args.steps, args.render_protocol, args.max_live),
         other => bail!("unknown benchmark `{other}`; available: physics, eval, render"),
     }
 }
@@ -67,7 +70,11 @@ impl Policy for RowByRow {
     }
 }
 
-fn load_fixture(task: &LoadedTask, name: &str) -> anyhow::Result<(OnnxPolicy, PolicyInfo)> {
+fn load_fixture(
+    task: &LoadedTask,
+    name: &str,
+    obs_type: ObsType,
+) -> anyhow::Result<(OnnxPolicy, PolicyInfo)> {
     let dir = super::assets_dir().join("fixtures");
     let onnx = dir.join(format!("{name}.onnx"));
     let bytes = std::fs::read(&onnx).with_context(|| format!("reading {}", onnx.display()))?;
@@ -76,7 +83,7 @@ fn load_fixture(task: &LoadedTask, name: &str) -> anyhow::Result<(OnnxPolicy, Po
     let policy = OnnxPolicy::load(&bytes, &manifest, &task.spec(), 0)?;
     let info = PolicyInfo {
         sha256: eval::sha256_hex(&bytes),
-        obs_type: ObsType::State,
+        obs_type,
     };
     Ok((policy, info))
 }
@@ -103,7 +110,7 @@ fn eval_bench(protocol: ProtocolKind, max_live: usize) -> anyhow::Result<()> {
         ("batched", "aligning_mlp"),
         ("unbatched", "aligning_mlp_batch1"),
     ] {
-        let (policy, info) = load_fixture(&task, name)?;
+        let (policy, info) = load_fixture(&task, name, ObsType::State)?;
         let mut policy: Box<dyn Policy> = if label == "batched" {
             Box::new(policy)
         } else {
@@ -177,9 +184,10 @@ fn raw_step_rate(task: &LoadedTask, threads: usize) -> anyhow::Result<f64> {
 }
 
 /// Frames per second of both 96 x 96 policy cameras, and the ratio of
-/// rendering time to physics time in an image-based Aligning episode
-/// (one render of both cameras per env step, as the image variant does).
-fn render_bench(env_steps: usize) -> anyhow::Result<()> {
+/// rendering time to physics time in an image-based Aligning evaluation run
+/// by the engine (both cameras rendered every env step, as the image variant
+/// does; times summed over threads).
+fn render_bench(env_steps: usize, protocol: ProtocolKind, max_live: usize) -> anyhow::Result<()> {
     let task = LoadedTask::load_obs(TaskId::Aligning, ObsType::Image)?;
     let set = task.def.context_set()?;
     let cams = camera::camera_ids(&task.model)?;
@@ -207,37 +215,33 @@ fn render_bench(env_steps: usize) -> anyhow::Result<()> {
         1000.0 / fps
     );
 
-    // An image episode on one thread: physics (env step without cameras)
-    // and the per-step capture timed separately, on the same states.
-    let state_task = LoadedTask::load(TaskId::Aligning)?;
-    let mut env = state_task.env()?;
-    let (mut physics, mut render, mut steps, mut ctx) = (0.0, 0.0, 0, 0);
-    env.reset(&set.get(0).cloned().unwrap_or(Value::Null))?;
-    while steps < env_steps {
-        let a = [
-            0.002 * ((steps as f32) / 20.0).sin(),
-            0.002 * ((steps as f32) / 30.0).cos(),
-            0.0,
-        ];
-        let t = Instant::now();
-        buf.clear();
-        camera::capture(&mut env.sim.data, &cams, &mut buf)?;
-        render += t.elapsed().as_secs_f64();
-        let t = Instant::now();
-        let out = env.step(&a)?;
-        physics += t.elapsed().as_secs_f64();
-        steps += 1;
-        if out.done {
-            ctx += 1;
-            env.reset(&set.get(ctx % set.len()).cloned().unwrap_or(Value::Null))?;
-        }
-    }
+    // An image-based Aligning evaluation through the engine (lockstep,
+    // rendering inside each rollout's step on all threads), with the small
+    // image ONNX fixture so that the policy does not dominate.
+    let threads = rayon::current_num_threads();
+    let (mut policy, info) = load_fixture(&task, "aligning_image", ObsType::Image)?;
+    let opts = EvalOptions {
+        protocol,
+        seed: 0,
+        max_live,
+        ..EvalOptions::default()
+    };
+    let (r, t) = eval::evaluate(&task, &mut policy, &info, &opts, &mut |_, _| {})?;
+    let steps: usize = r.rollouts.iter().map(|x| x.steps).sum();
+    let physics = t.step_cpu_s - t.render_cpu_s;
     println!(
-        "image episode: {steps} env steps, physics {:.2} ms/step, rendering {:.2} ms/step (2 frames)",
+        "image evaluation ({protocol:?} protocol, {threads} threads): {} rollouts, {steps} env steps in {:.1} s; \
+         per env step {:.2} ms physics, {:.2} ms rendering (2 frames), policy {:.2} s",
+        r.rollouts.len(),
+        t.total_s,
         1000.0 * physics / steps as f64,
-        1000.0 * render / steps as f64
+        1000.0 * t.render_cpu_s / steps as f64,
+        t.policy_s,
     );
-    println!("ratio rendering/physics time: {:.3}", render / physics);
+    println!(
+        "ratio rendering/physics time: {:.3}",
+        t.render_cpu_s / physics
+    );
     Ok(())
 }
 

@@ -244,6 +244,8 @@ pub struct Env {
     /// Image variants: the two policy cameras and the last image observation.
     cameras: Option<[usize; 2]>,
     last_images: Vec<f32>,
+    /// Seconds this env spent rendering its cameras (benchmarks read it).
+    render_seconds: f64,
 }
 
 impl Env {
@@ -257,6 +259,7 @@ impl Env {
             max_steps: task.spec().max_steps,
             cameras,
             last_images: Vec::new(),
+            render_seconds: 0.0,
             sim,
             logic: task.def.new_logic(&task.model)?,
             def: task.def.clone(),
@@ -281,9 +284,16 @@ impl Env {
         self.last_obs = self.logic.observe(&self.sim);
         if let Some(cams) = self.cameras {
             self.last_images.clear();
+            let t = std::time::Instant::now();
             crate::camera::capture(&mut self.sim.data, &cams, &mut self.last_images)?;
+            self.render_seconds += t.elapsed().as_secs_f64();
         }
         Ok(self.last_obs.clone())
+    }
+
+    /// Total seconds spent rendering the policy cameras since this env was made.
+    pub fn render_seconds(&self) -> f64 {
+        self.render_seconds
     }
 
     /// The policy input: concat(previous command, last observation), float32.
@@ -363,7 +373,9 @@ impl Env {
         let obs = self.logic.observe(&self.sim);
         let mut images = Vec::new();
         if let Some(cams) = self.cameras {
+            let t = std::time::Instant::now();
             crate::camera::capture(&mut self.sim.data, &cams, &mut images)?;
+            self.render_seconds += t.elapsed().as_secs_f64();
         }
         let early = self.logic.pre_physics_done(&self.sim);
         let done = early || self.step_counter + 1 >= self.max_steps;
