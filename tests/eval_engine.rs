@@ -304,3 +304,106 @@ fn scripted_avoiding_aligning_and_pushing_run_through_the_engine_with_their_labe
         r.rollouts
     );
 }
+
+/// Wraps a policy and records every query: (rollout id, step, its k-window).
+struct Recording<P> {
+    inner: P,
+    seen: Vec<(u64, u64, Vec<f32>)>,
+}
+
+impl<P: d3il_policy::Policy> d3il_policy::Policy for Recording<P> {
+    fn shape(&self) -> d3il_policy::PolicyShape {
+        self.inner.shape()
+    }
+    fn reset(&mut self, ids: &[u64]) -> Result<(), d3il_policy::PolicyError> {
+        self.inner.reset(ids)
+    }
+    fn infer(
+        &mut self,
+        q: &d3il_policy::Query<'_>,
+    ) -> Result<d3il_policy::ActionChunks, d3il_policy::PolicyError> {
+        let w = q.obs.len() / q.batch();
+        for (i, (&id, &step)) in q.rollout_ids.iter().zip(q.steps).enumerate() {
+            self.seen
+                .push((id, step, q.obs[i * w..(i + 1) * w].to_vec()));
+        }
+        self.inner.infer(q)
+    }
+}
+
+fn run_recorded(job: &Job) -> (d3il_protocol::EvalResult, Vec<(u64, u64, Vec<f32>)>) {
+    let task = LoadedTask::load(job.task).unwrap();
+    let (policy, info) = load_policy(job, &task).unwrap();
+    let mut rec = Recording {
+        inner: policy,
+        seen: vec![],
+    };
+    let opts = EvalOptions {
+        protocol: job.protocol,
+        seed: job.seed,
+        max_live: 5,
+        bootstrap_resamples: 100,
+    };
+    let r = evaluate(&task, &mut rec, &info, &opts, &mut |_, _| {})
+        .unwrap()
+        .0;
+    (r, rec.seen)
+}
+
+#[test]
+fn history_windows_pad_with_the_first_observation_and_end_with_the_newest() {
+    // avoiding_k5_h3 acts on the newest of its 5 observations exactly as
+    // avoiding_path acts on its one: same rollouts if the window is right.
+    let (r5, seen) = run_recorded(&onnx_job("avoiding_k5_h3", 0));
+    let r1 = run(&onnx_job("avoiding_path", 0));
+    assert_eq!(r5.rollouts, r1.rollouts);
+    let obs_dim = 4;
+    let frame = |w: &[f32], j: usize| w[j * obs_dim..(j + 1) * obs_dim].to_vec();
+    for rollout in 0..8u64 {
+        let windows: Vec<&Vec<f32>> = seen
+            .iter()
+            .filter(|(id, _, _)| *id == rollout)
+            .map(|(_, _, w)| w)
+            .collect();
+        assert!(
+            windows.len() > 6,
+            "rollout {rollout} queried every step (E = 1)"
+        );
+        let first = frame(windows[0], 4);
+        // Step 0: all five are the first observation.
+        for j in 0..5 {
+            assert_eq!(frame(windows[0], j), first);
+        }
+        // Step 2: three copies of the first, then steps 1 and 2, newest last.
+        for j in 0..3 {
+            assert_eq!(frame(windows[2], j), first, "rollout {rollout} frame {j}");
+        }
+        assert_eq!(frame(windows[2], 3), frame(windows[1], 4));
+        assert_ne!(frame(windows[2], 4), frame(windows[1], 4));
+        // Step 6: a full window of the last five.
+        for j in 0..5 {
+            assert_eq!(frame(windows[6], j), frame(windows[2 + j], 4));
+        }
+    }
+}
+
+#[test]
+fn a_rollout_is_queried_again_only_after_executing_e_actions() {
+    let mut job = onnx_job("avoiding_k5_h3", 0);
+    job.manifest.execute = 3;
+    let (r, seen) = run_recorded(&job);
+    let ids: std::collections::BTreeSet<u64> = seen.iter().map(|(id, _, _)| *id).collect();
+    assert_eq!(ids.len(), r.rollouts.len());
+    for rollout in 0..r.rollouts.len() as u64 {
+        let steps: Vec<u64> = seen
+            .iter()
+            .filter(|(id, _, _)| *id == rollout)
+            .map(|(_, s, _)| *s)
+            .collect();
+        let expected: Vec<u64> = (0..steps.len() as u64).map(|i| 3 * i).collect();
+        assert_eq!(steps, expected, "rollout {rollout}");
+        let n = r.rollouts[rollout as usize].steps as u64;
+        assert_eq!(steps.len() as u64, n.div_ceil(3), "rollout {rollout}");
+    }
+    assert_eq!(r.manifest.execute, 3);
+}

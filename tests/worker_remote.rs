@@ -173,6 +173,24 @@ fn a_disconnect_mid_episode_is_a_remote_error() {
 }
 
 #[test]
+fn a_connection_dropped_after_some_steps_is_a_remote_error() {
+    let r = run_against("drop-later");
+    let e = failure(&r);
+    assert_eq!(e.kind, ErrorKind::Remote, "{e:?}\n{}", r.stderr);
+    assert!(e.message.starts_with("the policy server "), "{}", e.message);
+    assert!(e.message.contains("during the infer"), "{}", e.message);
+}
+
+#[test]
+fn an_infinite_action_later_in_the_episode_names_its_rollout_and_step() {
+    expect(
+        "inf-later",
+        ErrorKind::BadAction,
+        "policy returned a non-finite action (inf) for rollout 3 at step 5 (action 0 of the chunk, component 1); actions must be finite numbers",
+    );
+}
+
+#[test]
 fn a_wrong_batch_size_is_a_bad_action() {
     // The reply decodes fine, so it is the policy's output that is wrong (as
     // for an ONNX policy), not the protocol.

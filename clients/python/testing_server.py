@@ -23,6 +23,10 @@ stage named by the mode) it:
   wrong-id      answers with a different request id
   noisy         returns actions drawn from a RNG seeded with the spec's seed
                 and the rollout ids/steps (determinism check)
+  inf-later     behaves, except that rollout 3 gets an infinite action from
+                step 5 on
+  drop-later    behaves for 10 infers, then drops the TCP connection without
+                a close handshake (a crash or network loss mid-episode)
 """
 
 import argparse
@@ -39,6 +43,7 @@ class MisbehavingServer(PolicyServer):
         super().__init__(self.policy, reset=self.on_reset, **kw)
         self.mode = mode
         self.resets = []
+        self.infers = 0
 
     def on_reset(self, ids):
         self.resets.append(ids.tolist())
@@ -57,6 +62,10 @@ class MisbehavingServer(PolicyServer):
                 out[i] = rng.standard_normal(out[i].shape)
             return out
         a = avoiding_policy(obs, req)
+        if self.mode == "inf-later":
+            for i, (r, s) in enumerate(zip(req.rollout_ids, req.steps)):
+                if int(r) == 3 and int(s) >= 5:
+                    a[i, 1] = np.inf
         # A chunk of H copies of the action.
         return np.repeat(a[:, None, :], self.horizon, axis=1)
 
@@ -79,6 +88,10 @@ class MisbehavingServer(PolicyServer):
     async def reply(self, ws, request_type, reply):
         if request_type == "infer":
             m = self.mode
+            self.infers += 1
+            if m == "drop-later" and self.infers > 10:
+                ws.transport.abort()
+                return
             if m == "hang":
                 await asyncio.sleep(3600)
             if m == "slow-drip":
