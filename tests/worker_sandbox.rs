@@ -196,3 +196,47 @@ fn exit_codes_are_the_documented_ones() {
     assert!(files.is_empty(), "files left behind: {files:?}");
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// The sandbox limits are knobs: `d3il eval --sandbox --memory-mb N` runs the
+/// worker under N MiB, and a worker that runs out names that limit.
+#[test]
+fn the_memory_limit_flag_reaches_the_worker_and_names_itself() {
+    let fixtures = concat!(env!("CARGO_MANIFEST_DIR"), "/assets/fixtures");
+    let eval = |extra: &[&str]| {
+        let out = Command::new(env!("CARGO_BIN_EXE_d3il"))
+            .args([
+                "eval",
+                "--task",
+                "avoiding",
+                "--protocol",
+                "quick",
+                "--sandbox",
+            ])
+            .arg("--policy")
+            .arg(format!("{fixtures}/avoiding_path.onnx"))
+            .args(extra)
+            .env("RUST_BACKTRACE", "0")
+            .output()
+            .unwrap();
+        (
+            out.status.success(),
+            String::from_utf8_lossy(&out.stderr).into_owned(),
+        )
+    };
+    let (ok, stderr) = eval(&["--memory-mb", "100"]);
+    assert!(!ok);
+    assert!(
+        stderr.contains("sandbox: rlimits active (address space 100 MiB"),
+        "{stderr}"
+    );
+    assert!(
+        stderr.contains("MemoryLimit: exceeded the 100 MiB memory limit while"),
+        "{stderr}"
+    );
+    let (ok, stderr) = eval(&["--memory-mb", "0"]);
+    assert!(!ok);
+    assert!(
+        stderr.contains("--memory-mb must be at least 1 (got 0)"),
+        "{stderr}"
+    );
+}

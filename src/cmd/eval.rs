@@ -4,7 +4,7 @@
 use anyhow::{bail, Context};
 use d3il_evaluator::eval::{self, EvalOptions, PolicyInfo};
 use d3il_evaluator::tasks::LoadedTask;
-use d3il_protocol::{Job, Limits, ObsType, PolicyManifest, PolicySource, ProtocolKind, TaskId};
+use d3il_protocol::{Job, ObsType, PolicyManifest, PolicySource, ProtocolKind, TaskId};
 use std::io::Write;
 use std::path::PathBuf;
 use std::time::Instant;
@@ -40,9 +40,10 @@ pub struct Args {
     /// policy's manifest says it itself.
     #[arg(long, default_value = "state")]
     pub obs_type: ObsType,
-    /// Allow remote endpoints on loopback/private addresses.
-    #[arg(long)]
-    pub allow_private_endpoints: bool,
+    /// Limits of the sandboxed worker (--sandbox); the remote deadline, frame
+    /// cap and private-address rule apply without --sandbox too.
+    #[command(flatten)]
+    pub limits: super::limits::LimitArgs,
 }
 
 fn progress_bar(done: usize, total: usize, started: Instant) {
@@ -134,10 +135,7 @@ pub fn build_job(args: &Args) -> anyhow::Result<Job> {
         policy,
         manifest,
         seed: args.seed,
-        limits: Limits {
-            allow_private_endpoints: args.allow_private_endpoints,
-            ..Limits::default()
-        },
+        limits: args.limits.limits()?,
         assets_dir: crate::cmd::assets_dir().to_string_lossy().into_owned(),
     })
 }

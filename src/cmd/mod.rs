@@ -1,6 +1,7 @@
 pub mod bench;
 pub mod contexts;
 pub mod eval;
+pub mod limits;
 pub mod render;
 pub mod replay;
 pub mod serve;

@@ -28,12 +28,8 @@ pub struct Args {
     /// Attempts per evaluation before a crashing job fails.
     #[arg(long, default_value_t = 3)]
     pub max_attempts: i64,
-    /// Wall-clock limit of one evaluation, seconds.
-    #[arg(long, default_value_t = 3600)]
-    pub wall_seconds: u64,
-    /// Accept remote endpoints on loopback/private addresses (tests, trusted set-ups).
-    #[arg(long)]
-    pub allow_private_endpoints: bool,
+    #[command(flatten)]
+    pub limits: super::limits::LimitArgs,
     /// Worker executable (default: this binary, run as `d3il worker`).
     #[arg(long, hide = true)]
     pub worker_exe: Option<PathBuf>,
@@ -63,9 +59,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     cfg.rate_limit_per_minute = args.rate_limit.max(1);
     anyhow::ensure!(args.max_attempts >= 1, "--max-attempts must be at least 1");
     cfg.max_attempts = args.max_attempts;
-    cfg.limits.wall_seconds = args.wall_seconds;
-    cfg.worker.wall_clock = std::time::Duration::from_secs(args.wall_seconds + 30);
-    cfg.limits.allow_private_endpoints = args.allow_private_endpoints;
+    cfg.limits = args.limits.limits()?;
+    cfg.worker.wall_clock = std::time::Duration::from_secs(cfg.limits.wall_seconds + 30);
     d3il_server::cli::serve_blocking(cfg).context("d3il serve failed")?;
     Ok(())
 }

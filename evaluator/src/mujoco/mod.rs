@@ -93,6 +93,11 @@ unsafe extern "C-unwind" fn on_error(msg: *const std::os::raw::c_char) {
     } else {
         CStr::from_ptr(msg).to_string_lossy().into_owned()
     };
+    // Said on stderr first: if the unwind itself cannot start (an allocation
+    // failure under the worker's address-space limit leaves no memory for
+    // it), the process aborts, and the sandbox parent reads this line to name
+    // the memory limit instead of reporting a bare SIGABRT.
+    eprintln!("MuJoCo error: {text}");
     // Unwind back to the Rust frame that called into MuJoCo (see `guarded`).
     std::panic::panic_any(MujocoPanic(text));
 }
