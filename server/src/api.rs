@@ -267,6 +267,29 @@ pub async fn results_json(
 #[derive(Debug, Deserialize, Default)]
 pub struct BoardQuery {
     pub obs: Option<String>,
+    /// `main` (default: full training data) or `data-fraction` (the paper's
+    /// data-size rows and evaluated rows at every fraction).
+    pub view: Option<String>,
+}
+
+/// The rows of one leaderboard view (`?view=`), as the pages show them.
+pub fn view_rows(
+    rows: &[BoardRow],
+    task: TaskId,
+    obs: ObsType,
+    q: &BoardQuery,
+) -> Result<(&'static str, Vec<BoardRow>), AppError> {
+    match q.view.as_deref() {
+        None | Some("") | Some("main") => Ok(("main", board_for(rows, task, obs))),
+        Some("data-fraction") => Ok((
+            "data-fraction",
+            crate::pages::fraction_rows(rows, task, obs),
+        )),
+        Some(other) => Err(AppError::invalid(
+            "view",
+            format!("unknown view `{other}`; use `main` or `data-fraction`"),
+        )),
+    }
 }
 
 pub fn parse_task(s: &str) -> Result<TaskId, AppError> {
@@ -325,11 +348,12 @@ async fn get_leaderboard(
 ) -> Result<Json<Value>, AppError> {
     let task = parse_task(&task)?;
     let obs = parse_obs_query(&q)?;
-    let rows = board_for(&state.store.board_rows().await?, task, obs);
+    let (view, rows) = view_rows(&state.store.board_rows().await?, task, obs, &q)?;
     Ok(Json(json!({
         "task": task.slug(),
         "title": task.title(),
         "obs_type": obs.as_str(),
+        "view": view,
         "rows": rows,
     })))
 }
@@ -341,9 +365,14 @@ async fn get_leaderboard_csv(
 ) -> Result<Response, AppError> {
     let task = parse_task(&task)?;
     let obs = parse_obs_query(&q)?;
-    let rows = board_for(&state.store.board_rows().await?, task, obs);
+    let (view, rows) = view_rows(&state.store.board_rows().await?, task, obs, &q)?;
+    let suffix = if view == "main" {
+        String::new()
+    } else {
+        format!("-{view}")
+    };
     Ok(csv_response(
-        &format!("d3il-{}-{}.csv", task.slug(), obs),
+        &format!("d3il-{}-{}{suffix}.csv", task.slug(), obs),
         &board_csv(&rows),
     ))
 }
@@ -437,6 +466,9 @@ pub fn openapi_document() -> Value {
         |d: &str| json!({"description": d, "content": {"application/json": {"schema": error}}});
     let obs_param = json!({"name": "obs", "in": "query", "required": false,
         "schema": {"type": "string", "enum": ["state", "image"], "default": "state"}});
+    let view_param = json!({"name": "view", "in": "query", "required": false,
+        "description": "main: full training data; data-fraction: rows at every training-data fraction",
+        "schema": {"type": "string", "enum": ["main", "data-fraction"], "default": "main"}});
     let task_param = json!({"name": "task", "in": "path", "required": true,
         "schema": {"type": "string", "enum": TaskId::ALL.iter().map(|t| t.slug()).collect::<Vec<_>>()}});
     let id_param =
@@ -501,9 +533,9 @@ pub fn openapi_document() -> Value {
                 "parameters": [id_param], "responses": {"200": {"description": "Results"}, "404": err_resp("No such submission or no result yet")}}},
             "/leaderboards": {"get": {"summary": "List the leaderboards", "responses": {"200": {"description": "Leaderboards with links"}}}},
             "/leaderboards/{task}": {"get": {"summary": "Rows of one leaderboard (reported and evaluated)",
-                "parameters": [task_param, obs_param], "responses": {"200": {"description": "Rows"}, "404": err_resp("Unknown task")}}},
+                "parameters": [task_param, obs_param, view_param], "responses": {"200": {"description": "Rows"}, "404": err_resp("Unknown task")}}},
             "/leaderboards/{task}/csv": {"get": {"summary": "CSV export of one leaderboard",
-                "parameters": [task_param, obs_param], "responses": {"200": {"description": "CSV", "content": {"text/csv": {}}}, "404": err_resp("Unknown task")}}},
+                "parameters": [task_param, obs_param, view_param], "responses": {"200": {"description": "CSV", "content": {"text/csv": {}}}, "404": err_resp("Unknown task")}}},
             "/methods": {"get": {"summary": "Methods and their properties", "responses": {"200": {"description": "Methods"}}}},
             "/whoami": {"get": {"summary": "Check a token", "security": [{"bearer": []}], "responses": {"200": {"description": "The token's submitter"}, "401": err_resp("Missing or wrong token")}}}
         }

@@ -350,7 +350,10 @@ fn obs_tabs(task: TaskId, obs: ObsType, base: &str) -> Vec<Tab> {
 }
 
 fn obs_of(q: &Option<String>) -> Result<ObsType, AppError> {
-    api::parse_obs_query(&BoardQuery { obs: q.clone() })
+    api::parse_obs_query(&BoardQuery {
+        obs: q.clone(),
+        view: None,
+    })
 }
 
 /// Splits rows by paper task title, keeping first-seen order (Stacking has
@@ -556,6 +559,7 @@ struct FractionPage {
     fractions: Vec<String>,
     rows: Vec<FractionRow>,
     svg: String,
+    csv_url: String,
 }
 
 async fn data_fraction(
@@ -624,6 +628,10 @@ async fn data_fraction(
         fractions: fracs.iter().map(|f| format!("{f}")).collect(),
         rows: table,
         svg,
+        csv_url: format!(
+            "/api/v1/leaderboards/{}/csv?obs={obs}&view=data-fraction",
+            task.slug()
+        ),
     })
 }
 

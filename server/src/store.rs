@@ -787,7 +787,11 @@ impl Store {
         if tokio::fs::try_exists(&path).await.unwrap_or(false) {
             return Ok((sha, path));
         }
-        let tmp = dir.join(format!("{sha}.onnx.tmp{}", std::process::id()));
+        // One temporary name per write: concurrent uploads of the same file
+        // in this process must not rename each other's temporary away.
+        static WRITES: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
+        let n = WRITES.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        let tmp = dir.join(format!("{sha}.onnx.tmp{}-{n}", std::process::id()));
         let data = bytes.to_vec();
         let (tmp2, path2) = (tmp.clone(), path.clone());
         tokio::task::spawn_blocking(move || -> std::io::Result<()> {

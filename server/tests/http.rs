@@ -332,6 +332,32 @@ async fn paper_rows_are_on_the_pages_csv_and_api() {
     let (s, page) = app.get_text("/tasks/aligning/data-fraction").await;
     assert_eq!(s, 200);
     assert!(page.contains("0.25"));
+    // The data-fraction view has its own CSV (and JSON) export.
+    assert!(
+        page.contains("/api/v1/leaderboards/aligning/csv?obs=state&#38;view=data-fraction"),
+        "{page}"
+    );
+    let (s, csv) = app
+        .get_text("/api/v1/leaderboards/aligning/csv?obs=state&view=data-fraction")
+        .await;
+    assert_eq!(s, 200);
+    let fractions: std::collections::BTreeSet<&str> = csv
+        .lines()
+        .skip(1)
+        .map(|l| l.split(',').nth(5).unwrap())
+        .collect();
+    assert!(fractions.len() > 1, "several fractions: {fractions:?}");
+    assert!(fractions.contains("0.25"), "{fractions:?}");
+    let (s, v) = app
+        .get_json("/api/v1/leaderboards/aligning?view=data-fraction")
+        .await;
+    assert_eq!(s, 200);
+    assert_eq!(v["view"], "data-fraction");
+    assert_eq!(v["rows"].as_array().unwrap().len(), csv.lines().count() - 1);
+    let (s, v) = app
+        .get_json("/api/v1/leaderboards/aligning?view=ablation")
+        .await;
+    assert_eq!((s, err(&v)), (400, ("invalid_field", Some("view"))));
     let (s, svg) = app
         .get_text("/plots/tasks/aligning/data-fraction.svg")
         .await;
