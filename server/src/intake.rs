@@ -525,6 +525,14 @@ pub async fn accept(
     who: &Submitter,
 ) -> Result<i64, AppError> {
     let store = &state.store;
+    let seed_key = |method_id| SeedKey {
+        method_id,
+        task: v.task,
+        obs_type: v.obs_type,
+        data_fraction: v.data_fraction,
+        protocol: v.protocol,
+        training_seed: v.training_seed,
+    };
     if let Some(existing) = store.method_by_name(&v.method.name).await? {
         if existing.submitter_id.is_some() && existing.submitter_id != Some(who.id) {
             return Err(AppError::Conflict {
@@ -535,22 +543,18 @@ pub async fn accept(
                 ),
             });
         }
+        // A duplicate seed is refused before an endpoint's dry-run (which can
+        // take minutes) or an ONNX write; create_submission checks again
+        // under the write lock. A new method cannot hold the seed yet.
+        store.check_seed_free(&seed_key(existing.id)).await?;
     }
-    let method = store.ensure_method(&v.method, Some(who.id)).await?;
-    let key = SeedKey {
-        method_id: method.id,
-        task: v.task,
-        obs_type: v.obs_type,
-        data_fraction: v.data_fraction,
-        protocol: v.protocol,
-        training_seed: v.training_seed,
-    };
-    // A duplicate seed is refused before an endpoint's dry-run (up to minutes)
-    // or an ONNX write; create_submission checks again under the write lock.
-    store.check_seed_free(&key).await?;
     if let ValidPolicy::Remote(url) = &v.policy {
         endpoint_dry_run(state.runner.clone(), state, &v, url).await?;
     }
+    // Only an accepted submission creates its method (a refused dry-run
+    // leaves nothing behind).
+    let method = store.ensure_method(&v.method, Some(who.id)).await?;
+    let key = seed_key(method.id);
     let policy = match &v.policy {
         ValidPolicy::Onnx(bytes) => {
             let (sha256, path) = store.store_onnx(bytes).await?;
