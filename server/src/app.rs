@@ -60,11 +60,22 @@ impl ServerConfig {
     }
 }
 
-/// `$D3IL_ASSETS`, else the repository's `assets/` as seen at compile time.
+/// `$D3IL_ASSETS`; else the repository's `assets/` as seen at compile time if
+/// it is still there; else `assets/` next to the executable (a copied or
+/// installed binary shipped with its assets); else `./assets`.
 pub fn default_assets_dir() -> PathBuf {
-    std::env::var_os("D3IL_ASSETS")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../assets")))
+    if let Some(dir) = std::env::var_os("D3IL_ASSETS") {
+        return PathBuf::from(dir);
+    }
+    let built = PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../assets"));
+    if built.is_dir() {
+        return built;
+    }
+    std::env::current_exe()
+        .ok()
+        .and_then(|exe| exe.parent().map(|d| d.join("assets")))
+        .filter(|d| d.is_dir())
+        .unwrap_or_else(|| PathBuf::from("assets"))
 }
 
 #[derive(Clone)]

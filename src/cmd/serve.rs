@@ -16,7 +16,7 @@ pub struct Args {
     /// Concurrent evaluations (sandboxed worker processes); default: number of cores.
     #[arg(long)]
     pub workers: Option<usize>,
-    /// Project assets (MJCF, initial-state sets, CSS); default: $D3IL_ASSETS or the repository's assets/.
+    /// Project assets (MJCF, initial-state sets, CSS); default: $D3IL_ASSETS, the repository's assets/ (as built), assets/ next to the binary, or ./assets.
     #[arg(long)]
     pub assets: Option<PathBuf>,
     /// Largest accepted upload, MiB.
