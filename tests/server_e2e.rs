@@ -36,6 +36,8 @@ fn onnx_submission_is_evaluated_and_published() {
             "quick",
             "--backbone",
             "MLP",
+            "--description",
+            "Follows one path <between> the obstacles",
             "--wait",
             "--timeout",
             "900",
@@ -92,6 +94,13 @@ fn onnx_submission_is_evaluated_and_published() {
     assert!(
         line.contains(&format!("{success:.4}")),
         "{line} vs {success}"
+    );
+    // The method page shows the description given to `d3il submit`, escaped.
+    let (s, page) = server.get_text("/methods/E2E-Path");
+    assert_eq!(s, 200);
+    assert!(
+        page.contains("Follows one path &#60;between&#62; the obstacles"),
+        "{page}"
     );
     // The submission page shows results and the Avoiding path figure.
     let (s, page) = server.get_text(&format!("/submissions/{id}"));

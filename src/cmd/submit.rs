@@ -49,6 +49,9 @@ pub struct Args {
     pub code_url: Option<String>,
     #[arg(long)]
     pub paper_url: Option<String>,
+    /// One-paragraph description of the method (shown on its page).
+    #[arg(long)]
+    pub description: Option<String>,
     /// Wait for the evaluation and print the result.
     #[arg(long)]
     pub wait: bool,
@@ -80,6 +83,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         ("diversity", a.diversity.clone()),
         ("code_url", a.code_url.clone()),
         ("paper_url", a.paper_url.clone()),
+        ("description", a.description.clone()),
         ("endpoint_url", a.endpoint.clone()),
     ] {
         if let Some(v) = v {
