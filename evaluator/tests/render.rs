@@ -160,3 +160,12 @@ fn tasks_without_an_image_variant_are_refused() {
         "{err}"
     );
 }
+
+/// Shadows are never drawn, so the context allocates no shadow map: the
+/// spec's shadowsize 8192 would hold 256 MiB per thread's GL context.
+#[test]
+fn the_render_context_holds_no_shadow_map() {
+    let t = LoadedTask::load_obs(TaskId::Aligning, ObsType::Image).unwrap();
+    let r = d3il_evaluator::mujoco::Renderer::new(t.model.clone(), SIZE, SIZE).unwrap();
+    assert_eq!(r.shadow_map_size(), 0);
+}

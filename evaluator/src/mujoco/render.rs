@@ -297,6 +297,9 @@ impl Renderer {
                     })?;
             (*own.as_ptr()).vis.global.offwidth = width as i32;
             (*own.as_ptr()).vis.global.offheight = height as i32;
+            // Shadows are off (below), so the spec's 8192² shadow map would only
+            // hold ~256 MiB of memory per GL context; same pixels without it.
+            (*own.as_ptr()).vis.quality.shadowsize = 0;
             let mut r = Renderer {
                 model,
                 own,
@@ -343,6 +346,12 @@ impl Renderer {
 
     pub fn width(&self) -> usize {
         self.width
+    }
+
+    /// Side of the shadow map the GL context allocated (0: none, as shadows
+    /// are never drawn).
+    pub fn shadow_map_size(&self) -> usize {
+        self.con.shadowSize.max(0) as usize
     }
 
     pub fn height(&self) -> usize {
