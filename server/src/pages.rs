@@ -16,7 +16,7 @@ use axum::routing::get;
 use axum::Router;
 use d3il_protocol::{ObsType, Source, TaskId};
 use serde::Deserialize;
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, HashMap};
 
 pub fn router(max_upload: usize) -> Router<AppState> {
     Router::new()
@@ -1008,6 +1008,25 @@ struct SubmitPage {
     max_upload_mb: usize,
     error: Option<String>,
     error_field: Option<String>,
+    /// After an error: the text fields as sent (never the token), so the
+    /// form comes back filled in.
+    values: HashMap<String, String>,
+}
+
+impl SubmitPage {
+    /// The value to put back into field `name` ("" when none was sent).
+    fn value(&self, name: &str) -> &str {
+        self.values.get(name).map(String::as_str).unwrap_or("")
+    }
+
+    /// Whether option `option` of select `name` was the one sent (or, when
+    /// nothing was sent, is the default).
+    fn selected(&self, name: &str, option: &str, default: &str) -> bool {
+        match self.values.get(name) {
+            Some(v) => v == option,
+            None => option == default,
+        }
+    }
 }
 
 async fn submit_form(State(state): State<AppState>) -> Result<Html<String>, PageError> {
@@ -1016,6 +1035,7 @@ async fn submit_form(State(state): State<AppState>) -> Result<Html<String>, Page
         max_upload_mb: state.cfg.max_upload_bytes >> 20,
         error: None,
         error_field: None,
+        values: HashMap::new(),
     })
 }
 
@@ -1027,6 +1047,7 @@ async fn submit_post(
     headers: HeaderMap,
     mp: Result<Multipart, axum::extract::multipart::MultipartRejection>,
 ) -> Response {
+    let mut kept: HashMap<String, String> = HashMap::new();
     let result: Result<i64, AppError> = async {
         let max = state.cfg.max_upload_bytes;
         intake::check_declared_length(&headers, max)?;
@@ -1036,6 +1057,8 @@ async fn submit_post(
         })?;
         // The token is checked before any file part is read.
         let (raw, who) = intake::read_form_authenticated(mp, max, &state).await?;
+        kept = raw.text.clone();
+        kept.remove("token");
         let valid = intake::validate(&raw, &state.cfg.limits)?;
         intake::accept(&state, valid, &who).await
     }
@@ -1047,8 +1070,13 @@ async fn submit_post(
             let page = SubmitPage {
                 tasks: TaskId::ALL.iter().map(|t| (t.slug(), t.title())).collect(),
                 max_upload_mb: state.cfg.max_upload_bytes >> 20,
-                error: Some(e.to_string()),
+                error: Some(if kept.is_empty() {
+                    e.to_string()
+                } else {
+                    format!("{e} (your fields are kept below; choose the ONNX file again)")
+                }),
                 error_field: e.field().map(str::to_string),
+                values: kept,
             };
             match page.render() {
                 Ok(html) => {

@@ -464,6 +464,20 @@ async fn html_form_submits_and_reports_field_errors() {
     assert_eq!(r.status(), 400);
     let page = r.text().await.unwrap();
     assert!(page.contains("<strong>training_seed</strong>"), "{page}");
+    // The form comes back filled in with what was sent (escaped), except the
+    // token and the file.
+    assert!(page.contains("choose the ONNX file again"), "{page}");
+    assert!(page.contains(r#"name="method" required maxlength="64" placeholder="MyDiffusionPolicy" value="FormPolicy""#), "{page}");
+    assert!(
+        page.contains(r#"<option value="pushing" selected>"#),
+        "{page}"
+    );
+    assert!(page.contains(r#"value="minus one""#), "{page}");
+    assert!(
+        page.contains("&#34;task&#34;: &#34;pushing&#34;"),
+        "manifest kept, escaped: {page}"
+    );
+    assert!(!page.contains(&app.token), "the token is never echoed");
 }
 
 #[tokio::test]

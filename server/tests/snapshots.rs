@@ -51,6 +51,14 @@ async fn method_page() {
 }
 
 #[tokio::test]
+async fn submit_page() {
+    let app = spawn_app().await;
+    let (s, page) = app.get_text("/submit").await;
+    assert_eq!(s, 200);
+    insta::assert_snapshot!(page);
+}
+
+#[tokio::test]
 async fn data_fraction_page() {
     let app = spawn_app().await;
     let (s, page) = app.get_text("/tasks/aligning/data-fraction").await;
