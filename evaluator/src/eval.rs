@@ -124,9 +124,8 @@ struct Slot {
     images: Option<HistoryBuffer>,
     queue: VecDeque<Vec<f32>>,
     path: Vec<[f32; 2]>,
-    /// Seconds spent in [`step_slot`], and rendering within it (benchmarks).
+    /// Seconds spent in [`step_slot`] (benchmarks).
     step_cpu_s: f64,
-    render_cpu_s: f64,
 }
 
 /// Runs `policy` on `task` under the protocol and computes the D3IL metrics.
@@ -169,7 +168,6 @@ pub fn evaluate(
             queue: VecDeque::new(),
             path: Vec::new(),
             step_cpu_s: 0.0,
-            render_cpu_s: 0.0,
         });
     }
     let mut next = 0usize;
@@ -257,10 +255,9 @@ pub fn evaluate(
             .par_iter_mut()
             .filter(|s| s.rollout.is_some())
             .map(|s| {
-                let (started, rendered) = (Instant::now(), s.env.render_seconds());
+                let started = Instant::now();
                 let r = step_slot(s, record_paths);
                 s.step_cpu_s += started.elapsed().as_secs_f64();
-                s.render_cpu_s += s.env.render_seconds() - rendered;
                 r
             })
             .collect();
@@ -346,7 +343,7 @@ pub fn evaluate(
     };
     timing.total_s = t0.elapsed().as_secs_f64();
     timing.step_cpu_s = slots.iter().map(|s| s.step_cpu_s).sum();
-    timing.render_cpu_s = slots.iter().map(|s| s.render_cpu_s).sum();
+    timing.render_cpu_s = slots.iter().map(|s| s.env.render_seconds()).sum();
     Ok((
         EvalResult {
             manifest,
@@ -358,7 +355,6 @@ pub fn evaluate(
     ))
 }
 
-/// Appends the slot's current image observation to its image history.
 /// One env step of a live slot: the next queued action, then the new
 /// observation into the history. Returns whether the rollout is done.
 fn step_slot(s: &mut Slot, record_paths: bool) -> Result<bool, EvalError> {
@@ -380,6 +376,7 @@ fn step_slot(s: &mut Slot, record_paths: bool) -> Result<bool, EvalError> {
     Ok(out.done)
 }
 
+/// Appends the slot's current image observation to its image history.
 fn push_images(slot: &mut Slot) -> Result<(), EvalError> {
     if let (Some(h), Some(im)) = (slot.images.as_mut(), slot.env.policy_images()) {
         h.push(im)?;

@@ -525,14 +525,6 @@ pub async fn accept(
     who: &Submitter,
 ) -> Result<i64, AppError> {
     let store = &state.store;
-    let seed_key = |method_id| SeedKey {
-        method_id,
-        task: v.task,
-        obs_type: v.obs_type,
-        data_fraction: v.data_fraction,
-        protocol: v.protocol,
-        training_seed: v.training_seed,
-    };
     if let Some(existing) = store.method_by_name(&v.method.name).await? {
         if existing.submitter_id.is_some() && existing.submitter_id != Some(who.id) {
             return Err(AppError::Conflict {
@@ -546,7 +538,16 @@ pub async fn accept(
         // A duplicate seed is refused before an endpoint's dry-run (which can
         // take minutes) or an ONNX write; create_submission checks again
         // under the write lock. A new method cannot hold the seed yet.
-        store.check_seed_free(&seed_key(existing.id)).await?;
+        store
+            .check_seed_free(&SeedKey {
+                method_id: existing.id,
+                task: v.task,
+                obs_type: v.obs_type,
+                data_fraction: v.data_fraction,
+                protocol: v.protocol,
+                training_seed: v.training_seed,
+            })
+            .await?;
     }
     if let ValidPolicy::Remote(url) = &v.policy {
         endpoint_dry_run(state.runner.clone(), state, &v, url).await?;
@@ -554,7 +555,6 @@ pub async fn accept(
     // Only an accepted submission creates its method (a refused dry-run
     // leaves nothing behind).
     let method = store.ensure_method(&v.method, Some(who.id)).await?;
-    let key = seed_key(method.id);
     let policy = match &v.policy {
         ValidPolicy::Onnx(bytes) => {
             let (sha256, path) = store.store_onnx(bytes).await?;
@@ -571,13 +571,13 @@ pub async fn accept(
     let id = store
         .create_submission(
             &NewSubmission {
-                method_id: key.method_id,
+                method_id: method.id,
                 submitter_id: Some(who.id),
-                task: key.task,
-                obs_type: key.obs_type,
-                training_seed: key.training_seed,
-                data_fraction: key.data_fraction,
-                protocol: key.protocol,
+                task: v.task,
+                obs_type: v.obs_type,
+                training_seed: v.training_seed,
+                data_fraction: v.data_fraction,
+                protocol: v.protocol,
                 policy,
                 manifest_json,
             },

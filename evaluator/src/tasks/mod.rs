@@ -244,7 +244,8 @@ pub struct Env {
     /// Image variants: the two policy cameras and the last image observation.
     cameras: Option<[usize; 2]>,
     last_images: Vec<f32>,
-    /// Seconds this env spent rendering its cameras (benchmarks read it).
+    /// Seconds this env spent rendering its cameras in `step` (benchmarks
+    /// compare it with the step's physics; reset renders are not counted).
     render_seconds: f64,
 }
 
@@ -284,14 +285,13 @@ impl Env {
         self.last_obs = self.logic.observe(&self.sim);
         if let Some(cams) = self.cameras {
             self.last_images.clear();
-            let t = std::time::Instant::now();
             crate::camera::capture(&mut self.sim.data, &cams, &mut self.last_images)?;
-            self.render_seconds += t.elapsed().as_secs_f64();
         }
         Ok(self.last_obs.clone())
     }
 
-    /// Total seconds spent rendering the policy cameras since this env was made.
+    /// Total seconds spent rendering the policy cameras in `step` since this
+    /// env was made.
     pub fn render_seconds(&self) -> f64 {
         self.render_seconds
     }
