@@ -297,8 +297,9 @@ impl Renderer {
                     })?;
             (*own.as_ptr()).vis.global.offwidth = width as i32;
             (*own.as_ptr()).vis.global.offheight = height as i32;
-            // Shadows are off (below), so the spec's 8192² shadow map would only
-            // hold ~256 MiB of memory per GL context; same pixels without it.
+            // Shadows are off (below), so the 8192² shadow map of spec/01 §1.2
+            // (visual/quality shadowsize) would only hold ~256 MiB of memory per
+            // GL context; same pixels without it (deviation noted in docs/images.md).
             (*own.as_ptr()).vis.quality.shadowsize = 0;
             let mut r = Renderer {
                 model,
