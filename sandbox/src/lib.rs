@@ -22,4 +22,6 @@ pub mod selftest;
 pub use child::{check_sandbox, worker_main, WorkerOptions};
 pub use confine::{confine, SandboxError};
 pub use endpoint::{validate_endpoint, EndpointError};
-pub use parent::{run_worker, Outcome, WorkerCommand, WorkerRun, DEFAULT_MAX_OUTPUT_BYTES};
+pub use parent::{
+    live_group_members, run_worker, Outcome, WorkerCommand, WorkerRun, DEFAULT_MAX_OUTPUT_BYTES,
+};

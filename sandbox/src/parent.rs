@@ -277,8 +277,11 @@ pub fn run_worker(
     }
     // Anything else in the group (there should be nothing: seccomp forbids
     // process creation) goes now, before the leader is reaped so its pid, which
-    // names the group, cannot have been reused.
+    // names the group, cannot have been reused. SIGKILL is delivered
+    // asynchronously: wait (bounded) until it has taken effect, so that
+    // nothing of the worker is running when this returns.
     kill_group(pid);
+    wait_group_gone(pid, Duration::from_secs(2));
     let (status, cpu) = reap(pid);
     guard.armed = false;
     // stderr ends when the last writer is gone; give a moment for the tail.
@@ -334,6 +337,36 @@ impl Drop for ReapGuard {
             reap(self.pid);
         }
     }
+}
+
+/// Polls until no live process is left in group `pgid`, or `limit` passes.
+fn wait_group_gone(pgid: libc::pid_t, limit: Duration) {
+    let until = Instant::now() + limit;
+    while !live_group_members(pgid).is_empty() && Instant::now() < until {
+        std::thread::sleep(Duration::from_millis(5));
+    }
+}
+
+/// Pids of the live (not zombie) processes whose process group is `pgid`, read
+/// from `/proc` (empty if `/proc` cannot be read).
+pub fn live_group_members(pgid: libc::pid_t) -> Vec<libc::pid_t> {
+    let Ok(dir) = std::fs::read_dir("/proc") else {
+        return Vec::new();
+    };
+    dir.flatten()
+        .filter_map(|e| e.file_name().to_string_lossy().parse::<libc::pid_t>().ok())
+        .filter(|pid| {
+            let Ok(stat) = std::fs::read_to_string(format!("/proc/{pid}/stat")) else {
+                return false;
+            };
+            // "pid (comm) state ppid pgrp ...": comm may contain spaces and ')'.
+            let Some(rest) = stat.rfind(')').map(|i| &stat[i + 1..]) else {
+                return false;
+            };
+            let f: Vec<&str> = rest.split_whitespace().collect();
+            f.len() > 2 && f[0] != "Z" && f[2].parse::<libc::pid_t>() == Ok(pgid)
+        })
+        .collect()
 }
 
 fn kill_group(pid: libc::pid_t) {

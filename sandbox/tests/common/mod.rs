@@ -82,27 +82,7 @@ pub fn assert_no_stray(run: &WorkerRun) {
 
 /// Pids of live (not zombie) processes whose process group is `pgid`.
 pub fn group_members(pgid: i32) -> Vec<i32> {
-    let mut out = Vec::new();
-    let Ok(dir) = std::fs::read_dir("/proc") else {
-        return out;
-    };
-    for e in dir.flatten() {
-        let Ok(pid) = e.file_name().to_string_lossy().parse::<i32>() else {
-            continue;
-        };
-        let Ok(stat) = std::fs::read_to_string(format!("/proc/{pid}/stat")) else {
-            continue;
-        };
-        // "pid (comm) state ppid pgrp ..." — comm may contain spaces.
-        let Some(rest) = stat.rfind(')').map(|i| &stat[i + 1..]) else {
-            continue;
-        };
-        let f: Vec<&str> = rest.split_whitespace().collect();
-        if f.len() > 2 && f[2].parse::<i32>() == Ok(pgid) && f[0] != "Z" {
-            out.push(pid);
-        }
-    }
-    out
+    d3il_sandbox::live_group_members(pgid)
 }
 
 pub fn expect_failed(run: &WorkerRun) -> &d3il_protocol::WorkerError {
