@@ -3,6 +3,7 @@
 //! Database details are logged, never sent to the client.
 
 use crate::store::StoreError;
+use askama::Template;
 use axum::http::{header, HeaderValue, StatusCode};
 use axum::response::{Html, IntoResponse, Response};
 use serde::Serialize;
@@ -150,6 +151,28 @@ impl IntoResponse for AppError {
     }
 }
 
+#[derive(Template)]
+#[template(path = "error.html")]
+struct ErrorPage<'a> {
+    status: u16,
+    reason: &'a str,
+    message: String,
+    field: Option<String>,
+}
+
+/// The error as the HTML page the browser-facing routes show.
+pub fn error_page(e: &AppError) -> String {
+    let status = e.status();
+    ErrorPage {
+        status: status.as_u16(),
+        reason: status.canonical_reason().unwrap_or("Error"),
+        message: e.to_string(),
+        field: e.field().map(str::to_string),
+    }
+    .render()
+    .unwrap_or_else(|_| "error".into())
+}
+
 /// The same errors rendered as an HTML page (for the browser-facing routes).
 #[derive(Debug)]
 pub struct PageError(pub AppError);
@@ -170,7 +193,7 @@ impl IntoResponse for PageError {
     fn into_response(self) -> Response {
         let e = self.0;
         e.log();
-        let page = crate::pages::error_page(&e);
+        let page = error_page(&e);
         let mut resp = (e.status(), Html(page)).into_response();
         e.headers(&mut resp);
         resp

@@ -1,12 +1,15 @@
 //! JSON REST API under `/api/v1` (documented in docs/api.md and served as an
 //! OpenAPI document at `/api/v1/openapi.json`).
 
-use crate::app::AppState;
+use crate::auth::Authed;
 use crate::error::AppError;
+use crate::http::csv::{board_csv, csv_response};
+use crate::http::extract::{obs_query, Param};
 use crate::intake;
-use crate::store::{now, BoardRow, Submitter};
-use axum::extract::{DefaultBodyLimit, FromRequestParts, Multipart, Path, Query, State};
-use axum::http::request::Parts;
+use crate::leaderboard::{board_for, View};
+use crate::state::AppState;
+use crate::views::{results_view, submission_view, ResultsView, SubmissionView};
+use axum::extract::{DefaultBodyLimit, Multipart, Query, State};
 use axum::http::{header, HeaderMap, StatusCode};
 use axum::response::{IntoResponse, Response};
 use axum::routing::{get, post};
@@ -14,7 +17,6 @@ use axum::{Json, Router};
 use d3il_protocol::{ObsType, TaskId};
 use serde::Deserialize;
 use serde_json::{json, Value};
-use std::str::FromStr;
 
 pub fn router(max_upload: usize) -> Router<AppState> {
     Router::new()
@@ -50,48 +52,6 @@ async fn api_not_found() -> AppError {
     AppError::NotFound("no such API endpoint; see /api/v1/openapi.json".into())
 }
 
-/// An authenticated, rate-limited API caller (`Authorization: Bearer <token>`).
-pub struct Authed(pub Submitter);
-
-impl FromRequestParts<AppState> for Authed {
-    type Rejection = AppError;
-
-    async fn from_request_parts(parts: &mut Parts, state: &AppState) -> Result<Self, AppError> {
-        let header = parts
-            .headers
-            .get(header::AUTHORIZATION)
-            .ok_or_else(|| {
-                AppError::Unauthorized(
-                    "missing `Authorization: Bearer <token>` header; mint a token with `d3il token create --name <you>`".into(),
-                )
-            })?
-            .to_str()
-            .map_err(|_| AppError::Unauthorized("the Authorization header is not text".into()))?;
-        // The auth scheme is case-insensitive (RFC 9110 §11.1).
-        let token = header
-            .split_once(' ')
-            .filter(|(scheme, _)| scheme.eq_ignore_ascii_case("bearer"))
-            .map(|(_, t)| t.trim())
-            .filter(|t| !t.is_empty())
-            .ok_or_else(|| {
-                AppError::Unauthorized("the Authorization header must be `Bearer <token>`".into())
-            })?;
-        authenticate_token(state, token).await.map(Authed)
-    }
-}
-
-/// Checks a token and counts the request against its rate limit.
-pub async fn authenticate_token(state: &AppState, token: &str) -> Result<Submitter, AppError> {
-    let who = state.store.authenticate(token).await?.ok_or_else(|| {
-        AppError::Unauthorized("the API token is unknown or revoked; mint a new one with `d3il token create --name <you>`".into())
-    })?;
-    state
-        .limiter
-        .check(who.token_id)
-        .map_err(|retry_after| AppError::RateLimited { retry_after })?;
-    Ok(who)
-}
-
 async fn whoami(Authed(who): Authed) -> Json<Value> {
     Json(json!({ "submitter": who.name }))
 }
@@ -111,7 +71,7 @@ async fn create_submission(
     let raw = intake::read_multipart(mp, max).await?;
     let valid = intake::validate(&raw, &state.cfg.limits)?;
     let id = intake::accept(&state, valid, &who).await?;
-    let body = submission_json(&state, id).await?;
+    let body = submission_view(&state, id).await?;
     let mut resp = (StatusCode::CREATED, Json(body)).into_response();
     if let Ok(v) = header::HeaderValue::from_str(&format!("/api/v1/submissions/{id}")) {
         resp.headers_mut().insert(header::LOCATION, v);
@@ -119,25 +79,17 @@ async fn create_submission(
     Ok(resp)
 }
 
-fn parse_id(s: &str) -> Result<i64, AppError> {
-    s.parse::<i64>()
-        .ok()
-        .filter(|i| *i > 0)
-        .ok_or_else(|| AppError::invalid("id", format!("`{s}` is not a submission id")))
-}
-
 async fn get_submission(
     State(state): State<AppState>,
-    Path(id): Path<String>,
-) -> Result<Json<Value>, AppError> {
-    Ok(Json(submission_json(&state, parse_id(&id)?).await?))
+    Param(id): Param<i64>,
+) -> Result<Json<SubmissionView>, AppError> {
+    Ok(Json(submission_view(&state, id).await?))
 }
 
 async fn get_results(
     State(state): State<AppState>,
-    Path(id): Path<String>,
-) -> Result<Json<Value>, AppError> {
-    let id = parse_id(&id)?;
+    Param(id): Param<i64>,
+) -> Result<Json<ResultsView>, AppError> {
     let s = state.store.submission(id).await?;
     let r = state.store.result_for(id).await?.ok_or_else(|| {
         AppError::NotFound(format!(
@@ -145,123 +97,7 @@ async fn get_results(
             s.status
         ))
     })?;
-    Ok(Json(results_json(&state, &r).await?))
-}
-
-/// Progress, queue position and an ETA for a submission.
-pub struct Progress {
-    pub rollouts_done: i64,
-    pub rollouts_total: i64,
-    pub queue_position: Option<i64>,
-    pub eta_seconds: Option<i64>,
-}
-
-pub async fn progress(state: &AppState, job: &crate::store::JobRow) -> Result<Progress, AppError> {
-    let pos = state.store.queue_position(job.id).await?;
-    // Without history, guess ten minutes per evaluation.
-    let mean = state
-        .store
-        .mean_job_seconds()
-        .await?
-        .unwrap_or(600.0)
-        .max(1.0);
-    let workers = state.cfg.workers.max(1) as f64;
-    let eta = match (job.state.as_str(), pos) {
-        ("queued", Some(p)) => Some(((p as f64 / workers).floor() + 1.0) * mean),
-        ("leased", _) => {
-            let frac = if job.rollouts_total > 0 {
-                job.rollouts_done as f64 / job.rollouts_total as f64
-            } else {
-                0.0
-            };
-            let elapsed = (now() - job.started_at.unwrap_or_else(now)) as f64;
-            // Extrapolate from progress once there is some; else from history.
-            Some(if frac > 0.05 {
-                elapsed / frac - elapsed
-            } else {
-                (mean - elapsed).max(0.0)
-            })
-        }
-        _ => None,
-    };
-    Ok(Progress {
-        rollouts_done: job.rollouts_done,
-        rollouts_total: job.rollouts_total,
-        queue_position: pos,
-        eta_seconds: eta.map(|e| e.round() as i64),
-    })
-}
-
-/// The submission as the API (and the page's JSON download) shows it.
-pub async fn submission_json(state: &AppState, id: i64) -> Result<Value, AppError> {
-    let s = state.store.submission(id).await?;
-    let job = state.store.job_for(id).await?;
-    let p = progress(state, &job).await?;
-    let manifest: Value = serde_json::from_str(&s.manifest_json).unwrap_or(Value::Null);
-    let result = match state.store.result_for(id).await? {
-        Some(r) => results_json(state, &r).await?,
-        None => Value::Null,
-    };
-    Ok(json!({
-        "id": s.id,
-        "url": format!("/submissions/{}", s.id),
-        "status": s.status,
-        "method": s.method,
-        "submitter": s.submitter,
-        "task": s.task,
-        "obs_type": s.obs_type,
-        "training_seed": s.training_seed,
-        "data_fraction": s.data_fraction,
-        "protocol": s.protocol,
-        "policy": {
-            "kind": s.policy_kind,
-            "sha256": s.onnx_sha256,
-            "bytes": s.onnx_bytes,
-            "endpoint_url": s.endpoint_url,
-        },
-        "manifest": manifest,
-        "error": s.error_kind.as_ref().map(|k| json!({"kind": k, "message": s.error_message})),
-        "attempts": job.attempts,
-        "max_attempts": job.max_attempts,
-        "progress": {"rollouts_done": p.rollouts_done, "rollouts_total": p.rollouts_total},
-        "queue_position": p.queue_position,
-        "eta_seconds": p.eta_seconds,
-        "created_at": s.created_at,
-        "updated_at": s.updated_at,
-        "result": result,
-    }))
-}
-
-pub async fn results_json(
-    state: &AppState,
-    r: &crate::store::ResultRow,
-) -> Result<Value, AppError> {
-    let rollouts = state.store.rollouts_for(r.submission_id).await?;
-    let job = state.store.job_for(r.submission_id).await?;
-    let parse = |s: &str| serde_json::from_str::<Value>(s).unwrap_or(Value::Null);
-    Ok(json!({
-        "submission_id": r.submission_id,
-        "metrics": {
-            "success_rate": {"value": r.success_rate, "ci_low": r.success_ci_low, "ci_high": r.success_ci_high},
-            "behaviour_entropy": {"value": r.behaviour_entropy, "ci_low": r.behaviour_ci_low, "ci_high": r.behaviour_ci_high},
-            "conditional_entropy": {"value": r.conditional_entropy, "ci_low": r.conditional_ci_low, "ci_high": r.conditional_ci_high},
-            "stacking": r.stacking_json.as_deref().map(parse),
-            "stacking_levels": r.stacking_levels_json.as_deref().map(parse),
-            "inference_ms": r.inference_ms,
-        },
-        "protocol_manifest": parse(&r.manifest_json),
-        "per_context": parse(&r.per_context_json),
-        "rollouts": rollouts.iter().map(|x| json!({
-            "context_index": x.context_index,
-            "rollout_index": x.rollout_index,
-            "success": x.success,
-            "behaviour": parse(&x.behaviour_json),
-            "steps": x.steps,
-            "path": x.path_json.as_deref().map(parse),
-        })).collect::<Vec<_>>(),
-        "sandbox": job.sandbox_json.as_deref().map(parse),
-        "created_at": r.created_at,
-    }))
+    Ok(Json(results_view(&state, r).await?))
 }
 
 #[derive(Debug, Deserialize, Default)]
@@ -272,50 +108,12 @@ pub struct BoardQuery {
     pub view: Option<String>,
 }
 
-/// The rows of one leaderboard view (`?view=`), as the pages show them.
-pub fn view_rows(
-    rows: &[BoardRow],
-    task: TaskId,
-    obs: ObsType,
-    q: &BoardQuery,
-) -> Result<(&'static str, Vec<BoardRow>), AppError> {
-    match q.view.as_deref() {
-        None | Some("") | Some("main") => Ok(("main", board_for(rows, task, obs))),
-        Some("data-fraction") => Ok((
-            "data-fraction",
-            crate::pages::fraction_rows(rows, task, obs),
-        )),
-        Some(other) => Err(AppError::invalid(
-            "view",
-            format!("unknown view `{other}`; use `main` or `data-fraction`"),
-        )),
+impl BoardQuery {
+    fn parse(&self) -> Result<(ObsType, View), AppError> {
+        let obs = obs_query(self.obs.as_deref())?;
+        let view = View::parse(self.view.as_deref()).map_err(|e| AppError::invalid("view", e))?;
+        Ok((obs, view))
     }
-}
-
-pub fn parse_task(s: &str) -> Result<TaskId, AppError> {
-    TaskId::from_str(s).map_err(|e| AppError::NotFound(e.to_string()))
-}
-
-pub fn parse_obs_query(q: &BoardQuery) -> Result<ObsType, AppError> {
-    match q.obs.as_deref() {
-        None | Some("") => Ok(ObsType::State),
-        Some(o) => ObsType::from_str(o).map_err(|e| AppError::invalid("obs", e)),
-    }
-}
-
-/// Rows of the leaderboard of `task` and `obs`: full training data, no
-/// control ablation, no data-size table (that is the data-fraction view).
-pub fn board_for(rows: &[BoardRow], task: TaskId, obs: ObsType) -> Vec<BoardRow> {
-    rows.iter()
-        .filter(|r| {
-            r.task == Some(task)
-                && r.obs == obs
-                && r.data_fraction == 1.0
-                && r.control.is_none()
-                && r.paper_table != "datasize"
-        })
-        .cloned()
-        .collect()
 }
 
 async fn list_leaderboards(State(state): State<AppState>) -> Result<Json<Value>, AppError> {
@@ -343,111 +141,35 @@ async fn list_leaderboards(State(state): State<AppState>) -> Result<Json<Value>,
 
 async fn get_leaderboard(
     State(state): State<AppState>,
-    Path(task): Path<String>,
+    Param(task): Param<TaskId>,
     Query(q): Query<BoardQuery>,
 ) -> Result<Json<Value>, AppError> {
-    let task = parse_task(&task)?;
-    let obs = parse_obs_query(&q)?;
-    let (view, rows) = view_rows(&state.store.board_rows().await?, task, obs, &q)?;
+    let (obs, view) = q.parse()?;
+    let rows = view.rows(&state.store.board_rows().await?, task, obs);
     Ok(Json(json!({
         "task": task.slug(),
         "title": task.title(),
         "obs_type": obs.as_str(),
-        "view": view,
+        "view": view.as_str(),
         "rows": rows,
     })))
 }
 
 async fn get_leaderboard_csv(
     State(state): State<AppState>,
-    Path(task): Path<String>,
+    Param(task): Param<TaskId>,
     Query(q): Query<BoardQuery>,
 ) -> Result<Response, AppError> {
-    let task = parse_task(&task)?;
-    let obs = parse_obs_query(&q)?;
-    let (view, rows) = view_rows(&state.store.board_rows().await?, task, obs, &q)?;
-    let suffix = if view == "main" {
-        String::new()
-    } else {
-        format!("-{view}")
+    let (obs, view) = q.parse()?;
+    let rows = view.rows(&state.store.board_rows().await?, task, obs);
+    let suffix = match view {
+        View::Main => String::new(),
+        other => format!("-{}", other.as_str()),
     };
     Ok(csv_response(
         &format!("d3il-{}-{}{suffix}.csv", task.slug(), obs),
-        &board_csv(&rows),
+        &board_csv(&rows)?,
     ))
-}
-
-pub fn csv_response(filename: &str, body: &str) -> Response {
-    (
-        [
-            (header::CONTENT_TYPE, "text/csv; charset=utf-8".to_string()),
-            (
-                header::CONTENT_DISPOSITION,
-                format!("attachment; filename=\"{filename}\""),
-            ),
-        ],
-        body.to_string(),
-    )
-        .into_response()
-}
-
-fn csv_field(s: &str) -> String {
-    // Quote fields with separators; neutralise spreadsheet formulas.
-    let s = if s.starts_with(['=', '+', '-', '@']) && s.parse::<f64>().is_err() {
-        format!("'{s}")
-    } else {
-        s.to_string()
-    };
-    if s.contains([',', '"', '\n', '\r']) {
-        format!("\"{}\"", s.replace('"', "\"\""))
-    } else {
-        s
-    }
-}
-
-fn num(v: f64) -> String {
-    if v.is_finite() {
-        format!("{v:.4}")
-    } else {
-        String::new()
-    }
-}
-
-/// CSV of leaderboard rows (one header line, one line per row).
-pub fn board_csv(rows: &[BoardRow]) -> String {
-    let mut out = String::from(
-        "task,obs_type,method,source,protocol,data_fraction,control,success_mean,success_std,\
-         conditional_entropy_mean,conditional_entropy_std,behaviour_entropy_mean,behaviour_entropy_std,\
-         n_seeds,inference_ms\n",
-    );
-    for r in rows {
-        let fields = [
-            csv_field(&r.task_title),
-            r.obs.as_str().to_string(),
-            csv_field(&r.method),
-            match r.source {
-                d3il_protocol::Source::Reported => "reported".into(),
-                d3il_protocol::Source::Evaluated => "evaluated".into(),
-            },
-            r.protocol
-                .map(crate::store::protocol_str)
-                .unwrap_or("")
-                .to_string(),
-            format!("{}", r.data_fraction),
-            r.control.clone().unwrap_or_default(),
-            num(r.success.mean),
-            num(r.success.std),
-            num(r.entropy.mean),
-            num(r.entropy.std),
-            r.behaviour_entropy.map(|s| num(s.mean)).unwrap_or_default(),
-            r.behaviour_entropy.map(|s| num(s.std)).unwrap_or_default(),
-            r.n_seeds.to_string(),
-            r.inference_ms.map(num).unwrap_or_default(),
-        ];
-        out.push_str(&fields.join(","));
-        out.push('\n');
-    }
-    out
 }
 
 async fn list_methods(State(state): State<AppState>) -> Result<Json<Value>, AppError> {
