@@ -117,16 +117,41 @@ impl AppError {
     }
 }
 
-#[derive(Debug, Serialize, serde::Deserialize)]
+/// Every API error: `{"error": {"code", "message", "field"}}`.
+#[derive(Debug, Serialize, serde::Deserialize, utoipa::ToSchema)]
+#[schema(as = Error)]
 pub struct ErrorBody {
     pub error: ErrorDetail,
 }
 
-#[derive(Debug, Serialize, serde::Deserialize)]
+#[derive(Debug, Serialize, serde::Deserialize, utoipa::ToSchema)]
 pub struct ErrorDetail {
+    #[schema(schema_with = code_schema)]
     pub code: String,
+    /// What went wrong and what to do about it.
     pub message: String,
+    /// The request field at fault, if one is.
     pub field: Option<String>,
+}
+
+/// Every value of [`AppError::code`].
+pub const ERROR_CODES: [&str; 9] = [
+    "invalid_field",
+    "unauthorized",
+    "not_found",
+    "method_not_allowed",
+    "conflict",
+    "payload_too_large",
+    "rate_limited",
+    "endpoint_rejected",
+    "internal",
+];
+
+fn code_schema() -> utoipa::openapi::RefOr<utoipa::openapi::schema::Schema> {
+    utoipa::openapi::schema::ObjectBuilder::new()
+        .schema_type(utoipa::openapi::schema::Type::String)
+        .enum_values(Some(ERROR_CODES))
+        .into()
 }
 
 impl From<StoreError> for AppError {
@@ -197,5 +222,33 @@ impl IntoResponse for PageError {
         let mut resp = (e.status(), Html(page)).into_response();
         e.headers(&mut resp);
         resp
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn every_code_is_in_the_documented_list() {
+        let all = [
+            AppError::invalid("f", "m"),
+            AppError::Unauthorized(String::new()),
+            AppError::NotFound(String::new()),
+            AppError::MethodNotAllowed(String::new()),
+            AppError::Conflict {
+                field: None,
+                message: String::new(),
+            },
+            AppError::PayloadTooLarge(String::new()),
+            AppError::RateLimited { retry_after: 1 },
+            AppError::EndpointRejected {
+                kind: String::new(),
+                message: String::new(),
+            },
+            AppError::Internal(String::new()),
+        ];
+        let codes: Vec<&str> = all.iter().map(AppError::code).collect();
+        assert_eq!(codes, ERROR_CODES);
     }
 }

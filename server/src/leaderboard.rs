@@ -4,6 +4,7 @@
 //! behaviour counts. The store feeds it typed records; the API, the pages and
 //! the plots all read the rows it builds.
 
+use crate::schema;
 use d3il_metrics::{aggregate_seeds, MetricsError};
 use d3il_protocol::{ObsType, ProtocolKind, ResultCell, Source, StackingLevel, Stat, TaskId};
 use d3il_tables::board::{FractionSeries, ParetoPoint};
@@ -11,23 +12,33 @@ use std::collections::{BTreeMap, BTreeSet, HashMap};
 
 /// One leaderboard row: a method on a task (paper title), observation type and
 /// data fraction, aggregated over training seeds.
-#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize, utoipa::ToSchema)]
 pub struct BoardRow {
     pub method: String,
     pub method_id: i64,
+    /// The paper's table the row is from (`main`, `datasize`, ...).
     pub paper_table: String,
+    /// The task as the paper titles it (`Stacking-2 (T5)`).
     pub task_title: String,
+    #[schema(value_type = Option<schema::Task>)]
     pub task: Option<TaskId>,
+    #[schema(value_type = schema::Obs)]
     pub obs: ObsType,
     pub data_fraction: f64,
+    /// The control ablation (`pos`/`vel`) of reported ablation rows.
     pub control: Option<String>,
+    #[schema(value_type = schema::Source)]
     pub source: Source,
     /// Evaluation protocol of evaluated rows (None for reported rows).
+    #[schema(value_type = Option<schema::Protocol>)]
     pub protocol: Option<ProtocolKind>,
+    #[schema(value_type = schema::Stat)]
     pub success: Stat,
     /// Conditional behaviour entropy (the paper's "Entropy").
+    #[schema(value_type = schema::Stat)]
     pub entropy: Stat,
     /// Marginal behaviour entropy H(pi(beta)) (evaluated rows only).
+    #[schema(value_type = Option<schema::Stat>)]
     pub behaviour_entropy: Option<Stat>,
     pub n_seeds: usize,
     pub inference_ms: Option<f64>,

@@ -8,7 +8,8 @@
 //! - those sit on [`state`] (what handlers share), [`queue`] (the worker pool),
 //!   [`store`] (SQLite, one module per resource) and [`leaderboard`] (pure
 //!   functions: rows, seed aggregation, sorting, figure input);
-//! - [`error`] is the HTTP error type and depends only on the store's error.
+//! - [`error`] is the HTTP error type and depends only on the store's error;
+//!   [`schema`] describes the protocol's types for the OpenAPI document.
 //!
 //! [`app`] wires it together (router, `serve`); [`cli`] and [`client`] are what
 //! the `d3il` binary calls.
@@ -26,6 +27,7 @@ pub mod queue;
 pub mod ratelimit;
 pub mod runner;
 pub mod sandbox_status;
+pub mod schema;
 pub mod state;
 pub mod store;
 pub mod views;

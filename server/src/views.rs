@@ -2,13 +2,17 @@
 //! results.
 
 use crate::error::AppError;
+use crate::leaderboard::BoardRow;
+use crate::schema;
 use crate::state::AppState;
+use crate::store::MethodRow;
 use crate::store::{now, JobRow, JobState, PolicyKind, ResultRow, SubmissionStatus};
 use d3il_protocol::{
     ContextResult, ObsType, ProtocolKind, SandboxMechanism, StackingLevel, TaskId,
 };
 use serde::Serialize;
 use serde_json::Value;
+use utoipa::ToSchema;
 
 /// Progress, queue position and an ETA for a submission.
 pub struct Progress {
@@ -55,7 +59,7 @@ pub async fn progress(state: &AppState, job: &JobRow) -> Result<Progress, AppErr
 }
 
 /// A submission: status, progress, queue position, ETA and result.
-#[derive(Debug, Serialize)]
+#[derive(Debug, Serialize, ToSchema)]
 pub struct SubmissionView {
     pub id: i64,
     /// The submission's page.
@@ -63,13 +67,17 @@ pub struct SubmissionView {
     pub status: SubmissionStatus,
     pub method: String,
     pub submitter: Option<String>,
+    #[schema(value_type = schema::Task)]
     pub task: TaskId,
+    #[schema(value_type = schema::Obs)]
     pub obs_type: ObsType,
     pub training_seed: i64,
     pub data_fraction: f64,
+    #[schema(value_type = schema::Protocol)]
     pub protocol: ProtocolKind,
     pub policy: PolicyView,
     /// The policy manifest as submitted.
+    #[schema(value_type = Object)]
     pub manifest: Value,
     /// Why the submission failed (when it did).
     pub error: Option<ErrorView>,
@@ -86,7 +94,7 @@ pub struct SubmissionView {
     pub result: Option<ResultsView>,
 }
 
-#[derive(Debug, Serialize)]
+#[derive(Debug, Serialize, ToSchema)]
 pub struct PolicyView {
     pub kind: PolicyKind,
     /// SHA-256 of the uploaded ONNX file.
@@ -95,60 +103,70 @@ pub struct PolicyView {
     pub endpoint_url: Option<String>,
 }
 
-#[derive(Debug, Serialize)]
+#[derive(Debug, Serialize, ToSchema)]
 pub struct ErrorView {
     pub kind: String,
     pub message: Option<String>,
 }
 
-#[derive(Debug, Serialize)]
+#[derive(Debug, Serialize, ToSchema)]
 pub struct ProgressView {
     pub rollouts_done: i64,
     pub rollouts_total: i64,
 }
 
 /// Metrics, protocol manifest, per-context and per-rollout results.
-#[derive(Debug, Serialize)]
+#[derive(Debug, Serialize, ToSchema)]
 pub struct ResultsView {
     pub submission_id: i64,
     pub metrics: MetricsView,
+    /// What was run: task, protocol, versions and hashes of the assets.
+    #[schema(value_type = Object)]
     pub protocol_manifest: Value,
+    /// Success rate, entropy and behaviour counts per initial state.
+    #[schema(value_type = Vec<Object>)]
     pub per_context: Vec<ContextResult>,
     pub rollouts: Vec<RolloutView>,
     /// The sandbox mechanisms the evaluation ran under.
+    #[schema(value_type = Option<Vec<Object>>)]
     pub sandbox: Option<Vec<SandboxMechanism>>,
     pub created_at: i64,
 }
 
 /// A metric with its bootstrap confidence interval.
-#[derive(Debug, Serialize)]
+#[derive(Debug, Serialize, ToSchema)]
 pub struct EstimateView {
     pub value: f64,
     pub ci_low: f64,
     pub ci_high: f64,
 }
 
-#[derive(Debug, Serialize)]
+#[derive(Debug, Serialize, ToSchema)]
 pub struct MetricsView {
     pub success_rate: EstimateView,
     pub behaviour_entropy: EstimateView,
     pub conditional_entropy: EstimateView,
     /// Stacking: success rates with at least 1, 2 and 3 boxes stacked.
+    #[schema(value_type = Option<Vec<f64>>)]
     pub stacking: Option<[f64; 3]>,
-    /// Stacking-1/2/3 metrics.
+    /// Stacking-1/2/3 metrics (success rate and entropies, each an estimate).
+    #[schema(value_type = Option<Vec<Object>>)]
     pub stacking_levels: Option<[StackingLevel; 3]>,
     /// Mean inference time per policy query.
     pub inference_ms: f64,
 }
 
-#[derive(Debug, Serialize)]
+#[derive(Debug, Serialize, ToSchema)]
 pub struct RolloutView {
     pub context_index: i64,
     pub rollout_index: i64,
     pub success: bool,
+    /// The behaviour code (the reference's encoding, per task).
+    #[schema(value_type = Object)]
     pub behaviour: Value,
     pub steps: i64,
     /// End-effector xy path (Avoiding only).
+    #[schema(value_type = Option<Vec<Vec<f32>>>)]
     pub path: Option<Vec<[f32; 2]>>,
 }
 
@@ -236,4 +254,55 @@ pub async fn results_view(state: &AppState, r: ResultRow) -> Result<ResultsView,
         sandbox: job.sandbox_json.map(|j| j.0),
         created_at: r.created_at,
     })
+}
+
+/// The caller's identity.
+#[derive(Debug, Serialize, ToSchema)]
+pub struct WhoAmI {
+    pub submitter: String,
+}
+
+/// Every method and its properties.
+#[derive(Debug, Serialize, ToSchema)]
+pub struct MethodList {
+    pub methods: Vec<MethodRow>,
+}
+
+/// One leaderboard (task and observation type) with its links.
+#[derive(Debug, Serialize, ToSchema)]
+pub struct LeaderboardLink {
+    #[schema(value_type = schema::Task)]
+    pub task: TaskId,
+    #[schema(value_type = String)]
+    pub title: &'static str,
+    #[schema(value_type = schema::Obs)]
+    pub obs_type: ObsType,
+    /// Rows in the main view.
+    pub rows: usize,
+    /// This leaderboard in the API.
+    pub url: String,
+    /// Its CSV export.
+    pub csv: String,
+    /// Its page.
+    pub page: String,
+}
+
+#[derive(Debug, Serialize, ToSchema)]
+pub struct LeaderboardList {
+    pub leaderboards: Vec<LeaderboardLink>,
+}
+
+/// The rows of one leaderboard view.
+#[derive(Debug, Serialize, ToSchema)]
+pub struct LeaderboardView {
+    #[schema(value_type = schema::Task)]
+    pub task: TaskId,
+    #[schema(value_type = String)]
+    pub title: &'static str,
+    #[schema(value_type = schema::Obs)]
+    pub obs_type: ObsType,
+    /// `main` or `data-fraction`.
+    #[schema(value_type = String)]
+    pub view: &'static str,
+    pub rows: Vec<BoardRow>,
 }

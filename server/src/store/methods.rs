@@ -3,7 +3,8 @@
 use super::{Store, StoreError};
 use sqlx::FromRow;
 
-#[derive(Debug, Clone, FromRow, serde::Serialize)]
+/// A method and its properties (as the paper lists them for its baselines).
+#[derive(Debug, Clone, FromRow, serde::Serialize, utoipa::ToSchema)]
 pub struct MethodRow {
     pub id: i64,
     pub name: String,
