@@ -14,7 +14,8 @@ committed files byte for byte. The fixtures are:
   aligning_mlp_batch1.onnx  the same MLP exported with a fixed batch dimension of 1
   aligning_image.onnx       image-policy shape fixture: `images` [B,1,2,3,96,96] -> [B,3]
   hostile_*.onnx            truncated, garbage, huge declared initializer, external data,
-                            wrong obs dim, wrong act dim, NaN output, endless compute
+                            wrong obs dim, wrong act dim, NaN output, endless compute,
+                            a Tile memory bomb
 
 Avoiding geometry (spec/10 §2.1, §2.3-2.5): the policy input is
 [desired x, desired y, measured x, measured y]; the action is the delta of the
@@ -253,6 +254,23 @@ def endless_graph(n=4096, repeats=64):
     return g.model(inputs, outputs, "endless")
 
 
+def tile_bomb_graph(n=1 << 20):
+    """A tiny file whose one Tile node asks for an n x n float32 tensor at run
+    time (4 TiB for n = 2^20): more than any memory limit or machine allows,
+    built from the observation so nothing can be folded at load."""
+    g = Graph()
+    flat = g.op("Flatten", ["obs"], axis=1)
+    s = g.op("ReduceSum", [flat], keepdims=0)
+    row = g.op("Reshape", [s, g.const([1, 1], np.int64)])
+    m = g.op("Tile", [row, g.const([n, n], np.int64)])
+    corner = g.op("Slice", [m, g.const([0, 0], np.int64), g.const([1, 2], np.int64), g.const([0, 1], np.int64)])  # [1,2]
+    zeros = g.op("Mul", [g.op("Slice", [flat, g.const([0], np.int64), g.const([2], np.int64), g.const([1], np.int64)]), g.const(0.0)])
+    g.op_to("Add", [zeros, corner], "actions")
+    inputs = [helper.make_tensor_value_info("obs", TensorProto.FLOAT, ["B", 1, 4])]
+    outputs = [helper.make_tensor_value_info("actions", TensorProto.FLOAT, ["B", 2])]
+    return g.model(inputs, outputs, "tile_bomb")
+
+
 def huge_initializer_model(external):
     """A valid-looking Avoiding graph with a 100000 x 100000 float32 initializer
     (40 GB declared). Embedded variant: 16 bytes of actual data; external variant:
@@ -329,6 +347,7 @@ def main():
     save("hostile_wrong_act_dim", wrong_act_dim_graph(), av, "3 actions per row, Avoiding needs 2")
     save("hostile_nan", nan_graph(), av, "every action is NaN")
     save("hostile_endless", endless_graph(), av, "64 chained 4096x4096 MatMuls per query: never finishes in time")
+    save("hostile_tile_bomb", tile_bomb_graph(), av, "one Tile node asking for a 2^20 x 2^20 float32 tensor (4 TiB) per query")
 
 
 if __name__ == "__main__":
