@@ -27,13 +27,17 @@ pub struct Args {
     /// Rollouts simulated at once in `eval` and `render`.
     #[arg(long, default_value_t = 96)]
     pub max_live: usize,
+    /// Hand and fingers in `render` (primitives: the scene the ratio goal is
+    /// set for; meshes: the Panda meshes image evaluations use when present).
+    #[arg(long, value_enum, default_value_t = super::render::Look::Primitives)]
+    pub look: super::render::Look,
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
     match args.which.as_str() {
         "physics" => physics(args.steps),
         "eval" => eval_bench(args.protocol, args.max_live),
-        "render" => render_bench(args.steps, args.render_protocol, args.max_live),
+        "render" => render_bench(args.steps, args.render_protocol, args.max_live, args.look),
         other => bail!("unknown benchmark `{other}`; available: physics, eval, render"),
     }
 }
@@ -190,12 +194,18 @@ fn raw_step_rate(task: &LoadedTask, threads: usize) -> anyhow::Result<f64> {
 /// camera, `aligning_resnet18` fixture) timed at the engine's batch of the
 /// quick and the paper protocol and at batch 480; last line: the ratio of
 /// rendering to physics time.
-fn render_bench(env_steps: usize, protocol: ProtocolKind, max_live: usize) -> anyhow::Result<()> {
-    let task = LoadedTask::load_obs(TaskId::Aligning, ObsType::Image)?;
+fn render_bench(
+    env_steps: usize,
+    protocol: ProtocolKind,
+    max_live: usize,
+    look: super::render::Look,
+) -> anyhow::Result<()> {
+    let look = look.robot_look();
+    let task = LoadedTask::load_look(TaskId::Aligning, ObsType::Image, look)?;
     let set = task.def.context_set()?;
     let cams = camera::camera_ids(&task.model)?;
     println!(
-        "aligning, cameras {} + {} at {}x{}, EGL: {}",
+        "aligning, cameras {} + {} at {}x{}, {look:?} hand and fingers, EGL: {}",
         camera::CAMERAS[0],
         camera::CAMERAS[1],
         camera::SIZE,
