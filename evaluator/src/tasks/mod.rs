@@ -16,7 +16,7 @@ pub mod stacking;
 
 use crate::mujoco::{Data, MjError, Model, ObjKind};
 use crate::robot::control::FingerCommand;
-use crate::sim::scene::SceneSpec;
+use crate::sim::scene::{RobotLook, SceneSpec};
 use crate::sim::{RobotIds, Sim};
 use d3il_protocol::{ObsType, TaskId, TaskSpec};
 use serde_json::Value;
@@ -53,6 +53,8 @@ pub enum TaskError {
     SimulationWarning { step: usize, warnings: String },
     #[error("task {0} is not available in this build")]
     Unavailable(TaskId),
+    #[error("this build has no Panda hand and finger meshes: ./dev installs the example-robot-data package and converts them (scripts/panda_meshes.py) before building")]
+    NoMeshes,
     #[error("task {0} has no image-observation variant (image tasks: aligning, sorting-4, sorting-6, stacking)")]
     NoImageVariant(TaskId),
 }
@@ -204,12 +206,28 @@ impl LoadedTask {
     }
 
     /// Loads the task for policies with observation type `obs`.
+    /// Image variants get the Panda hand and finger meshes when this build
+    /// has them ([`RobotLook::best`]); state variants keep primitives (the
+    /// look changes no physics, see [`RobotLook`]).
     pub fn load_obs(id: TaskId, obs: ObsType) -> Result<LoadedTask, TaskError> {
+        let look = match obs {
+            ObsType::Image => RobotLook::best(),
+            ObsType::State => RobotLook::Primitives,
+        };
+        Self::load_look(id, obs, look)
+    }
+
+    /// [`LoadedTask::load_obs`] with an explicit hand and finger look.
+    pub fn load_look(id: TaskId, obs: ObsType, look: RobotLook) -> Result<LoadedTask, TaskError> {
         if obs == ObsType::Image && !id.has_image_variant() {
             return Err(TaskError::NoImageVariant(id));
         }
+        if look == RobotLook::Meshes && !RobotLook::meshes_available() {
+            return Err(TaskError::NoMeshes);
+        }
         let def = task_def(id)?;
-        let scene = def.scene();
+        let mut scene = def.scene();
+        scene.look = look;
         let model = Arc::new(scene.compile()?);
         let ids = Arc::new(RobotIds::lookup(&model)?);
         Ok(LoadedTask {
