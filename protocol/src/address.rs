@@ -167,9 +167,7 @@ fn special_v4(ip: Ipv4Addr) -> Option<SpecialRange> {
         [172, b, ..] if (16..32).contains(&b) => SpecialRange::local("private"),
         [192, 168, ..] => SpecialRange::local("private"),
         [169, 254, ..] => SpecialRange::local("link-local"),
-        [100, b, ..] if (64..128).contains(&b) => {
-            SpecialRange::local("shared (carrier-grade NAT)")
-        }
+        [100, b, ..] if (64..128).contains(&b) => SpecialRange::local("shared (carrier-grade NAT)"),
         [192, 0, 0, _] => SpecialRange::local("IETF protocol assignment"),
         [192, 0, 2, _] | [198, 51, 100, _] | [203, 0, 113, _] => {
             SpecialRange::local("documentation")
@@ -279,7 +277,13 @@ mod tests {
         ] {
             assert_eq!(range(a), Some(want), "{a}");
         }
-        for a in ["8.8.8.8", "1.1.1.1", "172.32.0.1", "100.128.0.1", "11.0.0.1"] {
+        for a in [
+            "8.8.8.8",
+            "1.1.1.1",
+            "172.32.0.1",
+            "100.128.0.1",
+            "11.0.0.1",
+        ] {
             assert_eq!(range(a), None, "{a}");
         }
     }
@@ -356,10 +360,7 @@ mod tests {
         // Client 10.0.0.1 stored bit-inverted: !0x0a000001 = 0xf5fffffe.
         assert_eq!(range("2001:0:808:808:0:0:f5ff:fffe"), Some("private"));
         // Both public: still a tunnel.
-        assert_eq!(
-            range("2001:0:808:808:0:0:f7f7:f7f7"),
-            Some("Teredo tunnel")
-        );
+        assert_eq!(range("2001:0:808:808:0:0:f7f7:f7f7"), Some("Teredo tunnel"));
     }
 
     #[test]
@@ -413,12 +414,18 @@ mod tests {
         assert_eq!(a, vec!["[2001:4860:4860::8888]:9000".parse().unwrap()]);
         assert!(matches!(
             resolve_public("::ffff:127.0.0.1", 80, false),
-            Err(AddressError::Forbidden { range: "loopback", .. })
+            Err(AddressError::Forbidden {
+                range: "loopback",
+                ..
+            })
         ));
         // localhost resolves (from /etc/hosts) to loopback addresses only.
         assert!(matches!(
             resolve_public("localhost", 80, false),
-            Err(AddressError::Forbidden { range: "loopback", .. })
+            Err(AddressError::Forbidden {
+                range: "loopback",
+                ..
+            })
         ));
         let ok = resolve_public("localhost", 80, true).unwrap();
         assert!(ok.iter().all(|a| a.ip().is_loopback()));

@@ -119,7 +119,10 @@ mod tests {
             "ws://localhost:9000/",
         ] {
             let e = validate_endpoint(u, false).unwrap_err();
-            assert!(matches!(e, EndpointError::Address(AddressError::Forbidden { .. })), "{u}: {e:?}");
+            assert!(
+                matches!(e, EndpointError::Address(AddressError::Forbidden { .. })),
+                "{u}: {e:?}"
+            );
             let msg = e.to_string();
             assert!(msg.contains("public addresses"), "{msg}");
         }
@@ -138,7 +141,10 @@ mod tests {
             "ws://[::]/",
         ] {
             let e = validate_endpoint(u, true).unwrap_err();
-            assert!(matches!(e, EndpointError::Address(AddressError::Forbidden { .. })), "{u}: {e:?}");
+            assert!(
+                matches!(e, EndpointError::Address(AddressError::Forbidden { .. })),
+                "{u}: {e:?}"
+            );
         }
     }
 
@@ -156,7 +162,10 @@ mod tests {
     #[test]
     fn unresolvable_hosts_are_a_bad_endpoint() {
         let e = validate_endpoint("ws://does-not-exist.invalid/", false).unwrap_err();
-        assert!(matches!(e, EndpointError::Address(AddressError::Resolve { .. })), "{e:?}");
+        assert!(
+            matches!(e, EndpointError::Address(AddressError::Resolve { .. })),
+            "{e:?}"
+        );
         let w: WorkerError = e.into();
         assert_eq!(w.kind, ErrorKind::BadEndpoint);
     }

@@ -6,9 +6,8 @@
 //! and Inserting (same context conventions, spec/11 §0.7).
 
 use super::geometry::{dist2, quat_to_yaw};
-use super::{CommandKind, 
-    free_body_pos, free_body_quat, Command, ContextSet, TaskDef, TaskError,
-    TaskLogic,
+use super::{
+    free_body_pos, free_body_quat, Command, CommandKind, ContextSet, TaskDef, TaskError, TaskLogic,
 };
 use crate::mujoco::{Data, Model};
 use crate::robot::control::FingerCommand;

@@ -37,7 +37,12 @@ pub fn assert_deterministic(
 ) -> Vec<Vec<f32>> {
     let a = trace(task, context, max_steps, act);
     let b = trace(task, context, max_steps, act);
-    assert_eq!(a, b, "{}: the same actions gave different observations", task.def.id());
+    assert_eq!(
+        a,
+        b,
+        "{}: the same actions gave different observations",
+        task.def.id()
+    );
     a
 }
 

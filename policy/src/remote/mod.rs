@@ -200,9 +200,13 @@ mod tests {
         assert_eq!(e.kind(), d3il_protocol::ErrorKind::BadEndpoint);
         assert!(e.to_string().contains("loopback/private"), "{e}");
         // Every IPv6 form of loopback is refused the same way.
-        for u in ["ws://[::ffff:127.0.0.1]:9/", "ws://[::127.0.0.1]:9/", "ws://[64:ff9b::7f00:1]:9/"] {
-            let e = RemotePolicy::connect(u, &spec, ObsType::State, 0, &Limits::default())
-                .unwrap_err();
+        for u in [
+            "ws://[::ffff:127.0.0.1]:9/",
+            "ws://[::127.0.0.1]:9/",
+            "ws://[64:ff9b::7f00:1]:9/",
+        ] {
+            let e =
+                RemotePolicy::connect(u, &spec, ObsType::State, 0, &Limits::default()).unwrap_err();
             assert_eq!(e.kind(), d3il_protocol::ErrorKind::BadEndpoint, "{u}");
             assert!(e.to_string().contains("loopback/private"), "{u}: {e}");
         }

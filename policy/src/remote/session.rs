@@ -135,7 +135,9 @@ impl RemotePolicy {
         obs_type: ObsType,
         seed: u64,
     ) -> Result<(), PolicyError> {
-        self.ws.get_mut().set_deadline(Instant::now() + self.deadline);
+        self.ws
+            .get_mut()
+            .set_deadline(Instant::now() + self.deadline);
         let hello = self.receive("hello")?;
         self.expect_type(&hello, "hello", "hello")?;
         let malformed = |reason: String| PolicyError::Malformed {
@@ -185,7 +187,12 @@ impl RemotePolicy {
         self.expect_type(&reply, "ready", "spec")
     }
 
-    pub(super) fn expect_type(&mut self, v: &Value, want: &str, request: &str) -> Result<(), PolicyError> {
+    pub(super) fn expect_type(
+        &mut self,
+        v: &Value,
+        want: &str,
+        request: &str,
+    ) -> Result<(), PolicyError> {
         let t = wire::get_str(v, "type").map_err(|reason| {
             self.broken = true;
             PolicyError::Malformed {
@@ -276,4 +283,3 @@ impl RemotePolicy {
         }
     }
 }
-

@@ -57,8 +57,8 @@ pub(super) fn connect_tcp(
     limits: &Limits,
     deadline: Duration,
 ) -> Result<DeadlineStream, PolicyError> {
-    let addrs = resolve_public(&ep.host, ep.port, limits.allow_private_endpoints).map_err(
-        |e| match e {
+    let addrs =
+        resolve_public(&ep.host, ep.port, limits.allow_private_endpoints).map_err(|e| match e {
             AddressError::Resolve { .. } => PolicyError::Connect {
                 url: url.into(),
                 reason: e.to_string(),
@@ -67,14 +67,12 @@ pub(super) fn connect_tcp(
                 url: url.into(),
                 reason: e.to_string(),
             },
-        },
-    )?;
-    let tcp = TcpStream::connect_timeout(&addrs[0], deadline).map_err(|e| {
-        PolicyError::Connect {
+        })?;
+    let tcp =
+        TcpStream::connect_timeout(&addrs[0], deadline).map_err(|e| PolicyError::Connect {
             url: url.into(),
             reason: e.to_string(),
-        }
-    })?;
+        })?;
     let _ = tcp.set_nodelay(true);
     Ok(DeadlineStream {
         inner: tcp,

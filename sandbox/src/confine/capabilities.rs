@@ -53,4 +53,3 @@ pub(super) fn drop_capabilities() -> Result<SandboxMechanism, SandboxError> {
         "running as root: all capabilities dropped (effective, permitted, inheritable)",
     ))
 }
-

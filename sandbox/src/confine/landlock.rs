@@ -183,4 +183,3 @@ pub(super) fn apply_landlock(
         scope,
     ])
 }
-

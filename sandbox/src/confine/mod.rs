@@ -23,13 +23,12 @@ mod netns;
 mod rlimits;
 mod seccomp;
 
+use self::landlock::apply_landlock;
 pub use self::landlock::landlock_abi;
+use self::seccomp::apply_seccomp;
 use capabilities::drop_capabilities;
 use netns::enter_network_namespace;
 use rlimits::apply_rlimits;
-use self::landlock::apply_landlock;
-use self::seccomp::apply_seccomp;
-
 
 use d3il_protocol::{Job, PolicySource, SandboxMechanism};
 use std::path::{Path, PathBuf};
@@ -187,8 +186,8 @@ fn fmt_frac(x: f64) -> String {
 
 #[cfg(test)]
 mod tests {
-    use super::*;
     use super::seccomp::{clone3_filter, deny_filter, DENIED};
+    use super::*;
 
     #[test]
     fn bytes_are_formatted_for_humans() {

@@ -46,4 +46,3 @@ pub(super) fn enter_network_namespace() -> Result<SandboxMechanism, SandboxError
     }
     Err(SandboxError::Network(first.to_string()))
 }
-

@@ -78,4 +78,3 @@ pub(super) fn apply_rlimits(l: &Limits) -> Result<SandboxMechanism, SandboxError
     parts.push("core dumps off".into());
     Ok(mech(names::RLIMITS, true, parts.join(", ")))
 }
-

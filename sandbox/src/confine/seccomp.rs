@@ -214,4 +214,3 @@ pub(super) fn apply_seccomp(network_allowed: bool) -> Result<SandboxMechanism, S
     }
     Ok(mech(names::SECCOMP, true, detail))
 }
-
