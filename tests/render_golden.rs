@@ -31,7 +31,12 @@ fn check_named(name: &str, task: &str, context: usize, steps: usize, extra: &[&s
     let out = dir.join(name);
     let run = Command::new(env!("CARGO_BIN_EXE_d3il"))
         .args(["render", "--task", task])
-        .args(["--context", &context.to_string(), "--steps", &steps.to_string()])
+        .args([
+            "--context",
+            &context.to_string(),
+            "--steps",
+            &steps.to_string(),
+        ])
         .args(extra)
         .arg("--out")
         .arg(&out)

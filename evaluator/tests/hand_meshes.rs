@@ -30,7 +30,10 @@ fn meshes_change_no_physics() {
     for task in [TaskId::Aligning, TaskId::Stacking] {
         let (tp, mut prim) = env(task, RobotLook::Primitives);
         let (tm, mut mesh) = env(task, RobotLook::Meshes);
-        assert_ne!(tp.mjcf_sha256, tm.mjcf_sha256, "{task}: the scenes are the same");
+        assert_ne!(
+            tp.mjcf_sha256, tm.mjcf_sha256,
+            "{task}: the scenes are the same"
+        );
         assert_eq!(tp.model.ngeom(), tm.model.ngeom());
         assert_eq!(tp.model.body_mass(), tm.model.body_mass(), "{task}: masses");
         let act_dim = tp.def.act_dim();

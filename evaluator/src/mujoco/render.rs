@@ -456,7 +456,7 @@ fn cull_outside_frustum(scn: &mut ffi::mjvScene, aspect: f32) {
         f[0] * u[1] - f[1] * u[0],
     ];
     let near = c.frustum_near;
-    if !(near > 0.0) || !(aspect > 0.0) {
+    if near.is_nan() || near <= 0.0 || aspect.is_nan() || aspect <= 0.0 {
         return;
     }
     let half_w = 0.55 * aspect * (c.frustum_top - c.frustum_bottom);
@@ -466,11 +466,16 @@ fn cull_outside_frustum(scn: &mut ffi::mjvScene, aspect: f32) {
     let (b, t) = (mid_y - half_h, mid_y + half_h);
     // Outward normals (x, y, z in the camera frame, z forward) of the four
     // side planes through the eye.
-    let planes = [[near, 0.0, -r], [-near, 0.0, l], [0.0, near, -t], [0.0, -near, b]]
-        .map(|n| {
-            let len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
-            [n[0] / len, n[1] / len, n[2] / len]
-        });
+    let planes = [
+        [near, 0.0, -r],
+        [-near, 0.0, l],
+        [0.0, near, -t],
+        [0.0, -near, b],
+    ]
+    .map(|n| {
+        let len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
+        [n[0] / len, n[1] / len, n[2] / len]
+    });
     let n = scn.ngeom.max(0) as usize;
     if n == 0 || scn.geoms.is_null() {
         return;
@@ -484,7 +489,11 @@ fn cull_outside_frustum(scn: &mut ffi::mjvScene, aspect: f32) {
             && g.type_ != ffi::mjtGeom__mjGEOM_PLANE as i32
             && g.modelrbound > 0.0;
         let outside = cullable && {
-            let d = [g.pos[0] - c.pos[0], g.pos[1] - c.pos[1], g.pos[2] - c.pos[2]];
+            let d = [
+                g.pos[0] - c.pos[0],
+                g.pos[1] - c.pos[1],
+                g.pos[2] - c.pos[2],
+            ];
             let p = [
                 d[0] * right[0] + d[1] * right[1] + d[2] * right[2],
                 d[0] * u[0] + d[1] * u[1] + d[2] * u[2],

@@ -71,26 +71,20 @@ fn with_hand_meshes(robot_xml: &str) -> Option<String> {
         )
     };
     let mut x = robot_xml.to_string();
-    x = replace_element(
-        &x,
-        r#"<geom name="panda_rb0_hand:geom1""#,
-        |_| mesh("panda_rb0_hand:geom1", "panda_hand_visual", ""),
-    )?;
-    x = replace_element(
-        &x,
-        r#"<geom name="panda_rb0_leftfinger:geom1""#,
-        |_| mesh("panda_rb0_leftfinger:geom1", "panda_finger_visual", ""),
-    )?;
+    x = replace_element(&x, r#"<geom name="panda_rb0_hand:geom1""#, |_| {
+        mesh("panda_rb0_hand:geom1", "panda_hand_visual", "")
+    })?;
+    x = replace_element(&x, r#"<geom name="panda_rb0_leftfinger:geom1""#, |_| {
+        mesh("panda_rb0_leftfinger:geom1", "panda_finger_visual", "")
+    })?;
     // The right finger is the same mesh turned 180° about z (spec/01 §2.5).
-    x = replace_element(
-        &x,
-        r#"<geom name="panda_rb0_rightfinger:geom1""#,
-        |_| mesh(
+    x = replace_element(&x, r#"<geom name="panda_rb0_rightfinger:geom1""#, |_| {
+        mesh(
             "panda_rb0_rightfinger:geom1",
             "panda_finger_visual",
             r#" quat="0 0 0 1""#,
-        ),
-    )?;
+        )
+    })?;
     for g in ["hand", "leftfinger", "rightfinger"] {
         x = replace_element(&x, &format!(r#"<geom name="panda_rb0_{g}:geom2""#), hide)?;
     }
