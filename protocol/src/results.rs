@@ -1,6 +1,6 @@
 //! Results of one evaluation, and aggregated table cells.
 
-use crate::task::{ObsType, TaskId};
+use crate::task::{ObsType, ProtocolKind, TaskId};
 use serde::{Deserialize, Serialize};
 
 /// Everything needed to know exactly what was measured.
@@ -9,7 +9,7 @@ pub struct ProtocolManifest {
     pub task: TaskId,
     pub task_version: String,
     pub obs_type: ObsType,
-    pub protocol: crate::job::ProtocolKind,
+    pub protocol: ProtocolKind,
     pub mjcf_sha256: String,
     pub initial_states_sha256: String,
     pub mujoco_version: String,

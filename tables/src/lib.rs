@@ -10,6 +10,8 @@
 //! `0.0009`), so the tables reproduce the paper digit for digit; evaluated
 //! numbers are printed with three decimals like the paper's.
 
+#![forbid(unsafe_code)]
+
 pub mod board;
 mod caption;
 pub mod csv;
