@@ -11,7 +11,6 @@ use d3il_protocol::{
     ErrorKind, Job, Limits, ObsType, PolicyManifest, PolicySource, ProtocolKind, TaskId,
 };
 use std::collections::HashMap;
-use std::net::IpAddr;
 use std::str::FromStr;
 use std::sync::Arc;
 
@@ -221,25 +220,6 @@ fn check_url(field: &str, v: &str, schemes: &[&str]) -> Result<url::Url, AppErro
         return Err(AppError::invalid(field, format!("`{field}` has no host")));
     }
     Ok(u)
-}
-
-fn is_private(ip: IpAddr) -> bool {
-    match ip {
-        IpAddr::V4(v) => {
-            v.is_loopback()
-                || v.is_private()
-                || v.is_link_local()
-                || v.is_unspecified()
-                || v.is_broadcast()
-                || v.octets()[0] == 100 && (v.octets()[1] & 0xc0) == 64
-        }
-        IpAddr::V6(v) => {
-            v.is_loopback()
-                || v.is_unspecified()
-                || (v.segments()[0] & 0xfe00) == 0xfc00
-                || (v.segments()[0] & 0xffc0) == 0xfe80
-        }
-    }
 }
 
 /// Validates every field; the first problem is reported with its field name.
@@ -504,24 +484,18 @@ fn policy_fields(raw: &RawSubmission, limits: &Limits) -> Result<ValidPolicy, Ap
     })
 }
 
-/// Refuses loopback and private endpoint addresses unless the set-up allows them.
+/// Refuses an endpoint whose host is a loopback name or an address literal
+/// in a non-public range, with the classifier the worker and the remote
+/// client use too (`d3il_protocol::address`); host names are resolved and
+/// checked by the worker.
 fn check_endpoint_host(url: &url::Url, limits: &Limits) -> Result<(), AppError> {
-    if !limits.allow_private_endpoints {
-        let host = url.host_str().unwrap_or_default();
-        let private = host.eq_ignore_ascii_case("localhost")
-            || host
-                .trim_matches(|c| c == '[' || c == ']')
-                .parse::<IpAddr>()
-                .map(is_private)
-                .unwrap_or(false);
-        if private {
-            return Err(AppError::invalid(
-                "endpoint_url",
-                "`endpoint_url` points to a loopback or private address; use a public host",
-            ));
-        }
-    }
-    Ok(())
+    let host = url.host_str().unwrap_or_default();
+    d3il_protocol::address::check_host_literal(host, limits.allow_private_endpoints).map_err(|e| {
+        AppError::invalid(
+            "endpoint_url",
+            format!("`endpoint_url`: {e}; use a public host"),
+        )
+    })
 }
 
 /// Runs a remote endpoint through a short quick-protocol evaluation before it
