@@ -77,7 +77,10 @@ pub fn job_from_claim(
                 .onnx_path
                 .clone()
                 .ok_or("onnx submission without a stored file")?,
-            sha256: s.onnx_sha256.clone().unwrap_or_default(),
+            sha256: s
+                .onnx_sha256
+                .clone()
+                .ok_or("onnx submission without a stored sha256")?,
         },
         PolicyKind::Remote => PolicySource::Remote {
             url: s

@@ -416,3 +416,68 @@ async fn sibling_seeds_lists_the_rows_seeds_with_their_success() {
         ]
     );
 }
+
+#[tokio::test]
+async fn bad_stored_data_fails_to_decode_naming_the_column() {
+    let dir = tempfile::tempdir().unwrap();
+    let store = Store::open(&dir.path().join("lb.sqlite")).await.unwrap();
+    let (sub, job) = submit(&store, "Corrupt", TaskId::Aligning, 0).await;
+    store.claim_job("w", 60).await.unwrap().unwrap();
+    store
+        .complete_job(
+            job,
+            sub,
+            &eval_result(TaskId::Aligning, 0.5, 0.1, false),
+            &[],
+        )
+        .await
+        .unwrap();
+    let rows = store.board_rows().await.unwrap();
+    assert!(rows.iter().any(|r| r.method == "Corrupt"));
+    for (sql, column) in [
+        (
+            "UPDATE submissions SET task = 'juggling' WHERE id = ?",
+            "task",
+        ),
+        (
+            "UPDATE results SET per_context_json = '{oops' WHERE submission_id = ?",
+            "per_context_json",
+        ),
+    ] {
+        let restore: (String, String, String) = sqlx::query_as(
+            "SELECT s.task, s.status, r.per_context_json FROM submissions s JOIN results r ON r.submission_id = s.id WHERE s.id = ?",
+        )
+        .bind(sub)
+        .fetch_one(store.pool())
+        .await
+        .unwrap();
+        sqlx::query(sql)
+            .bind(sub)
+            .execute(store.pool())
+            .await
+            .unwrap();
+        let e = match column {
+            "per_context_json" => store.result_for(sub).await.unwrap_err(),
+            _ => store.submission(sub).await.unwrap_err(),
+        };
+        assert!(e.to_string().contains(column), "{column}: {e}");
+        if column == "task" {
+            let e = store.board_rows().await.unwrap_err();
+            assert!(e.to_string().contains("juggling"), "{e}");
+        }
+        sqlx::query("UPDATE submissions SET task = ?, status = ? WHERE id = ?")
+            .bind(&restore.0)
+            .bind(&restore.1)
+            .bind(sub)
+            .execute(store.pool())
+            .await
+            .unwrap();
+        sqlx::query("UPDATE results SET per_context_json = ? WHERE submission_id = ?")
+            .bind(&restore.2)
+            .bind(sub)
+            .execute(store.pool())
+            .await
+            .unwrap();
+        store.submission(sub).await.unwrap();
+    }
+}

@@ -1,7 +1,7 @@
 //! The paper's methods and reported results: loaded on every start
 //! (idempotently) and read back as leaderboard rows.
 
-use super::types::Slug;
+use super::types::Stored;
 use super::{Store, StoreError};
 use crate::leaderboard::{task_for_title, BoardRow};
 use d3il_protocol::paper::PaperResults;
@@ -14,7 +14,7 @@ struct ReportedDbRow {
     method: String,
     method_id: i64,
     task_title: String,
-    #[sqlx(try_from = "Slug")]
+    #[sqlx(try_from = "Stored<ObsType>")]
     obs_type: ObsType,
     data_fraction: f64,
     control: String,

@@ -3,7 +3,7 @@
 //! and the training seeds of a leaderboard row.
 
 use super::submissions::SubmissionRow;
-use super::types::{Slug, SubmissionStatus};
+use super::types::{Stored, SubmissionStatus};
 use super::{Store, StoreError};
 use crate::leaderboard::{evaluated_rows, protocol_str, BoardRow, EvaluatedSeed};
 use d3il_protocol::{
@@ -66,13 +66,13 @@ struct SeedDbRow {
     submission_id: i64,
     method: String,
     method_id: i64,
-    #[sqlx(try_from = "Slug")]
+    #[sqlx(try_from = "Stored<TaskId>")]
     task: TaskId,
-    #[sqlx(try_from = "Slug")]
+    #[sqlx(try_from = "Stored<ObsType>")]
     obs_type: ObsType,
     training_seed: i64,
     data_fraction: f64,
-    #[sqlx(try_from = "Slug")]
+    #[sqlx(try_from = "Stored<ProtocolKind>")]
     protocol: ProtocolKind,
     success_rate: f64,
     behaviour_entropy: f64,

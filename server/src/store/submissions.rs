@@ -1,7 +1,7 @@
 //! Submissions: the uploaded policy file, the record and its queued job
 //! (written in one transaction), and the training-seed uniqueness rule.
 
-use super::types::{JobState, PolicyKind, Slug, SubmissionStatus};
+use super::types::{JobState, PolicyKind, Stored, SubmissionStatus};
 use super::{io_err, now, Store, StoreError};
 use crate::leaderboard::protocol_str;
 use d3il_protocol::{ObsType, ProtocolKind, TaskId};
@@ -16,13 +16,13 @@ pub struct SubmissionRow {
     pub method_id: i64,
     pub method: String,
     pub submitter: Option<String>,
-    #[sqlx(try_from = "Slug")]
+    #[sqlx(try_from = "Stored<TaskId>")]
     pub task: TaskId,
-    #[sqlx(try_from = "Slug")]
+    #[sqlx(try_from = "Stored<ObsType>")]
     pub obs_type: ObsType,
     pub training_seed: i64,
     pub data_fraction: f64,
-    #[sqlx(try_from = "Slug")]
+    #[sqlx(try_from = "Stored<ProtocolKind>")]
     pub protocol: ProtocolKind,
     pub policy_kind: PolicyKind,
     pub onnx_sha256: Option<String>,

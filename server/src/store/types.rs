@@ -1,10 +1,13 @@
 //! The typed values of the store's text columns. Every enum below is a
 //! `sqlx::Type` stored as lowercase text, and the protocol's own enums (task,
-//! observation type, protocol) decode through [`Slug`]: a row holding anything
+//! observation type, protocol) decode through [`Stored`]: a row holding anything
 //! else fails to decode with an error naming the column, instead of being
 //! read as an empty or default value.
 
 use d3il_protocol::{ObsType, ProtocolKind, TaskId};
+use sqlx::error::BoxDynError;
+use sqlx::sqlite::{Sqlite, SqliteTypeInfo, SqliteValueRef};
+use sqlx::{Decode, Type};
 use std::fmt;
 use std::str::FromStr;
 
@@ -67,34 +70,43 @@ text_enum!(
     }
 );
 
-/// A stored slug (`aligning`, `state`, `paper`): the column type through which
-/// the protocol's enums are read (`#[sqlx(try_from = "Slug")]`).
-#[derive(Debug, Clone, sqlx::Type)]
-#[sqlx(transparent)]
-pub struct Slug(pub String);
+/// A stored slug (`aligning`, `state`, `paper`) read as the protocol's enum
+/// `T` (`#[sqlx(try_from = "Stored<TaskId>")]`): text that names nothing
+/// fails to decode, with an error naming the column and the value.
+#[derive(Debug, Clone, Copy)]
+pub struct Stored<T>(pub T);
 
-/// A stored slug that names nothing (the error sqlx reports for the column).
-#[derive(Debug, thiserror::Error)]
-#[error("stored data is corrupt: {0}")]
-pub struct BadSlug(String);
+impl<T> Type<Sqlite> for Stored<T> {
+    fn type_info() -> SqliteTypeInfo {
+        <String as Type<Sqlite>>::type_info()
+    }
 
-impl TryFrom<Slug> for TaskId {
-    type Error = BadSlug;
-    fn try_from(s: Slug) -> Result<Self, BadSlug> {
-        TaskId::from_str(&s.0).map_err(|e| BadSlug(e.to_string()))
+    fn compatible(ty: &SqliteTypeInfo) -> bool {
+        <String as Type<Sqlite>>::compatible(ty)
     }
 }
 
-impl TryFrom<Slug> for ObsType {
-    type Error = BadSlug;
-    fn try_from(s: Slug) -> Result<Self, BadSlug> {
-        ObsType::from_str(&s.0).map_err(BadSlug)
+impl<'r, T> Decode<'r, Sqlite> for Stored<T>
+where
+    T: FromStr,
+    T::Err: fmt::Display,
+{
+    fn decode(value: SqliteValueRef<'r>) -> Result<Self, BoxDynError> {
+        let text = <&str as Decode<Sqlite>>::decode(value)?;
+        T::from_str(text)
+            .map(Stored)
+            .map_err(|e| format!("stored data is corrupt: {e}").into())
     }
 }
 
-impl TryFrom<Slug> for ProtocolKind {
-    type Error = BadSlug;
-    fn try_from(s: Slug) -> Result<Self, BadSlug> {
-        ProtocolKind::from_str(&s.0).map_err(BadSlug)
-    }
+macro_rules! from_stored {
+    ($($t:ty),+) => {$(
+        impl From<Stored<$t>> for $t {
+            fn from(s: Stored<$t>) -> $t {
+                s.0
+            }
+        }
+    )+};
 }
+
+from_stored!(TaskId, ObsType, ProtocolKind);
