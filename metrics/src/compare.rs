@@ -146,7 +146,11 @@ pub fn compare_states(
 /// Paired comparison of two evaluation results (A − B): same task, protocol,
 /// initial-state set and protocol size, else [`MetricsError::NotComparable`]
 /// naming what differs.
-pub fn compare(a: &EvalResult, b: &EvalResult, cfg: &Bootstrap) -> Result<Comparison, MetricsError> {
+pub fn compare(
+    a: &EvalResult,
+    b: &EvalResult,
+    cfg: &Bootstrap,
+) -> Result<Comparison, MetricsError> {
     let (ma, mb) = (&a.manifest, &b.manifest);
     let differ = |what: &str, x: String, y: String| -> Result<(), MetricsError> {
         if x != y {
@@ -164,8 +168,16 @@ pub fn compare(a: &EvalResult, b: &EvalResult, cfg: &Bootstrap) -> Result<Compar
     )?;
     differ(
         "initial-state set",
-        format!("{} (sha256 {})", ma.initial_states_name(), ma.initial_states_sha256),
-        format!("{} (sha256 {})", mb.initial_states_name(), mb.initial_states_sha256),
+        format!(
+            "{} (sha256 {})",
+            ma.initial_states_name(),
+            ma.initial_states_sha256
+        ),
+        format!(
+            "{} (sha256 {})",
+            mb.initial_states_name(),
+            mb.initial_states_sha256
+        ),
     )?;
     differ(
         "size",
@@ -179,8 +191,16 @@ pub fn compare(a: &EvalResult, b: &EvalResult, cfg: &Bootstrap) -> Result<Compar
             "their per-state breakdowns list different initial states".into(),
         ));
     }
-    let sa: Vec<ContextSummary> = a.per_context.iter().map(ContextSummary::from_result).collect();
-    let sb: Vec<ContextSummary> = b.per_context.iter().map(ContextSummary::from_result).collect();
+    let sa: Vec<ContextSummary> = a
+        .per_context
+        .iter()
+        .map(ContextSummary::from_result)
+        .collect();
+    let sb: Vec<ContextSummary> = b
+        .per_context
+        .iter()
+        .map(ContextSummary::from_result)
+        .collect();
     let empty = EntropyConvention::for_task(ma.task).empty_contexts;
     let [success_rate, conditional_entropy] = compare_states(&sa, &sb, empty, cfg)?;
     Ok(Comparison {

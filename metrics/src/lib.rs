@@ -391,7 +391,9 @@ impl Bootstrap {
 pub enum Statistic {
     SuccessRate,
     /// [`behaviour_entropy`] with this log base.
-    BehaviourEntropy { n_behaviours: usize },
+    BehaviourEntropy {
+        n_behaviours: usize,
+    },
     /// [`conditional_entropy`] under this convention.
     ConditionalEntropy(EntropyConvention),
 }
@@ -520,19 +522,26 @@ impl Tally {
 /// single initial state (Avoiding) only the second stage varies. Deterministic
 /// for a given seed (ChaCha8, portable).
 ///
-/// **Interval**: the plug-in entropies are biased low, and more so on a
-/// resample (a resample of n rollouts from n observed ones shows fewer distinct
+/// **What the interval is for**: each statistic's expected value under the
+/// protocol, i.e. what the same policy would score on average over fresh
+/// initial states and rollout noise at this protocol's size. For an entropy
+/// that is what the reference's plug-in formula gives at 8–18 rollouts per
+/// state (the quantity the paper's numbers estimate as well), which lies below
+/// the entropy of the behaviour distribution itself.
+///
+/// **Interval**: resampling rollouts makes the plug-in entropies lower still
+/// (a resample of n rollouts from n observed ones shows fewer distinct
 /// behaviours), so the bootstrap distribution sits below the estimate and its
 /// plain percentiles can exclude it (Avoiding's quick protocol printed 0.654
 /// with 0.340–0.600). We use the bias-corrected percentile interval: the
 /// percentiles of the resampled statistic moved by the bootstrap's estimate of
-/// the bias, `[q(α/2) − b, q(1 − α/2) − b]` with `b = mean(θ*) − θ̂`; the
-/// interval then targets the true value (for the success rate `b ≈ 0` and it is
-/// the percentile interval). The reported value stays the reference's plug-in
-/// number (comparable with the paper), and the interval is widened to include
-/// it when the bias correction moves it entirely above the estimate. Ends are
-/// clipped to the statistic's range (rates in [0, 1], entropies ≥ 0). Coverage
-/// on known distributions is tested in `tests.rs`.
+/// that bias, `[q(α/2) − b, q(1 − α/2) − b]` with `b = mean(θ*) − θ̂` (for
+/// the success rate `b ≈ 0` and it is the percentile interval). It is
+/// widened to include the estimate should Monte Carlo noise leave it just
+/// outside, and clipped to the statistic's range (rates in [0, 1], entropies
+/// ≥ 0). Coverage on known distributions (≥ 93 % for a 95 % interval, every
+/// statistic, Aligning/Pushing/Sorting/Avoiding-like designs) and the
+/// paired comparison's level are tested in `interval_tests.rs`.
 pub fn bootstrap_all(
     outcomes: &[Outcome],
     cfg: &Bootstrap,

@@ -64,7 +64,13 @@ pub fn render(c: &Comparison) -> String {
     let row = |name: &str, d: &PairedDifference| {
         format!(
             "{name:<22} {:>7.3} {:>7.3} {:>+8.3} {:>+9.3} – {:<+9.3} {:>8.4} {:>9.3}\n",
-            d.a, d.b, d.difference.value, d.difference.ci_low, d.difference.ci_high, d.p_value, d.min_detectable
+            d.a,
+            d.b,
+            d.difference.value,
+            d.difference.ci_low,
+            d.difference.ci_high,
+            d.p_value,
+            d.min_detectable
         )
     };
     s += &row("success rate", &c.success_rate);

@@ -178,14 +178,18 @@ mod tests {
             r,
             serde_json::json!({"red_xy_deg": [0.1, 0.2, 3.0], "blue_quat": [1, 0, 0, 0], "format": "x"})
         );
-        let clash = serde_json::json!({"box1_xy_deg": [0.1, 0.2, 3.0], "red_xy_deg": [0.1, 0.2, 3.0]});
+        let clash =
+            serde_json::json!({"box1_xy_deg": [0.1, 0.2, 3.0], "red_xy_deg": [0.1, 0.2, 3.0]});
         let e = rename_objects(TaskId::Inserting, &clash, &aliases)
             .unwrap_err()
             .to_string();
         assert!(e.contains("box1_xy_deg") && e.contains("red_xy_deg"), "{e}");
         // `box10_...` is not `box1`'s.
         let other = serde_json::json!({"box10_xy_deg": 1});
-        assert_eq!(rename_objects(TaskId::Inserting, &other, &aliases).unwrap(), other);
+        assert_eq!(
+            rename_objects(TaskId::Inserting, &other, &aliases).unwrap(),
+            other
+        );
     }
 
     #[test]
