@@ -1,6 +1,8 @@
 //! `d3il`: the one binary. Each subcommand lives in `src/cmd/<name>.rs` and
 //! exposes `Args` (clap) and `run(args) -> anyhow::Result<()>`.
 
+#![forbid(unsafe_code)]
+
 use clap::{Parser, Subcommand};
 
 mod cmd;

@@ -21,6 +21,8 @@
 //! the largest population std a mean of values in [0, 1] allows (0.472, 0.373)
 //! and match the sample std (BC-GPT: five seeds at 1, one at 0 → 0.408).
 
+#![forbid(unsafe_code)]
+
 pub mod compare;
 pub use compare::{compare, compare_states, normal_quantile, ContextSummary};
 pub use d3il_protocol::StackingLevel;

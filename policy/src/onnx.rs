@@ -260,11 +260,13 @@ impl OnnxPolicy {
         })) {
             Ok(r) => r,
             Err(p) => {
-                let msg = p
-                    .downcast_ref::<String>()
-                    .cloned()
-                    .or_else(|| p.downcast_ref::<&str>().map(|s| s.to_string()))
-                    .unwrap_or_else(|| "unknown panic".into());
+                let msg = crate::error::panic_text(p.as_ref());
+                if crate::error::is_out_of_memory(&msg) {
+                    return Err(PolicyError::OutOfMemory {
+                        during: "while loading the model".into(),
+                        detail: msg,
+                    });
+                }
                 Err(PolicyError::Unsupported(format!(
                     "the ONNX runtime could not handle this model ({msg})"
                 )))
@@ -699,7 +701,20 @@ impl OnnxPolicy {
             inputs.push(t.into_tvalue());
         }
         let result = catch_unwind(AssertUnwindSafe(|| self.plan.run(inputs)))
-            .map_err(|_| err("the ONNX runtime panicked".into()))?
+            .map_err(|p| {
+                let msg = crate::error::panic_text(p.as_ref());
+                if crate::error::is_out_of_memory(&msg) {
+                    PolicyError::OutOfMemory {
+                        during: format!(
+                            "in the query of rollout {} at step {}",
+                            q.rollout_ids[rows.start], q.steps[rows.start]
+                        ),
+                        detail: msg,
+                    }
+                } else {
+                    err(format!("the ONNX runtime panicked ({msg})"))
+                }
+            })?
             .map_err(|e| err(format!("{e:#}")))?;
         let Some(first) = result.first() else {
             return Err(err("the model returned no output".into()));

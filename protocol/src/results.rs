@@ -1,6 +1,6 @@
 //! Results of one evaluation, and aggregated table cells.
 
-use crate::task::{ObsType, TaskId};
+use crate::task::{ObsType, ProtocolKind, TaskId};
 use serde::{Deserialize, Serialize};
 
 /// Everything needed to know exactly what was measured.
@@ -9,7 +9,7 @@ pub struct ProtocolManifest {
     pub task: TaskId,
     pub task_version: String,
     pub obs_type: ObsType,
-    pub protocol: crate::job::ProtocolKind,
+    pub protocol: ProtocolKind,
     pub mjcf_sha256: String,
     pub initial_states_sha256: String,
     /// File name of the initial-state set (e.g. `pushing-v2.json`); empty in
@@ -211,7 +211,7 @@ pub struct PairedDifference {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Comparison {
     pub task: TaskId,
-    pub protocol: crate::job::ProtocolKind,
+    pub protocol: crate::task::ProtocolKind,
     /// The shared initial-state set (its file name when known) and sha256.
     #[serde(default)]
     pub initial_states: String,

@@ -1,9 +1,9 @@
 //! Reading, validating and accepting a submission (shared by the JSON API and
 //! the HTML submit form). Every error names the offending field.
 
-use crate::app::AppState;
 use crate::error::AppError;
 use crate::queue::JobRunner;
+use crate::state::AppState;
 use crate::store::{NewMethod, NewPolicy, NewSubmission, SeedKey, Submitter};
 use axum::extract::multipart::{Field, Multipart, MultipartError};
 use axum::http::{header, HeaderMap, StatusCode};
@@ -113,7 +113,7 @@ async fn authenticate_form_token(
                     .into(),
             )
         })?;
-    crate::api::authenticate_token(state, &token).await
+    crate::auth::authenticate_token(state, &token).await
 }
 
 async fn read_multipart_inner(

@@ -644,3 +644,27 @@ async fn the_form_refuses_a_wrong_token_before_reading_the_upload() {
     assert!(text.starts_with("HTTP/1.1 401"), "{text}");
     assert!(text.contains("d3il token create"), "{text}");
 }
+
+#[tokio::test]
+async fn a_path_segment_that_names_nothing_is_404_everywhere() {
+    let app = spawn_app().await;
+    for id in ["abc", "0", "-3", "99999"] {
+        let (s, v) = app.get_json(&format!("/api/v1/submissions/{id}")).await;
+        assert_eq!((s, err(&v)), (404, ("not_found", None)), "{id}");
+        let (s, v) = app
+            .get_json(&format!("/api/v1/submissions/{id}/results"))
+            .await;
+        assert_eq!((s, err(&v)), (404, ("not_found", None)), "{id}");
+        let (s, page) = app.get_text(&format!("/submissions/{id}")).await;
+        assert_eq!(s, 404, "{id}");
+        assert!(page.contains("<html"), "pages answer with an HTML page");
+        let (s, _) = app
+            .get_text(&format!("/plots/submissions/{id}/paths.svg"))
+            .await;
+        assert_eq!(s, 404, "{id}");
+    }
+    let (s, v) = app.get_json("/api/v1/leaderboards/juggling").await;
+    assert_eq!((s, err(&v)), (404, ("not_found", None)));
+    let (s, _) = app.get_text("/plots/tasks/juggling/pareto.svg").await;
+    assert_eq!(s, 404);
+}
