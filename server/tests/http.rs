@@ -115,6 +115,32 @@ async fn every_bad_field_is_named() {
         .await;
     let v: Value = r.json().await.unwrap();
     assert_eq!(err(&v), ("invalid_field", Some("endpoint_url")));
+    // The same classifier as the worker's: IPv4 inside IPv6 and loopback
+    // names are refused at intake too.
+    for url in [
+        "ws://[::ffff:127.0.0.1]/",
+        "ws://[64:ff9b::a00:1]/",
+        "ws://api.localhost/",
+    ] {
+        let r = app
+            .submit(
+                &[
+                    ("method", "Remote"),
+                    ("task", "avoiding"),
+                    ("training_seed", "0"),
+                    ("endpoint_url", url),
+                ],
+                None,
+            )
+            .await;
+        assert_eq!(r.status(), 400, "{url}");
+        let v: Value = r.json().await.unwrap();
+        assert_eq!(
+            err(&v),
+            ("invalid_field", Some("endpoint_url")),
+            "{url}: {v}"
+        );
+    }
     // Policy servers speak WebSocket only (docs/remote-protocol.md).
     let r = app
         .submit(
