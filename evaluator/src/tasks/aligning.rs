@@ -68,6 +68,11 @@ pub const INSIDE_RADIUS: f64 = 0.051;
 const CONTEXTS_V1: &[u8] = include_bytes!("../../../assets/contexts/aligning-v1.json");
 pub const CONTEXTS_V1_SHA256: &str =
     "5e7935b28b9253e1d1b4eee48a325f0397a8f94ab5bcf801aeb09ac0da28e8ca";
+/// The original D3IL test contexts (`test_contexts.pkl` of the reference,
+/// decoded in shared/reference-contexts; `d3il contexts import`): the set in use.
+const CONTEXTS_V2: &[u8] = include_bytes!("../../../assets/contexts/aligning-v2.json");
+pub const CONTEXTS_V2_SHA256: &str =
+    "4956e032fcdfd27634f58549455f53b23e7c9f99d073125cb6fbdd7d4305ffcf";
 
 /// A planar pose from a context: position (x, y) as the reference's float32
 /// pose array holds it, yaw in degrees, and the quaternion written to the
@@ -245,7 +250,14 @@ impl TaskDef for Aligning {
         CommandKind::XyzDelta
     }
     fn context_set(&self) -> Result<ContextSet, TaskError> {
-        ContextSet::verify("aligning-v1.json", CONTEXTS_V1, CONTEXTS_V1_SHA256)
+        ContextSet::verify("aligning-v2.json", CONTEXTS_V2, CONTEXTS_V2_SHA256)
+    }
+    /// v2 (in use) and our earlier sample v1, which stored results refer to.
+    fn context_sets(&self) -> Result<Vec<ContextSet>, TaskError> {
+        Ok(vec![
+            self.context_set()?,
+            ContextSet::verify("aligning-v1.json", CONTEXTS_V1, CONTEXTS_V1_SHA256)?,
+        ])
     }
     /// spec/10 §3.2 random context distribution.
     fn sample_context(&self, rng: &mut dyn rand::RngCore) -> Value {

@@ -186,7 +186,14 @@ impl TaskLogic for InsertingLogic {
         init_qpos: &[f64; 7],
         context: &Value,
     ) -> Result<(), TaskError> {
-        let poses = parse_colour_poses(TaskId::Inserting, context, &["red", "green", "blue"])?;
+        // The original environment names the boxes box1/box2/box3 (red,
+        // green, blue; spec/11 §3.1): its context keys are accepted as they are.
+        let context = super::contexts::rename_objects(
+            TaskId::Inserting,
+            context,
+            &[("box1", "red"), ("box2", "green"), ("box3", "blue")],
+        )?;
+        let poses = parse_colour_poses(TaskId::Inserting, &context, &["red", "green", "blue"])?;
         let boxes = self.boxes.clone();
         sim.reset(init_qpos, FingerCommand::RESET, |data| {
             for (b, pose) in boxes.iter().zip(&poses) {

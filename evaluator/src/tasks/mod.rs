@@ -103,6 +103,11 @@ pub trait TaskDef: Send + Sync {
     }
     /// The fixed test set (file bytes and its expected sha256).
     fn context_set(&self) -> Result<ContextSet, TaskError>;
+    /// Every committed set of the task, the one in use first; older sets stay
+    /// loadable so that stored results keep meaning what they meant.
+    fn context_sets(&self) -> Result<Vec<ContextSet>, TaskError> {
+        Ok(vec![self.context_set()?])
+    }
     /// Rollouts per initial state in the paper's protocol.
     fn rollouts_per_context(&self) -> usize {
         self.id().paper_protocol().rollouts

@@ -22,6 +22,11 @@ pub const TAU: f64 = 0.05;
 const CONTEXTS_V1: &[u8] = include_bytes!("../../../assets/contexts/pushing-v1.json");
 pub const CONTEXTS_V1_SHA256: &str =
     "932dce2d7100e99d55fff4e9d2bae89ec872497608f43efa6b1e321878f23dd0";
+/// The original D3IL test contexts (`test_contexts.pkl` of the reference,
+/// decoded in shared/reference-contexts; `d3il contexts import`): the set in use.
+const CONTEXTS_V2: &[u8] = include_bytes!("../../../assets/contexts/pushing-v2.json");
+pub const CONTEXTS_V2_SHA256: &str =
+    "16e158084f5a7940e3dac06b1d91a58a853b5a3fdc6b1a5783dccaa5d21b789f";
 
 pub struct Pushing;
 
@@ -75,7 +80,14 @@ impl TaskDef for Pushing {
         CommandKind::XyDelta
     }
     fn context_set(&self) -> Result<ContextSet, TaskError> {
-        ContextSet::verify("pushing-v1.json", CONTEXTS_V1, CONTEXTS_V1_SHA256)
+        ContextSet::verify("pushing-v2.json", CONTEXTS_V2, CONTEXTS_V2_SHA256)
+    }
+    /// v2 (in use) and our earlier sample v1, which stored results refer to.
+    fn context_sets(&self) -> Result<Vec<ContextSet>, TaskError> {
+        Ok(vec![
+            self.context_set()?,
+            ContextSet::verify("pushing-v1.json", CONTEXTS_V1, CONTEXTS_V1_SHA256)?,
+        ])
     }
     /// spec/10 §4.2 random distribution (independent uniform, no rejection).
     fn sample_context(&self, rng: &mut dyn rand::RngCore) -> Value {

@@ -34,6 +34,11 @@ pub const REGIONS: [([f32; 2], [f32; 2]); 4] = [
 const CONTEXTS_V1: &[u8] = include_bytes!("../../../assets/contexts/stacking-v1.json");
 pub const CONTEXTS_V1_SHA256: &str =
     "f30ae8e79d215a361d7e8961b1de19fd494d6ec451102a7e726ea79b67793fed";
+/// The original D3IL test contexts (`test_contexts.pkl` of the reference,
+/// decoded in shared/reference-contexts; `d3il contexts import`): the set in use.
+const CONTEXTS_V2: &[u8] = include_bytes!("../../../assets/contexts/stacking-v2.json");
+pub const CONTEXTS_V2_SHA256: &str =
+    "d48c4e9f4b5e5f814470230f069f1ef967757c507dc1cbf9d66cb1a1de3d0afb";
 
 pub struct Stacking;
 
@@ -128,7 +133,14 @@ impl TaskDef for Stacking {
         CommandKind::JointDelta
     }
     fn context_set(&self) -> Result<ContextSet, TaskError> {
-        ContextSet::verify("stacking-v1.json", CONTEXTS_V1, CONTEXTS_V1_SHA256)
+        ContextSet::verify("stacking-v2.json", CONTEXTS_V2, CONTEXTS_V2_SHA256)
+    }
+    /// v2 (in use) and our earlier sample v1, which stored results refer to.
+    fn context_sets(&self) -> Result<Vec<ContextSet>, TaskError> {
+        Ok(vec![
+            self.context_set()?,
+            ContextSet::verify("stacking-v1.json", CONTEXTS_V1, CONTEXTS_V1_SHA256)?,
+        ])
     }
     /// Four pose samples in fixed order; the target one is stored, never applied.
     fn sample_context(&self, rng: &mut dyn rand::RngCore) -> Value {
