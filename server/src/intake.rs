@@ -493,7 +493,9 @@ fn check_endpoint_host(url: &url::Url, limits: &Limits) -> Result<(), AppError> 
     d3il_protocol::address::check_host_literal(host, limits.allow_private_endpoints).map_err(|e| {
         AppError::invalid(
             "endpoint_url",
-            format!("`endpoint_url`: {e}; use a public host"),
+            format!(
+                "`endpoint_url` points to a loopback or private address ({e}); use a public host"
+            ),
         )
     })
 }
