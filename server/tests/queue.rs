@@ -32,6 +32,7 @@ fn result_line(task: TaskId) -> String {
             protocol: ProtocolKind::Quick,
             mjcf_sha256: "a".repeat(64),
             initial_states_sha256: "b".repeat(64),
+            initial_states: String::new(),
             mujoco_version: "2.2.2".into(),
             evaluator_version: "fixture".into(),
             n_contexts: 2,
@@ -65,8 +66,10 @@ fn result_line(task: TaskId) -> String {
                 behaviour: serde_json::json!([i % 3, 1]),
                 steps: 40,
                 path: None,
+                failure: None,
             })
             .collect(),
+        rollouts_ended_unstable: 0,
     };
     serde_json::to_string(&WorkerMessage::Result(Box::new(r))).unwrap()
 }
@@ -258,6 +261,7 @@ async fn stacking_levels_are_stored_and_shown_each_with_its_own_numbers() {
             protocol: ProtocolKind::Quick,
             mjcf_sha256: "a".repeat(64),
             initial_states_sha256: "b".repeat(64),
+            initial_states: String::new(),
             mujoco_version: "2.2.2".into(),
             evaluator_version: "fixture".into(),
             n_contexts: 2,
@@ -281,8 +285,10 @@ async fn stacking_levels_are_stored_and_shown_each_with_its_own_numbers() {
                 behaviour: serde_json::json!(order),
                 steps: 1000,
                 path: None,
+                failure: None,
             })
             .collect(),
+        rollouts_ended_unstable: 0,
     };
     let dir = tempfile::tempdir().unwrap();
     let line = dir.path().join("result.jsonl");

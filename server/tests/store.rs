@@ -11,6 +11,7 @@ fn eval_result(task: TaskId, success: f64, cond: f64, paths: bool) -> EvalResult
         protocol: ProtocolKind::Paper,
         mjcf_sha256: "m".into(),
         initial_states_sha256: "i".into(),
+        initial_states: String::new(),
         mujoco_version: "2.2.2".into(),
         evaluator_version: "0".into(),
         n_contexts: 2,
@@ -35,6 +36,7 @@ fn eval_result(task: TaskId, success: f64, cond: f64, paths: bool) -> EvalResult
             behaviour: serde_json::json!([i % 2, 0, 1]),
             steps: 5,
             path: paths.then(|| vec![[0.5, -0.3], [0.52, -0.1 + i as f32 * 0.01]]),
+            failure: None,
         })
         .collect();
     EvalResult {
@@ -49,6 +51,7 @@ fn eval_result(task: TaskId, success: f64, cond: f64, paths: bool) -> EvalResult
         },
         per_context: vec![],
         rollouts,
+        rollouts_ended_unstable: 0,
     }
 }
 
@@ -249,6 +252,7 @@ fn stacking_result(rollouts: &[(&str, bool)]) -> EvalResult {
             behaviour: serde_json::json!(order),
             steps: 10,
             path: None,
+            failure: None,
         })
         .collect();
     r
