@@ -19,7 +19,7 @@
 //!   power at level α = 1 − confidence.
 
 use crate::{bias_corrected_interval, Bootstrap, EmptyContexts, EntropyConvention, MetricsError};
-use d3il_protocol::{Comparison, ContextResult, EvalResult, PairedDifference};
+use d3il_protocol::{Comparison, ContextResult, EvalResult, PairedDifference, ProtocolManifest};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
@@ -151,7 +151,21 @@ pub fn compare(
     b: &EvalResult,
     cfg: &Bootstrap,
 ) -> Result<Comparison, MetricsError> {
-    let (ma, mb) = (&a.manifest, &b.manifest);
+    compare_parts(
+        (&a.manifest, &a.per_context),
+        (&b.manifest, &b.per_context),
+        cfg,
+    )
+}
+
+/// [`compare`] from what a stored result keeps: its manifest and per-state
+/// breakdown.
+pub fn compare_parts(
+    a: (&ProtocolManifest, &[ContextResult]),
+    b: (&ProtocolManifest, &[ContextResult]),
+    cfg: &Bootstrap,
+) -> Result<Comparison, MetricsError> {
+    let ((ma, pa), (mb, pb)) = (a, b);
     let differ = |what: &str, x: String, y: String| -> Result<(), MetricsError> {
         if x != y {
             return Err(MetricsError::NotComparable(format!(
@@ -184,23 +198,15 @@ pub fn compare(
         format!("{} × {} rollouts", ma.n_contexts, ma.rollouts_per_context),
         format!("{} × {} rollouts", mb.n_contexts, mb.rollouts_per_context),
     )?;
-    let ia: Vec<usize> = a.per_context.iter().map(|c| c.context_index).collect();
-    let ib: Vec<usize> = b.per_context.iter().map(|c| c.context_index).collect();
+    let ia: Vec<usize> = pa.iter().map(|c| c.context_index).collect();
+    let ib: Vec<usize> = pb.iter().map(|c| c.context_index).collect();
     if ia != ib {
         return Err(MetricsError::NotComparable(
             "their per-state breakdowns list different initial states".into(),
         ));
     }
-    let sa: Vec<ContextSummary> = a
-        .per_context
-        .iter()
-        .map(ContextSummary::from_result)
-        .collect();
-    let sb: Vec<ContextSummary> = b
-        .per_context
-        .iter()
-        .map(ContextSummary::from_result)
-        .collect();
+    let sa: Vec<ContextSummary> = pa.iter().map(ContextSummary::from_result).collect();
+    let sb: Vec<ContextSummary> = pb.iter().map(ContextSummary::from_result).collect();
     let empty = EntropyConvention::for_task(ma.task).empty_contexts;
     let [success_rate, conditional_entropy] = compare_states(&sa, &sb, empty, cfg)?;
     Ok(Comparison {

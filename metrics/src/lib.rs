@@ -24,7 +24,7 @@
 #![forbid(unsafe_code)]
 
 pub mod compare;
-pub use compare::{compare, compare_states, normal_quantile, ContextSummary};
+pub use compare::{compare, compare_parts, compare_states, normal_quantile, ContextSummary};
 pub use d3il_protocol::StackingLevel;
 use d3il_protocol::{ContextResult, Estimate, Metrics, Stat, TaskId};
 use rand::{Rng, SeedableRng};

@@ -131,6 +131,14 @@ pub struct ResultsView {
     #[schema(value_type = Option<Vec<Object>>)]
     pub sandbox: Option<Vec<SandboxMechanism>>,
     pub created_at: i64,
+    /// The initial-state set (file name, e.g. `pushing-v2.json`).
+    pub initial_states: String,
+    /// "the original D3IL test contexts" or "our sample".
+    pub initial_states_label: String,
+    /// Rollouts ended as failures because the simulation became unstable.
+    pub rollouts_ended_unstable: i64,
+    /// More than half of the rollouts ended that way.
+    pub mostly_unstable: bool,
 }
 
 /// A metric with its bootstrap confidence interval.
@@ -168,6 +176,11 @@ pub struct RolloutView {
     /// End-effector xy path (Avoiding only).
     #[schema(value_type = Option<Vec<Vec<f32>>>)]
     pub path: Option<Vec<[f32; 2]>>,
+    /// `{"reason": "sim_unstable", "message", "step"}` when the rollout was
+    /// ended as a failure because the simulation became unstable.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    #[schema(value_type = Option<Object>)]
+    pub failure: Option<d3il_protocol::RolloutFailure>,
 }
 
 /// The submission as the API (and the page's JSON download) shows it.
@@ -224,7 +237,19 @@ pub async fn results_view(state: &AppState, r: ResultRow) -> Result<ResultsView,
         ci_low,
         ci_high,
     };
+    let manifest = r.manifest();
+    let n_rollouts = rollouts.len() as i64;
     Ok(ResultsView {
+        initial_states: manifest
+            .as_ref()
+            .map(|m| m.initial_states_name())
+            .unwrap_or_default(),
+        initial_states_label: manifest
+            .as_ref()
+            .map(|m| m.initial_states_origin().label().to_string())
+            .unwrap_or_default(),
+        rollouts_ended_unstable: r.rollouts_ended_unstable,
+        mostly_unstable: 2 * r.rollouts_ended_unstable > n_rollouts,
         submission_id: r.submission_id,
         metrics: MetricsView {
             success_rate: est(r.success_rate, r.success_ci_low, r.success_ci_high),
@@ -249,6 +274,7 @@ pub async fn results_view(state: &AppState, r: ResultRow) -> Result<ResultsView,
                 behaviour: x.behaviour.0,
                 steps: x.steps,
                 path: x.path_json.map(|j| j.0),
+                failure: x.failure.map(|j| j.0),
             })
             .collect(),
         sandbox: job.sandbox_json.map(|j| j.0),

@@ -12,6 +12,7 @@ fn eval_result(task: TaskId, success: f64, cond: f64, paths: bool) -> EvalResult
         mjcf_sha256: "m".into(),
         initial_states: "test-v1.json".into(),
         initial_states_sha256: "i".into(),
+        initial_states: String::new(),
         mujoco_version: "2.2.2".into(),
         evaluator_version: "0".into(),
         n_contexts: 2,

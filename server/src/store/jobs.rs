@@ -177,8 +177,9 @@ impl Store {
         sqlx::query(
             "INSERT INTO results (submission_id, success_rate, success_ci_low, success_ci_high, behaviour_entropy, \
              behaviour_ci_low, behaviour_ci_high, conditional_entropy, conditional_ci_low, conditional_ci_high, \
-             stacking_json, stacking_levels_json, inference_ms, manifest_json, per_context_json, created_at) \
-             VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?) ON CONFLICT(submission_id) DO NOTHING",
+             stacking_json, stacking_levels_json, inference_ms, manifest_json, per_context_json, created_at, \
+             rollouts_ended_unstable) \
+             VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?) ON CONFLICT(submission_id) DO NOTHING",
         )
         .bind(submission_id)
         .bind(m.success_rate.value)
@@ -196,12 +197,13 @@ impl Store {
         .bind(to_json(&result.manifest))
         .bind(to_json(&result.per_context))
         .bind(t)
+        .bind(result.rollouts_ended_unstable as i64)
         .execute(&mut *tx)
         .await?;
         for r in &result.rollouts {
             sqlx::query(
-                "INSERT INTO rollouts (submission_id, context_index, rollout_index, success, behaviour_json, steps, path_json) \
-                 VALUES (?, ?, ?, ?, ?, ?, ?) ON CONFLICT(submission_id, context_index, rollout_index) DO NOTHING",
+                "INSERT INTO rollouts (submission_id, context_index, rollout_index, success, behaviour_json, steps, path_json, \
+                 failure_json) VALUES (?, ?, ?, ?, ?, ?, ?, ?) ON CONFLICT(submission_id, context_index, rollout_index) DO NOTHING",
             )
             .bind(submission_id)
             .bind(r.context_index as i64)
@@ -210,6 +212,7 @@ impl Store {
             .bind(r.behaviour.to_string())
             .bind(r.steps as i64)
             .bind(r.path.as_ref().map(to_json))
+            .bind(r.failure.as_ref().map(to_json))
             .execute(&mut *tx)
             .await?;
         }

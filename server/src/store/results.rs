@@ -7,7 +7,8 @@ use super::types::{Stored, SubmissionStatus};
 use super::{Store, StoreError};
 use crate::leaderboard::{evaluated_rows, protocol_str, BoardRow, EvaluatedSeed};
 use d3il_protocol::{
-    ContextResult, ObsType, ProtocolKind, ResultCell, Source, StackingLevel, TaskId,
+    ContextResult, ObsType, ProtocolKind, ProtocolManifest, ResultCell, RolloutFailure, Source,
+    StackingLevel, TaskId,
 };
 use sqlx::types::Json;
 use sqlx::FromRow;
@@ -33,6 +34,15 @@ pub struct ResultRow {
     pub manifest_json: Json<serde_json::Value>,
     pub per_context_json: Json<Vec<ContextResult>>,
     pub created_at: i64,
+    /// Rollouts ended as failures because the simulation became unstable.
+    pub rollouts_ended_unstable: i64,
+}
+
+impl ResultRow {
+    /// The protocol manifest, if it parses (every result the worker stored does).
+    pub fn manifest(&self) -> Option<ProtocolManifest> {
+        serde_json::from_value(self.manifest_json.0.clone()).ok()
+    }
 }
 
 #[derive(Debug, Clone, FromRow, serde::Serialize)]
@@ -45,6 +55,9 @@ pub struct RolloutRow {
     pub steps: i64,
     #[serde(skip)]
     pub path_json: Option<Json<Vec<[f32; 2]>>>,
+    /// Why the rollout was ended as a failure (`sim_unstable`), if it was.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub failure: Option<Json<RolloutFailure>>,
 }
 
 /// An end-effector path in the table plane.
@@ -160,7 +173,8 @@ impl Store {
         Ok(sqlx::query_as(
             "SELECT submission_id, success_rate, success_ci_low, success_ci_high, behaviour_entropy, behaviour_ci_low, \
              behaviour_ci_high, conditional_entropy, conditional_ci_low, conditional_ci_high, stacking_json, \
-             stacking_levels_json, inference_ms, manifest_json, per_context_json, created_at FROM results WHERE submission_id = ?",
+             stacking_levels_json, inference_ms, manifest_json, per_context_json, created_at, rollouts_ended_unstable \
+             FROM results WHERE submission_id = ?",
         )
         .bind(submission_id)
         .fetch_optional(&self.pool)
@@ -169,7 +183,8 @@ impl Store {
 
     pub async fn rollouts_for(&self, submission_id: i64) -> Result<Vec<RolloutRow>, StoreError> {
         Ok(sqlx::query_as(
-            "SELECT context_index, rollout_index, success, behaviour_json AS behaviour, steps, path_json FROM rollouts \
+            "SELECT context_index, rollout_index, success, behaviour_json AS behaviour, steps, path_json, \
+             failure_json AS failure FROM rollouts \
              WHERE submission_id = ? ORDER BY context_index, rollout_index",
         )
         .bind(submission_id)

@@ -2,6 +2,7 @@
 //! OpenAPI document at `/api/v1/openapi.json`, generated from the handlers'
 //! annotations and the view structs in [`openapi`]).
 
+pub mod compare;
 pub mod openapi;
 
 use crate::auth::Authed;
@@ -40,6 +41,7 @@ pub fn router(max_upload: usize) -> Router<AppState> {
         .route("/leaderboards/{task}", get(get_leaderboard))
         .route("/leaderboards/{task}/csv", get(get_leaderboard_csv))
         .route("/methods", get(list_methods))
+        .route("/compare", get(compare::compare))
         .route("/whoami", get(whoami))
         .route("/openapi.json", get(openapi))
         .fallback(api_not_found)

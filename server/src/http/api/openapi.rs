@@ -29,6 +29,7 @@ use utoipa::{Modify, OpenApi};
         super::get_leaderboard_csv,
         super::list_methods,
         super::whoami,
+        super::compare::compare,
     ),
     components(schemas(
         ErrorBody,
