@@ -12,7 +12,6 @@ fn eval_result(task: TaskId, success: f64, cond: f64, paths: bool) -> EvalResult
         mjcf_sha256: "m".into(),
         initial_states: "test-v1.json".into(),
         initial_states_sha256: "i".into(),
-        initial_states: String::new(),
         mujoco_version: "2.2.2".into(),
         evaluator_version: "0".into(),
         n_contexts: 2,
@@ -316,7 +315,7 @@ async fn avoiding_paths_come_back_with_behaviours() {
 async fn leases_expire_retries_are_bounded_and_restart_requeues() {
     let dir = tempfile::tempdir().unwrap();
     let db = dir.path().join("lb.sqlite");
-    let store = Store::open(&db).await.unwrap();
+    let mut store = Store::open(&db).await.unwrap();
     let (sub, job) = submit(&store, "Flaky", TaskId::Pushing, 0).await;
     assert_eq!(store.queue_position(job).await.unwrap(), Some(0));
     let c = store.claim_job("w0", 60).await.unwrap().unwrap();
@@ -330,17 +329,27 @@ async fn leases_expire_retries_are_bounded_and_restart_requeues() {
         .heartbeat(job, "someone-else", 60, None)
         .await
         .unwrap());
-    // Simulated restart: the lease is abandoned and the job goes back to the queue.
-    drop(store);
-    let store = Store::open(&db).await.unwrap();
-    assert_eq!(store.requeue_abandoned().await.unwrap(), 1);
-    assert_eq!(store.submission(sub).await.unwrap().status, "queued");
+    // Simulated restart: the lease is abandoned and the job goes back to the
+    // queue; the interrupted attempt is not counted (issue 17), twice over.
+    for _ in 0..2 {
+        drop(store);
+        store = Store::open(&db).await.unwrap();
+        assert_eq!(store.requeue_abandoned().await.unwrap(), 1);
+        assert_eq!(store.submission(sub).await.unwrap().status, "queued");
+        assert_eq!(store.job_for(sub).await.unwrap().attempts, 0);
+        let c = store.claim_job("w0", 60).await.unwrap().unwrap();
+        assert_eq!(c.job.attempts, 1, "the restart gave the attempt back");
+    }
     let err = WorkerError {
         kind: ErrorKind::Crashed,
         message: "worker killed by signal 9".into(),
     };
+    assert!(
+        store.fail_attempt(job, "w0", &err, true).await.unwrap(),
+        "attempt 1 of 3 is retried"
+    );
     let c = store.claim_job("w0", 60).await.unwrap().unwrap();
-    assert_eq!(c.job.attempts, 2);
+    assert_eq!(c.job.attempts, 2, "a worker crash counts");
     assert!(
         store.fail_attempt(job, "w0", &err, true).await.unwrap(),
         "attempt 2 of 3 is retried"
@@ -366,7 +375,8 @@ async fn a_slot_that_lost_its_lease_cannot_requeue_or_fail_the_job() {
     // w0's lease is already over when it is granted; w1 takes the job over.
     store.claim_job("w0", -1).await.unwrap().unwrap();
     let c = store.claim_job("w1", 60).await.unwrap().unwrap();
-    assert_eq!((c.job.id, c.job.attempts), (job, 2));
+    // The lost lease had no worker fault: the takeover is still attempt 1.
+    assert_eq!((c.job.id, c.job.attempts), (job, 1));
     let err = WorkerError {
         kind: ErrorKind::Crashed,
         message: "worker killed by signal 9".into(),

@@ -49,10 +49,14 @@ impl Store {
     /// Puts every leased job back in the queue. Called once at start-up: a
     /// single server owns the database file, so any lease left over belongs to
     /// a process that died (issue 7: a killed server requeues on restart).
+    /// The interrupted attempt is given back: an operator's restart is not
+    /// the policy's fault and does not count against `--max-attempts`
+    /// (issue 17).
     pub async fn requeue_abandoned(&self) -> Result<u64, StoreError> {
         let mut tx = self.pool.begin().await?;
         let n = sqlx::query(
-            "UPDATE jobs SET state = 'queued', lease_owner = NULL, lease_expires_at = NULL WHERE state = 'leased'",
+            "UPDATE jobs SET state = 'queued', lease_owner = NULL, lease_expires_at = NULL, \
+             attempts = MAX(attempts - 1, 0) WHERE state = 'leased'",
         )
         .execute(&mut *tx)
         .await?
@@ -69,8 +73,10 @@ impl Store {
     }
 
     /// Leases the oldest runnable job (queued, or leased with an expired
-    /// lease) to `owner` for `lease` seconds. Jobs whose attempts are used up
-    /// are failed instead of leased.
+    /// lease) to `owner` for `lease` seconds. Taking over an expired lease
+    /// does not count a new attempt: the lost one had no worker fault (a
+    /// fault is recorded by [`Store::fail_attempt`], which is what bounds the
+    /// attempts), so the new run replaces it.
     pub async fn claim_job(
         &self,
         owner: &str,
@@ -87,18 +93,10 @@ impl Store {
             .fetch_optional(&mut *tx)
             .await?;
             let Some(job) = job else { return Ok(None) };
-            if job.attempts >= job.max_attempts {
-                let msg = format!(
-                    "the evaluation was interrupted {} times (lease expired without a result); giving up",
-                    job.attempts
-                );
-                finish_failed(&mut tx, job.id, job.submission_id, "crashed", &msg, t).await?;
-                tx.commit().await?;
-                continue;
-            }
             let updated = sqlx::query(
-                "UPDATE jobs SET state = 'leased', lease_owner = ?, lease_expires_at = ?, heartbeat_at = ?, \
-                 attempts = attempts + 1, started_at = ?, rollouts_done = 0 \
+                "UPDATE jobs SET attempts = CASE WHEN state = 'queued' THEN attempts + 1 ELSE attempts END, \
+                 state = 'leased', lease_owner = ?, lease_expires_at = ?, heartbeat_at = ?, \
+                 started_at = ?, rollouts_done = 0 \
                  WHERE id = ? AND (state = 'queued' OR (state = 'leased' AND lease_expires_at < ?))",
             )
             .bind(owner)
