@@ -1,6 +1,7 @@
 //! The admin page of the real `d3il serve` lists the sandbox mechanisms in
 //! force on this host exactly as `d3il worker --check-sandbox` reports them
-//! (issue 6: "the server shows it on the admin page").
+//! (issue 6: "the server shows it on the admin page"), and only to an admin
+//! token (issue 17).
 
 mod server_support;
 use d3il_protocol::SandboxMechanism;
@@ -33,9 +34,28 @@ fn admin_page_lists_the_sandbox_mechanisms_the_worker_reports() {
     let dir = TempDir::new("admin");
     let db = dir.path().join("lb.sqlite");
     let assets_s = assets.to_string_lossy().to_string();
-    let server = Server::start(&db, &["--workers", "1", "--assets", &assets_s]);
+    let admin = create_admin_token(&db, "operator");
+    let submitter = create_token(&db, "submitter");
+    let server = Server::start(
+        &db,
+        &[
+            "--workers",
+            "1",
+            "--assets",
+            &assets_s,
+            "--cpu-seconds",
+            "777",
+        ],
+    );
     let (status, page) = server.get_text("/admin");
+    assert_eq!(status, 401, "anonymous: {page}");
+    assert!(page.contains("token create --admin"), "{page}");
+    let (status, page) = server.client(Some(&submitter)).get_text("/admin").unwrap();
+    assert_eq!(status, 403, "a submitter's token: {page}");
+    let (status, page) = server.client(Some(&admin)).get_text("/admin").unwrap();
     assert_eq!(status, 200, "{page}");
+    // The limits shown are the configured ones.
+    assert!(page.contains("<td>CPU time</td><td>777 s</td>"), "{page}");
     let table = page
         .split("<table class=\"board\" id=\"sandbox\">")
         .nth(1)
@@ -89,5 +109,15 @@ fn admin_page_lists_the_sandbox_mechanisms_the_worker_reports() {
         }
     }
     assert!(page.contains("No evaluation has finished yet."));
+
+    // A revoked admin token opens nothing any more.
+    let out = Command::new(EXE)
+        .args(["token", "revoke", &admin[..13], "--db"])
+        .arg(&db)
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let (status, page) = server.client(Some(&admin)).get_text("/admin").unwrap();
+    assert_eq!(status, 401, "revoked: {page}");
     server.kill();
 }

@@ -71,8 +71,8 @@ fn fields(method: &str, url: &str) -> Vec<(&'static str, String)> {
 }
 
 /// "N waiting, M running" from the admin page.
-fn queue_line(server: &Server) -> String {
-    let (s, page) = server.get_text("/admin");
+fn queue_line(server: &Server, admin: &str) -> String {
+    let (s, page) = server.client(Some(admin)).get_text("/admin").unwrap();
     assert_eq!(s, 200);
     page.split("<p id=\"queue\">")
         .nth(1)
@@ -115,8 +115,9 @@ fn a_conforming_endpoint_is_queued_and_non_conforming_ones_are_refused() {
     let dir = TempDir::new("dry-run");
     let db = dir.path().join("lb.sqlite");
     let token = create_token(&db, "dry-run-tester");
+    let admin = create_admin_token(&db, "operator");
     let server = Server::start(&db, &["--workers", "0", "--allow-private-endpoints"]);
-    assert_eq!(queue_line(&server), "0 waiting");
+    assert_eq!(queue_line(&server, &admin), "0 waiting");
 
     // Conforming: accepted after its dry run and queued.
     let ok = policy_server("ok");
@@ -131,7 +132,7 @@ fn a_conforming_endpoint_is_queued_and_non_conforming_ones_are_refused() {
         .expect("the submission exists");
     assert_eq!(v["status"], "queued", "{v}");
     assert_eq!(v["policy"]["endpoint_url"], ok.url.as_str(), "{v}");
-    assert_eq!(queue_line(&server), "1 waiting");
+    assert_eq!(queue_line(&server, &admin), "1 waiting");
     drop(ok);
 
     // Wrong action shapes: named with what was expected.
@@ -179,7 +180,7 @@ fn a_conforming_endpoint_is_queued_and_non_conforming_ones_are_refused() {
     );
 
     // Only the conforming submission was queued.
-    assert_eq!(queue_line(&server), "1 waiting");
+    assert_eq!(queue_line(&server, &admin), "1 waiting");
     server.kill();
 }
 
@@ -188,6 +189,7 @@ fn loopback_endpoints_are_refused_without_the_explicit_setting() {
     let dir = TempDir::new("dry-run-ssrf");
     let db = dir.path().join("lb.sqlite");
     let token = create_token(&db, "ssrf-tester");
+    let admin = create_admin_token(&db, "operator");
     let server = Server::start(&db, &["--workers", "0"]);
     let ok = policy_server("ok");
     match server
@@ -208,6 +210,6 @@ fn loopback_endpoints_are_refused_without_the_explicit_setting() {
     }
     let (s, _) = server.get_text("/methods/Remote-Loopback");
     assert_eq!(s, 404);
-    assert_eq!(queue_line(&server), "0 waiting");
+    assert_eq!(queue_line(&server, &admin), "0 waiting");
     server.kill();
 }

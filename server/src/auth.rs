@@ -15,6 +15,13 @@ impl FromRequestParts<AppState> for Authed {
     type Rejection = AppError;
 
     async fn from_request_parts(parts: &mut Parts, state: &AppState) -> Result<Self, AppError> {
+        let token = bearer_token(parts)?;
+        authenticate_token(state, token).await.map(Authed)
+    }
+}
+
+/// The token of `Authorization: Bearer <token>`.
+fn bearer_token(parts: &Parts) -> Result<&str, AppError> {
         let header = parts
             .headers
             .get(header::AUTHORIZATION)
@@ -34,7 +41,50 @@ impl FromRequestParts<AppState> for Authed {
             .ok_or_else(|| {
                 AppError::Unauthorized("the Authorization header must be `Bearer <token>`".into())
             })?;
-        authenticate_token(state, token).await.map(Authed)
+        Ok(token)
+}
+
+/// An operator (`/admin`): an admin token (`d3il token create --admin`) as
+/// `Authorization: Bearer <token>`, or as the password of HTTP Basic
+/// authentication so a browser can ask for it (any user name).
+pub struct Admin(pub Submitter);
+
+const ADMIN_HINT: &str =
+    "the admin page needs an admin token; mint one with `d3il token create --admin --name <you>` \
+     and send it as `Authorization: Bearer <token>` (or as the password when the browser asks)";
+
+impl FromRequestParts<AppState> for Admin {
+    type Rejection = AppError;
+
+    async fn from_request_parts(parts: &mut Parts, state: &AppState) -> Result<Self, AppError> {
+        let header = parts
+            .headers
+            .get(header::AUTHORIZATION)
+            .and_then(|h| h.to_str().ok())
+            .ok_or_else(|| AppError::Unauthorized(ADMIN_HINT.into()))?;
+        let token = match header.split_once(' ') {
+            Some((scheme, b64)) if scheme.eq_ignore_ascii_case("basic") => {
+                use base64::Engine;
+                let raw = base64::engine::general_purpose::STANDARD
+                    .decode(b64.trim())
+                    .map_err(|_| AppError::Unauthorized(ADMIN_HINT.into()))?;
+                let text =
+                    String::from_utf8(raw).map_err(|_| AppError::Unauthorized(ADMIN_HINT.into()))?;
+                let (_, password) = text
+                    .split_once(':')
+                    .ok_or_else(|| AppError::Unauthorized(ADMIN_HINT.into()))?;
+                password.trim().to_string()
+            }
+            _ => bearer_token(parts)?.to_string(),
+        };
+        let who = authenticate_token(state, &token).await?;
+        if !who.is_admin {
+            return Err(AppError::Forbidden(format!(
+                "the token of `{}` is not an admin token; {ADMIN_HINT}",
+                who.name
+            )));
+        }
+        Ok(Admin(who))
     }
 }
 

@@ -1,7 +1,7 @@
 //! Blocking entry points for the `d3il` binary (which has no async runtime).
 
 use crate::app::{serve, ServeError, ServerConfig};
-use crate::store::{Store, StoreError};
+use crate::store::{Revoked, Store, StoreError};
 use std::path::Path;
 
 fn runtime() -> std::io::Result<tokio::runtime::Runtime> {
@@ -30,14 +30,27 @@ pub fn serve_blocking(cfg: ServerConfig) -> Result<(), ServeError> {
     })
 }
 
-/// Mints an API token for `name` in the database at `db`.
-pub fn create_token_blocking(db: &Path, name: &str) -> Result<String, StoreError> {
+/// Mints an API token for `name` in the database at `db` (`admin`: it may
+/// also see `/admin`).
+pub fn create_token_blocking(db: &Path, name: &str, admin: bool) -> Result<String, StoreError> {
     let rt = runtime().map_err(|source| StoreError::Io {
         path: db.to_path_buf(),
         source,
     })?;
     rt.block_on(async {
         let store = Store::open(db).await?;
-        store.create_token(name).await
+        store.create_token_with(name, admin).await
+    })
+}
+
+/// Revokes a token (the whole token or its printed prefix) in `db`.
+pub fn revoke_token_blocking(db: &Path, token_or_prefix: &str) -> Result<Revoked, StoreError> {
+    let rt = runtime().map_err(|source| StoreError::Io {
+        path: db.to_path_buf(),
+        source,
+    })?;
+    rt.block_on(async {
+        let store = Store::open(db).await?;
+        store.revoke_token(token_or_prefix).await
     })
 }

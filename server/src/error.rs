@@ -18,6 +18,9 @@ pub enum AppError {
     },
     #[error("{0}")]
     Unauthorized(String),
+    /// Authenticated, but not allowed (a non-admin token on `/admin`).
+    #[error("{0}")]
+    Forbidden(String),
     #[error("{0}")]
     NotFound(String),
     #[error("{0}")]
@@ -51,6 +54,7 @@ impl AppError {
         match self {
             AppError::Invalid { .. } => StatusCode::BAD_REQUEST,
             AppError::Unauthorized(_) => StatusCode::UNAUTHORIZED,
+            AppError::Forbidden(_) => StatusCode::FORBIDDEN,
             AppError::NotFound(_) => StatusCode::NOT_FOUND,
             AppError::MethodNotAllowed(_) => StatusCode::METHOD_NOT_ALLOWED,
             AppError::Conflict { .. } => StatusCode::CONFLICT,
@@ -65,6 +69,7 @@ impl AppError {
         match self {
             AppError::Invalid { .. } => "invalid_field",
             AppError::Unauthorized(_) => "unauthorized",
+            AppError::Forbidden(_) => "forbidden",
             AppError::NotFound(_) => "not_found",
             AppError::MethodNotAllowed(_) => "method_not_allowed",
             AppError::Conflict { .. } => "conflict",
@@ -135,9 +140,10 @@ pub struct ErrorDetail {
 }
 
 /// Every value of [`AppError::code`].
-pub const ERROR_CODES: [&str; 9] = [
+pub const ERROR_CODES: [&str; 10] = [
     "invalid_field",
     "unauthorized",
+    "forbidden",
     "not_found",
     "method_not_allowed",
     "conflict",
@@ -234,6 +240,7 @@ mod tests {
         let all = [
             AppError::invalid("f", "m"),
             AppError::Unauthorized(String::new()),
+            AppError::Forbidden(String::new()),
             AppError::NotFound(String::new()),
             AppError::MethodNotAllowed(String::new()),
             AppError::Conflict {

@@ -510,7 +510,7 @@ async fn html_form_submits_and_reports_field_errors() {
 async fn admin_page_says_when_the_sandbox_check_cannot_run() {
     // spawn_app's worker executable is /bin/false: it prints no mechanism list.
     let app = spawn_app().await;
-    let (s, page) = app.get_text("/admin").await;
+    let (s, page) = app.get_admin_text("/admin").await;
     assert_eq!(s, 200);
     let e = page
         .split("id=\"sandbox-error\">")
@@ -556,7 +556,7 @@ async fn admin_page_names_mechanisms_the_kernel_lacks() {
         ..Options::default()
     })
     .await;
-    let (s, page) = app.get_text("/admin").await;
+    let (s, page) = app.get_admin_text("/admin").await;
     assert_eq!(s, 200);
     let missing = page
         .split("id=\"sandbox-missing\">")

@@ -92,8 +92,19 @@ impl Drop for Server {
 }
 
 pub fn create_token(db: &Path, name: &str) -> String {
+    create_token_args(db, name, &[])
+}
+
+/// An operator's token (`d3il token create --admin`): it opens `/admin`.
+pub fn create_admin_token(db: &Path, name: &str) -> String {
+    create_token_args(db, name, &["--admin"])
+}
+
+fn create_token_args(db: &Path, name: &str, extra: &[&str]) -> String {
     let out = Command::new(EXE)
-        .args(["token", "create", "--name", name, "--db"])
+        .args(["token", "create", "--name", name])
+        .args(extra)
+        .arg("--db")
         .arg(db)
         .output()
         .expect("run d3il token create");

@@ -21,7 +21,7 @@ pub use jobs::{ClaimedJob, JobRow};
 pub use methods::{MethodRow, NewMethod};
 pub use results::{ResultRow, RolloutRow, SeedSummary};
 pub use submissions::{NewPolicy, NewSubmission, SeedKey, SubmissionRow};
-pub use tokens::{token_hash, Submitter};
+pub use tokens::{token_hash, Revoked, Submitter, TOKEN_PREFIX_LEN};
 pub use types::{JobState, PolicyKind, SubmissionStatus};
 
 use sqlx::sqlite::{SqliteConnectOptions, SqliteJournalMode, SqlitePoolOptions, SqliteSynchronous};

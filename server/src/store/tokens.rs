@@ -11,12 +11,26 @@ pub struct Submitter {
     pub name: String,
     /// The token that authenticated this request.
     pub token_id: i64,
+    /// An operator's token (`d3il token create --admin`): may see `/admin`.
+    pub is_admin: bool,
+}
+
+/// What `d3il token revoke` did.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Revoked {
+    /// Prefixes of the tokens revoked now.
+    pub prefixes: Vec<String>,
 }
 
 impl Store {
     /// Mints a new API token for `name` (creating the submitter). Returns the
     /// plaintext token, which is shown once: only its SHA-256 is stored.
     pub async fn create_token(&self, name: &str) -> Result<String, StoreError> {
+        self.create_token_with(name, false).await
+    }
+
+    /// As [`Store::create_token`]; `admin` tokens may also see `/admin`.
+    pub async fn create_token_with(&self, name: &str, admin: bool) -> Result<String, StoreError> {
         let mut raw = [0u8; 24];
         getrandom::fill(&mut raw)
             .map_err(|e| StoreError::Corrupt(format!("no randomness available: {e}")))?;
@@ -30,10 +44,13 @@ impl Store {
             .bind(name)
             .fetch_one(&mut *tx)
             .await?;
-        sqlx::query("INSERT INTO api_tokens (submitter_id, token_sha256, prefix) VALUES (?, ?, ?)")
-            .bind(submitter_id)
-            .bind(token_hash(&token))
-            .bind(&token[..13])
+        sqlx::query(
+            "INSERT INTO api_tokens (submitter_id, token_sha256, prefix, is_admin) VALUES (?, ?, ?, ?)",
+        )
+        .bind(submitter_id)
+        .bind(token_hash(&token))
+        .bind(&token[..TOKEN_PREFIX_LEN])
+        .bind(admin)
             .execute(&mut *tx)
             .await?;
         tx.commit().await?;
@@ -43,7 +60,7 @@ impl Store {
     /// The submitter owning this (unrevoked) token, if any.
     pub async fn authenticate(&self, token: &str) -> Result<Option<Submitter>, StoreError> {
         let row: Option<Submitter> = sqlx::query_as(
-            "SELECT s.id, s.name, t.id AS token_id FROM api_tokens t JOIN submitters s ON s.id = t.submitter_id \
+            "SELECT s.id, s.name, t.id AS token_id, t.is_admin FROM api_tokens t JOIN submitters s ON s.id = t.submitter_id \
              WHERE t.token_sha256 = ? AND t.revoked_at IS NULL",
         )
         .bind(token_hash(token))
@@ -57,6 +74,46 @@ impl Store {
                 .await?;
         }
         Ok(row)
+    }
+}
+
+/// How much of a token is stored in clear (and printed) to name it.
+pub const TOKEN_PREFIX_LEN: usize = 13;
+
+impl Store {
+    /// Revokes a token, given either the whole token or its stored prefix
+    /// (the first 13 characters, as `d3il token create` prints them). Tokens
+    /// revoked before are not counted again; an unknown one is `NotFound`.
+    pub async fn revoke_token(&self, token_or_prefix: &str) -> Result<Revoked, StoreError> {
+        let t = token_or_prefix.trim();
+        let rows: Vec<(i64, String, Option<i64>)> = if t.len() > TOKEN_PREFIX_LEN {
+            sqlx::query_as("SELECT id, prefix, revoked_at FROM api_tokens WHERE token_sha256 = ?")
+                .bind(token_hash(t))
+                .fetch_all(&self.pool)
+                .await?
+        } else {
+            sqlx::query_as("SELECT id, prefix, revoked_at FROM api_tokens WHERE prefix = ?")
+                .bind(t)
+                .fetch_all(&self.pool)
+                .await?
+        };
+        if rows.is_empty() {
+            return Err(StoreError::NotFound(format!(
+                "a token `{t}` (give the whole token or the 13-character prefix `d3il_…` shown when it was created)"
+            )));
+        }
+        let mut prefixes = vec![];
+        for (id, prefix, revoked) in rows {
+            if revoked.is_none() {
+                sqlx::query("UPDATE api_tokens SET revoked_at = ? WHERE id = ? AND revoked_at IS NULL")
+                    .bind(now())
+                    .bind(id)
+                    .execute(&self.pool)
+                    .await?;
+                prefixes.push(prefix);
+            }
+        }
+        Ok(Revoked { prefixes })
     }
 }
 

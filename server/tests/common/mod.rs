@@ -22,6 +22,25 @@ impl TestApp {
         format!("{}{path}", self.base)
     }
 
+    /// GET with a freshly minted admin token (`/admin`).
+    pub async fn get_admin_text(&self, path: &str) -> (u16, String) {
+        let admin = self
+            .state
+            .store
+            .create_token_with("operator", true)
+            .await
+            .expect("admin token");
+        let r = self
+            .http
+            .get(self.url(path))
+            .bearer_auth(admin)
+            .send()
+            .await
+            .expect("GET");
+        let s = r.status().as_u16();
+        (s, r.text().await.expect("body"))
+    }
+
     pub async fn get_text(&self, path: &str) -> (u16, String) {
         let r = self.http.get(self.url(path)).send().await.expect("GET");
         let s = r.status().as_u16();

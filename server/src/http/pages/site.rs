@@ -172,7 +172,12 @@ struct AdminPage {
 /// Operators' view: the sandbox mechanisms in force on this host (what
 /// `d3il worker --check-sandbox` reports, including what the kernel lacks),
 /// the mechanisms the last finished job ran under, the queue and the limits.
-pub(super) async fn admin_page(State(state): State<AppState>) -> Result<Html<String>, PageError> {
+/// Only for admin tokens (issue 17: it shows host paths and the set-up).
+pub(super) async fn admin_page(
+    _admin: Result<crate::auth::Admin, AppError>,
+    State(state): State<AppState>,
+) -> Result<Html<String>, PageError> {
+    let _admin = _admin?;
     let check = state.sandbox.get().await;
     let (mechanisms, check_error) = match &check.result {
         Ok(ms) => (mechanism_lines(ms), None),
