@@ -116,7 +116,11 @@ fn admin_page_lists_the_sandbox_mechanisms_the_worker_reports() {
         .arg(&db)
         .output()
         .unwrap();
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let (status, page) = server.client(Some(&admin)).get_text("/admin").unwrap();
     assert_eq!(status, 401, "revoked: {page}");
     server.kill();

@@ -13,7 +13,32 @@ use std::sync::Arc;
 pub fn router(state: AppState) -> Router {
     Router::new()
         .merge(crate::http::router(state.cfg.max_upload_bytes))
+        .layer(axum::middleware::map_response(security_headers))
         .with_state(state)
+}
+
+/// Content-Security-Policy of every response: the pages run no script, load
+/// everything from this origin (plots are inline SVG) and may not be framed.
+pub const CONTENT_SECURITY_POLICY: &str =
+    "default-src 'self'; script-src 'none'; object-src 'none'; \
+     style-src 'self' 'unsafe-inline'; img-src 'self' data:; base-uri 'none'; form-action 'self'; \
+     frame-ancestors 'none'";
+
+/// Security headers on every response (issue 17), unless a handler set its own.
+async fn security_headers(mut resp: axum::response::Response) -> axum::response::Response {
+    use axum::http::{header, HeaderValue};
+    let h = resp.headers_mut();
+    for (name, value) in [
+        (header::CONTENT_SECURITY_POLICY, CONTENT_SECURITY_POLICY),
+        (header::X_CONTENT_TYPE_OPTIONS, "nosniff"),
+        (header::X_FRAME_OPTIONS, "DENY"),
+        (header::REFERRER_POLICY, "no-referrer"),
+    ] {
+        if !h.contains_key(&name) {
+            h.insert(name, HeaderValue::from_static(value));
+        }
+    }
+    resp
 }
 
 /// The production job runner: the sandboxed worker process.

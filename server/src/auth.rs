@@ -22,7 +22,7 @@ impl FromRequestParts<AppState> for Authed {
 
 /// The token of `Authorization: Bearer <token>`.
 fn bearer_token(parts: &Parts) -> Result<&str, AppError> {
-        let header = parts
+    let header = parts
             .headers
             .get(header::AUTHORIZATION)
             .ok_or_else(|| {
@@ -32,16 +32,16 @@ fn bearer_token(parts: &Parts) -> Result<&str, AppError> {
             })?
             .to_str()
             .map_err(|_| AppError::Unauthorized("the Authorization header is not text".into()))?;
-        // The auth scheme is case-insensitive (RFC 9110 §11.1).
-        let token = header
-            .split_once(' ')
-            .filter(|(scheme, _)| scheme.eq_ignore_ascii_case("bearer"))
-            .map(|(_, t)| t.trim())
-            .filter(|t| !t.is_empty())
-            .ok_or_else(|| {
-                AppError::Unauthorized("the Authorization header must be `Bearer <token>`".into())
-            })?;
-        Ok(token)
+    // The auth scheme is case-insensitive (RFC 9110 §11.1).
+    let token = header
+        .split_once(' ')
+        .filter(|(scheme, _)| scheme.eq_ignore_ascii_case("bearer"))
+        .map(|(_, t)| t.trim())
+        .filter(|t| !t.is_empty())
+        .ok_or_else(|| {
+            AppError::Unauthorized("the Authorization header must be `Bearer <token>`".into())
+        })?;
+    Ok(token)
 }
 
 /// An operator (`/admin`): an admin token (`d3il token create --admin`) as
@@ -68,8 +68,8 @@ impl FromRequestParts<AppState> for Admin {
                 let raw = base64::engine::general_purpose::STANDARD
                     .decode(b64.trim())
                     .map_err(|_| AppError::Unauthorized(ADMIN_HINT.into()))?;
-                let text =
-                    String::from_utf8(raw).map_err(|_| AppError::Unauthorized(ADMIN_HINT.into()))?;
+                let text = String::from_utf8(raw)
+                    .map_err(|_| AppError::Unauthorized(ADMIN_HINT.into()))?;
                 let (_, password) = text
                     .split_once(':')
                     .ok_or_else(|| AppError::Unauthorized(ADMIN_HINT.into()))?;

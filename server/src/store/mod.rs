@@ -21,7 +21,7 @@ pub use jobs::{ClaimedJob, JobRow};
 pub use methods::{MethodRow, NewMethod};
 pub use results::{ResultRow, RolloutRow, SeedSummary};
 pub use submissions::{NewPolicy, NewSubmission, SeedKey, SubmissionRow};
-pub use tokens::{token_hash, Revoked, Submitter, TOKEN_PREFIX_LEN};
+pub use tokens::{token_hash, Revoked, Submitter, LAST_USED_RESOLUTION_S, TOKEN_PREFIX_LEN};
 pub use types::{JobState, PolicyKind, SubmissionStatus};
 
 use sqlx::sqlite::{SqliteConnectOptions, SqliteJournalMode, SqlitePoolOptions, SqliteSynchronous};
@@ -77,6 +77,10 @@ pub fn now() -> i64 {
 pub struct Store {
     pool: SqlitePool,
     data_dir: PathBuf,
+    /// Token id -> when this process last wrote (or started writing) its
+    /// `last_used_at`: one write per token per minute, even while the
+    /// database is locked and the previous write is still waiting.
+    last_used: std::sync::Arc<std::sync::Mutex<std::collections::HashMap<i64, i64>>>,
 }
 
 impl Store {
@@ -110,7 +114,11 @@ impl Store {
             .connect_with(opts)
             .await?;
         MIGRATOR.run(&pool).await?;
-        let store = Store { pool, data_dir };
+        let store = Store {
+            pool,
+            data_dir,
+            last_used: Default::default(),
+        };
         store
             .load_paper(&d3il_protocol::paper::load_embedded())
             .await?;

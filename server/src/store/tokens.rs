@@ -13,7 +13,12 @@ pub struct Submitter {
     pub token_id: i64,
     /// An operator's token (`d3il token create --admin`): may see `/admin`.
     pub is_admin: bool,
+    /// When the token was last used (as recorded: at most once a minute).
+    pub last_used_at: Option<i64>,
 }
+
+/// `last_used_at` is written at most this often per token (issue 17).
+pub const LAST_USED_RESOLUTION_S: i64 = 60;
 
 /// What `d3il token revoke` did.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -60,18 +65,47 @@ impl Store {
     /// The submitter owning this (unrevoked) token, if any.
     pub async fn authenticate(&self, token: &str) -> Result<Option<Submitter>, StoreError> {
         let row: Option<Submitter> = sqlx::query_as(
-            "SELECT s.id, s.name, t.id AS token_id, t.is_admin FROM api_tokens t JOIN submitters s ON s.id = t.submitter_id \
+            "SELECT s.id, s.name, t.id AS token_id, t.is_admin, t.last_used_at FROM api_tokens t JOIN submitters s ON s.id = t.submitter_id \
              WHERE t.token_sha256 = ? AND t.revoked_at IS NULL",
         )
         .bind(token_hash(token))
         .fetch_optional(&self.pool)
         .await?;
+        // Recording the use is bookkeeping, not the request's business: it
+        // is written at most once a minute, in the background, so a held
+        // write lock never delays or fails an authenticated read.
         if let Some(s) = &row {
-            sqlx::query("UPDATE api_tokens SET last_used_at = ? WHERE id = ?")
-                .bind(now())
-                .bind(s.token_id)
-                .execute(&self.pool)
-                .await?;
+            let t = now();
+            let due = |at: Option<i64>| at.is_none_or(|at| t - at >= LAST_USED_RESOLUTION_S);
+            let write = due(s.last_used_at) && {
+                let mut written = self
+                    .last_used
+                    .lock()
+                    .unwrap_or_else(std::sync::PoisonError::into_inner);
+                let due_here = due(written.get(&s.token_id).copied());
+                if due_here {
+                    written.insert(s.token_id, t);
+                }
+                due_here
+            };
+            if write {
+                let pool = self.pool.clone();
+                let id = s.token_id;
+                tokio::spawn(async move {
+                    let r = sqlx::query(
+                        "UPDATE api_tokens SET last_used_at = ? WHERE id = ? \
+                         AND (last_used_at IS NULL OR last_used_at <= ?)",
+                    )
+                    .bind(t)
+                    .bind(id)
+                    .bind(t - LAST_USED_RESOLUTION_S)
+                    .execute(&pool)
+                    .await;
+                    if let Err(e) = r {
+                        tracing::warn!("token {id}: last_used_at not recorded: {e}");
+                    }
+                });
+            }
         }
         Ok(row)
     }
@@ -105,11 +139,13 @@ impl Store {
         let mut prefixes = vec![];
         for (id, prefix, revoked) in rows {
             if revoked.is_none() {
-                sqlx::query("UPDATE api_tokens SET revoked_at = ? WHERE id = ? AND revoked_at IS NULL")
-                    .bind(now())
-                    .bind(id)
-                    .execute(&self.pool)
-                    .await?;
+                sqlx::query(
+                    "UPDATE api_tokens SET revoked_at = ? WHERE id = ? AND revoked_at IS NULL",
+                )
+                .bind(now())
+                .bind(id)
+                .execute(&self.pool)
+                .await?;
                 prefixes.push(prefix);
             }
         }

@@ -1,0 +1,129 @@
+//! The server under hostile use (issue 17), against a real server on
+//! 127.0.0.1 (port 0) with a fresh SQLite file.
+
+mod common;
+use common::*;
+
+/// Every response carries the security headers: pages, API, plots, the
+/// stylesheet, errors and the fallback 404.
+#[tokio::test]
+async fn every_response_carries_the_security_headers() {
+    let app = spawn_app().await;
+    let gets = [
+        ("/", 200),
+        ("/tasks/pushing", 200),
+        ("/api/v1/leaderboards", 200),
+        ("/api/v1/openapi.json", 200),
+        ("/plots/tasks/pushing/pareto.svg", 200),
+        ("/static/style.css", 200),
+        ("/no/such/page", 404),
+        ("/api/v1/submissions/999999", 404),
+        ("/api/v1/whoami", 401),
+        ("/admin", 401),
+    ];
+    for (path, status) in gets {
+        let r = app.http.get(app.url(path)).send().await.unwrap();
+        assert_eq!(r.status().as_u16(), status, "{path}");
+        let h = r.headers();
+        let get = |name: &str| {
+            h.get(name)
+                .and_then(|v| v.to_str().ok())
+                .unwrap_or_else(|| panic!("{path}: no {name} header"))
+                .to_string()
+        };
+        let csp = get("content-security-policy");
+        assert!(csp.contains("script-src 'none'"), "{path}: {csp}");
+        assert!(csp.contains("frame-ancestors 'none'"), "{path}: {csp}");
+        assert_eq!(get("x-content-type-options"), "nosniff", "{path}");
+        assert_eq!(get("x-frame-options"), "DENY", "{path}");
+        assert_eq!(get("referrer-policy"), "no-referrer", "{path}");
+    }
+    // A POST that fails validation too.
+    let r = app
+        .http
+        .post(app.url("/api/v1/submissions"))
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status().as_u16(), 401);
+    assert_eq!(r.headers()["x-frame-options"], "DENY");
+}
+
+async fn last_used(app: &TestApp, token: &str) -> Option<i64> {
+    sqlx::query_scalar("SELECT last_used_at FROM api_tokens WHERE prefix = ?")
+        .bind(&token[..d3il_server::store::TOKEN_PREFIX_LEN])
+        .fetch_one(app.state.store.pool())
+        .await
+        .unwrap()
+}
+
+async fn whoami(app: &TestApp, token: &str) -> u16 {
+    app.http
+        .get(app.url("/api/v1/whoami"))
+        .bearer_auth(token)
+        .timeout(std::time::Duration::from_secs(5))
+        .send()
+        .await
+        .expect("whoami answers within 5 s")
+        .status()
+        .as_u16()
+}
+
+/// `last_used_at` is written at most once a minute and off the request's
+/// path: while another process holds SQLite's write lock, authenticated
+/// requests still answer at once (they used to wait 10 s and fail with 500).
+#[tokio::test]
+async fn last_used_is_written_once_a_minute_and_a_held_write_lock_does_not_fail_requests() {
+    let app = spawn_app().await;
+    let token = app.token.clone();
+    assert_eq!(last_used(&app, &token).await, None);
+    assert_eq!(whoami(&app, &token).await, 200);
+    let first = wait_until(|| async { last_used(&app, &token).await }).await;
+    // Used again at once: not written again within the minute.
+    sqlx::query("UPDATE api_tokens SET last_used_at = ? WHERE prefix = ?")
+        .bind(first - 30)
+        .bind(&token[..d3il_server::store::TOKEN_PREFIX_LEN])
+        .execute(app.state.store.pool())
+        .await
+        .unwrap();
+    assert_eq!(whoami(&app, &token).await, 200);
+    tokio::time::sleep(std::time::Duration::from_millis(500)).await;
+    assert_eq!(
+        last_used(&app, &token).await,
+        Some(first - 30),
+        "written again within a minute"
+    );
+
+    // Another connection (as another process would) takes the write lock; a
+    // token used for the first time now has its write pending meanwhile.
+    let fresh = app.state.store.create_token("newcomer").await.unwrap();
+    let opts = sqlx::sqlite::SqliteConnectOptions::new().filename(&app.db);
+    let mut other = sqlx::ConnectOptions::connect(&opts).await.unwrap();
+    sqlx::query("BEGIN IMMEDIATE")
+        .execute(&mut other)
+        .await
+        .unwrap();
+    // Each answers within whoami's 5 s timeout (the busy timeout is 10 s).
+    for t in [&fresh, &token, &fresh, &token, &fresh] {
+        assert_eq!(whoami(&app, t).await, 200);
+    }
+    assert_eq!(last_used(&app, &fresh).await, None, "the lock is held");
+    sqlx::query("ROLLBACK").execute(&mut other).await.unwrap();
+    // Once the lock is released the pending write lands.
+    let later = wait_until(|| async { last_used(&app, &fresh).await }).await;
+    assert!(later >= first, "{later} {first}");
+}
+
+async fn wait_until<T, F, Fut>(mut f: F) -> T
+where
+    F: FnMut() -> Fut,
+    Fut: std::future::Future<Output = Option<T>>,
+{
+    for _ in 0..150 {
+        if let Some(v) = f().await {
+            return v;
+        }
+        tokio::time::sleep(std::time::Duration::from_millis(100)).await;
+    }
+    panic!("condition not reached in 15 s")
+}
