@@ -74,9 +74,69 @@ pub async fn serve(
 ) -> Result<(), ServeError> {
     let (listener, running) = prepare(cfg, runner).await?;
     on_ready(&running);
-    let app = router(running.state.clone());
-    axum::serve(listener, app).await?;
+    serve_listener(listener, running.state).await;
     Ok(())
+}
+
+/// Accepts connections until the process ends, with the connection limits of
+/// `state.cfg.connections`: a connection past the server's or its client
+/// address's cap is closed at once; one whose request header does not arrive
+/// within the header-read timeout (also the keep-alive idle timeout) is closed.
+pub async fn serve_listener(listener: tokio::net::TcpListener, state: AppState) {
+    use hyper_util::rt::{TokioIo, TokioTimer};
+    use std::collections::HashMap;
+    use std::sync::Mutex;
+    let limits = state.cfg.connections.clone();
+    let app = router(state);
+    let total = Arc::new(tokio::sync::Semaphore::new(limits.max_connections));
+    let per_client: Arc<Mutex<HashMap<std::net::IpAddr, usize>>> = Arc::default();
+    loop {
+        let (stream, peer) = match listener.accept().await {
+            Ok(c) => c,
+            Err(e) => {
+                // Out of file descriptors and the like: wait, do not spin.
+                tracing::warn!("accept failed: {e}");
+                tokio::time::sleep(std::time::Duration::from_millis(50)).await;
+                continue;
+            }
+        };
+        let Ok(permit) = total.clone().try_acquire_owned() else {
+            drop(stream);
+            continue;
+        };
+        let ip = peer.ip();
+        {
+            let mut m = per_client.lock().unwrap_or_else(|e| e.into_inner());
+            let n = m.entry(ip).or_insert(0);
+            if *n >= limits.max_connections_per_client {
+                drop(stream);
+                continue;
+            }
+            *n += 1;
+        }
+        let app = app.clone();
+        let per_client = per_client.clone();
+        let timeout = limits.header_read_timeout;
+        tokio::spawn(async move {
+            let service = hyper_util::service::TowerToHyperService::new(app);
+            let conn = hyper::server::conn::http1::Builder::new()
+                .timer(TokioTimer::new())
+                .header_read_timeout(timeout)
+                .serve_connection(TokioIo::new(stream), service)
+                .with_upgrades();
+            if let Err(e) = conn.await {
+                tracing::debug!("connection from {peer}: {e}");
+            }
+            let mut m = per_client.lock().unwrap_or_else(|e| e.into_inner());
+            if let Some(n) = m.get_mut(&ip) {
+                *n -= 1;
+                if *n == 0 {
+                    m.remove(&ip);
+                }
+            }
+            drop(permit);
+        });
+    }
 }
 
 /// Everything `serve` does before accepting connections.

@@ -27,6 +27,30 @@ pub struct ServerConfig {
     pub limits: Limits,
     /// The worker command (`d3il worker`).
     pub worker: WorkerProcess,
+    /// Connection hygiene (issue 17).
+    pub connections: ConnectionLimits,
+}
+
+/// How long a connection may take and how many may be open.
+#[derive(Debug, Clone)]
+pub struct ConnectionLimits {
+    /// A request's header must arrive within this time, and an idle
+    /// keep-alive connection is closed after it; then the connection closes.
+    pub header_read_timeout: Duration,
+    /// Open connections of the whole server; past it new ones are closed at once.
+    pub max_connections: usize,
+    /// Open connections from one client address.
+    pub max_connections_per_client: usize,
+}
+
+impl Default for ConnectionLimits {
+    fn default() -> Self {
+        ConnectionLimits {
+            header_read_timeout: Duration::from_secs(20),
+            max_connections: 2048,
+            max_connections_per_client: 128,
+        }
+    }
 }
 
 impl ServerConfig {
@@ -51,6 +75,7 @@ impl ServerConfig {
                 max_output_bytes: d3il_sandbox::DEFAULT_MAX_OUTPUT_BYTES,
             },
             limits,
+            connections: ConnectionLimits::default(),
         }
     }
 }

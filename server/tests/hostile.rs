@@ -127,3 +127,73 @@ where
     }
     panic!("condition not reached in 15 s")
 }
+
+/// Raises this process's soft RLIMIT_NOFILE to its hard limit; returns it.
+fn raise_fd_limit() -> u64 {
+    let mut r = libc::rlimit {
+        rlim_cur: 0,
+        rlim_max: 0,
+    };
+    // SAFETY: plain syscalls on a local struct.
+    unsafe {
+        assert_eq!(libc::getrlimit(libc::RLIMIT_NOFILE, &mut r), 0);
+        r.rlim_cur = r.rlim_max;
+        assert_eq!(libc::setrlimit(libc::RLIMIT_NOFILE, &r), 0);
+    }
+    r.rlim_cur
+}
+
+/// Thousands of connections that never finish their request header (from
+/// 127.0.0.2) neither starve other clients nor stay open: past the per-client
+/// cap they are closed at once, the rest after the header-read timeout, and a
+/// normal request (from 127.0.0.1) answers meanwhile.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn half_open_connections_are_capped_and_dropped_after_the_header_timeout() {
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+    let fds = raise_fd_limit();
+    // Both ends live in this process: two descriptors per connection.
+    let n = (5000u64).min(fds.saturating_sub(200) / 2) as usize;
+    assert!(n >= 1000, "fd limit {fds} too low for the flood");
+    let app = spawn_app_with(Options {
+        connections: Some(d3il_server::config::ConnectionLimits {
+            header_read_timeout: std::time::Duration::from_secs(2),
+            max_connections: n + 100,
+            max_connections_per_client: 500,
+        }),
+        ..Options::default()
+    })
+    .await;
+    let mut flood = Vec::with_capacity(n);
+    for _ in 0..n {
+        let sock = tokio::net::TcpSocket::new_v4().unwrap();
+        sock.bind("127.0.0.2:0".parse().unwrap()).unwrap();
+        let mut s = sock.connect(app.addr).await.expect("connect");
+        // Half a request header, never finished.
+        s.write_all(b"GET / HTTP/1.1\r\nHost: x\r\n").await.unwrap();
+        flood.push(s);
+    }
+    // A normal client still gets its answer.
+    let (status, page) = app.get_text("/").await;
+    assert_eq!(status, 200, "{page}");
+    // Every flood connection is closed by the server: past the per-client cap
+    // at once, the others after the 2 s header timeout.
+    let deadline = std::time::Duration::from_secs(20);
+    let mut closed = 0;
+    for s in &mut flood {
+        let mut buf = [0u8; 512];
+        loop {
+            match tokio::time::timeout(deadline, s.read(&mut buf)).await {
+                Ok(Ok(0)) | Ok(Err(_)) => {
+                    closed += 1;
+                    break;
+                }
+                // hyper may answer 408 before closing: read on to the end.
+                Ok(Ok(_)) => continue,
+                Err(_) => panic!("a half-open connection is still open after {deadline:?}"),
+            }
+        }
+    }
+    assert_eq!(closed, n);
+    let (status, _) = app.get_text("/").await;
+    assert_eq!(status, 200);
+}

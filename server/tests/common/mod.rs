@@ -1,7 +1,7 @@
 //! spawn_app(): the real server on 127.0.0.1 port 0 with a fresh SQLite file.
 #![allow(dead_code)]
 
-use d3il_server::app::{prepare, router, ServerConfig};
+use d3il_server::app::{prepare, ServerConfig};
 use d3il_server::queue::JobRunner;
 use std::net::SocketAddr;
 use std::path::PathBuf;
@@ -85,6 +85,8 @@ pub struct Options {
     pub rate_limit: u32,
     pub max_upload: usize,
     pub db: Option<PathBuf>,
+    /// Connection limits; default: the server's.
+    pub connections: Option<d3il_server::config::ConnectionLimits>,
 }
 
 impl Default for Options {
@@ -95,6 +97,7 @@ impl Default for Options {
             rate_limit: 1000,
             max_upload: 1 << 20,
             db: None,
+            connections: None,
         }
     }
 }
@@ -117,15 +120,18 @@ pub async fn spawn_app_with(o: Options) -> TestApp {
     cfg.rate_limit_per_minute = o.rate_limit;
     cfg.max_upload_bytes = o.max_upload;
     cfg.lease_seconds = 3;
+    if let Some(c) = o.connections.clone() {
+        cfg.connections = c;
+    }
     cfg.worker.args = vec![];
     cfg.worker.wall_clock = std::time::Duration::from_secs(60);
     // The production runner: the sandbox supervisor.
     let runner: Arc<dyn JobRunner> = d3il_server::runner::production_runner(&cfg.worker);
     let (listener, running) = prepare(cfg, runner).await.expect("server starts");
-    let app = router(running.state.clone());
-    tokio::spawn(async move {
-        axum::serve(listener, app).await.expect("serve");
-    });
+    tokio::spawn(d3il_server::app::serve_listener(
+        listener,
+        running.state.clone(),
+    ));
     let token = running
         .state
         .store
