@@ -196,4 +196,28 @@ async fn half_open_connections_are_capped_and_dropped_after_the_header_timeout()
     assert_eq!(closed, n);
     let (status, _) = app.get_text("/").await;
     assert_eq!(status, 200);
+
+    // A keep-alive connection that answered a request and then idles is
+    // closed too (the header timeout is also the idle timeout).
+    let mut s = tokio::net::TcpStream::connect(app.addr).await.unwrap();
+    s.write_all(b"GET /static/style.css HTTP/1.1\r\nHost: x\r\n\r\n")
+        .await
+        .unwrap();
+    let mut got = Vec::new();
+    let mut buf = [0u8; 4096];
+    let end = tokio::time::timeout(deadline, async {
+        loop {
+            match s.read(&mut buf).await {
+                Ok(0) | Err(_) => break,
+                Ok(k) => got.extend_from_slice(&buf[..k]),
+            }
+        }
+    })
+    .await;
+    assert!(end.is_ok(), "an idle keep-alive connection stayed open");
+    assert!(
+        got.starts_with(b"HTTP/1.1 200"),
+        "{}",
+        String::from_utf8_lossy(&got)
+    );
 }

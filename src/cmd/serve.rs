@@ -28,6 +28,16 @@ pub struct Args {
     /// Attempts per evaluation before a crashing job fails.
     #[arg(long, default_value_t = 3)]
     pub max_attempts: i64,
+    /// Seconds a client has to send a request header (also the keep-alive
+    /// idle timeout); then the connection is closed.
+    #[arg(long, default_value_t = 20)]
+    pub header_timeout: u64,
+    /// Open connections of the whole server; more are closed at once.
+    #[arg(long, default_value_t = 2048)]
+    pub max_connections: usize,
+    /// Open connections from one client address; more are closed at once.
+    #[arg(long, default_value_t = 128)]
+    pub max_connections_per_client: usize,
     #[command(flatten)]
     pub limits: super::limits::LimitArgs,
     /// Worker executable (default: this binary, run as `d3il worker`).
@@ -59,6 +69,17 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     cfg.rate_limit_per_minute = args.rate_limit.max(1);
     anyhow::ensure!(args.max_attempts >= 1, "--max-attempts must be at least 1");
     cfg.max_attempts = args.max_attempts;
+    anyhow::ensure!(
+        args.header_timeout >= 1
+            && args.max_connections >= 1
+            && args.max_connections_per_client >= 1,
+        "--header-timeout, --max-connections and --max-connections-per-client must be at least 1"
+    );
+    cfg.connections = d3il_server::config::ConnectionLimits {
+        header_read_timeout: std::time::Duration::from_secs(args.header_timeout),
+        max_connections: args.max_connections,
+        max_connections_per_client: args.max_connections_per_client,
+    };
     cfg.limits = args.limits.limits()?;
     cfg.worker.wall_clock = std::time::Duration::from_secs(cfg.limits.wall_seconds + 30);
     d3il_server::cli::serve_blocking(cfg).context("d3il serve failed")?;
