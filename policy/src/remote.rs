@@ -14,8 +14,8 @@ use tungstenite::protocol::WebSocketConfig;
 use tungstenite::{Message, WebSocket};
 
 /// Largest k and H a server may announce (far above any D3IL baseline).
-const MAX_HISTORY: u64 = 64;
-const MAX_HORIZON: u64 = 1024;
+const MAX_HISTORY: u64 = d3il_protocol::PolicyManifest::MAX_HISTORY as u64;
+const MAX_HORIZON: u64 = d3il_protocol::PolicyManifest::MAX_HORIZON as u64;
 
 /// A TCP stream whose reads and writes fail with `TimedOut` once the current
 /// deadline has passed, however the server dribbles its bytes.

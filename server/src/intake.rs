@@ -392,6 +392,7 @@ pub fn validate(raw: &RawSubmission, limits: &Limits) -> Result<ValidSubmission,
             horizon: 1,
             execute: 1,
             normalisation: None,
+            window: Default::default(),
         },
     };
     for (k, v) in [
