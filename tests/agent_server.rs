@@ -103,7 +103,11 @@ fn a_reference_style_agent_is_served_with_one_state_per_rollout() {
         for (i, c) in cs.iter().enumerate() {
             assert_eq!(c["resets"], 1, "agent {agent}");
             assert_eq!(c["calls"].as_u64().unwrap(), i as u64 + 1, "agent {agent}");
-            assert_eq!(c["window"].as_u64().unwrap(), (i as u64 + 1).min(5), "agent {agent}");
+            assert_eq!(
+                c["window"].as_u64().unwrap(),
+                (i as u64 + 1).min(5),
+                "agent {agent}"
+            );
         }
         counts.push(cs.len() as u64);
     }

@@ -23,7 +23,14 @@ fn every_agent_fixture_completes_a_quick_aligning_evaluation() {
     for name in &names {
         let json = scratch.join(format!("{name}.result.json"));
         let out = Command::new(env!("CARGO_BIN_EXE_d3il"))
-            .args(["eval", "--task", "aligning", "--protocol", "quick", "--policy"])
+            .args([
+                "eval",
+                "--task",
+                "aligning",
+                "--protocol",
+                "quick",
+                "--policy",
+            ])
             .arg(format!("{DIR}{name}.onnx"))
             .arg("--json")
             .arg(&json)
@@ -42,10 +49,9 @@ fn every_agent_fixture_completes_a_quick_aligning_evaluation() {
             rollouts.iter().all(|x| x["steps"].as_u64().unwrap() > 0),
             "{name}"
         );
-        let man: serde_json::Value = serde_json::from_str(
-            &std::fs::read_to_string(format!("{DIR}{name}.json")).unwrap(),
-        )
-        .unwrap();
+        let man: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(format!("{DIR}{name}.json")).unwrap())
+                .unwrap();
         assert_eq!(r["manifest"]["history"], man["history"], "{name}");
         assert_eq!(r["manifest"]["horizon"], man["horizon"], "{name}");
     }

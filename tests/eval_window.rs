@@ -152,7 +152,11 @@ fn padded_window_repeats_the_first_observation_and_zero_fills_prev_actions() {
         let first = &seen[0];
         assert_eq!(first.window, K);
         for j in 1..K {
-            assert_eq!(&first.obs[j * OBS..(j + 1) * OBS], &first.obs[..OBS], "rollout {id}");
+            assert_eq!(
+                &first.obs[j * OBS..(j + 1) * OBS],
+                &first.obs[..OBS],
+                "rollout {id}"
+            );
         }
         assert!(first.prev.iter().all(|&x| x == 0.0), "rollout {id}");
         assert_eq!(first.prev.len(), (K - 1) * ACT);

@@ -63,9 +63,10 @@ fn every_method_family_is_there() {
 fn tract_matches_onnxruntime_on_recorded_inputs() {
     for name in names() {
         let (p, man) = load(&name);
-        let rec: Value =
-            serde_json::from_str(&std::fs::read_to_string(format!("{DIR}{name}.ort.json")).unwrap())
-                .unwrap();
+        let rec: Value = serde_json::from_str(
+            &std::fs::read_to_string(format!("{DIR}{name}.ort.json")).unwrap(),
+        )
+        .unwrap();
         let cases = rec["cases"].as_array().unwrap();
         let want_cases = if man.window == WindowMode::Grow {
             man.history
@@ -123,7 +124,9 @@ fn growing_windows_and_prev_actions_reach_the_graph() {
     let ids = [7u64, 8, 9, 10, 11];
     let steps = [0u64; 5];
     let obs: Vec<f32> = (0..5 * 2 * 20).map(|i| (i as f32 * 0.37).sin()).collect();
-    let prev: Vec<f32> = (0..5 * 3).map(|i| (i as f32 * 0.11).cos() * 0.004).collect();
+    let prev: Vec<f32> = (0..5 * 3)
+        .map(|i| (i as f32 * 0.11).cos() * 0.004)
+        .collect();
     let mut q = Query::new(&ids, &steps, &obs);
     q.window = Some(2);
     q.prev_actions = Some(&prev);

@@ -411,11 +411,15 @@ mod tests {
     #[test]
     fn manifest_window_mode_parses_and_is_checked_against_the_task() {
         let m: PolicyManifest =
-            serde_json::from_str(r#"{"task": "aligning", "history": 5, "window": "grow"}"#).unwrap();
+            serde_json::from_str(r#"{"task": "aligning", "history": 5, "window": "grow"}"#)
+                .unwrap();
         assert_eq!(m.window, WindowMode::Grow);
         let e = serde_json::from_str::<PolicyManifest>(r#"{"task": "aligning", "window": "grew"}"#)
             .unwrap_err();
-        assert!(e.to_string().contains("pad") && e.to_string().contains("grow"), "{e}");
+        assert!(
+            e.to_string().contains("pad") && e.to_string().contains("grow"),
+            "{e}"
+        );
         let spec = crate::TaskSpec {
             task: TaskId::Aligning,
             obs_dim: 20,
@@ -431,7 +435,11 @@ mod tests {
         });
         let e = n.validate_for(&spec).unwrap_err();
         assert_eq!(e.field, "normalisation.act_mean");
-        assert!(e.to_string().contains("has 2 entries but task aligning needs 3"), "{e}");
+        assert!(
+            e.to_string()
+                .contains("has 2 entries but task aligning needs 3"),
+            "{e}"
+        );
         let other = crate::TaskSpec {
             task: TaskId::Avoiding,
             ..spec

@@ -364,8 +364,8 @@ fn agents_bench(batch: usize) -> anyhow::Result<()> {
             String::from_utf8_lossy(&ort.stderr)
         );
     }
-    let ort: serde_json::Map<String, Value> = serde_json::from_slice(&ort.stdout)
-        .context("reading the onnxruntime benchmark's JSON")?;
+    let ort: serde_json::Map<String, Value> =
+        serde_json::from_slice(&ort.stdout).context("reading the onnxruntime benchmark's JSON")?;
     let mut names: Vec<String> = std::fs::read_dir(&dir)?
         .filter_map(|e| e.ok()?.file_name().into_string().ok())
         .filter_map(|n| n.strip_suffix(".onnx").map(str::to_string))

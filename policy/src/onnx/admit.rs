@@ -248,7 +248,6 @@ fn fmt_shape(s: &[Dim]) -> String {
     )
 }
 
-
 /// Parses and checks the file against the manifest and task; returns the
 /// parsed model and its input signature.
 pub(super) fn inspect(

@@ -139,7 +139,9 @@ impl Model {
             .set_symbols(&subs)
             .and_then(|m| m.into_optimized())
             .and_then(|m| m.into_runnable())
-            .map_err(|e| format!("tract could not prepare the graph for batch {batch}, window {w}: {e:#}"))?;
+            .map_err(|e| {
+                format!("tract could not prepare the graph for batch {batch}, window {w}: {e:#}")
+            })?;
         self.plans
             .lock()
             .map_err(|e| e.to_string())?

@@ -72,13 +72,15 @@ impl OnnxPolicy {
     ) -> Result<Self, PolicyError> {
         // tract panics on a few malformed inputs (unimplemented data types);
         // a submission must never take the evaluator down with it.
-        let p = catch_unwind(AssertUnwindSafe(|| Self::load_inner(bytes, manifest, task, seed)))
-            .map_err(|p| {
-                PolicyError::Unsupported(format!(
-                    "the ONNX runtime could not handle this model ({})",
-                    panic_message(p)
-                ))
-            })??;
+        let p = catch_unwind(AssertUnwindSafe(|| {
+            Self::load_inner(bytes, manifest, task, seed)
+        }))
+        .map_err(|p| {
+            PolicyError::Unsupported(format!(
+                "the ONNX runtime could not handle this model ({})",
+                panic_message(p)
+            ))
+        })??;
         Ok(p)
     }
 

@@ -160,7 +160,9 @@ impl OnnxPolicy {
                 Feed::PrevActions => {
                     let len = (w - 1) * s.act_dim;
                     let prev = q.prev_actions.ok_or_else(|| {
-                        PolicyError::Caller("a policy taking prev_actions was queried without them".into())
+                        PolicyError::Caller(
+                            "a policy taking prev_actions was queried without them".into(),
+                        )
                     })?;
                     let mut v = Vec::with_capacity(n * len);
                     for i in 0..n {
@@ -281,9 +283,10 @@ pub(super) fn run_explicit(
         let t = Tensor::from_shape(&shape, data).map_err(|e| bad(format!("{e:#}")))?;
         inputs.push(t.into_tvalue());
     }
-    p.run_plan(batch, window, inputs).map_err(|message| PolicyError::Inference {
-        rollout: 0,
-        step: 0,
-        message,
-    })
+    p.run_plan(batch, window, inputs)
+        .map_err(|message| PolicyError::Inference {
+            rollout: 0,
+            step: 0,
+            message,
+        })
 }
