@@ -21,10 +21,48 @@ fn main() {
     if !version.contains("#define mjVERSION_HEADER 222") {
         panic!("\n\n/usr/include/mujoco/mujoco.h is not MuJoCo 2.2.2 (mjVERSION_HEADER 222 expected).\nInstall Debian's libmujoco-dev 2.2.2: sudo apt-get install -y libmujoco-dev\n\n");
     }
+    embed_panda_meshes();
     println!("cargo:rustc-link-search=native={lib_dir}");
     println!("cargo:rustc-link-lib=dylib=mujoco");
     #[cfg(feature = "regenerate-bindings")]
     regenerate();
+}
+
+/// The Panda hand and finger meshes that `./dev` converts from the
+/// `example-robot-data` package into assets/meshes/ (scripts/panda_meshes.py)
+/// are compiled into the binary when present, so that sandboxed workers need
+/// no file access for them; without them the scenes keep primitive shapes.
+fn embed_panda_meshes() {
+    let manifest = std::env::var("CARGO_MANIFEST_DIR").expect("set by cargo");
+    let dir = Path::new(&manifest).join("../assets/meshes");
+    // A directory's mtime changes when files are added or replaced in it.
+    if dir.is_dir() {
+        println!("cargo:rerun-if-changed={}", dir.display());
+    } else {
+        println!(
+            "cargo:rerun-if-changed={}",
+            Path::new(&manifest).join("../assets").display()
+        );
+    }
+    let hand = dir.join("panda_hand.obj");
+    let finger = dir.join("panda_finger.obj");
+    let code = if hand.is_file() && finger.is_file() {
+        println!("cargo:rerun-if-changed={}", hand.display());
+        println!("cargo:rerun-if-changed={}", finger.display());
+        let abs = |p: &Path| p.canonicalize().expect("exists").display().to_string();
+        format!(
+            "/// (hand OBJ, finger OBJ) converted from example-robot-data at set-up time.\n\
+             pub const PANDA_MESHES: Option<(&str, &str)> = Some((include_str!({:?}), include_str!({:?})));\n",
+            abs(&hand),
+            abs(&finger)
+        )
+    } else {
+        "/// Not converted at build time (./dev installs example-robot-data and converts them).\n\
+         pub const PANDA_MESHES: Option<(&str, &str)> = None;\n"
+            .to_string()
+    };
+    let out = Path::new(&std::env::var("OUT_DIR").expect("set by cargo")).join("panda_meshes.rs");
+    std::fs::write(out, code).expect("writing OUT_DIR/panda_meshes.rs");
 }
 
 #[cfg(feature = "regenerate-bindings")]

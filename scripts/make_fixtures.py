@@ -13,8 +13,16 @@ committed files byte for byte. The fixtures are:
   aligning_mlp.onnx         BC-MLP-sized MLP (20 -> 6x128 -> 3), random weights (benchmarks)
   aligning_mlp_batch1.onnx  the same MLP exported with a fixed batch dimension of 1
   aligning_image.onnx       image-policy shape fixture: `images` [B,1,2,3,96,96] -> [B,3]
+  aligning_resnet18.onnx    the paper's image architecture with random weights (benchmarks):
+                            a ResNet-18 encoder per camera on the 96x96 BGR images, the two
+                            512-d features concatenated with the low-dim `obs` [B,1,3], an MLP
+                            head (1027 -> 256 -> 256 -> 3). Each conv weight is a small random
+                            block tiled to the full ResNet-18 shape (`Tile` of a constant, which
+                            the runtime folds at load time): the same compute as 2 x 11.2 M
+                            weights, in a file of a few hundred KB instead of 90 MB
   hostile_*.onnx            truncated, garbage, huge declared initializer, external data,
-                            wrong obs dim, wrong act dim, NaN output, endless compute
+                            wrong obs dim, wrong act dim, NaN output, endless compute,
+                            a Tile memory bomb
 
 Avoiding geometry (spec/10 §2.1, §2.3-2.5): the policy input is
 [desired x, desired y, measured x, measured y]; the action is the delta of the
@@ -253,6 +261,23 @@ def endless_graph(n=4096, repeats=64):
     return g.model(inputs, outputs, "endless")
 
 
+def tile_bomb_graph(n=1 << 20):
+    """A tiny file whose one Tile node asks for an n x n float32 tensor at run
+    time (4 TiB for n = 2^20): more than any memory limit or machine allows,
+    built from the observation so nothing can be folded at load."""
+    g = Graph()
+    flat = g.op("Flatten", ["obs"], axis=1)
+    s = g.op("ReduceSum", [flat], keepdims=0)
+    row = g.op("Reshape", [s, g.const([1, 1], np.int64)])
+    m = g.op("Tile", [row, g.const([n, n], np.int64)])
+    corner = g.op("Slice", [m, g.const([0, 0], np.int64), g.const([1, 2], np.int64), g.const([0, 1], np.int64)])  # [1,2]
+    zeros = g.op("Mul", [g.op("Slice", [flat, g.const([0], np.int64), g.const([2], np.int64), g.const([1], np.int64)]), g.const(0.0)])
+    g.op_to("Add", [zeros, corner], "actions")
+    inputs = [helper.make_tensor_value_info("obs", TensorProto.FLOAT, ["B", 1, 4])]
+    outputs = [helper.make_tensor_value_info("actions", TensorProto.FLOAT, ["B", 2])]
+    return g.model(inputs, outputs, "tile_bomb")
+
+
 def huge_initializer_model(external):
     """A valid-looking Avoiding graph with a 100000 x 100000 float32 initializer
     (40 GB declared). Embedded variant: 16 bytes of actual data; external variant:
@@ -282,6 +307,68 @@ def huge_initializer_model(external):
     m.ir_version = 8
     # No checker: it would try to read the external file / validate sizes.
     return m
+
+
+def resnet18_image_graph(seed=3, block=8):
+    """The paper's image policy shape (see the module docstring). BatchNorm is folded
+    into the convolutions (inference form: conv + bias)."""
+    rng = np.random.default_rng(seed)
+    g = Graph()
+
+    def weight(cout, cin, k, gain=1.0):
+        bo, bi = min(block, cout), min(block, cin)
+        # The tiled input channels repeat in groups (the previous layer's outputs are
+        # tiled too), so the sum over cin adds cin/bi equal copies: scale for that.
+        std = gain * np.sqrt(2.0 / (bi * k * k)) / (cin // bi)
+        small = g.const(rng.normal(0.0, std, size=(bo, bi, k, k)).astype(np.float32))
+        reps = g.const([cout // bo, cin // bi, 1, 1], np.int64)
+        return g.op("Tile", [small, reps])
+
+    def conv(x, cout, cin, k, stride, relu=True, gain=1.0):
+        pad = k // 2
+        y = g.op("Conv", [x, weight(cout, cin, k, gain), g.const(np.zeros(cout, np.float32))],
+                 kernel_shape=[k, k], strides=[stride, stride], pads=[pad] * 4)
+        return g.op("Relu", [y]) if relu else y
+
+    def basic_block(x, cin, cout, stride):
+        y = conv(x, cout, cin, 3, stride)
+        y = conv(y, cout, cout, 3, 1, relu=False, gain=0.5)
+        skip = x if (stride == 1 and cin == cout) else conv(x, cout, cin, 1, stride, relu=False)
+        return g.op("Relu", [g.op("Add", [y, skip])])
+
+    def encoder(img):  # [B,3,96,96] -> [B,512]
+        x = conv(img, 64, 3, 7, 2)  # 48x48
+        x = g.op("MaxPool", [x], kernel_shape=[3, 3], strides=[2, 2], pads=[1, 1, 1, 1])  # 24x24
+        cin = 64
+        for cout, stride in [(64, 1), (128, 2), (256, 2), (512, 2)]:
+            x = basic_block(x, cin, cout, stride)
+            x = basic_block(x, cout, cout, 1)
+            cin = cout
+        return g.op("Flatten", [g.op("GlobalAveragePool", [x])], axis=1)
+
+    feats = []
+    for cam in range(2):
+        sl = g.op("Slice", ["images", g.const([0, cam], np.int64), g.const([1, cam + 1], np.int64),
+                            g.const([1, 2], np.int64)])  # [B,1,1,3,96,96], newest frame
+        img = g.op("Reshape", [sl, g.const([-1, 3, 96, 96], np.int64)])
+        feats.append(encoder(img))
+    low = g.op("Flatten", [last_obs(g, "obs")], axis=1)  # [B,3]
+    h = g.op("Concat", feats + [low], axis=1)  # [B,1027]
+    dims = [2 * 512 + 3, 256, 256, 3]
+    for i in range(len(dims) - 1):
+        w = rng.normal(0.0, 1.0 / np.sqrt(dims[i]), size=(dims[i], dims[i + 1])).astype(np.float32)
+        b = np.zeros(dims[i + 1], np.float32)
+        if i == len(dims) - 2:
+            w *= 0.001  # keep benchmark actions small
+            g.op_to("Gemm", [h, g.const(w), g.const(b)], "actions")
+        else:
+            h = g.op("Relu", [g.op("Gemm", [h, g.const(w), g.const(b)])])
+    inputs = [
+        helper.make_tensor_value_info("images", TensorProto.FLOAT, ["B", 1, 2, 3, 96, 96]),
+        helper.make_tensor_value_info("obs", TensorProto.FLOAT, ["B", 1, 3]),
+    ]
+    outputs = [helper.make_tensor_value_info("actions", TensorProto.FLOAT, ["B", 3])]
+    return g.model(inputs, outputs, "aligning_resnet18")
 
 
 def manifest(task, history=1, horizon=1, execute=1, obs_type="state"):
@@ -316,6 +403,9 @@ def main():
          "the same MLP with a fixed batch dimension of 1 (evaluator runs rows one by one)")
     save("aligning_image", image_graph(), manifest("aligning", obs_type="image"),
          "image policy shape fixture: images [B,1,2,3,96,96] -> actions [B,3]")
+    save("aligning_resnet18", resnet18_image_graph(), manifest("aligning", obs_type="image"),
+         "the paper's image architecture, random weights (benchmarks): ResNet-18 per camera on "
+         "images [B,1,2,3,96,96] + obs [B,1,3] -> MLP 256x2 -> actions [B,3]")
 
     good = avoiding_graph(noise=False).SerializeToString()
     save("hostile_truncated", good[: len(good) // 2], av, "first half of avoiding_path.onnx")
@@ -329,6 +419,7 @@ def main():
     save("hostile_wrong_act_dim", wrong_act_dim_graph(), av, "3 actions per row, Avoiding needs 2")
     save("hostile_nan", nan_graph(), av, "every action is NaN")
     save("hostile_endless", endless_graph(), av, "64 chained 4096x4096 MatMuls per query: never finishes in time")
+    save("hostile_tile_bomb", tile_bomb_graph(), av, "one Tile node asking for a 2^20 x 2^20 float32 tensor (4 TiB) per query")
 
 
 if __name__ == "__main__":

@@ -1,6 +1,8 @@
 //! `d3il`: the one binary. Each subcommand lives in `src/cmd/<name>.rs` and
 //! exposes `Args` (clap) and `run(args) -> anyhow::Result<()>`.
 
+#![forbid(unsafe_code)]
+
 use clap::{Parser, Subcommand};
 
 mod cmd;
@@ -22,6 +24,8 @@ struct Cli {
 enum Command {
     /// Benchmarks that print ratios (physics, eval, render).
     Bench(cmd::bench::Args),
+    /// Compare two `d3il eval --json` results on the same initial states (paired difference, interval, p-value).
+    Compare(cmd::compare::Args),
     /// Generate or verify the fixed initial-state sets.
     Contexts(cmd::contexts::Args),
     /// Evaluate a policy (ONNX file, ws:// or wss:// endpoint, or scripted) on a task and print the D3IL metrics.
@@ -46,6 +50,7 @@ fn main() -> anyhow::Result<()> {
     let cli = Cli::parse();
     match cli.command {
         Command::Bench(a) => cmd::bench::run(a),
+        Command::Compare(a) => cmd::compare::run(a),
         Command::Contexts(a) => cmd::contexts::run(a),
         Command::Render(a) => cmd::render::run(a),
         Command::Replay(a) => cmd::replay::run(a),

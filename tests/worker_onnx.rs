@@ -181,6 +181,30 @@ fn a_graph_that_takes_forever_is_stopped_by_the_wall_clock_too() {
 }
 
 #[test]
+fn a_tile_memory_bomb_is_a_memory_limit_error() {
+    // One Tile node asks for a 4 TiB tensor at run time; tract asserts its
+    // allocation succeeded, the worker catches the panic and reports the
+    // memory limit (issue 17 item 7), not a bad action.
+    let l = Limits {
+        memory_bytes: 1 << 30,
+        ..limits()
+    };
+    let (r, seen) = run_fixture("hostile_tile_bomb", l);
+    let e = failure(&r);
+    assert_eq!(e.kind, ErrorKind::MemoryLimit, "{e:?}\n{}", r.stderr);
+    assert_eq!(seen, vec![(0, 8)], "it loaded, then the first query failed");
+    assert!(
+        e.message.starts_with(
+            "the ONNX runtime ran out of memory in the query of rollout 0 at step 0 (failed to allocate"
+        ) && e.message.ends_with(
+            "the model needs more memory than the worker's memory limit allows: make its tensors smaller or ask for a higher limit"
+        ),
+        "{}",
+        e.message
+    );
+}
+
+#[test]
 fn nan_actions_are_a_bad_action() {
     let m = expect("hostile_nan", limits(), ErrorKind::BadAction);
     assert_eq!(

@@ -10,8 +10,8 @@ use d3il_policy::{
     validate_actions, HistoryBuffer, OnnxPolicy, Policy, PolicyError, Query, RemotePolicy,
 };
 use d3il_protocol::{
-    ErrorKind, EvalResult, Job, ObsType, PolicySource, ProtocolKind, ProtocolManifest,
-    RolloutRecord, TaskId, WorkerError,
+    ErrorKind, EvalResult, FailureReason, Job, ObsType, PolicySource, ProtocolKind,
+    ProtocolManifest, RolloutFailure, RolloutRecord, TaskId, WorkerError,
 };
 use rayon::prelude::*;
 use serde_json::Value;
@@ -130,6 +130,8 @@ struct Slot {
     path: Vec<[f32; 2]>,
     /// Seconds spent in [`step_slot`] (benchmarks).
     step_cpu_s: f64,
+    /// Set when the simulation became unstable: the rollout ends as a failure.
+    failure: Option<RolloutFailure>,
 }
 
 /// Runs `policy` on `task` under the protocol and computes the D3IL metrics.
@@ -184,6 +186,7 @@ pub fn evaluate(
             prev_cap,
             path: Vec::new(),
             step_cpu_s: 0.0,
+            failure: None,
         });
     }
     let mut next = 0usize;
@@ -209,6 +212,7 @@ pub fn evaluate(
         slot.queue.clear();
         slot.executed.clear();
         slot.path.clear();
+        slot.failure = None;
         if record_paths {
             let p = slot.env.sim.tcp_pos();
             slot.path.push([p[0] as f32, p[1] as f32]);
@@ -305,12 +309,21 @@ pub fn evaluate(
             let Some((id, ctx, r)) = slot.rollout else {
                 continue;
             };
-            if !slot.env.is_done() {
+            let failure = slot.failure.take();
+            if !slot.env.is_done() && failure.is_none() {
                 continue;
             }
-            let success = slot.env.success();
-            let behaviour = slot.env.behaviour();
-            let key = if task.def.id() == TaskId::Stacking {
+            let unstable = failure.is_some();
+            // An unstable rollout is a failure at every level, with no behaviour.
+            let success = !unstable && slot.env.success();
+            let behaviour = if unstable {
+                Value::Null
+            } else {
+                slot.env.behaviour()
+            };
+            let key = if unstable {
+                None
+            } else if task.def.id() == TaskId::Stacking {
                 // Stacking's levels need the registration order of every rollout.
                 behaviour.as_str().map(str::to_string)
             } else {
@@ -328,6 +341,7 @@ pub fn evaluate(
                 behaviour,
                 steps: slot.env.steps(),
                 path: record_paths.then(|| std::mem::take(&mut slot.path)),
+                failure,
             });
             done_count += 1;
             if let Some(nid) = start(slot, &mut next)? {
@@ -342,6 +356,14 @@ pub fn evaluate(
 
     let outcomes: Vec<Outcome> = outcomes.into_iter().flatten().collect();
     let rollouts: Vec<RolloutRecord> = records.into_iter().flatten().collect();
+    let rollouts_ended_unstable = rollouts
+        .iter()
+        .filter(|r| {
+            r.failure
+                .as_ref()
+                .is_some_and(|f| f.reason == FailureReason::SimUnstable)
+        })
+        .count();
     let inference_ms = if timing.policy_calls > 0 {
         1000.0 * timing.policy_s / timing.policy_calls as f64
     } else {
@@ -364,6 +386,7 @@ pub fn evaluate(
         protocol: opts.protocol,
         mjcf_sha256: task.mjcf_sha256.clone(),
         initial_states_sha256: set.sha256.clone(),
+        initial_states: set.name.clone(),
         mujoco_version: crate::mujoco::version(),
         evaluator_version: env!("CARGO_PKG_VERSION").into(),
         n_contexts: n_ctx,
@@ -384,23 +407,40 @@ pub fn evaluate(
             metrics: evaluation.metrics,
             per_context: evaluation.per_context,
             rollouts,
+            rollouts_ended_unstable,
         },
         timing,
     ))
 }
 
 /// One env step of a live slot: the next queued action, then the new
-/// observation into the history. Returns whether the rollout is done.
+/// observation into the history. Returns whether the rollout is done. A
+/// MuJoCo warning (instability, buffer overflow) ends the rollout as a
+/// failure (`slot.failure`) instead of failing the evaluation; an invalid
+/// action from the policy still fails it.
 fn step_slot(s: &mut Slot, record_paths: bool) -> Result<bool, EvalError> {
     let (id, ctx, _) = s.rollout.expect("filtered to live slots");
     let action = s.queue.pop_front().unwrap_or_default();
     let step = s.env.steps();
-    let out = s.env.step(&action).map_err(|source| EvalError::Rollout {
-        rollout: id,
-        context: ctx,
-        step,
-        source,
-    })?;
+    let out = match s.env.step(&action) {
+        Ok(out) => out,
+        Err(TaskError::SimulationWarning { step, warnings }) => {
+            s.failure = Some(RolloutFailure {
+                reason: FailureReason::SimUnstable,
+                message: warnings,
+                step,
+            });
+            return Ok(true);
+        }
+        Err(source) => {
+            return Err(EvalError::Rollout {
+                rollout: id,
+                context: ctx,
+                step,
+                source,
+            })
+        }
+    };
     if s.prev_cap > 0 {
         if s.executed.len() == s.prev_cap {
             s.executed.pop_front();

@@ -1,8 +1,15 @@
 //! Everything that runs a policy in the D3IL re-implementation.
+//!
+//! `unsafe` is denied everywhere in this crate except [`mujoco`], the binding
+//! to MuJoCo's C API (and its renderer), which keeps every raw pointer behind
+//! a safe interface.
+
+#![deny(unsafe_code)]
 
 pub mod camera;
 #[cfg(feature = "engine")]
 pub mod eval;
+#[allow(unsafe_code)]
 pub mod mujoco;
 pub mod robot;
 #[cfg(feature = "engine")]

@@ -1,5 +1,7 @@
 //! Aligning end to end in real MuJoCo (spec/10 §3).
 
+mod common;
+
 use d3il_evaluator::tasks::aligning::{AligningScript, AligningStyle};
 use d3il_evaluator::tasks::{LoadedTask, TaskError};
 use d3il_protocol::TaskId;
@@ -115,21 +117,10 @@ fn same_actions_give_identical_observations() {
     let task = LoadedTask::load(TaskId::Aligning).unwrap();
     let set = task.def.context_set().unwrap();
     let script = AligningScript::new(AligningStyle::Inside);
-    let trace = || {
-        let mut env = task.env().unwrap();
-        let mut obs = vec![env.reset(set.get(3).unwrap()).unwrap()];
-        for _ in 0..120 {
-            let out = env.step(&script.act(&env.policy_obs())).unwrap();
-            obs.push(out.obs);
-            if out.done {
-                break;
-            }
-        }
-        obs
-    };
-    let (a, b) = (trace(), trace());
+    let a = common::assert_deterministic(&task, set.get(3).unwrap(), 120, &|env| {
+        script.act(&env.policy_obs())
+    });
     assert!(a.len() > 100);
-    assert_eq!(a, b);
 }
 
 #[test]
@@ -139,14 +130,12 @@ fn fixed_set_loads_and_verifies() {
     assert_eq!(set.len(), 60);
     assert_eq!(task.def.n_contexts_paper(set.len()), 60);
     assert_eq!(task.def.rollouts_per_context(), 8);
-    let mut env = task.env().unwrap();
-    for i in 0..set.len() {
-        let obs = env.reset(set.get(i).unwrap()).unwrap();
+    common::reset_every_context(&task, |_, _, obs| {
         // spec/10 §3.2 ranges of the distribution.
         assert!((0.4..=0.6).contains(&obs[3]) && (-0.25..=-0.1).contains(&obs[4]));
         assert!((0.4..=0.6).contains(&obs[10]) && (0.2..=0.35).contains(&obs[11]));
         assert_eq!(obs[12], 0.0);
-    }
+    });
 }
 
 #[test]

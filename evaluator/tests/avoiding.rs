@@ -1,5 +1,7 @@
 //! Avoiding end to end in real MuJoCo (spec/10 §2).
 
+mod common;
+
 use d3il_evaluator::tasks::avoiding::{path_code, AvoidingScript};
 use d3il_evaluator::tasks::{LoadedTask, TaskError};
 use d3il_protocol::TaskId;
@@ -93,18 +95,9 @@ fn bad_actions_are_refused_before_mujoco() {
 fn same_actions_give_identical_observations() {
     let task = LoadedTask::load(TaskId::Avoiding).unwrap();
     let script = AvoidingScript::new(7).unwrap();
-    let trace = || {
-        let mut env = task.env().unwrap();
-        let mut obs = vec![env.reset(&Value::Null).unwrap()];
-        loop {
-            let out = env.step(&script.act(&env.policy_obs())).unwrap();
-            obs.push(out.obs);
-            if out.done {
-                break obs;
-            }
-        }
-    };
-    assert_eq!(trace(), trace());
+    common::assert_deterministic(&task, &Value::Null, usize::MAX, &|env| {
+        script.act(&env.policy_obs())
+    });
 }
 
 #[test]

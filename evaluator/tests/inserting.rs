@@ -1,5 +1,7 @@
 //! Inserting end to end in real MuJoCo (spec/11 §3).
 
+mod common;
+
 use d3il_evaluator::tasks::inserting::{mode_code, InsertingScript, TARGETS};
 use d3il_evaluator::tasks::LoadedTask;
 use d3il_protocol::TaskId;
@@ -108,10 +110,7 @@ fn fixed_set_loads_and_verifies() {
     assert_eq!(set.len(), 60);
     assert_eq!(task.def.rollouts_per_context(), 8);
     assert_eq!(task.def.spec().obs_dim, 13);
-    let mut env = task.env().unwrap();
-    for c in &set.file.contexts {
-        assert_eq!(env.reset(c).unwrap().len(), 11);
-    }
+    common::reset_every_context(&task, |_, _, obs| assert_eq!(obs.len(), 11));
 }
 
 /// How often each one-box script inserts its box over the fixed set (slow:

@@ -1,5 +1,7 @@
 //! Pushing end to end in real MuJoCo (spec/10 §4).
 
+mod common;
+
 use d3il_evaluator::tasks::pushing::{detect_mode, PushingScript};
 use d3il_evaluator::tasks::{LoadedTask, TaskError};
 use d3il_protocol::TaskId;
@@ -141,21 +143,10 @@ fn same_actions_give_identical_observations() {
     let task = LoadedTask::load(TaskId::Pushing).unwrap();
     let set = task.def.context_set().unwrap();
     let script = PushingScript::new(2).unwrap();
-    let trace = || {
-        let mut env = task.env().unwrap();
-        let mut obs = vec![env.reset(set.get(1).unwrap()).unwrap()];
-        for _ in 0..150 {
-            let out = env.step(&script.act(&env.policy_obs())).unwrap();
-            obs.push(out.obs);
-            if out.done {
-                break;
-            }
-        }
-        obs
-    };
-    let (a, b) = (trace(), trace());
+    let a = common::assert_deterministic(&task, set.get(1).unwrap(), 150, &|env| {
+        script.act(&env.policy_obs())
+    });
     assert!(a.len() > 100);
-    assert_eq!(a, b);
 }
 
 #[test]
@@ -166,12 +157,10 @@ fn fixed_set_loads_and_verifies() {
     // The paper's protocol: the first 30 states × 16 rollouts.
     assert_eq!(task.def.n_contexts_paper(set.len()), 30);
     assert_eq!(task.def.rollouts_per_context(), 16);
-    let mut env = task.env().unwrap();
-    for i in 0..set.len() {
-        let obs = env.reset(set.get(i).unwrap()).unwrap();
+    common::reset_every_context(&task, |_, _, obs| {
         assert!((0.4..=0.5).contains(&obs[2]) && (-0.15..=0.0).contains(&obs[3]));
         assert!((0.55..=0.65).contains(&obs[5]) && (-0.15..=0.0).contains(&obs[6]));
-    }
+    });
 }
 
 #[test]

@@ -1,5 +1,7 @@
 //! Sorting-2/4/6 end to end in real MuJoCo (spec/11 §1).
 
+mod common;
+
 use d3il_evaluator::tasks::sorting::{
     is_sequence_code, pack_code, parse_order, Colour, SortingScript,
 };
@@ -241,11 +243,10 @@ fn fixed_sets_load_and_verify() {
         let set = task.def.context_set().unwrap();
         assert_eq!(set.len(), 60, "{id}");
         assert_eq!(task.def.rollouts_per_context(), 18);
-        let mut env = task.env().unwrap();
-        for c in &set.file.contexts {
+        common::reset_every_context(&task, |_, c, obs| {
             assert_eq!(c["entries"].as_array().unwrap().len(), 6);
-            assert_eq!(env.reset(c).unwrap().len(), 2 + 3 * n);
-        }
+            assert_eq!(obs.len(), 2 + 3 * n);
+        });
     }
 }
 

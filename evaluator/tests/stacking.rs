@@ -1,5 +1,7 @@
 //! Stacking end to end in real MuJoCo (spec/11 §2).
 
+mod common;
+
 use d3il_evaluator::tasks::stacking::StackingScript;
 use d3il_evaluator::tasks::{Env, LoadedTask};
 use d3il_protocol::TaskId;
@@ -176,13 +178,10 @@ fn scripted_full_stack_succeeds_with_its_order() {
 #[test]
 fn fixed_set_loads_and_verifies() {
     let task = LoadedTask::load(TaskId::Stacking).unwrap();
+    // v2: the 100 original test contexts (the paper protocol uses 60).
     let set = task.def.context_set().unwrap();
-    assert_eq!(set.len(), 60);
-    let mut env = task.env().unwrap();
-    for c in &set.file.contexts {
-        let obs = env.reset(c).unwrap();
-        assert_eq!(obs.len(), 12);
-    }
+    assert_eq!(set.len(), 100);
+    common::reset_every_context(&task, |_, _, obs| assert_eq!(obs.len(), 12));
 }
 
 #[test]

@@ -21,6 +21,10 @@
 //! the largest population std a mean of values in [0, 1] allows (0.472, 0.373)
 //! and match the sample std (BC-GPT: five seeds at 1, one at 0 → 0.408).
 
+#![forbid(unsafe_code)]
+
+pub mod compare;
+pub use compare::{compare, compare_states, normal_quantile, ContextSummary};
 pub use d3il_protocol::StackingLevel;
 use d3il_protocol::{ContextResult, Estimate, Metrics, Stat, TaskId};
 use rand::{Rng, SeedableRng};
@@ -69,6 +73,8 @@ pub enum MetricsError {
     BadConfidence(f64),
     #[error("seed aggregation needs at least one value")]
     NoSeeds,
+    #[error("the two results cannot be compared: {0}")]
+    NotComparable(String),
 }
 
 /// How contexts without any labelled success enter the conditional entropy.
@@ -157,21 +163,33 @@ pub fn behaviour_entropy(outcomes: &[Outcome], n_behaviours: usize) -> Result<f6
     if n_behaviours < 2 {
         return Err(MetricsError::BadBehaviourCount(n_behaviours));
     }
-    let counts = behaviour_counts(outcomes);
-    let total: usize = counts.values().sum();
+    Ok(pooled_entropy(
+        behaviour_counts(outcomes).values().copied(),
+        n_behaviours,
+    ))
+}
+
+/// Plug-in entropy of behaviour counts, log base `n_behaviours` (>= 2); 0
+/// without any count. Zero counts are skipped.
+fn pooled_entropy(counts: impl Iterator<Item = usize> + Clone, n_behaviours: usize) -> f64 {
+    let total: usize = counts.clone().sum();
     if total == 0 {
-        return Ok(0.0);
+        return 0.0;
     }
     let ln_b = (n_behaviours as f64).ln();
     let h: f64 = counts
-        .values()
-        .map(|&n| {
+        .filter(|&n| n > 0)
+        .map(|n| {
             let p = n as f64 / total as f64;
             -p * p.ln()
         })
         .sum();
     // A single behaviour sums to -0.0 (-1 * ln 1); report it as 0.
-    Ok(if h > 0.0 { h / ln_b } else { 0.0 })
+    if h > 0.0 {
+        h / ln_b
+    } else {
+        0.0
+    }
 }
 
 /// Entropy of one context as the reference computes it; `None` when the context
@@ -181,26 +199,34 @@ fn context_entropy(
     n_rollouts: usize,
     conv: &EntropyConvention,
 ) -> Option<f64> {
-    let k: usize = counts.values().sum();
+    entropy_of_counts(counts.values().copied(), n_rollouts, conv)
+}
+
+/// [`context_entropy`] over bare counts (zero counts skipped), in the order given.
+fn entropy_of_counts(
+    counts: impl Iterator<Item = usize> + Clone,
+    n_rollouts: usize,
+    conv: &EntropyConvention,
+) -> Option<f64> {
+    let k: usize = counts.clone().sum();
     if k == 0 {
         return None;
     }
+    let counts = counts.filter(|&c| c > 0);
     let ln_b = (conv.n_behaviours as f64).ln();
     let h: f64 = if conv.reference_guard {
         // (k/N) / (Σk/N + 1e-12), then -p ln(p + 1e-12): spec/10 §3.6, spec/11 §6.
         let n = n_rollouts as f64;
         let denom = k as f64 / n + 1e-12;
         counts
-            .values()
-            .map(|&c| {
+            .map(|c| {
                 let p = (c as f64 / n) / denom;
                 -p * (p + 1e-12).ln()
             })
             .sum()
     } else {
         counts
-            .values()
-            .map(|&c| {
+            .map(|c| {
                 let p = c as f64 / k as f64;
                 -p * p.ln()
             })
@@ -353,74 +379,283 @@ impl Default for Bootstrap {
     }
 }
 
-/// Percentile bootstrap of `stat` over initial states: contexts are drawn with
-/// replacement (each draw a separate context even if drawn twice) and `stat`
-/// recomputed. With a single initial state (Avoiding) the rollouts are resampled
-/// instead, since resampling one context would give a zero-width interval.
-/// Deterministic for a given seed (ChaCha8, portable).
-pub fn bootstrap<F>(
+impl Bootstrap {
+    fn check(&self) -> Result<(), MetricsError> {
+        if !(self.confidence > 0.0 && self.confidence < 1.0) {
+            return Err(MetricsError::BadConfidence(self.confidence));
+        }
+        Ok(())
+    }
+}
+
+/// One of the three reported statistics, for [`bootstrap`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Statistic {
+    SuccessRate,
+    /// [`behaviour_entropy`] with this log base.
+    BehaviourEntropy {
+        n_behaviours: usize,
+    },
+    /// [`conditional_entropy`] under this convention.
+    ConditionalEntropy(EntropyConvention),
+}
+
+/// Rollouts with interned behaviour labels (ids in label order), grouped by
+/// context: the bootstrap's working form, so a resample allocates nothing.
+struct Compact {
+    groups: Vec<Vec<(bool, Option<u32>)>>,
+    n_labels: usize,
+}
+
+impl Compact {
+    fn new(outcomes: &[Outcome]) -> Compact {
+        let mut ids: BTreeMap<&str, u32> = BTreeMap::new();
+        for o in outcomes {
+            if let Some(b) = &o.behaviour {
+                ids.insert(b.as_str(), 0);
+            }
+        }
+        for (i, v) in ids.values_mut().enumerate() {
+            *v = i as u32;
+        }
+        let groups = by_context(outcomes)
+            .into_values()
+            .map(|g| {
+                g.iter()
+                    .map(|o| (o.success, o.behaviour.as_deref().map(|b| ids[b])))
+                    .collect()
+            })
+            .collect();
+        Compact {
+            groups,
+            n_labels: ids.len(),
+        }
+    }
+}
+
+/// Scratch space for the three statistics of one (re)sample.
+struct Tally {
+    rollouts: usize,
+    successes: usize,
+    pooled: Vec<usize>,
+    context: Vec<usize>,
+    cond_sum: f64,
+    cond_n: usize,
+}
+
+impl Tally {
+    fn new(n_labels: usize) -> Tally {
+        Tally {
+            rollouts: 0,
+            successes: 0,
+            pooled: vec![0; n_labels],
+            context: vec![0; n_labels],
+            cond_sum: 0.0,
+            cond_n: 0,
+        }
+    }
+
+    fn clear(&mut self) {
+        self.rollouts = 0;
+        self.successes = 0;
+        self.pooled.iter_mut().for_each(|c| *c = 0);
+        self.cond_sum = 0.0;
+        self.cond_n = 0;
+    }
+
+    /// Adds one context made of `rollouts` (yielded with repetition as drawn).
+    fn add_context(
+        &mut self,
+        rollouts: impl Iterator<Item = (bool, Option<u32>)>,
+        conv: &EntropyConvention,
+    ) {
+        self.context.iter_mut().for_each(|c| *c = 0);
+        let mut n = 0;
+        for (success, label) in rollouts {
+            n += 1;
+            if success {
+                self.successes += 1;
+                if let Some(l) = label {
+                    self.context[l as usize] += 1;
+                    self.pooled[l as usize] += 1;
+                }
+            }
+        }
+        self.rollouts += n;
+        match entropy_of_counts(self.context.iter().copied(), n, conv) {
+            Some(h) => {
+                self.cond_sum += h;
+                self.cond_n += 1;
+            }
+            None => {
+                if conv.empty_contexts == EmptyContexts::CountAsZero {
+                    self.cond_n += 1;
+                }
+            }
+        }
+    }
+
+    /// (success rate, behaviour entropy, conditional entropy).
+    fn stats(&self, conv: &EntropyConvention) -> [f64; 3] {
+        let sr = if self.rollouts == 0 {
+            0.0
+        } else {
+            self.successes as f64 / self.rollouts as f64
+        };
+        let cond = if self.cond_n == 0 {
+            0.0
+        } else {
+            self.cond_sum / self.cond_n as f64
+        };
+        [
+            sr,
+            pooled_entropy(self.pooled.iter().copied(), conv.n_behaviours),
+            cond,
+        ]
+    }
+}
+
+/// Bootstrap intervals of the success rate, the behaviour entropy and the
+/// conditional entropy (in that order) from one set of resamples.
+///
+/// **Resampling** follows how the data arose (two stages): the initial states
+/// are drawn with replacement (a state drawn twice counts as two states), then
+/// within each drawn state its rollouts are drawn with replacement. With a
+/// single initial state (Avoiding) only the second stage varies. Deterministic
+/// for a given seed (ChaCha8, portable).
+///
+/// **What the interval is for**: each statistic's expected value under the
+/// protocol, i.e. what the same policy would score on average over fresh
+/// initial states and rollout noise at this protocol's size. For an entropy
+/// that is what the reference's plug-in formula gives at 8–18 rollouts per
+/// state (the quantity the paper's numbers estimate as well), which lies below
+/// the entropy of the behaviour distribution itself.
+///
+/// **Interval**: resampling rollouts makes the plug-in entropies lower still
+/// (a resample of n rollouts from n observed ones shows fewer distinct
+/// behaviours), so the bootstrap distribution sits below the estimate and its
+/// plain percentiles can exclude it (Avoiding's quick protocol printed 0.654
+/// with 0.340–0.600). We use the bias-corrected percentile interval: the
+/// percentiles of the resampled statistic moved by the bootstrap's estimate of
+/// that bias, `[q(α/2) − b, q(1 − α/2) − b]` with `b = mean(θ*) − θ̂` (for
+/// the success rate `b ≈ 0` and it is the percentile interval). It is
+/// widened to include the estimate should Monte Carlo noise leave it just
+/// outside, and clipped to the statistic's range (rates in [0, 1], entropies
+/// ≥ 0). Coverage on known distributions (≥ 93 % for a 95 % interval, every
+/// statistic, Aligning/Pushing/Sorting/Avoiding-like designs) and the
+/// paired comparison's level are tested in `interval_tests.rs`.
+pub fn bootstrap_all(
     outcomes: &[Outcome],
     cfg: &Bootstrap,
-    stat: F,
-) -> Result<Estimate, MetricsError>
-where
-    F: Fn(&[Outcome]) -> Result<f64, MetricsError>,
-{
+    conv: &EntropyConvention,
+) -> Result<[Estimate; 3], MetricsError> {
     if outcomes.is_empty() {
         return Err(MetricsError::NoOutcomes);
     }
-    if !(cfg.confidence > 0.0 && cfg.confidence < 1.0) {
-        return Err(MetricsError::BadConfidence(cfg.confidence));
-    }
-    let value = stat(outcomes)?;
+    cfg.check()?;
+    conv.check()?;
+    let values = [
+        success_rate(outcomes),
+        behaviour_entropy(outcomes, conv.n_behaviours)?,
+        conditional_entropy(outcomes, conv)?,
+    ];
     if cfg.resamples == 0 {
-        return Ok(Estimate {
+        return Ok(values.map(|v| Estimate {
+            value: v,
+            ci_low: v,
+            ci_high: v,
+        }));
+    }
+    let data = Compact::new(outcomes);
+    let mut rng = ChaCha8Rng::seed_from_u64(cfg.seed);
+    let mut tally = Tally::new(data.n_labels);
+    let mut stats: [Vec<f64>; 3] = std::array::from_fn(|_| Vec::with_capacity(cfg.resamples));
+    let n_groups = data.groups.len() as u64;
+    let mut picks: Vec<(bool, Option<u32>)> = Vec::new();
+    for _ in 0..cfg.resamples {
+        tally.clear();
+        for _ in 0..n_groups {
+            // u64 ranges keep the stream identical on 32- and 64-bit hosts.
+            let g = &data.groups[rng.random_range(0..n_groups) as usize];
+            let n = g.len() as u64;
+            picks.clear();
+            picks.extend((0..n).map(|_| g[rng.random_range(0..n) as usize]));
+            tally.add_context(picks.iter().copied(), conv);
+        }
+        for (s, v) in stats.iter_mut().zip(tally.stats(conv)) {
+            s.push(v);
+        }
+    }
+    let bounds = [(0.0, 1.0), (0.0, f64::INFINITY), (0.0, f64::INFINITY)];
+    let mut out = [Estimate {
+        value: 0.0,
+        ci_low: 0.0,
+        ci_high: 0.0,
+    }; 3];
+    for i in 0..3 {
+        out[i] = bias_corrected_interval(values[i], &mut stats[i], cfg.confidence, bounds[i]);
+    }
+    Ok(out)
+}
+
+/// Bootstrap interval of one statistic; see [`bootstrap_all`] for the method.
+pub fn bootstrap(
+    outcomes: &[Outcome],
+    cfg: &Bootstrap,
+    stat: Statistic,
+) -> Result<Estimate, MetricsError> {
+    let (conv, i) = match stat {
+        Statistic::SuccessRate => (
+            EntropyConvention {
+                n_behaviours: 2,
+                empty_contexts: EmptyContexts::CountAsZero,
+                reference_guard: true,
+            },
+            0,
+        ),
+        Statistic::BehaviourEntropy { n_behaviours } => (
+            EntropyConvention {
+                n_behaviours,
+                empty_contexts: EmptyContexts::CountAsZero,
+                reference_guard: true,
+            },
+            1,
+        ),
+        Statistic::ConditionalEntropy(conv) => (conv, 2),
+    };
+    Ok(bootstrap_all(outcomes, cfg, &conv)?[i])
+}
+
+/// The bias-corrected percentile interval of `value` from its resampled
+/// values `stats` (sorted in place), widened to contain `value` and clipped to
+/// `bounds`.
+pub(crate) fn bias_corrected_interval(
+    value: f64,
+    stats: &mut [f64],
+    confidence: f64,
+    bounds: (f64, f64),
+) -> Estimate {
+    if stats.is_empty() {
+        return Estimate {
             value,
             ci_low: value,
             ci_high: value,
-        });
-    }
-    let groups: Vec<Vec<Outcome>> = by_context(outcomes)
-        .into_values()
-        .map(|g| g.into_iter().cloned().collect())
-        .collect();
-    // Units of resampling: contexts, or single rollouts when there is only one.
-    let single_context = groups.len() == 1;
-    let units: Vec<Vec<Outcome>> = if single_context {
-        outcomes.iter().map(|o| vec![o.clone()]).collect()
-    } else {
-        groups
-    };
-    let mut rng = ChaCha8Rng::seed_from_u64(cfg.seed);
-    let mut stats = Vec::with_capacity(cfg.resamples);
-    let mut sample: Vec<Outcome> = Vec::with_capacity(outcomes.len());
-    for _ in 0..cfg.resamples {
-        sample.clear();
-        for draw in 0..units.len() {
-            // u64 range keeps the stream identical on 32- and 64-bit hosts.
-            let pick = rng.random_range(0..units.len() as u64) as usize;
-            for o in &units[pick] {
-                let mut o = o.clone();
-                if !single_context {
-                    // Renumber so a context drawn twice counts as two contexts.
-                    o.context_index = draw;
-                }
-                sample.push(o);
-            }
-        }
-        stats.push(stat(&sample)?);
+        };
     }
     stats.sort_by(f64::total_cmp);
-    let alpha = (1.0 - cfg.confidence) / 2.0;
-    Ok(Estimate {
+    let alpha = (1.0 - confidence) / 2.0;
+    let bias = stats.iter().sum::<f64>() / stats.len() as f64 - value;
+    let lo = percentile(stats, alpha) - bias;
+    let hi = percentile(stats, 1.0 - alpha) - bias;
+    Estimate {
         value,
-        ci_low: percentile(&stats, alpha),
-        ci_high: percentile(&stats, 1.0 - alpha),
-    })
+        ci_low: lo.min(value).max(bounds.0.min(value)),
+        ci_high: hi.max(value).min(bounds.1.max(value)),
+    }
 }
 
 /// Linear-interpolation percentile of sorted data (numpy's default method).
-fn percentile(sorted: &[f64], q: f64) -> f64 {
+pub(crate) fn percentile(sorted: &[f64], q: f64) -> f64 {
     let pos = q * (sorted.len() - 1) as f64;
     let lo = pos.floor() as usize;
     let hi = pos.ceil() as usize;
@@ -452,18 +687,18 @@ pub fn evaluate(
         let levels = stacking_levels(outcomes)?;
         let mut out = Vec::with_capacity(3);
         for (x, (lv, conv)) in levels.iter().enumerate() {
-            // Distinct bootstrap streams per level and metric keep them independent
-            // yet reproducible.
+            // Distinct bootstrap streams per level keep them independent yet
+            // reproducible.
             let c = |k: u64| Bootstrap {
                 seed: cfg.seed.wrapping_add(10 * x as u64 + k),
                 ..*cfg
             };
+            let [success_rate, behaviour_entropy, conditional_entropy] =
+                bootstrap_all(lv, &c(0), conv)?;
             out.push(StackingLevel {
-                success_rate: bootstrap(lv, &c(0), |o| Ok(success_rate(o)))?,
-                conditional_entropy: bootstrap(lv, &c(1), |o| conditional_entropy(o, conv))?,
-                behaviour_entropy: bootstrap(lv, &c(2), |o| {
-                    behaviour_entropy(o, conv.n_behaviours)
-                })?,
+                success_rate,
+                conditional_entropy,
+                behaviour_entropy,
             });
         }
         let levels_arr = [out[0], out[1], out[2]];
@@ -485,17 +720,13 @@ pub fn evaluate(
         });
     }
     let conv = EntropyConvention::for_task(task);
-    let c = |k: u64| Bootstrap {
-        seed: cfg.seed.wrapping_add(k),
-        ..*cfg
-    };
+    let [success_rate, behaviour_entropy, conditional_entropy] =
+        bootstrap_all(outcomes, cfg, &conv)?;
     Ok(Evaluation {
         metrics: Metrics {
-            success_rate: bootstrap(outcomes, &c(0), |o| Ok(success_rate(o)))?,
-            behaviour_entropy: bootstrap(outcomes, &c(1), |o| {
-                behaviour_entropy(o, conv.n_behaviours)
-            })?,
-            conditional_entropy: bootstrap(outcomes, &c(2), |o| conditional_entropy(o, &conv))?,
+            success_rate,
+            behaviour_entropy,
+            conditional_entropy,
             stacking: None,
             stacking_levels: None,
             inference_ms,
@@ -522,3 +753,6 @@ pub fn aggregate_seeds(values: &[f64]) -> Result<Stat, MetricsError> {
 
 #[cfg(test)]
 mod tests;
+
+#[cfg(test)]
+mod interval_tests;

@@ -320,18 +320,18 @@ fn bootstrap_is_seeded_and_brackets_the_estimate() {
         confidence: 0.9,
         seed: 7,
     };
-    let a = bootstrap(&v, &cfg, |x| Ok(success_rate(x))).unwrap();
-    let b = bootstrap(&v, &cfg, |x| Ok(success_rate(x))).unwrap();
+    let a = bootstrap(&v, &cfg, Statistic::SuccessRate).unwrap();
+    let b = bootstrap(&v, &cfg, Statistic::SuccessRate).unwrap();
     assert_eq!(a, b);
     assert!(close(a.value, 45.0 / 90.0));
     assert!(a.ci_low < a.value && a.value < a.ci_high, "{a:?}");
     // The spread of per-context rates (0..1) gives a wide interval, inside [0, 1].
     assert!(a.ci_low > 0.2 && a.ci_high < 0.8, "{a:?}");
-    let c = bootstrap(&v, &Bootstrap { seed: 8, ..cfg }, |x| Ok(success_rate(x))).unwrap();
+    let c = bootstrap(&v, &Bootstrap { seed: 8, ..cfg }, Statistic::SuccessRate).unwrap();
     assert_ne!((a.ci_low, a.ci_high), (c.ci_low, c.ci_high));
     // Everything succeeded → a degenerate interval at 1.
     let all: Vec<Outcome> = (0..20).map(|i| o(i % 4, true, Some("0"))).collect();
-    let e = bootstrap(&all, &cfg, |x| Ok(success_rate(x))).unwrap();
+    let e = bootstrap(&all, &cfg, Statistic::SuccessRate).unwrap();
     assert_eq!((e.value, e.ci_low, e.ci_high), (1.0, 1.0, 1.0));
     assert_eq!(
         bootstrap(
@@ -340,7 +340,7 @@ fn bootstrap_is_seeded_and_brackets_the_estimate() {
                 confidence: 1.5,
                 ..cfg
             },
-            |x| Ok(success_rate(x))
+            Statistic::SuccessRate
         )
         .unwrap_err(),
         MetricsError::BadConfidence(1.5)

@@ -45,6 +45,12 @@ pub enum PolicyError {
         message: String,
     },
 
+    // ---- Resource limits (ErrorKind::MemoryLimit) ----
+    /// The runtime could not allocate a tensor (the model asks for more memory
+    /// than the worker's address-space limit allows, e.g. a Tile bomb).
+    #[error("the ONNX runtime ran out of memory {during} ({detail}); the model needs more memory than the worker's memory limit allows: make its tensors smaller or ask for a higher limit")]
+    OutOfMemory { during: String, detail: String },
+
     // ---- Remote endpoints ----
     #[error("endpoint `{url}` refused: {reason}")]
     BadEndpoint { url: String, reason: String },
@@ -78,6 +84,7 @@ impl PolicyError {
             Unparsable(_) | Unsupported(_) | Mismatch(_) | BadManifest(_) => ErrorKind::BadModel,
             Caller(_) | Config(_) => ErrorKind::Internal,
             NonFinite { .. } | WrongShape { .. } | Inference { .. } => ErrorKind::BadAction,
+            OutOfMemory { .. } => ErrorKind::MemoryLimit,
             // A certificate or ws/wss mismatch fails the same way on a retry.
             BadEndpoint { .. } | Tls { .. } => ErrorKind::BadEndpoint,
             Connect { .. }
@@ -88,5 +95,43 @@ impl PolicyError {
             | ServerError { .. }
             | ProtocolVersion { .. } => ErrorKind::Remote,
         }
+    }
+}
+
+/// The text of a caught panic's payload.
+pub(crate) fn panic_text(p: &(dyn std::any::Any + Send)) -> String {
+    p.downcast_ref::<String>()
+        .cloned()
+        .or_else(|| p.downcast_ref::<&str>().map(|s| s.to_string()))
+        .unwrap_or_else(|| "unknown panic".into())
+}
+
+/// Whether a runtime failure is memory exhaustion. tract asserts that its
+/// tensor allocations succeed ("failed to allocate Layout { .. }", or a bare
+/// `!self.data.is_null()` assertion) instead of returning an error, so under
+/// the worker's address-space limit a too-large tensor arrives as a panic.
+pub(crate) fn is_out_of_memory(text: &str) -> bool {
+    text.contains("failed to allocate")
+        || text.contains("data.is_null()")
+        || text.contains("capacity overflow")
+        || text.contains("memory allocation of")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn tract_allocation_failures_are_memory_exhaustion() {
+        assert!(is_out_of_memory(
+            "failed to allocate Layout { size: 4398046511104, align: 128 (1 << 7) }"
+        ));
+        assert!(is_out_of_memory("assertion failed: !self.data.is_null()"));
+        assert!(!is_out_of_memory("Tiling [1, 1] by [2]"));
+        let e = PolicyError::OutOfMemory {
+            during: "in the query of rollout 0 at step 0".into(),
+            detail: "failed to allocate".into(),
+        };
+        assert_eq!(e.kind(), ErrorKind::MemoryLimit);
     }
 }

@@ -15,6 +15,8 @@
 //! * images `[B, k, 2, 3, 96, 96]` (image policies only);
 //! * actions `[B, H, act_dim]`.
 
+#![forbid(unsafe_code)]
+
 mod error;
 pub mod onnx;
 pub mod remote;

@@ -2,32 +2,8 @@
 //! document on stdin); the worker answers with JSON lines of [`WorkerMessage`].
 
 use crate::results::EvalResult;
-use crate::task::{ObsType, TaskId};
+use crate::task::{ObsType, ProtocolKind, TaskId};
 use serde::{Deserialize, Serialize};
-
-/// Which evaluation protocol to run.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize, Default)]
-#[serde(rename_all = "lowercase")]
-pub enum ProtocolKind {
-    /// The paper's protocol: all fixed initial states x rollouts per state.
-    #[default]
-    Paper,
-    /// A small subset for smoke tests and dry runs (first few initial states, few rollouts).
-    Quick,
-}
-
-impl std::str::FromStr for ProtocolKind {
-    type Err = String;
-    fn from_str(s: &str) -> Result<Self, Self::Err> {
-        match s {
-            "paper" => Ok(ProtocolKind::Paper),
-            "quick" => Ok(ProtocolKind::Quick),
-            o => Err(format!(
-                "unknown protocol `{o}`; expected `paper` or `quick`"
-            )),
-        }
-    }
-}
 
 /// Normalisation statistics a policy expects if they are not baked into the graph.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]

@@ -1,6 +1,6 @@
 //! Results of one evaluation, and aggregated table cells.
 
-use crate::task::{ObsType, TaskId};
+use crate::task::{ObsType, ProtocolKind, TaskId};
 use serde::{Deserialize, Serialize};
 
 /// Everything needed to know exactly what was measured.
@@ -9,9 +9,13 @@ pub struct ProtocolManifest {
     pub task: TaskId,
     pub task_version: String,
     pub obs_type: ObsType,
-    pub protocol: crate::job::ProtocolKind,
+    pub protocol: ProtocolKind,
     pub mjcf_sha256: String,
     pub initial_states_sha256: String,
+    /// File name of the initial-state set (e.g. `pushing-v2.json`); empty in
+    /// results stored before the sets were named (all of them used v1).
+    #[serde(default)]
+    pub initial_states: String,
     pub mujoco_version: String,
     pub evaluator_version: String,
     pub n_contexts: usize,
@@ -22,6 +26,62 @@ pub struct ProtocolManifest {
     pub horizon: usize,
     pub execute: usize,
     pub seed: u64,
+}
+
+/// The initial-state sets that are the original D3IL test contexts (decoded
+/// from the reference repository's `test_contexts.pkl`; Avoiding has the one
+/// fixed start of the original). Every other set is our own sample from the
+/// task's context distribution.
+pub const ORIGINAL_CONTEXT_SETS: [&str; 4] = [
+    "avoiding-v1.json",
+    "aligning-v2.json",
+    "pushing-v2.json",
+    "stacking-v2.json",
+];
+
+/// Where the initial states of a result came from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum InitialStatesOrigin {
+    /// The original D3IL test contexts: comparable to the paper context by context.
+    Original,
+    /// Our sample from the task's context distribution: comparable to the
+    /// paper only in distribution.
+    Sample,
+}
+
+impl InitialStatesOrigin {
+    pub fn label(self) -> &'static str {
+        match self {
+            InitialStatesOrigin::Original => "the original D3IL test contexts",
+            InitialStatesOrigin::Sample => "our sample",
+        }
+    }
+}
+
+impl std::fmt::Display for InitialStatesOrigin {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.label())
+    }
+}
+
+impl ProtocolManifest {
+    /// The set's name; results stored before sets were named used v1.
+    pub fn initial_states_name(&self) -> String {
+        if self.initial_states.is_empty() {
+            format!("{}-v1.json", self.task)
+        } else {
+            self.initial_states.clone()
+        }
+    }
+
+    pub fn initial_states_origin(&self) -> InitialStatesOrigin {
+        if ORIGINAL_CONTEXT_SETS.contains(&self.initial_states_name().as_str()) {
+            InitialStatesOrigin::Original
+        } else {
+            InitialStatesOrigin::Sample
+        }
+    }
 }
 
 /// A value with a bootstrap confidence interval.
@@ -86,6 +146,28 @@ pub struct RolloutRecord {
     /// End-effector xy path (Avoiding only), for plotting.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub path: Option<Vec<[f32; 2]>>,
+    /// Why the rollout was ended early as a failure (e.g. the simulation
+    /// became unstable); absent for a rollout that ran its course.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub failure: Option<RolloutFailure>,
+}
+
+/// A rollout ended by the evaluator rather than by the task.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct RolloutFailure {
+    pub reason: FailureReason,
+    /// The simulator's message (e.g. MuJoCo's warning text).
+    pub message: String,
+    /// Environment step at which it happened.
+    pub step: usize,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum FailureReason {
+    /// A MuJoCo warning (instability, contact buffer overflow, ...) or a
+    /// non-finite simulator state: the rollout counts as a failure.
+    SimUnstable,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -94,6 +176,53 @@ pub struct EvalResult {
     pub metrics: Metrics,
     pub per_context: Vec<ContextResult>,
     pub rollouts: Vec<RolloutRecord>,
+    /// Rollouts ended as failures because the simulation became unstable
+    /// (their records carry `failure.reason = sim_unstable`).
+    #[serde(default)]
+    pub rollouts_ended_unstable: usize,
+}
+
+impl EvalResult {
+    /// More than half of the rollouts ended with an unstable simulation: the
+    /// numbers say more about the simulator than about the policy.
+    pub fn mostly_unstable(&self) -> bool {
+        2 * self.rollouts_ended_unstable > self.rollouts.len()
+    }
+}
+
+/// One metric of a paired comparison of two results (A − B).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct PairedDifference {
+    /// The metric of A and of B, each the mean over the shared initial states.
+    pub a: f64,
+    pub b: f64,
+    /// A − B with its paired bootstrap interval over initial states.
+    pub difference: Estimate,
+    /// Two-sided p-value of "no difference" (paired by initial state: a
+    /// randomisation test that swaps A and B within initial states).
+    pub p_value: f64,
+    /// The smallest true |A − B| this comparison detects with 80 % power at
+    /// the 5 % level, from the paired standard error at this protocol's size.
+    pub min_detectable: f64,
+}
+
+/// A paired comparison of two results on the same task, protocol and initial
+/// states (`d3il compare`, `GET /api/v1/compare`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Comparison {
+    pub task: TaskId,
+    pub protocol: crate::task::ProtocolKind,
+    /// The shared initial-state set (its file name when known) and sha256.
+    #[serde(default)]
+    pub initial_states: String,
+    pub initial_states_sha256: String,
+    pub n_contexts: usize,
+    pub rollouts_per_context: usize,
+    pub resamples: usize,
+    pub confidence: f64,
+    /// Stacking: Stacking-3's.
+    pub success_rate: PairedDifference,
+    pub conditional_entropy: PairedDifference,
 }
 
 /// Mean and standard deviation over training seeds.

@@ -216,3 +216,27 @@ impl PaperProtocol {
         )
     }
 }
+
+/// Which evaluation protocol to run.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum ProtocolKind {
+    /// The paper's protocol: all fixed initial states x rollouts per state.
+    #[default]
+    Paper,
+    /// A small subset for smoke tests and dry runs (first few initial states, few rollouts).
+    Quick,
+}
+
+impl std::str::FromStr for ProtocolKind {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        match s {
+            "paper" => Ok(ProtocolKind::Paper),
+            "quick" => Ok(ProtocolKind::Quick),
+            o => Err(format!(
+                "unknown protocol `{o}`; expected `paper` or `quick`"
+            )),
+        }
+    }
+}

@@ -4,8 +4,9 @@
 //! The host is resolved first and *every* address is checked, so a name that
 //! resolves to both a public and a private address is refused.
 
+use d3il_protocol::address::{resolve_public, AddressError};
 use d3il_protocol::{ErrorKind, WorkerError};
-use std::net::{IpAddr, Ipv4Addr, Ipv6Addr, SocketAddr, ToSocketAddrs};
+use std::net::SocketAddr;
 
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 pub enum EndpointError {
@@ -17,17 +18,10 @@ pub enum EndpointError {
     NoHost(String),
     #[error("the endpoint URL must not contain a user name or password")]
     Credentials,
-    #[error("the endpoint host `{host}` could not be resolved ({reason}); check the host name and its DNS records")]
-    Resolve { host: String, reason: String },
-    #[error(
-        "the endpoint host `{host}` resolves to {addr}, which is in the {range} range; \
-         the evaluator only connects to public addresses"
-    )]
-    Forbidden {
-        host: String,
-        addr: IpAddr,
-        range: &'static str,
-    },
+    /// Unresolvable, or an address in a refused range
+    /// (`d3il_protocol::address`, the one classifier).
+    #[error(transparent)]
+    Address(#[from] AddressError),
 }
 
 impl From<EndpointError> for WorkerError {
@@ -55,43 +49,13 @@ pub fn validate_endpoint(url: &str, allow_private: bool) -> Result<Vec<SocketAdd
     if !parsed.username().is_empty() || parsed.password().is_some() {
         return Err(EndpointError::Credentials);
     }
-    let host = match parsed.host() {
-        Some(h) => h,
-        None => return Err(EndpointError::NoHost(truncate(url))),
+    let host = match parsed.host_str() {
+        Some(h) if !h.is_empty() => h,
+        _ => return Err(EndpointError::NoHost(truncate(url))),
     };
     // url always knows ws=80, wss=443.
     let port = parsed.port_or_known_default().unwrap_or(80);
-    let host_str = host.to_string();
-    let addrs: Vec<SocketAddr> = match host {
-        url::Host::Ipv4(ip) => vec![SocketAddr::new(IpAddr::V4(ip), port)],
-        url::Host::Ipv6(ip) => vec![SocketAddr::new(IpAddr::V6(ip), port)],
-        url::Host::Domain(d) => (d, port)
-            .to_socket_addrs()
-            .map_err(|e| EndpointError::Resolve {
-                host: truncate(d),
-                reason: e.to_string(),
-            })?
-            .collect(),
-    };
-    if addrs.is_empty() {
-        return Err(EndpointError::Resolve {
-            host: truncate(&host_str),
-            reason: "no addresses".into(),
-        });
-    }
-    for a in &addrs {
-        if let Some(range) = special_range(a.ip()) {
-            let always = matches!(range, "unspecified" | "multicast" | "broadcast");
-            if always || !allow_private {
-                return Err(EndpointError::Forbidden {
-                    host: truncate(&host_str),
-                    addr: a.ip(),
-                    range,
-                });
-            }
-        }
-    }
-    Ok(addrs)
+    Ok(resolve_public(host, port, allow_private)?)
 }
 
 fn truncate(s: &str) -> String {
@@ -104,58 +68,6 @@ fn truncate(s: &str) -> String {
         end -= 1;
     }
     format!("{}…", &s[..end])
-}
-
-/// The name of the non-public range `ip` is in, if any.
-pub fn special_range(ip: IpAddr) -> Option<&'static str> {
-    match ip {
-        IpAddr::V4(v4) => special_v4(v4),
-        IpAddr::V6(v6) => special_v6(v6),
-    }
-}
-
-fn special_v4(ip: Ipv4Addr) -> Option<&'static str> {
-    let o = ip.octets();
-    Some(match o {
-        [0, ..] => "unspecified",
-        [127, ..] => "loopback",
-        [10, ..] => "private",
-        [172, b, ..] if (16..32).contains(&b) => "private",
-        [192, 168, ..] => "private",
-        [169, 254, ..] => "link-local",
-        [100, b, ..] if (64..128).contains(&b) => "shared (carrier-grade NAT)",
-        [192, 0, 0, _] => "IETF protocol assignment",
-        [198, b, ..] if b == 18 || b == 19 => "benchmarking",
-        [255, 255, 255, 255] => "broadcast",
-        [a, ..] if (224..240).contains(&a) => "multicast",
-        [a, ..] if a >= 240 => "reserved",
-        _ => return None,
-    })
-}
-
-fn special_v6(ip: Ipv6Addr) -> Option<&'static str> {
-    if ip.is_unspecified() {
-        return Some("unspecified");
-    }
-    if ip.is_loopback() {
-        return Some("loopback");
-    }
-    // IPv4-mapped (::ffff:a.b.c.d) and NAT64 (64:ff9b::a.b.c.d) reach v4 hosts.
-    if let Some(v4) = ip.to_ipv4_mapped() {
-        return special_v4(v4);
-    }
-    let s = ip.segments();
-    if s[0] == 0x64 && s[1] == 0xff9b && s[2..6].iter().all(|&x| x == 0) {
-        let v4 = Ipv4Addr::new((s[6] >> 8) as u8, s[6] as u8, (s[7] >> 8) as u8, s[7] as u8);
-        return special_v4(v4);
-    }
-    match s[0] {
-        x if x & 0xfe00 == 0xfc00 => Some("private (unique local)"),
-        x if x & 0xffc0 == 0xfe80 => Some("link-local"),
-        x if x & 0xffc0 == 0xfec0 => Some("site-local"),
-        x if x & 0xff00 == 0xff00 => Some("multicast"),
-        _ => None,
-    }
 }
 
 #[cfg(test)]
@@ -198,11 +110,19 @@ mod tests {
             "ws://[fd00::1]/",
             "ws://[fe80::1]/",
             "ws://[::ffff:127.0.0.1]/",
+            "ws://[::127.0.0.1]/",
+            "ws://[::ffff:0:127.0.0.1]/",
             "ws://[64:ff9b::a00:1]/",
+            "ws://[64:ff9b:1::a00:1]/",
+            "ws://[2002:7f00:1::1]/",
+            "ws://[2001:0:7f00:1::1]/",
             "ws://localhost:9000/",
         ] {
             let e = validate_endpoint(u, false).unwrap_err();
-            assert!(matches!(e, EndpointError::Forbidden { .. }), "{u}: {e:?}");
+            assert!(
+                matches!(e, EndpointError::Address(AddressError::Forbidden { .. })),
+                "{u}: {e:?}"
+            );
             let msg = e.to_string();
             assert!(msg.contains("public addresses"), "{msg}");
         }
@@ -221,7 +141,10 @@ mod tests {
             "ws://[::]/",
         ] {
             let e = validate_endpoint(u, true).unwrap_err();
-            assert!(matches!(e, EndpointError::Forbidden { .. }), "{u}: {e:?}");
+            assert!(
+                matches!(e, EndpointError::Address(AddressError::Forbidden { .. })),
+                "{u}: {e:?}"
+            );
         }
     }
 
@@ -232,14 +155,17 @@ mod tests {
         assert_eq!(a, vec!["8.8.8.8:443".parse().unwrap()]);
         let a = validate_endpoint("ws://[2001:4860:4860::8888]:9000", false).unwrap();
         assert_eq!(a[0].port(), 9000);
-        assert_eq!(special_range("172.32.0.1".parse().unwrap()), None);
-        assert_eq!(special_range("100.128.0.1".parse().unwrap()), None);
+        assert!(validate_endpoint("ws://172.32.0.1/", false).is_ok());
+        assert!(validate_endpoint("ws://100.128.0.1/", false).is_ok());
     }
 
     #[test]
     fn unresolvable_hosts_are_a_bad_endpoint() {
         let e = validate_endpoint("ws://does-not-exist.invalid/", false).unwrap_err();
-        assert!(matches!(e, EndpointError::Resolve { .. }), "{e:?}");
+        assert!(
+            matches!(e, EndpointError::Address(AddressError::Resolve { .. })),
+            "{e:?}"
+        );
         let w: WorkerError = e.into();
         assert_eq!(w.kind, ErrorKind::BadEndpoint);
     }

@@ -13,10 +13,23 @@
 //! Remote endpoints are checked by [`validate_endpoint`] (scheme, host, and no
 //! loopback/link-local/private addresses unless the job allows them).
 
+//!
+//! `unsafe` is denied except in the modules that call libc directly, each for
+//! a reason stated there: [`child`] (moving the protocol stream off fd 1), [`confine`]
+//! (rlimits, namespaces, landlock and seccomp system calls), [`parent`]
+//! (process groups, `waitid`/`wait4` with resource usage) and [`selftest`]
+//! (deliberate misbehaviour for the hostile-worker tests).
+
+#![deny(unsafe_code)]
+
+#[allow(unsafe_code)]
 pub mod child;
+#[allow(unsafe_code)]
 pub mod confine;
 pub mod endpoint;
+#[allow(unsafe_code)]
 pub mod parent;
+#[allow(unsafe_code)]
 pub mod selftest;
 
 pub use child::{check_sandbox, worker_main, WorkerOptions};

@@ -273,6 +273,7 @@ fn fake_result(job: &Job) -> EvalResult {
             protocol: job.protocol,
             mjcf_sha256: String::new(),
             initial_states_sha256: String::new(),
+            initial_states: String::new(),
             mujoco_version: String::new(),
             evaluator_version: "selftest".into(),
             n_contexts: 0,
@@ -294,5 +295,6 @@ fn fake_result(job: &Job) -> EvalResult {
         },
         per_context: vec![],
         rollouts: vec![],
+        rollouts_ended_unstable: 0,
     }
 }

@@ -3,6 +3,7 @@
 //! Database details are logged, never sent to the client.
 
 use crate::store::StoreError;
+use askama::Template;
 use axum::http::{header, HeaderValue, StatusCode};
 use axum::response::{Html, IntoResponse, Response};
 use serde::Serialize;
@@ -116,16 +117,41 @@ impl AppError {
     }
 }
 
-#[derive(Debug, Serialize, serde::Deserialize)]
+/// Every API error: `{"error": {"code", "message", "field"}}`.
+#[derive(Debug, Serialize, serde::Deserialize, utoipa::ToSchema)]
+#[schema(as = Error)]
 pub struct ErrorBody {
     pub error: ErrorDetail,
 }
 
-#[derive(Debug, Serialize, serde::Deserialize)]
+#[derive(Debug, Serialize, serde::Deserialize, utoipa::ToSchema)]
 pub struct ErrorDetail {
+    #[schema(schema_with = code_schema)]
     pub code: String,
+    /// What went wrong and what to do about it.
     pub message: String,
+    /// The request field at fault, if one is.
     pub field: Option<String>,
+}
+
+/// Every value of [`AppError::code`].
+pub const ERROR_CODES: [&str; 9] = [
+    "invalid_field",
+    "unauthorized",
+    "not_found",
+    "method_not_allowed",
+    "conflict",
+    "payload_too_large",
+    "rate_limited",
+    "endpoint_rejected",
+    "internal",
+];
+
+fn code_schema() -> utoipa::openapi::RefOr<utoipa::openapi::schema::Schema> {
+    utoipa::openapi::schema::ObjectBuilder::new()
+        .schema_type(utoipa::openapi::schema::Type::String)
+        .enum_values(Some(ERROR_CODES))
+        .into()
 }
 
 impl From<StoreError> for AppError {
@@ -150,6 +176,28 @@ impl IntoResponse for AppError {
     }
 }
 
+#[derive(Template)]
+#[template(path = "error.html")]
+struct ErrorPage<'a> {
+    status: u16,
+    reason: &'a str,
+    message: String,
+    field: Option<String>,
+}
+
+/// The error as the HTML page the browser-facing routes show.
+pub fn error_page(e: &AppError) -> String {
+    let status = e.status();
+    ErrorPage {
+        status: status.as_u16(),
+        reason: status.canonical_reason().unwrap_or("Error"),
+        message: e.to_string(),
+        field: e.field().map(str::to_string),
+    }
+    .render()
+    .unwrap_or_else(|_| "error".into())
+}
+
 /// The same errors rendered as an HTML page (for the browser-facing routes).
 #[derive(Debug)]
 pub struct PageError(pub AppError);
@@ -170,9 +218,37 @@ impl IntoResponse for PageError {
     fn into_response(self) -> Response {
         let e = self.0;
         e.log();
-        let page = crate::pages::error_page(&e);
+        let page = error_page(&e);
         let mut resp = (e.status(), Html(page)).into_response();
         e.headers(&mut resp);
         resp
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn every_code_is_in_the_documented_list() {
+        let all = [
+            AppError::invalid("f", "m"),
+            AppError::Unauthorized(String::new()),
+            AppError::NotFound(String::new()),
+            AppError::MethodNotAllowed(String::new()),
+            AppError::Conflict {
+                field: None,
+                message: String::new(),
+            },
+            AppError::PayloadTooLarge(String::new()),
+            AppError::RateLimited { retry_after: 1 },
+            AppError::EndpointRejected {
+                kind: String::new(),
+                message: String::new(),
+            },
+            AppError::Internal(String::new()),
+        ];
+        let codes: Vec<&str> = all.iter().map(AppError::code).collect();
+        assert_eq!(codes, ERROR_CODES);
     }
 }

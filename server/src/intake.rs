@@ -1,9 +1,9 @@
 //! Reading, validating and accepting a submission (shared by the JSON API and
 //! the HTML submit form). Every error names the offending field.
 
-use crate::app::AppState;
 use crate::error::AppError;
 use crate::queue::JobRunner;
+use crate::state::AppState;
 use crate::store::{NewMethod, NewPolicy, NewSubmission, SeedKey, Submitter};
 use axum::extract::multipart::{Field, Multipart, MultipartError};
 use axum::http::{header, HeaderMap, StatusCode};
@@ -11,7 +11,6 @@ use d3il_protocol::{
     ErrorKind, Job, Limits, ObsType, PolicyManifest, PolicySource, ProtocolKind, TaskId,
 };
 use std::collections::HashMap;
-use std::net::IpAddr;
 use std::str::FromStr;
 use std::sync::Arc;
 
@@ -113,7 +112,7 @@ async fn authenticate_form_token(
                     .into(),
             )
         })?;
-    crate::api::authenticate_token(state, &token).await
+    crate::auth::authenticate_token(state, &token).await
 }
 
 async fn read_multipart_inner(
@@ -223,27 +222,32 @@ fn check_url(field: &str, v: &str, schemes: &[&str]) -> Result<url::Url, AppErro
     Ok(u)
 }
 
-fn is_private(ip: IpAddr) -> bool {
-    match ip {
-        IpAddr::V4(v) => {
-            v.is_loopback()
-                || v.is_private()
-                || v.is_link_local()
-                || v.is_unspecified()
-                || v.is_broadcast()
-                || v.octets()[0] == 100 && (v.octets()[1] & 0xc0) == 64
-        }
-        IpAddr::V6(v) => {
-            v.is_loopback()
-                || v.is_unspecified()
-                || (v.segments()[0] & 0xfe00) == 0xfc00
-                || (v.segments()[0] & 0xffc0) == 0xfe80
-        }
-    }
-}
-
 /// Validates every field; the first problem is reported with its field name.
 pub fn validate(raw: &RawSubmission, limits: &Limits) -> Result<ValidSubmission, AppError> {
+    let method = method_fields(raw)?;
+    let (task, obs_type) = task_fields(raw)?;
+    let training_seed = seed_field(raw)?;
+    let data_fraction = fraction_field(raw)?;
+    let protocol = match opt(raw, "protocol") {
+        None => ProtocolKind::Paper,
+        Some(p) => ProtocolKind::from_str(&p).map_err(|e| AppError::invalid("protocol", e))?,
+    };
+    let manifest = manifest_field(raw, task, obs_type, method.history)?;
+    let policy = policy_fields(raw, limits)?;
+    Ok(ValidSubmission {
+        method,
+        task,
+        obs_type,
+        training_seed,
+        data_fraction,
+        protocol,
+        manifest,
+        policy,
+    })
+}
+
+/// The method's name and properties.
+fn method_fields(raw: &RawSubmission) -> Result<NewMethod, AppError> {
     let name = required(raw, "method", "the method's name, e.g. `MyDiffusionPolicy`")?;
     if name.chars().count() > 64
         || !name
@@ -290,7 +294,7 @@ pub fn validate(raw: &RawSubmission, limits: &Limits) -> Result<ValidSubmission,
         }
         d => d,
     };
-    let method = NewMethod {
+    Ok(NewMethod {
         name,
         history,
         backbone: short("backbone")?,
@@ -299,8 +303,11 @@ pub fn validate(raw: &RawSubmission, limits: &Limits) -> Result<ValidSubmission,
         code_url: link("code_url")?,
         paper_url: link("paper_url")?,
         description,
-    };
+    })
+}
 
+/// The task and observation type (which must exist for the task).
+fn task_fields(raw: &RawSubmission) -> Result<(TaskId, ObsType), AppError> {
     let task_s = required(
         raw,
         "task",
@@ -319,12 +326,16 @@ pub fn validate(raw: &RawSubmission, limits: &Limits) -> Result<ValidSubmission,
             ),
         ));
     }
+    Ok((task, obs_type))
+}
+
+fn seed_field(raw: &RawSubmission) -> Result<i64, AppError> {
     let seed_s = required(
         raw,
         "training_seed",
         "the seed your policy was trained with (a whole number)",
     )?;
-    let training_seed = seed_s
+    seed_s
         .parse::<i64>()
         .ok()
         .filter(|s| (0..=i32::MAX as i64).contains(s))
@@ -335,8 +346,12 @@ pub fn validate(raw: &RawSubmission, limits: &Limits) -> Result<ValidSubmission,
                     "`training_seed` must be a whole number from 0 to 2147483647, got `{seed_s}`"
                 ),
             )
-        })?;
-    let data_fraction = match opt(raw, "data_fraction") {
+        })
+}
+
+/// `data_fraction`, rounded so that 0.1 typed twice is the same row.
+fn fraction_field(raw: &RawSubmission) -> Result<f64, AppError> {
+    Ok(match opt(raw, "data_fraction") {
         None => 1.0,
         Some(f) => f
             .parse::<f64>()
@@ -351,12 +366,17 @@ pub fn validate(raw: &RawSubmission, limits: &Limits) -> Result<ValidSubmission,
                     format!("`data_fraction` must be a number in (0, 1] (e.g. 0.25), got `{f}`"),
                 )
             })?,
-    };
-    let protocol = match opt(raw, "protocol") {
-        None => ProtocolKind::Paper,
-        Some(p) => ProtocolKind::from_str(&p).map_err(|e| AppError::invalid("protocol", e))?,
-    };
+    })
+}
 
+/// The policy manifest (for a remote endpoint without one: history from the
+/// method's `history`, one action per query), checked against the task.
+fn manifest_field(
+    raw: &RawSubmission,
+    task: TaskId,
+    obs_type: ObsType,
+    history: Option<i64>,
+) -> Result<PolicyManifest, AppError> {
     let manifest = match opt(raw, "manifest") {
         Some(m) => {
             let man: PolicyManifest = serde_json::from_str(&m).map_err(|e| {
@@ -395,6 +415,12 @@ pub fn validate(raw: &RawSubmission, limits: &Limits) -> Result<ValidSubmission,
             window: Default::default(),
         },
     };
+    check_manifest_limits(&manifest)?;
+    Ok(manifest)
+}
+
+/// The limits on a manifest's history, horizon and execute.
+fn check_manifest_limits(manifest: &PolicyManifest) -> Result<(), AppError> {
     for (k, v) in [
         ("history", manifest.history),
         ("horizon", manifest.horizon),
@@ -416,9 +442,13 @@ pub fn validate(raw: &RawSubmission, limits: &Limits) -> Result<ValidSubmission,
             ),
         ));
     }
+    Ok(())
+}
 
+/// Either an ONNX upload (with its manifest) or a remote endpoint.
+fn policy_fields(raw: &RawSubmission, limits: &Limits) -> Result<ValidPolicy, AppError> {
     let endpoint = opt(raw, "endpoint_url");
-    let policy = match (&raw.onnx, endpoint) {
+    Ok(match (&raw.onnx, endpoint) {
         (Some(_), Some(_)) => {
             return Err(AppError::invalid(
                 "endpoint_url",
@@ -438,7 +468,7 @@ pub fn validate(raw: &RawSubmission, limits: &Limits) -> Result<ValidSubmission,
                     "an ONNX upload needs its `manifest` (JSON, docs/submission.md)",
                 ));
             }
-            // ONNX files are protobuf; the first byte of a ModelProto is a field tag.
+            // Only a size floor here: the worker's loader reads the model itself.
             if bytes.len() < 16 {
                 return Err(AppError::invalid(
                     "onnx",
@@ -449,33 +479,23 @@ pub fn validate(raw: &RawSubmission, limits: &Limits) -> Result<ValidSubmission,
         }
         (None, Some(u)) => {
             let url = check_url("endpoint_url", &u, &["ws", "wss"])?;
-            if !limits.allow_private_endpoints {
-                let host = url.host_str().unwrap_or_default();
-                let private = host.eq_ignore_ascii_case("localhost")
-                    || host
-                        .trim_matches(|c| c == '[' || c == ']')
-                        .parse::<IpAddr>()
-                        .map(is_private)
-                        .unwrap_or(false);
-                if private {
-                    return Err(AppError::invalid(
-                        "endpoint_url",
-                        "`endpoint_url` points to a loopback or private address; use a public host",
-                    ));
-                }
-            }
+            check_endpoint_host(&url, limits)?;
             ValidPolicy::Remote(url.to_string())
         }
-    };
-    Ok(ValidSubmission {
-        method,
-        task,
-        obs_type,
-        training_seed,
-        data_fraction,
-        protocol,
-        manifest,
-        policy,
+    })
+}
+
+/// Refuses an endpoint whose host is a loopback name or an address literal
+/// in a non-public range, with the classifier the worker and the remote
+/// client use too (`d3il_protocol::address`); host names are resolved and
+/// checked by the worker.
+fn check_endpoint_host(url: &url::Url, limits: &Limits) -> Result<(), AppError> {
+    let host = url.host_str().unwrap_or_default();
+    d3il_protocol::address::check_host_literal(host, limits.allow_private_endpoints).map_err(|e| {
+        AppError::invalid(
+            "endpoint_url",
+            format!("`endpoint_url`: {e}; use a public host"),
+        )
     })
 }
 

@@ -1,22 +1,33 @@
 //! d3il-server: the leaderboard service behind `d3il serve` (issue 7).
 //!
-//! - [`store`]: SQLite schema, paper results, submissions, durable job queue, results.
-//! - [`queue`]: worker pool leasing jobs and running them through a [`queue::JobRunner`].
-//! - [`app`]: configuration, router and `serve`; [`pages`], [`api`], [`plot_routes`]: HTTP.
-//! - [`client`]: the blocking HTTP client behind `d3il submit`.
+//! Dependencies point one way (a test, `tests/layout.rs`, refuses cycles):
+//!
+//! - [`http`] (`api`, `pages`, `plots`; never importing each other) sits on
+//!   [`views`] (what the API shows), [`auth`] (the token extractor) and
+//!   [`intake`] (validating and accepting a submission);
+//! - those sit on [`state`] (what handlers share), [`queue`] (the worker pool),
+//!   [`store`] (SQLite, one module per resource) and [`leaderboard`] (pure
+//!   functions: rows, seed aggregation, sorting, figure input);
+//! - [`error`] is the HTTP error type and depends only on the store's error;
+//!   [`schema`] describes the protocol's types for the OpenAPI document.
+//!
+//! [`app`] wires it together (router, `serve`); [`cli`] and [`client`] are what
+//! the `d3il` binary calls.
 
-pub mod api;
 pub mod app;
+pub mod auth;
 pub mod cli;
 pub mod client;
+pub mod config;
 pub mod error;
+pub mod http;
 pub mod intake;
-pub mod pages;
-pub mod plot_routes;
-pub mod plots;
+pub mod leaderboard;
 pub mod queue;
 pub mod ratelimit;
 pub mod runner;
 pub mod sandbox_status;
-pub mod stats;
+pub mod schema;
+pub mod state;
 pub mod store;
+pub mod views;

@@ -2,13 +2,11 @@
 //! run them through a [`JobRunner`] (a sandboxed `d3il worker` process in
 //! production), heartbeat while they run and write the result idempotently.
 
-use crate::store::{ClaimedJob, Store, StoreError};
+use crate::store::{ClaimedJob, PolicyKind, Store, StoreError};
 use d3il_protocol::{
-    ErrorKind, EvalResult, Job, Limits, PolicyManifest, PolicySource, ProtocolKind,
-    SandboxMechanism, TaskId, WorkerError,
+    ErrorKind, EvalResult, Job, Limits, PolicyManifest, PolicySource, SandboxMechanism, WorkerError,
 };
 use std::path::PathBuf;
-use std::str::FromStr;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 use tokio::sync::{mpsc, Notify};
@@ -71,29 +69,27 @@ pub fn job_from_claim(
     limits: &Limits,
 ) -> Result<Job, String> {
     let s = &c.submission;
-    let task = TaskId::from_str(&s.task).map_err(|e| e.to_string())?;
-    let manifest: PolicyManifest = serde_json::from_str(&s.manifest_json)
+    let manifest: PolicyManifest = serde_json::from_value(s.manifest_json.0.clone())
         .map_err(|e| format!("stored manifest is invalid: {e}"))?;
-    let policy = match s.policy_kind.as_str() {
-        "onnx" => PolicySource::Onnx {
+    let policy = match s.policy_kind {
+        PolicyKind::Onnx => PolicySource::Onnx {
             path: s
                 .onnx_path
                 .clone()
                 .ok_or("onnx submission without a stored file")?,
             sha256: s.onnx_sha256.clone().unwrap_or_default(),
         },
-        "remote" => PolicySource::Remote {
+        PolicyKind::Remote => PolicySource::Remote {
             url: s
                 .endpoint_url
                 .clone()
                 .ok_or("remote submission without a URL")?,
         },
-        o => return Err(format!("unknown policy kind `{o}`")),
     };
     Ok(Job {
         job_id: c.job.id.to_string(),
-        task,
-        protocol: ProtocolKind::from_str(&s.protocol)?,
+        task: s.task,
+        protocol: s.protocol,
         policy,
         manifest,
         // The evaluator seed is the training seed, so each seed's policy noise
@@ -183,8 +179,8 @@ async fn run_claimed(
                 kind: ErrorKind::BadJob,
                 message,
             };
-            store.fail_attempt(job_id, &err, false).await?;
-            return Ok(());
+            return lease_lost_is_a_warning(store.fail_attempt(job_id, owner, &err, false).await)
+                .map(|_| ());
         }
     };
     tracing::info!(
@@ -238,9 +234,14 @@ async fn run_claimed(
             tracing::info!("job {job_id} completed");
         }
         Err(err) => {
-            let requeued = store
-                .fail_attempt(job_id, &err, is_retryable(err.kind))
-                .await?;
+            let Some(requeued) = lease_lost_is_a_warning(
+                store
+                    .fail_attempt(job_id, owner, &err, is_retryable(err.kind))
+                    .await,
+            )?
+            else {
+                return Ok(());
+            };
             tracing::warn!(
                 "job {job_id} failed ({:?}: {}){}",
                 err.kind,
@@ -250,6 +251,18 @@ async fn run_claimed(
         }
     }
     Ok(())
+}
+
+/// A slot whose lease expired leaves the job to whoever holds it now.
+fn lease_lost_is_a_warning(r: Result<bool, StoreError>) -> Result<Option<bool>, StoreError> {
+    match r {
+        Ok(requeued) => Ok(Some(requeued)),
+        Err(e @ StoreError::LeaseLost { .. }) => {
+            tracing::warn!("{e}");
+            Ok(None)
+        }
+        Err(e) => Err(e),
+    }
 }
 
 /// A heartbeat that fails (a busy or briefly unavailable database) must not

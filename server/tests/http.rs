@@ -115,6 +115,32 @@ async fn every_bad_field_is_named() {
         .await;
     let v: Value = r.json().await.unwrap();
     assert_eq!(err(&v), ("invalid_field", Some("endpoint_url")));
+    // The same classifier as the worker's: IPv4 inside IPv6 and loopback
+    // names are refused at intake too.
+    for url in [
+        "ws://[::ffff:127.0.0.1]/",
+        "ws://[64:ff9b::a00:1]/",
+        "ws://api.localhost/",
+    ] {
+        let r = app
+            .submit(
+                &[
+                    ("method", "Remote"),
+                    ("task", "avoiding"),
+                    ("training_seed", "0"),
+                    ("endpoint_url", url),
+                ],
+                None,
+            )
+            .await;
+        assert_eq!(r.status(), 400, "{url}");
+        let v: Value = r.json().await.unwrap();
+        assert_eq!(
+            err(&v),
+            ("invalid_field", Some("endpoint_url")),
+            "{url}: {v}"
+        );
+    }
     // Policy servers speak WebSocket only (docs/remote-protocol.md).
     let r = app
         .submit(
@@ -643,4 +669,28 @@ async fn the_form_refuses_a_wrong_token_before_reading_the_upload() {
     let text = String::from_utf8_lossy(&got);
     assert!(text.starts_with("HTTP/1.1 401"), "{text}");
     assert!(text.contains("d3il token create"), "{text}");
+}
+
+#[tokio::test]
+async fn a_path_segment_that_names_nothing_is_404_everywhere() {
+    let app = spawn_app().await;
+    for id in ["abc", "0", "-3", "99999"] {
+        let (s, v) = app.get_json(&format!("/api/v1/submissions/{id}")).await;
+        assert_eq!((s, err(&v)), (404, ("not_found", None)), "{id}");
+        let (s, v) = app
+            .get_json(&format!("/api/v1/submissions/{id}/results"))
+            .await;
+        assert_eq!((s, err(&v)), (404, ("not_found", None)), "{id}");
+        let (s, page) = app.get_text(&format!("/submissions/{id}")).await;
+        assert_eq!(s, 404, "{id}");
+        assert!(page.contains("<html"), "pages answer with an HTML page");
+        let (s, _) = app
+            .get_text(&format!("/plots/submissions/{id}/paths.svg"))
+            .await;
+        assert_eq!(s, 404, "{id}");
+    }
+    let (s, v) = app.get_json("/api/v1/leaderboards/juggling").await;
+    assert_eq!((s, err(&v)), (404, ("not_found", None)));
+    let (s, _) = app.get_text("/plots/tasks/juggling/pareto.svg").await;
+    assert_eq!(s, 404);
 }

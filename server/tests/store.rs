@@ -1,7 +1,7 @@
 //! Store tests on real SQLite files.
 
 use d3il_protocol::*;
-use d3il_server::store::{NewMethod, NewPolicy, NewSubmission, Store};
+use d3il_server::store::{JobState, NewMethod, NewPolicy, NewSubmission, Store, StoreError};
 
 fn eval_result(task: TaskId, success: f64, cond: f64, paths: bool) -> EvalResult {
     let manifest = ProtocolManifest {
@@ -160,10 +160,7 @@ async fn duplicate_seed_is_refused_and_stacking_expands() {
             3,
         )
         .await;
-    assert!(
-        matches!(dup, Err(d3il_server::store::StoreError::Conflict(_))),
-        "{dup:?}"
-    );
+    assert!(matches!(dup, Err(StoreError::Conflict(_))), "{dup:?}");
     store.claim_job("w", 60).await.unwrap().unwrap();
     let result = stacking_result(&[
         ("gbr", true),
@@ -340,12 +337,12 @@ async fn leases_expire_retries_are_bounded_and_restart_requeues() {
     let c = store.claim_job("w0", 60).await.unwrap().unwrap();
     assert_eq!(c.job.attempts, 2);
     assert!(
-        store.fail_attempt(job, &err, true).await.unwrap(),
+        store.fail_attempt(job, "w0", &err, true).await.unwrap(),
         "attempt 2 of 3 is retried"
     );
     store.claim_job("w0", 60).await.unwrap().unwrap();
     assert!(
-        !store.fail_attempt(job, &err, true).await.unwrap(),
+        !store.fail_attempt(job, "w0", &err, true).await.unwrap(),
         "attempt 3 of 3 is final"
     );
     let s = store.submission(sub).await.unwrap();
@@ -354,4 +351,68 @@ async fn leases_expire_retries_are_bounded_and_restart_requeues() {
     assert!(store.claim_job("w0", 60).await.unwrap().is_none());
     // A failed submission does not block resubmitting the same seed.
     submit(&store, "Flaky", TaskId::Pushing, 0).await;
+}
+
+#[tokio::test]
+async fn a_slot_that_lost_its_lease_cannot_requeue_or_fail_the_job() {
+    let dir = tempfile::tempdir().unwrap();
+    let store = Store::open(&dir.path().join("lb.sqlite")).await.unwrap();
+    let (sub, job) = submit(&store, "Slow", TaskId::Pushing, 0).await;
+    // w0's lease is already over when it is granted; w1 takes the job over.
+    store.claim_job("w0", -1).await.unwrap().unwrap();
+    let c = store.claim_job("w1", 60).await.unwrap().unwrap();
+    assert_eq!((c.job.id, c.job.attempts), (job, 2));
+    let err = WorkerError {
+        kind: ErrorKind::Crashed,
+        message: "worker killed by signal 9".into(),
+    };
+    for retry in [true, false] {
+        let r = store.fail_attempt(job, "w0", &err, retry).await;
+        assert!(
+            matches!(r, Err(StoreError::LeaseLost { job_id, ref owner }) if job_id == job && owner == "w0"),
+            "{r:?}"
+        );
+    }
+    // Nothing changed: w1 still runs it.
+    let j = store.job_for(sub).await.unwrap();
+    assert_eq!(j.state, JobState::Leased);
+    assert_eq!(j.lease_owner.as_deref(), Some("w1"));
+    assert_eq!(j.error_kind, None);
+    assert_eq!(store.submission(sub).await.unwrap().status, "running");
+    // The holder's report counts.
+    assert!(store.fail_attempt(job, "w1", &err, true).await.unwrap());
+    assert_eq!(store.job_for(sub).await.unwrap().state, JobState::Queued);
+}
+
+#[tokio::test]
+async fn sibling_seeds_lists_the_rows_seeds_with_their_success() {
+    let dir = tempfile::tempdir().unwrap();
+    let store = Store::open(&dir.path().join("lb.sqlite")).await.unwrap();
+    let (first, job) = submit(&store, "Seeds", TaskId::Aligning, 3).await;
+    store.claim_job("w", 60).await.unwrap().unwrap();
+    store
+        .complete_job(
+            job,
+            first,
+            &eval_result(TaskId::Aligning, 0.75, 0.2, false),
+            &[],
+        )
+        .await
+        .unwrap();
+    let (second, _) = submit(&store, "Seeds", TaskId::Aligning, 1).await;
+    // Another task's seed is another row.
+    submit(&store, "Seeds", TaskId::Pushing, 2).await;
+    let s = store.submission(second).await.unwrap();
+    let seeds = store.sibling_seeds(&s).await.unwrap();
+    let got: Vec<(i64, i64, String, Option<f64>)> = seeds
+        .iter()
+        .map(|x| (x.id, x.training_seed, x.status.to_string(), x.success_rate))
+        .collect();
+    assert_eq!(
+        got,
+        vec![
+            (second, 1, "queued".to_string(), None),
+            (first, 3, "completed".to_string(), Some(0.75)),
+        ]
+    );
 }

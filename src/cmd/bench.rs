@@ -27,13 +27,17 @@ pub struct Args {
     /// Rollouts simulated at once in `eval` and `render`.
     #[arg(long, default_value_t = 96)]
     pub max_live: usize,
+    /// Hand and fingers in `render` (primitives: the scene the ratio goal is
+    /// set for; meshes: the Panda meshes image evaluations use when present).
+    #[arg(long, value_enum, default_value_t = super::render::Look::Primitives)]
+    pub look: super::render::Look,
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
     match args.which.as_str() {
         "physics" => physics(args.steps),
         "eval" => eval_bench(args.protocol, args.max_live),
-        "render" => render_bench(args.steps, args.render_protocol, args.max_live),
+        "render" => render_bench(args.steps, args.render_protocol, args.max_live, args.look),
         "agents" => agents_bench(args.max_live),
         other => bail!("unknown benchmark `{other}`; available: physics, eval, render, agents"),
     }
@@ -184,16 +188,25 @@ fn raw_step_rate(task: &LoadedTask, threads: usize) -> anyhow::Result<f64> {
     Ok(total)
 }
 
-/// Frames per second of both 96 x 96 policy cameras, and the ratio of
-/// rendering time to physics time in an image-based Aligning evaluation run
-/// by the engine (both cameras rendered every env step, as the image variant
-/// does; times summed over threads).
-fn render_bench(env_steps: usize, protocol: ProtocolKind, max_live: usize) -> anyhow::Result<()> {
-    let task = LoadedTask::load_obs(TaskId::Aligning, ObsType::Image)?;
+/// Frames per second of both 96 x 96 policy cameras; physics, rendering and
+/// policy time per env step of an image-based Aligning evaluation run by the
+/// engine (both cameras rendered every env step, as the image variant does;
+/// times summed over threads); the paper-sized image policy (ResNet-18 per
+/// camera, `aligning_resnet18` fixture) timed at the engine's batch of the
+/// quick and the paper protocol and at batch 480; last line: the ratio of
+/// rendering to physics time.
+fn render_bench(
+    env_steps: usize,
+    protocol: ProtocolKind,
+    max_live: usize,
+    look: super::render::Look,
+) -> anyhow::Result<()> {
+    let look = look.robot_look();
+    let task = LoadedTask::load_look(TaskId::Aligning, ObsType::Image, look)?;
     let set = task.def.context_set()?;
     let cams = camera::camera_ids(&task.model)?;
     println!(
-        "aligning, cameras {} + {} at {}x{}, EGL: {}",
+        "aligning, cameras {} + {} at {}x{}, {look:?} hand and fingers, EGL: {}",
         camera::CAMERAS[0],
         camera::CAMERAS[1],
         camera::SIZE,
@@ -203,12 +216,12 @@ fn render_bench(env_steps: usize, protocol: ProtocolKind, max_live: usize) -> an
     // Rendering alone: both cameras of one state, repeatedly.
     let mut env = task.env()?;
     env.reset(&set.get(0).cloned().unwrap_or(Value::Null))?;
-    let mut buf = Vec::with_capacity(camera::OBS_LEN);
+    let mut frame = Vec::with_capacity(camera::OBS_LEN);
     let reps = (env_steps / 10).max(20);
     let t = Instant::now();
     for _ in 0..reps {
-        buf.clear();
-        camera::capture(&mut env.sim.data, &cams, &mut buf)?;
+        frame.clear();
+        camera::capture(&mut env.sim.data, &cams, &mut frame)?;
     }
     let fps = 2.0 * reps as f64 / t.elapsed().as_secs_f64();
     println!(
@@ -230,20 +243,79 @@ fn render_bench(env_steps: usize, protocol: ProtocolKind, max_live: usize) -> an
     let (r, t) = eval::evaluate(&task, &mut policy, &info, &opts, &mut |_, _| {})?;
     let steps: usize = r.rollouts.iter().map(|x| x.steps).sum();
     let physics = t.step_cpu_s - t.render_cpu_s;
+    let physics_ms = 1000.0 * physics / steps as f64;
+    let render_ms = 1000.0 * t.render_cpu_s / steps as f64;
     println!(
         "image evaluation ({protocol:?} protocol, {threads} threads): {} rollouts, {steps} env steps in {:.1} s; \
-         per env step {:.2} ms physics, {:.2} ms rendering (2 frames), policy {:.2} s",
+         per env step {physics_ms:.2} ms physics, {render_ms:.2} ms rendering (2 frames), policy {:.2} s",
         r.rollouts.len(),
         t.total_s,
-        1000.0 * physics / steps as f64,
-        1000.0 * t.render_cpu_s / steps as f64,
         t.policy_s,
+    );
+
+    // The paper-sized image policy at the batch sizes the engine uses.
+    let (resnet, _) = load_fixture(&task, "aligning_resnet18", ObsType::Image)?;
+    let mut resnet = resnet;
+    let n_set = set.len();
+    println!(
+        "paper-sized image policy (ResNet-18 per camera + MLP head, aligning_resnet18.onnx), \
+         CPU ms per env step (one rollout, one step) at the engine's batch:"
+    );
+    println!(
+        "{:>9} {:>8} {:>6} {:>9} {:>10} {:>8} {:>11}",
+        "protocol", "rollouts", "batch", "physics", "rendering", "policy", "policy call"
+    );
+    let mut batches: Vec<(String, usize, usize)> = Vec::new();
+    for p in [ProtocolKind::Quick, ProtocolKind::Paper] {
+        let (contexts, per) = eval::protocol_size(&task, p, n_set);
+        let n = contexts * per;
+        batches.push((format!("{p:?}").to_lowercase(), n, n.min(max_live)));
+    }
+    batches.push(("(480)".into(), 480, 480));
+    let mut at_480 = 0.0;
+    for (label, rollouts, batch) in batches {
+        let call_s = time_image_policy(&mut resnet, &frame, batch)?;
+        if batch == 480 {
+            at_480 = call_s;
+        }
+        println!(
+            "{label:>9} {rollouts:>8} {batch:>6} {physics_ms:>9.2} {render_ms:>10.2} {:>8.2} {:>9.0} ms",
+            1000.0 * call_s / batch as f64,
+            1000.0 * call_s
+        );
+    }
+    println!(
+        "ResNet-sized policy at batch 480: {:.2} ms per env step",
+        1000.0 * at_480 / 480.0
     );
     println!(
         "ratio rendering/physics time: {:.3}",
         t.render_cpu_s / physics
     );
     Ok(())
+}
+
+/// Seconds per call of an image policy on `batch` copies of one rendered
+/// observation `frame` (`[2, 3, 96, 96]`), after one warm-up call; at least
+/// two timed calls or one second of calls.
+fn time_image_policy(policy: &mut OnnxPolicy, frame: &[f32], batch: usize) -> anyhow::Result<f64> {
+    let s = policy.shape();
+    let ids: Vec<u64> = (0..batch as u64).collect();
+    let steps = vec![0u64; batch];
+    let obs = vec![0.0f32; batch * s.history * s.obs_dim];
+    let mut images = Vec::with_capacity(batch * s.history * frame.len());
+    for _ in 0..batch * s.history {
+        images.extend_from_slice(frame);
+    }
+    let mut q = Query::new(&ids, &steps, &obs);
+    q.images = Some(&images);
+    policy.infer(&q)?;
+    let (mut calls, start) = (0, Instant::now());
+    while calls < 2 || start.elapsed().as_secs_f64() < 1.0 {
+        policy.infer(&q)?;
+        calls += 1;
+    }
+    Ok(start.elapsed().as_secs_f64() / calls as f64)
 }
 
 /// Controlled stepping of the Avoiding scene (IK + PD + finger law every

@@ -231,6 +231,23 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         );
     }
     println!("{:<28} {:>8.3}", "inference ms per call", m.inference_ms);
+    println!(
+        "initial states: {} ({}), sha256 {}",
+        result.manifest.initial_states_name(),
+        result.manifest.initial_states_origin(),
+        result.manifest.initial_states_sha256
+    );
+    println!(
+        "rollouts ended unstable: {} of {} (counted as failures)",
+        result.rollouts_ended_unstable,
+        result.rollouts.len()
+    );
+    if result.mostly_unstable() {
+        println!(
+            "WARNING: more than half of the rollouts ended with an unstable simulation; \
+             these numbers say more about the simulation than about the policy"
+        );
+    }
     if let Some(path) = &args.json {
         std::fs::write(path, serde_json::to_vec_pretty(&result)?)
             .with_context(|| format!("writing {}", path.display()))?;

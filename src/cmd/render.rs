@@ -4,6 +4,7 @@
 
 use anyhow::Context;
 use d3il_evaluator::camera;
+use d3il_evaluator::sim::scene::RobotLook;
 use d3il_evaluator::tasks::LoadedTask;
 use d3il_protocol::{ObsType, TaskId};
 use std::path::PathBuf;
@@ -26,6 +27,29 @@ pub struct Args {
     /// Env steps with zero action before rendering (the robot settles).
     #[arg(long, default_value_t = 0)]
     pub steps: usize,
+    /// Hand and fingers: `meshes` (the Panda's, from example-robot-data, when
+    /// this build has them), `primitives` (boxes), or `best` (what image
+    /// evaluations use: meshes when available).
+    #[arg(long, value_enum, default_value_t = Look::Best)]
+    pub look: Look,
+}
+
+/// `--look` of `d3il render` and `d3il bench render`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum Look {
+    Best,
+    Primitives,
+    Meshes,
+}
+
+impl Look {
+    pub fn robot_look(self) -> RobotLook {
+        match self {
+            Look::Best => RobotLook::best(),
+            Look::Primitives => RobotLook::Primitives,
+            Look::Meshes => RobotLook::Meshes,
+        }
+    }
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
@@ -37,7 +61,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     } else {
         ObsType::State
     };
-    let task = LoadedTask::load_obs(args.task, obs)?;
+    let look = args.look.robot_look();
+    let task = LoadedTask::load_look(args.task, obs, look)?;
     let set = task.def.context_set()?;
     let context = set.get(args.context).with_context(|| {
         format!(
@@ -73,7 +98,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let png = camera::encode_png(&out, 2 * n, n).map_err(|e| anyhow::anyhow!(e))?;
     std::fs::write(&args.out, png).with_context(|| format!("writing {}", args.out.display()))?;
     eprintln!(
-        "wrote {} ({}x{}: {} | {}) for {} context {}{}",
+        "wrote {} ({}x{}: {} | {}) for {} context {}, {} hand and fingers{}",
         args.out.display(),
         2 * n,
         n,
@@ -81,6 +106,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         camera::CAMERAS[1],
         args.task,
         args.context,
+        match look {
+            RobotLook::Meshes => "meshed",
+            RobotLook::Primitives => "primitive",
+        },
         if obs == ObsType::State {
             " (this task has no image variant; shown for inspection)"
         } else {

@@ -243,6 +243,7 @@ mod tests {
                 protocol: ProtocolKind::Paper,
                 mjcf_sha256: "m".into(),
                 initial_states_sha256: "i".into(),
+                initial_states: "stacking-v2.json".into(),
                 mujoco_version: "2.2.2".into(),
                 evaluator_version: "0".into(),
                 n_contexts: 2,
@@ -257,6 +258,7 @@ mod tests {
             metrics: ev.metrics.clone(),
             per_context: ev.per_context,
             rollouts: vec![],
+            rollouts_ended_unstable: 0,
         };
         let rt = tokio::runtime::Builder::new_current_thread()
             .enable_all()

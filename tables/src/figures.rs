@@ -339,8 +339,15 @@ fn datasize(model: &TableModel) -> Result<String, TablesError> {
 }
 
 /// Points not dominated in (entropy, success): no other point is at least as
-/// good in both and better in one. Sorted by entropy.
+/// good in both and better in one. Sorted by entropy. Points without a finite
+/// entropy and success rate are never on the front (nor drawn).
 pub(crate) fn pareto_front(points: &[(f64, f64)]) -> Vec<(f64, f64)> {
+    let finite: Vec<(f64, f64)> = points
+        .iter()
+        .copied()
+        .filter(|(e, s)| e.is_finite() && s.is_finite())
+        .collect();
+    let points = &finite;
     let mut front: Vec<(f64, f64)> = points
         .iter()
         .copied()

@@ -10,8 +10,11 @@
 //! `0.0009`), so the tables reproduce the paper digit for digit; evaluated
 //! numbers are printed with three decimals like the paper's.
 
+#![forbid(unsafe_code)]
+
+pub mod board;
 mod caption;
-mod csv;
+pub mod csv;
 mod figures;
 mod latex;
 mod markdown;
@@ -23,6 +26,7 @@ use std::collections::BTreeMap;
 use std::fmt;
 use std::str::FromStr;
 
+pub use csv::write_csv;
 pub use figures::{render_avoiding_paths, render_figure, FigureKind};
 pub use model::{build_table, Block, Group, Metric, Row, TableModel, Value};
 
@@ -258,6 +262,8 @@ pub enum TablesError {
     },
     #[error("could not draw the figure: {0}")]
     Plot(String),
+    #[error("could not write the CSV: {0}")]
+    Csv(String),
 }
 
 /// Renders one of the paper's tables. Methods that are not in the paper are
@@ -288,6 +294,6 @@ pub fn render_table_with(
     Ok(match format {
         Format::Latex => latex::render(&model),
         Format::Markdown => markdown::render(&model),
-        Format::Csv => csv::render(&model),
+        Format::Csv => csv::render(&model)?,
     })
 }

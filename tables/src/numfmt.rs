@@ -77,18 +77,10 @@ pub fn markdown_escape(s: &str) -> String {
     out
 }
 
-/// Quotes a CSV field when needed (RFC 4180).
-pub fn csv_field(s: &str) -> String {
-    if s.contains([',', '"', '\n', '\r']) {
-        format!("\"{}\"", s.replace('"', "\"\""))
-    } else {
-        s.to_string()
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::csv::csv_field;
 
     #[test]
     fn reported_numbers_keep_the_papers_digits() {

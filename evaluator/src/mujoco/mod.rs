@@ -514,26 +514,6 @@ impl Data {
             .any(|c| (c.geom1 == a && c.geom2 == b) || (c.geom1 == b && c.geom2 == a))
     }
 
-    /// Translational and rotational Jacobians (3 x nv each, row-major) of a
-    /// body's frame origin, from the current kinematics.
-    pub fn jac_body(&self, body: usize) -> (Vec<f64>, Vec<f64>) {
-        assert!(body < self.model.nbody(), "body id {body} out of range");
-        let nv = self.model.nv();
-        let mut jacp = vec![0.0; 3 * nv];
-        let mut jacr = vec![0.0; 3 * nv];
-        // SAFETY: buffers have 3*nv entries; body id checked by the caller via Model::id.
-        unsafe {
-            ffi::mj_jacBody(
-                self.model.ptr.as_ptr(),
-                self.ptr.as_ptr(),
-                jacp.as_mut_ptr(),
-                jacr.as_mut_ptr(),
-                body as i32,
-            )
-        };
-        (jacp, jacr)
-    }
-
     /// Number of MuJoCo warnings of each kind raised in this data.
     pub fn warning_count(&self) -> i32 {
         self.raw().warning.iter().map(|w| w.number).sum()

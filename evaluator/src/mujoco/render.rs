@@ -137,8 +137,21 @@ fn display() -> Result<EglDisplay, MjError> {
     display_and_platform().map(|d| d.0)
 }
 
+/// Mesa llvmpipe's rasterizer thread count, set before the driver loads
+/// unless the user set it: 0 = rasterize on the calling thread. A 96×96
+/// frame is too small to split into tiles worth the hand-off, and the
+/// evaluator already renders on every core (one context per worker thread),
+/// so llvmpipe's own pool (one thread per core, per context) only competes
+/// with the workers for the same cores (measurements in docs/images.md).
+pub const LP_NUM_THREADS: &str = "0";
+
 fn display_and_platform() -> Result<(EglDisplay, &'static str), MjError> {
     let d = DISPLAY.get_or_init(|| {
+        if std::env::var_os("LP_NUM_THREADS").is_none() {
+            // Read by Mesa when eglInitialize creates the llvmpipe screen,
+            // below; set once, before any EGL call of this process.
+            std::env::set_var("LP_NUM_THREADS", LP_NUM_THREADS);
+        }
         // SAFETY: EGL entry points with valid arguments; the returned pointers
         // are checked before use.
         unsafe {
@@ -416,12 +429,88 @@ impl Renderer {
             }
             guarded(|| {
                 ffi::mjv_updateScene(m, d, opt, pert, cam, ffi::mjtCatBit__mjCAT_ALL as i32, scn);
+                cull_outside_frustum(&mut *scn, viewport.width as f32 / viewport.height as f32);
                 ffi::mjr_setBuffer(ffi::mjtFramebuffer__mjFB_OFFSCREEN as i32, con);
                 ffi::mjr_render(viewport, scn, con);
                 ffi::mjr_readPixels(rgb.as_mut_ptr(), std::ptr::null_mut(), viewport, con);
             })
         }
     }
+}
+
+/// Drops from the scene every model geom whose bounding sphere lies entirely
+/// outside the camera's view frustum, before `mjr_render` draws it. Such a
+/// geom covers no pixel (no shadows or reflections are drawn), so the frame
+/// is identical; llvmpipe would otherwise run every triangle of it through
+/// vertex processing and clipping (a capsule is 2688 triangles at MuJoCo's
+/// default quality). Planes and decorative geoms are always kept. The side
+/// planes are widened by 10% and the far plane is not used, so the test only
+/// ever keeps too much.
+fn cull_outside_frustum(scn: &mut ffi::mjvScene, aspect: f32) {
+    let c = scn.camera[0];
+    let f = c.forward;
+    let u = c.up;
+    let right = [
+        f[1] * u[2] - f[2] * u[1],
+        f[2] * u[0] - f[0] * u[2],
+        f[0] * u[1] - f[1] * u[0],
+    ];
+    let near = c.frustum_near;
+    if near.is_nan() || near <= 0.0 || aspect.is_nan() || aspect <= 0.0 {
+        return;
+    }
+    let half_w = 0.55 * aspect * (c.frustum_top - c.frustum_bottom);
+    let half_h = 0.55 * (c.frustum_top - c.frustum_bottom);
+    let mid_y = 0.5 * (c.frustum_top + c.frustum_bottom);
+    let (l, r) = (c.frustum_center - half_w, c.frustum_center + half_w);
+    let (b, t) = (mid_y - half_h, mid_y + half_h);
+    // Outward normals (x, y, z in the camera frame, z forward) of the four
+    // side planes through the eye.
+    let planes = [
+        [near, 0.0, -r],
+        [-near, 0.0, l],
+        [0.0, near, -t],
+        [0.0, -near, b],
+    ]
+    .map(|n| {
+        let len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
+        [n[0] / len, n[1] / len, n[2] / len]
+    });
+    let n = scn.ngeom.max(0) as usize;
+    if n == 0 || scn.geoms.is_null() {
+        return;
+    }
+    // SAFETY: mjv_updateScene filled `ngeom` entries of `geoms`.
+    let geoms = unsafe { std::slice::from_raw_parts_mut(scn.geoms, n) };
+    let mut kept = 0;
+    for i in 0..n {
+        let g = geoms[i];
+        let cullable = g.objtype == ffi::mjtObj__mjOBJ_GEOM as i32
+            && g.type_ != ffi::mjtGeom__mjGEOM_PLANE as i32
+            && g.modelrbound > 0.0;
+        let outside = cullable && {
+            let d = [
+                g.pos[0] - c.pos[0],
+                g.pos[1] - c.pos[1],
+                g.pos[2] - c.pos[2],
+            ];
+            let p = [
+                d[0] * right[0] + d[1] * right[1] + d[2] * right[2],
+                d[0] * u[0] + d[1] * u[1] + d[2] * u[2],
+                d[0] * f[0] + d[1] * f[1] + d[2] * f[2],
+            ];
+            let rad = g.modelrbound;
+            p[2] < near - rad
+                || planes
+                    .iter()
+                    .any(|n| n[0] * p[0] + n[1] * p[1] + n[2] * p[2] > rad)
+        };
+        if !outside {
+            geoms[kept] = g;
+            kept += 1;
+        }
+    }
+    scn.ngeom = kept as i32;
 }
 
 impl Drop for Renderer {

@@ -112,9 +112,6 @@ impl Sim {
     pub fn tcp_pos(&self) -> [f64; 3] {
         self.data.xpos(self.ids.tcp_body)
     }
-    pub fn tcp_quat(&self) -> [f64; 4] {
-        self.data.xquat(self.ids.tcp_body)
-    }
 
     /// Controller -> ctrl, then one `mj_step` (spec/01 §4.1).
     pub fn substep(&mut self) -> Result<(), MjError> {

@@ -12,6 +12,90 @@ const TABLE_XML: &str = include_str!("../../../assets/mjcf/table.xml");
 const PANDA_ROD_XML: &str = include_str!("../../../assets/mjcf/panda_rod.xml");
 const PANDA_GRIPPER_XML: &str = include_str!("../../../assets/mjcf/panda_gripper.xml");
 
+include!(concat!(env!("OUT_DIR"), "/panda_meshes.rs"));
+
+/// How the hand and fingers are drawn. Physics is the same either way: the
+/// collision boxes stay, and the meshes are visual-only geoms (no contacts)
+/// on bodies whose inertia is given explicitly (spec/01 §2.3).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum RobotLook {
+    /// Boxes inside the original's mesh bounds (docs/mjcf.md).
+    #[default]
+    Primitives,
+    /// The Panda hand and finger visual meshes (franka_description, from the
+    /// `example-robot-data` package, converted by scripts/panda_meshes.py and
+    /// compiled in), drawn like the original's: the visual geom `:geom1` is the
+    /// mesh in MuJoCo's default grey; the collision box `:geom2` is moved to
+    /// geom group 3, which is not drawn (the original's `:geom2` is the same
+    /// mesh again, so it adds nothing to the picture).
+    Meshes,
+}
+
+impl RobotLook {
+    /// Whether this build has the meshes (converted before it was compiled).
+    pub fn meshes_available() -> bool {
+        PANDA_MESHES.is_some()
+    }
+
+    /// Meshes when this build has them, else primitives.
+    pub fn best() -> RobotLook {
+        if Self::meshes_available() {
+            RobotLook::Meshes
+        } else {
+            RobotLook::Primitives
+        }
+    }
+}
+
+const HAND_MESH_FILE: &str = "panda_hand.obj";
+const FINGER_MESH_FILE: &str = "panda_finger.obj";
+
+/// Replaces the element that starts with `start` (up to its `/>`) by
+/// `f(element)`; None when `start` does not occur exactly once.
+fn replace_element(xml: &str, start: &str, f: impl Fn(&str) -> String) -> Option<String> {
+    if xml.matches(start).count() != 1 {
+        return None;
+    }
+    let i = xml.find(start)?;
+    let end = i + xml[i..].find("/>")? + 2;
+    Some(format!("{}{}{}", &xml[..i], f(&xml[i..end]), &xml[end..]))
+}
+
+/// The robot MJCF with the hand and finger visual geoms as meshes (see
+/// [`RobotLook::Meshes`]); None if the file does not have the expected geoms.
+fn with_hand_meshes(robot_xml: &str) -> Option<String> {
+    let hide = |e: &str| format!("{} group=\"3\"/>", e.trim_end_matches("/>").trim_end());
+    let mesh = |name: &str, mesh: &str, quat: &str| {
+        format!(
+            r#"<geom name="{name}" type="mesh" mesh="{mesh}"{quat} contype="0" conaffinity="0" group="1"/>"#
+        )
+    };
+    let mut x = robot_xml.to_string();
+    x = replace_element(&x, r#"<geom name="panda_rb0_hand:geom1""#, |_| {
+        mesh("panda_rb0_hand:geom1", "panda_hand_visual", "")
+    })?;
+    x = replace_element(&x, r#"<geom name="panda_rb0_leftfinger:geom1""#, |_| {
+        mesh("panda_rb0_leftfinger:geom1", "panda_finger_visual", "")
+    })?;
+    // The right finger is the same mesh turned 180° about z (spec/01 §2.5).
+    x = replace_element(&x, r#"<geom name="panda_rb0_rightfinger:geom1""#, |_| {
+        mesh(
+            "panda_rb0_rightfinger:geom1",
+            "panda_finger_visual",
+            r#" quat="0 0 0 1""#,
+        )
+    })?;
+    for g in ["hand", "leftfinger", "rightfinger"] {
+        x = replace_element(&x, &format!(r#"<geom name="panda_rb0_{g}:geom2""#), hide)?;
+    }
+    let asset = format!(
+        r#"<asset><mesh name="panda_hand_visual" file="{HAND_MESH_FILE}"/><mesh name="panda_finger_visual" file="{FINGER_MESH_FILE}"/></asset>"#
+    );
+    let body = x.find("<worldbody>")?;
+    x.insert_str(body, &format!("{asset}\n  "));
+    Some(x)
+}
+
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Shape {
     Box,
@@ -74,6 +158,10 @@ pub struct SceneSpec {
     pub extra_bodies: String,
     /// Task XML objects as (file name, `<mujoco>` include contents), in order.
     pub includes: Vec<(String, String)>,
+    /// Hand and finger look (rendering only). [`RobotLook::Meshes`] in a build
+    /// without the meshes falls back to primitives; check
+    /// [`RobotLook::meshes_available`] first.
+    pub look: RobotLook,
 }
 
 /// The bp_cam body every task adds (spec/01 §6).
@@ -86,6 +174,7 @@ impl SceneSpec {
             primitives: Vec::new(),
             extra_bodies: BP_CAM.to_string(),
             includes: Vec::new(),
+            look: RobotLook::Primitives,
         }
     }
 
@@ -152,7 +241,20 @@ impl SceneSpec {
             RobotVariant::Rod => PANDA_ROD_XML,
             RobotVariant::Gripper => PANDA_GRIPPER_XML,
         };
-        files.push((robot_file.to_string(), robot_xml.to_string()));
+        let meshed = match (self.look, PANDA_MESHES) {
+            (RobotLook::Meshes, Some((hand, finger))) => {
+                with_hand_meshes(robot_xml).map(|x| (x, hand, finger))
+            }
+            _ => None,
+        };
+        match meshed {
+            Some((xml, hand, finger)) => {
+                files.push((robot_file.to_string(), xml));
+                files.push((HAND_MESH_FILE.to_string(), hand.to_string()));
+                files.push((FINGER_MESH_FILE.to_string(), finger.to_string()));
+            }
+            None => files.push((robot_file.to_string(), robot_xml.to_string())),
+        }
         (main, files)
     }
 

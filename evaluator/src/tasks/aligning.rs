@@ -10,7 +10,7 @@
 //! the target pose exactly as the context gives it (z = 0), like the reference.
 
 use super::geometry::{dist2, dist3, quat_to_yaw, yaw_deg_to_quat};
-use super::{Command, ContextSet, TaskDef, TaskError, TaskLogic, QUAT_DOWN};
+use super::{Command, CommandKind, ContextSet, TaskDef, TaskError, TaskLogic, QUAT_DOWN};
 use crate::mujoco::{Model, ObjKind};
 use crate::robot::control::FingerCommand;
 use crate::robot::{init_qpos, RobotVariant};
@@ -68,6 +68,11 @@ pub const INSIDE_RADIUS: f64 = 0.051;
 const CONTEXTS_V1: &[u8] = include_bytes!("../../../assets/contexts/aligning-v1.json");
 pub const CONTEXTS_V1_SHA256: &str =
     "5e7935b28b9253e1d1b4eee48a325f0397a8f94ab5bcf801aeb09ac0da28e8ca";
+/// The original D3IL test contexts (`test_contexts.pkl` of the reference,
+/// decoded in shared/reference-contexts; `d3il contexts import`): the set in use.
+const CONTEXTS_V2: &[u8] = include_bytes!("../../../assets/contexts/aligning-v2.json");
+pub const CONTEXTS_V2_SHA256: &str =
+    "4956e032fcdfd27634f58549455f53b23e7c9f99d073125cb6fbdd7d4305ffcf";
 
 /// A planar pose from a context: position (x, y) as the reference's float32
 /// pose array holds it, yaw in degrees, and the quaternion written to the
@@ -238,28 +243,21 @@ impl TaskDef for Aligning {
     fn init_qpos(&self) -> [f64; 7] {
         init_qpos::ALIGNING
     }
-    /// spec/10 §3.4.
-    fn max_steps(&self) -> usize {
-        400
-    }
     fn env_obs_dim(&self) -> usize {
         17
     }
-    fn cmd_dim(&self) -> usize {
-        3
-    }
-    fn act_dim(&self) -> usize {
-        3
-    }
-    fn act_meaning(&self) -> &'static str {
-        "the xyz delta of the desired TCP position"
+    fn command_kind(&self) -> CommandKind {
+        CommandKind::XyzDelta
     }
     fn context_set(&self) -> Result<ContextSet, TaskError> {
-        ContextSet::verify("aligning-v1.json", CONTEXTS_V1, CONTEXTS_V1_SHA256)
+        ContextSet::verify("aligning-v2.json", CONTEXTS_V2, CONTEXTS_V2_SHA256)
     }
-    /// spec/10 §1.10: 60 initial states × 8 rollouts (all 60 of the set).
-    fn rollouts_per_context(&self) -> usize {
-        8
+    /// v2 (in use) and our earlier sample v1, which stored results refer to.
+    fn context_sets(&self) -> Result<Vec<ContextSet>, TaskError> {
+        Ok(vec![
+            self.context_set()?,
+            ContextSet::verify("aligning-v1.json", CONTEXTS_V1, CONTEXTS_V1_SHA256)?,
+        ])
     }
     /// spec/10 §3.2 random context distribution.
     fn sample_context(&self, rng: &mut dyn rand::RngCore) -> Value {
@@ -286,24 +284,6 @@ impl TaskDef for Aligning {
             success: false,
             terminated: false,
         }))
-    }
-    fn initial_command(&self, sim: &Sim) -> Vec<f64> {
-        sim.tcp_pos().to_vec()
-    }
-    /// spec/10 §3.4: previous desired xyz + float32 delta, hand down, no fixed z.
-    fn command(&self, prev: &[f64], action: &[f32], _fixed_z: f64) -> (Vec<f64>, Command) {
-        let p = [
-            prev[0] + action[0] as f64,
-            prev[1] + action[1] as f64,
-            prev[2] + action[2] as f64,
-        ];
-        (
-            p.to_vec(),
-            Command::Cartesian {
-                pos: p,
-                quat: QUAT_DOWN,
-            },
-        )
     }
 }
 

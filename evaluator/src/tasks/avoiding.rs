@@ -1,7 +1,7 @@
 //! Avoiding (spec/10 §2): move the rod through three rows of cylinders to the
 //! finish line; the path through the rows is the behaviour (|B| = 24).
 
-use super::{geom_id, xy_delta_command, Command, ContextSet, TaskDef, TaskError, TaskLogic};
+use super::{geom_id, Command, CommandKind, ContextSet, TaskDef, TaskError, TaskLogic};
 use crate::mujoco::Model;
 use crate::robot::control::FingerCommand;
 use crate::robot::{init_qpos, RobotVariant};
@@ -82,28 +82,14 @@ impl TaskDef for Avoiding {
     fn init_qpos(&self) -> [f64; 7] {
         init_qpos::AVOIDING
     }
-    /// spec/10 §2.4: the environment's 250 (we do not reproduce the reference
-    /// evaluation's 150-row buffer crash; see docs/tasks.md).
-    fn max_steps(&self) -> usize {
-        250
-    }
     fn env_obs_dim(&self) -> usize {
         2
     }
-    fn cmd_dim(&self) -> usize {
-        2
-    }
-    fn act_dim(&self) -> usize {
-        2
-    }
-    fn act_meaning(&self) -> &'static str {
-        "the xy delta of the desired TCP position"
+    fn command_kind(&self) -> CommandKind {
+        CommandKind::XyDelta
     }
     fn context_set(&self) -> Result<ContextSet, TaskError> {
         ContextSet::verify("avoiding-v1.json", CONTEXTS_V1, CONTEXTS_V1_SHA256)
-    }
-    fn rollouts_per_context(&self) -> usize {
-        480
     }
     fn sample_context(&self, _rng: &mut dyn rand::RngCore) -> Value {
         // spec/10 §2.2: a single fixed start, no context.
@@ -122,13 +108,6 @@ impl TaskDef for Avoiding {
             success: false,
             terminated: false,
         }))
-    }
-    fn initial_command(&self, sim: &Sim) -> Vec<f64> {
-        let p = sim.tcp_pos();
-        vec![p[0], p[1]]
-    }
-    fn command(&self, prev: &[f64], action: &[f32], fixed_z: f64) -> (Vec<f64>, Command) {
-        xy_delta_command(prev, action, fixed_z)
     }
 }
 

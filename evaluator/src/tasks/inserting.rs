@@ -9,7 +9,7 @@
 use super::geometry::dist3;
 use super::sorting::{movable_box, static_box, FreeBox, PoseSample};
 use super::stacking::parse_colour_poses;
-use super::{xy_delta_command, Command, ContextSet, TaskDef, TaskError, TaskLogic};
+use super::{Command, CommandKind, ContextSet, TaskDef, TaskError, TaskLogic};
 use crate::mujoco::Model;
 use crate::robot::control::FingerCommand;
 use crate::robot::{init_qpos, RobotVariant};
@@ -132,28 +132,14 @@ impl TaskDef for Inserting {
     fn init_qpos(&self) -> [f64; 7] {
         init_qpos::AVOIDING
     }
-    /// The environment default (spec/11 §3.4, spec/01 §4.6); no evaluation value exists.
-    fn max_steps(&self) -> usize {
-        2000
-    }
     fn env_obs_dim(&self) -> usize {
         11
     }
-    fn cmd_dim(&self) -> usize {
-        2
-    }
-    fn act_dim(&self) -> usize {
-        2
-    }
-    fn act_meaning(&self) -> &'static str {
-        "the xy delta of the desired TCP position"
+    fn command_kind(&self) -> CommandKind {
+        CommandKind::XyDelta
     }
     fn context_set(&self) -> Result<ContextSet, TaskError> {
         ContextSet::verify("inserting-v1.json", CONTEXTS_V1, CONTEXTS_V1_SHA256)
-    }
-    /// Our protocol (docs/tasks.md): 60 initial states × 8 rollouts.
-    fn rollouts_per_context(&self) -> usize {
-        8
     }
     fn sample_context(&self, rng: &mut dyn rand::RngCore) -> Value {
         let p: Vec<PoseSample> = REGIONS
@@ -178,15 +164,6 @@ impl TaskDef for Inserting {
             terminated: false,
         }))
     }
-    fn initial_command(&self, sim: &Sim) -> Vec<f64> {
-        let p = sim.tcp_pos();
-        vec![p[0], p[1]]
-    }
-    /// Assumed like Sorting/Pushing (spec/11 §3.4): previous desired xy + Δ,
-    /// z fixed at the post-reset TCP z (≈0.1224).
-    fn command(&self, prev: &[f64], action: &[f32], fixed_z: f64) -> (Vec<f64>, Command) {
-        xy_delta_command(prev, action, fixed_z)
-    }
 }
 
 pub struct InsertingLogic {
@@ -209,7 +186,14 @@ impl TaskLogic for InsertingLogic {
         init_qpos: &[f64; 7],
         context: &Value,
     ) -> Result<(), TaskError> {
-        let poses = parse_colour_poses(TaskId::Inserting, context, &["red", "green", "blue"])?;
+        // The original environment names the boxes box1/box2/box3 (red,
+        // green, blue; spec/11 §3.1): its context keys are accepted as they are.
+        let context = super::contexts::rename_objects(
+            TaskId::Inserting,
+            context,
+            &[("box1", "red"), ("box2", "green"), ("box3", "blue")],
+        )?;
+        let poses = parse_colour_poses(TaskId::Inserting, &context, &["red", "green", "blue"])?;
         let boxes = self.boxes.clone();
         sim.reset(init_qpos, FingerCommand::RESET, |data| {
             for (b, pose) in boxes.iter().zip(&poses) {

@@ -6,6 +6,7 @@
 
 pub mod aligning;
 pub mod avoiding;
+pub mod command;
 pub mod contexts;
 pub mod geometry;
 pub mod inserting;
@@ -15,12 +16,13 @@ pub mod stacking;
 
 use crate::mujoco::{Data, MjError, Model, ObjKind};
 use crate::robot::control::FingerCommand;
-use crate::sim::scene::SceneSpec;
+use crate::sim::scene::{RobotLook, SceneSpec};
 use crate::sim::{RobotIds, Sim};
 use d3il_protocol::{ObsType, TaskId, TaskSpec};
 use serde_json::Value;
 use std::sync::Arc;
 
+pub use command::CommandKind;
 pub use contexts::ContextSet;
 
 /// Errors from task set-up and stepping.
@@ -51,6 +53,8 @@ pub enum TaskError {
     SimulationWarning { step: usize, warnings: String },
     #[error("task {0} is not available in this build")]
     Unavailable(TaskId),
+    #[error("this build has no Panda hand and finger meshes: ./dev installs the example-robot-data package and converts them (scripts/panda_meshes.py) before building")]
+    NoMeshes,
     #[error("task {0} has no image-observation variant (image tasks: aligning, sorting-4, sorting-6, stacking)")]
     NoImageVariant(TaskId),
 }
@@ -75,36 +79,63 @@ pub trait TaskDef: Send + Sync {
     fn scene(&self) -> SceneSpec;
     fn n_substeps(&self) -> usize;
     fn init_qpos(&self) -> [f64; 7];
-    fn max_steps(&self) -> usize;
+    /// Episode limit of the state variant (`TaskId::paper_protocol`, the one
+    /// statement of the protocol's constants).
+    fn max_steps(&self) -> usize {
+        self.id().paper_protocol().max_steps
+    }
     /// Width of the environment observation.
     fn env_obs_dim(&self) -> usize;
+    /// How an action becomes a controller command (one of the shared
+    /// conventions in [`command`]).
+    fn command_kind(&self) -> CommandKind;
     /// Width of the "previous command" prefix of the policy input.
-    fn cmd_dim(&self) -> usize;
+    fn cmd_dim(&self) -> usize {
+        self.command_kind().dim()
+    }
     /// Width of one policy action.
-    fn act_dim(&self) -> usize;
+    fn act_dim(&self) -> usize {
+        self.command_kind().dim()
+    }
     /// What the action means, for error messages.
-    fn act_meaning(&self) -> &'static str;
+    fn act_meaning(&self) -> &'static str {
+        self.command_kind().meaning()
+    }
     /// The fixed test set (file bytes and its expected sha256).
     fn context_set(&self) -> Result<ContextSet, TaskError>;
+    /// Every committed set of the task, the one in use first; older sets stay
+    /// loadable so that stored results keep meaning what they meant.
+    fn context_sets(&self) -> Result<Vec<ContextSet>, TaskError> {
+        Ok(vec![self.context_set()?])
+    }
     /// Rollouts per initial state in the paper's protocol.
-    fn rollouts_per_context(&self) -> usize;
+    fn rollouts_per_context(&self) -> usize {
+        self.id().paper_protocol().rollouts
+    }
     /// Initial states the paper's protocol uses out of a set of `set_len`
-    /// (e.g. Pushing uses the first 30 of 60).
+    /// (e.g. Pushing uses the first 30 of the 60 stored, spec/10 §1.10).
     fn n_contexts_paper(&self, set_len: usize) -> usize {
-        set_len
+        set_len.min(self.id().paper_protocol().contexts)
     }
     /// Draws one context from the task's distribution.
     fn sample_context(&self, rng: &mut dyn rand::RngCore) -> Value;
     /// Fresh per-episode logic bound to a compiled model.
     fn new_logic(&self, model: &Model) -> Result<Box<dyn TaskLogic>, TaskError>;
     /// The first "previous command" after reset (e.g. the measured TCP xy).
-    fn initial_command(&self, sim: &Sim) -> Vec<f64>;
+    fn initial_command(&self, sim: &Sim) -> Vec<f64> {
+        self.command_kind().initial(sim)
+    }
     /// Previous command + policy action -> (new previous command, controller command).
-    fn command(&self, prev: &[f64], action: &[f32], fixed_z: f64) -> (Vec<f64>, Command);
+    fn command(&self, prev: &[f64], action: &[f32], fixed_z: f64) -> (Vec<f64>, Command) {
+        self.command_kind().apply(prev, action, fixed_z)
+    }
 
     /// Episode limit of the image variant (the reference's vision configs).
     fn max_steps_image(&self) -> usize {
-        self.max_steps()
+        self.id()
+            .paper_protocol()
+            .max_steps_image
+            .unwrap_or_else(|| self.max_steps())
     }
 
     fn spec(&self) -> TaskSpec {
@@ -180,12 +211,28 @@ impl LoadedTask {
     }
 
     /// Loads the task for policies with observation type `obs`.
+    /// Image variants get the Panda hand and finger meshes when this build
+    /// has them ([`RobotLook::best`]); state variants keep primitives (the
+    /// look changes no physics, see [`RobotLook`]).
     pub fn load_obs(id: TaskId, obs: ObsType) -> Result<LoadedTask, TaskError> {
+        let look = match obs {
+            ObsType::Image => RobotLook::best(),
+            ObsType::State => RobotLook::Primitives,
+        };
+        Self::load_look(id, obs, look)
+    }
+
+    /// [`LoadedTask::load_obs`] with an explicit hand and finger look.
+    pub fn load_look(id: TaskId, obs: ObsType, look: RobotLook) -> Result<LoadedTask, TaskError> {
         if obs == ObsType::Image && !id.has_image_variant() {
             return Err(TaskError::NoImageVariant(id));
         }
+        if look == RobotLook::Meshes && !RobotLook::meshes_available() {
+            return Err(TaskError::NoMeshes);
+        }
         let def = task_def(id)?;
-        let scene = def.scene();
+        let mut scene = def.scene();
+        scene.look = look;
         let model = Arc::new(scene.compile()?);
         let ids = Arc::new(RobotIds::lookup(&model)?);
         Ok(LoadedTask {
@@ -425,21 +472,6 @@ impl Env {
     pub fn def(&self) -> &Arc<dyn TaskDef> {
         &self.def
     }
-}
-
-/// Default Cartesian command convention (spec/10 §1.7): previous desired xy +
-/// delta, z frozen at the post-reset TCP z, hand pointing down. The delta is
-/// float32 and added to the float64 previous command (spec/01 §7.12).
-pub fn xy_delta_command(prev: &[f64], action: &[f32], fixed_z: f64) -> (Vec<f64>, Command) {
-    let x = prev[0] + action[0] as f64;
-    let y = prev[1] + action[1] as f64;
-    (
-        vec![x, y],
-        Command::Cartesian {
-            pos: [x, y, fixed_z],
-            quat: QUAT_DOWN,
-        },
-    )
 }
 
 /// Position of a free-joint body (its qpos), spec/01 §5.

@@ -4,7 +4,7 @@
 
 use super::aligning::{parse_poses, PlanarPose};
 use super::geometry::{dist3, quat_to_yaw};
-use super::{xy_delta_command, Command, ContextSet, TaskDef, TaskError, TaskLogic};
+use super::{Command, CommandKind, ContextSet, TaskDef, TaskError, TaskLogic};
 use crate::mujoco::Model;
 use crate::robot::control::FingerCommand;
 use crate::robot::{init_qpos, RobotVariant};
@@ -22,10 +22,11 @@ pub const TAU: f64 = 0.05;
 const CONTEXTS_V1: &[u8] = include_bytes!("../../../assets/contexts/pushing-v1.json");
 pub const CONTEXTS_V1_SHA256: &str =
     "932dce2d7100e99d55fff4e9d2bae89ec872497608f43efa6b1e321878f23dd0";
-
-/// The paper's protocol uses the first 30 of the stored initial states
-/// (spec/10 §1.10), 16 rollouts each.
-pub const N_CONTEXTS_PAPER: usize = 30;
+/// The original D3IL test contexts (`test_contexts.pkl` of the reference,
+/// decoded in shared/reference-contexts; `d3il contexts import`): the set in use.
+const CONTEXTS_V2: &[u8] = include_bytes!("../../../assets/contexts/pushing-v2.json");
+pub const CONTEXTS_V2_SHA256: &str =
+    "16e158084f5a7940e3dac06b1d91a58a853b5a3fdc6b1a5783dccaa5d21b789f";
 
 pub struct Pushing;
 
@@ -72,32 +73,21 @@ impl TaskDef for Pushing {
     fn init_qpos(&self) -> [f64; 7] {
         init_qpos::AVOIDING
     }
-    /// spec/10 §4.4.
-    fn max_steps(&self) -> usize {
-        400
-    }
     fn env_obs_dim(&self) -> usize {
         8
     }
-    fn cmd_dim(&self) -> usize {
-        2
-    }
-    fn act_dim(&self) -> usize {
-        2
-    }
-    fn act_meaning(&self) -> &'static str {
-        "the xy delta of the desired TCP position"
+    fn command_kind(&self) -> CommandKind {
+        CommandKind::XyDelta
     }
     fn context_set(&self) -> Result<ContextSet, TaskError> {
-        ContextSet::verify("pushing-v1.json", CONTEXTS_V1, CONTEXTS_V1_SHA256)
+        ContextSet::verify("pushing-v2.json", CONTEXTS_V2, CONTEXTS_V2_SHA256)
     }
-    /// spec/10 §1.10: 30 initial states × 16 rollouts.
-    fn rollouts_per_context(&self) -> usize {
-        16
-    }
-    /// 60 states are stored (like the reference's file); the paper uses the first 30.
-    fn n_contexts_paper(&self, set_len: usize) -> usize {
-        set_len.min(N_CONTEXTS_PAPER)
+    /// v2 (in use) and our earlier sample v1, which stored results refer to.
+    fn context_sets(&self) -> Result<Vec<ContextSet>, TaskError> {
+        Ok(vec![
+            self.context_set()?,
+            ContextSet::verify("pushing-v1.json", CONTEXTS_V1, CONTEXTS_V1_SHA256)?,
+        ])
     }
     /// spec/10 §4.2 random distribution (independent uniform, no rejection).
     fn sample_context(&self, rng: &mut dyn rand::RngCore) -> Value {
@@ -118,13 +108,6 @@ impl TaskDef for Pushing {
             success: false,
             terminated: false,
         }))
-    }
-    fn initial_command(&self, sim: &Sim) -> Vec<f64> {
-        let p = sim.tcp_pos();
-        vec![p[0], p[1]]
-    }
-    fn command(&self, prev: &[f64], action: &[f32], fixed_z: f64) -> (Vec<f64>, Command) {
-        xy_delta_command(prev, action, fixed_z)
     }
 }
 

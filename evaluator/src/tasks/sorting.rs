@@ -7,8 +7,7 @@
 
 use super::geometry::{dist2, quat_to_yaw};
 use super::{
-    free_body_pos, free_body_quat, xy_delta_command, Command, ContextSet, TaskDef, TaskError,
-    TaskLogic,
+    free_body_pos, free_body_quat, Command, CommandKind, ContextSet, TaskDef, TaskError, TaskLogic,
 };
 use crate::mujoco::{Data, Model};
 use crate::robot::control::FingerCommand;
@@ -428,25 +427,11 @@ impl TaskDef for Sorting {
     fn init_qpos(&self) -> [f64; 7] {
         init_qpos::SORTING
     }
-    /// spec/11 §1.4: the evaluation configs' limits.
-    fn max_steps(&self) -> usize {
-        match self.n_boxes {
-            2 => 500,
-            4 => 700,
-            _ => 1200,
-        }
-    }
     fn env_obs_dim(&self) -> usize {
         2 + 3 * self.n_boxes
     }
-    fn cmd_dim(&self) -> usize {
-        2
-    }
-    fn act_dim(&self) -> usize {
-        2
-    }
-    fn act_meaning(&self) -> &'static str {
-        "the xy delta of the desired TCP position"
+    fn command_kind(&self) -> CommandKind {
+        CommandKind::XyDelta
     }
     fn context_set(&self) -> Result<ContextSet, TaskError> {
         let (name, bytes, sha) = match self.n_boxes {
@@ -455,10 +440,6 @@ impl TaskDef for Sorting {
             _ => ("sorting-6-v1.json", CONTEXTS_6_V1, CONTEXTS_6_V1_SHA256),
         };
         ContextSet::verify(name, bytes, sha)
-    }
-    /// The paper's 60 × 18 (spec/11 §7.7).
-    fn rollouts_per_context(&self) -> usize {
-        18
     }
     /// spec/11 §1.2: one pose per region, then a random permutation of the six.
     fn sample_context(&self, rng: &mut dyn rand::RngCore) -> Value {
@@ -488,14 +469,6 @@ impl TaskDef for Sorting {
             success: false,
             terminated: false,
         }))
-    }
-    fn initial_command(&self, sim: &Sim) -> Vec<f64> {
-        let p = sim.tcp_pos();
-        vec![p[0], p[1]]
-    }
-    /// spec/11 §1.4: previous desired xy + Δ, z fixed at the post-reset TCP z.
-    fn command(&self, prev: &[f64], action: &[f32], fixed_z: f64) -> (Vec<f64>, Command) {
-        xy_delta_command(prev, action, fixed_z)
     }
 }
 

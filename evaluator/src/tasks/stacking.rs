@@ -5,7 +5,7 @@
 
 use super::geometry::dist2;
 use super::sorting::{movable_box, static_box, FreeBox, PoseSample};
-use super::{Command, ContextSet, TaskDef, TaskError, TaskLogic};
+use super::{Command, CommandKind, ContextSet, TaskDef, TaskError, TaskLogic};
 use crate::mujoco::Model;
 use crate::robot::control::{orientation_error, FingerCommand};
 use crate::robot::kinematics::PandaKinematics;
@@ -34,6 +34,11 @@ pub const REGIONS: [([f32; 2], [f32; 2]); 4] = [
 const CONTEXTS_V1: &[u8] = include_bytes!("../../../assets/contexts/stacking-v1.json");
 pub const CONTEXTS_V1_SHA256: &str =
     "f30ae8e79d215a361d7e8961b1de19fd494d6ec451102a7e726ea79b67793fed";
+/// The original D3IL test contexts (`test_contexts.pkl` of the reference,
+/// decoded in shared/reference-contexts; `d3il contexts import`): the set in use.
+const CONTEXTS_V2: &[u8] = include_bytes!("../../../assets/contexts/stacking-v2.json");
+pub const CONTEXTS_V2_SHA256: &str =
+    "d48c4e9f4b5e5f814470230f069f1ef967757c507dc1cbf9d66cb1a1de3d0afb";
 
 pub struct Stacking;
 
@@ -121,30 +126,21 @@ impl TaskDef for Stacking {
     fn init_qpos(&self) -> [f64; 7] {
         INIT_QPOS
     }
-    fn max_steps(&self) -> usize {
-        1000
-    }
-    /// spec/11 §2: the vision config runs 1200 steps.
-    fn max_steps_image(&self) -> usize {
-        1200
-    }
     fn env_obs_dim(&self) -> usize {
         12
     }
-    fn cmd_dim(&self) -> usize {
-        8
-    }
-    fn act_dim(&self) -> usize {
-        8
-    }
-    fn act_meaning(&self) -> &'static str {
-        "7 joint-position increments (rad per step) and the absolute gripper width (> 0.075 opens)"
+    fn command_kind(&self) -> CommandKind {
+        CommandKind::JointDelta
     }
     fn context_set(&self) -> Result<ContextSet, TaskError> {
-        ContextSet::verify("stacking-v1.json", CONTEXTS_V1, CONTEXTS_V1_SHA256)
+        ContextSet::verify("stacking-v2.json", CONTEXTS_V2, CONTEXTS_V2_SHA256)
     }
-    fn rollouts_per_context(&self) -> usize {
-        18
+    /// v2 (in use) and our earlier sample v1, which stored results refer to.
+    fn context_sets(&self) -> Result<Vec<ContextSet>, TaskError> {
+        Ok(vec![
+            self.context_set()?,
+            ContextSet::verify("stacking-v1.json", CONTEXTS_V1, CONTEXTS_V1_SHA256)?,
+        ])
     }
     /// Four pose samples in fixed order; the target one is stored, never applied.
     fn sample_context(&self, rng: &mut dyn rand::RngCore) -> Value {
@@ -170,22 +166,6 @@ impl TaskDef for Stacking {
             success: false,
             terminated: false,
         }))
-    }
-    /// spec/11 §2.3: [measured joints, measured gripper width] after reset, as float32.
-    fn initial_command(&self, sim: &Sim) -> Vec<f64> {
-        let mut v: Vec<f64> = sim.joint_pos().iter().map(|&q| q as f32 as f64).collect();
-        v.push(sim.gripper_width() as f32 as f64);
-        v
-    }
-    /// spec/11 §2.4: q_d = prev_q + Δq in float32; the gripper value is absolute
-    /// and becomes index 7 of the next "previous command" (the prediction, not
-    /// the measured width, spec/11 §2.3).
-    fn command(&self, prev: &[f64], action: &[f32], _fixed_z: f64) -> (Vec<f64>, Command) {
-        let q: [f64; 7] = std::array::from_fn(|i| (prev[i] as f32 + action[i]) as f64);
-        let gripper = action[7] as f64;
-        let mut next = q.to_vec();
-        next.push(gripper);
-        (next, Command::Joint { q, gripper })
     }
 }
 

@@ -50,12 +50,22 @@ impl std::fmt::Debug for OnnxPolicy {
     }
 }
 
-/// A panic in tract becomes an error naming what panicked.
-fn panic_message(p: Box<dyn std::any::Any + Send>) -> String {
-    p.downcast_ref::<String>()
-        .cloned()
-        .or_else(|| p.downcast_ref::<&str>().map(|s| s.to_string()))
-        .unwrap_or_else(|| "unknown panic".into())
+/// A panic in tract becomes an error: memory exhaustion (an allocation that
+/// failed under the worker's address-space limit) or the runtime's message.
+fn panic_error(
+    p: Box<dyn std::any::Any + Send>,
+    during: String,
+    other: impl FnOnce(String) -> PolicyError,
+) -> PolicyError {
+    let msg = crate::error::panic_text(p.as_ref());
+    if crate::error::is_out_of_memory(&msg) {
+        PolicyError::OutOfMemory {
+            during,
+            detail: msg,
+        }
+    } else {
+        other(msg)
+    }
 }
 
 impl OnnxPolicy {
@@ -76,10 +86,11 @@ impl OnnxPolicy {
             Self::load_inner(bytes, manifest, task, seed)
         }))
         .map_err(|p| {
-            PolicyError::Unsupported(format!(
-                "the ONNX runtime could not handle this model ({})",
-                panic_message(p)
-            ))
+            panic_error(p, "while loading the model".into(), |msg| {
+                PolicyError::Unsupported(format!(
+                    "the ONNX runtime could not handle this model ({msg})"
+                ))
+            })
         })??;
         Ok(p)
     }

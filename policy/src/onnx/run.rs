@@ -4,7 +4,7 @@
 
 use super::admit::Feed;
 use super::load::bucket;
-use super::{panic_message, OnnxPolicy};
+use super::{panic_error, OnnxPolicy};
 use crate::{PolicyError, Query, IMAGE_LEN, IMAGE_SHAPE};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -93,11 +93,16 @@ impl OnnxPolicy {
                     .into_iter()
                     .map(|h| {
                         h.join().unwrap_or_else(|p| {
-                            Err(PolicyError::Inference {
-                                rollout: q.rollout_ids[0],
-                                step: q.steps[0],
-                                message: format!("the ONNX runtime panicked: {}", panic_message(p)),
-                            })
+                            let (rollout, step) = (q.rollout_ids[0], q.steps[0]);
+                            Err(panic_error(
+                                p,
+                                format!("in the query of rollout {rollout} at step {step}"),
+                                |msg| PolicyError::Inference {
+                                    rollout,
+                                    step,
+                                    message: format!("the ONNX runtime panicked ({msg})"),
+                                },
+                            ))
                         })
                     })
                     .collect()
@@ -209,7 +214,9 @@ impl OnnxPolicy {
             .map_err(|e| err(format!("{e:#}")))?;
             inputs.push(t.into_tvalue());
         }
-        let flat = self.run_plan(n, w, inputs).map_err(err)?;
+        let flat = self
+            .run_plan(n, w, inputs)
+            .map_err(|f| f.into_error(q.rollout_ids[rows.start], q.steps[rows.start]))?;
         let per_row = s.horizon * s.act_dim;
         let real = rows.end - rows.start;
         if flat.len() != n * per_row {
@@ -226,11 +233,11 @@ impl OnnxPolicy {
     }
 
     /// One plan run; checks the output shape, returns it flattened.
-    fn run_plan(&self, n: usize, w: usize, inputs: TVec<TValue>) -> Result<Vec<f32>, String> {
+    fn run_plan(&self, n: usize, w: usize, inputs: TVec<TValue>) -> Result<Vec<f32>, PlanFailure> {
         let s = &self.shape;
-        let plan = self.model.plan(n, w)?;
+        let plan = self.model.plan(n, w).map_err(PlanFailure::Message)?;
         let result = catch_unwind(AssertUnwindSafe(|| plan.run(inputs)))
-            .map_err(|p| format!("the ONNX runtime panicked: {}", panic_message(p)))?
+            .map_err(PlanFailure::Panic)?
             .map_err(|e| format!("{e:#}"))?;
         let first = result
             .first()
@@ -248,7 +255,8 @@ impl OnnxPolicy {
             return Err(format!(
                 "the model returned actions of shape {shape:?}; expected [{n}, {}, {}]",
                 s.horizon, s.act_dim
-            ));
+            )
+            .into());
         }
         Ok(view.iter().copied().collect())
     }
@@ -284,9 +292,37 @@ pub(super) fn run_explicit(
         inputs.push(t.into_tvalue());
     }
     p.run_plan(batch, window, inputs)
-        .map_err(|message| PolicyError::Inference {
-            rollout: 0,
-            step: 0,
+        .map_err(|f| f.into_error(0, 0))
+}
+
+/// Why a plan run failed.
+enum PlanFailure {
+    Message(String),
+    Panic(Box<dyn std::any::Any + Send>),
+}
+
+impl From<String> for PlanFailure {
+    fn from(m: String) -> Self {
+        PlanFailure::Message(m)
+    }
+}
+
+impl PlanFailure {
+    /// The error for the rows starting with (rollout, step): memory exhaustion
+    /// for a failed allocation, else an inference error with tract's message.
+    fn into_error(self, rollout: u64, step: u64) -> PolicyError {
+        let err = |message: String| PolicyError::Inference {
+            rollout,
+            step,
             message,
-        })
+        };
+        match self {
+            PlanFailure::Message(m) => err(m),
+            PlanFailure::Panic(p) => panic_error(
+                p,
+                format!("in the query of rollout {rollout} at step {step}"),
+                |msg| err(format!("the ONNX runtime panicked ({msg})")),
+            ),
+        }
+    }
 }

@@ -1,15 +1,20 @@
-//! SVG endpoints for the figures (the pages also embed them inline).
+//! SVG endpoints for the figures (the pages also embed them inline). The
+//! figures themselves are drawn by the `tables` crate.
 
-use crate::api::{self, board_for, BoardQuery};
-use crate::app::AppState;
 use crate::error::AppError;
-use crate::pages::{behaviour_counts, fraction_rows, fraction_series, pareto_points};
-use crate::plots;
-use axum::extract::{Path, Query, State};
+use crate::http::extract::{obs_query, Param};
+use crate::leaderboard::{
+    behaviour_counts, board_for, fraction_rows, fraction_series, pareto_points,
+};
+use crate::state::AppState;
+use axum::extract::{Query, State};
 use axum::http::header;
 use axum::response::{IntoResponse, Response};
 use axum::routing::get;
 use axum::Router;
+use d3il_protocol::TaskId;
+use d3il_tables::{board, render_avoiding_paths, TablesError};
+use serde::Deserialize;
 
 pub fn router() -> Router<AppState> {
     Router::new()
@@ -19,27 +24,27 @@ pub fn router() -> Router<AppState> {
         .route("/plots/submissions/{id}/behaviours.svg", get(behaviours))
 }
 
-fn svg(body: Result<String, plots::PlotError>) -> Result<Response, AppError> {
-    let body = body.map_err(|e| AppError::Internal(e.to_string()))?;
-    Ok(([(header::CONTENT_TYPE, "image/svg+xml")], body).into_response())
+#[derive(Debug, Deserialize, Default)]
+struct ObsQuery {
+    obs: Option<String>,
 }
 
-fn id_of(s: &str) -> Result<i64, AppError> {
-    s.parse::<i64>()
-        .ok()
-        .filter(|i| *i > 0)
-        .ok_or_else(|| AppError::NotFound(format!("no submission `{s}`")))
+fn svg(body: Result<String, TablesError>) -> Result<Response, AppError> {
+    let body = body.map_err(|e| match e {
+        TablesError::NoFigureData { .. } => AppError::NotFound(e.to_string()),
+        e => AppError::Internal(e.to_string()),
+    })?;
+    Ok(([(header::CONTENT_TYPE, "image/svg+xml")], body).into_response())
 }
 
 /// Success vs conditional entropy. For Stacking the full-success row
 /// (Stacking-3) is drawn, as in the paper's summary figure.
 async fn pareto(
     State(state): State<AppState>,
-    Path(task): Path<String>,
-    Query(q): Query<BoardQuery>,
+    Param(task): Param<TaskId>,
+    Query(q): Query<ObsQuery>,
 ) -> Result<Response, AppError> {
-    let task = api::parse_task(&task)?;
-    let obs = api::parse_obs_query(&q)?;
+    let obs = obs_query(q.obs.as_deref())?;
     let rows = board_for(&state.store.board_rows().await?, task, obs);
     let last_title = rows.iter().map(|r| r.task_title.clone()).max();
     let rows: Vec<_> = rows
@@ -50,44 +55,40 @@ async fn pareto(
         "{} ({obs}): success vs diversity",
         last_title.unwrap_or_else(|| task.title().into())
     );
-    svg(plots::pareto_svg(&title, &pareto_points(&rows)))
+    svg(board::pareto_svg(&title, &pareto_points(&rows)))
 }
 
 async fn data_fraction(
     State(state): State<AppState>,
-    Path(task): Path<String>,
-    Query(q): Query<BoardQuery>,
+    Param(task): Param<TaskId>,
+    Query(q): Query<ObsQuery>,
 ) -> Result<Response, AppError> {
-    let task = api::parse_task(&task)?;
-    let obs = api::parse_obs_query(&q)?;
+    let obs = obs_query(q.obs.as_deref())?;
     let rows = fraction_rows(&state.store.board_rows().await?, task, obs);
-    svg(plots::data_fraction_svg(
+    svg(board::data_fraction_svg(
         &format!("{}: performance vs training data", task.title()),
         &fraction_series(&rows),
     ))
 }
 
-async fn paths(
-    State(state): State<AppState>,
-    Path(id): Path<String>,
-) -> Result<Response, AppError> {
-    let id = id_of(&id)?;
+/// Avoiding end-effector paths; 404 when the submission recorded none.
+async fn paths(State(state): State<AppState>, Param(id): Param<i64>) -> Result<Response, AppError> {
     state.store.submission(id).await?;
     let paths = state.store.avoiding_paths(id).await?;
-    svg(plots::paths_svg(
-        &format!("Submission {id}: end-effector paths"),
+    svg(render_avoiding_paths(
         &paths,
+        &format!("Submission {id}: end-effector paths"),
     ))
 }
 
 async fn behaviours(
     State(state): State<AppState>,
-    Path(id): Path<String>,
+    Param(id): Param<i64>,
 ) -> Result<Response, AppError> {
-    let id = id_of(&id)?;
     state.store.submission(id).await?;
-    let counts = behaviour_counts(&state.store.rollouts_for(id).await?);
-    svg(plots::behaviour_bars_svg(
+    let rollouts = state.store.rollouts_for(id).await?;
+    let counts = behaviour_counts(rollouts.iter().map(|r| (r.success, &r.behaviour.0)));
+    svg(board::behaviour_bars_svg(
         &format!("Submission {id}: behaviours"),
         &counts,
     ))

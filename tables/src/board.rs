@@ -1,15 +1,16 @@
-//! SVG figures drawn with plotters (SVG backend only: text is emitted as SVG
-//! `<text>` elements, so no fonts are needed on the server).
+//! The leaderboard's figures (the server's pages and plot endpoints draw
+//! these): one task's success-vs-entropy plane with its Pareto front, the
+//! data-fraction lines and a submission's behaviour bars. The Pareto front and
+//! the handling of missing values are the paper figures' own
+//! ([`crate::figures::pareto_front`]: points without a finite success rate and
+//! entropy are not drawn).
 
+use crate::figures::pareto_front;
+use crate::TablesError;
 use plotters::prelude::*;
-use std::collections::BTreeMap;
 
-#[derive(Debug, thiserror::Error)]
-#[error("cannot draw the figure: {0}")]
-pub struct PlotError(String);
-
-fn perr<E: std::fmt::Debug>(e: E) -> PlotError {
-    PlotError(format!("{e:?}"))
+fn perr<E: std::fmt::Debug>(e: E) -> TablesError {
+    TablesError::Plot(format!("{e:?}"))
 }
 
 /// One method on the success-vs-entropy plane.
@@ -21,37 +22,12 @@ pub struct ParetoPoint {
     pub evaluated: bool,
 }
 
-/// Indices of the Pareto-optimal points when both success and entropy are
-/// maximised, ordered by increasing entropy.
-pub fn pareto_front(points: &[ParetoPoint]) -> Vec<usize> {
-    let mut idx: Vec<usize> = (0..points.len())
-        .filter(|&i| points[i].success.is_finite() && points[i].entropy.is_finite())
-        .collect();
-    // Highest success first; ties broken by higher entropy.
-    idx.sort_by(|&a, &b| {
-        points[b]
-            .success
-            .total_cmp(&points[a].success)
-            .then(points[b].entropy.total_cmp(&points[a].entropy))
-    });
-    let mut front = vec![];
-    let mut best_entropy = f64::NEG_INFINITY;
-    for i in idx {
-        if points[i].entropy > best_entropy {
-            front.push(i);
-            best_entropy = points[i].entropy;
-        }
-    }
-    // Walking down in success, entropy only increases along the front.
-    front
-}
-
 const REPORTED: RGBColor = RGBColor(70, 110, 180);
 const EVALUATED: RGBColor = RGBColor(215, 95, 30);
 const FRONT: RGBColor = RGBColor(40, 150, 80);
 
 /// Success rate vs conditional behaviour entropy with the Pareto front.
-pub fn pareto_svg(title: &str, points: &[ParetoPoint]) -> Result<String, PlotError> {
+pub fn pareto_svg(title: &str, points: &[ParetoPoint]) -> Result<String, TablesError> {
     let mut buf = String::new();
     {
         let root = SVGBackend::with_string(&mut buf, (720, 480)).into_drawing_area();
@@ -70,14 +46,14 @@ pub fn pareto_svg(title: &str, points: &[ParetoPoint]) -> Result<String, PlotErr
             .light_line_style(RGBColor(235, 235, 235))
             .draw()
             .map_err(perr)?;
-        let front = pareto_front(points);
+        let front = pareto_front(
+            &points
+                .iter()
+                .map(|p| (p.entropy, p.success))
+                .collect::<Vec<_>>(),
+        );
         chart
-            .draw_series(LineSeries::new(
-                front
-                    .iter()
-                    .map(|&i| (points[i].entropy, points[i].success)),
-                FRONT.stroke_width(2),
-            ))
+            .draw_series(LineSeries::new(front, FRONT.stroke_width(2)))
             .map_err(perr)?
             .label("Pareto front")
             .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], FRONT.stroke_width(2)));
@@ -136,7 +112,7 @@ pub struct FractionSeries {
 
 /// The paper's data-size figure: success (left) and entropy (right) vs the
 /// fraction of training data, one line per method.
-pub fn data_fraction_svg(title: &str, series: &[FractionSeries]) -> Result<String, PlotError> {
+pub fn data_fraction_svg(title: &str, series: &[FractionSeries]) -> Result<String, TablesError> {
     let mut buf = String::new();
     {
         let root = SVGBackend::with_string(&mut buf, (960, 420)).into_drawing_area();
@@ -202,89 +178,8 @@ pub fn behaviour_label(v: &serde_json::Value) -> String {
     }
 }
 
-/// Avoiding end-effector paths coloured by behaviour (the paper's trajectory figure).
-pub fn paths_svg(
-    title: &str,
-    paths: &[(serde_json::Value, Vec<[f32; 2]>)],
-) -> Result<String, PlotError> {
-    let mut xs = (f64::INFINITY, f64::NEG_INFINITY);
-    let mut ys = (f64::INFINITY, f64::NEG_INFINITY);
-    for (_, p) in paths {
-        for q in p {
-            if q[0].is_finite() && q[1].is_finite() {
-                xs = (xs.0.min(q[0] as f64), xs.1.max(q[0] as f64));
-                ys = (ys.0.min(q[1] as f64), ys.1.max(q[1] as f64));
-            }
-        }
-    }
-    if !xs.0.is_finite() {
-        xs = (0.0, 1.0);
-        ys = (0.0, 1.0);
-    }
-    let pad = |(a, b): (f64, f64)| {
-        let m = ((b - a) * 0.05).max(0.01);
-        (a - m)..(b + m)
-    };
-    let mut by_behaviour: BTreeMap<String, Vec<&Vec<[f32; 2]>>> = BTreeMap::new();
-    for (b, p) in paths {
-        by_behaviour.entry(behaviour_label(b)).or_default().push(p);
-    }
-    let mut buf = String::new();
-    {
-        let root = SVGBackend::with_string(&mut buf, (720, 560)).into_drawing_area();
-        root.fill(&WHITE).map_err(perr)?;
-        // The plot shows y horizontally and x vertically like the paper's
-        // top-down view of the Avoiding table (the robot moves along +y).
-        let mut chart = ChartBuilder::on(&root)
-            .caption(title, ("sans-serif", 20))
-            .margin(12)
-            .x_label_area_size(40)
-            .y_label_area_size(54)
-            .build_cartesian_2d(pad(ys), pad(xs))
-            .map_err(perr)?;
-        chart
-            .configure_mesh()
-            .x_desc("y (m)")
-            .y_desc("x (m)")
-            .light_line_style(RGBColor(240, 240, 240))
-            .draw()
-            .map_err(perr)?;
-        for (i, (label, ps)) in by_behaviour.iter().enumerate() {
-            let colour = Palette99::pick(i).to_rgba();
-            for (j, p) in ps.iter().enumerate() {
-                let s = chart
-                    .draw_series(LineSeries::new(
-                        p.iter()
-                            .filter(|q| q[0].is_finite() && q[1].is_finite())
-                            .map(|q| (q[1] as f64, q[0] as f64)),
-                        colour.stroke_width(1),
-                    ))
-                    .map_err(perr)?;
-                if j == 0 {
-                    s.label(format!("{label} ({})", ps.len()))
-                        .legend(move |(x, y)| {
-                            PathElement::new(vec![(x, y), (x + 16, y)], colour.stroke_width(2))
-                        });
-                }
-            }
-        }
-        if !by_behaviour.is_empty() {
-            chart
-                .configure_series_labels()
-                .position(SeriesLabelPosition::UpperRight)
-                .background_style(WHITE.mix(0.85))
-                .border_style(RGBColor(200, 200, 200))
-                .label_font(("sans-serif", 10))
-                .draw()
-                .map_err(perr)?;
-        }
-        root.present().map_err(perr)?;
-    }
-    Ok(buf)
-}
-
 /// Bar chart of how often each behaviour occurred among successful rollouts.
-pub fn behaviour_bars_svg(title: &str, counts: &[(String, usize)]) -> Result<String, PlotError> {
+pub fn behaviour_bars_svg(title: &str, counts: &[(String, usize)]) -> Result<String, TablesError> {
     let n = counts.len().max(1);
     let top = counts.iter().map(|c| c.1).max().unwrap_or(1).max(1) as f64;
     let mut buf = String::new();
@@ -339,15 +234,17 @@ mod tests {
 
     #[test]
     fn pareto_front_keeps_only_undominated_points() {
-        let pts = vec![
+        let pts = [
             p(0.0, 0.9),
             p(0.5, 0.8),
             p(0.4, 0.7),
             p(0.9, 0.3),
             p(0.8, 0.2),
+            p(f64::NAN, 1.0),
         ];
-        let front: Vec<usize> = pareto_front(&pts);
-        assert_eq!(front, vec![0, 1, 3]);
+        let xy: Vec<(f64, f64)> = pts.iter().map(|p| (p.entropy, p.success)).collect();
+        // Points 0, 1 and 3; the one without an entropy is not on the front.
+        assert_eq!(pareto_front(&xy), vec![(0.0, 0.9), (0.5, 0.8), (0.9, 0.3)]);
     }
 
     #[test]

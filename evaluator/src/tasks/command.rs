@@ -1,0 +1,150 @@
+//! How a policy action becomes the controller's command: the three command
+//! conventions of the tasks, each stated once. [`TaskDef::command_kind`]
+//! names a task's convention; the trait's `cmd_dim`, `act_dim`, `act_meaning`,
+//! `initial_command` and `command` follow from it.
+//!
+//! [`TaskDef::command_kind`]: super::TaskDef::command_kind
+
+use super::{Command, QUAT_DOWN};
+use crate::sim::Sim;
+
+/// A task's command convention.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum CommandKind {
+    /// Avoiding, Pushing, Sorting, Inserting (spec/10 §1.7, spec/11 §1.4,
+    /// spec/11 §3.4): previous desired TCP xy + float32 delta, z frozen at the
+    /// post-reset TCP z, hand pointing down. The "previous command" starts at
+    /// the measured TCP xy.
+    XyDelta,
+    /// Aligning (spec/10 §3.4): previous desired TCP xyz + float32 delta, hand
+    /// down, no fixed z; starts at the measured TCP xyz.
+    XyzDelta,
+    /// Stacking (spec/11 §2.3, §2.4): q_d = previous q + Δq in float32 for the
+    /// 7 joints, and an absolute gripper width (> 0.075 opens) that becomes
+    /// index 7 of the next "previous command" (the prediction, not the
+    /// measured width); starts at the measured joints and width as float32.
+    JointDelta,
+}
+
+impl CommandKind {
+    /// Width of one action, and of the "previous command" prefix of the
+    /// policy input (the same for every convention).
+    pub fn dim(self) -> usize {
+        match self {
+            CommandKind::XyDelta => 2,
+            CommandKind::XyzDelta => 3,
+            CommandKind::JointDelta => 8,
+        }
+    }
+
+    /// What an action means, for error messages.
+    pub fn meaning(self) -> &'static str {
+        match self {
+            CommandKind::XyDelta => "the xy delta of the desired TCP position",
+            CommandKind::XyzDelta => "the xyz delta of the desired TCP position",
+            CommandKind::JointDelta => {
+                "7 joint-position increments (rad per step) and the absolute gripper width (> 0.075 opens)"
+            }
+        }
+    }
+
+    /// The first "previous command" after reset.
+    pub fn initial(self, sim: &Sim) -> Vec<f64> {
+        match self {
+            CommandKind::XyDelta => {
+                let p = sim.tcp_pos();
+                vec![p[0], p[1]]
+            }
+            CommandKind::XyzDelta => sim.tcp_pos().to_vec(),
+            CommandKind::JointDelta => {
+                let mut v: Vec<f64> = sim.joint_pos().iter().map(|&q| q as f32 as f64).collect();
+                v.push(sim.gripper_width() as f32 as f64);
+                v
+            }
+        }
+    }
+
+    /// Previous command + policy action -> (new previous command, controller
+    /// command). The delta is float32 and added to the float64 previous
+    /// command (spec/01 §7.12) in the Cartesian conventions.
+    pub fn apply(self, prev: &[f64], action: &[f32], fixed_z: f64) -> (Vec<f64>, Command) {
+        match self {
+            CommandKind::XyDelta => {
+                let x = prev[0] + action[0] as f64;
+                let y = prev[1] + action[1] as f64;
+                (
+                    vec![x, y],
+                    Command::Cartesian {
+                        pos: [x, y, fixed_z],
+                        quat: QUAT_DOWN,
+                    },
+                )
+            }
+            CommandKind::XyzDelta => {
+                let p: [f64; 3] = std::array::from_fn(|i| prev[i] + action[i] as f64);
+                (
+                    p.to_vec(),
+                    Command::Cartesian {
+                        pos: p,
+                        quat: QUAT_DOWN,
+                    },
+                )
+            }
+            CommandKind::JointDelta => {
+                let q: [f64; 7] = std::array::from_fn(|i| (prev[i] as f32 + action[i]) as f64);
+                let gripper = action[7] as f64;
+                let mut next = q.to_vec();
+                next.push(gripper);
+                (next, Command::Joint { q, gripper })
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn xy_delta_keeps_z_and_points_down() {
+        let (next, cmd) = CommandKind::XyDelta.apply(&[0.5, -0.2], &[0.01, -0.02], 0.12);
+        assert_eq!(next, vec![0.5 + 0.01f32 as f64, -0.2 - 0.02f32 as f64]);
+        assert_eq!(
+            cmd,
+            Command::Cartesian {
+                pos: [next[0], next[1], 0.12],
+                quat: QUAT_DOWN
+            }
+        );
+    }
+
+    #[test]
+    fn xyz_delta_ignores_the_fixed_z() {
+        let (next, cmd) = CommandKind::XyzDelta.apply(&[0.5, 0.0, 0.2], &[0.0, 0.0, -0.01], 9.0);
+        assert_eq!(next[2], 0.2 - 0.01f32 as f64);
+        assert!(matches!(cmd, Command::Cartesian { pos, .. } if pos[2] == next[2]));
+    }
+
+    #[test]
+    fn joint_delta_adds_in_float32_and_keeps_the_gripper_absolute() {
+        let prev = [0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.04];
+        let act = [0.01f32, 0.0, 0.0, 0.0, 0.0, 0.0, -0.01, 0.08];
+        let (next, cmd) = CommandKind::JointDelta.apply(&prev, &act, 0.0);
+        assert_eq!(next[0], (0.1f32 + 0.01f32) as f64);
+        assert_eq!(next[7], 0.08f32 as f64);
+        assert!(matches!(cmd, Command::Joint { gripper, .. } if gripper == 0.08f32 as f64));
+    }
+
+    #[test]
+    fn every_convention_has_action_width_equal_to_its_command_width() {
+        for k in [
+            CommandKind::XyDelta,
+            CommandKind::XyzDelta,
+            CommandKind::JointDelta,
+        ] {
+            let prev = vec![0.0; k.dim()];
+            let act = vec![0.0f32; k.dim()];
+            assert_eq!(k.apply(&prev, &act, 0.0).0.len(), k.dim(), "{k:?}");
+        }
+    }
+}

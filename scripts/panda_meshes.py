@@ -1,0 +1,130 @@
+#!/usr/bin/env python3
+"""Convert the Panda hand and finger visual meshes of the `example-robot-data`
+package (PyPI, panda_description: Apache-2.0, from franka_description) from
+Collada to OBJ, which MuJoCo 2.2 loads, for the renderer's visual-only geoms.
+
+Usage:  python3 scripts/panda_meshes.py [outdir]      (default: assets/meshes)
+
+The package is a dependency installed by ./dev; nothing from it is committed.
+Only the geometry is kept (triangles, all <node> transforms applied, in metres):
+the original D3IL scene draws these meshes with MuJoCo's default grey, not
+with the Collada materials (spec/01 §2.5). Exits with status 2 and a message
+naming the package when it is not installed.
+"""
+
+import os
+import sys
+import xml.etree.ElementTree as ET
+
+PARTS = ["hand", "finger"]
+NS = "{http://www.collada.org/2005/11/COLLADASchema}"
+
+
+def package_dir():
+    """The panda_description/meshes/visual folder of the installed package."""
+    try:
+        from importlib import metadata
+        dist = metadata.distribution("example-robot-data")
+    except Exception:  # noqa: BLE001 - any lookup failure means "not installed"
+        return None
+    for f in dist.files or []:
+        p = str(f).replace("\\", "/")
+        if p.endswith("panda_description/meshes/visual/hand.dae"):
+            return os.path.dirname(str(dist.locate_file(f)))
+    return None
+
+
+def mat_mul(a, b):
+    return [[sum(a[i][k] * b[k][j] for k in range(4)) for j in range(4)] for i in range(4)]
+
+
+def node_matrix(node):
+    m = [[1.0 if i == j else 0.0 for j in range(4)] for i in range(4)]
+    for child in node:
+        if child.tag == NS + "matrix":
+            v = [float(x) for x in child.text.split()]
+            m = mat_mul(m, [v[0:4], v[4:8], v[8:12], v[12:16]])
+        elif child.tag in (NS + "translate", NS + "rotate", NS + "scale"):
+            raise SystemExit(f"unsupported Collada transform <{child.tag[len(NS):]}>; only <matrix> is handled")
+    return m
+
+
+def read_collada(path):
+    """Triangles of every instanced geometry, in metres, as (vertices, faces)."""
+    root = ET.parse(path).getroot()
+    unit = root.find(f"{NS}asset/{NS}unit")
+    scale = float(unit.get("meter", "1")) if unit is not None else 1.0
+    up = root.find(f"{NS}asset/{NS}up_axis")
+    if up is not None and up.text.strip() != "Z_UP":
+        raise SystemExit(f"{path}: up axis {up.text.strip()} (only Z_UP is handled)")
+    geoms = {g.get("id"): g for g in root.iter(NS + "geometry")}
+    verts, faces = [], []
+
+    def walk(node, parent):
+        m = mat_mul(parent, node_matrix(node))
+        for inst in node.findall(NS + "instance_geometry"):
+            add_geometry(geoms[inst.get("url").lstrip("#")], m)
+        for child in node.findall(NS + "node"):
+            walk(child, m)
+
+    def add_geometry(geom, m):
+        mesh = geom.find(NS + "mesh")
+        sources = {s.get("id"): [float(x) for x in s.find(NS + "float_array").text.split()]
+                   for s in mesh.findall(NS + "source")}
+        vin = mesh.find(NS + "vertices")
+        pos_src = next(i.get("source") for i in vin.findall(NS + "input") if i.get("semantic") == "POSITION")
+        pos = sources[pos_src.lstrip("#")]
+        base = len(verts)
+        for k in range(0, len(pos), 3):
+            x, y, z = pos[k:k + 3]
+            verts.append(tuple(scale * (m[r][0] * x + m[r][1] * y + m[r][2] * z + m[r][3]) for r in range(3)))
+        for tri in mesh.findall(NS + "triangles"):
+            inputs = tri.findall(NS + "input")
+            stride = max(int(i.get("offset")) for i in inputs) + 1
+            voff = next(int(i.get("offset")) for i in inputs if i.get("semantic") == "VERTEX")
+            idx = [int(x) for x in tri.find(NS + "p").text.split()]
+            corners = idx[voff::stride]
+            for k in range(0, len(corners) - 2, 3):
+                faces.append((base + corners[k], base + corners[k + 1], base + corners[k + 2]))
+        if mesh.find(NS + "polylist") is not None or mesh.find(NS + "polygons") is not None:
+            raise SystemExit(f"{path}: <polylist>/<polygons> are not handled")
+
+    ident = [[1.0 if i == j else 0.0 for j in range(4)] for i in range(4)]
+    for scene in root.iter(NS + "visual_scene"):
+        for node in scene.findall(NS + "node"):
+            walk(node, ident)
+    return verts, faces
+
+
+def write_obj(path, verts, faces, source):
+    # Drop vertices no face uses and renumber (MuJoCo counts every vertex).
+    used = sorted({i for f in faces for i in f})
+    new = {old: k + 1 for k, old in enumerate(used)}
+    with open(path, "w") as f:
+        f.write(f"# converted by scripts/panda_meshes.py from {source}\n")
+        for i in used:
+            f.write("v %.7g %.7g %.7g\n" % verts[i])
+        for a, b, c in faces:
+            f.write(f"f {new[a]} {new[b]} {new[c]}\n")
+
+
+def main():
+    out = sys.argv[1] if len(sys.argv) > 1 else os.path.join(os.path.dirname(__file__), "..", "assets", "meshes")
+    src = package_dir()
+    if src is None:
+        print("example-robot-data is not installed: pip install example-robot-data "
+              "(./dev does); the renderer keeps the primitive hand and fingers", file=sys.stderr)
+        sys.exit(2)
+    os.makedirs(out, exist_ok=True)
+    for part in PARTS:
+        verts, faces = read_collada(os.path.join(src, part + ".dae"))
+        lo = [min(v[k] for v in verts) for k in range(3)]
+        hi = [max(v[k] for v in verts) for k in range(3)]
+        path = os.path.join(out, f"panda_{part}.obj")
+        write_obj(path, verts, faces, f"example-robot-data panda_description/meshes/visual/{part}.dae")
+        print(f"{path}: {len(faces)} triangles, bounds x [{lo[0]:.4f}, {hi[0]:.4f}] "
+              f"y [{lo[1]:.4f}, {hi[1]:.4f}] z [{lo[2]:.4f}, {hi[2]:.4f}]")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,249 @@
+//! JSON REST API under `/api/v1` (documented in docs/api.md and served as an
+//! OpenAPI document at `/api/v1/openapi.json`, generated from the handlers'
+//! annotations and the view structs in [`openapi`]).
+
+pub mod openapi;
+
+use crate::auth::Authed;
+use crate::error::AppError;
+use crate::error::ErrorBody;
+use crate::http::csv::{board_csv, csv_response};
+use crate::http::extract::{obs_query, Param};
+use crate::intake;
+use crate::leaderboard::{board_for, View};
+use crate::schema;
+use crate::state::AppState;
+use crate::views::{
+    results_view, submission_view, LeaderboardLink, LeaderboardList, LeaderboardView, MethodList,
+    ResultsView, SubmissionView, WhoAmI,
+};
+use axum::extract::{DefaultBodyLimit, Multipart, Query, State};
+use axum::http::{header, HeaderMap, StatusCode};
+use axum::response::{IntoResponse, Response};
+use axum::routing::{get, post};
+use axum::{Json, Router};
+use d3il_protocol::{ObsType, TaskId};
+use serde::Deserialize;
+use utoipa::IntoParams;
+
+pub fn router(max_upload: usize) -> Router<AppState> {
+    Router::new()
+        .route(
+            "/submissions",
+            post(create_submission)
+                // The multipart reader refuses bodies past the limit as they stream in.
+                .layer(DefaultBodyLimit::max(max_upload + (1 << 20))),
+        )
+        .route("/submissions/{id}", get(get_submission))
+        .route("/submissions/{id}/results", get(get_results))
+        .route("/leaderboards", get(list_leaderboards))
+        .route("/leaderboards/{task}", get(get_leaderboard))
+        .route("/leaderboards/{task}/csv", get(get_leaderboard_csv))
+        .route("/methods", get(list_methods))
+        .route("/whoami", get(whoami))
+        .route("/openapi.json", get(openapi))
+        .fallback(api_not_found)
+        .method_not_allowed_fallback(api_method_not_allowed)
+}
+
+async fn api_method_not_allowed(
+    method: axum::http::Method,
+    axum::extract::OriginalUri(uri): axum::extract::OriginalUri,
+) -> AppError {
+    AppError::MethodNotAllowed(format!(
+        "{method} is not allowed on {}; see /api/v1/openapi.json for the methods each endpoint takes",
+        uri.path()
+    ))
+}
+
+async fn api_not_found() -> AppError {
+    AppError::NotFound("no such API endpoint; see /api/v1/openapi.json".into())
+}
+
+#[utoipa::path(get, path = "/whoami", tag = "submissions",
+    summary = "Check a token", security(("bearer" = [])),
+    responses(
+        (status = 200, description = "The token's submitter", body = WhoAmI),
+        (status = 401, description = "Missing or wrong token", body = ErrorBody),
+        (status = 429, description = "Rate limit exceeded; see the Retry-After header", body = ErrorBody)))]
+async fn whoami(Authed(who): Authed) -> Json<WhoAmI> {
+    Json(WhoAmI {
+        submitter: who.name,
+    })
+}
+
+#[utoipa::path(post, path = "/submissions", tag = "submissions",
+    summary = "Create a submission (ONNX upload or remote endpoint)",
+    security(("bearer" = [])),
+    request_body(content = openapi::NewSubmissionForm, content_type = "multipart/form-data"),
+    responses(
+        (status = 201, description = "Accepted and durably queued", body = SubmissionView),
+        (status = 400, description = "A field is missing or invalid (`field` names it)", body = ErrorBody),
+        (status = 401, description = "Missing or wrong token", body = ErrorBody),
+        (status = 409, description = "Duplicate training seed or method owned by someone else", body = ErrorBody),
+        (status = 413, description = "Upload over the size limit", body = ErrorBody),
+        (status = 422, description = "Remote endpoint failed its conformance dry-run", body = ErrorBody),
+        (status = 429, description = "Rate limit exceeded; see the Retry-After header", body = ErrorBody)))]
+async fn create_submission(
+    State(state): State<AppState>,
+    headers: HeaderMap,
+    Authed(who): Authed,
+    mp: Result<Multipart, axum::extract::multipart::MultipartRejection>,
+) -> Result<Response, AppError> {
+    let max = state.cfg.max_upload_bytes;
+    intake::check_declared_length(&headers, max)?;
+    let mp = mp.map_err(|e| AppError::Invalid {
+        field: None,
+        message: format!("expected a multipart/form-data body: {e}"),
+    })?;
+    let raw = intake::read_multipart(mp, max).await?;
+    let valid = intake::validate(&raw, &state.cfg.limits)?;
+    let id = intake::accept(&state, valid, &who).await?;
+    let body = submission_view(&state, id).await?;
+    let mut resp = (StatusCode::CREATED, Json(body)).into_response();
+    if let Ok(v) = header::HeaderValue::from_str(&format!("/api/v1/submissions/{id}")) {
+        resp.headers_mut().insert(header::LOCATION, v);
+    }
+    Ok(resp)
+}
+
+#[utoipa::path(get, path = "/submissions/{id}", tag = "submissions",
+    summary = "Status, progress, queue position, ETA and result of a submission",
+    params(("id" = i64, Path, description = "Submission id")),
+    responses(
+        (status = 200, description = "The submission", body = SubmissionView),
+        (status = 404, description = "No such submission", body = ErrorBody)))]
+async fn get_submission(
+    State(state): State<AppState>,
+    Param(id): Param<i64>,
+) -> Result<Json<SubmissionView>, AppError> {
+    Ok(Json(submission_view(&state, id).await?))
+}
+
+#[utoipa::path(get, path = "/submissions/{id}/results", tag = "submissions",
+    summary = "Metrics, protocol manifest, per-context and per-rollout results",
+    params(("id" = i64, Path, description = "Submission id")),
+    responses(
+        (status = 200, description = "Results", body = ResultsView),
+        (status = 404, description = "No such submission or no result yet", body = ErrorBody)))]
+async fn get_results(
+    State(state): State<AppState>,
+    Param(id): Param<i64>,
+) -> Result<Json<ResultsView>, AppError> {
+    let s = state.store.submission(id).await?;
+    let r = state.store.result_for(id).await?.ok_or_else(|| {
+        AppError::NotFound(format!(
+            "submission {id} has no results yet (status: {}); poll /api/v1/submissions/{id}",
+            s.status
+        ))
+    })?;
+    Ok(Json(results_view(&state, r).await?))
+}
+
+#[derive(Debug, Deserialize, Default, IntoParams)]
+#[into_params(parameter_in = Query)]
+pub struct BoardQuery {
+    /// `state` (default) or `image`.
+    #[param(value_type = Option<schema::Obs>)]
+    pub obs: Option<String>,
+    /// `main` (default: full training data) or `data-fraction` (the paper's
+    /// data-size rows and evaluated rows at every fraction).
+    #[param(schema_with = openapi::view_schema)]
+    pub view: Option<String>,
+}
+
+impl BoardQuery {
+    fn parse(&self) -> Result<(ObsType, View), AppError> {
+        let obs = obs_query(self.obs.as_deref())?;
+        let view = View::parse(self.view.as_deref()).map_err(|e| AppError::invalid("view", e))?;
+        Ok((obs, view))
+    }
+}
+
+#[utoipa::path(get, path = "/leaderboards", tag = "leaderboards",
+    summary = "List the leaderboards",
+    responses((status = 200, description = "Leaderboards with links", body = LeaderboardList)))]
+async fn list_leaderboards(
+    State(state): State<AppState>,
+) -> Result<Json<LeaderboardList>, AppError> {
+    let rows = state.store.board_rows().await?;
+    let mut out = vec![];
+    for task in TaskId::ALL {
+        for obs in [ObsType::State, ObsType::Image] {
+            let n = board_for(&rows, task, obs).len();
+            if n == 0 && obs == ObsType::Image && !task.has_image_variant() {
+                continue;
+            }
+            out.push(LeaderboardLink {
+                task,
+                title: task.title(),
+                obs_type: obs,
+                rows: n,
+                url: format!("/api/v1/leaderboards/{}?obs={}", task.slug(), obs),
+                csv: format!("/api/v1/leaderboards/{}/csv?obs={}", task.slug(), obs),
+                page: format!("/tasks/{}?obs={}", task.slug(), obs),
+            });
+        }
+    }
+    Ok(Json(LeaderboardList { leaderboards: out }))
+}
+
+#[utoipa::path(get, path = "/leaderboards/{task}", tag = "leaderboards",
+    summary = "Rows of one leaderboard (reported and evaluated)",
+    params(("task" = schema::Task, Path), BoardQuery),
+    responses(
+        (status = 200, description = "Rows", body = LeaderboardView),
+        (status = 400, description = "Unknown `obs` or `view`", body = ErrorBody),
+        (status = 404, description = "Unknown task", body = ErrorBody)))]
+async fn get_leaderboard(
+    State(state): State<AppState>,
+    Param(task): Param<TaskId>,
+    Query(q): Query<BoardQuery>,
+) -> Result<Json<LeaderboardView>, AppError> {
+    let (obs, view) = q.parse()?;
+    let rows = view.rows(&state.store.board_rows().await?, task, obs);
+    Ok(Json(LeaderboardView {
+        task,
+        title: task.title(),
+        obs_type: obs,
+        view: view.as_str(),
+        rows,
+    }))
+}
+
+#[utoipa::path(get, path = "/leaderboards/{task}/csv", tag = "leaderboards",
+    summary = "CSV export of one leaderboard",
+    params(("task" = schema::Task, Path), BoardQuery),
+    responses(
+        (status = 200, description = "CSV", content_type = "text/csv", body = String),
+        (status = 400, description = "Unknown `obs` or `view`", body = ErrorBody),
+        (status = 404, description = "Unknown task", body = ErrorBody)))]
+async fn get_leaderboard_csv(
+    State(state): State<AppState>,
+    Param(task): Param<TaskId>,
+    Query(q): Query<BoardQuery>,
+) -> Result<Response, AppError> {
+    let (obs, view) = q.parse()?;
+    let rows = view.rows(&state.store.board_rows().await?, task, obs);
+    let suffix = match view {
+        View::Main => String::new(),
+        other => format!("-{}", other.as_str()),
+    };
+    Ok(csv_response(
+        &format!("d3il-{}-{}{suffix}.csv", task.slug(), obs),
+        &board_csv(&rows)?,
+    ))
+}
+
+#[utoipa::path(get, path = "/methods", tag = "leaderboards",
+    summary = "Methods and their properties",
+    responses((status = 200, description = "Methods", body = MethodList)))]
+async fn list_methods(State(state): State<AppState>) -> Result<Json<MethodList>, AppError> {
+    Ok(Json(MethodList {
+        methods: state.store.methods().await?,
+    }))
+}
+
+async fn openapi() -> Json<utoipa::openapi::OpenApi> {
+    Json(openapi::document())
+}

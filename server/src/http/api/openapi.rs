@@ -1,0 +1,125 @@
+//! The OpenAPI 3.1 document of the API, generated (utoipa) from the handlers'
+//! `#[utoipa::path]` annotations and the `ToSchema` view structs, so the
+//! document describes exactly what the handlers return.
+
+use crate::error::{ErrorBody, ErrorDetail};
+use crate::schema;
+use crate::views::{
+    LeaderboardList, LeaderboardView, MethodList, ResultsView, SubmissionView, WhoAmI,
+};
+use utoipa::openapi::schema::{ObjectBuilder, Schema, Type};
+use utoipa::openapi::security::{HttpAuthScheme, HttpBuilder, SecurityScheme};
+use utoipa::openapi::RefOr;
+use utoipa::{Modify, OpenApi};
+
+#[derive(OpenApi)]
+#[openapi(
+    info(
+        title = "D3IL leaderboard API",
+        version = "1",
+        description = "Submit imitation-learning policies for evaluation on the D3IL tasks and read leaderboards. Errors always have the shape {\"error\": {\"code\", \"message\", \"field\"}}. See docs/api.md."
+    ),
+    servers((url = "/api/v1")),
+    paths(
+        super::create_submission,
+        super::get_submission,
+        super::get_results,
+        super::list_leaderboards,
+        super::get_leaderboard,
+        super::get_leaderboard_csv,
+        super::list_methods,
+        super::whoami,
+    ),
+    components(schemas(
+        ErrorBody,
+        ErrorDetail,
+        SubmissionView,
+        ResultsView,
+        NewSubmissionForm,
+        LeaderboardList,
+        LeaderboardView,
+        MethodList,
+        WhoAmI,
+        schema::Task,
+        schema::Obs,
+        schema::Protocol,
+    )),
+    modifiers(&BearerToken),
+    tags(
+        (name = "submissions", description = "Submitting policies and following their evaluation"),
+        (name = "leaderboards", description = "Reported and evaluated results"),
+    )
+)]
+struct ApiDoc;
+
+/// The document served at `/api/v1/openapi.json`.
+pub fn document() -> utoipa::openapi::OpenApi {
+    ApiDoc::openapi()
+}
+
+struct BearerToken;
+
+impl Modify for BearerToken {
+    fn modify(&self, doc: &mut utoipa::openapi::OpenApi) {
+        doc.components
+            .get_or_insert_with(Default::default)
+            .add_security_scheme(
+                "bearer",
+                SecurityScheme::Http(
+                    HttpBuilder::new()
+                        .scheme(HttpAuthScheme::Bearer)
+                        .description(Some("Token from `d3il token create --name <you>`"))
+                        .build(),
+                ),
+            );
+    }
+}
+
+/// `?view=`: `main` or `data-fraction`.
+pub fn view_schema() -> RefOr<Schema> {
+    ObjectBuilder::new()
+        .schema_type(Type::String)
+        .enum_values(Some(
+            [
+                crate::leaderboard::View::Main,
+                crate::leaderboard::View::DataFraction,
+            ]
+            .map(|v| v.as_str()),
+        ))
+        .default(Some("main".into()))
+        .into()
+}
+
+/// The multipart/form-data fields of a new submission (the same fields the
+/// HTML form posts, without its `token`).
+#[derive(utoipa::ToSchema)]
+#[allow(dead_code)] // a schema only: intake reads the fields from the form
+pub struct NewSubmissionForm {
+    /// Method name (1-64 characters).
+    method: String,
+    history: Option<i64>,
+    backbone: Option<String>,
+    prediction: Option<String>,
+    diversity: Option<String>,
+    code_url: Option<String>,
+    paper_url: Option<String>,
+    description: Option<String>,
+    #[schema(value_type = schema::Task)]
+    task: String,
+    /// Default `state`.
+    #[schema(value_type = Option<schema::Obs>)]
+    obs_type: Option<String>,
+    training_seed: i64,
+    /// Default 1.0.
+    data_fraction: Option<f64>,
+    /// Default `paper`.
+    #[schema(value_type = Option<schema::Protocol>)]
+    protocol: Option<String>,
+    /// The ONNX policy file.
+    #[schema(value_type = Option<String>, format = Binary)]
+    onnx: Option<Vec<u8>>,
+    /// Policy manifest JSON (required with `onnx`).
+    manifest: Option<String>,
+    /// ws(s)/http(s) URL of a remote policy (instead of `onnx`).
+    endpoint_url: Option<String>,
+}

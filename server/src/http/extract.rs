@@ -1,0 +1,79 @@
+//! The one way a URL names a task or a submission: `{task}` and `{id}` path
+//! segments are parsed here, and a segment that names nothing is a 404 in
+//! every part of the site (a JSON error under `/api/`, an HTML page elsewhere).
+//! The `?obs=` query is parsed here too.
+
+use crate::error::{AppError, PageError};
+use axum::extract::FromRequestParts;
+use axum::http::request::Parts;
+use axum::response::{IntoResponse, Response};
+use d3il_protocol::{ObsType, TaskId};
+use std::str::FromStr;
+
+/// A value named by the URL's one path parameter.
+pub trait PathValue: Sized {
+    fn from_segment(s: &str) -> Result<Self, AppError>;
+}
+
+impl PathValue for TaskId {
+    fn from_segment(s: &str) -> Result<Self, AppError> {
+        TaskId::from_str(s).map_err(|e| AppError::NotFound(e.to_string()))
+    }
+}
+
+/// Submission ids are positive integers.
+impl PathValue for i64 {
+    fn from_segment(s: &str) -> Result<Self, AppError> {
+        s.parse::<i64>()
+            .ok()
+            .filter(|i| *i > 0)
+            .ok_or_else(|| AppError::NotFound(format!("no submission `{s}`")))
+    }
+}
+
+/// `Param<TaskId>` or `Param<i64>`: the route's path parameter, parsed.
+pub struct Param<T>(pub T);
+
+/// A path parameter that names nothing, shown as the part of the site asked
+/// for it expects (JSON under `/api/`, HTML elsewhere).
+pub struct ParamRejection {
+    error: AppError,
+    api: bool,
+}
+
+impl IntoResponse for ParamRejection {
+    fn into_response(self) -> Response {
+        if self.api {
+            self.error.into_response()
+        } else {
+            PageError(self.error).into_response()
+        }
+    }
+}
+
+impl<S: Send + Sync, T: PathValue> FromRequestParts<S> for Param<T> {
+    type Rejection = ParamRejection;
+
+    async fn from_request_parts(parts: &mut Parts, state: &S) -> Result<Self, ParamRejection> {
+        // Nested routers see the path below their prefix: ask for the original.
+        let api = parts
+            .extensions
+            .get::<axum::extract::OriginalUri>()
+            .map_or(parts.uri.path(), |u| u.0.path())
+            .starts_with("/api/");
+        let reject = |error| ParamRejection { error, api };
+        let axum::extract::Path(segment) =
+            axum::extract::Path::<String>::from_request_parts(parts, state)
+                .await
+                .map_err(|e| reject(AppError::NotFound(e.body_text())))?;
+        T::from_segment(&segment).map(Param).map_err(reject)
+    }
+}
+
+/// `?obs=state|image` (state when absent or empty).
+pub fn obs_query(obs: Option<&str>) -> Result<ObsType, AppError> {
+    match obs {
+        None | Some("") => Ok(ObsType::State),
+        Some(o) => ObsType::from_str(o).map_err(|e| AppError::invalid("obs", e)),
+    }
+}

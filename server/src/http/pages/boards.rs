@@ -1,0 +1,475 @@
+//! The home page, the leaderboards (main and data-fraction views, CSV) and
+//! the method pages.
+
+use super::format::{fmt_opt_ms, fmt_stat, fmt_time, method_url};
+use super::render;
+use crate::error::{AppError, PageError};
+use crate::http::csv::{board_csv, csv_response};
+use crate::http::extract::{obs_query, Param};
+use crate::leaderboard::{
+    board_for, by_title, fraction_rows, fraction_series, pareto_points, protocol_str, sort_rows,
+    BoardRow, SORT_KEYS,
+};
+use crate::state::AppState;
+use crate::store::MethodRow;
+use askama::Template;
+use axum::extract::{Path, Query, State};
+use axum::response::{Html, Response};
+use d3il_protocol::{ObsType, ProtocolKind, Source, TaskId};
+use d3il_tables::board as figures;
+use serde::Deserialize;
+
+#[derive(Debug, Clone)]
+pub struct RowView {
+    pub rank: usize,
+    pub method: String,
+    pub method_url: String,
+    pub reported: bool,
+    pub protocol: String,
+    pub success: String,
+    pub entropy: String,
+    pub behaviour: String,
+    pub seeds: String,
+    pub inference: String,
+    pub bold_success: bool,
+    pub bold_entropy: bool,
+    pub submissions: Vec<i64>,
+}
+
+fn row_view(rank: usize, r: &BoardRow) -> RowView {
+    RowView {
+        rank,
+        method: r.method.clone(),
+        method_url: method_url(&r.method),
+        reported: r.source == Source::Reported,
+        protocol: r.protocol.map(protocol_str).unwrap_or("").to_string(),
+        success: fmt_stat(r.success.mean, r.success.std),
+        entropy: fmt_stat(r.entropy.mean, r.entropy.std),
+        behaviour: r
+            .behaviour_entropy
+            .map(|s| fmt_stat(s.mean, s.std))
+            .unwrap_or_else(|| "—".into()),
+        seeds: r.n_seeds.to_string(),
+        inference: fmt_opt_ms(r.inference_ms),
+        bold_success: r.bold_success.unwrap_or(false),
+        bold_entropy: r.bold_entropy.unwrap_or(false),
+        submissions: r.submission_ids.clone(),
+    }
+}
+
+// ------------------------------------------------------------------------ home
+
+struct TaskCard {
+    slug: &'static str,
+    title: &'static str,
+    reported: usize,
+    evaluated: usize,
+    best: String,
+    has_image: bool,
+}
+
+struct SubmissionLine {
+    id: i64,
+    method: String,
+    method_url: String,
+    task: String,
+    obs: String,
+    status: String,
+    when: String,
+}
+
+#[derive(Template)]
+#[template(path = "home.html")]
+struct HomePage {
+    tasks: Vec<TaskCard>,
+    latest: Vec<SubmissionLine>,
+    queued: i64,
+    running: i64,
+}
+
+pub(super) async fn home(State(state): State<AppState>) -> Result<Html<String>, PageError> {
+    let rows = state.store.board_rows().await?;
+    let tasks = TaskId::ALL
+        .into_iter()
+        .map(|t| {
+            let mine: Vec<&BoardRow> = rows.iter().filter(|r| r.task == Some(t)).collect();
+            // "Best" ranks paper-protocol and reported rows only, not quick smoke runs.
+            let best = board_for(&rows, t, ObsType::State)
+                .into_iter()
+                .filter(|r| r.success.mean.is_finite())
+                .filter(|r| r.protocol != Some(ProtocolKind::Quick))
+                .max_by(|a, b| a.success.mean.total_cmp(&b.success.mean))
+                .map(|r| format!("{} ({:.3})", r.method, r.success.mean))
+                .unwrap_or_else(|| "—".into());
+            TaskCard {
+                slug: t.slug(),
+                title: t.title(),
+                reported: mine.iter().filter(|r| r.source == Source::Reported).count(),
+                evaluated: mine
+                    .iter()
+                    .filter(|r| r.source == Source::Evaluated)
+                    .count(),
+                best,
+                has_image: t.has_image_variant(),
+            }
+        })
+        .collect();
+    let latest = state
+        .store
+        .latest_submissions(10)
+        .await?
+        .into_iter()
+        .map(|s| SubmissionLine {
+            id: s.id,
+            method_url: method_url(&s.method),
+            method: s.method,
+            task: s.task.to_string(),
+            obs: s.obs_type.to_string(),
+            status: s.status.to_string(),
+            when: fmt_time(s.created_at),
+        })
+        .collect();
+    let (queued, running) = state.store.queue_counts().await?;
+    render(&HomePage {
+        tasks,
+        latest,
+        queued,
+        running,
+    })
+}
+
+// ----------------------------------------------------------------- leaderboard
+
+#[derive(Debug, Deserialize, Default)]
+pub(super) struct SortQuery {
+    obs: Option<String>,
+    sort: Option<String>,
+    dir: Option<String>,
+}
+
+struct Header {
+    label: &'static str,
+    url: String,
+    arrow: &'static str,
+}
+
+struct Tab {
+    label: &'static str,
+    url: String,
+    active: bool,
+}
+
+struct Section {
+    title: String,
+    rows: Vec<RowView>,
+    svg: String,
+}
+
+#[derive(Template)]
+#[template(path = "leaderboard.html")]
+struct LeaderboardPage {
+    title: &'static str,
+    slug: &'static str,
+    obs: &'static str,
+    tabs: Vec<Tab>,
+    headers: Vec<Header>,
+    sections: Vec<Section>,
+    csv_url: String,
+    fraction_url: String,
+    plot_url: String,
+    /// "60 initial states × 8 rollouts (480 in all), at most 400 steps per episode".
+    protocol: String,
+    /// The protocol is this project's definition (the reference has none).
+    protocol_ours: bool,
+}
+
+fn obs_tabs(task: TaskId, obs: ObsType, base: &str) -> Vec<Tab> {
+    let mut tabs = vec![Tab {
+        label: "State",
+        url: format!("{base}?obs=state"),
+        active: obs == ObsType::State,
+    }];
+    if task.has_image_variant() {
+        tabs.push(Tab {
+            label: "Image",
+            url: format!("{base}?obs=image"),
+            active: obs == ObsType::Image,
+        });
+    }
+    tabs
+}
+
+pub(super) async fn leaderboard(
+    State(state): State<AppState>,
+    Param(task): Param<TaskId>,
+    Query(q): Query<SortQuery>,
+) -> Result<Html<String>, PageError> {
+    let obs = obs_query(q.obs.as_deref())?;
+    let key = q.sort.as_deref().unwrap_or("success");
+    if !SORT_KEYS.iter().any(|(k, _)| *k == key) {
+        return Err(AppError::invalid(
+            "sort",
+            format!(
+                "unknown sort column `{key}`; use one of: {}",
+                SORT_KEYS.map(|k| k.0).join(", ")
+            ),
+        )
+        .into());
+    }
+    let desc = match q.dir.as_deref() {
+        None => key != "method",
+        Some("desc") => true,
+        Some("asc") => false,
+        Some(d) => {
+            return Err(
+                AppError::invalid("dir", format!("`dir` must be asc or desc, got `{d}`")).into(),
+            )
+        }
+    };
+    let base = format!("/tasks/{}", task.slug());
+    let rows = board_for(&state.store.board_rows().await?, task, obs);
+    let mut sections = vec![];
+    for (title, mut rs) in by_title(rows) {
+        let svg = figures::pareto_svg(
+            &format!("{title}: success vs diversity"),
+            &pareto_points(&rs),
+        )
+        .map_err(|e| AppError::Internal(e.to_string()))?;
+        sort_rows(&mut rs, key, desc);
+        sections.push(Section {
+            title,
+            rows: rs
+                .iter()
+                .enumerate()
+                .map(|(i, r)| row_view(i + 1, r))
+                .collect(),
+            svg,
+        });
+    }
+    let headers = SORT_KEYS
+        .iter()
+        .map(|(k, label)| {
+            let active = *k == key;
+            let next = if active && desc {
+                "asc"
+            } else if active {
+                "desc"
+            } else if *k == "method" {
+                "asc"
+            } else {
+                "desc"
+            };
+            Header {
+                label,
+                url: format!("{base}?obs={obs}&sort={k}&dir={next}"),
+                arrow: if !active {
+                    ""
+                } else if desc {
+                    " ▼"
+                } else {
+                    " ▲"
+                },
+            }
+        })
+        .collect();
+    render(&LeaderboardPage {
+        title: task.title(),
+        slug: task.slug(),
+        obs: obs.as_str(),
+        tabs: obs_tabs(task, obs, &base),
+        headers,
+        sections,
+        csv_url: format!("{base}/csv?obs={obs}"),
+        fraction_url: format!("{base}/data-fraction?obs={obs}"),
+        plot_url: format!("/plots/tasks/{}/pareto.svg?obs={obs}", task.slug()),
+        protocol: task.paper_protocol().describe(obs),
+        protocol_ours: task.paper_protocol().ours,
+    })
+}
+
+pub(super) async fn leaderboard_csv(
+    State(state): State<AppState>,
+    Param(task): Param<TaskId>,
+    Query(q): Query<SortQuery>,
+) -> Result<Response, PageError> {
+    let obs = obs_query(q.obs.as_deref())?;
+    let rows = board_for(&state.store.board_rows().await?, task, obs);
+    Ok(csv_response(
+        &format!("d3il-{}-{}.csv", task.slug(), obs),
+        &board_csv(&rows)?,
+    ))
+}
+
+// --------------------------------------------------------------- data fraction
+
+struct FractionRow {
+    method: String,
+    method_url: String,
+    reported: bool,
+    cells: Vec<String>,
+}
+
+#[derive(Template)]
+#[template(path = "data_fraction.html")]
+struct FractionPage {
+    title: &'static str,
+    slug: &'static str,
+    tabs: Vec<Tab>,
+    fractions: Vec<String>,
+    rows: Vec<FractionRow>,
+    svg: String,
+    csv_url: String,
+}
+
+pub(super) async fn data_fraction(
+    State(state): State<AppState>,
+    Param(task): Param<TaskId>,
+    Query(q): Query<SortQuery>,
+) -> Result<Html<String>, PageError> {
+    let obs = obs_query(q.obs.as_deref())?;
+    let rows = fraction_rows(&state.store.board_rows().await?, task, obs);
+    let mut fracs: Vec<f64> = rows.iter().map(|r| r.data_fraction).collect();
+    fracs.sort_by(|a, b| a.total_cmp(b));
+    fracs.dedup();
+    let mut table: Vec<FractionRow> = vec![];
+    for r in &rows {
+        let key = (
+            r.method.clone(),
+            r.source == Source::Reported,
+            r.task_title.clone(),
+        );
+        let i = fracs
+            .iter()
+            .position(|f| *f == r.data_fraction)
+            .unwrap_or(0);
+        let mut label = if r.task_title == task.title() {
+            key.0.clone()
+        } else {
+            format!("{} [{}]", key.0, key.2)
+        };
+        if r.protocol == Some(ProtocolKind::Quick) {
+            // A quick smoke run is its own row, never a cell of the paper-protocol row.
+            label.push_str(" (quick protocol)");
+        }
+        let row = match table
+            .iter_mut()
+            .position(|t| t.method == label && t.reported == key.1)
+        {
+            Some(p) => &mut table[p],
+            None => {
+                table.push(FractionRow {
+                    method: label,
+                    method_url: method_url(&r.method),
+                    reported: key.1,
+                    cells: vec!["—".into(); fracs.len()],
+                });
+                table
+                    .last_mut()
+                    .ok_or_else(|| AppError::Internal("empty table".into()))?
+            }
+        };
+        row.cells[i] = format!(
+            "{} / {}",
+            fmt_stat(r.success.mean, r.success.std),
+            fmt_stat(r.entropy.mean, r.entropy.std)
+        );
+    }
+    let svg = figures::data_fraction_svg(
+        &format!("{}: performance vs training data", task.title()),
+        &fraction_series(&rows),
+    )
+    .map_err(|e| AppError::Internal(e.to_string()))?;
+    render(&FractionPage {
+        title: task.title(),
+        slug: task.slug(),
+        tabs: obs_tabs(task, obs, &format!("/tasks/{}/data-fraction", task.slug())),
+        fractions: fracs.iter().map(|f| format!("{f}")).collect(),
+        rows: table,
+        svg,
+        csv_url: format!(
+            "/api/v1/leaderboards/{}/csv?obs={obs}&view=data-fraction",
+            task.slug()
+        ),
+    })
+}
+
+// ---------------------------------------------------------------------- method
+
+struct MethodResult {
+    task: String,
+    task_url: String,
+    obs: String,
+    fraction: String,
+    control: String,
+    reported: bool,
+    protocol: String,
+    success: String,
+    entropy: String,
+    seeds: String,
+}
+
+#[derive(Template)]
+#[template(path = "method.html")]
+struct MethodPage {
+    m: MethodRow,
+    history: String,
+    results: Vec<MethodResult>,
+    submissions: Vec<SubmissionLine>,
+}
+
+pub(super) async fn method_page(
+    State(state): State<AppState>,
+    Path(name): Path<String>,
+) -> Result<Html<String>, PageError> {
+    let m = state
+        .store
+        .method_by_name(&name)
+        .await?
+        .ok_or_else(|| AppError::NotFound(format!("method `{name}` not found")))?;
+    let results = state
+        .store
+        .board_rows()
+        .await?
+        .into_iter()
+        .filter(|r| r.method_id == m.id)
+        .map(|r| MethodResult {
+            task_url: r
+                .task
+                .map(|t| format!("/tasks/{}?obs={}", t.slug(), r.obs))
+                .unwrap_or_default(),
+            task: r.task_title.clone(),
+            obs: r.obs.to_string(),
+            fraction: format!("{}", r.data_fraction),
+            control: r.control.clone().unwrap_or_default(),
+            reported: r.source == Source::Reported,
+            protocol: r.protocol.map(protocol_str).unwrap_or("").into(),
+            success: fmt_stat(r.success.mean, r.success.std),
+            entropy: fmt_stat(r.entropy.mean, r.entropy.std),
+            seeds: r.n_seeds.to_string(),
+        })
+        .collect();
+    let submissions = state
+        .store
+        .submissions_of_method(m.id)
+        .await?
+        .into_iter()
+        .map(|s| SubmissionLine {
+            id: s.id,
+            method_url: method_url(&s.method),
+            method: s.method,
+            task: s.task.to_string(),
+            obs: s.obs_type.to_string(),
+            status: s.status.to_string(),
+            when: fmt_time(s.created_at),
+        })
+        .collect();
+    render(&MethodPage {
+        history: m
+            .history
+            .map(|h| h.to_string())
+            .unwrap_or_else(|| "—".into()),
+        m,
+        results,
+        submissions,
+    })
+}

@@ -1,0 +1,51 @@
+//! Server-rendered pages (askama templates in `templates/`, no JavaScript).
+//! Templates escape every value; the only unescaped content is SVG that we
+//! generate ourselves (plotters escapes the text it draws).
+
+mod boards;
+mod format;
+mod site;
+mod submission;
+
+use crate::error::{AppError, PageError};
+use crate::state::AppState;
+use askama::Template;
+use axum::extract::DefaultBodyLimit;
+use axum::response::Html;
+use axum::routing::get;
+use axum::Router;
+use boards::{data_fraction, home, leaderboard, leaderboard_csv, method_page};
+use site::{admin_page, api_docs, stylesheet, submit_form, submit_post};
+use submission::{submission_download, submission_page};
+
+pub fn router(max_upload: usize) -> Router<AppState> {
+    Router::new()
+        .route("/", get(home))
+        .route("/tasks/{task}", get(leaderboard))
+        .route("/tasks/{task}/csv", get(leaderboard_csv))
+        .route("/tasks/{task}/data-fraction", get(data_fraction))
+        .route("/methods/{name}", get(method_page))
+        .route("/submissions/{id}", get(submission_page))
+        .route("/submissions/{id}/json", get(submission_download))
+        .route(
+            "/submit",
+            get(submit_form)
+                .post(submit_post)
+                .layer(DefaultBodyLimit::max(max_upload + (1 << 20))),
+        )
+        .route("/docs/api", get(api_docs))
+        .route("/admin", get(admin_page))
+        .route("/static/style.css", get(stylesheet))
+        .fallback(not_found)
+}
+
+async fn not_found() -> PageError {
+    PageError(AppError::NotFound("no such page".into()))
+}
+
+/// Renders a page; a template error is an internal error page.
+fn render<T: Template>(t: &T) -> Result<Html<String>, PageError> {
+    t.render()
+        .map(Html)
+        .map_err(|e| PageError(AppError::Internal(format!("template: {e}"))))
+}

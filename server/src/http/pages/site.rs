@@ -1,0 +1,237 @@
+//! The submit form, the API docs page, the stylesheet and the operators'
+//! admin page.
+
+use super::format::fmt_time;
+use super::render;
+use crate::error::{AppError, PageError};
+use crate::intake;
+use crate::state::AppState;
+use askama::Template;
+use axum::extract::{Multipart, State};
+use axum::http::{header, HeaderMap, StatusCode};
+use axum::response::{Html, IntoResponse, Redirect, Response};
+use d3il_protocol::TaskId;
+use std::collections::HashMap;
+
+#[derive(Template)]
+#[template(path = "submit.html")]
+struct SubmitPage {
+    tasks: Vec<(&'static str, &'static str)>,
+    max_upload_mb: usize,
+    error: Option<String>,
+    error_field: Option<String>,
+    /// After an error: the text fields as sent (never the token), so the
+    /// form comes back filled in.
+    values: HashMap<String, String>,
+}
+
+impl SubmitPage {
+    /// The value to put back into field `name` ("" when none was sent).
+    fn value(&self, name: &str) -> &str {
+        self.values.get(name).map(String::as_str).unwrap_or("")
+    }
+
+    /// Whether option `option` of select `name` was the one sent (or, when
+    /// nothing was sent, is the default).
+    fn selected(&self, name: &str, option: &str, default: &str) -> bool {
+        match self.values.get(name) {
+            Some(v) => v == option,
+            None => option == default,
+        }
+    }
+}
+
+pub(super) async fn submit_form(State(state): State<AppState>) -> Result<Html<String>, PageError> {
+    render(&SubmitPage {
+        tasks: TaskId::ALL.iter().map(|t| (t.slug(), t.title())).collect(),
+        max_upload_mb: state.cfg.max_upload_bytes >> 20,
+        error: None,
+        error_field: None,
+        values: HashMap::new(),
+    })
+}
+
+/// The HTML form posts the same fields as the API plus `token`; on success it
+/// redirects to the submission page, on error it shows the form again with
+/// the message naming the field.
+pub(super) async fn submit_post(
+    State(state): State<AppState>,
+    headers: HeaderMap,
+    mp: Result<Multipart, axum::extract::multipart::MultipartRejection>,
+) -> Response {
+    let mut kept: HashMap<String, String> = HashMap::new();
+    let result: Result<i64, AppError> = async {
+        let max = state.cfg.max_upload_bytes;
+        intake::check_declared_length(&headers, max)?;
+        let mp = mp.map_err(|e| AppError::Invalid {
+            field: None,
+            message: format!("expected a multipart/form-data body: {e}"),
+        })?;
+        // The token is checked before any file part is read.
+        let (raw, who) = intake::read_form_authenticated(mp, max, &state).await?;
+        kept = raw.text.clone();
+        kept.remove("token");
+        let valid = intake::validate(&raw, &state.cfg.limits)?;
+        intake::accept(&state, valid, &who).await
+    }
+    .await;
+    match result {
+        Ok(id) => Redirect::to(&format!("/submissions/{id}")).into_response(),
+        Err(e) => {
+            let status = e.status();
+            let page = SubmitPage {
+                tasks: TaskId::ALL.iter().map(|t| (t.slug(), t.title())).collect(),
+                max_upload_mb: state.cfg.max_upload_bytes >> 20,
+                error: Some(if kept.is_empty() {
+                    e.to_string()
+                } else {
+                    format!("{e} (your fields are kept below; choose the ONNX file again)")
+                }),
+                error_field: e.field().map(str::to_string),
+                values: kept,
+            };
+            match page.render() {
+                Ok(html) => {
+                    let mut resp = (status, Html(html)).into_response();
+                    if let AppError::RateLimited { retry_after } = e {
+                        if let Ok(v) = header::HeaderValue::from_str(&retry_after.to_string()) {
+                            resp.headers_mut().insert(header::RETRY_AFTER, v);
+                        }
+                    }
+                    resp
+                }
+                Err(_) => PageError(e).into_response(),
+            }
+        }
+    }
+}
+
+// ------------------------------------------------------------------- api docs
+
+#[derive(Template)]
+#[template(path = "api_docs.html")]
+struct ApiDocsPage {
+    max_upload_mb: usize,
+    rate_limit: u32,
+}
+
+pub(super) async fn api_docs(State(state): State<AppState>) -> Result<Html<String>, PageError> {
+    render(&ApiDocsPage {
+        max_upload_mb: state.cfg.max_upload_bytes >> 20,
+        rate_limit: state.cfg.rate_limit_per_minute,
+    })
+}
+
+pub(super) async fn stylesheet(State(state): State<AppState>) -> Response {
+    let path = state.cfg.assets_dir.join("static/style.css");
+    match tokio::fs::read_to_string(&path).await {
+        Ok(css) => ([(header::CONTENT_TYPE, "text/css; charset=utf-8")], css).into_response(),
+        Err(e) => {
+            tracing::warn!("stylesheet {}: {e}", path.display());
+            (StatusCode::NOT_FOUND, "stylesheet missing; check --assets").into_response()
+        }
+    }
+}
+
+// ----------------------------------------------------------------------- admin
+
+struct MechanismLine {
+    name: String,
+    active: bool,
+    detail: String,
+}
+
+fn mechanism_lines(ms: &[d3il_protocol::SandboxMechanism]) -> Vec<MechanismLine> {
+    ms.iter()
+        .map(|m| MechanismLine {
+            name: m.name.clone(),
+            active: m.active,
+            detail: m.detail.clone(),
+        })
+        .collect()
+}
+
+#[derive(Template)]
+#[template(path = "admin.html")]
+struct AdminPage {
+    checked_at: String,
+    /// Why the check could not run, if it could not.
+    check_error: Option<String>,
+    /// Mechanisms first, then probes (`probe:...`), as the worker lists them.
+    mechanisms: Vec<MechanismLine>,
+    missing: Vec<String>,
+    breached: Vec<String>,
+    last_job: Option<(i64, String)>,
+    last_job_mechanisms: Vec<MechanismLine>,
+    queued: i64,
+    running: i64,
+    workers: usize,
+    limits: Vec<(&'static str, String)>,
+}
+
+/// Operators' view: the sandbox mechanisms in force on this host (what
+/// `d3il worker --check-sandbox` reports, including what the kernel lacks),
+/// the mechanisms the last finished job ran under, the queue and the limits.
+pub(super) async fn admin_page(State(state): State<AppState>) -> Result<Html<String>, PageError> {
+    let check = state.sandbox.get().await;
+    let (mechanisms, check_error) = match &check.result {
+        Ok(ms) => (mechanism_lines(ms), None),
+        Err(e) => (vec![], Some(e.clone())),
+    };
+    let missing = check
+        .missing()
+        .iter()
+        .filter(|m| !m.name.starts_with("probe:"))
+        .map(|m| m.name.clone())
+        .collect();
+    let breached = check
+        .missing()
+        .iter()
+        .filter(|m| m.name.starts_with("probe:"))
+        .map(|m| m.name.clone())
+        .collect();
+    let (last_job, last_job_mechanisms) = match state.store.latest_sandbox_report().await? {
+        Some((sub, at, ms)) => (Some((sub, fmt_time(at))), mechanism_lines(&ms)),
+        None => (None, vec![]),
+    };
+    let (queued, running) = state.store.queue_counts().await?;
+    let l = &state.cfg.limits;
+    let limits = vec![
+        ("Memory (address space)", bytes_text(l.memory_bytes)),
+        ("CPU time", format!("{} s", l.cpu_seconds)),
+        ("Wall clock", format!("{} s", l.wall_seconds)),
+        ("Open files", l.open_files.to_string()),
+        ("File size", bytes_text(l.file_size_bytes)),
+        (
+            "Private/loopback endpoints",
+            if l.allow_private_endpoints {
+                "allowed (trusted set-up)".to_string()
+            } else {
+                "refused".to_string()
+            },
+        ),
+    ];
+    render(&AdminPage {
+        checked_at: fmt_time(check.checked_at),
+        check_error,
+        mechanisms,
+        missing,
+        breached,
+        last_job,
+        last_job_mechanisms,
+        queued,
+        running,
+        workers: state.cfg.workers,
+        limits,
+    })
+}
+
+fn bytes_text(b: u64) -> String {
+    if b == 0 {
+        "unlimited".into()
+    } else if b.is_multiple_of(1 << 30) {
+        format!("{} GiB", b >> 30)
+    } else {
+        format!("{} MiB", b >> 20)
+    }
+}

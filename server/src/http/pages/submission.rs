@@ -1,0 +1,254 @@
+//! A submission's page (status, progress, metrics, figures, its other seeds)
+//! and its JSON download.
+
+use super::format::{fmt_duration, fmt_time};
+use super::render;
+use crate::error::{AppError, PageError};
+use crate::http::extract::Param;
+use crate::leaderboard::{behaviour_counts, protocol_str};
+use crate::state::AppState;
+use crate::store::{PolicyKind, SubmissionRow, SubmissionStatus};
+use crate::views::{progress, submission_view};
+use askama::Template;
+use axum::extract::State;
+use axum::http::header;
+use axum::response::{Html, IntoResponse, Response};
+use d3il_tables::{board as figures, render_avoiding_paths};
+
+struct ContextLine {
+    index: usize,
+    success: String,
+    entropy: String,
+    behaviours: String,
+}
+
+struct SeedLine {
+    id: i64,
+    seed: i64,
+    status: String,
+    success: String,
+    this: bool,
+}
+
+struct MetricLine {
+    name: &'static str,
+    value: String,
+    ci: String,
+}
+
+#[derive(Template)]
+#[template(path = "submission.html")]
+struct SubmissionPage {
+    s: SubmissionRow,
+    live: bool,
+    attempts: String,
+    progress_done: i64,
+    progress_total: i64,
+    queue_position: Option<i64>,
+    eta: Option<String>,
+    metrics: Vec<MetricLine>,
+    contexts: Vec<ContextLine>,
+    seeds: Vec<SeedLine>,
+    manifest: String,
+    protocol_manifest: String,
+    sandbox: String,
+    paths_svg: Option<String>,
+    behaviours_svg: Option<String>,
+    created: String,
+    policy: String,
+    /// `paper` or `quick`.
+    protocol_name: &'static str,
+}
+
+fn pretty<T: serde::Serialize>(v: &T) -> String {
+    serde_json::to_string_pretty(v).unwrap_or_default()
+}
+
+pub(super) async fn submission_page(
+    State(state): State<AppState>,
+    Param(id): Param<i64>,
+) -> Result<Html<String>, PageError> {
+    let store = &state.store;
+    let s = store.submission(id).await?;
+    let job = store.job_for(id).await?;
+    let p = progress(&state, &job).await?;
+    let result = store.result_for(id).await?;
+    let mut metrics = vec![];
+    let mut contexts = vec![];
+    let mut protocol_manifest = String::new();
+    let mut paths_svg = None;
+    let mut behaviours_svg = None;
+    if let Some(r) = &result {
+        let ci = |lo: f64, hi: f64| format!("[{lo:.3}, {hi:.3}]");
+        metrics = vec![
+            MetricLine {
+                name: "Success rate",
+                value: format!("{:.3}", r.success_rate),
+                ci: ci(r.success_ci_low, r.success_ci_high),
+            },
+            MetricLine {
+                name: "Conditional behaviour entropy",
+                value: format!("{:.3}", r.conditional_entropy),
+                ci: ci(r.conditional_ci_low, r.conditional_ci_high),
+            },
+            MetricLine {
+                name: "Behaviour entropy H(π(β))",
+                value: format!("{:.3}", r.behaviour_entropy),
+                ci: ci(r.behaviour_ci_low, r.behaviour_ci_high),
+            },
+            MetricLine {
+                name: "Inference time per query (ms)",
+                value: format!("{:.2}", r.inference_ms),
+                ci: String::new(),
+            },
+        ];
+        let levels = r.stacking_levels_json.as_ref().map(|j| j.0);
+        if let Some(levels) = levels {
+            const NAMES: [[&str; 3]; 3] = [
+                [
+                    "Stacking-1 (≥ 1 box): success rate",
+                    "Stacking-1: conditional behaviour entropy",
+                    "Stacking-1: behaviour entropy H(π(β))",
+                ],
+                [
+                    "Stacking-2 (≥ 2 boxes): success rate",
+                    "Stacking-2: conditional behaviour entropy",
+                    "Stacking-2: behaviour entropy H(π(β))",
+                ],
+                [
+                    "Stacking-3 (full stack): success rate",
+                    "Stacking-3: conditional behaviour entropy",
+                    "Stacking-3: behaviour entropy H(π(β))",
+                ],
+            ];
+            for (l, names) in levels.iter().zip(NAMES) {
+                for (e, name) in [l.success_rate, l.conditional_entropy, l.behaviour_entropy]
+                    .into_iter()
+                    .zip(names)
+                {
+                    metrics.push(MetricLine {
+                        name,
+                        value: format!("{:.3}", e.value),
+                        ci: ci(e.ci_low, e.ci_high),
+                    });
+                }
+            }
+        } else if let Some(st) = r.stacking_json.as_ref().map(|j| j.0) {
+            // Stored before the levels carried their own entropies.
+            for (k, name) in [
+                "Stacking: ≥ 1 box",
+                "Stacking: ≥ 2 boxes",
+                "Stacking: 3 boxes",
+            ]
+            .into_iter()
+            .enumerate()
+            {
+                metrics.push(MetricLine {
+                    name,
+                    value: format!("{:.3}", st[k]),
+                    ci: String::new(),
+                });
+            }
+        }
+        contexts = r
+            .per_context_json
+            .iter()
+            .map(|c| ContextLine {
+                index: c.context_index,
+                success: format!("{:.3}", c.success_rate),
+                entropy: format!("{:.3}", c.conditional_entropy),
+                behaviours: c
+                    .behaviours
+                    .iter()
+                    .map(|(b, n)| format!("{b}×{n}"))
+                    .collect::<Vec<_>>()
+                    .join(", "),
+            })
+            .collect();
+        protocol_manifest = pretty(&r.manifest_json);
+        let rollouts = store.rollouts_for(id).await?;
+        let counts = behaviour_counts(rollouts.iter().map(|r| (r.success, &r.behaviour.0)));
+        if !counts.is_empty() {
+            behaviours_svg = Some(
+                figures::behaviour_bars_svg("Behaviours of successful rollouts", &counts)
+                    .map_err(|e| AppError::Internal(e.to_string()))?,
+            );
+        }
+        let paths = store.avoiding_paths(id).await?;
+        if !paths.is_empty() {
+            paths_svg = Some(
+                render_avoiding_paths(&paths, "End-effector paths by behaviour")
+                    .map_err(|e| AppError::Internal(e.to_string()))?,
+            );
+        }
+    }
+    // The training seeds of the same leaderboard row (one query).
+    let seed_lines: Vec<SeedLine> = store
+        .sibling_seeds(&s)
+        .await?
+        .into_iter()
+        .map(|o| SeedLine {
+            id: o.id,
+            seed: o.training_seed,
+            status: o.status.to_string(),
+            success: o
+                .success_rate
+                .map_or_else(|| "—".into(), |v| format!("{v:.3}")),
+            this: o.id == s.id,
+        })
+        .collect();
+    let policy = match s.policy_kind {
+        PolicyKind::Onnx => format!(
+            "ONNX file, {} bytes, sha256 {}",
+            s.onnx_bytes.unwrap_or(0),
+            s.onnx_sha256.as_deref().unwrap_or("?")
+        ),
+        PolicyKind::Remote => format!(
+            "Remote endpoint {}",
+            s.endpoint_url.as_deref().unwrap_or("?")
+        ),
+    };
+    render(&SubmissionPage {
+        live: matches!(
+            s.status,
+            SubmissionStatus::Queued | SubmissionStatus::Running
+        ),
+        attempts: format!("{} of {}", job.attempts, job.max_attempts),
+        progress_done: p.rollouts_done,
+        progress_total: p.rollouts_total,
+        queue_position: p.queue_position,
+        eta: p.eta_seconds.map(fmt_duration),
+        metrics,
+        contexts,
+        seeds: seed_lines,
+        manifest: pretty(&s.manifest_json),
+        protocol_manifest,
+        sandbox: job.sandbox_json.as_ref().map(pretty).unwrap_or_default(),
+        paths_svg,
+        behaviours_svg,
+        created: fmt_time(s.created_at),
+        policy,
+        protocol_name: protocol_str(s.protocol),
+        s,
+    })
+}
+
+pub(super) async fn submission_download(
+    State(state): State<AppState>,
+    Param(id): Param<i64>,
+) -> Result<Response, PageError> {
+    let v = submission_view(&state, id).await?;
+    let body =
+        serde_json::to_string_pretty(&v).map_err(|e| AppError::Internal(format!("json: {e}")))?;
+    Ok((
+        [
+            (header::CONTENT_TYPE, "application/json".to_string()),
+            (
+                header::CONTENT_DISPOSITION,
+                format!("attachment; filename=\"d3il-submission-{id}.json\""),
+            ),
+        ],
+        body,
+    )
+        .into_response())
+}

@@ -1,0 +1,474 @@
+//! What the leaderboards show, as pure functions (no HTTP, no SQL): board rows
+//! and their views, seed grouping and aggregation (with the metrics crate's
+//! one [`aggregate_seeds`]), sorting, Pareto points, data-fraction series and
+//! behaviour counts. The store feeds it typed records; the API, the pages and
+//! the plots all read the rows it builds.
+
+use crate::schema;
+use d3il_metrics::{aggregate_seeds, MetricsError};
+use d3il_protocol::{ObsType, ProtocolKind, ResultCell, Source, StackingLevel, Stat, TaskId};
+use d3il_tables::board::{FractionSeries, ParetoPoint};
+use std::collections::{BTreeMap, BTreeSet, HashMap};
+
+/// One leaderboard row: a method on a task (paper title), observation type and
+/// data fraction, aggregated over training seeds.
+#[derive(Debug, Clone, PartialEq, serde::Serialize, utoipa::ToSchema)]
+pub struct BoardRow {
+    pub method: String,
+    pub method_id: i64,
+    /// The paper's table the row is from (`main`, `datasize`, ...).
+    pub paper_table: String,
+    /// The task as the paper titles it (`Stacking-2 (T5)`).
+    pub task_title: String,
+    #[schema(value_type = Option<schema::Task>)]
+    pub task: Option<TaskId>,
+    #[schema(value_type = schema::Obs)]
+    pub obs: ObsType,
+    pub data_fraction: f64,
+    /// The control ablation (`pos`/`vel`) of reported ablation rows.
+    pub control: Option<String>,
+    #[schema(value_type = schema::Source)]
+    pub source: Source,
+    /// Evaluation protocol of evaluated rows (None for reported rows).
+    #[schema(value_type = Option<schema::Protocol>)]
+    pub protocol: Option<ProtocolKind>,
+    #[schema(value_type = schema::Stat)]
+    pub success: Stat,
+    /// Conditional behaviour entropy (the paper's "Entropy").
+    #[schema(value_type = schema::Stat)]
+    pub entropy: Stat,
+    /// Marginal behaviour entropy H(pi(beta)) (evaluated rows only).
+    #[schema(value_type = Option<schema::Stat>)]
+    pub behaviour_entropy: Option<Stat>,
+    pub n_seeds: usize,
+    pub inference_ms: Option<f64>,
+    pub bold_success: Option<bool>,
+    pub bold_entropy: Option<bool>,
+    pub submission_ids: Vec<i64>,
+}
+
+impl BoardRow {
+    pub fn to_cell(&self) -> ResultCell {
+        ResultCell {
+            table: self.paper_table.clone(),
+            method: self.method.clone(),
+            task: self.task_title.clone(),
+            obs: self.obs,
+            data_fraction: self.data_fraction,
+            control: self.control.clone(),
+            source: self.source,
+            success_rate: self.success,
+            entropy: self.entropy,
+            n_seeds: self.n_seeds,
+            bold_success: self.bold_success,
+            bold_entropy: self.bold_entropy,
+        }
+    }
+}
+
+/// Maps a task title as the paper prints it (`Stacking-2 (T5)`) to our task.
+pub fn task_for_title(title: &str) -> Option<TaskId> {
+    if let Some(t) = TaskId::ALL.into_iter().find(|t| t.title() == title) {
+        return Some(t);
+    }
+    if title.starts_with("Stacking-") {
+        return Some(TaskId::Stacking);
+    }
+    None
+}
+
+/// `paper` or `quick`, as stored and as the CSV prints it.
+pub fn protocol_str(p: ProtocolKind) -> &'static str {
+    match p {
+        ProtocolKind::Paper => "paper",
+        ProtocolKind::Quick => "quick",
+    }
+}
+
+// ------------------------------------------------------------ seed grouping
+
+/// The result of one completed submission (one training seed), as stored.
+#[derive(Debug, Clone)]
+pub struct EvaluatedSeed {
+    pub submission_id: i64,
+    pub method: String,
+    pub method_id: i64,
+    pub task: TaskId,
+    pub obs: ObsType,
+    pub training_seed: i64,
+    pub data_fraction: f64,
+    pub protocol: ProtocolKind,
+    pub success_rate: f64,
+    pub behaviour_entropy: f64,
+    pub conditional_entropy: f64,
+    /// Stacking-1/2/3 success rates of results stored before the levels had
+    /// their own entropies.
+    pub stacking: Option<[f64; 3]>,
+    pub stacking_levels: Option<[StackingLevel; 3]>,
+    pub inference_ms: f64,
+}
+
+impl EvaluatedSeed {
+    /// (task title, success, conditional entropy, behaviour entropy) of each
+    /// row this seed contributes to: Stacking is reported as the paper's
+    /// Stacking-1/2/3 rows, each with its own success rate and entropies.
+    fn variants(&self) -> Vec<(String, f64, f64, f64)> {
+        let stacking_title = |k: usize| format!("Stacking-{} (T5)", k + 1);
+        match (self.task, &self.stacking_levels, &self.stacking) {
+            (TaskId::Stacking, Some(l), _) => (0..3)
+                .map(|k| {
+                    (
+                        stacking_title(k),
+                        l[k].success_rate.value,
+                        l[k].conditional_entropy.value,
+                        l[k].behaviour_entropy.value,
+                    )
+                })
+                .collect(),
+            // Stored before the levels had their own entropies: the three
+            // rates with the one (Stacking-3) entropy the result carries.
+            (TaskId::Stacking, None, Some(s)) => (0..3)
+                .map(|k| {
+                    (
+                        stacking_title(k),
+                        s[k],
+                        self.conditional_entropy,
+                        self.behaviour_entropy,
+                    )
+                })
+                .collect(),
+            _ => vec![(
+                self.task.title().to_string(),
+                self.success_rate,
+                self.conditional_entropy,
+                self.behaviour_entropy,
+            )],
+        }
+    }
+}
+
+/// Groups seeds into rows (method, task title, obs, fraction, protocol) in
+/// order of first appearance, aggregating each metric over the seeds with
+/// [`aggregate_seeds`] (mean and sample std; one seed has std 0).
+pub fn evaluated_rows(seeds: &[EvaluatedSeed]) -> Result<Vec<BoardRow>, MetricsError> {
+    type Key = (i64, String, &'static str, u64, &'static str);
+    struct Group<'a> {
+        first: &'a EvaluatedSeed,
+        title: String,
+        success: Vec<f64>,
+        entropy: Vec<f64>,
+        behaviour: Vec<f64>,
+        inference: Vec<f64>,
+        seeds: BTreeSet<i64>,
+        submissions: Vec<i64>,
+    }
+    let mut index: HashMap<Key, usize> = HashMap::new();
+    let mut groups: Vec<Group> = vec![];
+    for s in seeds {
+        for (title, success, conditional, behaviour) in s.variants() {
+            let key: Key = (
+                s.method_id,
+                title.clone(),
+                s.obs.as_str(),
+                s.data_fraction.to_bits(),
+                protocol_str(s.protocol),
+            );
+            let i = *index.entry(key).or_insert_with(|| {
+                groups.push(Group {
+                    first: s,
+                    title,
+                    success: vec![],
+                    entropy: vec![],
+                    behaviour: vec![],
+                    inference: vec![],
+                    seeds: BTreeSet::new(),
+                    submissions: vec![],
+                });
+                groups.len() - 1
+            });
+            let g = &mut groups[i];
+            g.success.push(success);
+            g.entropy.push(conditional);
+            g.behaviour.push(behaviour);
+            g.inference.push(s.inference_ms);
+            g.seeds.insert(s.training_seed);
+            g.submissions.push(s.submission_id);
+        }
+    }
+    groups
+        .into_iter()
+        .map(|g| {
+            let f = g.first;
+            Ok(BoardRow {
+                method: f.method.clone(),
+                method_id: f.method_id,
+                paper_table: if f.data_fraction == 1.0 {
+                    "main"
+                } else {
+                    "datasize"
+                }
+                .into(),
+                task_title: g.title,
+                task: Some(f.task),
+                obs: f.obs,
+                data_fraction: f.data_fraction,
+                control: None,
+                source: Source::Evaluated,
+                protocol: Some(f.protocol),
+                success: aggregate_seeds(&g.success)?,
+                entropy: aggregate_seeds(&g.entropy)?,
+                behaviour_entropy: Some(aggregate_seeds(&g.behaviour)?),
+                n_seeds: g.seeds.len(),
+                inference_ms: Some(aggregate_seeds(&g.inference)?.mean),
+                bold_success: None,
+                bold_entropy: None,
+                submission_ids: g.submissions,
+            })
+        })
+        .collect()
+}
+
+// ------------------------------------------------------------------- views
+
+/// Which rows of a task a leaderboard shows (`?view=`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum View {
+    /// Full training data, no control ablation, no data-size table.
+    Main,
+    /// The paper's data-size rows and evaluated rows at every fraction.
+    DataFraction,
+}
+
+impl View {
+    /// `None` and `""` are the main view; anything else unknown is an error
+    /// message naming the choices.
+    pub fn parse(s: Option<&str>) -> Result<View, String> {
+        match s {
+            None | Some("") | Some("main") => Ok(View::Main),
+            Some("data-fraction") => Ok(View::DataFraction),
+            Some(other) => Err(format!(
+                "unknown view `{other}`; use `main` or `data-fraction`"
+            )),
+        }
+    }
+
+    pub fn as_str(self) -> &'static str {
+        match self {
+            View::Main => "main",
+            View::DataFraction => "data-fraction",
+        }
+    }
+
+    pub fn rows(self, rows: &[BoardRow], task: TaskId, obs: ObsType) -> Vec<BoardRow> {
+        match self {
+            View::Main => board_for(rows, task, obs),
+            View::DataFraction => fraction_rows(rows, task, obs),
+        }
+    }
+}
+
+/// Rows of the leaderboard of `task` and `obs`: full training data, no
+/// control ablation, no data-size table (that is the data-fraction view).
+pub fn board_for(rows: &[BoardRow], task: TaskId, obs: ObsType) -> Vec<BoardRow> {
+    rows.iter()
+        .filter(|r| {
+            r.task == Some(task)
+                && r.obs == obs
+                && r.data_fraction == 1.0
+                && r.control.is_none()
+                && r.paper_table != "datasize"
+        })
+        .cloned()
+        .collect()
+}
+
+/// Rows of the data-fraction view: the paper's data-size table and evaluated
+/// rows at any fraction (full-data evaluated rows included as the 1.0 point).
+pub fn fraction_rows(rows: &[BoardRow], task: TaskId, obs: ObsType) -> Vec<BoardRow> {
+    rows.iter()
+        .filter(|r| {
+            r.task == Some(task)
+                && r.obs == obs
+                && r.control.is_none()
+                && (r.paper_table == "datasize" || r.source == Source::Evaluated)
+        })
+        .cloned()
+        .collect()
+}
+
+/// Splits rows by paper task title, keeping first-seen order (Stacking has
+/// three: Stacking-1/2/3).
+pub fn by_title(rows: Vec<BoardRow>) -> Vec<(String, Vec<BoardRow>)> {
+    let mut out: Vec<(String, Vec<BoardRow>)> = vec![];
+    for r in rows {
+        match out.iter_mut().find(|(t, _)| *t == r.task_title) {
+            Some((_, v)) => v.push(r),
+            None => out.push((r.task_title.clone(), vec![r])),
+        }
+    }
+    out
+}
+
+// ----------------------------------------------------------------- sorting
+
+/// Sortable columns: (query key, column header).
+pub const SORT_KEYS: [(&str, &str); 7] = [
+    ("method", "Method"),
+    ("source", "Source"),
+    ("success", "Success rate"),
+    ("entropy", "Cond. entropy"),
+    ("behaviour", "Behaviour entropy"),
+    ("seeds", "Seeds"),
+    ("inference", "Inference (ms)"),
+];
+
+/// Sorts by one of [`SORT_KEYS`]; missing values sort last in either direction.
+pub fn sort_rows(rows: &mut [BoardRow], key: &str, desc: bool) {
+    let val = |r: &BoardRow| -> f64 {
+        let v = match key {
+            "entropy" => r.entropy.mean,
+            "behaviour" => r.behaviour_entropy.map(|s| s.mean).unwrap_or(f64::NAN),
+            "seeds" => r.n_seeds as f64,
+            "inference" => r.inference_ms.unwrap_or(f64::NAN),
+            _ => r.success.mean,
+        };
+        if v.is_finite() {
+            v
+        } else if desc {
+            f64::NEG_INFINITY
+        } else {
+            f64::INFINITY
+        }
+    };
+    match key {
+        "method" => rows.sort_by_key(|a| a.method.to_lowercase()),
+        "source" => rows.sort_by_key(|r| r.source),
+        _ => rows.sort_by(|a, b| val(a).total_cmp(&val(b))),
+    }
+    if desc {
+        rows.reverse();
+    }
+}
+
+// ------------------------------------------------------------ figure input
+
+/// Success vs conditional entropy of each row (quick-protocol runs labelled).
+pub fn pareto_points(rows: &[BoardRow]) -> Vec<ParetoPoint> {
+    rows.iter()
+        .map(|r| ParetoPoint {
+            label: match (r.source, r.protocol) {
+                (Source::Evaluated, Some(ProtocolKind::Quick)) => format!("{} (quick)", r.method),
+                _ => r.method.clone(),
+            },
+            entropy: r.entropy.mean,
+            success: r.success.mean,
+            evaluated: r.source == Source::Evaluated,
+        })
+        .collect()
+}
+
+/// One line per method (and task title, where a task has several) through
+/// its values at each data fraction.
+pub fn fraction_series(rows: &[BoardRow]) -> Vec<FractionSeries> {
+    type Points = Vec<(f64, f64, f64)>;
+    let mut by: BTreeMap<(String, String), Points> = BTreeMap::new();
+    for r in rows {
+        let label = match (r.source, r.protocol) {
+            (Source::Reported, _) => r.method.clone(),
+            // Quick smoke runs get their own line: never mixed with paper-protocol points.
+            (Source::Evaluated, Some(ProtocolKind::Quick)) => {
+                format!("{} (evaluated, quick)", r.method)
+            }
+            (Source::Evaluated, _) => format!("{} (evaluated)", r.method),
+        };
+        by.entry((r.task_title.clone(), label)).or_default().push((
+            r.data_fraction,
+            r.success.mean,
+            r.entropy.mean,
+        ));
+    }
+    let multi_title = by.keys().map(|k| &k.0).collect::<BTreeSet<_>>().len() > 1;
+    by.into_iter()
+        .map(|((title, label), mut points)| {
+            points.sort_by(|a, b| a.0.total_cmp(&b.0));
+            FractionSeries {
+                label: if multi_title {
+                    format!("{label} [{title}]")
+                } else {
+                    label
+                },
+                points,
+            }
+        })
+        .collect()
+}
+
+/// Successful-rollout counts per behaviour label, most frequent first, from
+/// (success, behaviour) pairs.
+pub fn behaviour_counts<'a>(
+    rollouts: impl IntoIterator<Item = (bool, &'a serde_json::Value)>,
+) -> Vec<(String, usize)> {
+    let mut counts: BTreeMap<String, usize> = BTreeMap::new();
+    for (_, b) in rollouts.into_iter().filter(|(success, _)| *success) {
+        *counts
+            .entry(d3il_tables::board::behaviour_label(b))
+            .or_default() += 1;
+    }
+    let mut v: Vec<_> = counts.into_iter().collect();
+    v.sort_by(|a, b| b.1.cmp(&a.1).then(a.0.cmp(&b.0)));
+    v
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn seed(id: i64, training_seed: i64, success: f64) -> EvaluatedSeed {
+        EvaluatedSeed {
+            submission_id: id,
+            method: "M".into(),
+            method_id: 7,
+            task: TaskId::Aligning,
+            obs: ObsType::State,
+            training_seed,
+            data_fraction: 1.0,
+            protocol: ProtocolKind::Paper,
+            success_rate: success,
+            behaviour_entropy: 0.5,
+            conditional_entropy: 0.25,
+            stacking: None,
+            stacking_levels: None,
+            inference_ms: 2.0,
+        }
+    }
+
+    #[test]
+    fn seeds_aggregate_with_sample_std() {
+        let rows = evaluated_rows(&[
+            seed(1, 0, 1.0),
+            seed(2, 1, 2.0),
+            seed(3, 2, 3.0),
+            seed(4, 3, 4.0),
+        ])
+        .unwrap();
+        assert_eq!(rows.len(), 1);
+        let r = &rows[0];
+        assert!((r.success.mean - 2.5).abs() < 1e-12);
+        // var = (2.25 + 0.25 + 0.25 + 2.25) / 3 = 5/3
+        assert!((r.success.std - (5.0f64 / 3.0).sqrt()).abs() < 1e-12);
+        assert_eq!(r.n_seeds, 4);
+        assert_eq!(r.submission_ids, vec![1, 2, 3, 4]);
+        // One seed: std 0 (as the paper's tables over one seed).
+        let one = evaluated_rows(&[seed(9, 0, 0.7)]).unwrap();
+        assert_eq!((one[0].success.mean, one[0].success.std), (0.7, 0.0));
+    }
+
+    #[test]
+    fn view_names() {
+        assert_eq!(View::parse(None), Ok(View::Main));
+        assert_eq!(View::parse(Some("data-fraction")), Ok(View::DataFraction));
+        assert!(View::parse(Some("ablation"))
+            .unwrap_err()
+            .contains("data-fraction"));
+    }
+}

@@ -1,0 +1,20 @@
+//! The state every request handler shares.
+
+use crate::config::ServerConfig;
+use crate::queue::{JobRunner, QueueSignal};
+use crate::ratelimit::RateLimiter;
+use crate::sandbox_status::SandboxStatus;
+use crate::store::Store;
+use std::sync::Arc;
+
+#[derive(Clone)]
+pub struct AppState {
+    pub store: Store,
+    pub cfg: Arc<ServerConfig>,
+    pub signal: QueueSignal,
+    pub limiter: Arc<RateLimiter>,
+    /// Used for endpoint conformance dry-runs.
+    pub runner: Arc<dyn JobRunner>,
+    /// The sandbox mechanisms in force (admin page).
+    pub sandbox: Arc<SandboxStatus>,
+}

@@ -1,0 +1,374 @@
+//! The durable job queue: leasing, heartbeats, completion and failed
+//! attempts. A slot acts on a job only while it holds the job's lease.
+
+use super::submissions::SubmissionRow;
+use super::types::{JobState, SubmissionStatus};
+use super::{now, to_json, Store, StoreError};
+use d3il_protocol::{EvalResult, SandboxMechanism, WorkerError};
+use sqlx::types::Json;
+use sqlx::FromRow;
+
+#[derive(Debug, Clone, FromRow, serde::Serialize)]
+pub struct JobRow {
+    pub id: i64,
+    pub submission_id: i64,
+    pub state: JobState,
+    pub attempts: i64,
+    pub max_attempts: i64,
+    pub lease_owner: Option<String>,
+    pub lease_expires_at: Option<i64>,
+    pub heartbeat_at: Option<i64>,
+    pub rollouts_done: i64,
+    pub rollouts_total: i64,
+    pub error_kind: Option<String>,
+    pub error_message: Option<String>,
+    /// The sandbox mechanisms the (finished) job ran under.
+    pub sandbox_json: Option<Json<Vec<SandboxMechanism>>>,
+    pub created_at: i64,
+    /// When the current (latest) attempt started: ETAs extrapolate from it.
+    pub started_at: Option<i64>,
+    pub finished_at: Option<i64>,
+}
+
+/// A job handed to a worker slot.
+#[derive(Debug, Clone)]
+pub struct ClaimedJob {
+    pub job: JobRow,
+    pub submission: SubmissionRow,
+}
+
+impl Store {
+    pub async fn job_for(&self, submission_id: i64) -> Result<JobRow, StoreError> {
+        sqlx::query_as("SELECT * FROM jobs WHERE submission_id = ?")
+            .bind(submission_id)
+            .fetch_optional(&self.pool)
+            .await?
+            .ok_or_else(|| StoreError::NotFound(format!("job of submission {submission_id}")))
+    }
+
+    /// Puts every leased job back in the queue. Called once at start-up: a
+    /// single server owns the database file, so any lease left over belongs to
+    /// a process that died (issue 7: a killed server requeues on restart).
+    pub async fn requeue_abandoned(&self) -> Result<u64, StoreError> {
+        let mut tx = self.pool.begin().await?;
+        let n = sqlx::query(
+            "UPDATE jobs SET state = 'queued', lease_owner = NULL, lease_expires_at = NULL WHERE state = 'leased'",
+        )
+        .execute(&mut *tx)
+        .await?
+        .rows_affected();
+        sqlx::query(
+            "UPDATE submissions SET status = 'queued', updated_at = ? WHERE status = 'running' \
+             AND id IN (SELECT submission_id FROM jobs WHERE state = 'queued')",
+        )
+        .bind(now())
+        .execute(&mut *tx)
+        .await?;
+        tx.commit().await?;
+        Ok(n)
+    }
+
+    /// Leases the oldest runnable job (queued, or leased with an expired
+    /// lease) to `owner` for `lease` seconds. Jobs whose attempts are used up
+    /// are failed instead of leased.
+    pub async fn claim_job(
+        &self,
+        owner: &str,
+        lease: i64,
+    ) -> Result<Option<ClaimedJob>, StoreError> {
+        loop {
+            let t = now();
+            let mut tx = self.pool.begin().await?;
+            let job: Option<JobRow> = sqlx::query_as(
+                "SELECT * FROM jobs WHERE state = 'queued' OR (state = 'leased' AND lease_expires_at < ?) \
+                 ORDER BY id LIMIT 1",
+            )
+            .bind(t)
+            .fetch_optional(&mut *tx)
+            .await?;
+            let Some(job) = job else { return Ok(None) };
+            if job.attempts >= job.max_attempts {
+                let msg = format!(
+                    "the evaluation was interrupted {} times (lease expired without a result); giving up",
+                    job.attempts
+                );
+                finish_failed(&mut tx, job.id, job.submission_id, "crashed", &msg, t).await?;
+                tx.commit().await?;
+                continue;
+            }
+            let updated = sqlx::query(
+                "UPDATE jobs SET state = 'leased', lease_owner = ?, lease_expires_at = ?, heartbeat_at = ?, \
+                 attempts = attempts + 1, started_at = ?, rollouts_done = 0 \
+                 WHERE id = ? AND (state = 'queued' OR (state = 'leased' AND lease_expires_at < ?))",
+            )
+            .bind(owner)
+            .bind(t + lease)
+            .bind(t)
+            .bind(t)
+            .bind(job.id)
+            .bind(t)
+            .execute(&mut *tx)
+            .await?
+            .rows_affected();
+            if updated == 0 {
+                // Someone else took it between the select and the update.
+                tx.rollback().await?;
+                continue;
+            }
+            sqlx::query("UPDATE submissions SET status = 'running', updated_at = ? WHERE id = ?")
+                .bind(t)
+                .bind(job.submission_id)
+                .execute(&mut *tx)
+                .await?;
+            tx.commit().await?;
+            let job = self.job_for(job.submission_id).await?;
+            let submission = self.submission(job.submission_id).await?;
+            return Ok(Some(ClaimedJob { job, submission }));
+        }
+    }
+
+    /// Extends the lease and records progress. Returns false if the lease was
+    /// lost (the job was requeued or finished by someone else).
+    pub async fn heartbeat(
+        &self,
+        job_id: i64,
+        owner: &str,
+        lease: i64,
+        progress: Option<(usize, usize)>,
+    ) -> Result<bool, StoreError> {
+        let t = now();
+        let n = match progress {
+            Some((done, total)) => sqlx::query(
+                "UPDATE jobs SET heartbeat_at = ?, lease_expires_at = ?, rollouts_done = ?, rollouts_total = ? \
+                 WHERE id = ? AND lease_owner = ? AND state = 'leased'",
+            )
+            .bind(t)
+            .bind(t + lease)
+            .bind(done as i64)
+            .bind(total as i64)
+            .bind(job_id)
+            .bind(owner),
+            None => sqlx::query(
+                "UPDATE jobs SET heartbeat_at = ?, lease_expires_at = ? WHERE id = ? AND lease_owner = ? AND state = 'leased'",
+            )
+            .bind(t)
+            .bind(t + lease)
+            .bind(job_id)
+            .bind(owner),
+        }
+        .execute(&self.pool)
+        .await?
+        .rows_affected();
+        Ok(n == 1)
+    }
+
+    /// Stores the result (idempotently: a second write for the same
+    /// submission changes nothing) and marks the job done.
+    pub async fn complete_job(
+        &self,
+        job_id: i64,
+        submission_id: i64,
+        result: &EvalResult,
+        mechanisms: &[SandboxMechanism],
+    ) -> Result<(), StoreError> {
+        let t = now();
+        let m = &result.metrics;
+        let mut tx = self.pool.begin().await?;
+        sqlx::query(
+            "INSERT INTO results (submission_id, success_rate, success_ci_low, success_ci_high, behaviour_entropy, \
+             behaviour_ci_low, behaviour_ci_high, conditional_entropy, conditional_ci_low, conditional_ci_high, \
+             stacking_json, stacking_levels_json, inference_ms, manifest_json, per_context_json, created_at) \
+             VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?) ON CONFLICT(submission_id) DO NOTHING",
+        )
+        .bind(submission_id)
+        .bind(m.success_rate.value)
+        .bind(m.success_rate.ci_low)
+        .bind(m.success_rate.ci_high)
+        .bind(m.behaviour_entropy.value)
+        .bind(m.behaviour_entropy.ci_low)
+        .bind(m.behaviour_entropy.ci_high)
+        .bind(m.conditional_entropy.value)
+        .bind(m.conditional_entropy.ci_low)
+        .bind(m.conditional_entropy.ci_high)
+        .bind(m.stacking.map(|s| to_json(&s)))
+        .bind(m.stacking_levels.map(|s| to_json(&s)))
+        .bind(m.inference_ms)
+        .bind(to_json(&result.manifest))
+        .bind(to_json(&result.per_context))
+        .bind(t)
+        .execute(&mut *tx)
+        .await?;
+        for r in &result.rollouts {
+            sqlx::query(
+                "INSERT INTO rollouts (submission_id, context_index, rollout_index, success, behaviour_json, steps, path_json) \
+                 VALUES (?, ?, ?, ?, ?, ?, ?) ON CONFLICT(submission_id, context_index, rollout_index) DO NOTHING",
+            )
+            .bind(submission_id)
+            .bind(r.context_index as i64)
+            .bind(r.rollout_index as i64)
+            .bind(r.success)
+            .bind(r.behaviour.to_string())
+            .bind(r.steps as i64)
+            .bind(r.path.as_ref().map(to_json))
+            .execute(&mut *tx)
+            .await?;
+        }
+        let total = result.rollouts.len() as i64;
+        sqlx::query(
+            "UPDATE jobs SET state = 'done', lease_owner = NULL, lease_expires_at = NULL, finished_at = ?, \
+             rollouts_done = MAX(rollouts_done, ?), rollouts_total = MAX(rollouts_total, ?), sandbox_json = ?, \
+             error_kind = NULL, error_message = NULL WHERE id = ?",
+        )
+        .bind(t)
+        .bind(total)
+        .bind(total)
+        .bind(to_json(&mechanisms))
+        .bind(job_id)
+        .execute(&mut *tx)
+        .await?;
+        sqlx::query(
+            "UPDATE submissions SET status = 'completed', error_kind = NULL, error_message = NULL, updated_at = ? WHERE id = ?",
+        )
+        .bind(t)
+        .bind(submission_id)
+        .execute(&mut *tx)
+        .await?;
+        tx.commit().await?;
+        Ok(())
+    }
+
+    /// Records a failed attempt of the job leased to `owner`: requeues it when
+    /// `retry` and attempts remain, otherwise fails the submission with the
+    /// typed error. Returns whether it was requeued. A slot that no longer
+    /// holds the lease (it expired and the job was requeued, or another slot
+    /// now runs it) changes nothing and gets [`StoreError::LeaseLost`].
+    pub async fn fail_attempt(
+        &self,
+        job_id: i64,
+        owner: &str,
+        err: &WorkerError,
+        retry: bool,
+    ) -> Result<bool, StoreError> {
+        let t = now();
+        let kind = serde_json::to_value(err.kind)
+            .ok()
+            .and_then(|v| v.as_str().map(str::to_string))
+            .unwrap_or_else(|| "internal".into());
+        // IMMEDIATE: the lease check and the update see the same state.
+        let mut tx = self.pool.begin_with("BEGIN IMMEDIATE").await?;
+        let job: Option<JobRow> =
+            sqlx::query_as("SELECT * FROM jobs WHERE id = ? AND state = ? AND lease_owner = ?")
+                .bind(job_id)
+                .bind(JobState::Leased)
+                .bind(owner)
+                .fetch_optional(&mut *tx)
+                .await?;
+        let Some(job) = job else {
+            return Err(StoreError::LeaseLost {
+                job_id,
+                owner: owner.to_string(),
+            });
+        };
+        let requeued = retry && job.attempts < job.max_attempts;
+        if requeued {
+            sqlx::query(
+                "UPDATE jobs SET state = ?, lease_owner = NULL, lease_expires_at = NULL, error_kind = ?, \
+                 error_message = ? WHERE id = ?",
+            )
+            .bind(JobState::Queued)
+            .bind(&kind)
+            .bind(&err.message)
+            .bind(job_id)
+            .execute(&mut *tx)
+            .await?;
+            sqlx::query("UPDATE submissions SET status = ?, updated_at = ? WHERE id = ?")
+                .bind(SubmissionStatus::Queued)
+                .bind(t)
+                .bind(job.submission_id)
+                .execute(&mut *tx)
+                .await?;
+        } else {
+            finish_failed(&mut tx, job_id, job.submission_id, &kind, &err.message, t).await?;
+        }
+        tx.commit().await?;
+        Ok(requeued)
+    }
+
+    /// Jobs ahead of this one in the queue (0 = next), or None if it is not queued.
+    pub async fn queue_position(&self, job_id: i64) -> Result<Option<i64>, StoreError> {
+        let state: JobState = sqlx::query_scalar("SELECT state FROM jobs WHERE id = ?")
+            .bind(job_id)
+            .fetch_one(&self.pool)
+            .await?;
+        if state != JobState::Queued {
+            return Ok(None);
+        }
+        Ok(Some(
+            sqlx::query_scalar("SELECT COUNT(*) FROM jobs WHERE state = 'queued' AND id < ?")
+                .bind(job_id)
+                .fetch_one(&self.pool)
+                .await?,
+        ))
+    }
+
+    /// Mean wall time of the last 20 finished jobs, seconds.
+    pub async fn mean_job_seconds(&self) -> Result<Option<f64>, StoreError> {
+        Ok(sqlx::query_scalar(
+            "SELECT AVG(finished_at - started_at) FROM (SELECT finished_at, started_at FROM jobs \
+             WHERE state = 'done' AND started_at IS NOT NULL ORDER BY finished_at DESC LIMIT 20)",
+        )
+        .fetch_one(&self.pool)
+        .await?)
+    }
+
+    /// The sandbox report of the most recently finished job that has one:
+    /// (submission id, finished at, mechanisms JSON).
+    pub async fn latest_sandbox_report(
+        &self,
+    ) -> Result<Option<(i64, i64, Json<Vec<SandboxMechanism>>)>, StoreError> {
+        Ok(sqlx::query_as(
+            "SELECT submission_id, COALESCE(finished_at, 0), sandbox_json FROM jobs \
+             WHERE sandbox_json IS NOT NULL ORDER BY finished_at DESC, id DESC LIMIT 1",
+        )
+        .fetch_optional(&self.pool)
+        .await?)
+    }
+
+    pub async fn queue_counts(&self) -> Result<(i64, i64), StoreError> {
+        Ok(sqlx::query_as(
+            "SELECT COALESCE(SUM(state = 'queued'), 0), COALESCE(SUM(state = 'leased'), 0) FROM jobs",
+        )
+        .fetch_one(&self.pool)
+        .await?)
+    }
+}
+
+async fn finish_failed(
+    tx: &mut sqlx::Transaction<'_, sqlx::Sqlite>,
+    job_id: i64,
+    submission_id: i64,
+    kind: &str,
+    message: &str,
+    t: i64,
+) -> Result<(), StoreError> {
+    sqlx::query(
+        "UPDATE jobs SET state = 'failed', lease_owner = NULL, lease_expires_at = NULL, finished_at = ?, \
+         error_kind = ?, error_message = ? WHERE id = ?",
+    )
+    .bind(t)
+    .bind(kind)
+    .bind(message)
+    .bind(job_id)
+    .execute(&mut **tx)
+    .await?;
+    sqlx::query(
+        "UPDATE submissions SET status = 'failed', error_kind = ?, error_message = ?, updated_at = ? WHERE id = ?",
+    )
+    .bind(kind)
+    .bind(message)
+    .bind(t)
+    .bind(submission_id)
+    .execute(&mut **tx)
+    .await?;
+    Ok(())
+}

@@ -1,0 +1,83 @@
+//! Methods: the paper's baselines and those created by submissions.
+
+use super::{Store, StoreError};
+use sqlx::FromRow;
+
+/// A method and its properties (as the paper lists them for its baselines).
+#[derive(Debug, Clone, FromRow, serde::Serialize, utoipa::ToSchema)]
+pub struct MethodRow {
+    pub id: i64,
+    pub name: String,
+    pub history: Option<i64>,
+    pub backbone: Option<String>,
+    pub prediction: Option<String>,
+    pub diversity: Option<String>,
+    pub code_url: Option<String>,
+    pub paper_url: Option<String>,
+    pub description: Option<String>,
+    pub from_paper: bool,
+    pub state_inference_ms: Option<f64>,
+    pub image_inference_ms: Option<f64>,
+    pub submitter_id: Option<i64>,
+}
+
+/// Metadata for a new method created by a submission.
+#[derive(Debug, Clone, Default)]
+pub struct NewMethod {
+    pub name: String,
+    pub history: Option<i64>,
+    pub backbone: Option<String>,
+    pub prediction: Option<String>,
+    pub diversity: Option<String>,
+    pub code_url: Option<String>,
+    pub paper_url: Option<String>,
+    pub description: Option<String>,
+}
+
+impl Store {
+    pub async fn methods(&self) -> Result<Vec<MethodRow>, StoreError> {
+        Ok(sqlx::query_as(
+            "SELECT id, name, history, backbone, prediction, diversity, code_url, paper_url, description, \
+             from_paper, state_inference_ms, image_inference_ms, submitter_id FROM methods ORDER BY from_paper DESC, id",
+        )
+        .fetch_all(&self.pool)
+        .await?)
+    }
+
+    pub async fn method_by_name(&self, name: &str) -> Result<Option<MethodRow>, StoreError> {
+        Ok(sqlx::query_as(
+            "SELECT id, name, history, backbone, prediction, diversity, code_url, paper_url, description, \
+             from_paper, state_inference_ms, image_inference_ms, submitter_id FROM methods WHERE name = ?",
+        )
+        .bind(name)
+        .fetch_optional(&self.pool)
+        .await?)
+    }
+
+    /// Returns the method with this name, creating it (owned by `submitter_id`)
+    /// if it does not exist. Existing methods keep their metadata.
+    pub async fn ensure_method(
+        &self,
+        m: &NewMethod,
+        submitter_id: Option<i64>,
+    ) -> Result<MethodRow, StoreError> {
+        sqlx::query(
+            "INSERT INTO methods (name, history, backbone, prediction, diversity, code_url, paper_url, description, submitter_id) \
+             VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?) ON CONFLICT(name) DO NOTHING",
+        )
+        .bind(&m.name)
+        .bind(m.history)
+        .bind(&m.backbone)
+        .bind(&m.prediction)
+        .bind(&m.diversity)
+        .bind(&m.code_url)
+        .bind(&m.paper_url)
+        .bind(&m.description)
+        .bind(submitter_id)
+        .execute(&self.pool)
+        .await?;
+        self.method_by_name(&m.name)
+            .await?
+            .ok_or_else(|| StoreError::NotFound(format!("method `{}`", m.name)))
+    }
+}

@@ -1,0 +1,132 @@
+//! The SQLite store: schema (migrations/), one module per resource: the
+//! paper's reported results ([`paper`]), [`methods`], API [`tokens`],
+//! [`submissions`], the durable job queue ([`jobs`]) and evaluation
+//! [`results`]. Column types are in [`types`]: states, statuses and kinds are
+//! enums and JSON columns are `sqlx::types::Json`, so a row holding bad data
+//! fails to decode (a `StoreError::Db` naming the column) rather than being
+//! read as an empty value.
+//!
+//! Everything is plain runtime SQL (`query`/`query_as` + `FromRow`), so building
+//! needs no database.
+
+mod jobs;
+mod methods;
+mod paper;
+mod results;
+mod submissions;
+mod tokens;
+pub mod types;
+
+pub use jobs::{ClaimedJob, JobRow};
+pub use methods::{MethodRow, NewMethod};
+pub use results::{ResultRow, RolloutRow, SeedSummary};
+pub use submissions::{NewPolicy, NewSubmission, SeedKey, SubmissionRow};
+pub use tokens::{token_hash, Submitter};
+pub use types::{JobState, PolicyKind, SubmissionStatus};
+
+use sqlx::sqlite::{SqliteConnectOptions, SqliteJournalMode, SqlitePoolOptions, SqliteSynchronous};
+use sqlx::SqlitePool;
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+/// Migrations embedded at compile time (server/build.rs reruns on change).
+pub static MIGRATOR: sqlx::migrate::Migrator = sqlx::migrate!("../migrations");
+
+#[derive(Debug, thiserror::Error)]
+pub enum StoreError {
+    #[error("database error: {0}")]
+    Db(#[from] sqlx::Error),
+    #[error("database migration failed: {0}; the database file may come from a newer version, use a fresh --db file")]
+    Migrate(#[from] sqlx::migrate::MigrateError),
+    #[error("cannot use {path}: {source}")]
+    Io {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+    #[error("stored data is corrupt: {0}")]
+    Corrupt(String),
+    #[error("{0} not found")]
+    NotFound(String),
+    /// A uniqueness rule was violated (e.g. the same training seed twice).
+    #[error("{0}")]
+    Conflict(String),
+    /// A worker slot reported on a job whose lease it no longer holds (the
+    /// lease expired and the job was requeued or taken by another slot).
+    /// Seed aggregation refused its input (never an empty group in practice).
+    #[error("cannot aggregate training seeds: {0}")]
+    Aggregate(#[from] d3il_metrics::MetricsError),
+    #[error("job {job_id} is not leased to {owner}; its report is ignored")]
+    LeaseLost { job_id: i64, owner: String },
+}
+
+pub(crate) fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> StoreError + '_ {
+    move |source| StoreError::Io {
+        path: path.to_path_buf(),
+        source,
+    }
+}
+
+pub fn now() -> i64 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map(|d| d.as_secs() as i64)
+        .unwrap_or(0)
+}
+
+#[derive(Debug, Clone)]
+pub struct Store {
+    pool: SqlitePool,
+    data_dir: PathBuf,
+}
+
+impl Store {
+    /// Opens (creating if needed) the SQLite file at `path`, applies the
+    /// migrations and loads the paper's reported results (idempotently).
+    /// Uploaded policies live next to it in `<file stem>-data/`.
+    pub async fn open(path: &Path) -> Result<Store, StoreError> {
+        if let Some(parent) = path.parent().filter(|p| !p.as_os_str().is_empty()) {
+            std::fs::create_dir_all(parent).map_err(io_err(parent))?;
+        }
+        let stem = path
+            .file_stem()
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_else(|| "d3il".into());
+        // Absolute, because the sandboxed worker is given this path to read.
+        let data_dir = std::path::absolute(path.with_file_name(format!("{stem}-data")))
+            .map_err(io_err(path))?;
+        std::fs::create_dir_all(data_dir.join("policies")).map_err(io_err(&data_dir))?;
+
+        // FULL synchronous: an accepted submission must survive a power cut
+        // once the response is sent (issue 7, "durable before the response").
+        let opts = SqliteConnectOptions::new()
+            .filename(path)
+            .create_if_missing(true)
+            .journal_mode(SqliteJournalMode::Wal)
+            .synchronous(SqliteSynchronous::Full)
+            .foreign_keys(true)
+            .busy_timeout(Duration::from_secs(10));
+        let pool = SqlitePoolOptions::new()
+            .max_connections(4)
+            .connect_with(opts)
+            .await?;
+        MIGRATOR.run(&pool).await?;
+        let store = Store { pool, data_dir };
+        store
+            .load_paper(&d3il_protocol::paper::load_embedded())
+            .await?;
+        Ok(store)
+    }
+
+    pub fn pool(&self) -> &SqlitePool {
+        &self.pool
+    }
+
+    pub fn data_dir(&self) -> &Path {
+        &self.data_dir
+    }
+}
+
+/// JSON encoding of plain data (these types always serialise).
+fn to_json<T: serde::Serialize + ?Sized>(v: &T) -> String {
+    serde_json::to_string(v).unwrap_or_else(|_| "null".into())
+}

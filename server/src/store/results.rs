@@ -1,0 +1,197 @@
+//! Evaluation results: the leaderboard rows (reported and evaluated, seeds
+//! grouped by [`crate::leaderboard`]), one submission's result and rollouts,
+//! and the training seeds of a leaderboard row.
+
+use super::submissions::SubmissionRow;
+use super::types::{Slug, SubmissionStatus};
+use super::{Store, StoreError};
+use crate::leaderboard::{evaluated_rows, protocol_str, BoardRow, EvaluatedSeed};
+use d3il_protocol::{
+    ContextResult, ObsType, ProtocolKind, ResultCell, Source, StackingLevel, TaskId,
+};
+use sqlx::types::Json;
+use sqlx::FromRow;
+
+#[derive(Debug, Clone, FromRow, serde::Serialize)]
+pub struct ResultRow {
+    pub submission_id: i64,
+    pub success_rate: f64,
+    pub success_ci_low: f64,
+    pub success_ci_high: f64,
+    pub behaviour_entropy: f64,
+    pub behaviour_ci_low: f64,
+    pub behaviour_ci_high: f64,
+    pub conditional_entropy: f64,
+    pub conditional_ci_low: f64,
+    pub conditional_ci_high: f64,
+    /// Stacking-1/2/3 success rates (results stored before the levels).
+    pub stacking_json: Option<Json<[f64; 3]>>,
+    /// Stacking-1/2/3 metrics (JSON `[StackingLevel; 3]`), see migration 0002.
+    pub stacking_levels_json: Option<Json<[StackingLevel; 3]>>,
+    pub inference_ms: f64,
+    /// The protocol manifest of the evaluation.
+    pub manifest_json: Json<serde_json::Value>,
+    pub per_context_json: Json<Vec<ContextResult>>,
+    pub created_at: i64,
+}
+
+#[derive(Debug, Clone, FromRow, serde::Serialize)]
+pub struct RolloutRow {
+    pub context_index: i64,
+    pub rollout_index: i64,
+    pub success: bool,
+    /// The behaviour code (column `behaviour_json`).
+    pub behaviour: Json<serde_json::Value>,
+    pub steps: i64,
+    #[serde(skip)]
+    pub path_json: Option<Json<Vec<[f32; 2]>>>,
+}
+
+/// An end-effector path in the table plane.
+type XyPath = Vec<[f32; 2]>;
+
+/// One training seed of a leaderboard row (the submission page's seed list).
+#[derive(Debug, Clone, FromRow)]
+pub struct SeedSummary {
+    pub id: i64,
+    pub training_seed: i64,
+    pub status: SubmissionStatus,
+    /// None until the seed is evaluated.
+    pub success_rate: Option<f64>,
+}
+
+/// A completed submission's result as the leaderboard query reads it.
+#[derive(FromRow)]
+struct SeedDbRow {
+    submission_id: i64,
+    method: String,
+    method_id: i64,
+    #[sqlx(try_from = "Slug")]
+    task: TaskId,
+    #[sqlx(try_from = "Slug")]
+    obs_type: ObsType,
+    training_seed: i64,
+    data_fraction: f64,
+    #[sqlx(try_from = "Slug")]
+    protocol: ProtocolKind,
+    success_rate: f64,
+    behaviour_entropy: f64,
+    conditional_entropy: f64,
+    stacking_json: Option<Json<[f64; 3]>>,
+    stacking_levels_json: Option<Json<[StackingLevel; 3]>>,
+    inference_ms: f64,
+}
+
+impl SeedDbRow {
+    fn into_seed(self) -> EvaluatedSeed {
+        EvaluatedSeed {
+            submission_id: self.submission_id,
+            method: self.method,
+            method_id: self.method_id,
+            task: self.task,
+            obs: self.obs_type,
+            training_seed: self.training_seed,
+            data_fraction: self.data_fraction,
+            protocol: self.protocol,
+            success_rate: self.success_rate,
+            behaviour_entropy: self.behaviour_entropy,
+            conditional_entropy: self.conditional_entropy,
+            stacking: self.stacking_json.map(|j| j.0),
+            stacking_levels: self.stacking_levels_json.map(|j| j.0),
+            inference_ms: self.inference_ms,
+        }
+    }
+}
+
+impl Store {
+    /// Reported rows (as the paper printed them) and evaluated rows aggregated
+    /// over training seeds (mean, sample std, n_seeds), for `d3il tables`.
+    /// Only paper-protocol evaluations are included: quick-protocol runs are
+    /// smoke tests and do not belong in the paper's tables.
+    pub async fn result_cells(&self) -> Result<Vec<ResultCell>, StoreError> {
+        Ok(self
+            .board_rows()
+            .await?
+            .iter()
+            .filter(|r| r.source == Source::Reported || r.protocol == Some(ProtocolKind::Paper))
+            .map(BoardRow::to_cell)
+            .collect())
+    }
+
+    /// All leaderboard rows: reported first (paper order of insertion), then
+    /// evaluated ones.
+    pub async fn board_rows(&self) -> Result<Vec<BoardRow>, StoreError> {
+        let mut rows = self.reported_rows().await?;
+        rows.extend(self.evaluated_rows().await?);
+        Ok(rows)
+    }
+
+    async fn evaluated_rows(&self) -> Result<Vec<BoardRow>, StoreError> {
+        let db: Vec<SeedDbRow> = sqlx::query_as(
+            "SELECT s.id AS submission_id, m.name AS method, m.id AS method_id, s.task, s.obs_type, s.training_seed, \
+             s.data_fraction, s.protocol, r.success_rate, r.behaviour_entropy, r.conditional_entropy, r.stacking_json, \
+             r.stacking_levels_json, r.inference_ms FROM submissions s JOIN results r ON r.submission_id = s.id \
+             JOIN methods m ON m.id = s.method_id WHERE s.status = ? ORDER BY s.id",
+        )
+        .bind(SubmissionStatus::Completed)
+        .fetch_all(&self.pool)
+        .await?;
+        let seeds: Vec<EvaluatedSeed> = db.into_iter().map(SeedDbRow::into_seed).collect();
+        Ok(evaluated_rows(&seeds)?)
+    }
+
+    /// End-effector paths of an Avoiding submission's rollouts, with their
+    /// behaviour labels (for the paper's trajectory figure).
+    pub async fn avoiding_paths(
+        &self,
+        submission_id: i64,
+    ) -> Result<Vec<(serde_json::Value, Vec<[f32; 2]>)>, StoreError> {
+        let rows: Vec<(Json<serde_json::Value>, Json<XyPath>)> = sqlx::query_as(
+            "SELECT behaviour_json, path_json FROM rollouts WHERE submission_id = ? AND path_json IS NOT NULL \
+             ORDER BY context_index, rollout_index",
+        )
+        .bind(submission_id)
+        .fetch_all(&self.pool)
+        .await?;
+        Ok(rows.into_iter().map(|(b, p)| (b.0, p.0)).collect())
+    }
+
+    pub async fn result_for(&self, submission_id: i64) -> Result<Option<ResultRow>, StoreError> {
+        Ok(sqlx::query_as(
+            "SELECT submission_id, success_rate, success_ci_low, success_ci_high, behaviour_entropy, behaviour_ci_low, \
+             behaviour_ci_high, conditional_entropy, conditional_ci_low, conditional_ci_high, stacking_json, \
+             stacking_levels_json, inference_ms, manifest_json, per_context_json, created_at FROM results WHERE submission_id = ?",
+        )
+        .bind(submission_id)
+        .fetch_optional(&self.pool)
+        .await?)
+    }
+
+    pub async fn rollouts_for(&self, submission_id: i64) -> Result<Vec<RolloutRow>, StoreError> {
+        Ok(sqlx::query_as(
+            "SELECT context_index, rollout_index, success, behaviour_json AS behaviour, steps, path_json FROM rollouts \
+             WHERE submission_id = ? ORDER BY context_index, rollout_index",
+        )
+        .bind(submission_id)
+        .fetch_all(&self.pool)
+        .await?)
+    }
+
+    /// Every training seed of the leaderboard row `s` belongs to (same method,
+    /// task, observation type, data fraction and protocol), `s` included, with
+    /// its success rate once evaluated: one query.
+    pub async fn sibling_seeds(&self, s: &SubmissionRow) -> Result<Vec<SeedSummary>, StoreError> {
+        Ok(sqlx::query_as(
+            "SELECT s.id, s.training_seed, s.status, r.success_rate FROM submissions s \
+             LEFT JOIN results r ON r.submission_id = s.id WHERE s.method_id = ? AND s.task = ? \
+             AND s.obs_type = ? AND s.data_fraction = ? AND s.protocol = ? ORDER BY s.training_seed, s.id",
+        )
+        .bind(s.method_id)
+        .bind(s.task.slug())
+        .bind(s.obs_type.as_str())
+        .bind(s.data_fraction)
+        .bind(protocol_str(s.protocol))
+        .fetch_all(&self.pool)
+        .await?)
+    }
+}

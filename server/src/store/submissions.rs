@@ -1,0 +1,269 @@
+//! Submissions: the uploaded policy file, the record and its queued job
+//! (written in one transaction), and the training-seed uniqueness rule.
+
+use super::types::{JobState, PolicyKind, Slug, SubmissionStatus};
+use super::{io_err, now, Store, StoreError};
+use crate::leaderboard::protocol_str;
+use d3il_protocol::{ObsType, ProtocolKind, TaskId};
+use sha2::{Digest, Sha256};
+use sqlx::types::Json;
+use sqlx::FromRow;
+use std::path::PathBuf;
+
+#[derive(Debug, Clone, FromRow, serde::Serialize)]
+pub struct SubmissionRow {
+    pub id: i64,
+    pub method_id: i64,
+    pub method: String,
+    pub submitter: Option<String>,
+    #[sqlx(try_from = "Slug")]
+    pub task: TaskId,
+    #[sqlx(try_from = "Slug")]
+    pub obs_type: ObsType,
+    pub training_seed: i64,
+    pub data_fraction: f64,
+    #[sqlx(try_from = "Slug")]
+    pub protocol: ProtocolKind,
+    pub policy_kind: PolicyKind,
+    pub onnx_sha256: Option<String>,
+    pub onnx_bytes: Option<i64>,
+    #[serde(skip)]
+    pub onnx_path: Option<String>,
+    pub endpoint_url: Option<String>,
+    /// The policy manifest as submitted.
+    pub manifest_json: Json<serde_json::Value>,
+    pub status: SubmissionStatus,
+    pub error_kind: Option<String>,
+    pub error_message: Option<String>,
+    pub created_at: i64,
+    pub updated_at: i64,
+}
+
+/// What a new submission needs; validated by the HTTP layer before it gets here.
+#[derive(Debug, Clone)]
+pub struct NewSubmission {
+    pub method_id: i64,
+    pub submitter_id: Option<i64>,
+    pub task: TaskId,
+    pub obs_type: ObsType,
+    pub training_seed: i64,
+    pub data_fraction: f64,
+    pub protocol: ProtocolKind,
+    pub policy: NewPolicy,
+    pub manifest_json: String,
+}
+
+/// What makes a training seed unique (the `submissions_unique_seed` index).
+#[derive(Debug, Clone)]
+pub struct SeedKey {
+    pub method_id: i64,
+    pub task: TaskId,
+    pub obs_type: ObsType,
+    pub data_fraction: f64,
+    pub protocol: ProtocolKind,
+    pub training_seed: i64,
+}
+
+impl NewSubmission {
+    pub fn seed_key(&self) -> SeedKey {
+        SeedKey {
+            method_id: self.method_id,
+            task: self.task,
+            obs_type: self.obs_type,
+            data_fraction: self.data_fraction,
+            protocol: self.protocol,
+            training_seed: self.training_seed,
+        }
+    }
+}
+
+#[derive(Debug, Clone)]
+pub enum NewPolicy {
+    /// Already written to the data dir by [`Store::store_onnx`].
+    Onnx {
+        sha256: String,
+        bytes: i64,
+        path: PathBuf,
+    },
+    Remote {
+        url: String,
+    },
+}
+
+const SUBMISSION_SELECT: &str = "SELECT s.id, s.method_id, m.name AS method, sub.name AS submitter, s.task, s.obs_type, \
+     s.training_seed, s.data_fraction, s.protocol, s.policy_kind, s.onnx_sha256, s.onnx_bytes, s.onnx_path, \
+     s.endpoint_url, s.manifest_json, s.status, s.error_kind, s.error_message, s.created_at, s.updated_at \
+     FROM submissions s JOIN methods m ON m.id = s.method_id LEFT JOIN submitters sub ON sub.id = s.submitter_id";
+
+impl Store {
+    /// Writes an uploaded ONNX file into the data dir under its SHA-256
+    /// (written to a temporary name, synced, then renamed, so a crash never
+    /// leaves a half file under a valid name).
+    pub async fn store_onnx(&self, bytes: &[u8]) -> Result<(String, PathBuf), StoreError> {
+        let sha = hex::encode(Sha256::digest(bytes));
+        let dir = self.data_dir.join("policies");
+        let path = dir.join(format!("{sha}.onnx"));
+        if tokio::fs::try_exists(&path).await.unwrap_or(false) {
+            return Ok((sha, path));
+        }
+        // One temporary name per write: concurrent uploads of the same file
+        // in this process must not rename each other's temporary away.
+        static WRITES: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
+        let n = WRITES.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        let tmp = dir.join(format!("{sha}.onnx.tmp{}-{n}", std::process::id()));
+        let data = bytes.to_vec();
+        let (tmp2, path2) = (tmp.clone(), path.clone());
+        tokio::task::spawn_blocking(move || -> std::io::Result<()> {
+            use std::io::Write;
+            let mut f = std::fs::File::create(&tmp2)?;
+            f.write_all(&data)?;
+            f.sync_all()?;
+            std::fs::rename(&tmp2, &path2)
+        })
+        .await
+        .map_err(|e| StoreError::Corrupt(format!("file writer panicked: {e}")))?
+        .map_err(io_err(&tmp))?;
+        Ok((sha, path))
+    }
+
+    /// The submission that already holds this seed, if any (checked before an
+    /// endpoint's dry-run so a duplicate is refused at once; the insert checks
+    /// again under the write lock).
+    pub async fn check_seed_free(&self, s: &SeedKey) -> Result<(), StoreError> {
+        match duplicate_seed(&self.pool, s).await? {
+            Some(id) => Err(duplicate_seed_error(s.training_seed, Some(id))),
+            None => Ok(()),
+        }
+    }
+
+    /// Inserts the submission and its queued job in one transaction; when this
+    /// returns the submission is durable.
+    pub async fn create_submission(
+        &self,
+        s: &NewSubmission,
+        max_attempts: i64,
+    ) -> Result<i64, StoreError> {
+        // IMMEDIATE takes the write lock before the duplicate check, so two
+        // concurrent submissions of the same seed cannot both pass it (the
+        // second waits on the busy timeout, then sees the first).
+        let mut tx = self.pool.begin_with("BEGIN IMMEDIATE").await?;
+        if let Some(id) = duplicate_seed(&mut *tx, &s.seed_key()).await? {
+            return Err(duplicate_seed_error(s.training_seed, Some(id)));
+        }
+        let (kind, sha, bytes, path, url) = match &s.policy {
+            NewPolicy::Onnx {
+                sha256,
+                bytes,
+                path,
+            } => (
+                PolicyKind::Onnx,
+                Some(sha256.clone()),
+                Some(*bytes),
+                Some(path.to_string_lossy().into_owned()),
+                None,
+            ),
+            NewPolicy::Remote { url } => (PolicyKind::Remote, None, None, None, Some(url.clone())),
+        };
+        let t = now();
+        let id: i64 = sqlx::query_scalar(
+            "INSERT INTO submissions (method_id, submitter_id, task, obs_type, training_seed, data_fraction, protocol, \
+             policy_kind, onnx_sha256, onnx_bytes, onnx_path, endpoint_url, manifest_json, status, created_at, updated_at) \
+             VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?) RETURNING id",
+        )
+        .bind(s.method_id)
+        .bind(s.submitter_id)
+        .bind(s.task.slug())
+        .bind(s.obs_type.as_str())
+        .bind(s.training_seed)
+        .bind(s.data_fraction)
+        .bind(protocol_str(s.protocol))
+        .bind(kind)
+        .bind(sha)
+        .bind(bytes)
+        .bind(path)
+        .bind(url)
+        .bind(&s.manifest_json)
+        .bind(SubmissionStatus::Queued)
+        .bind(t)
+        .bind(t)
+        .fetch_one(&mut *tx)
+        .await
+        .map_err(|e| match &e {
+            // The unique index is the last word on duplicate seeds.
+            sqlx::Error::Database(d) if d.is_unique_violation() => {
+                duplicate_seed_error(s.training_seed, None)
+            }
+            _ => e.into(),
+        })?;
+        sqlx::query(
+            "INSERT INTO jobs (submission_id, state, max_attempts, created_at) VALUES (?, ?, ?, ?)",
+        )
+        .bind(id)
+        .bind(JobState::Queued)
+        .bind(max_attempts)
+        .bind(t)
+        .execute(&mut *tx)
+        .await?;
+        tx.commit().await?;
+        Ok(id)
+    }
+
+    pub async fn submission(&self, id: i64) -> Result<SubmissionRow, StoreError> {
+        sqlx::query_as(sqlx::AssertSqlSafe(format!(
+            "{SUBMISSION_SELECT} WHERE s.id = ?"
+        )))
+        .bind(id)
+        .fetch_optional(&self.pool)
+        .await?
+        .ok_or_else(|| StoreError::NotFound(format!("submission {id}")))
+    }
+
+    pub async fn submissions_of_method(
+        &self,
+        method_id: i64,
+    ) -> Result<Vec<SubmissionRow>, StoreError> {
+        Ok(sqlx::query_as(sqlx::AssertSqlSafe(format!(
+            "{SUBMISSION_SELECT} WHERE s.method_id = ? ORDER BY s.id DESC"
+        )))
+        .bind(method_id)
+        .fetch_all(&self.pool)
+        .await?)
+    }
+
+    pub async fn latest_submissions(&self, limit: i64) -> Result<Vec<SubmissionRow>, StoreError> {
+        Ok(sqlx::query_as(sqlx::AssertSqlSafe(format!(
+            "{SUBMISSION_SELECT} ORDER BY s.id DESC LIMIT ?"
+        )))
+        .bind(limit)
+        .fetch_all(&self.pool)
+        .await?)
+    }
+}
+
+async fn duplicate_seed<'e>(
+    db: impl sqlx::SqliteExecutor<'e>,
+    s: &SeedKey,
+) -> Result<Option<i64>, StoreError> {
+    Ok(sqlx::query_scalar(
+        "SELECT id FROM submissions WHERE method_id = ? AND task = ? AND obs_type = ? AND data_fraction = ? \
+         AND protocol = ? AND training_seed = ? AND status != 'failed'",
+    )
+    .bind(s.method_id)
+    .bind(s.task.slug())
+    .bind(s.obs_type.as_str())
+    .bind(s.data_fraction)
+    .bind(protocol_str(s.protocol))
+    .bind(s.training_seed)
+    .fetch_optional(db)
+    .await?)
+}
+
+fn duplicate_seed_error(seed: i64, existing: Option<i64>) -> StoreError {
+    let which = existing
+        .map(|id| format!(" (submission {id})"))
+        .unwrap_or_default();
+    StoreError::Conflict(format!(
+        "training seed {seed} was already submitted for this method, task, observation type, data fraction \
+         and protocol{which}; use a different training_seed"
+    ))
+}

@@ -1,0 +1,308 @@
+//! What the API (and the page's JSON download) shows of a submission and its
+//! results.
+
+use crate::error::AppError;
+use crate::leaderboard::BoardRow;
+use crate::schema;
+use crate::state::AppState;
+use crate::store::MethodRow;
+use crate::store::{now, JobRow, JobState, PolicyKind, ResultRow, SubmissionStatus};
+use d3il_protocol::{
+    ContextResult, ObsType, ProtocolKind, SandboxMechanism, StackingLevel, TaskId,
+};
+use serde::Serialize;
+use serde_json::Value;
+use utoipa::ToSchema;
+
+/// Progress, queue position and an ETA for a submission.
+pub struct Progress {
+    pub rollouts_done: i64,
+    pub rollouts_total: i64,
+    pub queue_position: Option<i64>,
+    pub eta_seconds: Option<i64>,
+}
+
+pub async fn progress(state: &AppState, job: &JobRow) -> Result<Progress, AppError> {
+    let pos = state.store.queue_position(job.id).await?;
+    // Without history, guess ten minutes per evaluation.
+    let mean = state
+        .store
+        .mean_job_seconds()
+        .await?
+        .unwrap_or(600.0)
+        .max(1.0);
+    let workers = state.cfg.workers.max(1) as f64;
+    let eta = match (job.state, pos) {
+        (JobState::Queued, Some(p)) => Some(((p as f64 / workers).floor() + 1.0) * mean),
+        (JobState::Leased, _) => {
+            let frac = if job.rollouts_total > 0 {
+                job.rollouts_done as f64 / job.rollouts_total as f64
+            } else {
+                0.0
+            };
+            let elapsed = (now() - job.started_at.unwrap_or_else(now)) as f64;
+            // Extrapolate from progress once there is some; else from history.
+            Some(if frac > 0.05 {
+                elapsed / frac - elapsed
+            } else {
+                (mean - elapsed).max(0.0)
+            })
+        }
+        _ => None,
+    };
+    Ok(Progress {
+        rollouts_done: job.rollouts_done,
+        rollouts_total: job.rollouts_total,
+        queue_position: pos,
+        eta_seconds: eta.map(|e| e.round() as i64),
+    })
+}
+
+/// A submission: status, progress, queue position, ETA and result.
+#[derive(Debug, Serialize, ToSchema)]
+pub struct SubmissionView {
+    pub id: i64,
+    /// The submission's page.
+    pub url: String,
+    pub status: SubmissionStatus,
+    pub method: String,
+    pub submitter: Option<String>,
+    #[schema(value_type = schema::Task)]
+    pub task: TaskId,
+    #[schema(value_type = schema::Obs)]
+    pub obs_type: ObsType,
+    pub training_seed: i64,
+    pub data_fraction: f64,
+    #[schema(value_type = schema::Protocol)]
+    pub protocol: ProtocolKind,
+    pub policy: PolicyView,
+    /// The policy manifest as submitted.
+    #[schema(value_type = Object)]
+    pub manifest: Value,
+    /// Why the submission failed (when it did).
+    pub error: Option<ErrorView>,
+    pub attempts: i64,
+    pub max_attempts: i64,
+    pub progress: ProgressView,
+    /// Jobs ahead of this one (0 = next); null unless queued.
+    pub queue_position: Option<i64>,
+    /// Estimated seconds until the result; null when finished.
+    pub eta_seconds: Option<i64>,
+    pub created_at: i64,
+    pub updated_at: i64,
+    /// The result once completed.
+    pub result: Option<ResultsView>,
+}
+
+#[derive(Debug, Serialize, ToSchema)]
+pub struct PolicyView {
+    pub kind: PolicyKind,
+    /// SHA-256 of the uploaded ONNX file.
+    pub sha256: Option<String>,
+    pub bytes: Option<i64>,
+    pub endpoint_url: Option<String>,
+}
+
+#[derive(Debug, Serialize, ToSchema)]
+pub struct ErrorView {
+    pub kind: String,
+    pub message: Option<String>,
+}
+
+#[derive(Debug, Serialize, ToSchema)]
+pub struct ProgressView {
+    pub rollouts_done: i64,
+    pub rollouts_total: i64,
+}
+
+/// Metrics, protocol manifest, per-context and per-rollout results.
+#[derive(Debug, Serialize, ToSchema)]
+pub struct ResultsView {
+    pub submission_id: i64,
+    pub metrics: MetricsView,
+    /// What was run: task, protocol, versions and hashes of the assets.
+    #[schema(value_type = Object)]
+    pub protocol_manifest: Value,
+    /// Success rate, entropy and behaviour counts per initial state.
+    #[schema(value_type = Vec<Object>)]
+    pub per_context: Vec<ContextResult>,
+    pub rollouts: Vec<RolloutView>,
+    /// The sandbox mechanisms the evaluation ran under.
+    #[schema(value_type = Option<Vec<Object>>)]
+    pub sandbox: Option<Vec<SandboxMechanism>>,
+    pub created_at: i64,
+}
+
+/// A metric with its bootstrap confidence interval.
+#[derive(Debug, Serialize, ToSchema)]
+pub struct EstimateView {
+    pub value: f64,
+    pub ci_low: f64,
+    pub ci_high: f64,
+}
+
+#[derive(Debug, Serialize, ToSchema)]
+pub struct MetricsView {
+    pub success_rate: EstimateView,
+    pub behaviour_entropy: EstimateView,
+    pub conditional_entropy: EstimateView,
+    /// Stacking: success rates with at least 1, 2 and 3 boxes stacked.
+    #[schema(value_type = Option<Vec<f64>>)]
+    pub stacking: Option<[f64; 3]>,
+    /// Stacking-1/2/3 metrics (success rate and entropies, each an estimate).
+    #[schema(value_type = Option<Vec<Object>>)]
+    pub stacking_levels: Option<[StackingLevel; 3]>,
+    /// Mean inference time per policy query.
+    pub inference_ms: f64,
+}
+
+#[derive(Debug, Serialize, ToSchema)]
+pub struct RolloutView {
+    pub context_index: i64,
+    pub rollout_index: i64,
+    pub success: bool,
+    /// The behaviour code (the reference's encoding, per task).
+    #[schema(value_type = Object)]
+    pub behaviour: Value,
+    pub steps: i64,
+    /// End-effector xy path (Avoiding only).
+    #[schema(value_type = Option<Vec<Vec<f32>>>)]
+    pub path: Option<Vec<[f32; 2]>>,
+}
+
+/// The submission as the API (and the page's JSON download) shows it.
+pub async fn submission_view(state: &AppState, id: i64) -> Result<SubmissionView, AppError> {
+    let s = state.store.submission(id).await?;
+    let job = state.store.job_for(id).await?;
+    let p = progress(state, &job).await?;
+    let result = match state.store.result_for(id).await? {
+        Some(r) => Some(results_view(state, r).await?),
+        None => None,
+    };
+    Ok(SubmissionView {
+        id: s.id,
+        url: format!("/submissions/{}", s.id),
+        status: s.status,
+        method: s.method,
+        submitter: s.submitter,
+        task: s.task,
+        obs_type: s.obs_type,
+        training_seed: s.training_seed,
+        data_fraction: s.data_fraction,
+        protocol: s.protocol,
+        policy: PolicyView {
+            kind: s.policy_kind,
+            sha256: s.onnx_sha256,
+            bytes: s.onnx_bytes,
+            endpoint_url: s.endpoint_url,
+        },
+        manifest: s.manifest_json.0,
+        error: s.error_kind.map(|kind| ErrorView {
+            kind,
+            message: s.error_message,
+        }),
+        attempts: job.attempts,
+        max_attempts: job.max_attempts,
+        progress: ProgressView {
+            rollouts_done: p.rollouts_done,
+            rollouts_total: p.rollouts_total,
+        },
+        queue_position: p.queue_position,
+        eta_seconds: p.eta_seconds,
+        created_at: s.created_at,
+        updated_at: s.updated_at,
+        result,
+    })
+}
+
+/// A result with its rollouts and the sandbox report of its job.
+pub async fn results_view(state: &AppState, r: ResultRow) -> Result<ResultsView, AppError> {
+    let rollouts = state.store.rollouts_for(r.submission_id).await?;
+    let job = state.store.job_for(r.submission_id).await?;
+    let est = |value, ci_low, ci_high| EstimateView {
+        value,
+        ci_low,
+        ci_high,
+    };
+    Ok(ResultsView {
+        submission_id: r.submission_id,
+        metrics: MetricsView {
+            success_rate: est(r.success_rate, r.success_ci_low, r.success_ci_high),
+            behaviour_entropy: est(r.behaviour_entropy, r.behaviour_ci_low, r.behaviour_ci_high),
+            conditional_entropy: est(
+                r.conditional_entropy,
+                r.conditional_ci_low,
+                r.conditional_ci_high,
+            ),
+            stacking: r.stacking_json.map(|j| j.0),
+            stacking_levels: r.stacking_levels_json.map(|j| j.0),
+            inference_ms: r.inference_ms,
+        },
+        protocol_manifest: r.manifest_json.0,
+        per_context: r.per_context_json.0,
+        rollouts: rollouts
+            .into_iter()
+            .map(|x| RolloutView {
+                context_index: x.context_index,
+                rollout_index: x.rollout_index,
+                success: x.success,
+                behaviour: x.behaviour.0,
+                steps: x.steps,
+                path: x.path_json.map(|j| j.0),
+            })
+            .collect(),
+        sandbox: job.sandbox_json.map(|j| j.0),
+        created_at: r.created_at,
+    })
+}
+
+/// The caller's identity.
+#[derive(Debug, Serialize, ToSchema)]
+pub struct WhoAmI {
+    pub submitter: String,
+}
+
+/// Every method and its properties.
+#[derive(Debug, Serialize, ToSchema)]
+pub struct MethodList {
+    pub methods: Vec<MethodRow>,
+}
+
+/// One leaderboard (task and observation type) with its links.
+#[derive(Debug, Serialize, ToSchema)]
+pub struct LeaderboardLink {
+    #[schema(value_type = schema::Task)]
+    pub task: TaskId,
+    #[schema(value_type = String)]
+    pub title: &'static str,
+    #[schema(value_type = schema::Obs)]
+    pub obs_type: ObsType,
+    /// Rows in the main view.
+    pub rows: usize,
+    /// This leaderboard in the API.
+    pub url: String,
+    /// Its CSV export.
+    pub csv: String,
+    /// Its page.
+    pub page: String,
+}
+
+#[derive(Debug, Serialize, ToSchema)]
+pub struct LeaderboardList {
+    pub leaderboards: Vec<LeaderboardLink>,
+}
+
+/// The rows of one leaderboard view.
+#[derive(Debug, Serialize, ToSchema)]
+pub struct LeaderboardView {
+    #[schema(value_type = schema::Task)]
+    pub task: TaskId,
+    #[schema(value_type = String)]
+    pub title: &'static str,
+    #[schema(value_type = schema::Obs)]
+    pub obs_type: ObsType,
+    /// `main` or `data-fraction`.
+    #[schema(value_type = String)]
+    pub view: &'static str,
+    pub rows: Vec<BoardRow>,
+}

@@ -1,0 +1,255 @@
+//! The server's module layout: dependencies point one way. Each module's
+//! references to `crate::…` (in `use` lines and inline paths) are read from
+//! the source, and the graph they form must have no cycle; the three HTTP
+//! front ends (`http::api`, `http::pages`, `http::plots`) must not reference
+//! each other; `leaderboard` stays free of HTTP and SQL; `error` references
+//! nothing but the store's error. Also: no file under `server/` is over 700
+//! lines.
+
+use std::collections::{BTreeMap, BTreeSet};
+use std::path::{Path, PathBuf};
+
+fn src_dir() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("src")
+}
+
+fn rust_files(dir: &Path, out: &mut Vec<PathBuf>) {
+    for e in std::fs::read_dir(dir).unwrap() {
+        let p = e.unwrap().path();
+        if p.is_dir() {
+            rust_files(&p, out);
+        } else if p.extension().is_some_and(|x| x == "rs") {
+            out.push(p);
+        }
+    }
+}
+
+/// The graph node of a source file: the top-level module, or for `http` the
+/// front end (`http::api`, `http::pages`, …) it belongs to.
+fn node_of(rel: &Path) -> String {
+    let parts: Vec<String> = rel
+        .with_extension("")
+        .components()
+        .map(|c| c.as_os_str().to_string_lossy().into_owned())
+        .collect();
+    match parts.as_slice() {
+        [top] => top.clone(),
+        [first, second, ..] if first == "http" && second != "mod" => format!("http::{second}"),
+        [first, ..] => first.clone(),
+        [] => unreachable!(),
+    }
+}
+
+/// The node a `crate::` path names (`a::b::c` -> `a`, or `http::b`).
+fn node_of_path(path: &[&str]) -> Option<String> {
+    let first = *path.first()?;
+    if first == "http" {
+        return Some(match path.get(1) {
+            Some(second) if second.chars().all(|c| c.is_ascii_lowercase() || c == '_') => {
+                format!("http::{second}")
+            }
+            _ => "http".into(),
+        });
+    }
+    Some(first.to_string())
+}
+
+fn ident(s: &str) -> &str {
+    let end = s
+        .find(|c: char| !(c.is_alphanumeric() || c == '_'))
+        .unwrap_or(s.len());
+    &s[..end]
+}
+
+/// Every module named after `crate::` in `text` (comments skipped).
+fn references(text: &str) -> BTreeSet<String> {
+    let code: String = text
+        .lines()
+        .map(|l| match l.find("//") {
+            Some(i) => &l[..i],
+            None => l,
+        })
+        .collect::<Vec<_>>()
+        .join("\n");
+    let mut out = BTreeSet::new();
+    let mut rest = code.as_str();
+    while let Some(i) = rest.find("crate::") {
+        // `d3il_crate::` or similar would not be ours.
+        let preceded = rest[..i]
+            .chars()
+            .last()
+            .is_some_and(|c| c.is_alphanumeric() || c == '_');
+        rest = &rest[i + "crate::".len()..];
+        if preceded {
+            continue;
+        }
+        if let Some(group) = rest.strip_prefix('{') {
+            // `crate::{a::x, b, c::{y, z}}`: the first segment of each item.
+            let mut depth = 0;
+            let mut item_start = true;
+            for (k, c) in group.char_indices() {
+                match c {
+                    '{' => depth += 1,
+                    '}' if depth == 0 => break,
+                    '}' => depth -= 1,
+                    ',' if depth == 0 => item_start = true,
+                    c if item_start && !c.is_whitespace() => {
+                        item_start = false;
+                        let tail = &group[k..];
+                        let a = ident(tail);
+                        let b = tail[a.len()..].strip_prefix("::").map(ident);
+                        let path: Vec<&str> = std::iter::once(a).chain(b).collect();
+                        out.extend(node_of_path(&path));
+                    }
+                    _ => {}
+                }
+            }
+        } else {
+            let a = ident(rest);
+            let b = rest[a.len()..].strip_prefix("::").map(ident);
+            let path: Vec<&str> = std::iter::once(a).chain(b).collect();
+            out.extend(node_of_path(&path));
+        }
+    }
+    out
+}
+
+fn graph() -> BTreeMap<String, BTreeSet<String>> {
+    let root = src_dir();
+    let mut files = vec![];
+    rust_files(&root, &mut files);
+    let mut g: BTreeMap<String, BTreeSet<String>> = BTreeMap::new();
+    for f in files {
+        let rel = f.strip_prefix(&root).unwrap().to_path_buf();
+        let node = node_of(&rel);
+        if node == "lib" {
+            continue;
+        }
+        let text = std::fs::read_to_string(&f).unwrap();
+        let refs = references(&text);
+        let e = g.entry(node.clone()).or_default();
+        for r in refs {
+            // A module's own files, and `http` (only mod declarations and
+            // the router) referring to its children, are not edges.
+            if r != node && !(node == "http" && r.starts_with("http::")) {
+                e.insert(r);
+            }
+        }
+    }
+    g
+}
+
+/// A cycle in `g`, if there is one (depth-first search).
+fn find_cycle(g: &BTreeMap<String, BTreeSet<String>>) -> Option<Vec<String>> {
+    fn visit(
+        n: &str,
+        g: &BTreeMap<String, BTreeSet<String>>,
+        state: &mut BTreeMap<String, u8>,
+        stack: &mut Vec<String>,
+    ) -> Option<Vec<String>> {
+        match state.get(n) {
+            Some(2) => return None,
+            Some(1) => {
+                let start = stack.iter().position(|s| s == n).unwrap_or(0);
+                let mut cycle = stack[start..].to_vec();
+                cycle.push(n.to_string());
+                return Some(cycle);
+            }
+            _ => {}
+        }
+        state.insert(n.to_string(), 1);
+        stack.push(n.to_string());
+        for m in g.get(n).into_iter().flatten() {
+            if let Some(c) = visit(m, g, state, stack) {
+                return Some(c);
+            }
+        }
+        stack.pop();
+        state.insert(n.to_string(), 2);
+        None
+    }
+    let mut state = BTreeMap::new();
+    for n in g.keys() {
+        if let Some(c) = visit(n, g, &mut state, &mut vec![]) {
+            return Some(c);
+        }
+    }
+    None
+}
+
+#[test]
+fn the_parser_reads_use_lines_and_inline_paths() {
+    let refs = references(
+        "use crate::store::{Store, X};\nuse crate::{auth::Authed, http::extract::Param};\n\
+         fn f() { crate::leaderboard::board_for(); } // crate::app is a comment\nuse d3il_crate::x;",
+    );
+    let want: BTreeSet<String> = ["store", "auth", "http::extract", "leaderboard"]
+        .into_iter()
+        .map(String::from)
+        .collect();
+    assert_eq!(refs, want);
+    let mut g = BTreeMap::new();
+    g.insert("a".to_string(), BTreeSet::from(["b".to_string()]));
+    g.insert("b".to_string(), BTreeSet::from(["a".to_string()]));
+    assert!(find_cycle(&g).is_some(), "a two-module cycle is found");
+}
+
+#[test]
+fn server_modules_have_no_cycle() {
+    let g = graph();
+    assert!(
+        g.contains_key("http::api") && g.contains_key("store"),
+        "{g:?}"
+    );
+    if let Some(cycle) = find_cycle(&g) {
+        panic!(
+            "module cycle in server/src: {}; move what both need into a module below them",
+            cycle.join(" -> ")
+        );
+    }
+}
+
+#[test]
+fn front_ends_do_not_import_each_other_and_lower_layers_stay_low() {
+    let g = graph();
+    let fronts = ["http::api", "http::pages", "http::plots"];
+    for f in fronts {
+        for other in fronts.iter().filter(|o| **o != f) {
+            assert!(
+                !g[f].contains(*other),
+                "{f} imports {other}; share through leaderboard, views or http::extract"
+            );
+        }
+    }
+    for low in ["leaderboard", "error", "store"] {
+        for r in &g[low] {
+            assert!(
+                !r.starts_with("http")
+                    && !["app", "state", "views", "auth", "intake"].contains(&r.as_str()),
+                "{low} depends on {r}, a layer above it"
+            );
+        }
+    }
+    let error_deps: Vec<&String> = g["error"].iter().collect();
+    assert_eq!(
+        error_deps,
+        vec!["store"],
+        "error.rs depends only on the store's error"
+    );
+    // Pure: no HTTP framework and no SQL in the leaderboard module.
+    let text = std::fs::read_to_string(src_dir().join("leaderboard.rs")).unwrap();
+    assert!(!text.contains("axum") && !text.contains("sqlx"));
+}
+
+#[test]
+fn no_file_over_700_lines() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let mut files = vec![];
+    for dir in ["src", "tests"] {
+        rust_files(&root.join(dir), &mut files);
+    }
+    for f in files {
+        let n = std::fs::read_to_string(&f).unwrap().lines().count();
+        assert!(n <= 700, "{} has {n} lines; split it by job", f.display());
+    }
+}
