@@ -155,14 +155,12 @@ impl OnnxPolicy {
                 prev_actions: Some(&prev),
             };
             let mut out = Vec::new();
-            self.run_rows(&q, 0..b, b, &mut out).map_err(|e| {
-                let msg = match e {
-                    PolicyError::Inference { message, .. } => message,
-                    other => other.to_string(),
-                };
-                PolicyError::Unsupported(format!(
-                    "the model failed a test inference at batch {b} with a window of {w} observation(s): {msg}"
-                ))
+            self.run_rows(&q, 0..b, b, &mut out).map_err(|e| match e {
+                // Out of memory stays a memory-limit error.
+                PolicyError::Inference { message, .. } => PolicyError::Unsupported(format!(
+                    "the model failed a test inference at batch {b} with a window of {w} observation(s): {message}"
+                )),
+                other => other,
             })?;
         }
         Ok(())

@@ -12,6 +12,9 @@ use rand_distr::{Distribution, StandardNormal};
 use std::panic::{catch_unwind, AssertUnwindSafe};
 use tract_onnx::prelude::*;
 
+/// The actions of one group of rows, with the group's index.
+type GroupOutput = (usize, Vec<f32>);
+
 /// Fewest rows worth a thread of their own.
 const MIN_ROWS_PER_THREAD: usize = 2;
 
@@ -68,46 +71,45 @@ impl OnnxPolicy {
         }
         // Groups beyond the thread count run in turn on their thread.
         let threads = self.threads.min(groups.len());
-        let results: Vec<Result<Vec<(usize, Vec<f32>)>, PolicyError>> =
-            std::thread::scope(|scope| {
-                let handles: Vec<_> = (0..threads)
-                    .map(|t| {
-                        let mine: Vec<_> = groups
-                            .iter()
-                            .enumerate()
-                            .filter(|(i, _)| i % threads == t)
-                            .map(|(i, g)| (i, g.clone()))
-                            .collect();
-                        scope.spawn(move || {
-                            let mut outs = vec![];
-                            for (i, (rows, n)) in mine {
-                                let mut out = Vec::new();
-                                self.run_rows(q, rows, n, &mut out)?;
-                                outs.push((i, out));
-                            }
-                            Ok(outs)
-                        })
+        let results: Vec<Result<Vec<GroupOutput>, PolicyError>> = std::thread::scope(|scope| {
+            let handles: Vec<_> = (0..threads)
+                .map(|t| {
+                    let mine: Vec<_> = groups
+                        .iter()
+                        .enumerate()
+                        .filter(|(i, _)| i % threads == t)
+                        .map(|(i, g)| (i, g.clone()))
+                        .collect();
+                    scope.spawn(move || {
+                        let mut outs = vec![];
+                        for (i, (rows, n)) in mine {
+                            let mut out = Vec::new();
+                            self.run_rows(q, rows, n, &mut out)?;
+                            outs.push((i, out));
+                        }
+                        Ok(outs)
                     })
-                    .collect();
-                handles
-                    .into_iter()
-                    .map(|h| {
-                        h.join().unwrap_or_else(|p| {
-                            let (rollout, step) = (q.rollout_ids[0], q.steps[0]);
-                            Err(panic_error(
-                                p,
-                                format!("in the query of rollout {rollout} at step {step}"),
-                                |msg| PolicyError::Inference {
-                                    rollout,
-                                    step,
-                                    message: format!("the ONNX runtime panicked ({msg})"),
-                                },
-                            ))
-                        })
+                })
+                .collect();
+            handles
+                .into_iter()
+                .map(|h| {
+                    h.join().unwrap_or_else(|p| {
+                        let (rollout, step) = (q.rollout_ids[0], q.steps[0]);
+                        Err(panic_error(
+                            p,
+                            format!("in the query of rollout {rollout} at step {step}"),
+                            |msg| PolicyError::Inference {
+                                rollout,
+                                step,
+                                message: format!("the ONNX runtime panicked ({msg})"),
+                            },
+                        ))
                     })
-                    .collect()
-            });
-        let mut parts: Vec<(usize, Vec<f32>)> = vec![];
+                })
+                .collect()
+        });
+        let mut parts: Vec<GroupOutput> = vec![];
         for r in results {
             parts.extend(r?);
         }
