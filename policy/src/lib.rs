@@ -360,7 +360,7 @@ impl HistoryBuffer {
 }
 
 /// What the observation vector of a task contains, for error messages
-/// (spec/10 §2.3, §3.3, §4.3; spec/11 §1.3, §2.3, §3.3).
+/// (docs/original-d3il.md §10.2.3, §10.3.3, §10.4.3; docs/original-d3il.md §11.1.3, §11.2.3, §11.3.3).
 pub fn obs_description(task: TaskId) -> &'static str {
     match task {
         TaskId::Avoiding => "previous command xy + observation xy",

@@ -32,7 +32,7 @@ fn avoiding_path_steers_towards_the_waypoints() {
         (s.history, s.horizon, s.execute, s.obs_dim, s.act_dim),
         (1, 1, 1, 4, 2)
     );
-    // [desired x, desired y, measured x, measured y] (spec/10 §2.3)
+    // [desired x, desired y, measured x, measured y] (docs/original-d3il.md §10.2.3)
     let obs = [
         0.5249, -0.2797, 0.5249, -0.2797, // start: towards 0.57, clipped to +0.008
         0.565, -0.05, 0.56, -0.06, // phase 1 near the waypoint: 0.57 - 0.565

@@ -119,7 +119,7 @@ pub struct Metrics {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub stacking: Option<[f64; 3]>,
     /// Stacking only: Stacking-1/2/3 each with its own success rate, behaviour
-    /// entropy and conditional entropy (spec/11 §2.7: level X uses the first X
+    /// entropy and conditional entropy (docs/original-d3il.md §11.2.7: level X uses the first X
     /// letters of the registration order over the rollouts with that level's
     /// success flag, log base 3 / 6 / 6). The top-level fields above are
     /// Stacking-3's. Absent in results stored before it existed.
