@@ -175,4 +175,24 @@ async fn compare_endpoint_pairs_two_submissions_by_initial_state() {
     assert!(!page.contains("id=\"unstable-warning\""));
     let (_, page) = app.get_text(&format!("/submissions/{d}")).await;
     assert!(page.contains("pushing-v1.json (our sample)"), "{page}");
+    // The leaderboard says which initial states each evaluated row used.
+    let (_, board) = app.get_text("/tasks/pushing").await;
+    assert!(board.contains("badge-states"), "{board}");
+    assert!(board.contains(">the original D3IL test contexts</span>"));
+    assert!(board.contains(">our sample</span>"));
+    let (_, v) = app.get_json("/api/v1/leaderboards/pushing").await;
+    let labels: Vec<&str> = v["rows"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter_map(|r| r["initial_states_label"].as_str())
+        .collect();
+    assert!(
+        labels.contains(&"our sample") && labels.contains(&"the original D3IL test contexts"),
+        "{v}"
+    );
+    // Sorting pages carry the protocol caveat.
+    let (_, board) = app.get_text("/tasks/sorting-2").await;
+    assert!(board.contains("id=\"sorting-caveat\""));
+    assert!(board.contains("60 × 8 (some agents 600 × 1)"));
 }
