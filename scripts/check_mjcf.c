@@ -1,5 +1,5 @@
 /*
- * check_mjcf: verifies our own MJCF (assets/mjcf/) against spec/01 with real MuJoCo 2.2.
+ * check_mjcf: verifies our own MJCF (assets/mjcf/) against docs/original-d3il.md §01 with real MuJoCo 2.2.
  *
  * Build and run from the repository root:
  *   gcc -O2 -std=c11 -Wall -Wextra -o /tmp/check_mjcf scripts/check_mjcf.c -lmujoco -lm
@@ -8,7 +8,7 @@
  * It assembles the scene the way the Rust scene builder does (base.xml with its
  * D3IL:INCLUDES marker replaced by <include> elements, every file served from a MuJoCo
  * VFS), and also from a temporary directory on disk, for both robot variants. Then it
- * checks the compiled model against the numbers in spec/01 and runs short simulations.
+ * checks the compiled model against the numbers in docs/original-d3il.md §01 and runs short simulations.
  * Exit status 0 only if every check passes.
  */
 #define _GNU_SOURCE
@@ -87,7 +87,7 @@ static void vfs_add_mem(mjVFS* vfs, const char* name, const char* data) {
   memcpy(vfs->filedata[i], data, n);
 }
 
-/* The scene builder's job in miniature: fill the two markers of base.xml (spec/01 §1.1 order). */
+/* The scene builder's job in miniature: fill the two markers of base.xml (docs/original-d3il.md §01.1.1 order). */
 static char* root_xml_with(const char* dir, const char* robot_file, const char* objects) {
   char* base = read_file(dir, "base.xml", NULL);
   char inc[512];
@@ -168,7 +168,7 @@ static int is_finite_vec(const mjtNum* v, int n) {
   return 1;
 }
 
-/* spec/01 §4.5 initial arm poses and the reference TCP after reset (stale xpos). */
+/* docs/original-d3il.md §01.4.5 initial arm poses and the reference TCP after reset (stale xpos). */
 typedef struct {
   const char* task;
   double q[7];
@@ -265,7 +265,7 @@ static void check_contacts_at_pose(const mjModel* m, mjData* d, const char* labe
 
 static void check_model(const mjModel* m, int has_rod) {
   const double tol = 1e-9;
-  printf("-- global settings (spec/01 §1.2)\n");
+  printf("-- global settings (docs/original-d3il.md §01.1.2)\n");
   check(m->opt.timestep == 0.001, "timestep 0.001");
   check(m->opt.integrator == mjINT_EULER, "integrator Euler (unset)");
   check(m->opt.solver == mjSOL_NEWTON, "solver Newton");
@@ -295,7 +295,7 @@ static void check_model(const mjModel* m, int has_rod) {
     if (j >= 0) check(m->jnt_dofadr[j] == 7 + i, "%s is DoF %d", FINGER_JOINTS[i], 7 + i);
   }
 
-  printf("-- joints (spec/01 §2.2, §1.3)\n");
+  printf("-- joints (docs/original-d3il.md §01.2.2, §01.1.3)\n");
   static const double LO[7] = {-2.9671, -1.8326, -2.9671, -3.1416, -2.9671, -0.0873, -2.9671};
   static const double HI[7] = {2.9671, 1.8326, 2.9671, 0.0873, 2.9671, 3.8223, 2.9671};
   for (int i = 0; i < 7; i++) {
@@ -317,7 +317,7 @@ static void check_model(const mjModel* m, int has_rod) {
           "%s slide along (0,%+g,0), limited [0, 0.04], damping 10", FINGER_JOINTS[i], sgn);
   }
 
-  printf("-- actuators (spec/01 §2.4)\n");
+  printf("-- actuators (docs/original-d3il.md §01.2.4)\n");
   static const char* ACT[9] = {"panda_rb0_joint1_act", "panda_rb0_joint2_act", "panda_rb0_joint3_act",
                                "panda_rb0_joint4_act", "panda_rb0_joint5_act", "panda_rb0_joint6_act",
                                "panda_rb0_joint7_act", "panda_rb0_finger_joint1_act",
@@ -336,7 +336,7 @@ static void check_model(const mjModel* m, int has_rod) {
           "actuator %d %s -> %s, motor gear 1, ctrl unlimited, force +-%g", a, ACT[a], jn, FR[a]);
   }
 
-  printf("-- inertials (spec/01 §2.3)\n");
+  printf("-- inertials (docs/original-d3il.md §01.2.3)\n");
   static const char* BODY[] = {"panda_rb0_link0", "panda_rb0_link1", "panda_rb0_link2", "panda_rb0_link3",
                                "panda_rb0_link4", "panda_rb0_link5", "panda_rb0_link6", "panda_rb0_link7",
                                "panda_rb0_hand", "panda_rb0_leftfinger", "panda_rb0_rightfinger"};
@@ -371,7 +371,7 @@ static void check_model(const mjModel* m, int has_rod) {
                 near(m->body_ipos[3 * b], 0, 1e-12) && near(m->body_ipos[3 * b + 1], 0, 1e-12),
             "rod_rb0 inferred mass 0.0942478, COM (0,0,0.075)");
       /* Solid cylinder r = 0.01, length 0.3: I_xx = I_yy = m (3 r^2 + L^2) / 12 = 7.0921e-4, I_zz = m r^2 / 2.
-         spec/01 §2.3 prints "~7.0893e-4", 0.04 % lower than the exact formula MuJoCo uses; the mass and
+         docs/original-d3il.md §01.2.3 prints "~7.0893e-4", 0.04 % lower than the exact formula MuJoCo uses; the mass and
          COM (which the spec gives exactly) match, so we check the formula and the spec value loosely. */
       double mr = m->body_mass[b], Ixx = mr * (3 * 1e-4 + 0.09) / 12, Izz = mr * 1e-4 / 2;
       double I[3] = {m->body_inertia[3 * b], m->body_inertia[3 * b + 1], m->body_inertia[3 * b + 2]};
@@ -406,7 +406,7 @@ static void check_model(const mjModel* m, int has_rod) {
     check(mj_name2id(m, mjOBJ_BODY, "rod_rb0") < 0, "gripper variant has no rod");
   }
 
-  printf("-- finger-tip boxes and class defaults (spec/01 §1.3, §2.5)\n");
+  printf("-- finger-tip boxes and class defaults (docs/original-d3il.md §01.1.3, §01.2.5)\n");
   static const char* TIPG[2] = {"finger1_rb0_tip_collision", "finger2_rb0_tip_collision"};
   for (int i = 0; i < 2; i++) {
     int g = id_of(m, mjOBJ_GEOM, TIPG[i]);
@@ -450,7 +450,7 @@ static void check_model(const mjModel* m, int has_rod) {
   }
   check(ok_names, "link/hand :geom1 (visual, group 1, no contact) and :geom2 (collision) pairs present");
 
-  printf("-- cameras (spec/01 §6)\n");
+  printf("-- cameras (docs/original-d3il.md §01.6)\n");
   int c = id_of(m, mjOBJ_CAMERA, "rgbd_rb0");
   if (c >= 0) {
     const mjtNum* q = m->cam_quat + 4 * c;
@@ -467,7 +467,7 @@ static void check_kinematics_and_contacts(const mjModel* m, int has_rod) {
   mjData* d = mj_makeData(m);
   int tcp = mj_name2id(m, mjOBJ_BODY, "tcp_rb0");
 
-  printf("-- TCP at each task's init_qpos (spec/01 §4.5; reference is one substep stale)\n");
+  printf("-- TCP at each task's init_qpos (docs/original-d3il.md §01.4.5; reference is one substep stale)\n");
   for (size_t i = 0; i < sizeof INIT_POSES / sizeof INIT_POSES[0]; i++) {
     set_arm(m, d, INIT_POSES[i].q, 0, 0);
     const mjtNum* p = d->xpos + 3 * tcp;
@@ -486,7 +486,7 @@ static void check_kinematics_and_contacts(const mjModel* m, int has_rod) {
           s * q[1], s * q[2], s * q[3]);
   }
   {
-    /* rgbd_cage: view direction (-0.5, 0, -0.866), image-right +y (spec/01 §6). */
+    /* rgbd_cage: view direction (-0.5, 0, -0.866), image-right +y (docs/original-d3il.md §01.6). */
     int c = mj_name2id(m, mjOBJ_CAMERA, "rgbd_cage");
     const mjtNum* R = d->cam_xmat + 9 * c;
     const mjtNum* p = d->cam_xpos + 3 * c;
@@ -495,7 +495,7 @@ static void check_kinematics_and_contacts(const mjModel* m, int has_rod) {
           "rgbd_cage at (0.7,0.1,0.9) looks along (%.4f, %.4f, %.4f), image-right world +y", -R[2], -R[5], -R[8]);
   }
 
-  printf("-- contacts (spec/01 §2.5)\n");
+  printf("-- contacts (docs/original-d3il.md §01.2.5)\n");
   int t1 = mj_name2id(m, mjOBJ_GEOM, "finger1_rb0_tip_collision");
   int t2 = mj_name2id(m, mjOBJ_GEOM, "finger2_rb0_tip_collision");
   int f1 = mj_name2id(m, mjOBJ_GEOM, "panda_rb0_leftfinger:geom2");
@@ -506,7 +506,7 @@ static void check_kinematics_and_contacts(const mjModel* m, int has_rod) {
   check(has_contact(m, d, t1, t2), "fingers at 0: the two finger-tip boxes are in contact");
   /* MuJoCo's box-box collider reports half the face-face overlap as dist, so check the geometry
      itself: tip box centre (0, +-(q_f + 0.0035), 0.1024) in the hand frame, inner face at |y| = q_f - 0.0005,
-     lowest point z = 0.1104; finger box inner face 0.4 mm behind, lowest point 0.1123 (spec/01 §2.5, §2.6). */
+     lowest point z = 0.1104; finger box inner face 0.4 mm behind, lowest point 0.1123 (docs/original-d3il.md §01.2.5, §01.2.6). */
   {
     const double qf = 0.013;
     set_arm(m, d, INIT_POSES[0].q, qf, qf);
@@ -566,7 +566,7 @@ static void check_kinematics_and_contacts(const mjModel* m, int has_rod) {
 
   if (has_rod) {
     /* Rod against the table: lift the (static) table so the rod end, at z ~ 0.0024, dips in by 0.5 mm,
-       then read the mixed contact parameters (spec/01 §1.3 example). */
+       then read the mixed contact parameters (docs/original-d3il.md §01.1.3 example). */
     int tb = mj_name2id(m, mjOBJ_BODY, "table_plane");
     int tg = mj_name2id(m, mjOBJ_GEOM, "table_plane:geom");
     int rod = mj_name2id(m, mjOBJ_GEOM, "rod:geom_rb0");
@@ -602,7 +602,7 @@ static void check_kinematics_and_contacts(const mjModel* m, int has_rod) {
   mj_deleteData(d);
 }
 
-/* §3.7 finger law with target w and grasp flag g (rod tasks open every env step). */
+/* §01.3.7 finger law with target w and grasp flag g (rod tasks open every env step). */
 static void finger_law(const mjData* d, const int qa[2], const int va[2], double w, int g, double out[2]) {
   double p[2] = {d->qpos[qa[0]], d->qpos[qa[1]]}, pd[2] = {d->qvel[va[0]], d->qvel[va[1]]};
   double mean = 0.5 * (p[0] + p[1]);
@@ -645,7 +645,7 @@ static void check_dynamics(const mjModel* m, int has_rod) {
   check(!bad && warn == 0, "500 substeps, zero ctrl: finite state, %d MuJoCo warnings, max ncon %d, tcp z %.4f",
         warn, maxcon, d->xpos[3 * tcp + 2]);
 
-  /* 2. Spec hold: reset at q_scene, beam to init_qpos, joint PD + stale qfrc_bias (spec/01 §3.5, §4.4),
+  /* 2. Spec hold: reset at q_scene, beam to init_qpos, joint PD + stale qfrc_bias (docs/original-d3il.md §01.3.5, §01.4.4),
         fingers: one reset substep with target 0.001, then 10 env steps (35 substeps) of "open". */
   static const double KP[7] = {120, 120, 120, 120, 50, 30, 10}, KD[7] = {10, 10, 10, 10, 6, 5, 3};
   set_arm(m, d, Q_SCENE, 0, 0);
@@ -680,8 +680,8 @@ static void check_dynamics(const mjModel* m, int has_rod) {
   for (int i = 0; i < 5; i++) printf(" (%.6f, %.6f)", fing_after[ks[i]][0], fing_after[ks[i]][1]);
   printf("\n");
   if (has_rod) {
-    /* spec/01 §8 Test A (there the arm also moves under the IK; here it is held, so compare loosely). */
-    /* spec/01 §8 Test A. There the arm also moves under the IK, which pushes the two fingers apart
+    /* docs/original-d3il.md §01.8 Test A (there the arm also moves under the IK; here it is held, so compare loosely). */
+    /* docs/original-d3il.md §01.8 Test A. There the arm also moves under the IK, which pushes the two fingers apart
        asymmetrically; here the arm is held, so compare the mean of the two fingers. */
     static const double REF[5][2] = {{0.015866, 0.016138}, {0.030042, 0.030144}, {0.036015, 0.036032},
                                      {0.039361, 0.039358}, {0.039995, 0.039991}};
@@ -693,13 +693,13 @@ static void check_dynamics(const mjModel* m, int has_rod) {
       double ours = 0.5 * (fing_after[ks[i]][0] + fing_after[ks[i]][1]), ref = 0.5 * (REF[i][0] + REF[i][1]);
       em = fmax(em, fabs(ours - ref));
     }
-    check(em < 1e-5, "finger opening (mean of both) follows spec/01 §8 Test A after env steps 1,2,3,5,10 (max |diff| %.2e)",
+    check(em < 1e-5, "finger opening (mean of both) follows docs/original-d3il.md §01.8 Test A after env steps 1,2,3,5,10 (max |diff| %.2e)",
           em);
   }
   check(maxdev < 0.01, "PD hold keeps the TCP within 1 cm of its start (max |dev| %.2e m)", maxdev);
 
-  /* 3. Close with the grasp flag (Stacking's "close", spec/01 §3.6-3.7) for 1 s: the tip boxes meet and the
-        fully closed gripper settles at about 0.001 per finger (spec/01 §2.5). */
+  /* 3. Close with the grasp flag (Stacking's "close", docs/original-d3il.md §01.3.6-01.3.7) for 1 s: the tip boxes meet and the
+        fully closed gripper settles at about 0.001 per finger (docs/original-d3il.md §01.2.5). */
   bad = 0;
   for (int s = 0; s < 1000 && !bad; s++) {
     for (int i = 0; i < 7; i++)
@@ -718,8 +718,8 @@ static void check_dynamics(const mjModel* m, int has_rod) {
 }
 
 /* ---------------------------------------------------------------------------------------------
- * spec/01 §8 Test A, end to end on our MJCF: reset (§4.4), then the Cartesian tracking controller
- * (§3.4) with MuJoCo-MJCF kinematics, stale bias (§3.5), finger law (§3.7), 35 substeps per step.
+ * docs/original-d3il.md §01.8 Test A, end to end on our MJCF: reset (§01.4.4), then the Cartesian tracking controller
+ * (§01.3.4) with MuJoCo-MJCF kinematics, stale bias (§01.3.5), finger law (§01.3.7), 35 substeps per step.
  * The spec says MJCF kinematics agree with the reference to <= 3.5e-8 m of TCP on free motion; this
  * exercises every dynamics-relevant number in the robot file (inertials, damping, force ranges,
  * finger contacts), not only the kinematics.
@@ -791,7 +791,7 @@ static void fk_jac(CartCtl* c, const double q[7], double x[3], double Q[4], doub
 
 static double clipd(double v, double lo, double hi) { return v < lo ? lo : (v > hi ? hi : v); }
 
-/* One substep of §3.4 -> q_d, qd_d. */
+/* One substep of §01.3.4 -> q_d, qd_d. */
 static void cart_ik(CartCtl* c, const mjData* d, const double xd[3], const double Qd_in[4], double q_d[7],
                     double qd_d[7]) {
   static const double QMIN[7] = {-2.8973, -1.7628, -2.8973, -3.0718, -2.8973, -0.0175, -2.8973};
@@ -817,7 +817,7 @@ static void cart_ik(CartCtl* c, const mjData* d, const double xd[3], const doubl
       for (int k = 0; k < 4; k++) Qd[k] = -Qd[k];
     double v[6];
     for (int k = 0; k < 3; k++) v[k] = KX[k] * clipd(xd[k] - x[k], -0.01, 0.01);
-    /* e_o = c_w d_v - d_w c_v + c_v x d_v (spec/01 §3.3) */
+    /* e_o = c_w d_v - d_w c_v + c_v x d_v (docs/original-d3il.md §01.3.3) */
     double cv[3] = {Q[1], Q[2], Q[3]}, dv[3] = {Qd[1], Qd[2], Qd[3]}, cr[3];
     mju_cross(cr, cv, dv);
     for (int k = 0; k < 3; k++) v[3 + k] = 30 * clipd(Q[0] * dv[k] - Qd[0] * cv[k] + cr[k], -0.1, 0.1);
@@ -880,7 +880,7 @@ static void substep(CartCtl* c, mjData* d, const double q_d[7], const double qd_
 }
 
 static void check_test_a(const char* dir) {
-  printf("\n== spec/01 §8 Test A (Avoiding hold, then an 8 cm y step) on panda_rod.xml ==\n");
+  printf("\n== docs/original-d3il.md §01.8 Test A (Avoiding hold, then an 8 cm y step) on panda_rod.xml ==\n");
   mjModel* m = load_vfs(dir, "panda_rod.xml");
   if (!m) {
     check(0, "Test A: model loads");
@@ -899,7 +899,7 @@ static void check_test_a(const char* dir) {
     c.fv[i] = m->jnt_dofadr[j];
   }
   const double* q0 = INIT_POSES[0].q;
-  /* §4.4 reset: scene qpos, forward twice; beam; one hold substep with finger target 0.001. */
+  /* §01.4.4 reset: scene qpos, forward twice; beam; one hold substep with finger target 0.001. */
   mj_resetData(m, d);
   for (int i = 0; i < 7; i++) d->qpos[c.arm_q[i]] = Q_SCENE[i];
   mj_forward(m, d);
@@ -963,7 +963,7 @@ static void check_test_a(const char* dir) {
         else max_j20 = fmax(max_j20, e);
       }
   }
-  /* spec/01 §8: with MJCF kinematics the reference agreement is <= 3.5e-8 m TCP and ~1.2e-6 rad joints
+  /* docs/original-d3il.md §01.8: with MJCF kinematics the reference agreement is <= 3.5e-8 m TCP and ~1.2e-6 rad joints
      (the six-digit hand quaternion); the finger reference is printed with 5-6 digits. */
   check(max_tcp < 1e-7, "Test A TCP rows (steps 0-20) within 1e-7 m of the reference (max |diff| %.2e)", max_tcp);
   check(max_f < 2e-6, "Test A finger positions within 2e-6 of the reference (max |diff| %.2e)", max_f);
@@ -974,7 +974,7 @@ static void check_test_a(const char* dir) {
   mj_deleteModel(m);
 }
 
-/* The object marker: one free 6 cm cube placed at z = 0 (1.1 cm inside the table, spec/01 §1.4) and the task
+/* The object marker: one free 6 cm cube placed at z = 0 (1.1 cm inside the table, docs/original-d3il.md §01.1.4) and the task
    camera bp_cam. Free objects must come first in qpos, and the cube must pop up to rest at z ~ 0.011. */
 static void check_assembly(const char* dir) {
   printf("\n== assembly with a task object and bp_cam (rod robot) ==\n");

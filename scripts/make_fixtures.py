@@ -24,19 +24,19 @@ committed files byte for byte. The fixtures are:
                             wrong obs dim, wrong act dim, NaN output, endless compute,
                             a Tile memory bomb
 
-Avoiding geometry (spec/10 §2.1, §2.3-2.5): the policy input is
+Avoiding geometry (docs/original-d3il.md §10.2.1, §10.2.3-10.2.5): the policy input is
 [desired x, desired y, measured x, measured y]; the action is the delta of the
 desired xy. The policy steers the desired x towards a waypoint chosen from the
 desired y (three phases: y < -0.04 before row 1, y < 0.16 before row 2, then row 3),
-with |dx| <= 0.008 and dy = 0.008 (the demonstrations' step size, spec/10 §1.8).
+with |dx| <= 0.008 and dy = 0.008 (the demonstrations' step size, docs/original-d3il.md §10.1.8).
 The deterministic path 0.57 -> 0.50 -> 0.575 is the spec's check case that succeeds
-with code 138 (spec/10 §2.5).
+with code 138 (docs/original-d3il.md §10.2.5).
 
 Noise policy: in each phase the rollout starts at a "home" x (the previous phase's
 waypoint, or the start x 0.525). While the desired x is within 4 mm of home, the sign
 of the noise picks the lower or upper waypoint; one step moves x by 8 mm, so the
 choice is latched from then on by which side of home x lies. Waypoints sit in the
-middle of the corridors of spec/10 §2.1.
+middle of the corridors of docs/original-d3il.md §10.2.1.
 """
 
 import json

@@ -8,7 +8,7 @@ Usage:  python3 scripts/panda_meshes.py [outdir]      (default: assets/meshes)
 The package is a dependency installed by ./dev; nothing from it is committed.
 Only the geometry is kept (triangles, all <node> transforms applied, in metres):
 the original D3IL scene draws these meshes with MuJoCo's default grey, not
-with the Collada materials (spec/01 §2.5). Exits with status 2 and a message
+with the Collada materials (docs/original-d3il.md §01.2.5). Exits with status 2 and a message
 naming the package when it is not installed.
 """
 

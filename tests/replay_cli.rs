@@ -122,7 +122,7 @@ fn first_motion(path: &[Vec<f64>]) -> usize {
 /// what the Env-level tests establish: the reset observation and the
 /// free-motion TCP path (before any reference object moves) within 1e-4 m,
 /// the objects' final xy within 0.05 m (the contact phase is chaotic,
-/// spec/01 §7.10), and the outcome (success, label, steps) as recorded.
+/// docs/original-d3il.md §01.7.10), and the outcome (success, label, steps) as recorded.
 /// `names` maps our object names to the reference's.
 fn check_cartesian_reference(task: &str, rel: &str, names: &[(&str, &str)]) {
     let r = reference(rel);

@@ -1,4 +1,4 @@
-//! Image observations (spec/01 §6): the two 96 × 96 cameras of the vision
+//! Image observations (docs/original-d3il.md §01.6): the two 96 × 96 cameras of the vision
 //! variants and the reference's image pipeline.
 //!
 //! * camera 0: `bp_cam`, the static front view; camera 1: `rgbd_rb0`, in-hand;
@@ -118,7 +118,7 @@ pub fn append_policy_layout(raw: &[u8], width: usize, height: usize, out: &mut V
 
 /// Projects world point `p` into camera `camera`'s image (`size` × `size`,
 /// top-down rows): returns (column, row) in pixels, or None behind the camera.
-/// Pinhole model of spec/01 §6: the camera looks along its −z axis, +x is
+/// Pinhole model of docs/original-d3il.md §01.6: the camera looks along its −z axis, +x is
 /// image-right, +y image-up, f = (size/2) / tan(fovy/2).
 pub fn project(data: &Data, camera: usize, p: [f64; 3], size: usize) -> Option<(f64, f64)> {
     let pos = data.cam_xpos(camera);

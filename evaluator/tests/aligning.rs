@@ -1,4 +1,4 @@
-//! Aligning end to end in real MuJoCo (spec/10 §3).
+//! Aligning end to end in real MuJoCo (docs/original-d3il.md §10.3).
 
 mod common;
 
@@ -118,7 +118,7 @@ fn same_actions_give_identical_observations() {
     let set = task.def.context_set().unwrap();
     let script = AligningScript::new(AligningStyle::Inside);
     let a = common::assert_deterministic(&task, set.get(3).unwrap(), 120, &|env| {
-        script.act(&env.policy_obs())
+        script.act(&env.policy_obs()).to_vec()
     });
     assert!(a.len() > 100);
 }
@@ -131,7 +131,7 @@ fn fixed_set_loads_and_verifies() {
     assert_eq!(task.def.n_contexts_paper(set.len()), 60);
     assert_eq!(task.def.rollouts_per_context(), 8);
     common::reset_every_context(&task, |_, _, obs| {
-        // spec/10 §3.2 ranges of the distribution.
+        // docs/original-d3il.md §10.3.2 ranges of the distribution.
         assert!((0.4..=0.6).contains(&obs[3]) && (-0.25..=-0.1).contains(&obs[4]));
         assert!((0.4..=0.6).contains(&obs[10]) && (0.2..=0.35).contains(&obs[11]));
         assert_eq!(obs[12], 0.0);
@@ -174,7 +174,7 @@ fn bad_contexts_name_the_field() {
 
 /// Open-loop replay of the reference rollout (MuJoCo 2.3.2, original D3IL):
 /// the reset observation and the free-motion phase must match to 1e-4 m; the
-/// contact phase is chaotic (spec/01 §7.10), so only the outcome is compared
+/// contact phase is chaotic (docs/original-d3il.md §01.7.10), so only the outcome is compared
 /// loosely. Skipped when the shared reference data is not present.
 #[test]
 fn reference_rollout_replays() {

@@ -1,4 +1,4 @@
-//! Avoiding end to end in real MuJoCo (spec/10 §2).
+//! Avoiding end to end in real MuJoCo (docs/original-d3il.md §10.2).
 
 mod common;
 
@@ -47,7 +47,7 @@ fn every_path_succeeds_with_its_label() {
 
 #[test]
 fn straight_ahead_hits_the_first_obstacle() {
-    // spec/10 §2.5 check case: Δ = (0, 0.008) every step ends after 19 steps
+    // docs/original-d3il.md §10.2.5 check case: Δ = (0, 0.008) every step ends after 19 steps
     // at y ≈ −0.128 with success = false and bit b1 set.
     let task = LoadedTask::load(TaskId::Avoiding).unwrap();
     let mut env = task.env().unwrap();
@@ -96,7 +96,7 @@ fn same_actions_give_identical_observations() {
     let task = LoadedTask::load(TaskId::Avoiding).unwrap();
     let script = AvoidingScript::new(7).unwrap();
     common::assert_deterministic(&task, &Value::Null, usize::MAX, &|env| {
-        script.act(&env.policy_obs())
+        script.act(&env.policy_obs()).to_vec()
     });
 }
 

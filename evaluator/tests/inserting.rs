@@ -1,4 +1,4 @@
-//! Inserting end to end in real MuJoCo (spec/11 §3).
+//! Inserting end to end in real MuJoCo (docs/original-d3il.md §11.3).
 
 mod common;
 

@@ -1,4 +1,4 @@
-//! Pushing end to end in real MuJoCo (spec/10 §4).
+//! Pushing end to end in real MuJoCo (docs/original-d3il.md §10.4).
 
 mod common;
 
@@ -120,7 +120,7 @@ fn zero_action_times_out_without_success() {
 
 #[test]
 fn boxes_settle_like_the_reference() {
-    // spec/10 §4.1: placed at z = 0 (11 mm in the table), ≈ 0.00005 after the
+    // docs/original-d3il.md §10.4.1: placed at z = 0 (11 mm in the table), ≈ 0.00005 after the
     // reset substep, ≈ 0.006 after step 1, ≈ 0.009 after step 2, ≈ 0.0109 at rest.
     let task = LoadedTask::load(TaskId::Pushing).unwrap();
     let set = task.def.context_set().unwrap();
@@ -144,7 +144,7 @@ fn same_actions_give_identical_observations() {
     let set = task.def.context_set().unwrap();
     let script = PushingScript::new(2).unwrap();
     let a = common::assert_deterministic(&task, set.get(1).unwrap(), 150, &|env| {
-        script.act(&env.policy_obs())
+        script.act(&env.policy_obs()).to_vec()
     });
     assert!(a.len() > 100);
 }
@@ -264,7 +264,7 @@ fn reference_rollout_replays() {
     );
     assert!(contact > 10, "the reference boxes move from step {contact}");
     assert!(free_max < 1e-4, "free-motion TCP deviation {free_max}");
-    // Contact phase: chaotic (spec/01 §7.10); compare the outcome loosely.
+    // Contact phase: chaotic (docs/original-d3il.md §01.7.10); compare the outcome loosely.
     assert!(final_dev < 0.05, "final box xy deviation {final_dev}");
     if env.steps() == r["n_steps"].as_u64().unwrap() as usize {
         assert_eq!(env.success(), r["success"].as_bool().unwrap());

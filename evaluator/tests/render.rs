@@ -1,4 +1,4 @@
-//! Headless rendering of the two policy cameras (spec/01 §6) on Mesa's EGL:
+//! Headless rendering of the two policy cameras (docs/original-d3il.md §01.6) on Mesa's EGL:
 //! frames are not blank, objects appear where their projected positions say,
 //! and rendering is deterministic for the same state.
 
@@ -92,7 +92,7 @@ fn boxes_appear_where_their_projection_says() {
 
 #[test]
 fn in_hand_camera_sees_the_rod_at_the_bottom_centre() {
-    // spec/01 §6: with the hand pointing down, the in-hand camera looks
+    // docs/original-d3il.md §01.6: with the hand pointing down, the in-hand camera looks
     // straight down and the rod is visible at the bottom centre.
     let (_t, env) = image_env(TaskId::Aligning, 0);
     let images = env.policy_images().unwrap();
@@ -133,7 +133,7 @@ fn rendering_is_deterministic_for_the_same_state() {
 #[test]
 fn images_lag_like_the_state_observation() {
     // The observation returned by a step is rendered before that step's
-    // physics (spec/01 §4.2, §6): after one step the policy sees the reset
+    // physics (docs/original-d3il.md §01.4.2, §01.6): after one step the policy sees the reset
     // state's frame; after two, the first step's.
     let (_t, mut env) = image_env(TaskId::Aligning, 0);
     let at_reset = env.policy_images().unwrap().to_vec();

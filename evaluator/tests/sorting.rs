@@ -1,4 +1,4 @@
-//! Sorting-2/4/6 end to end in real MuJoCo (spec/11 §1).
+//! Sorting-2/4/6 end to end in real MuJoCo (docs/original-d3il.md §11.1).
 
 mod common;
 
@@ -54,7 +54,7 @@ fn code(order: &str) -> u32 {
 
 #[test]
 fn only_complete_colour_sequences_are_behaviours() {
-    // |B| = 2, 6, 20 (spec/11 §1.6): the codes of every complete sequence.
+    // |B| = 2, 6, 20 (docs/original-d3il.md §11.1.6): the codes of every complete sequence.
     for (n, expected) in [(2, 2), (4, 6), (6, 20)] {
         let valid = (0..256u32).filter(|&c| is_sequence_code(c, n)).count();
         assert_eq!(valid, expected, "Sorting-{n}");
@@ -197,7 +197,7 @@ fn reference_rollout_replays_with_matching_free_motion() {
         }
     }
     assert!(max_free < 1e-4, "free TCP motion deviates by {max_free} m");
-    // The contact phase is chaotic (spec/01 §7.10); report, don't pin, the outcome.
+    // The contact phase is chaotic (docs/original-d3il.md §01.7.10); report, don't pin, the outcome.
     eprintln!(
         "replay of ctxA_sort_all: success {} (reference true), mode {} (reference 64), {} steps (reference {})",
         env.success(),

@@ -1,4 +1,4 @@
-//! Stacking end to end in real MuJoCo (spec/11 §2).
+//! Stacking end to end in real MuJoCo (docs/original-d3il.md §11.2).
 
 mod common;
 

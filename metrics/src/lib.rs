@@ -3,13 +3,13 @@
 //! The reference code computes the "entropy" differently per task, and the
 //! leaderboard reproduces each variant exactly (see [`EntropyConvention`]):
 //!
-//! * Avoiding (spec/10 §2.6): one start state; entropy over the codes of all
+//! * Avoiding (docs/original-d3il.md §10.2.6): one start state; entropy over the codes of all
 //!   successful rollouts, `-Σ p ln p / ln 24`, no numerical guard, every observed
 //!   code counted (codes with a missed row are separate behaviours).
-//! * Aligning, Pushing (spec/10 §3.6, §4.6): per context
+//! * Aligning, Pushing (docs/original-d3il.md §10.3.6, §10.4.6): per context
 //!   `p = k / (Σk + N·1e-12)`, `H_c = -Σ p ln(p + 1e-12) / ln|B|`, averaged over
 //!   **all** contexts; contexts without a (labelled) success contribute 0.
-//! * Sorting, Stacking (spec/11 §6) and Inserting (spec/11 §3.6, assumed like
+//! * Sorting, Stacking (docs/original-d3il.md §11.6) and Inserting (docs/original-d3il.md §11.3.6, assumed like
 //!   Stacking-3): same per-context formula, but contexts without a counted success
 //!   are **dropped** from the average.
 //!
@@ -40,7 +40,7 @@ pub struct Outcome {
     pub success: bool,
     /// Behaviour label in the reference encoding as a string key; `None` for a
     /// success the reference puts in no behaviour bin. Stacking: the letters
-    /// `r`/`g`/`b` of the boxes registered so far, in order (spec/11 §2.6), e.g.
+    /// `r`/`g`/`b` of the boxes registered so far, in order (docs/original-d3il.md §11.2.6), e.g.
     /// `"gbr"`, `"g"`, or `None`/`""` when none registered.
     pub behaviour: Option<String>,
 }
@@ -80,9 +80,9 @@ pub enum MetricsError {
 /// How contexts without any labelled success enter the conditional entropy.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum EmptyContexts {
-    /// Counted with H_c = 0 (Avoiding, Aligning, Pushing; spec/10 §6.3).
+    /// Counted with H_c = 0 (Avoiding, Aligning, Pushing; docs/original-d3il.md §10.6.3).
     CountAsZero,
-    /// Dropped from the average (Sorting, Stacking, Inserting; spec/11 §6).
+    /// Dropped from the average (Sorting, Stacking, Inserting; docs/original-d3il.md §11.6).
     Drop,
 }
 
@@ -156,9 +156,9 @@ pub fn behaviour_counts<'a>(
 
 /// H(π(β)): entropy of the behaviour distribution pooled over all labelled
 /// successful rollouts, log base `n_behaviours`; 0 without any.
-/// Equals the reference's Avoiding entropy (spec/10 §2.6); the reference computes
+/// Equals the reference's Avoiding entropy (docs/original-d3il.md §10.2.6); the reference computes
 /// no marginal entropy for the other tasks, this is the natural pooling
-/// (spec/11 §6 last item).
+/// (docs/original-d3il.md §11.6 last item).
 pub fn behaviour_entropy(outcomes: &[Outcome], n_behaviours: usize) -> Result<f64, MetricsError> {
     if n_behaviours < 2 {
         return Err(MetricsError::BadBehaviourCount(n_behaviours));
@@ -215,7 +215,7 @@ fn entropy_of_counts(
     let counts = counts.filter(|&c| c > 0);
     let ln_b = (conv.n_behaviours as f64).ln();
     let h: f64 = if conv.reference_guard {
-        // (k/N) / (Σk/N + 1e-12), then -p ln(p + 1e-12): spec/10 §3.6, spec/11 §6.
+        // (k/N) / (Σk/N + 1e-12), then -p ln(p + 1e-12): docs/original-d3il.md §10.3.6, docs/original-d3il.md §11.6.
         let n = n_rollouts as f64;
         let denom = k as f64 / n + 1e-12;
         counts
@@ -305,11 +305,11 @@ pub fn per_context(
         .collect())
 }
 
-/// The three Stacking levels (spec/11 §2.5–2.7): level X ∈ {1, 2, 3} is a success
+/// The three Stacking levels (docs/original-d3il.md §11.2.5–11.2.7): level X ∈ {1, 2, 3} is a success
 /// when at least X boxes registered (X = 1, 2, sticky proximity events) or on the
 /// full stack (X = 3); its behaviour is the first X letters of the registration
 /// order, log base 3 / 6 / 6. A rollout with fewer than X letters gets code 0
-/// (`r`, `rg`, `rgb`) like the reference (spec/11 §2.6); this only matters for a
+/// (`r`, `rg`, `rgb`) like the reference (docs/original-d3il.md §11.2.6); this only matters for a
 /// full-stack success with fewer than three registrations.
 pub fn stacking_levels(
     outcomes: &[Outcome],

@@ -36,7 +36,7 @@ fn avoiding_entropy_over_successes_log24() {
     let expected = 2f64.ln() / 24f64.ln();
     assert!(close(behaviour_entropy(&v, 24).unwrap(), expected));
     let conv = EntropyConvention::for_task(TaskId::Avoiding);
-    // Single start: the conditional entropy is the marginal one (spec/10 §2.6).
+    // Single start: the conditional entropy is the marginal one (docs/original-d3il.md §10.2.6).
     assert!(close(conditional_entropy(&v, &conv).unwrap(), expected));
     assert!((expected - 0.218104).abs() < 1e-6);
 }
@@ -44,7 +44,7 @@ fn avoiding_entropy_over_successes_log24() {
 #[test]
 fn avoiding_counts_codes_with_missed_rows_and_may_exceed_one() {
     // 30 distinct codes, one success each: H = ln 30 / ln 24 = 1.0702 > 1
-    // (spec/10 §6.4: the reference does not guard against this).
+    // (docs/original-d3il.md §10.6.4: the reference does not guard against this).
     let labels: Vec<String> = (0..30).map(|i| format!("{i}")).collect();
     let v: Vec<Outcome> = labels.iter().map(|l| o(0, true, Some(l))).collect();
     let h = behaviour_entropy(&v, 24).unwrap();
@@ -87,7 +87,7 @@ fn three_contexts() -> Vec<Outcome> {
 
 #[test]
 fn aligning_counts_contexts_without_success_as_zero() {
-    // (1 + 0 + 0) / 3 = 1/3 (spec/10 §3.6); the 1e-12 guards move it by < 1e-11.
+    // (1 + 0 + 0) / 3 = 1/3 (docs/original-d3il.md §10.3.6); the 1e-12 guards move it by < 1e-11.
     let conv = EntropyConvention::for_task(TaskId::Aligning);
     let h = conditional_entropy(&three_contexts(), &conv).unwrap();
     assert!(close(h, 1.0 / 3.0), "{h}");
@@ -95,7 +95,7 @@ fn aligning_counts_contexts_without_success_as_zero() {
 
 #[test]
 fn sorting_drops_contexts_without_success() {
-    // Same data with |B| = 2 and the Drop rule: (1 + 0) / 2 = 1/2 (spec/11 §6).
+    // Same data with |B| = 2 and the Drop rule: (1 + 0) / 2 = 1/2 (docs/original-d3il.md §11.6).
     let conv = EntropyConvention {
         n_behaviours: 2,
         ..EntropyConvention::for_task(TaskId::Sorting2)

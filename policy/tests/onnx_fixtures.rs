@@ -32,7 +32,7 @@ fn avoiding_path_steers_towards_the_waypoints() {
         (s.history, s.horizon, s.execute, s.obs_dim, s.act_dim),
         (1, 1, 1, 4, 2)
     );
-    // [desired x, desired y, measured x, measured y] (spec/10 §2.3)
+    // [desired x, desired y, measured x, measured y] (docs/original-d3il.md §10.2.3)
     let obs = [
         0.5249, -0.2797, 0.5249, -0.2797, // start: towards 0.57, clipped to +0.008
         0.565, -0.05, 0.56, -0.06, // phase 1 near the waypoint: 0.57 - 0.565
@@ -136,7 +136,7 @@ fn manifest_normalisation_is_applied() {
     let e = OnnxPolicy::load(&bytes, &man, &spec(TaskId::Avoiding), 0).unwrap_err();
     assert!(
         e.to_string()
-            .contains("obs_mean has 3 entries but task avoiding needs 4"),
+            .contains("normalisation.obs_mean`: has 3 entries but task avoiding needs 4"),
         "{e}"
     );
 }
@@ -153,6 +153,8 @@ fn image_policy_shape_is_accepted_and_runs() {
         steps: &[0, 0],
         obs: &obs,
         images: Some(&images),
+        window: None,
+        prev_actions: None,
     };
     let a = p.infer(&q).unwrap();
     assert!(a.data.iter().all(|&x| close(x, 0.0005)), "{:?}", a.data);
@@ -178,7 +180,7 @@ fn manifest_and_task_mismatches_are_explained() {
     man.horizon = 1;
     man.execute = 2;
     let e = OnnxPolicy::load(&bytes, &man, &spec(TaskId::Avoiding), 0).unwrap_err();
-    assert!(e.to_string().contains("execute (E = 2)"), "{e}");
+    assert!(e.to_string().contains("execute E = 2"), "{e}");
     man.execute = 1;
     man.history = 5;
     // The fixture fixes k = 1 in its input shape.

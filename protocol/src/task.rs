@@ -166,7 +166,7 @@ impl fmt::Display for ObsType {
     }
 }
 
-/// Dimensions a policy must match for a task (spec/10, spec/11: the policy input
+/// Dimensions a policy must match for a task (docs/original-d3il.md §10, docs/original-d3il.md §11: the policy input
 /// prepends the previous command to the environment observation).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct TaskSpec {

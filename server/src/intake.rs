@@ -264,9 +264,15 @@ fn method_fields(raw: &RawSubmission) -> Result<NewMethod, AppError> {
         Some(h) => Some(
             h.parse::<i64>()
                 .ok()
-                .filter(|h| (1..=1000).contains(h))
+                .filter(|h| (1..=PolicyManifest::MAX_HISTORY as i64).contains(h))
                 .ok_or_else(|| {
-                    AppError::invalid("history", "`history` must be a whole number from 1 to 1000")
+                    AppError::invalid(
+                        "history",
+                        format!(
+                            "`history` must be a whole number from 1 to {}",
+                            PolicyManifest::MAX_HISTORY
+                        ),
+                    )
                 })?,
         ),
     };
@@ -412,36 +418,19 @@ fn manifest_field(
             horizon: 1,
             execute: 1,
             normalisation: None,
+            window: Default::default(),
         },
     };
     check_manifest_limits(&manifest)?;
     Ok(manifest)
 }
 
-/// The limits on a manifest's history, horizon and execute.
+/// The manifest limits, as the protocol states them once for intake, the
+/// ONNX loader and remote endpoints ([`PolicyManifest::validate`]).
 fn check_manifest_limits(manifest: &PolicyManifest) -> Result<(), AppError> {
-    for (k, v) in [
-        ("history", manifest.history),
-        ("horizon", manifest.horizon),
-        ("execute", manifest.execute),
-    ] {
-        if !(1..=1000).contains(&v) {
-            return Err(AppError::invalid(
-                "manifest",
-                format!("manifest `{k}` must be from 1 to 1000, got {v}"),
-            ));
-        }
-    }
-    if manifest.execute > manifest.horizon {
-        return Err(AppError::invalid(
-            "manifest",
-            format!(
-                "manifest `execute` ({}) cannot exceed `horizon` ({})",
-                manifest.execute, manifest.horizon
-            ),
-        ));
-    }
-    Ok(())
+    manifest
+        .validate()
+        .map_err(|e| AppError::invalid("manifest", e.to_string()))
 }
 
 /// Either an ONNX upload (with its manifest) or a remote endpoint.

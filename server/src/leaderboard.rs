@@ -45,6 +45,11 @@ pub struct BoardRow {
     pub bold_success: Option<bool>,
     pub bold_entropy: Option<bool>,
     pub submission_ids: Vec<i64>,
+    /// Evaluated rows: the initial-state set (e.g. `pushing-v2.json`); rows
+    /// on different sets are never merged.
+    pub initial_states: Option<String>,
+    /// Evaluated rows: "the original D3IL test contexts" or "our sample".
+    pub initial_states_label: Option<String>,
 }
 
 impl BoardRow {
@@ -62,6 +67,7 @@ impl BoardRow {
             n_seeds: self.n_seeds,
             bold_success: self.bold_success,
             bold_entropy: self.bold_entropy,
+            initial_states: self.initial_states_label.clone(),
         }
     }
 }
@@ -106,6 +112,8 @@ pub struct EvaluatedSeed {
     pub stacking: Option<[f64; 3]>,
     pub stacking_levels: Option<[StackingLevel; 3]>,
     pub inference_ms: f64,
+    /// The initial-state set the result used (e.g. `pushing-v2.json`).
+    pub initial_states: String,
 }
 
 impl EvaluatedSeed {
@@ -151,7 +159,7 @@ impl EvaluatedSeed {
 /// order of first appearance, aggregating each metric over the seeds with
 /// [`aggregate_seeds`] (mean and sample std; one seed has std 0).
 pub fn evaluated_rows(seeds: &[EvaluatedSeed]) -> Result<Vec<BoardRow>, MetricsError> {
-    type Key = (i64, String, &'static str, u64, &'static str);
+    type Key = (i64, String, &'static str, u64, &'static str, String);
     struct Group<'a> {
         first: &'a EvaluatedSeed,
         title: String,
@@ -172,6 +180,7 @@ pub fn evaluated_rows(seeds: &[EvaluatedSeed]) -> Result<Vec<BoardRow>, MetricsE
                 s.obs.as_str(),
                 s.data_fraction.to_bits(),
                 protocol_str(s.protocol),
+                s.initial_states.clone(),
             );
             let i = *index.entry(key).or_insert_with(|| {
                 groups.push(Group {
@@ -223,6 +232,12 @@ pub fn evaluated_rows(seeds: &[EvaluatedSeed]) -> Result<Vec<BoardRow>, MetricsE
                 bold_success: None,
                 bold_entropy: None,
                 submission_ids: g.submissions,
+                initial_states: Some(f.initial_states.clone()),
+                initial_states_label: Some(
+                    d3il_protocol::InitialStatesOrigin::of(&f.initial_states)
+                        .label()
+                        .to_string(),
+                ),
             })
         })
         .collect()
@@ -439,6 +454,7 @@ mod tests {
             stacking: None,
             stacking_levels: None,
             inference_ms: 2.0,
+            initial_states: "pushing-v2.json".into(),
         }
     }
 

@@ -78,6 +78,12 @@ async fn every_bad_field_is_named() {
         (with("protocol", "fast"), "protocol"),
         (with("method", "<script>"), "method"),
         (with("history", "0"), "history"),
+        // The protocol's manifest limits (PolicyManifest::validate), stated once.
+        (with("history", "65"), "history"),
+        (
+            with("manifest", r#"{"task": "avoiding", "history": 65}"#),
+            "manifest",
+        ),
         (with("code_url", "javascript:alert(1)"), "code_url"),
         (with("manifest", "{not json"), "manifest"),
         (with("manifest", r#"{"task": "pushing"}"#), "manifest"),

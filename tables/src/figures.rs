@@ -461,7 +461,7 @@ fn tick(v: &f64) -> String {
     }
 }
 
-/// Avoiding obstacles (spec/10 §2.1): centre (x, y) and radius.
+/// Avoiding obstacles (docs/original-d3il.md §10.2.1): centre (x, y) and radius.
 const AVOIDING_OBSTACLES: [(f64, f64, f64); 6] = [
     (0.5, -0.1, 0.03),
     (0.425, 0.08, 0.025),
@@ -470,7 +470,7 @@ const AVOIDING_OBSTACLES: [(f64, f64, f64); 6] = [
     (0.5, 0.26, 0.025),
     (0.65, 0.26, 0.025),
 ];
-/// Success line y = 0.35 and the fixed start (spec/10 §2.2, §2.5).
+/// Success line y = 0.35 and the fixed start (docs/original-d3il.md §10.2.2, §10.2.5).
 const AVOIDING_FINISH_Y: f64 = 0.35;
 const AVOIDING_START: (f64, f64) = (0.525, -0.28);
 /// Legend entries beyond this are summarised in one line.

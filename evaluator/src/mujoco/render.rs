@@ -1,5 +1,5 @@
 //! Headless offscreen rendering with MuJoCo 2.2's OpenGL renderer on an EGL
-//! context from Mesa (surfaceless platform, PBUFFER config), spec/01 §6.
+//! context from Mesa (surfaceless platform, PBUFFER config), docs/original-d3il.md §01.6.
 //!
 //! A [`Renderer`] owns one EGL context and one `mjrContext`; it is bound to the
 //! thread that created it (OpenGL contexts are current per thread), so it is
@@ -310,7 +310,7 @@ impl Renderer {
                     })?;
             (*own.as_ptr()).vis.global.offwidth = width as i32;
             (*own.as_ptr()).vis.global.offheight = height as i32;
-            // Shadows are off (below), so the 8192² shadow map of spec/01 §1.2
+            // Shadows are off (below), so the 8192² shadow map of docs/original-d3il.md §01.1.2
             // (visual/quality shadowsize) would only hold ~256 MiB of memory per
             // GL context; same pixels without it (deviation noted in docs/images.md).
             (*own.as_ptr()).vis.quality.shadowsize = 0;
@@ -336,7 +336,7 @@ impl Renderer {
             ffi::mjr_defaultContext(&mut *r.con);
             let m = r.own.as_ptr();
             let (scn, con) = (&mut *r.scn as *mut _, &mut *r.con as *mut _);
-            // spec/01 §6: a visual scene with at most 1000 geoms.
+            // docs/original-d3il.md §01.6: a visual scene with at most 1000 geoms.
             guarded(|| ffi::mjv_makeScene(m, scn, 1000))?;
             // No light in our scenes casts shadows and no material reflects,
             // so these passes would only cost time (same pixels).

@@ -1,4 +1,4 @@
-//! Controllers recomputed at every 1 ms physics substep (spec/01 §3).
+//! Controllers recomputed at every 1 ms physics substep (docs/original-d3il.md §01.3).
 
 use super::kinematics::{Jacobian, PandaKinematics};
 use nalgebra::{SMatrix, SVector, Vector3};
@@ -7,10 +7,10 @@ type V6 = SVector<f64, 6>;
 type V7 = SVector<f64, 7>;
 type M6 = SMatrix<f64, 6, 6>;
 
-/// Joint PD gains (spec/01 §3.2).
+/// Joint PD gains (docs/original-d3il.md §01.3.2).
 pub const KP: [f64; 7] = [120.0, 120.0, 120.0, 120.0, 50.0, 30.0, 10.0];
 pub const KD: [f64; 7] = [10.0, 10.0, 10.0, 10.0, 6.0, 5.0, 3.0];
-/// Cartesian gains (spec/01 §3.2): position (200, 200, 800), orientation 30.
+/// Cartesian gains (docs/original-d3il.md §01.3.2): position (200, 200, 800), orientation 30.
 const KX: [f64; 3] = [200.0, 200.0, 800.0];
 const KO: f64 = 30.0;
 const NULL_GAIN: f64 = 40.0;
@@ -32,7 +32,7 @@ pub const Q_MAX: [f64; 7] = [2.8973, 1.7628, 2.0, -0.0698, 2.8973, 3.7525, 2.897
 /// Physics time step used for the velocity reference.
 pub const H: f64 = 0.001;
 
-/// Orientation error e_o(c, d) = c_w d_v - d_w c_v + c_v x d_v (spec/01 §3.3).
+/// Orientation error e_o(c, d) = c_w d_v - d_w c_v + c_v x d_v (docs/original-d3il.md §01.3.3).
 pub fn orientation_error(c: &[f64; 4], d: &[f64; 4]) -> Vector3<f64> {
     let cv = Vector3::new(c[1], c[2], c[3]);
     let dv = Vector3::new(d[1], d[2], d[3]);
@@ -47,7 +47,7 @@ fn quat_dist(a: &[f64; 4], b: &[f64; 4], sign: f64) -> f64 {
 }
 
 /// Solves (J Jᵀ + λI) x = rhs with the eigenvalues of the matrix clipped to
-/// [0.01, 100] (spec/01 §3.4 step 5). A is symmetric PSD, so SVD clipping
+/// [0.01, 100] (docs/original-d3il.md §01.3.4 step 5). A is symmetric PSD, so SVD clipping
 /// equals eigenvalue clipping. Fast path, exact up to round-off: λ_max ≤ trace
 /// ≤ 100, and a Cholesky factorisation of A − 0.01·I proves λ_min > 0.01, so
 /// nothing is clipped and a Cholesky solve of A suffices.
@@ -63,7 +63,7 @@ fn clipped_solve(a: &M6, rhs: &V6) -> V6 {
 }
 
 /// The Cartesian position+quaternion tracking controller of the rod tasks
-/// (spec/01 §3.4): an IK integrator started from its own previous solution.
+/// (docs/original-d3il.md §01.3.4): an IK integrator started from its own previous solution.
 #[derive(Debug, Clone)]
 pub struct CartesianTracker {
     pub x_d: [f64; 3],
@@ -141,7 +141,7 @@ impl Default for CartesianTracker {
     }
 }
 
-/// Plain joint PD: τ = K_P (q_d − q) + K_D (q̇_d − q̇) (spec/01 §3.4 step 5, §3.6).
+/// Plain joint PD: τ = K_P (q_d − q) + K_D (q̇_d − q̇) (docs/original-d3il.md §01.3.4 step 5, §01.3.6).
 pub fn joint_pd(q_d: &[f64; 7], qdot_d: &[f64; 7], q: &[f64; 7], qdot: &[f64; 7]) -> [f64; 7] {
     let mut tau = [0.0; 7];
     for i in 0..7 {
@@ -150,7 +150,7 @@ pub fn joint_pd(q_d: &[f64; 7], qdot_d: &[f64; 7], q: &[f64; 7], qdot: &[f64; 7]
     tau
 }
 
-/// Finger command: per-finger target width w and the grasp flag g (spec/01 §3.7).
+/// Finger command: per-finger target width w and the grasp flag g (docs/original-d3il.md §01.3.7).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct FingerCommand {
     pub target: f64,
@@ -175,7 +175,7 @@ impl FingerCommand {
     };
 }
 
-/// Finger force law (spec/01 §3.7); no bias is added.
+/// Finger force law (docs/original-d3il.md §01.3.7); no bias is added.
 pub fn finger_forces(cmd: FingerCommand, p: [f64; 2], pdot: [f64; 2]) -> [f64; 2] {
     let mean = 0.5 * (p[0] + p[1]);
     let mut f = [0.0; 2];
@@ -208,7 +208,7 @@ mod tests {
         let kin = PandaKinematics::new();
         let rhs = V6::new(1.0, -2.0, 0.5, 0.1, 0.2, -0.3);
         // A comfortable pose (no clipping) and a far-reach pose whose smallest
-        // eigenvalue falls below 0.01 (clipping active, spec/01 §3.4).
+        // eigenvalue falls below 0.01 (clipping active, docs/original-d3il.md §01.3.4).
         for q in [
             crate::robot::init_qpos::AVOIDING,
             [0.0, 1.5, 0.0, -0.1, 0.0, 1.6, 0.785],

@@ -1,6 +1,6 @@
 //! Exact forward kinematics and TCP Jacobian of the Panda as the reference's
 //! controllers compute them (Pinocchio on the URDF, frame `panda_grasptarget`,
-//! spec/01 §2.8). Using the exact URDF angles instead of MuJoCo's kinematics of
+//! docs/original-d3il.md §01.2.8). Using the exact URDF angles instead of MuJoCo's kinematics of
 //! the MJCF (whose hand quaternion is rounded) reproduces the reference to ~1e-16.
 
 use nalgebra::{Matrix3, Rotation3, SMatrix, UnitQuaternion, Vector3};
@@ -8,7 +8,7 @@ use nalgebra::{Matrix3, Rotation3, SMatrix, UnitQuaternion, Vector3};
 pub type Jacobian = SMatrix<f64, 6, 7>;
 
 /// Joint origins (xyz; rpy) of the URDF chain, each followed by a rotation
-/// about the local z axis (spec/01 §2.8 table).
+/// about the local z axis (docs/original-d3il.md §01.2.8 table).
 const JOINT_XYZ: [[f64; 3]; 7] = [
     [0.0, 0.0, 0.333],
     [0.0, 0.0, 0.0],
@@ -19,7 +19,7 @@ const JOINT_XYZ: [[f64; 3]; 7] = [
     [0.088, 0.0, 0.0],
 ];
 // These are the URDF's printed (rounded) angles, not π/2 and π/4: the reference
-// kinematics use exactly these values (spec/01 §2.8).
+// kinematics use exactly these values (docs/original-d3il.md §01.2.8).
 #[allow(clippy::approx_constant)]
 const JOINT_ROLL: [f64; 7] = [
     0.0,
@@ -30,7 +30,7 @@ const JOINT_ROLL: [f64; 7] = [
     1.57079632679,
     1.57079632679,
 ];
-/// Flange (link8) offset, hand yaw and grasp-target offset (spec/01 §2.8).
+/// Flange (link8) offset, hand yaw and grasp-target offset (docs/original-d3il.md §01.2.8).
 const FLANGE_Z: f64 = 0.107;
 #[allow(clippy::approx_constant)]
 const HAND_YAW: f64 = -0.785398163397;
@@ -100,7 +100,7 @@ impl PandaKinematics {
 
 impl Fk {
     /// TCP orientation as a quaternion (w, x, y, z). The sign is irrelevant to
-    /// the controller (spec/01 §2.8, §3.3).
+    /// the controller (docs/original-d3il.md §01.2.8, §01.3.3).
     pub fn quat_wxyz(&self) -> [f64; 4] {
         // Direct (Shepperd/Eigen-style) conversion: `rot` is orthonormal by
         // construction, so nalgebra's iterative `from_matrix` is not needed.
@@ -109,7 +109,7 @@ impl Fk {
     }
 
     /// 6x7 Jacobian in the world-aligned frame at the TCP: rows 0-2 linear,
-    /// rows 3-5 angular velocity (spec/01 §2.8).
+    /// rows 3-5 angular velocity (docs/original-d3il.md §01.2.8).
     pub fn jacobian(&self) -> Jacobian {
         let mut j = Jacobian::zeros();
         for i in 0..7 {

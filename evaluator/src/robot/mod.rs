@@ -1,10 +1,10 @@
 //! The Panda as D3IL drives it: model constants, the Cartesian IK tracking
-//! controller, the joint PD, the finger law (spec/01 §3).
+//! controller, the joint PD, the finger law (docs/original-d3il.md §01.3).
 
 pub mod control;
 pub mod kinematics;
 
-/// Which robot file a task uses (spec/01 §2.1).
+/// Which robot file a task uses (docs/original-d3il.md §01.2.1).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum RobotVariant {
     /// Gripper plus rod: Avoiding, Aligning, Pushing, Sorting, Inserting.
@@ -14,7 +14,7 @@ pub enum RobotVariant {
 }
 
 /// Scene initial arm configuration written before the beam to `init_qpos`
-/// (spec/01 §4.4 step 3).
+/// (docs/original-d3il.md §01.4.4 step 3).
 pub const Q_SCENE: [f64; 7] = [
     3.57795216e-09,
     0.174532920,
@@ -25,7 +25,7 @@ pub const Q_SCENE: [f64; 7] = [
     0.785398126,
 ];
 
-/// Per-task `init_qpos` constants from the reference's start-up IK (spec/01 §4.5).
+/// Per-task `init_qpos` constants from the reference's start-up IK (docs/original-d3il.md §01.4.5).
 pub mod init_qpos {
     /// Avoiding, Pushing, Inserting: TCP target (0.525, -0.28, 0.12).
     pub const AVOIDING: [f64; 7] = [

@@ -1,5 +1,5 @@
 //! The simulated robot in its scene: one `Data` plus the controller state,
-//! with the substep, env-step physics and reset sequence of spec/01 §4.
+//! with the substep, env-step physics and reset sequence of docs/original-d3il.md §01.4.
 
 pub mod scene;
 
@@ -56,9 +56,9 @@ impl RobotIds {
 pub enum ArmController {
     /// Joint PD to a fixed configuration with zero velocity reference (reset hold).
     Hold([f64; 7]),
-    /// Cartesian IK tracking (rod tasks, spec/01 §3.4).
+    /// Cartesian IK tracking (rod tasks, docs/original-d3il.md §01.3.4).
     Cartesian(CartesianTracker),
-    /// Joint-space PD to float32-rounded targets (Stacking, spec/01 §3.6).
+    /// Joint-space PD to float32-rounded targets (Stacking, docs/original-d3il.md §01.3.6).
     Joint([f64; 7]),
 }
 
@@ -91,7 +91,7 @@ impl Sim {
         })
     }
 
-    /// Fresh arm joint positions (spec/01 §4.3).
+    /// Fresh arm joint positions (docs/original-d3il.md §01.4.3).
     pub fn joint_pos(&self) -> [f64; 7] {
         pick(self.data.qpos(), &self.ids.arm_qpos)
     }
@@ -108,12 +108,12 @@ impl Sim {
         let f = self.finger_pos();
         f[0] + f[1]
     }
-    /// `data.xpos` of `tcp_rb0`: one substep stale after `mj_step` (spec/01 §4.3).
+    /// `data.xpos` of `tcp_rb0`: one substep stale after `mj_step` (docs/original-d3il.md §01.4.3).
     pub fn tcp_pos(&self) -> [f64; 3] {
         self.data.xpos(self.ids.tcp_body)
     }
 
-    /// Controller -> ctrl, then one `mj_step` (spec/01 §4.1).
+    /// Controller -> ctrl, then one `mj_step` (docs/original-d3il.md §01.4.1).
     pub fn substep(&mut self) -> Result<(), MjError> {
         let q = self.joint_pos();
         let qdot = self.joint_vel();
@@ -125,7 +125,7 @@ impl Sim {
                 control::joint_pd(&q_d, &qdot_d, &q, &qdot)
             }
         };
-        // Bias as left by the previous mj_step: one substep stale (spec/01 §3.5).
+        // Bias as left by the previous mj_step: one substep stale (docs/original-d3il.md §01.3.5).
         let bias = pick(self.data.qfrc_bias(), &self.ids.arm_dof);
         let f = control::finger_forces(self.fingers, self.finger_pos(), self.finger_vel());
         let act = self.ids.actuators;
@@ -142,7 +142,7 @@ impl Sim {
         self.data.step()
     }
 
-    /// The physics of one env step: `n_substeps` substeps (spec/01 §4.2 step 4).
+    /// The physics of one env step: `n_substeps` substeps (docs/original-d3il.md §01.4.2 step 4).
     pub fn step_physics(&mut self) -> Result<(), MjError> {
         for _ in 0..self.n_substeps {
             self.substep()?;
@@ -150,7 +150,7 @@ impl Sim {
         Ok(())
     }
 
-    /// Reset sequence of spec/01 §4.4. `place_objects` writes free-joint qpos
+    /// Reset sequence of docs/original-d3il.md §01.4.4. `place_objects` writes free-joint qpos
     /// (no forward); `fingers` is the finger command of the single hold substep
     /// (0.001 for rod tasks, open for Stacking).
     pub fn reset(

@@ -1,5 +1,5 @@
 //! Assembles a task scene as one MJCF string plus in-memory include files
-//! (spec/01 §1.1): base file, primitive objects and camera bodies in the base
+//! (docs/original-d3il.md §01.1.1): base file, primitive objects and camera bodies in the base
 //! worldbody, then includes of the table, the task's XML objects and the robot.
 
 use crate::mujoco::{MjError, Model};
@@ -16,7 +16,7 @@ include!(concat!(env!("OUT_DIR"), "/panda_meshes.rs"));
 
 /// How the hand and fingers are drawn. Physics is the same either way: the
 /// collision boxes stay, and the meshes are visual-only geoms (no contacts)
-/// on bodies whose inertia is given explicitly (spec/01 §2.3).
+/// on bodies whose inertia is given explicitly (docs/original-d3il.md §01.2.3).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum RobotLook {
     /// Boxes inside the original's mesh bounds (docs/mjcf.md).
@@ -77,7 +77,7 @@ fn with_hand_meshes(robot_xml: &str) -> Option<String> {
     x = replace_element(&x, r#"<geom name="panda_rb0_leftfinger:geom1""#, |_| {
         mesh("panda_rb0_leftfinger:geom1", "panda_finger_visual", "")
     })?;
-    // The right finger is the same mesh turned 180° about z (spec/01 §2.5).
+    // The right finger is the same mesh turned 180° about z (docs/original-d3il.md §01.2.5).
     x = replace_element(&x, r#"<geom name="panda_rb0_rightfinger:geom1""#, |_| {
         mesh(
             "panda_rb0_rightfinger:geom1",
@@ -103,7 +103,7 @@ pub enum Shape {
     Sphere,
 }
 
-/// A code-defined object (spec/01 §1.6).
+/// A code-defined object (docs/original-d3il.md §01.1.6).
 #[derive(Debug, Clone)]
 pub struct Primitive {
     pub name: String,
@@ -164,7 +164,7 @@ pub struct SceneSpec {
     pub look: RobotLook,
 }
 
-/// The bp_cam body every task adds (spec/01 §6).
+/// The bp_cam body every task adds (docs/original-d3il.md §01.6).
 pub const BP_CAM: &str = r#"<body name="bp_cam" pos="1.05 0 1.2" quat="0.6830127 0.1830127 0.1830127 0.683012"><camera name="bp_cam" mode="fixed" fovy="45" pos="0 0 0" quat="1 0 0 0"/></body>"#;
 
 impl SceneSpec {

@@ -1,4 +1,4 @@
-//! spec/01 §8 "Test A": Avoiding hold, then step.
+//! docs/original-d3il.md §01.8 "Test A": Avoiding hold, then step.
 
 use super::scene::SceneSpec;
 use super::*;
@@ -13,7 +13,7 @@ fn bare_rod_sim() -> Sim {
 const Z0: f64 = 0.122359305991;
 const QUAT_DOWN: [f64; 4] = [0.0, 1.0, 0.0, 0.0];
 
-/// (step, x, y, z) rows of spec/01 §8.
+/// (step, x, y, z) rows of docs/original-d3il.md §01.8.
 const TCP_ROWS: [(usize, [f64; 3]); 11] = [
     (0, [0.524928466, -0.279736728, 0.122359306]),
     (1, [0.527391345, -0.276939761, 0.122808764]),
@@ -65,7 +65,7 @@ fn test_a_avoiding_hold_then_step() {
     let mut observations = Vec::new();
     for step in 1..=20 {
         let y = if step <= 10 { -0.28 } else { -0.20 };
-        // spec/01 §4.2: fingers open, setpoint, observation BEFORE the physics.
+        // docs/original-d3il.md §01.4.2: fingers open, setpoint, observation BEFORE the physics.
         sim.fingers = FingerCommand::OPEN;
         sim.set_cartesian_target([0.525, y, Z0], QUAT_DOWN);
         let p = sim.tcp_pos();

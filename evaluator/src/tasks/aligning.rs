@@ -1,4 +1,4 @@
-//! Aligning (spec/10 §3): push an open-top tray so that its pose matches a
+//! Aligning (docs/original-d3il.md §10.3): push an open-top tray so that its pose matches a
 //! translucent target pose; the behaviour is whether the rod pushes from
 //! inside the tray (0) or from outside (1).
 //!
@@ -10,7 +10,7 @@
 //! the target pose exactly as the context gives it (z = 0), like the reference.
 
 use super::geometry::{dist2, dist3, quat_to_yaw, yaw_deg_to_quat};
-use super::{Command, CommandKind, ContextSet, TaskDef, TaskError, TaskLogic, QUAT_DOWN};
+use super::{CommandKind, ContextSet, TaskDef, TaskError, TaskLogic};
 use crate::mujoco::{Model, ObjKind};
 use crate::robot::control::FingerCommand;
 use crate::robot::{init_qpos, RobotVariant};
@@ -21,12 +21,12 @@ use rand::Rng;
 use serde_json::{json, Map, Value};
 use std::f64::consts::PI;
 
-/// The pushed tray (spec/10 §3.1): plate with priority 1 and friction 0.3
+/// The pushed tray (docs/original-d3il.md §10.3.1): plate with priority 1 and friction 0.3
 /// (so the plate's friction governs plate–table contacts), four 1 g walls with
 /// default contact parameters. Our own MJCF written from the spec's table.
 const ALIGNING_BOX_XML: &str = r#"<mujoco>
   <worldbody>
-    <!-- spec/10 §3.1: file pose (0.6, 0.15, 0), overwritten at every reset. -->
+    <!-- docs/original-d3il.md §10.3.1: file pose (0.6, 0.15, 0), overwritten at every reset. -->
     <body name="aligning_box" pos="0.6 0.15 0" quat="1 0 0 0">
       <freejoint name="box_joint"/>
       <geom name="aligning_box:plate" type="box" pos="0 0 0" size="0.05 0.05 0.01" mass="1.0"
@@ -44,7 +44,7 @@ const ALIGNING_BOX_XML: &str = r#"<mujoco>
 </mujoco>
 "#;
 
-/// The target (spec/10 §3.1): sites only, no collision, no mass. A mocap body
+/// The target (docs/original-d3il.md §10.3.1): sites only, no collision, no mass. A mocap body
 /// so each rollout can place it (see the module comment).
 const TARGET_BOX_XML: &str = r#"<mujoco>
   <worldbody>
@@ -59,10 +59,10 @@ const TARGET_BOX_XML: &str = r#"<mujoco>
 </mujoco>
 "#;
 
-/// spec/10 §3.5 tolerances.
+/// docs/original-d3il.md §10.3.5 tolerances.
 pub const POS_TOL: f64 = 0.018;
 pub const ROT_TOL: f64 = 0.048;
-/// spec/10 §3.6: rod inside the tray if the TCP is this close (xy) to its centre.
+/// docs/original-d3il.md §10.3.6: rod inside the tray if the TCP is this close (xy) to its centre.
 pub const INSIDE_RADIUS: f64 = 0.051;
 
 const CONTEXTS_V1: &[u8] = include_bytes!("../../../assets/contexts/aligning-v1.json");
@@ -96,7 +96,7 @@ impl PlanarPose {
     }
 
     /// Draws x, y, yaw uniformly as float32 (the reference samples a float32
-    /// gym Box), quaternion from the yaw in float64 (spec/10 §3.2, §4.2).
+    /// gym Box), quaternion from the yaw in float64 (docs/original-d3il.md §10.3.2, §10.4.2).
     pub fn sample(
         rng: &mut dyn rand::RngCore,
         x: (f32, f32),
@@ -183,7 +183,7 @@ pub fn parse_poses<const N: usize>(
             .get(&key)
             .ok_or_else(|| err(format!("missing field `{key}` ([x, y, yaw_deg])")))?;
         let p = numbers(&key, 3, v)?;
-        // The reference stores the pose as float32 (spec/10 §3.2): round
+        // The reference stores the pose as float32 (docs/original-d3il.md §10.3.2): round
         // through f32 so 0.58057404 and 0.5805740356445312 place identically.
         let (x, y, yaw_deg) = (p[0] as f32 as f64, p[1] as f32 as f64, p[2] as f32 as f64);
         let qkey = format!("{prefix}_quat");
@@ -230,7 +230,7 @@ impl TaskDef for Aligning {
     }
     fn scene(&self) -> SceneSpec {
         let mut s = SceneSpec::new(RobotVariant::Rod);
-        // spec/01 §1.1: XML objects are includes after the table, in object order.
+        // docs/original-d3il.md §01.1.1: XML objects are includes after the table, in object order.
         s.includes
             .push(("aligning_box.xml".into(), ALIGNING_BOX_XML.into()));
         s.includes
@@ -259,7 +259,7 @@ impl TaskDef for Aligning {
             ContextSet::verify("aligning-v1.json", CONTEXTS_V1, CONTEXTS_V1_SHA256)?,
         ])
     }
-    /// spec/10 §3.2 random context distribution.
+    /// docs/original-d3il.md §10.3.2 random context distribution.
     fn sample_context(&self, rng: &mut dyn rand::RngCore) -> Value {
         let b = PlanarPose::sample(rng, (0.4, 0.6), (-0.25, -0.1), (-90.0, 90.0));
         let t = PlanarPose::sample(rng, (0.4, 0.6), (0.2, 0.35), (-90.0, 90.0));
@@ -299,7 +299,7 @@ pub struct AligningLogic {
     terminated: bool,
 }
 
-/// Position and rotation error of spec/10 §3.5. The arccos is not clamped: a
+/// Position and rotation error of docs/original-d3il.md §10.3.5. The arccos is not clamped: a
 /// rounding overshoot gives NaN, which fails the test, as in the reference.
 pub fn pose_errors(
     box_pos: &[f64; 3],
@@ -327,7 +327,7 @@ impl AligningLogic {
         e_p <= POS_TOL && e_r <= ROT_TOL
     }
 
-    /// mean_distance of the reference's info: 0.5·(e_p + e_r) (spec/10 §3.5).
+    /// mean_distance of the reference's info: 0.5·(e_p + e_r) (docs/original-d3il.md §10.3.5).
     pub fn mean_distance(&self, sim: &Sim) -> f64 {
         let (p, q) = self.box_pose(sim);
         let (e_p, e_r) = pose_errors(&p, &q, &self.target_pos, &self.target_quat);
@@ -346,7 +346,7 @@ impl TaskLogic for AligningLogic {
         self.target_pos = [t.x, t.y, 0.0];
         self.target_quat = t.quat;
         let (adr, mocap) = (self.box_qpos, self.target_mocap);
-        // spec/10 §3.2: box qpos <- (x, y, 0) and the context quaternion as
+        // docs/original-d3il.md §10.3.2: box qpos <- (x, y, 0) and the context quaternion as
         // given; target pose <- (x_t, y_t, 0), target quat; no forward.
         sim.reset(init_qpos, FingerCommand::RESET, |data| {
             let q = data.qpos_mut();
@@ -358,7 +358,7 @@ impl TaskLogic for AligningLogic {
         Ok(())
     }
 
-    /// spec/10 §3.3: TCP (3), box pos (3), box quat (4), target pos (3), target quat (4).
+    /// docs/original-d3il.md §10.3.3: TCP (3), box pos (3), box quat (4), target pos (3), target quat (4).
     fn observe(&self, sim: &Sim) -> Vec<f32> {
         let (p, q) = self.box_pose(sim);
         sim.tcp_pos()
@@ -371,7 +371,7 @@ impl TaskLogic for AligningLogic {
             .collect()
     }
 
-    /// spec/10 §3.5: the pre-physics test only ends the episode.
+    /// docs/original-d3il.md §10.3.5: the pre-physics test only ends the episode.
     fn pre_physics_done(&mut self, sim: &Sim) -> bool {
         if !self.terminated && self.aligned(sim) {
             self.terminated = true;
@@ -379,7 +379,7 @@ impl TaskLogic for AligningLogic {
         self.terminated
     }
 
-    /// spec/10 §3.5/§3.6: the post-physics test is the step's success (and
+    /// docs/original-d3il.md §10.3.5/§10.3.6: the post-physics test is the step's success (and
     /// makes the next step the last); the behaviour is recomputed every step.
     fn post_physics(&mut self, sim: &Sim) {
         self.success = self.aligned(sim);
@@ -423,7 +423,7 @@ impl TaskLogic for AligningLogic {
 // Scripted reference policy
 // ---------------------------------------------------------------------------
 
-/// How the script pushes the tray (the two behaviours of spec/10 §3.6).
+/// How the script pushes the tray (the two behaviours of docs/original-d3il.md §10.3.6).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum AligningStyle {
     /// Rod lowered into the tray, pushing the far inner wall (behaviour 0).
@@ -511,7 +511,7 @@ impl AligningScript {
 
         // Close enough: stop pushing. Inside: settle the rod at the tray
         // centre (keeps it clearly inside); outside: back off upwards.
-        // (Tolerances: ≈15.5 mm horizontally, 0.15 rad; spec/10 §3.5.)
+        // (Tolerances: ≈15.5 mm horizontally, 0.15 rad; docs/original-d3il.md §10.3.5.)
         // The hold region lies just inside the success region (with the
         // settled tray 9 mm below the target origin, 15 mm horizontally is
         // 17.6 mm in 3-D), so the step after a success always holds.
@@ -568,7 +568,7 @@ impl AligningScript {
                 // On the final approach stay off the corners and press less:
                 // at a corner the rod axis is ≈ 0.05 from the centre, and the
                 // hand tilts under load, moving the TCP further out, right at
-                // the 0.051 inside/outside border of the label (spec/10 §3.6).
+                // the 0.051 inside/outside border of the label (docs/original-d3il.md §10.3.6).
                 let (side, lead) = if dist < 0.04 && yaw_err.abs() < 0.2 {
                     (0.012, 0.03)
                 } else {

@@ -1,7 +1,7 @@
-//! Avoiding (spec/10 §2): move the rod through three rows of cylinders to the
+//! Avoiding (docs/original-d3il.md §10.2): move the rod through three rows of cylinders to the
 //! finish line; the path through the rows is the behaviour (|B| = 24).
 
-use super::{geom_id, Command, CommandKind, ContextSet, TaskDef, TaskError, TaskLogic};
+use super::{geom_id, CommandKind, ContextSet, TaskDef, TaskError, TaskLogic};
 use crate::mujoco::Model;
 use crate::robot::control::FingerCommand;
 use crate::robot::{init_qpos, RobotVariant};
@@ -10,7 +10,7 @@ use crate::sim::Sim;
 use d3il_protocol::TaskId;
 use serde_json::{json, Value};
 
-// Layout constants, computed as the reference does (spec/10 §2.1).
+// Layout constants, computed as the reference does (docs/original-d3il.md §10.2.1).
 const MID_X: f64 = 0.5;
 const OFFSET: f64 = 0.075;
 const FIRST_ROW_Y: f64 = -0.1;
@@ -38,7 +38,7 @@ fn obstacles() -> [(&'static str, f64, f64, f64, f64); 6] {
     ]
 }
 
-/// Finish line y (spec/10 §2.1: −0.1 + 2.5·0.18 = 0.35).
+/// Finish line y (docs/original-d3il.md §10.2.1: −0.1 + 2.5·0.18 = 0.35).
 fn finish_y() -> f64 {
     row_y(2.5)
 }
@@ -92,7 +92,7 @@ impl TaskDef for Avoiding {
         ContextSet::verify("avoiding-v1.json", CONTEXTS_V1, CONTEXTS_V1_SHA256)
     }
     fn sample_context(&self, _rng: &mut dyn rand::RngCore) -> Value {
-        // spec/10 §2.2: a single fixed start, no context.
+        // docs/original-d3il.md §10.2.2: a single fixed start, no context.
         Value::Null
     }
     fn new_logic(&self, model: &Model) -> Result<Box<dyn TaskLogic>, TaskError> {
@@ -121,7 +121,7 @@ pub struct AvoidingLogic {
 }
 
 impl AvoidingLogic {
-    /// spec/10 §2.6, including the row-3 threshold quirk (b8 uses 0.35).
+    /// docs/original-d3il.md §10.2.6, including the row-3 threshold quirk (b8 uses 0.35).
     fn detect_modes(&mut self, x: f64, y: f64) {
         let l2_top = MID_X - OFFSET;
         let l2_bottom = MID_X + OFFSET;
@@ -161,7 +161,7 @@ impl AvoidingLogic {
         }
     }
 
-    /// Mode code c = Σ b_i 2^i (spec/10 §2.6).
+    /// Mode code c = Σ b_i 2^i (docs/original-d3il.md §10.2.6).
     pub fn code(&self) -> u32 {
         self.bits
             .iter()
@@ -197,7 +197,7 @@ impl TaskLogic for AvoidingLogic {
         if self.terminated {
             return true;
         }
-        // spec/10 §2.5: success first (sticky); collision only if not successful.
+        // docs/original-d3il.md §10.2.5: success first (sticky); collision only if not successful.
         if sim.tcp_pos()[1] > finish_y() {
             self.success = true;
             self.terminated = true;
@@ -233,7 +233,7 @@ impl TaskLogic for AvoidingLogic {
     }
 }
 
-/// Corridor centres for the rod axis (spec/10 §2.1 free corridors).
+/// Corridor centres for the rod axis (docs/original-d3il.md §10.2.1 free corridors).
 const ROW1_X: [f64; 2] = [0.43, 0.57];
 const ROW2_X: [f64; 3] = [0.355, 0.50, 0.645];
 const ROW3_X: [f64; 4] = [0.28, 0.425, 0.575, 0.72];

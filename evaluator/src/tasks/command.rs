@@ -11,15 +11,15 @@ use crate::sim::Sim;
 /// A task's command convention.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum CommandKind {
-    /// Avoiding, Pushing, Sorting, Inserting (spec/10 §1.7, spec/11 §1.4,
-    /// spec/11 §3.4): previous desired TCP xy + float32 delta, z frozen at the
+    /// Avoiding, Pushing, Sorting, Inserting (docs/original-d3il.md §10.1.7, docs/original-d3il.md §11.1.4,
+    /// docs/original-d3il.md §11.3.4): previous desired TCP xy + float32 delta, z frozen at the
     /// post-reset TCP z, hand pointing down. The "previous command" starts at
     /// the measured TCP xy.
     XyDelta,
-    /// Aligning (spec/10 §3.4): previous desired TCP xyz + float32 delta, hand
+    /// Aligning (docs/original-d3il.md §10.3.4): previous desired TCP xyz + float32 delta, hand
     /// down, no fixed z; starts at the measured TCP xyz.
     XyzDelta,
-    /// Stacking (spec/11 §2.3, §2.4): q_d = previous q + Δq in float32 for the
+    /// Stacking (docs/original-d3il.md §11.2.3, §11.2.4): q_d = previous q + Δq in float32 for the
     /// 7 joints, and an absolute gripper width (> 0.075 opens) that becomes
     /// index 7 of the next "previous command" (the prediction, not the
     /// measured width); starts at the measured joints and width as float32.
@@ -66,7 +66,7 @@ impl CommandKind {
 
     /// Previous command + policy action -> (new previous command, controller
     /// command). The delta is float32 and added to the float64 previous
-    /// command (spec/01 §7.12) in the Cartesian conventions.
+    /// command (docs/original-d3il.md §01.7.12) in the Cartesian conventions.
     pub fn apply(self, prev: &[f64], action: &[f32], fixed_z: f64) -> (Vec<f64>, Command) {
         match self {
             CommandKind::XyDelta => {

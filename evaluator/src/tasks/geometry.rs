@@ -1,14 +1,14 @@
 //! Small geometric helpers shared by the tasks.
 
 /// Quaternion (w, x, y, z) of a yaw rotation given in degrees: the
-/// repository's Euler->quaternion gives (cos ψ/2, 0, 0, sin ψ/2) (spec/01 §7.11).
+/// repository's Euler->quaternion gives (cos ψ/2, 0, 0, sin ψ/2) (docs/original-d3il.md §01.7.11).
 pub fn yaw_deg_to_quat(yaw_deg: f64) -> [f64; 4] {
     let psi = yaw_deg.to_radians();
     [(psi / 2.0).cos(), 0.0, 0.0, (psi / 2.0).sin()]
 }
 
 /// Yaw ψ = atan2(2(wz − xy), 1 − 2(y² + z²))-style extraction exactly as the
-/// reference: build R normalised by |q|², take −atan2(R01, R00) (spec/10 §4.3),
+/// reference: build R normalised by |q|², take −atan2(R01, R00) (docs/original-d3il.md §10.4.3),
 /// with the degenerate branch −atan2(−R10, R11).
 pub fn quat_to_yaw(q: &[f64; 4]) -> f64 {
     let [w, x, y, z] = *q;

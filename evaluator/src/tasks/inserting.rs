@@ -1,4 +1,4 @@
-//! Inserting (spec/11 §3): push the red, green and blue boxes through the
+//! Inserting (docs/original-d3il.md §11.3): push the red, green and blue boxes through the
 //! entrance of a grey barrier into three parking slots; the order in which
 //! boxes reach their slots is the behaviour (|B| = 6).
 //!
@@ -9,7 +9,7 @@
 use super::geometry::dist3;
 use super::sorting::{movable_box, static_box, FreeBox, PoseSample};
 use super::stacking::parse_colour_poses;
-use super::{Command, CommandKind, ContextSet, TaskDef, TaskError, TaskLogic};
+use super::{CommandKind, ContextSet, TaskDef, TaskError, TaskLogic};
 use crate::mujoco::Model;
 use crate::robot::control::FingerCommand;
 use crate::robot::{init_qpos, RobotVariant};
@@ -20,16 +20,16 @@ use serde_json::{json, Value};
 
 const LETTERS: [char; 3] = ['r', 'g', 'b'];
 const NAMES: [&str; 3] = ["push_box1", "push_box2", "push_box3"];
-/// Target centres, red, green, blue (spec/11 §3.1).
+/// Target centres, red, green, blue (docs/original-d3il.md §11.3.1).
 pub const TARGETS: [[f64; 3]; 3] = [
     [0.3575, 0.276, 0.0],
     [0.525, 0.4535, 0.0],
     [0.6925, 0.276, 0.0],
 ];
-/// 3-D insertion radius (spec/11 §3.5): an effective ≈8 mm in xy.
+/// 3-D insertion radius (docs/original-d3il.md §11.3.5): an effective ≈8 mm in xy.
 const NEAR: f64 = 0.01;
 
-/// Colour regions (spec/11 §3.2): red, green, blue, no shuffling.
+/// Colour regions (docs/original-d3il.md §11.3.2): red, green, blue, no shuffling.
 pub const REGIONS: [([f32; 2], [f32; 2]); 3] = [
     ([0.35, 0.50], [-0.20, -0.15]),
     ([0.55, 0.70], [-0.10, -0.05]),
@@ -37,7 +37,7 @@ pub const REGIONS: [([f32; 2], [f32; 2]); 3] = [
 ];
 
 /// Barrier walls maze_3 … maze_19 (name, centre xy, half-sizes xy, quat),
-/// half-height 0.03, centred at z = 0 (spec/11 §3.1). The two diagonal pairs
+/// half-height 0.03, centred at z = 0 (docs/original-d3il.md §11.3.1). The two diagonal pairs
 /// keep the reference's non-unit quaternions; MuJoCo normalises them.
 /// maze_1/maze_2 (the "gate") are excluded, as in the reference.
 const AXIS: [f64; 4] = [1.0, 0.0, 0.0, 0.0];
@@ -69,7 +69,7 @@ const CONTEXTS_V1: &[u8] = include_bytes!("../../../assets/contexts/inserting-v1
 pub const CONTEXTS_V1_SHA256: &str =
     "3125bac0ea16de061fad046413f859825eb3dcd8b16b2cc60bc41da67fa28405";
 
-/// The reference's `info.mode` for a complete order (spec/11 §3.6), 0 otherwise.
+/// The reference's `info.mode` for a complete order (docs/original-d3il.md §11.3.6), 0 otherwise.
 pub fn mode_code(order: &str) -> u32 {
     match order {
         "rgb" => 1,
@@ -128,7 +128,7 @@ impl TaskDef for Inserting {
     fn n_substeps(&self) -> usize {
         35
     }
-    /// Same TCP target and start as Avoiding/Pushing (spec/01 §4.5).
+    /// Same TCP target and start as Avoiding/Pushing (docs/original-d3il.md §01.4.5).
     fn init_qpos(&self) -> [f64; 7] {
         init_qpos::AVOIDING
     }
@@ -187,7 +187,7 @@ impl TaskLogic for InsertingLogic {
         context: &Value,
     ) -> Result<(), TaskError> {
         // The original environment names the boxes box1/box2/box3 (red,
-        // green, blue; spec/11 §3.1): its context keys are accepted as they are.
+        // green, blue; docs/original-d3il.md §11.3.1): its context keys are accepted as they are.
         let context = super::contexts::rename_objects(
             TaskId::Inserting,
             context,
@@ -203,7 +203,7 @@ impl TaskLogic for InsertingLogic {
         Ok(())
     }
 
-    /// spec/11 §3.3: TCP xy, then red, green, blue (x, y, tan yaw).
+    /// docs/original-d3il.md §11.3.3: TCP xy, then red, green, blue (x, y, tan yaw).
     fn observe(&self, sim: &Sim) -> Vec<f32> {
         let p = sim.tcp_pos();
         let mut v = vec![p[0] as f32, p[1] as f32];
@@ -224,7 +224,7 @@ impl TaskLogic for InsertingLogic {
         if self.success {
             self.terminated = true;
         }
-        // spec/11 §3.6: no gating, several boxes may register in one step (r, g, b order).
+        // docs/original-d3il.md §11.3.6: no gating, several boxes may register in one step (r, g, b order).
         for (i, &inn) in inside.iter().enumerate() {
             if inn && !self.order.contains(LETTERS[i]) {
                 self.order.push(LETTERS[i]);

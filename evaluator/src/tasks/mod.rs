@@ -1,7 +1,7 @@
 //! The D3IL tasks on top of the simulation core. A task is a static
 //! definition ([`TaskDef`]: scene, constants, contexts, command convention)
 //! plus per-episode logic ([`TaskLogic`]: observation, termination, success,
-//! behaviour). [`Env`] runs the generic step of spec/01 §4.2 / spec/10 §1.5
+//! behaviour). [`Env`] runs the generic step of docs/original-d3il.md §01.4.2 / docs/original-d3il.md §10.1.5
 //! for any task.
 
 pub mod aligning;
@@ -68,7 +68,7 @@ pub enum Command {
     Joint { q: [f64; 7], gripper: f64 },
 }
 
-/// The hand points straight down in every Cartesian task (spec/01 §3.1).
+/// The hand points straight down in every Cartesian task (docs/original-d3il.md §01.3.1).
 pub const QUAT_DOWN: [f64; 4] = [0.0, 1.0, 0.0, 0.0];
 
 /// Static definition of a task.
@@ -113,7 +113,7 @@ pub trait TaskDef: Send + Sync {
         self.id().paper_protocol().rollouts
     }
     /// Initial states the paper's protocol uses out of a set of `set_len`
-    /// (e.g. Pushing uses the first 30 of the 60 stored, spec/10 §1.10).
+    /// (e.g. Pushing uses the first 30 of the 60 stored, docs/original-d3il.md §10.1.10).
     fn n_contexts_paper(&self, set_len: usize) -> usize {
         set_len.min(self.id().paper_protocol().contexts)
     }
@@ -149,7 +149,7 @@ pub trait TaskDef: Send + Sync {
     }
 
     /// The policy interface for an observation type. Image variants get the
-    /// previous command as their low-dimensional `obs` (spec/11 §1.3, §2.3:
+    /// previous command as their low-dimensional `obs` (docs/original-d3il.md §11.1.3, §11.2.3:
     /// desired TCP xy for Sorting, desired joints + gripper for Stacking; the
     /// desired TCP xyz for Aligning by the same convention) plus the images.
     fn spec_for(&self, obs: ObsType) -> TaskSpec {
@@ -188,7 +188,7 @@ pub trait TaskLogic: Send {
     fn behaviour_key(&self) -> Option<String>;
     /// Positions of the task's objects, for replay output and plots.
     fn objects(&self, sim: &Sim) -> Vec<(String, [f64; 3])>;
-    /// Stacking only: Stacking-1/2/3 (≥ 1 / ≥ 2 boxes registered, full stack), spec/11 §2.5.
+    /// Stacking only: Stacking-1/2/3 (≥ 1 / ≥ 2 boxes registered, full stack), docs/original-d3il.md §11.2.5.
     fn stacking_levels(&self) -> Option<[bool; 3]> {
         None
     }
@@ -271,7 +271,7 @@ pub fn task_def(id: TaskId) -> Result<Arc<dyn TaskDef>, TaskError> {
 /// Result of one env step.
 #[derive(Debug, Clone)]
 pub struct StepOutcome {
-    /// The observation `step` returns: the state at which the action was issued (spec/01 §4.2).
+    /// The observation `step` returns: the state at which the action was issued (docs/original-d3il.md §01.4.2).
     pub obs: Vec<f32>,
     pub done: bool,
 }
@@ -319,14 +319,14 @@ impl Env {
         })
     }
 
-    /// Reset to `context` (spec/01 §4.4) and return the first observation.
+    /// Reset to `context` (docs/original-d3il.md §01.4.4) and return the first observation.
     pub fn reset(&mut self, context: &Value) -> Result<Vec<f32>, TaskError> {
         self.logic = self.def.new_logic(self.sim.data.model())?;
         self.logic
             .reset(&mut self.sim, &self.def.init_qpos(), context)?;
         self.step_counter = 0;
         self.finished = false;
-        // spec/10 §1.7: d <- measured TCP after reset; z is frozen at its value.
+        // docs/original-d3il.md §10.1.7: d <- measured TCP after reset; z is frozen at its value.
         self.fixed_z = self.sim.tcp_pos()[2];
         self.prev_cmd = self.def.initial_command(&self.sim);
         self.last_obs = self.logic.observe(&self.sim);
@@ -399,7 +399,7 @@ impl Env {
         Ok(outcome)
     }
 
-    /// The generic env step of spec/01 §4.2 with an absolute command.
+    /// The generic env step of docs/original-d3il.md §01.4.2 with an absolute command.
     pub fn env_step(&mut self, command: Command) -> Result<StepOutcome, TaskError> {
         match command {
             Command::Cartesian { pos, quat } => {
@@ -407,7 +407,7 @@ impl Env {
                 self.sim.set_cartesian_target(pos, quat);
             }
             Command::Joint { q, gripper } => {
-                // spec/01 §3.6: > 0.075 opens, otherwise close with constant squeeze.
+                // docs/original-d3il.md §01.3.6: > 0.075 opens, otherwise close with constant squeeze.
                 self.sim.fingers = if gripper > 0.075 {
                     FingerCommand::OPEN
                 } else {
@@ -416,7 +416,7 @@ impl Env {
                 self.sim.arm = crate::sim::ArmController::Joint(q);
             }
         }
-        // Observation and done BEFORE the physics (spec/01 §4.2 step 3).
+        // Observation and done BEFORE the physics (docs/original-d3il.md §01.4.2 step 3).
         let obs = self.logic.observe(&self.sim);
         let mut images = Vec::new();
         if let Some(cams) = self.cameras {
@@ -474,7 +474,7 @@ impl Env {
     }
 }
 
-/// Position of a free-joint body (its qpos), spec/01 §5.
+/// Position of a free-joint body (its qpos), docs/original-d3il.md §01.5.
 pub fn free_body_pos(data: &Data, qpos_adr: usize) -> [f64; 3] {
     let q = &data.qpos()[qpos_adr..qpos_adr + 3];
     [q[0], q[1], q[2]]

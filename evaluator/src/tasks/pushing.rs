@@ -1,10 +1,10 @@
-//! Pushing (spec/10 §4): push a red and a green cube into two target zones,
+//! Pushing (docs/original-d3il.md §10.4): push a red and a green cube into two target zones,
 //! colour-matched or swapped; the behaviour is the assignment and which box
 //! arrives first (modes 0…3, −1 unlabeled).
 
 use super::aligning::{parse_poses, PlanarPose};
 use super::geometry::{dist3, quat_to_yaw};
-use super::{Command, CommandKind, ContextSet, TaskDef, TaskError, TaskLogic};
+use super::{CommandKind, ContextSet, TaskDef, TaskError, TaskLogic};
 use crate::mujoco::Model;
 use crate::robot::control::FingerCommand;
 use crate::robot::{init_qpos, RobotVariant};
@@ -13,10 +13,10 @@ use crate::sim::Sim;
 use d3il_protocol::TaskId;
 use serde_json::{json, Map, Value};
 
-/// Target zone centres (spec/10 §4.1): red (0.42, 0.30, 0), green (0.63, 0.30, 0).
+/// Target zone centres (docs/original-d3il.md §10.4.1): red (0.42, 0.30, 0), green (0.63, 0.30, 0).
 pub const RED_TARGET: [f64; 3] = [0.42, 0.30, 0.0];
 pub const GREEN_TARGET: [f64; 3] = [0.63, 0.30, 0.0];
-/// spec/10 §4.5: 3-D distance threshold for success and visits.
+/// docs/original-d3il.md §10.4.5: 3-D distance threshold for success and visits.
 pub const TAU: f64 = 0.05;
 
 const CONTEXTS_V1: &[u8] = include_bytes!("../../../assets/contexts/pushing-v1.json");
@@ -39,7 +39,7 @@ impl TaskDef for Pushing {
     }
     fn scene(&self) -> SceneSpec {
         let mut s = SceneSpec::new(RobotVariant::Rod);
-        // spec/10 §4.1, in the reference's order: red box, green box, red
+        // docs/original-d3il.md §10.4.1, in the reference's order: red box, green box, red
         // target, green target. The MJCF poses are overwritten at reset.
         let flipped = [0.0, 1.0, 0.0, 0.0];
         for (name, x, rgba) in [
@@ -89,7 +89,7 @@ impl TaskDef for Pushing {
             ContextSet::verify("pushing-v1.json", CONTEXTS_V1, CONTEXTS_V1_SHA256)?,
         ])
     }
-    /// spec/10 §4.2 random distribution (independent uniform, no rejection).
+    /// docs/original-d3il.md §10.4.2 random distribution (independent uniform, no rejection).
     fn sample_context(&self, rng: &mut dyn rand::RngCore) -> Value {
         let r = PlanarPose::sample(rng, (0.4, 0.5), (-0.15, 0.0), (-90.0, 90.0));
         let g = PlanarPose::sample(rng, (0.55, 0.65), (-0.15, 0.0), (-90.0, 90.0));
@@ -114,7 +114,7 @@ impl TaskDef for Pushing {
 pub struct PushingLogic {
     red_qpos: usize,
     green_qpos: usize,
-    /// spec/10 §4.6: latched first box–zone pair, −1 until any box is in any zone.
+    /// docs/original-d3il.md §10.4.6: latched first box–zone pair, −1 until any box is in any zone.
     first_visit: i8,
     /// Mode of the last step (−1 none, 0 rr→gg, 1 gg→rr, 2 rg→gr, 3 gr→rg).
     mode: i8,
@@ -123,7 +123,7 @@ pub struct PushingLogic {
     terminated: bool,
 }
 
-/// The four box–target distances (d_rr, d_rg, d_gr, d_gg), 3-D (spec/10 §4.5).
+/// The four box–target distances (d_rr, d_rg, d_gr, d_gg), 3-D (docs/original-d3il.md §10.4.5).
 pub fn distances(red: &[f64; 3], green: &[f64; 3]) -> [f64; 4] {
     [
         dist3(red, &RED_TARGET),
@@ -133,12 +133,12 @@ pub fn distances(red: &[f64; 3], green: &[f64; 3]) -> [f64; 4] {
     ]
 }
 
-/// spec/10 §4.5 success condition.
+/// docs/original-d3il.md §10.4.5 success condition.
 pub fn solved(d: &[f64; 4]) -> bool {
     (d[0] <= TAU && d[3] <= TAU) || (d[1] <= TAU && d[2] <= TAU)
 }
 
-/// One step of the spec/10 §4.6 mode detector: returns (new first_visit, mode).
+/// One step of the docs/original-d3il.md §10.4.6 mode detector: returns (new first_visit, mode).
 pub fn detect_mode(first_visit: i8, d: &[f64; 4]) -> (i8, i8) {
     let mut v = -1;
     for (i, &di) in d.iter().enumerate() {
@@ -186,7 +186,7 @@ impl TaskLogic for PushingLogic {
     ) -> Result<(), TaskError> {
         let [r, g] = parse_poses(TaskId::Pushing, context, ["red", "green"])?;
         let (ra, ga) = (self.red_qpos, self.green_qpos);
-        // spec/10 §4.2: boxes at (x, y, 0) with the context quaternions; the
+        // docs/original-d3il.md §10.4.2: boxes at (x, y, 0) with the context quaternions; the
         // targets never move.
         sim.reset(init_qpos, FingerCommand::RESET, |data| {
             let q = data.qpos_mut();
@@ -198,7 +198,7 @@ impl TaskLogic for PushingLogic {
         Ok(())
     }
 
-    /// spec/10 §4.3: TCP xy, red xy, tan(yaw_red), green xy, tan(yaw_green).
+    /// docs/original-d3il.md §10.4.3: TCP xy, red xy, tan(yaw_red), green xy, tan(yaw_green).
     /// tan is not wrapped: it is huge near ±90°, as in the reference.
     fn observe(&self, sim: &Sim) -> Vec<f32> {
         let tcp = sim.tcp_pos();
@@ -250,7 +250,7 @@ impl TaskLogic for PushingLogic {
     }
 
     /// Successes with mode −1 count in the success rate but in no mode bin
-    /// (spec/10 §4.6, §6.5).
+    /// (docs/original-d3il.md §10.4.6, §10.6.5).
     fn behaviour_key(&self) -> Option<String> {
         (self.success && self.mode >= 0).then(|| self.mode.to_string())
     }
@@ -279,7 +279,7 @@ impl TaskLogic for PushingLogic {
 /// against the desired motion, at the point where the line through the box
 /// centre along the motion meets that face, so the box translates towards its
 /// goal (re-aimed every step). Between contacts the rod circles around boxes
-/// at a safe distance (it cannot be lifted: z is fixed, spec/10 §4.4). In the
+/// at a safe distance (it cannot be lifted: z is fixed, docs/original-d3il.md §10.4.4). In the
 /// swapped assignments a box is first pushed straight up (+y) past the other
 /// box's row so the two paths do not cross.
 #[derive(Debug, Clone)]

@@ -1,13 +1,13 @@
-//! Sorting-2/4/6 (spec/11 §1): push red and blue boxes off a raised platform
+//! Sorting-2/4/6 (docs/original-d3il.md §11.1): push red and blue boxes off a raised platform
 //! into the bin of their colour; the colour sequence in which boxes are
 //! sorted is the behaviour (|B| = 2 / 6 / 20, packed MSB-first into a byte).
 //!
 //! The pose-sample and free-box helpers at the top are shared with Stacking
-//! and Inserting (same context conventions, spec/11 §0.7).
+//! and Inserting (same context conventions, docs/original-d3il.md §11.0.7).
 
 use super::geometry::{dist2, quat_to_yaw};
 use super::{
-    free_body_pos, free_body_quat, Command, CommandKind, ContextSet, TaskDef, TaskError, TaskLogic,
+    free_body_pos, free_body_quat, CommandKind, ContextSet, TaskDef, TaskError, TaskLogic,
 };
 use crate::mujoco::{Data, Model};
 use crate::robot::control::FingerCommand;
@@ -20,7 +20,7 @@ use rand::Rng;
 use serde_json::{json, Value};
 
 // ---------------------------------------------------------------------------
-// Shared context helpers (spec/11 §0.7)
+// Shared context helpers (docs/original-d3il.md §11.0.7)
 // ---------------------------------------------------------------------------
 
 /// One pose sample: (x, y, yaw in degrees) as float32 values plus the float64
@@ -118,7 +118,7 @@ impl FreeBox {
         })
     }
 
-    /// Box centre, read from qpos (spec/11 §8.14).
+    /// Box centre, read from qpos (docs/original-d3il.md §11.8.14).
     pub fn pos(&self, data: &Data) -> [f64; 3] {
         free_body_pos(data, self.qpos)
     }
@@ -127,13 +127,13 @@ impl FreeBox {
         free_body_quat(data, self.qpos)
     }
 
-    /// tan of the rotating-frame x-y-z yaw (spec/11 §0.6).
+    /// tan of the rotating-frame x-y-z yaw (docs/original-d3il.md §11.0.6).
     pub fn tan_yaw(&self, data: &Data) -> f64 {
         quat_to_yaw(&self.quat(data)).tan()
     }
 
     /// Overwrites the free-joint pose (velocities stay zero; no forward),
-    /// spec/11 §0.5 step 4.
+    /// docs/original-d3il.md §11.0.5 step 4.
     pub fn place(&self, data: &mut Data, pose: &PoseSample, z: f64) {
         let q = data.qpos_mut();
         q[self.qpos..self.qpos + 7].copy_from_slice(&[
@@ -178,13 +178,13 @@ pub fn static_box(
 
 const BOX_HALF: f64 = 0.03;
 const BOX_MASS: f64 = 0.05;
-/// Spawn height inside the platform (spec/11 §1.2): the solver ejects the boxes.
+/// Spawn height inside the platform (docs/original-d3il.md §11.1.2): the solver ejects the boxes.
 const SPAWN_Z: f64 = 0.05;
-/// Bin reference points of the behaviour tracker (spec/11 §1.1).
+/// Bin reference points of the behaviour tracker (docs/original-d3il.md §11.1.1).
 pub const RED_BIN: [f64; 2] = [0.4, 0.32];
 pub const BLUE_BIN: [f64; 2] = [0.625, 0.32];
 
-/// The six sampling regions (spec/11 §1.2).
+/// The six sampling regions (docs/original-d3il.md §11.1.2).
 pub const REGIONS: [([f32; 2], [f32; 2]); 6] = [
     ([0.40, 0.50], [-0.15, -0.10]),
     ([0.40, 0.50], [-0.05, 0.00]),
@@ -194,7 +194,7 @@ pub const REGIONS: [([f32; 2], [f32; 2]); 6] = [
     ([0.55, 0.65], [0.05, 0.10]),
 ];
 
-/// Bin walls (name, centre, half-sizes, rgba), spec/11 §1.1.
+/// Bin walls (name, centre, half-sizes, rgba), docs/original-d3il.md §11.1.1.
 /// (name, position, half-size, rgba) of a static wall.
 type WallSpec = (&'static str, [f64; 3], [f64; 3], [f64; 4]);
 const WALLS: [WallSpec; 8] = [
@@ -248,7 +248,7 @@ const WALLS: [WallSpec; 8] = [
     ),
 ];
 
-/// The platform as the task's XML object (spec/11 §1.1): a raised static work
+/// The platform as the task's XML object (docs/original-d3il.md §11.1.1): a raised static work
 /// surface, z ∈ [−0.1, 0.1]; friction 0.3 with priority 1 so box contacts use 0.3.
 const PLATFORM_XML: &str = r#"<mujoco>
   <worldbody>
@@ -290,7 +290,7 @@ impl Colour {
             Colour::Blue => BLUE_BIN,
         }
     }
-    /// Colour zone on the box-centre xy, strict inequalities, z ignored (spec/11 §1.5).
+    /// Colour zone on the box-centre xy, strict inequalities, z ignored (docs/original-d3il.md §11.1.5).
     pub fn in_zone(self, p: &[f64]) -> bool {
         let (x_lo, x_hi) = match self {
             Colour::Red => (0.3, 0.5),
@@ -300,7 +300,7 @@ impl Colour {
     }
 }
 
-/// Packed behaviour code of a colour sequence (spec/11 §1.6): MSB first,
+/// Packed behaviour code of a colour sequence (docs/original-d3il.md §11.1.6): MSB first,
 /// red → 0, blue → 1, unfilled slots → 1.
 pub fn pack_code(slots: &[Option<Colour>]) -> u32 {
     slots
@@ -441,7 +441,7 @@ impl TaskDef for Sorting {
         };
         ContextSet::verify(name, bytes, sha)
     }
-    /// spec/11 §1.2: one pose per region, then a random permutation of the six.
+    /// docs/original-d3il.md §11.1.2: one pose per region, then a random permutation of the six.
     fn sample_context(&self, rng: &mut dyn rand::RngCore) -> Value {
         let mut poses: Vec<PoseSample> = REGIONS
             .iter()
@@ -475,7 +475,7 @@ impl TaskDef for Sorting {
 pub struct SortingLogic {
     parser: Sorting,
     boxes: Vec<(FreeBox, Colour)>,
-    /// The tracker's six slots (spec/11 §1.6); None = −1.
+    /// The tracker's six slots (docs/original-d3il.md §11.1.6); None = −1.
     slots: [Option<Colour>; 6],
     /// Indices into `boxes` of registered boxes, in registration order.
     registered: Vec<usize>,
@@ -488,7 +488,7 @@ impl SortingLogic {
         self.boxes.iter().all(|(b, c)| c.in_zone(&b.pos(&sim.data)))
     }
 
-    /// spec/11 §1.6. The reference also lets the absent boxes of Sorting-2/4
+    /// docs/original-d3il.md §11.1.6. The reference also lets the absent boxes of Sorting-2/4
     /// take part (their pose lookup falls back to a fixed point far from both
     /// bins); such a "ghost" can never be in a zone, so ignoring absent boxes is
     /// equivalent — except that it must not let a registered box register
@@ -518,7 +518,7 @@ impl SortingLogic {
         }
     }
 
-    /// The packed code of the first X slots (spec/11 §1.6).
+    /// The packed code of the first X slots (docs/original-d3il.md §11.1.6).
     pub fn code(&self) -> u32 {
         pack_code(&self.slots[..self.boxes.len()])
     }
@@ -541,7 +541,7 @@ impl TaskLogic for SortingLogic {
         Ok(())
     }
 
-    /// spec/11 §1.3: TCP xy, then per box (x, y, tan yaw), red boxes first.
+    /// docs/original-d3il.md §11.1.3: TCP xy, then per box (x, y, tan yaw), red boxes first.
     fn observe(&self, sim: &Sim) -> Vec<f32> {
         let p = sim.tcp_pos();
         let mut v = vec![p[0] as f32, p[1] as f32];
@@ -557,7 +557,7 @@ impl TaskLogic for SortingLogic {
     }
 
     /// Success as measured after this step's physics (it goes into the info
-    /// the evaluation loop reads), then the order tracker (spec/11 §0.4).
+    /// the evaluation loop reads), then the order tracker (docs/original-d3il.md §11.0.4).
     fn post_physics(&mut self, sim: &Sim) {
         self.success = self.all_sorted(sim);
         if self.success {
@@ -578,7 +578,7 @@ impl TaskLogic for SortingLogic {
     /// Only codes of a complete colour sequence (X/2 red, X/2 blue: the keys
     /// of the reference's `<X>_mode_prob.pkl`) are behaviours; a success whose
     /// tracker missed a box packs to another code, which the reference ignores
-    /// in its entropies (spec/11 §1.7), so it is an unlabelled success here.
+    /// in its entropies (docs/original-d3il.md §11.1.7), so it is an unlabelled success here.
     fn behaviour_key(&self) -> Option<String> {
         let code = self.code();
         (self.success && is_sequence_code(code, self.boxes.len())).then(|| code.to_string())

@@ -1,11 +1,11 @@
-//! Stacking (spec/11 §2): pick the red, green and blue blocks and stack them
+//! Stacking (docs/original-d3il.md §11.2): pick the red, green and blue blocks and stack them
 //! on the target (0.5, 0.2). Joint-space control: the policy outputs per-step
 //! joint increments integrated on the previous *desired* joints in float32,
 //! plus an absolute gripper value thresholded at 0.075.
 
 use super::geometry::dist2;
 use super::sorting::{movable_box, static_box, FreeBox, PoseSample};
-use super::{Command, CommandKind, ContextSet, TaskDef, TaskError, TaskLogic};
+use super::{CommandKind, ContextSet, TaskDef, TaskError, TaskLogic};
 use crate::mujoco::Model;
 use crate::robot::control::{orientation_error, FingerCommand};
 use crate::robot::kinematics::PandaKinematics;
@@ -16,14 +16,14 @@ use d3il_protocol::TaskId;
 use nalgebra::{SMatrix, SVector};
 use serde_json::{json, Value};
 
-/// The stacking target xy; the context's 4th entry is never applied (spec/11 §2.2, §7.4).
+/// The stacking target xy; the context's 4th entry is never applied (docs/original-d3il.md §11.2.2, §11.7.4).
 pub const TARGET: [f64; 2] = [0.5, 0.2];
-/// Registration radius (xy) of the order tracker and the full-stack test (spec/11 §2.5).
+/// Registration radius (xy) of the order tracker and the full-stack test (docs/original-d3il.md §11.2.5).
 const NEAR: f64 = 0.06;
 const LETTERS: [char; 3] = ['r', 'g', 'b'];
 const NAMES: [&str; 3] = ["red_box", "green_box", "blue_box"];
 
-/// Sampling regions: red, green, blue, and the ignored target (spec/11 §2.2).
+/// Sampling regions: red, green, blue, and the ignored target (docs/original-d3il.md §11.2.2).
 pub const REGIONS: [([f32; 2], [f32; 2]); 4] = [
     ([0.35, 0.45], [-0.25, -0.15]),
     ([0.35, 0.45], [-0.10, 0.00]),
@@ -116,11 +116,11 @@ impl TaskDef for Stacking {
         s.primitives.push(t);
         s
     }
-    /// spec/11 §2.4: 30 substeps (Sorting and Inserting use 35).
+    /// docs/original-d3il.md §11.2.4: 30 substeps (Sorting and Inserting use 35).
     fn n_substeps(&self) -> usize {
         30
     }
-    /// `init_qpos::STACKING` at full precision: the table in spec/01 §4.5 rounds
+    /// `init_qpos::STACKING` at full precision: the table in docs/original-d3il.md §01.4.5 rounds
     /// the three near-zero joints to 4 digits, which shows up as 5e-13 rad in the
     /// float32 commands; these are the reference rollouts' `reset.init_qpos`.
     fn init_qpos(&self) -> [f64; 7] {
@@ -171,7 +171,7 @@ impl TaskDef for Stacking {
 
 pub struct StackingLogic {
     boxes: [FreeBox; 3],
-    /// Registration order, letters r/g/b (spec/11 §2.6).
+    /// Registration order, letters r/g/b (docs/original-d3il.md §11.2.6).
     order: String,
     success: bool,
     terminated: bool,
@@ -179,7 +179,7 @@ pub struct StackingLogic {
 
 impl StackingLogic {
     /// Full stack (Stacking-3): all three within 0.06 (xy) of the target and
-    /// every pair of centres more than 0.03 apart in z (spec/11 §2.5).
+    /// every pair of centres more than 0.03 apart in z (docs/original-d3il.md §11.2.5).
     fn stacked(&self, sim: &Sim) -> bool {
         let p: [[f64; 3]; 3] = std::array::from_fn(|i| self.boxes[i].pos(&sim.data));
         let near = p.iter().all(|q| dist2(q, &TARGET) <= NEAR);
@@ -222,7 +222,7 @@ impl TaskLogic for StackingLogic {
     ) -> Result<(), TaskError> {
         let poses = parse_colour_poses(TaskId::Stacking, context, &["red", "green", "blue"])?;
         let boxes = self.boxes.clone();
-        // spec/01 §4.4 step 6: Stacking opens the fingers before the reset substep.
+        // docs/original-d3il.md §01.4.4 step 6: Stacking opens the fingers before the reset substep.
         sim.reset(init_qpos, FingerCommand::OPEN, |data| {
             for (b, pose) in boxes.iter().zip(&poses) {
                 b.place(data, pose, 0.0);
@@ -231,7 +231,7 @@ impl TaskLogic for StackingLogic {
         Ok(())
     }
 
-    /// spec/11 §2.3: per box (x, y, z, tan yaw), red, green, blue.
+    /// docs/original-d3il.md §11.2.3: per box (x, y, z, tan yaw), red, green, blue.
     fn observe(&self, sim: &Sim) -> Vec<f32> {
         let mut v = Vec::with_capacity(12);
         for b in &self.boxes {

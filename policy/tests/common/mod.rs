@@ -8,7 +8,7 @@ pub fn repo() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("..")
 }
 
-/// Dimensions from spec/10 §5 (Avoiding 4/2, Aligning 20/3).
+/// Dimensions from docs/original-d3il.md §10.5 (Avoiding 4/2, Aligning 20/3).
 pub fn spec(task: TaskId) -> TaskSpec {
     let (obs_dim, act_dim, max_steps) = match task {
         TaskId::Avoiding => (4, 2, 250),

@@ -34,6 +34,8 @@ pub struct RowView {
     pub bold_success: bool,
     pub bold_entropy: bool,
     pub submissions: Vec<i64>,
+    /// Evaluated rows: "the original D3IL test contexts" or "our sample".
+    pub initial_states: String,
 }
 
 fn row_view(rank: usize, r: &BoardRow) -> RowView {
@@ -54,6 +56,7 @@ fn row_view(rank: usize, r: &BoardRow) -> RowView {
         bold_success: r.bold_success.unwrap_or(false),
         bold_entropy: r.bold_entropy.unwrap_or(false),
         submissions: r.submission_ids.clone(),
+        initial_states: r.initial_states_label.clone().unwrap_or_default(),
     }
 }
 
@@ -181,6 +184,8 @@ struct LeaderboardPage {
     protocol: String,
     /// The protocol is this project's definition (the reference has none).
     protocol_ours: bool,
+    /// Sorting-2/4/6: the reference's own protocol differed from the paper's.
+    sorting: bool,
 }
 
 fn obs_tabs(task: TaskId, obs: ObsType, base: &str) -> Vec<Tab> {
@@ -284,6 +289,7 @@ pub(super) async fn leaderboard(
         plot_url: format!("/plots/tasks/{}/pareto.svg?obs={obs}", task.slug()),
         protocol: task.paper_protocol().describe(obs),
         protocol_ours: task.paper_protocol().ours,
+        sorting: matches!(task, TaskId::Sorting2 | TaskId::Sorting4 | TaskId::Sorting6),
     })
 }
 
