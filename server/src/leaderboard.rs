@@ -32,6 +32,9 @@ pub struct BoardRow {
     /// Evaluation protocol of evaluated rows (None for reported rows).
     #[schema(value_type = Option<schema::Protocol>)]
     pub protocol: Option<ProtocolKind>,
+    /// The initial-state set of evaluated rows (`pushing-v2.json`; None for
+    /// reported rows): rows on different sets are ranked apart.
+    pub initial_states: Option<String>,
     #[schema(value_type = schema::Stat)]
     pub success: Stat,
     /// Conditional behaviour entropy (the paper's "Entropy").
@@ -98,6 +101,8 @@ pub struct EvaluatedSeed {
     pub training_seed: i64,
     pub data_fraction: f64,
     pub protocol: ProtocolKind,
+    /// The initial-state set's name ([`d3il_protocol::ProtocolManifest::initial_states_name`]).
+    pub initial_states: String,
     pub success_rate: f64,
     pub behaviour_entropy: f64,
     pub conditional_entropy: f64,
@@ -151,7 +156,7 @@ impl EvaluatedSeed {
 /// order of first appearance, aggregating each metric over the seeds with
 /// [`aggregate_seeds`] (mean and sample std; one seed has std 0).
 pub fn evaluated_rows(seeds: &[EvaluatedSeed]) -> Result<Vec<BoardRow>, MetricsError> {
-    type Key = (i64, String, &'static str, u64, &'static str);
+    type Key = (i64, String, &'static str, u64, &'static str, String);
     struct Group<'a> {
         first: &'a EvaluatedSeed,
         title: String,
@@ -172,6 +177,7 @@ pub fn evaluated_rows(seeds: &[EvaluatedSeed]) -> Result<Vec<BoardRow>, MetricsE
                 s.obs.as_str(),
                 s.data_fraction.to_bits(),
                 protocol_str(s.protocol),
+                s.initial_states.clone(),
             );
             let i = *index.entry(key).or_insert_with(|| {
                 groups.push(Group {
@@ -215,6 +221,7 @@ pub fn evaluated_rows(seeds: &[EvaluatedSeed]) -> Result<Vec<BoardRow>, MetricsE
                 control: None,
                 source: Source::Evaluated,
                 protocol: Some(f.protocol),
+                initial_states: Some(f.initial_states.clone()),
                 success: aggregate_seeds(&g.success)?,
                 entropy: aggregate_seeds(&g.entropy)?,
                 behaviour_entropy: Some(aggregate_seeds(&g.behaviour)?),
@@ -309,6 +316,57 @@ pub fn by_title(rows: Vec<BoardRow>) -> Vec<(String, Vec<BoardRow>)> {
     out
 }
 
+// ----------------------------------------------------------------- ranking
+
+/// Rows ranked together on a board. Rows of different groups are never
+/// interleaved: numbers evaluated here, numbers the paper reports, numbers on
+/// different initial-state sets and quick smoke tests are not comparable.
+#[derive(Debug, Clone, PartialEq, Eq, PartialOrd, Ord)]
+pub enum RankGroup {
+    /// Evaluated here with the full (paper) protocol on one initial-state set.
+    Evaluated(String),
+    /// Reported in the D3IL paper.
+    Reported,
+    /// Quick-protocol smoke tests: below the board, unranked, off the Pareto front.
+    Smoke,
+}
+
+impl RankGroup {
+    pub fn of(r: &BoardRow) -> RankGroup {
+        match (r.source, r.protocol) {
+            (Source::Reported, _) => RankGroup::Reported,
+            (Source::Evaluated, Some(ProtocolKind::Quick)) => RankGroup::Smoke,
+            (Source::Evaluated, _) => {
+                RankGroup::Evaluated(r.initial_states.clone().unwrap_or_default())
+            }
+        }
+    }
+
+    /// Whether rows of the group get rank numbers (smoke tests do not).
+    pub fn ranked(&self) -> bool {
+        *self != RankGroup::Smoke
+    }
+
+    pub fn heading(&self) -> String {
+        match self {
+            RankGroup::Evaluated(set) => format!("Evaluated here (initial states {set})"),
+            RankGroup::Reported => "Reported in the D3IL paper".into(),
+            RankGroup::Smoke => "Smoke tests (quick protocol, not ranked)".into(),
+        }
+    }
+}
+
+/// Splits rows into their [`RankGroup`]s: evaluated (one group per
+/// initial-state set), then reported, then smoke tests; row order is kept
+/// within a group.
+pub fn rank_groups(rows: Vec<BoardRow>) -> Vec<(RankGroup, Vec<BoardRow>)> {
+    let mut groups: BTreeMap<RankGroup, Vec<BoardRow>> = BTreeMap::new();
+    for r in rows {
+        groups.entry(RankGroup::of(&r)).or_default().push(r);
+    }
+    groups.into_iter().collect()
+}
+
 // ----------------------------------------------------------------- sorting
 
 /// Sortable columns: (query key, column header).
@@ -352,14 +410,13 @@ pub fn sort_rows(rows: &mut [BoardRow], key: &str, desc: bool) {
 
 // ------------------------------------------------------------ figure input
 
-/// Success vs conditional entropy of each row (quick-protocol runs labelled).
+/// Success vs conditional entropy of each row that belongs on the board's
+/// Pareto front: quick-protocol smoke tests are left off.
 pub fn pareto_points(rows: &[BoardRow]) -> Vec<ParetoPoint> {
     rows.iter()
+        .filter(|r| RankGroup::of(r) != RankGroup::Smoke)
         .map(|r| ParetoPoint {
-            label: match (r.source, r.protocol) {
-                (Source::Evaluated, Some(ProtocolKind::Quick)) => format!("{} (quick)", r.method),
-                _ => r.method.clone(),
-            },
+            label: r.method.clone(),
             entropy: r.entropy.mean,
             success: r.success.mean,
             evaluated: r.source == Source::Evaluated,
@@ -433,6 +490,7 @@ mod tests {
             training_seed,
             data_fraction: 1.0,
             protocol: ProtocolKind::Paper,
+            initial_states: "aligning-v2.json".into(),
             success_rate: success,
             behaviour_entropy: 0.5,
             conditional_entropy: 0.25,
@@ -461,6 +519,34 @@ mod tests {
         // One seed: std 0 (as the paper's tables over one seed).
         let one = evaluated_rows(&[seed(9, 0, 0.7)]).unwrap();
         assert_eq!((one[0].success.mean, one[0].success.std), (0.7, 0.0));
+    }
+
+    #[test]
+    fn quick_reported_and_other_sets_are_ranked_apart() {
+        let mut quick = seed(5, 0, 1.0);
+        quick.protocol = ProtocolKind::Quick;
+        let mut other_set = seed(6, 1, 0.9);
+        other_set.initial_states = "aligning-v1.json".into();
+        let mut rows = evaluated_rows(&[seed(1, 0, 0.5), quick, other_set]).unwrap();
+        let mut reported = rows[0].clone();
+        reported.source = Source::Reported;
+        reported.protocol = None;
+        reported.initial_states = None;
+        rows.push(reported);
+        let groups: Vec<RankGroup> = rank_groups(rows.clone()).into_iter().map(|g| g.0).collect();
+        assert_eq!(
+            groups,
+            vec![
+                RankGroup::Evaluated("aligning-v1.json".into()),
+                RankGroup::Evaluated("aligning-v2.json".into()),
+                RankGroup::Reported,
+                RankGroup::Smoke
+            ]
+        );
+        // The quick run (success 1.0) is off the Pareto front.
+        let points = pareto_points(&rows);
+        assert_eq!(points.len(), 3);
+        assert!(points.iter().all(|p| p.success < 1.0));
     }
 
     #[test]

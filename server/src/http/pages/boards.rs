@@ -7,8 +7,8 @@ use crate::error::{AppError, PageError};
 use crate::http::csv::{board_csv, csv_response};
 use crate::http::extract::{obs_query, Param};
 use crate::leaderboard::{
-    board_for, by_title, fraction_rows, fraction_series, pareto_points, protocol_str, sort_rows,
-    BoardRow, SORT_KEYS,
+    board_for, by_title, fraction_rows, fraction_series, pareto_points, protocol_str, rank_groups,
+    sort_rows, BoardRow, RankGroup, SORT_KEYS,
 };
 use crate::state::AppState;
 use crate::store::MethodRow;
@@ -21,7 +21,8 @@ use serde::Deserialize;
 
 #[derive(Debug, Clone)]
 pub struct RowView {
-    pub rank: usize,
+    /// Rank within the row's group; empty for unranked smoke tests.
+    pub rank: String,
     pub method: String,
     pub method_url: String,
     pub reported: bool,
@@ -36,9 +37,9 @@ pub struct RowView {
     pub submissions: Vec<i64>,
 }
 
-fn row_view(rank: usize, r: &BoardRow) -> RowView {
+fn row_view(rank: Option<usize>, r: &BoardRow) -> RowView {
     RowView {
-        rank,
+        rank: rank.map(|n| n.to_string()).unwrap_or_default(),
         method: r.method.clone(),
         method_url: method_url(&r.method),
         reported: r.source == Source::Reported,
@@ -159,9 +160,17 @@ struct Tab {
     active: bool,
 }
 
+/// Rows ranked together ([`RankGroup`]): one table each.
+struct Group {
+    heading: String,
+    /// `evaluated`, `reported` or `smoke` (the table's `data-group`).
+    kind: &'static str,
+    rows: Vec<RowView>,
+}
+
 struct Section {
     title: String,
-    rows: Vec<RowView>,
+    groups: Vec<Group>,
     svg: String,
 }
 
@@ -229,22 +238,32 @@ pub(super) async fn leaderboard(
     let base = format!("/tasks/{}", task.slug());
     let rows = board_for(&state.store.board_rows().await?, task, obs);
     let mut sections = vec![];
-    for (title, mut rs) in by_title(rows) {
+    for (title, rs) in by_title(rows) {
         let svg = figures::pareto_svg(
             &format!("{title}: success vs diversity"),
             &pareto_points(&rs),
         )
         .map_err(|e| AppError::Internal(e.to_string()))?;
-        sort_rows(&mut rs, key, desc);
-        sections.push(Section {
-            title,
-            rows: rs
-                .iter()
-                .enumerate()
-                .map(|(i, r)| row_view(i + 1, r))
-                .collect(),
-            svg,
-        });
+        let groups = rank_groups(rs)
+            .into_iter()
+            .map(|(g, mut rs)| {
+                sort_rows(&mut rs, key, desc);
+                Group {
+                    heading: g.heading(),
+                    kind: match g {
+                        RankGroup::Evaluated(_) => "evaluated",
+                        RankGroup::Reported => "reported",
+                        RankGroup::Smoke => "smoke",
+                    },
+                    rows: rs
+                        .iter()
+                        .enumerate()
+                        .map(|(i, r)| row_view(g.ranked().then_some(i + 1), r))
+                        .collect(),
+                }
+            })
+            .collect();
+        sections.push(Section { title, groups, svg });
     }
     let headers = SORT_KEYS
         .iter()

@@ -1,0 +1,155 @@
+//! The leaderboard a researcher reads at a glance (issue 18), against the real
+//! server on 127.0.0.1 with a fresh SQLite file: ranking groups, number
+//! format, lists and progress.
+
+mod common;
+use common::*;
+use d3il_protocol::*;
+use d3il_server::store::{NewMethod, NewPolicy, NewSubmission};
+
+/// Stores a completed evaluation of `method` on Aligning (state) as the worker
+/// would, and returns the submission id.
+#[allow(clippy::too_many_arguments)]
+async fn evaluated(
+    app: &TestApp,
+    method: &str,
+    protocol: ProtocolKind,
+    training_seed: i64,
+    success: f64,
+    cond: f64,
+    initial_states: &str,
+) -> i64 {
+    let store = &app.state.store;
+    let m = store
+        .ensure_method(
+            &NewMethod {
+                name: method.into(),
+                ..Default::default()
+            },
+            None,
+        )
+        .await
+        .expect("method");
+    let id = store
+        .create_submission(
+            &NewSubmission {
+                method_id: m.id,
+                submitter_id: None,
+                task: TaskId::Aligning,
+                obs_type: ObsType::State,
+                training_seed,
+                data_fraction: 1.0,
+                protocol,
+                policy: NewPolicy::Remote {
+                    url: "ws://127.0.0.1:1/".into(),
+                },
+                manifest_json: "{}".into(),
+            },
+            3,
+        )
+        .await
+        .expect("submission");
+    let job = store.job_for(id).await.expect("job");
+    let est = |v: f64| Estimate {
+        value: v,
+        ci_low: v - 0.05,
+        ci_high: v + 0.05,
+    };
+    let result = EvalResult {
+        manifest: ProtocolManifest {
+            task: TaskId::Aligning,
+            task_version: "test".into(),
+            obs_type: ObsType::State,
+            protocol,
+            mjcf_sha256: "m".into(),
+            initial_states_sha256: "i".into(),
+            initial_states: initial_states.into(),
+            mujoco_version: "2.2.2".into(),
+            evaluator_version: "0".into(),
+            n_contexts: 1,
+            rollouts_per_context: 2,
+            max_steps: 10,
+            policy_sha256: "p".into(),
+            history: 1,
+            horizon: 1,
+            execute: 1,
+            seed: 0,
+        },
+        metrics: Metrics {
+            success_rate: est(success),
+            behaviour_entropy: est(0.5),
+            conditional_entropy: est(cond),
+            stacking: None,
+            stacking_levels: None,
+            inference_ms: 1.5,
+        },
+        per_context: vec![],
+        rollouts: vec![],
+        rollouts_ended_unstable: 0,
+    };
+    store
+        .complete_job(job.id, id, &result, &[])
+        .await
+        .expect("complete");
+    id
+}
+
+/// The `<table ...data-group="G">` tables of a page, in page order, as (group, html).
+fn tables(page: &str) -> Vec<(String, String)> {
+    page.split("<table class=\"board leaderboard\"")
+        .skip(1)
+        .map(|t| {
+            let group = t
+                .split("data-group=\"")
+                .nth(1)
+                .and_then(|g| g.split('"').next())
+                .unwrap_or("")
+                .to_string();
+            let body = t.split("</table>").next().unwrap_or("").to_string();
+            (group, body)
+        })
+        .collect()
+}
+
+#[tokio::test]
+async fn quick_runs_evaluated_and_reported_rows_and_other_sets_are_ranked_apart() {
+    let app = spawn_app().await;
+    // A perfect quick smoke test, two paper-protocol seeds on the original
+    // contexts, and one run on another initial-state set.
+    evaluated(&app, "Smoke", ProtocolKind::Quick, 0, 1.0, 0.0, "aligning-v2.json").await;
+    evaluated(&app, "Mine", ProtocolKind::Paper, 0, 0.97, 0.2, "aligning-v2.json").await;
+    evaluated(&app, "Mine", ProtocolKind::Paper, 1, 0.99, 0.3, "aligning-v2.json").await;
+    evaluated(&app, "Other", ProtocolKind::Paper, 0, 0.98, 0.1, "aligning-v1.json").await;
+
+    let (s, page) = app.get_text("/tasks/aligning?sort=success&dir=desc").await;
+    assert_eq!(s, 200);
+    let t = tables(&page);
+    let groups: Vec<&str> = t.iter().map(|(g, _)| g.as_str()).collect();
+    assert_eq!(
+        groups,
+        ["evaluated", "evaluated", "reported", "smoke"],
+        "one table per set, then the paper, then smoke tests"
+    );
+    assert!(page.contains("Evaluated here (initial states aligning-v1.json)"));
+    assert!(page.contains("Evaluated here (initial states aligning-v2.json)"));
+    // The quick run is below every reported row, in the unranked smoke section.
+    let smoke_at = page.find(">Smoke</a>").expect("smoke row shown");
+    let last_reported = page.rfind("<tr class=\"reported\">").expect("reported rows");
+    assert!(smoke_at > last_reported);
+    assert!(!t[0].1.contains("Smoke") && !t[2].1.contains("Smoke"));
+    assert!(t[3].1.contains("<td class=\"num\"></td>"), "smoke rows unranked");
+    // Each group ranks from 1; the reported table holds only reported rows.
+    for (_, html) in &t[..3] {
+        assert!(html.contains("<td class=\"num\">1</td>"));
+    }
+    assert!(!t[2].1.contains("badge-evaluated"));
+    assert!(t[0].1.contains(">Other</a>") && !t[0].1.contains(">Mine</a>"));
+    assert!(t[1].1.contains(">Mine</a>") && !t[1].1.contains(">Other</a>"));
+
+    // The Pareto plot leaves the quick run off: its label is nowhere in the SVG.
+    let (s, svg) = app
+        .get_text("/plots/tasks/aligning/pareto.svg?obs=state")
+        .await;
+    assert_eq!(s, 200);
+    assert!(svg.contains("Mine") && !svg.contains("Smoke"));
+}
