@@ -36,6 +36,14 @@ fn resnet18_fixture_runs_on_rendered_images() {
     q.images = Some(&images);
     let out = policy.infer(&q).unwrap();
     assert_eq!((out.batch, out.act_dim), (2, 3));
-    assert!(out.data.iter().all(|a| a.is_finite() && a.abs() < 0.05), "{:?}", out.data);
-    assert_ne!(out.data[0..3], out.data[3..6], "the actions do not depend on the images");
+    assert!(
+        out.data.iter().all(|a| a.is_finite() && a.abs() < 0.05),
+        "{:?}",
+        out.data
+    );
+    assert_ne!(
+        out.data[0..3],
+        out.data[3..6],
+        "the actions do not depend on the images"
+    );
 }

@@ -116,10 +116,46 @@ async fn quick_runs_evaluated_and_reported_rows_and_other_sets_are_ranked_apart(
     let app = spawn_app().await;
     // A perfect quick smoke test, two paper-protocol seeds on the original
     // contexts, and one run on another initial-state set.
-    evaluated(&app, "Smoke", ProtocolKind::Quick, 0, 1.0, 0.0, "aligning-v2.json").await;
-    evaluated(&app, "Mine", ProtocolKind::Paper, 0, 0.97, 0.2, "aligning-v2.json").await;
-    evaluated(&app, "Mine", ProtocolKind::Paper, 1, 0.99, 0.3, "aligning-v2.json").await;
-    evaluated(&app, "Other", ProtocolKind::Paper, 0, 0.98, 0.1, "aligning-v1.json").await;
+    evaluated(
+        &app,
+        "Smoke",
+        ProtocolKind::Quick,
+        0,
+        1.0,
+        0.0,
+        "aligning-v2.json",
+    )
+    .await;
+    evaluated(
+        &app,
+        "Mine",
+        ProtocolKind::Paper,
+        0,
+        0.97,
+        0.2,
+        "aligning-v2.json",
+    )
+    .await;
+    evaluated(
+        &app,
+        "Mine",
+        ProtocolKind::Paper,
+        1,
+        0.99,
+        0.3,
+        "aligning-v2.json",
+    )
+    .await;
+    evaluated(
+        &app,
+        "Other",
+        ProtocolKind::Paper,
+        0,
+        0.98,
+        0.1,
+        "aligning-v1.json",
+    )
+    .await;
 
     let (s, page) = app.get_text("/tasks/aligning?sort=success&dir=desc").await;
     assert_eq!(s, 200);
@@ -134,10 +170,15 @@ async fn quick_runs_evaluated_and_reported_rows_and_other_sets_are_ranked_apart(
     assert!(page.contains("Evaluated here (initial states aligning-v2.json)"));
     // The quick run is below every reported row, in the unranked smoke section.
     let smoke_at = page.find(">Smoke</a>").expect("smoke row shown");
-    let last_reported = page.rfind("<tr class=\"reported\">").expect("reported rows");
+    let last_reported = page
+        .rfind("<tr class=\"reported\">")
+        .expect("reported rows");
     assert!(smoke_at > last_reported);
     assert!(!t[0].1.contains("Smoke") && !t[2].1.contains("Smoke"));
-    assert!(t[3].1.contains("<td class=\"num\"></td>"), "smoke rows unranked");
+    assert!(
+        t[3].1.contains("<td class=\"num\"></td>"),
+        "smoke rows unranked"
+    );
     // Each group ranks from 1; the reported table holds only reported rows.
     for (_, html) in &t[..3] {
         assert!(html.contains("<td class=\"num\">1</td>"));
@@ -152,4 +193,77 @@ async fn quick_runs_evaluated_and_reported_rows_and_other_sets_are_ranked_apart(
         .await;
     assert_eq!(s, 200);
     assert!(svg.contains("Mine") && !svg.contains("Smoke"));
+}
+
+#[tokio::test]
+async fn spread_only_over_two_seeds_and_three_decimals_everywhere() {
+    let app = spawn_app().await;
+    evaluated(
+        &app,
+        "Mine",
+        ProtocolKind::Paper,
+        0,
+        0.97,
+        0.2,
+        "aligning-v2.json",
+    )
+    .await;
+    evaluated(
+        &app,
+        "Mine",
+        ProtocolKind::Paper,
+        1,
+        0.99,
+        0.3,
+        "aligning-v2.json",
+    )
+    .await;
+    let one = evaluated(
+        &app,
+        "Single",
+        ProtocolKind::Paper,
+        0,
+        0.5,
+        0.25,
+        "aligning-v2.json",
+    )
+    .await;
+
+    let (_, page) = app.get_text("/tasks/aligning").await;
+    // Two seeds: mean ± sample std (0.0141...), three decimals each.
+    assert!(
+        page.contains(">0.980 ± 0.014</td>"),
+        "two seeds show the spread"
+    );
+    assert!(page.contains(">0.250 ± 0.071</td>"));
+    // One seed: the value alone, never "± 0.000".
+    assert!(page.contains(">0.500</td>") && page.contains(">0.250</td>"));
+    // The paper's reported rows print three decimals too (0.0009 was printed
+    // as the paper's four digits before).
+    let numbers = |html: &str| -> Vec<String> {
+        html.split("<td class=\"num")
+            .skip(1)
+            .filter_map(|c| Some(c.split('>').nth(1)?.split('<').next()?.to_string()))
+            .collect()
+    };
+    for cell in numbers(&page) {
+        for n in cell.split(" ± ") {
+            if let Some((_, d)) = n.split_once('.') {
+                assert!(
+                    d.len() == 3 || (d.len() == 2 && !cell.contains('±')),
+                    "three decimals: `{cell}`"
+                );
+            }
+        }
+    }
+
+    let (_, frac) = app.get_text("/tasks/aligning/data-fraction").await;
+    assert!(
+        frac.contains("0.980 ± 0.014 / 0.250 ± 0.071 (n = 2)"),
+        "n shown"
+    );
+    assert!(frac.contains("0.500 / 0.250<"), "one seed: values alone");
+
+    let (_, sub) = app.get_text(&format!("/submissions/{one}")).await;
+    assert!(sub.contains("0.500") && !sub.contains("0.5000"));
 }

@@ -1,7 +1,7 @@
 //! The home page, the leaderboards (main and data-fraction views, CSV) and
 //! the method pages.
 
-use super::format::{fmt_opt_ms, fmt_stat, fmt_time, method_url};
+use super::format::{fmt_num, fmt_opt_ms, fmt_stat, fmt_stat_n, fmt_time, method_url};
 use super::render;
 use crate::error::{AppError, PageError};
 use crate::http::csv::{board_csv, csv_response};
@@ -44,11 +44,11 @@ fn row_view(rank: Option<usize>, r: &BoardRow) -> RowView {
         method_url: method_url(&r.method),
         reported: r.source == Source::Reported,
         protocol: r.protocol.map(protocol_str).unwrap_or("").to_string(),
-        success: fmt_stat(r.success.mean, r.success.std),
-        entropy: fmt_stat(r.entropy.mean, r.entropy.std),
+        success: fmt_stat(r.success, r.n_seeds),
+        entropy: fmt_stat(r.entropy, r.n_seeds),
         behaviour: r
             .behaviour_entropy
-            .map(|s| fmt_stat(s.mean, s.std))
+            .map(|s| fmt_stat(s, r.n_seeds))
             .unwrap_or_else(|| "—".into()),
         seeds: r.n_seeds.to_string(),
         inference: fmt_opt_ms(r.inference_ms),
@@ -100,7 +100,7 @@ pub(super) async fn home(State(state): State<AppState>) -> Result<Html<String>, 
                 .filter(|r| r.success.mean.is_finite())
                 .filter(|r| r.protocol != Some(ProtocolKind::Quick))
                 .max_by(|a, b| a.success.mean.total_cmp(&b.success.mean))
-                .map(|r| format!("{} ({:.3})", r.method, r.success.mean))
+                .map(|r| format!("{} ({})", r.method, fmt_num(r.success.mean)))
                 .unwrap_or_else(|| "—".into());
             TaskCard {
                 slug: t.slug(),
@@ -389,8 +389,8 @@ pub(super) async fn data_fraction(
         };
         row.cells[i] = format!(
             "{} / {}",
-            fmt_stat(r.success.mean, r.success.std),
-            fmt_stat(r.entropy.mean, r.entropy.std)
+            fmt_stat(r.success, r.n_seeds),
+            fmt_stat_n(r.entropy, r.n_seeds)
         );
     }
     let svg = figures::data_fraction_svg(
@@ -462,8 +462,8 @@ pub(super) async fn method_page(
             control: r.control.clone().unwrap_or_default(),
             reported: r.source == Source::Reported,
             protocol: r.protocol.map(protocol_str).unwrap_or("").into(),
-            success: fmt_stat(r.success.mean, r.success.std),
-            entropy: fmt_stat(r.entropy.mean, r.entropy.std),
+            success: fmt_stat(r.success, r.n_seeds),
+            entropy: fmt_stat(r.entropy, r.n_seeds),
             seeds: r.n_seeds.to_string(),
         })
         .collect();
