@@ -267,3 +267,107 @@ async fn spread_only_over_two_seeds_and_three_decimals_everywhere() {
     let (_, sub) = app.get_text(&format!("/submissions/{one}")).await;
     assert!(sub.contains("0.500") && !sub.contains("0.5000"));
 }
+
+/// Submits through the API (token "tester"); the job stays queued (no workers).
+async fn queued(app: &TestApp, method: &str, task: &str) -> i64 {
+    let m = manifest(task);
+    let r = app
+        .submit(
+            &[
+                ("method", method),
+                ("task", task),
+                ("training_seed", "0"),
+                ("manifest", m.as_str()),
+            ],
+            Some(fake_onnx()),
+        )
+        .await;
+    assert_eq!(r.status(), 201);
+    r.json::<serde_json::Value>().await.unwrap()["id"]
+        .as_i64()
+        .expect("id")
+}
+
+#[tokio::test]
+async fn submissions_and_methods_are_listed_and_filtered() {
+    let app = spawn_app().await;
+    let done = evaluated(
+        &app,
+        "Mine",
+        ProtocolKind::Paper,
+        0,
+        0.9,
+        0.2,
+        "aligning-v2.json",
+    )
+    .await;
+    let a = queued(&app, "Queued1", "pushing").await;
+    let b = queued(&app, "Queued2", "avoiding").await;
+
+    let ids = |v: &serde_json::Value| -> Vec<i64> {
+        v["submissions"]
+            .as_array()
+            .expect("submissions array")
+            .iter()
+            .map(|s| s["id"].as_i64().unwrap())
+            .collect()
+    };
+    let (s, all) = app.get_json("/api/v1/submissions").await;
+    assert_eq!(s, 200);
+    assert_eq!(ids(&all), vec![b, a, done], "newest first");
+    let (_, v) = app.get_json("/api/v1/submissions?task=pushing").await;
+    assert_eq!(ids(&v), vec![a]);
+    let (_, v) = app.get_json("/api/v1/submissions?status=completed").await;
+    assert_eq!(ids(&v), vec![done]);
+    assert_eq!(v["submissions"][0]["url"], format!("/submissions/{done}"));
+    let (_, v) = app.get_json("/api/v1/submissions?submitter=tester").await;
+    assert_eq!(ids(&v), vec![b, a]);
+    let (_, v) = app
+        .get_json("/api/v1/submissions?method=Queued2&status=queued")
+        .await;
+    assert_eq!(ids(&v), vec![b]);
+    let (s, v) = app.get_json("/api/v1/submissions?status=sleeping").await;
+    assert_eq!(s, 400);
+    assert_eq!(v["error"]["field"], "status");
+    assert!(v["error"]["message"]
+        .as_str()
+        .unwrap()
+        .contains("completed"));
+
+    // The page: same filter, the form keeps it, empty fields filter nothing.
+    let (s, page) = app.get_text("/submissions?task=pushing&status=").await;
+    assert_eq!(s, 200);
+    assert!(page.contains(&format!("href=\"/submissions/{a}\"")));
+    assert!(!page.contains(&format!("href=\"/submissions/{b}\"")));
+    assert!(page.contains("<option value=\"pushing\" selected>"));
+    let (s, page) = app.get_text("/submissions?task=juggling").await;
+    assert_eq!(s, 400);
+    assert!(page.contains("juggling"));
+
+    let (s, page) = app.get_text("/methods").await;
+    assert_eq!(s, 200);
+    for m in ["BESO", "DDPM-ACT", "Mine", "Queued1"] {
+        assert!(page.contains(&format!(">{m}</a>")), "{m} listed");
+    }
+    assert!(page.contains("/submissions?method=Queued1"));
+    let (_, home) = app.get_text("/").await;
+    assert!(home.contains("href=\"/submissions\"") && home.contains("href=\"/methods\""));
+}
+
+#[tokio::test]
+async fn a_queued_job_shows_its_place_and_no_made_up_estimate() {
+    let app = spawn_app().await;
+    let first = queued(&app, "Q", "pushing").await;
+    let second = queued(&app, "Q", "aligning").await;
+    let (_, page) = app.get_text(&format!("/submissions/{second}")).await;
+    assert!(
+        page.contains("Waiting (position 2 in the queue, 1 ahead)"),
+        "{page}"
+    );
+    assert!(!page.contains("Attempt 0"));
+    // No past runs: no estimate, never "0 s" or a guess.
+    assert!(page.contains("no estimate yet"));
+    let (_, v) = app.get_json(&format!("/api/v1/submissions/{first}")).await;
+    assert_eq!(v["queue_position"], 0);
+    assert!(v["eta_seconds"].is_null());
+}

@@ -20,7 +20,7 @@ pub mod types;
 pub use jobs::{ClaimedJob, JobRow};
 pub use methods::{MethodRow, NewMethod};
 pub use results::{ResultRow, RolloutRow, SeedSummary};
-pub use submissions::{NewPolicy, NewSubmission, SeedKey, SubmissionRow};
+pub use submissions::{NewPolicy, NewSubmission, SeedKey, SubmissionFilter, SubmissionRow};
 pub use tokens::{token_hash, Submitter};
 pub use types::{JobState, PolicyKind, SubmissionStatus};
 

@@ -211,7 +211,12 @@ pub(super) async fn submission_page(
             s.status,
             SubmissionStatus::Queued | SubmissionStatus::Running
         ),
-        attempts: format!("{} of {}", job.attempts, job.max_attempts),
+        // A job not yet started shows its queue position, not "Attempt 0 of 3".
+        attempts: if job.attempts > 0 {
+            format!("{} of {}", job.attempts, job.max_attempts)
+        } else {
+            String::new()
+        },
         progress_done: p.rollouts_done,
         progress_total: p.rollouts_total,
         queue_position: p.queue_position,
