@@ -117,6 +117,7 @@ fn scripted_job(task: TaskId, name: &str) -> Job {
             horizon: 1,
             execute: 1,
             normalisation: None,
+            window: Default::default(),
         },
         seed: 0,
         limits: Limits::default(),

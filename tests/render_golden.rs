@@ -1,6 +1,9 @@
 //! The pixels policies see do not drift: `d3il render` must reproduce, bit for
-//! bit, frames committed in tests/data/render/ (rendered before the renderer's
-//! speed work: frustum culling, llvmpipe on the calling thread). Any change to
+//! bit, frames committed in tests/data/render/. The sorting frames were rendered
+//! before the renderer's speed work (frustum culling, llvmpipe on the calling
+//! thread) and are still reproduced; the aligning and stacking frames were
+//! re-rendered when those tasks moved to the original's test contexts (v2),
+//! after the same check had passed on the v1 contexts. Any change to
 //! the renderer, the scene's visuals or the camera pipeline that moves a pixel
 //! fails here and must say why the new pixels are faithful (docs/images.md).
 

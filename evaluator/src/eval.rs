@@ -123,6 +123,10 @@ struct Slot {
     /// Image policies: the last k image observations.
     images: Option<HistoryBuffer>,
     queue: VecDeque<Vec<f32>>,
+    /// The last actions executed this episode, newest last (at most
+    /// `prev_cap`, for policies that take `prev_actions`).
+    executed: VecDeque<Vec<f32>>,
+    prev_cap: usize,
     path: Vec<[f32; 2]>,
     /// Seconds spent in [`step_slot`] (benchmarks).
     step_cpu_s: f64,
@@ -158,16 +162,28 @@ pub fn evaluate(
             shape.obs_dim, shape.act_dim, spec.task, spec.obs_dim, spec.act_dim
         )));
     }
+    // A graph that cannot run is refused here, with tract's reason, not at rollout 0.
+    policy.self_test()?;
     let record_paths = task.def.id() == TaskId::Avoiding;
     let live = total.min(opts.max_live.max(1));
     let mut slots = Vec::with_capacity(live);
+    let window_mode = policy.window();
+    let prev_cap = if policy.takes_prev_actions() {
+        shape.history - 1
+    } else {
+        0
+    };
     for _ in 0..live {
         slots.push(Slot {
             env: task.env()?,
             rollout: None,
-            history: HistoryBuffer::new(shape.history, spec.obs_dim),
-            images: image.then(|| HistoryBuffer::new(shape.history, crate::camera::OBS_LEN)),
+            history: HistoryBuffer::with_mode(shape.history, spec.obs_dim, window_mode),
+            images: image.then(|| {
+                HistoryBuffer::with_mode(shape.history, crate::camera::OBS_LEN, window_mode)
+            }),
             queue: VecDeque::new(),
+            executed: VecDeque::new(),
+            prev_cap,
             path: Vec::new(),
             step_cpu_s: 0.0,
             failure: None,
@@ -194,6 +210,7 @@ pub fn evaluate(
         slot.history.push(&slot.env.policy_obs())?;
         push_images(slot)?;
         slot.queue.clear();
+        slot.executed.clear();
         slot.path.clear();
         slot.failure = None;
         if record_paths {
@@ -216,31 +233,48 @@ pub fn evaluate(
     let mut steps = Vec::new();
     let mut obs = Vec::new();
     let mut images = Vec::new();
+    let mut prev = Vec::new();
 
     while slots.iter().any(|s| s.rollout.is_some()) {
-        // 1. One batched query for every live rollout whose action queue is empty.
-        ids.clear();
-        steps.clear();
-        obs.clear();
-        images.clear();
-        let mut rows = Vec::new();
-        for (i, s) in slots.iter().enumerate() {
-            if let Some((id, ..)) = s.rollout {
-                if s.queue.is_empty() {
-                    ids.push(id as u64);
-                    steps.push(s.env.steps() as u64);
-                    s.history.write_window(&mut obs)?;
-                    if let Some(h) = &s.images {
-                        h.write_window(&mut images)?;
+        // 1. One batched query for every live rollout whose action queue is
+        //    empty, one per window length when windows grow at episode start.
+        let mut windows: Vec<usize> = slots
+            .iter()
+            .filter(|s| s.rollout.is_some() && s.queue.is_empty())
+            .map(|s| s.history.len())
+            .collect();
+        windows.sort_unstable();
+        windows.dedup();
+        for w in windows {
+            ids.clear();
+            steps.clear();
+            obs.clear();
+            images.clear();
+            prev.clear();
+            let mut rows = Vec::new();
+            for (i, s) in slots.iter().enumerate() {
+                if let Some((id, ..)) = s.rollout {
+                    if s.queue.is_empty() && s.history.len() == w {
+                        ids.push(id as u64);
+                        steps.push(s.env.steps() as u64);
+                        s.history.write_window(&mut obs)?;
+                        if let Some(h) = &s.images {
+                            h.write_window(&mut images)?;
+                        }
+                        if prev_cap > 0 {
+                            write_prev_actions(s, w - 1, shape.act_dim, &mut prev);
+                        }
+                        rows.push(i);
                     }
-                    rows.push(i);
                 }
             }
-        }
-        if !rows.is_empty() {
             let mut query = Query::new(&ids, &steps, &obs);
+            query.window = Some(w);
             if image {
                 query.images = Some(&images);
+            }
+            if prev_cap > 0 {
+                query.prev_actions = Some(&prev);
             }
             let tp = Instant::now();
             let chunks = policy.infer(&query)?;
@@ -407,6 +441,12 @@ fn step_slot(s: &mut Slot, record_paths: bool) -> Result<bool, EvalError> {
             })
         }
     };
+    if s.prev_cap > 0 {
+        if s.executed.len() == s.prev_cap {
+            s.executed.pop_front();
+        }
+        s.executed.push_back(action);
+    }
     s.history.push(&s.env.policy_obs())?;
     push_images(s)?;
     if record_paths {
@@ -414,6 +454,16 @@ fn step_slot(s: &mut Slot, record_paths: bool) -> Result<bool, EvalError> {
         s.path.push([p[0] as f32, p[1] as f32]);
     }
     Ok(out.done)
+}
+
+/// Appends the last `n` executed actions of the slot (oldest first) to `out`,
+/// zeros in front of the episode's first action (padded windows only).
+fn write_prev_actions(s: &Slot, n: usize, act_dim: usize, out: &mut Vec<f32>) {
+    let have = s.executed.len().min(n);
+    out.resize(out.len() + (n - have) * act_dim, 0.0);
+    for a in s.executed.iter().skip(s.executed.len() - have) {
+        out.extend_from_slice(a);
+    }
 }
 
 /// Appends the slot's current image observation to its image history.

@@ -118,7 +118,7 @@ fn same_actions_give_identical_observations() {
     let set = task.def.context_set().unwrap();
     let script = AligningScript::new(AligningStyle::Inside);
     let a = common::assert_deterministic(&task, set.get(3).unwrap(), 120, &|env| {
-        script.act(&env.policy_obs())
+        script.act(&env.policy_obs()).to_vec()
     });
     assert!(a.len() > 100);
 }

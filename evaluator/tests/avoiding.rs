@@ -96,7 +96,7 @@ fn same_actions_give_identical_observations() {
     let task = LoadedTask::load(TaskId::Avoiding).unwrap();
     let script = AvoidingScript::new(7).unwrap();
     common::assert_deterministic(&task, &Value::Null, usize::MAX, &|env| {
-        script.act(&env.policy_obs())
+        script.act(&env.policy_obs()).to_vec()
     });
 }
 

@@ -144,7 +144,7 @@ fn same_actions_give_identical_observations() {
     let set = task.def.context_set().unwrap();
     let script = PushingScript::new(2).unwrap();
     let a = common::assert_deterministic(&task, set.get(1).unwrap(), 150, &|env| {
-        script.act(&env.policy_obs())
+        script.act(&env.policy_obs()).to_vec()
     });
     assert!(a.len() > 100);
 }

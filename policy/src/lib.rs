@@ -7,8 +7,11 @@
 //! [`RemotePolicy`] (WebSocket + msgpack, docs/remote-protocol.md).
 //!
 //! Layout conventions (all row-major float32):
-//! * observations `[B, k, obs_dim]`, oldest first, newest at index k−1; at episode
-//!   start the window is padded by repeating the first observation ([`HistoryBuffer`]);
+//! * observations `[B, w, obs_dim]`, oldest first, newest at index w−1; w = k, the
+//!   window padded at episode start by repeating the first observation, or, for a
+//!   policy whose [`Policy::window`] is [`WindowMode::Grow`], w = 1, 2, …, k at
+//!   episode start ([`HistoryBuffer`]);
+//! * previous actions `[B, w−1, act_dim]` (policies that take them), oldest first;
 //! * images `[B, k, 2, 3, 96, 96]` (image policies only);
 //! * actions `[B, H, act_dim]`.
 
@@ -23,6 +26,7 @@ pub use error::PolicyError;
 pub use onnx::OnnxPolicy;
 pub use remote::RemotePolicy;
 
+pub use d3il_protocol::WindowMode;
 use d3il_protocol::{ObsType, TaskId};
 use std::collections::VecDeque;
 
@@ -48,16 +52,23 @@ pub struct PolicyShape {
 }
 
 /// One batched query: B rollouts, their step indices and observation windows.
+/// Every row of one query has the same window length w.
 #[derive(Debug, Clone, Copy)]
 pub struct Query<'a> {
     /// Ids of the B rollouts (stable for a rollout's lifetime; any numbering).
     pub rollout_ids: &'a [u64],
     /// Environment step index of each rollout (0 at episode start).
     pub steps: &'a [u64],
-    /// `[B, k, obs_dim]`.
+    /// `[B, w, obs_dim]`.
     pub obs: &'a [f32],
-    /// `[B, k, 2, 3, 96, 96]` for image policies, `None` otherwise.
+    /// `[B, w, 2, 3, 96, 96]` for image policies, `None` otherwise.
     pub images: Option<&'a [f32]>,
+    /// Window length w of every row; `None` means the policy's k.
+    pub window: Option<usize>,
+    /// `[B, w−1, act_dim]`: the last w−1 actions each rollout executed, oldest
+    /// first (zeros before the episode's first action in a padded window);
+    /// given to policies whose [`Policy::takes_prev_actions`] is true.
+    pub prev_actions: Option<&'a [f32]>,
 }
 
 impl<'a> Query<'a> {
@@ -67,11 +78,18 @@ impl<'a> Query<'a> {
             steps,
             obs,
             images: None,
+            window: None,
+            prev_actions: None,
         }
     }
 
     pub fn batch(&self) -> usize {
         self.rollout_ids.len()
+    }
+
+    /// The window length w of this query's rows for a policy of history `k`.
+    pub fn window_len(&self, k: usize) -> usize {
+        self.window.unwrap_or(k)
     }
 
     /// Checks the buffer lengths against a policy shape (evaluator-side bugs).
@@ -83,17 +101,32 @@ impl<'a> Query<'a> {
                 self.steps.len()
             )));
         }
-        let want = b * shape.history * shape.obs_dim;
+        let w = self.window_len(shape.history);
+        if w == 0 || w > shape.history {
+            return Err(PolicyError::Caller(format!(
+                "query window {w} is outside 1..={}",
+                shape.history
+            )));
+        }
+        let want = b * w * shape.obs_dim;
         if self.obs.len() != want {
             return Err(PolicyError::Caller(format!(
-                "query observation buffer has {} floats; expected B·k·obs_dim = {b}·{}·{} = {want}",
+                "query observation buffer has {} floats; expected B·w·obs_dim = {b}·{w}·{} = {want}",
                 self.obs.len(),
-                shape.history,
                 shape.obs_dim
             )));
         }
+        if let Some(p) = self.prev_actions {
+            let want = b * (w - 1) * shape.act_dim;
+            if p.len() != want {
+                return Err(PolicyError::Caller(format!(
+                    "query previous-action buffer has {} floats; expected B·(w−1)·act_dim = {want}",
+                    p.len()
+                )));
+            }
+        }
         if shape.obs_type == ObsType::Image {
-            let want = b * shape.history * IMAGE_LEN;
+            let want = b * w * IMAGE_LEN;
             match self.images {
                 Some(im) if im.len() == want => {}
                 Some(im) => {
@@ -157,6 +190,23 @@ pub trait Policy: Send {
     /// shape of what they return; call [`validate_actions`] before using the
     /// actions (they may be NaN).
     fn infer(&mut self, query: &Query<'_>) -> Result<ActionChunks, PolicyError>;
+
+    /// How the observation window starts an episode: padded to k (default) or
+    /// growing from 1 to k, one query per window length.
+    fn window(&self) -> WindowMode {
+        WindowMode::Pad
+    }
+
+    /// Whether queries must carry [`Query::prev_actions`].
+    fn takes_prev_actions(&self) -> bool {
+        false
+    }
+
+    /// A cheap test inference before the first rollout, so a policy that
+    /// cannot run fails with its reason rather than at rollout 0 (default: none).
+    fn self_test(&mut self) -> Result<(), PolicyError> {
+        Ok(())
+    }
 }
 
 impl<P: Policy + ?Sized> Policy for Box<P> {
@@ -168,6 +218,15 @@ impl<P: Policy + ?Sized> Policy for Box<P> {
     }
     fn infer(&mut self, query: &Query<'_>) -> Result<ActionChunks, PolicyError> {
         (**self).infer(query)
+    }
+    fn window(&self) -> WindowMode {
+        (**self).window()
+    }
+    fn takes_prev_actions(&self) -> bool {
+        (**self).takes_prev_actions()
+    }
+    fn self_test(&mut self) -> Result<(), PolicyError> {
+        (**self).self_test()
     }
 }
 
@@ -218,24 +277,38 @@ pub fn validate_actions(
     Ok(())
 }
 
-/// The last k observations of one rollout. At episode start the window is padded
-/// by repeating the first observation (as the D3IL agents do), so a k = 5 policy
-/// sees `[o0, o0, o0, o0, o0]`, then `[o0, o0, o0, o0, o1]`, …
+/// The last k observations of one rollout. In [`WindowMode::Pad`] the window is
+/// padded at episode start by repeating the first observation, so a k = 5 policy
+/// sees `[o0, o0, o0, o0, o0]`, then `[o0, o0, o0, o0, o1]`, …; in
+/// [`WindowMode::Grow`] it grows as the reference agents' deques do: `[o0]`,
+/// `[o0, o1]`, … up to k entries.
 #[derive(Debug, Clone)]
 pub struct HistoryBuffer {
     k: usize,
     dim: usize,
+    grow: bool,
     window: VecDeque<Vec<f32>>,
 }
 
 impl HistoryBuffer {
-    /// `k` ≥ 1 entries of `dim` floats each.
+    /// `k` ≥ 1 entries of `dim` floats each, padded at episode start.
     pub fn new(k: usize, dim: usize) -> Self {
+        Self::with_mode(k, dim, WindowMode::Pad)
+    }
+
+    /// `k` ≥ 1 entries of `dim` floats each, with the given episode-start semantics.
+    pub fn with_mode(k: usize, dim: usize, mode: WindowMode) -> Self {
         HistoryBuffer {
             k: k.max(1),
             dim,
+            grow: mode == WindowMode::Grow,
             window: VecDeque::with_capacity(k.max(1)),
         }
+    }
+
+    /// Entries in the window now (k once full; fewer at episode start when growing).
+    pub fn len(&self) -> usize {
+        self.window.len()
     }
 
     /// Forget everything (new episode).
@@ -256,10 +329,12 @@ impl HistoryBuffer {
                 self.dim
             )));
         }
-        if self.window.is_empty() {
+        if self.window.is_empty() && !self.grow {
             for _ in 0..self.k {
                 self.window.push_back(obs.to_vec());
             }
+        } else if self.window.len() < self.k {
+            self.window.push_back(obs.to_vec());
         } else {
             // Reuse the oldest allocation for the newest entry.
             let mut v = self.window.pop_front().unwrap_or_default();
@@ -337,6 +412,25 @@ mod tests {
         assert!(e.to_string().contains("expected 2"), "{e}");
     }
 
+    #[test]
+    fn growing_history_starts_with_one_entry() {
+        let mut h = HistoryBuffer::with_mode(3, 1, WindowMode::Grow);
+        let mut lens = vec![];
+        for i in 0..5 {
+            h.push(&[i as f32]).unwrap();
+            lens.push(h.len());
+        }
+        assert_eq!(lens, [1, 2, 3, 3, 3]);
+        let mut out = vec![];
+        h.write_window(&mut out).unwrap();
+        assert_eq!(out, [2.0, 3.0, 4.0]);
+        h.reset();
+        h.push(&[9.0]).unwrap();
+        out.clear();
+        h.write_window(&mut out).unwrap();
+        assert_eq!(out, [9.0]);
+    }
+
     fn shape() -> PolicyShape {
         PolicyShape {
             history: 1,
@@ -393,7 +487,7 @@ mod tests {
         let e = q.check(&shape()).unwrap_err();
         assert_eq!(e.kind(), d3il_protocol::ErrorKind::Internal);
         assert!(
-            e.to_string().contains("expected B·k·obs_dim = 2·1·1 = 2"),
+            e.to_string().contains("expected B·w·obs_dim = 2·1·1 = 2"),
             "{e}"
         );
     }

@@ -136,7 +136,7 @@ fn manifest_normalisation_is_applied() {
     let e = OnnxPolicy::load(&bytes, &man, &spec(TaskId::Avoiding), 0).unwrap_err();
     assert!(
         e.to_string()
-            .contains("obs_mean has 3 entries but task avoiding needs 4"),
+            .contains("normalisation.obs_mean`: has 3 entries but task avoiding needs 4"),
         "{e}"
     );
 }
@@ -153,6 +153,8 @@ fn image_policy_shape_is_accepted_and_runs() {
         steps: &[0, 0],
         obs: &obs,
         images: Some(&images),
+        window: None,
+        prev_actions: None,
     };
     let a = p.infer(&q).unwrap();
     assert!(a.data.iter().all(|&x| close(x, 0.0005)), "{:?}", a.data);
@@ -178,7 +180,7 @@ fn manifest_and_task_mismatches_are_explained() {
     man.horizon = 1;
     man.execute = 2;
     let e = OnnxPolicy::load(&bytes, &man, &spec(TaskId::Avoiding), 0).unwrap_err();
-    assert!(e.to_string().contains("execute (E = 2)"), "{e}");
+    assert!(e.to_string().contains("execute E = 2"), "{e}");
     man.execute = 1;
     man.history = 5;
     // The fixture fixes k = 1 in its input shape.

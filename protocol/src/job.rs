@@ -14,6 +14,45 @@ pub struct Normalisation {
     pub act_std: Option<Vec<f32>>,
 }
 
+/// How a policy's observation window starts an episode (docs/submission.md
+/// "Window at episode start").
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum WindowMode {
+    /// Always k observations; at episode start the window is padded by
+    /// repeating the first observation.
+    #[default]
+    Pad,
+    /// The window grows from 1 to k observations at episode start, as the
+    /// reference agents' deques do (BeT, GPT-BC, BESO). Needs a model whose
+    /// window dimension is symbolic.
+    Grow,
+}
+
+impl WindowMode {
+    pub fn as_str(self) -> &'static str {
+        match self {
+            WindowMode::Pad => "pad",
+            WindowMode::Grow => "grow",
+        }
+    }
+}
+
+impl std::fmt::Display for WindowMode {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.as_str())
+    }
+}
+
+/// A manifest field that breaks a limit; `field` names it, the message says
+/// what to fix.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("manifest `{field}`: {message}")]
+pub struct ManifestError {
+    pub field: &'static str,
+    pub message: String,
+}
+
 /// The small JSON manifest that travels with an ONNX file (docs/submission.md).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct PolicyManifest {
@@ -31,6 +70,107 @@ pub struct PolicyManifest {
     pub execute: usize,
     #[serde(default)]
     pub normalisation: Option<Normalisation>,
+    /// Episode-start semantics of the observation window (default `pad`).
+    #[serde(default)]
+    pub window: WindowMode,
+}
+
+impl PolicyManifest {
+    /// Largest history k a manifest may declare (the reference uses at most 5).
+    pub const MAX_HISTORY: usize = 64;
+    /// Largest chunk length H (and so execute E) a manifest may declare.
+    pub const MAX_HORIZON: usize = 1024;
+
+    /// The manifest limits, stated once for every consumer (intake, ONNX
+    /// loading, remote endpoints): 1 ≤ history ≤ [`Self::MAX_HISTORY`],
+    /// 1 ≤ execute ≤ horizon ≤ [`Self::MAX_HORIZON`], and normalisation
+    /// vectors finite with positive standard deviations.
+    pub fn validate(&self) -> Result<(), ManifestError> {
+        let err = |field, message: String| Err(ManifestError { field, message });
+        if !(1..=Self::MAX_HISTORY).contains(&self.history) {
+            return err(
+                "history",
+                format!(
+                    "history k = {} must be from 1 to {}",
+                    self.history,
+                    Self::MAX_HISTORY
+                ),
+            );
+        }
+        if !(1..=Self::MAX_HORIZON).contains(&self.horizon) {
+            return err(
+                "horizon",
+                format!(
+                    "horizon H = {} must be from 1 to {}",
+                    self.horizon,
+                    Self::MAX_HORIZON
+                ),
+            );
+        }
+        if !(1..=self.horizon).contains(&self.execute) {
+            return err(
+                "execute",
+                format!(
+                    "execute E = {} must be from 1 to the horizon H = {}",
+                    self.execute, self.horizon
+                ),
+            );
+        }
+        if let Some(n) = &self.normalisation {
+            for (field, v) in [
+                ("normalisation.obs_mean", &n.obs_mean),
+                ("normalisation.obs_std", &n.obs_std),
+                ("normalisation.act_mean", &n.act_mean),
+                ("normalisation.act_std", &n.act_std),
+            ] {
+                let Some(v) = v else { continue };
+                if v.iter().any(|x| !x.is_finite()) {
+                    return err(field, "contains a non-finite value".into());
+                }
+                if field.ends_with("std") && v.iter().any(|x| *x <= 0.0) {
+                    return err(field, "must be positive everywhere".into());
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// [`Self::validate`] plus the checks against the task the policy is run
+    /// on: the task matches and normalisation vectors have the task's lengths.
+    pub fn validate_for(&self, spec: &crate::TaskSpec) -> Result<(), ManifestError> {
+        self.validate()?;
+        if self.task != spec.task {
+            return Err(ManifestError {
+                field: "task",
+                message: format!(
+                    "it is for task {} but is being evaluated on {}",
+                    self.task, spec.task
+                ),
+            });
+        }
+        if let Some(n) = &self.normalisation {
+            for (field, v, len) in [
+                ("normalisation.obs_mean", &n.obs_mean, spec.obs_dim),
+                ("normalisation.obs_std", &n.obs_std, spec.obs_dim),
+                ("normalisation.act_mean", &n.act_mean, spec.act_dim),
+                ("normalisation.act_std", &n.act_std, spec.act_dim),
+            ] {
+                if let Some(v) = v {
+                    if v.len() != len {
+                        return Err(ManifestError {
+                            field,
+                            message: format!(
+                                "has {} entries but task {} needs {len}",
+                                v.len(),
+                                spec.task
+                            ),
+                        });
+                    }
+                }
+            }
+        }
+        Ok(())
+    }
 }
 
 fn one() -> usize {
@@ -206,6 +346,82 @@ pub mod exit_code {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    fn manifest() -> PolicyManifest {
+        serde_json::from_str(r#"{"task": "aligning", "history": 5, "horizon": 4, "execute": 4}"#)
+            .unwrap()
+    }
+
+    #[test]
+    fn manifest_limits_are_stated_once() {
+        let m = manifest();
+        assert_eq!(m.window, WindowMode::Pad);
+        m.validate().unwrap();
+        let bad = |f: &dyn Fn(&mut PolicyManifest)| {
+            let mut m = manifest();
+            f(&mut m);
+            m.validate().unwrap_err()
+        };
+        let e = bad(&|m| m.history = 0);
+        assert_eq!(e.field, "history");
+        assert!(e.to_string().contains("from 1 to 64"), "{e}");
+        assert_eq!(bad(&|m| m.history = 65).field, "history");
+        assert_eq!(bad(&|m| m.horizon = 1025).field, "horizon");
+        let e = bad(&|m| m.execute = 5);
+        assert_eq!(e.field, "execute");
+        assert!(e.to_string().contains("horizon H = 4"), "{e}");
+        let e = bad(&|m| {
+            m.normalisation = Some(Normalisation {
+                obs_std: Some(vec![1.0, 0.0]),
+                ..Default::default()
+            })
+        });
+        assert_eq!(e.field, "normalisation.obs_std");
+        let mut at_max = manifest();
+        at_max.history = PolicyManifest::MAX_HISTORY;
+        at_max.horizon = PolicyManifest::MAX_HORIZON;
+        at_max.execute = PolicyManifest::MAX_HORIZON;
+        at_max.validate().unwrap();
+    }
+
+    #[test]
+    fn manifest_window_mode_parses_and_is_checked_against_the_task() {
+        let m: PolicyManifest =
+            serde_json::from_str(r#"{"task": "aligning", "history": 5, "window": "grow"}"#)
+                .unwrap();
+        assert_eq!(m.window, WindowMode::Grow);
+        let e = serde_json::from_str::<PolicyManifest>(r#"{"task": "aligning", "window": "grew"}"#)
+            .unwrap_err();
+        assert!(
+            e.to_string().contains("pad") && e.to_string().contains("grow"),
+            "{e}"
+        );
+        let spec = crate::TaskSpec {
+            task: TaskId::Aligning,
+            obs_dim: 20,
+            act_dim: 3,
+            max_steps: 400,
+            n_behaviours: 2,
+        };
+        m.validate_for(&spec).unwrap();
+        let mut n = m.clone();
+        n.normalisation = Some(Normalisation {
+            act_mean: Some(vec![0.0; 2]),
+            ..Default::default()
+        });
+        let e = n.validate_for(&spec).unwrap_err();
+        assert_eq!(e.field, "normalisation.act_mean");
+        assert!(
+            e.to_string()
+                .contains("has 2 entries but task aligning needs 3"),
+            "{e}"
+        );
+        let other = crate::TaskSpec {
+            task: TaskId::Avoiding,
+            ..spec
+        };
+        assert_eq!(m.validate_for(&other).unwrap_err().field, "task");
+    }
 
     #[test]
     fn limits_without_an_extra_ca_keep_their_json() {

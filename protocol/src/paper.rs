@@ -101,6 +101,7 @@ impl PaperResults {
                 n_seeds: r.seeds,
                 bold_success: Some(r.success_rate.bold),
                 bold_entropy: Some(r.entropy.bold),
+                initial_states: None,
             })
             .collect()
     }

@@ -65,22 +65,35 @@ impl std::fmt::Display for InitialStatesOrigin {
     }
 }
 
-impl ProtocolManifest {
-    /// The set's name; results stored before sets were named used v1.
-    pub fn initial_states_name(&self) -> String {
-        if self.initial_states.is_empty() {
-            format!("{}-v1.json", self.task)
-        } else {
-            self.initial_states.clone()
-        }
+/// The name of the set a result used, from its manifest's `initial_states`
+/// (empty in results stored before sets were named: those used v1).
+pub fn initial_states_name(task: TaskId, recorded: &str) -> String {
+    if recorded.is_empty() {
+        format!("{task}-v1.json")
+    } else {
+        recorded.to_string()
     }
+}
 
-    pub fn initial_states_origin(&self) -> InitialStatesOrigin {
-        if ORIGINAL_CONTEXT_SETS.contains(&self.initial_states_name().as_str()) {
+impl InitialStatesOrigin {
+    /// Where the set of this name comes from.
+    pub fn of(set_name: &str) -> Self {
+        if ORIGINAL_CONTEXT_SETS.contains(&set_name) {
             InitialStatesOrigin::Original
         } else {
             InitialStatesOrigin::Sample
         }
+    }
+}
+
+impl ProtocolManifest {
+    /// The set's name; results stored before sets were named used v1.
+    pub fn initial_states_name(&self) -> String {
+        initial_states_name(self.task, &self.initial_states)
+    }
+
+    pub fn initial_states_origin(&self) -> InitialStatesOrigin {
+        InitialStatesOrigin::of(&self.initial_states_name())
     }
 }
 
@@ -265,6 +278,10 @@ pub struct ResultCell {
     /// As the paper printed them (reported rows only).
     pub bold_success: Option<bool>,
     pub bold_entropy: Option<bool>,
+    /// Evaluated rows: which initial states the row used
+    /// ([`InitialStatesOrigin::label`]); rows on different sets are separate.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub initial_states: Option<String>,
 }
 
 #[cfg(test)]

@@ -215,6 +215,7 @@ pub fn check_sandbox(assets_dir: &Path) -> Result<Vec<SandboxMechanism>, confine
             horizon: 1,
             execute: 1,
             normalisation: None,
+            window: Default::default(),
         },
         seed: 0,
         limits: Default::default(),

@@ -412,6 +412,7 @@ fn manifest_field(
             horizon: 1,
             execute: 1,
             normalisation: None,
+            window: Default::default(),
         },
     };
     check_manifest_limits(&manifest)?;

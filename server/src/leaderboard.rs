@@ -48,6 +48,11 @@ pub struct BoardRow {
     pub bold_success: Option<bool>,
     pub bold_entropy: Option<bool>,
     pub submission_ids: Vec<i64>,
+    /// Evaluated rows: the initial-state set (e.g. `pushing-v2.json`); rows
+    /// on different sets are never merged.
+    pub initial_states: Option<String>,
+    /// Evaluated rows: "the original D3IL test contexts" or "our sample".
+    pub initial_states_label: Option<String>,
 }
 
 impl BoardRow {
@@ -65,6 +70,7 @@ impl BoardRow {
             n_seeds: self.n_seeds,
             bold_success: self.bold_success,
             bold_entropy: self.bold_entropy,
+            initial_states: self.initial_states_label.clone(),
         }
     }
 }
@@ -111,6 +117,8 @@ pub struct EvaluatedSeed {
     pub stacking: Option<[f64; 3]>,
     pub stacking_levels: Option<[StackingLevel; 3]>,
     pub inference_ms: f64,
+    /// The initial-state set the result used (e.g. `pushing-v2.json`).
+    pub initial_states: String,
 }
 
 impl EvaluatedSeed {
@@ -230,6 +238,12 @@ pub fn evaluated_rows(seeds: &[EvaluatedSeed]) -> Result<Vec<BoardRow>, MetricsE
                 bold_success: None,
                 bold_entropy: None,
                 submission_ids: g.submissions,
+                initial_states: Some(f.initial_states.clone()),
+                initial_states_label: Some(
+                    d3il_protocol::InitialStatesOrigin::of(&f.initial_states)
+                        .label()
+                        .to_string(),
+                ),
             })
         })
         .collect()
@@ -497,6 +511,7 @@ mod tests {
             stacking: None,
             stacking_levels: None,
             inference_ms: 2.0,
+            initial_states: "pushing-v2.json".into(),
         }
     }
 

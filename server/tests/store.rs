@@ -10,7 +10,6 @@ fn eval_result(task: TaskId, success: f64, cond: f64, paths: bool) -> EvalResult
         obs_type: ObsType::State,
         protocol: ProtocolKind::Paper,
         mjcf_sha256: "m".into(),
-        initial_states: "test-v1.json".into(),
         initial_states_sha256: "i".into(),
         initial_states: String::new(),
         mujoco_version: "2.2.2".into(),

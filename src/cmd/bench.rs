@@ -13,7 +13,7 @@ use std::time::Instant;
 
 #[derive(clap::Args)]
 pub struct Args {
-    /// Which benchmark: `physics`, `eval` or `render`.
+    /// Which benchmark: `physics`, `eval`, `render` or `agents`.
     pub which: String,
     /// Env steps to run (physics, render).
     #[arg(long, default_value_t = 3000)]
@@ -38,7 +38,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         "physics" => physics(args.steps),
         "eval" => eval_bench(args.protocol, args.max_live),
         "render" => render_bench(args.steps, args.render_protocol, args.max_live, args.look),
-        other => bail!("unknown benchmark `{other}`; available: physics, eval, render"),
+        "agents" => agents_bench(args.max_live),
+        other => bail!("unknown benchmark `{other}`; available: physics, eval, render, agents"),
     }
 }
 
@@ -402,6 +403,92 @@ fn physics(env_steps: usize) -> anyhow::Result<()> {
     println!(
         "ratio controlled/raw (physics steps per second): {:.3}",
         ctrl_rate / raw_rate
+    );
+    Ok(())
+}
+
+/// Every agent fixture of assets/fixtures/agents (one per D3IL method family)
+/// at batch `batch`: ms per policy call, the projected inference time of
+/// Aligning's paper protocol (⌈480 / batch⌉ groups × ⌈400 / E⌉ calls), and the
+/// same calls timed in onnxruntime (clients/python/bench_onnxruntime.py) on
+/// the same files. Last line: the ratio of our total time to onnxruntime's.
+fn agents_bench(batch: usize) -> anyhow::Result<()> {
+    let dir = super::assets_dir().join("fixtures").join("agents");
+    let task = LoadedTask::load(TaskId::Aligning)?;
+    let spec = task.spec();
+    let paper = TaskId::Aligning.paper_protocol();
+    let wall = d3il_protocol::Limits::default().wall_seconds as f64;
+    let groups = (paper.contexts * paper.rollouts).div_ceil(batch.max(1));
+    let script = super::assets_dir()
+        .join("..")
+        .join("clients")
+        .join("python")
+        .join("bench_onnxruntime.py");
+    let ort = std::process::Command::new("python3")
+        .arg(&script)
+        .arg(&dir)
+        .arg(batch.to_string())
+        .output()
+        .with_context(|| format!("running {}", script.display()))?;
+    if !ort.status.success() {
+        bail!(
+            "onnxruntime benchmark failed (pip install -r clients/python/requirements.txt): {}",
+            String::from_utf8_lossy(&ort.stderr)
+        );
+    }
+    let ort: serde_json::Map<String, Value> =
+        serde_json::from_slice(&ort.stdout).context("reading the onnxruntime benchmark's JSON")?;
+    let mut names: Vec<String> = std::fs::read_dir(&dir)?
+        .filter_map(|e| e.ok()?.file_name().into_string().ok())
+        .filter_map(|n| n.strip_suffix(".onnx").map(str::to_string))
+        .collect();
+    names.sort();
+    println!(
+        "aligning agents at batch {batch}, {} threads; paper protocol {} rollouts x {} steps; default wall limit {wall:.0} s",
+        std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1),
+        paper.contexts * paper.rollouts,
+        paper.max_steps
+    );
+    let (mut ours_total, mut ort_total) = (0.0, 0.0);
+    for name in &names {
+        let bytes = std::fs::read(dir.join(format!("{name}.onnx")))?;
+        let manifest: PolicyManifest =
+            serde_json::from_slice(&std::fs::read(dir.join(format!("{name}.json")))?)?;
+        let mut policy = OnnxPolicy::load(&bytes, &manifest, &spec, 0)?;
+        let k = manifest.history;
+        let ids: Vec<u64> = (0..batch as u64).collect();
+        let steps = vec![10u64; batch];
+        let obs: Vec<f32> = (0..batch * k * spec.obs_dim)
+            .map(|i| (i as f32 * 0.618).sin())
+            .collect();
+        let prev = vec![0.001f32; batch * (k - 1) * spec.act_dim];
+        let mut q = Query::new(&ids, &steps, &obs);
+        if policy.takes_prev_actions() {
+            q.prev_actions = Some(&prev);
+        }
+        policy.infer(&q)?; // plans for this batch are made here
+        let (mut n, t0) = (0usize, Instant::now());
+        while n < 3 || t0.elapsed().as_secs_f64() < 1.0 {
+            policy.infer(&q)?;
+            n += 1;
+        }
+        let ms = 1000.0 * t0.elapsed().as_secs_f64() / n as f64;
+        let calls = groups * paper.max_steps.div_ceil(manifest.execute);
+        let projected = calls as f64 * ms / 1000.0;
+        let ort_ms = ort.get(name).and_then(Value::as_f64).unwrap_or(f64::NAN);
+        ours_total += calls as f64 * ms;
+        ort_total += calls as f64 * ort_ms;
+        println!(
+            "{name:>18}: k {k} H {} E {}: {ms:9.3} ms/call (onnxruntime {ort_ms:9.3}, x{:.2}); paper protocol {calls} calls = {projected:7.0} s of inference{}",
+            manifest.horizon,
+            manifest.execute,
+            ms / ort_ms,
+            if projected > wall { " (OVER the wall limit)" } else { "" }
+        );
+    }
+    println!(
+        "ratio ours/onnxruntime over the paper-protocol inference time of all agents: {:.3} (goal <= 1.0)",
+        ours_total / ort_total
     );
     Ok(())
 }

@@ -80,6 +80,7 @@ pub fn build_job(args: &Args) -> anyhow::Result<Job> {
                 horizon: 1,
                 execute: 1,
                 normalisation: None,
+                window: Default::default(),
             },
         )
     } else if args.policy.starts_with("ws://") || args.policy.starts_with("wss://") {
@@ -95,6 +96,7 @@ pub fn build_job(args: &Args) -> anyhow::Result<Job> {
                 horizon: 1,
                 execute: 1,
                 normalisation: None,
+                window: Default::default(),
             },
         )
     } else {

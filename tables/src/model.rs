@@ -110,6 +110,9 @@ pub struct Row {
     pub source: Source,
     /// `velocity`/`position` in the posvel table.
     pub control: Option<String>,
+    /// Evaluated rows: which initial states they used ("the original D3IL
+    /// test contexts" or "our sample").
+    pub initial_states: Option<String>,
     pub info: MethodInfo,
     /// One of the paper's eleven baselines.
     pub in_paper: bool,
@@ -146,6 +149,9 @@ impl Row {
         }
         if annotate_source && self.source == Source::Evaluated {
             a.push("eval.".to_string());
+        }
+        if let Some(s) = &self.initial_states {
+            a.push(s.clone());
         }
         a
     }
@@ -199,7 +205,9 @@ impl TableModel {
     }
 }
 
-type RowKey = (String, Source, Option<String>);
+/// (method, source, control, initial-state set label): evaluated rows on
+/// different initial-state sets are separate rows, never merged.
+type RowKey = (String, Source, Option<String>, Option<String>);
 
 /// Task order: by the paper's task number (T1..T7), then by title
 /// (`Sorting-2` < `Sorting-4` < `Sorting-6`, `Stacking-1` < ...).
@@ -302,7 +310,12 @@ pub fn build_table(
     let per_fraction = kind == TableKind::Datasize;
     let mut index: BTreeMap<(RowKey, String, Option<i64>), &ResultCell> = BTreeMap::new();
     for c in &selected {
-        let row: RowKey = (c.method.clone(), c.source, c.control.clone());
+        let row: RowKey = (
+            c.method.clone(),
+            c.source,
+            c.control.clone(),
+            c.initial_states.clone(),
+        );
         let frac = per_fraction.then(|| fraction_key(c.data_fraction));
         if index.insert((row, c.task.clone(), frac), c).is_some() {
             return Err(TablesError::DuplicateCell {
@@ -342,7 +355,7 @@ pub fn build_table(
     // name; a method's evaluated row follows its reported row.
     let row_keys: BTreeSet<RowKey> = index.keys().map(|(r, _, _)| r.clone()).collect();
     let mut row_keys: Vec<RowKey> = row_keys.into_iter().collect();
-    row_keys.sort_by_key(|(method, source, control)| {
+    row_keys.sort_by_key(|(method, source, control, states)| {
         let paper_pos = PAPER_METHOD_ORDER.iter().position(|m| m == method);
         (
             paper_pos.is_none(),
@@ -351,13 +364,14 @@ pub fn build_table(
             control_rank(control.as_deref()),
             control.clone(),
             *source,
+            states.clone(),
         )
     });
 
     let mut blocks = Vec::new();
     for groups in blocks_groups {
         let mut rows = Vec::new();
-        for (method, src, control) in &row_keys {
+        for (method, src, control, states) in &row_keys {
             let in_paper = PAPER_METHOD_ORDER.contains(&method.as_str());
             let info = if in_paper {
                 paper_info.get(method).copied()
@@ -370,7 +384,7 @@ pub fn build_table(
                 history: 1,
                 action_chunking: false,
             });
-            let key: RowKey = (method.clone(), *src, control.clone());
+            let key: RowKey = (method.clone(), *src, control.clone(), states.clone());
             let values: Vec<Vec<Option<Value>>> = groups
                 .iter()
                 .map(|g| {
@@ -387,6 +401,7 @@ pub fn build_table(
                     method: method.clone(),
                     source: *src,
                     control: control.clone(),
+                    initial_states: states.clone(),
                     info,
                     in_paper,
                     values,

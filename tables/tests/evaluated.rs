@@ -25,6 +25,7 @@ fn evaluated(method: &str, task: &str, success: f64, entropy: f64, n_seeds: usiz
         n_seeds,
         bold_success: None,
         bold_entropy: None,
+        initial_states: None,
     }
 }
 
@@ -315,4 +316,37 @@ fn duplicate_and_corrupt_cells_are_refused_with_a_clear_message() {
         err.contains("Broken") && err.contains("re-evaluate"),
         "{err}"
     );
+}
+
+/// The same method evaluated on the original D3IL test contexts and on our
+/// sample: two rows, each saying which initial states it used, never merged.
+#[test]
+fn rows_on_different_initial_state_sets_are_separate_and_labelled() {
+    let on = |label: &str, success: f64| ResultCell {
+        initial_states: Some(label.to_string()),
+        ..evaluated("Setter", "Pushing (T3)", success, 0.5, 1)
+    };
+    let cells = vec![
+        on("the original D3IL test contexts", 0.8),
+        on("our sample", 0.6),
+    ];
+    let tex = render_table_with(
+        &cells,
+        TableKind::Main,
+        ObsType::State,
+        Format::Latex,
+        SourceFilter::Evaluated,
+        &methods(),
+    )
+    .unwrap();
+    let original = tex
+        .lines()
+        .find(|l| l.starts_with("Setter (the original D3IL test contexts) & "))
+        .unwrap_or_else(|| panic!("{tex}"));
+    let sample = tex
+        .lines()
+        .find(|l| l.starts_with("Setter (our sample) & "))
+        .unwrap_or_else(|| panic!("{tex}"));
+    assert!(original.contains("0.800"), "{original}");
+    assert!(sample.contains("0.600"), "{sample}");
 }

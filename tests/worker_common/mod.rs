@@ -94,6 +94,7 @@ pub fn avoiding_job(policy: PolicySource, limits: Limits) -> Job {
             horizon: 1,
             execute: 1,
             normalisation: None,
+            window: Default::default(),
         },
         seed: 1,
         limits,

@@ -10,7 +10,7 @@
 //! the target pose exactly as the context gives it (z = 0), like the reference.
 
 use super::geometry::{dist2, dist3, quat_to_yaw, yaw_deg_to_quat};
-use super::{Command, CommandKind, ContextSet, TaskDef, TaskError, TaskLogic, QUAT_DOWN};
+use super::{CommandKind, ContextSet, TaskDef, TaskError, TaskLogic};
 use crate::mujoco::{Model, ObjKind};
 use crate::robot::control::FingerCommand;
 use crate::robot::{init_qpos, RobotVariant};

@@ -1,7 +1,7 @@
 //! Avoiding (spec/10 §2): move the rod through three rows of cylinders to the
 //! finish line; the path through the rows is the behaviour (|B| = 24).
 
-use super::{geom_id, Command, CommandKind, ContextSet, TaskDef, TaskError, TaskLogic};
+use super::{geom_id, CommandKind, ContextSet, TaskDef, TaskError, TaskLogic};
 use crate::mujoco::Model;
 use crate::robot::control::FingerCommand;
 use crate::robot::{init_qpos, RobotVariant};

@@ -9,7 +9,7 @@
 use super::geometry::dist3;
 use super::sorting::{movable_box, static_box, FreeBox, PoseSample};
 use super::stacking::parse_colour_poses;
-use super::{Command, CommandKind, ContextSet, TaskDef, TaskError, TaskLogic};
+use super::{CommandKind, ContextSet, TaskDef, TaskError, TaskLogic};
 use crate::mujoco::Model;
 use crate::robot::control::FingerCommand;
 use crate::robot::{init_qpos, RobotVariant};

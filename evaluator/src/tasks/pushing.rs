@@ -4,7 +4,7 @@
 
 use super::aligning::{parse_poses, PlanarPose};
 use super::geometry::{dist3, quat_to_yaw};
-use super::{Command, CommandKind, ContextSet, TaskDef, TaskError, TaskLogic};
+use super::{CommandKind, ContextSet, TaskDef, TaskError, TaskLogic};
 use crate::mujoco::Model;
 use crate::robot::control::FingerCommand;
 use crate::robot::{init_qpos, RobotVariant};

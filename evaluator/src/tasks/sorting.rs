@@ -7,7 +7,7 @@
 
 use super::geometry::{dist2, quat_to_yaw};
 use super::{
-    free_body_pos, free_body_quat, Command, CommandKind, ContextSet, TaskDef, TaskError, TaskLogic,
+    free_body_pos, free_body_quat, CommandKind, ContextSet, TaskDef, TaskError, TaskLogic,
 };
 use crate::mujoco::{Data, Model};
 use crate::robot::control::FingerCommand;

@@ -5,7 +5,7 @@
 
 use super::geometry::dist2;
 use super::sorting::{movable_box, static_box, FreeBox, PoseSample};
-use super::{Command, CommandKind, ContextSet, TaskDef, TaskError, TaskLogic};
+use super::{CommandKind, ContextSet, TaskDef, TaskError, TaskLogic};
 use crate::mujoco::Model;
 use crate::robot::control::{orientation_error, FingerCommand};
 use crate::robot::kinematics::PandaKinematics;

@@ -16,8 +16,8 @@ use tungstenite::protocol::WebSocketConfig;
 use tungstenite::{Message, WebSocket};
 
 /// Largest k and H a server may announce (far above any D3IL baseline).
-const MAX_HISTORY: u64 = 64;
-const MAX_HORIZON: u64 = 1024;
+const MAX_HISTORY: u64 = d3il_protocol::PolicyManifest::MAX_HISTORY as u64;
+const MAX_HORIZON: u64 = d3il_protocol::PolicyManifest::MAX_HORIZON as u64;
 
 /// The WebSocket opening handshake over `stream`, within the stream's deadline.
 pub(super) fn open(

@@ -38,6 +38,7 @@ pub fn job(policy: PolicySource, limits: Limits) -> Job {
             horizon: 1,
             execute: 1,
             normalisation: None,
+            window: Default::default(),
         },
         seed: 7,
         limits,

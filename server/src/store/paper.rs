@@ -132,6 +132,8 @@ impl Store {
                     bold_success: Some(r.success_bold),
                     bold_entropy: Some(r.entropy_bold),
                     submission_ids: vec![],
+                    initial_states: None,
+                    initial_states_label: None,
                 }
             })
             .collect())

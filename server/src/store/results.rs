@@ -93,7 +93,12 @@ struct SeedDbRow {
     stacking_json: Option<Json<[f64; 3]>>,
     stacking_levels_json: Option<Json<[StackingLevel; 3]>>,
     inference_ms: f64,
+<<<<<<< HEAD
     manifest_json: Json<serde_json::Value>,
+=======
+    /// The manifest's `initial_states` (NULL or empty before sets were named).
+    initial_states: Option<String>,
+>>>>>>> main
 }
 
 impl SeedDbRow {
@@ -119,6 +124,10 @@ impl SeedDbRow {
             stacking: self.stacking_json.map(|j| j.0),
             stacking_levels: self.stacking_levels_json.map(|j| j.0),
             inference_ms: self.inference_ms,
+            initial_states: d3il_protocol::initial_states_name(
+                self.task,
+                self.initial_states.as_deref().unwrap_or(""),
+            ),
         }
     }
 }
@@ -150,7 +159,12 @@ impl Store {
         let db: Vec<SeedDbRow> = sqlx::query_as(
             "SELECT s.id AS submission_id, m.name AS method, m.id AS method_id, s.task, s.obs_type, s.training_seed, \
              s.data_fraction, s.protocol, r.success_rate, r.behaviour_entropy, r.conditional_entropy, r.stacking_json, \
+<<<<<<< HEAD
              r.stacking_levels_json, r.inference_ms, r.manifest_json FROM submissions s JOIN results r ON r.submission_id = s.id \
+=======
+             r.stacking_levels_json, r.inference_ms, json_extract(r.manifest_json, '$.initial_states') AS initial_states \
+             FROM submissions s JOIN results r ON r.submission_id = s.id \
+>>>>>>> main
              JOIN methods m ON m.id = s.method_id WHERE s.status = ? ORDER BY s.id",
         )
         .bind(SubmissionStatus::Completed)

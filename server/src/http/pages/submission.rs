@@ -13,6 +13,7 @@ use askama::Template;
 use axum::extract::State;
 use axum::http::header;
 use axum::response::{Html, IntoResponse, Response};
+use d3il_protocol::TaskId;
 use d3il_tables::{board as figures, render_avoiding_paths};
 
 struct ContextLine {
@@ -58,6 +59,14 @@ struct SubmissionPage {
     policy: String,
     /// `paper` or `quick`.
     protocol_name: &'static str,
+    /// The initial-state set and where it comes from, once there is a result.
+    initial_states: Option<String>,
+    /// (rollouts ended unstable, rollouts), once there is a result.
+    unstable: Option<(i64, usize)>,
+    /// More than half of the rollouts ended with an unstable simulation.
+    mostly_unstable: bool,
+    /// Sorting results carry the protocol caveat of docs/tasks.md.
+    sorting: bool,
 }
 
 fn pretty<T: serde::Serialize>(v: &T) -> String {
@@ -76,6 +85,8 @@ pub(super) async fn submission_page(
     let mut metrics = vec![];
     let mut contexts = vec![];
     let mut protocol_manifest = String::new();
+    let mut initial_states = None;
+    let mut unstable = None;
     let mut paths_svg = None;
     let mut behaviours_svg = None;
     if let Some(r) = &result {
@@ -166,7 +177,16 @@ pub(super) async fn submission_page(
             })
             .collect();
         protocol_manifest = pretty(&r.manifest_json);
+        initial_states = r.manifest().map(|m| {
+            format!(
+                "{} ({}), sha256 {}",
+                m.initial_states_name(),
+                m.initial_states_origin(),
+                m.initial_states_sha256
+            )
+        });
         let rollouts = store.rollouts_for(id).await?;
+        unstable = Some((r.rollouts_ended_unstable, rollouts.len()));
         let counts = behaviour_counts(rollouts.iter().map(|r| (r.success, &r.behaviour.0)));
         if !counts.is_empty() {
             behaviours_svg = Some(
@@ -232,6 +252,13 @@ pub(super) async fn submission_page(
         created: fmt_time(s.created_at),
         policy,
         protocol_name: protocol_str(s.protocol),
+        initial_states,
+        mostly_unstable: unstable.is_some_and(|(n, total)| 2 * n > total as i64),
+        unstable,
+        sorting: matches!(
+            s.task,
+            TaskId::Sorting2 | TaskId::Sorting4 | TaskId::Sorting6
+        ),
         s,
     })
 }

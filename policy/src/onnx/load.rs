@@ -1,0 +1,218 @@
+//! Turning an admitted ONNX file into runnable plans.
+//!
+//! The graph is analysed once with symbolic batch `B` and window `T` ([`Model`]);
+//! each (batch, window) in use then gets its own plan with the symbols bound
+//! *before* optimisation (`into_typed` → bind → `into_optimized`). Graphs whose
+//! sampling loop builds `torch.full((B,), t)` timesteps only work this way:
+//! optimising with a symbolic batch folds the timestep embedding into a `[1, d]`
+//! constant that no longer concatenates with the `[B, …]` tensors. Plans are
+//! cached; batch sizes are rounded up to a few buckets ([`bucket`]) so the
+//! shrinking live set at the end of an evaluation reuses them.
+
+use super::admit::{mismatch, Feed, Signature};
+use crate::{act_description, PolicyError, IMAGE_SHAPE};
+use d3il_protocol::{PolicyManifest, TaskSpec};
+use std::collections::HashMap;
+use std::sync::{Arc, Mutex};
+use tract_onnx::pb;
+use tract_onnx::prelude::*;
+
+pub(super) type Plan = Arc<TypedRunnableModel>;
+
+/// The analysed graph and its plans per (batch, window).
+pub(super) struct Model {
+    typed: TypedModel,
+    batch: Symbol,
+    window: Symbol,
+    plans: Mutex<HashMap<(usize, usize), Plan>>,
+}
+
+/// Batch sizes plans are made for: a call with b rows runs on the plan of the
+/// smallest bucket ≥ b, padded by repeating its last row.
+pub(super) fn bucket(b: usize) -> usize {
+    const SMALL: [usize; 11] = [1, 2, 3, 4, 6, 8, 12, 16, 24, 32, 48];
+    if let Some(&s) = SMALL.iter().find(|&&s| s >= b) {
+        return s;
+    }
+    // 64, 96, 128, 192, …
+    let mut s = 64;
+    loop {
+        if s >= b {
+            return s;
+        }
+        if s * 3 / 2 >= b {
+            return s * 3 / 2;
+        }
+        s *= 2;
+    }
+}
+
+fn unsupported(e: impl std::fmt::Display) -> PolicyError {
+    PolicyError::Unsupported(e.to_string())
+}
+
+impl Model {
+    /// Declares the inputs' shapes with the symbols and analyses the graph.
+    pub(super) fn build(
+        proto: &pb::ModelProto,
+        sig: &Signature,
+        manifest: &PolicyManifest,
+        task: &TaskSpec,
+    ) -> Result<Self, PolicyError> {
+        let onnx = tract_onnx::onnx();
+        let mut model = onnx
+            .model_for_proto_model(proto)
+            .map_err(|e| unsupported(format!("{e:#}")))?;
+        let batch = model.symbols.sym("B");
+        let window = model.symbols.sym("T");
+        let b_dim: TDim = match sig.fixed_batch {
+            Some(n) => n.to_dim(),
+            None => batch.clone().into(),
+        };
+        let t_dim: TDim = if sig.grow {
+            window.clone().into()
+        } else {
+            manifest.history.to_dim()
+        };
+        for (i, feed) in sig.feeds.iter().enumerate() {
+            let mut dims: Vec<TDim> = vec![b_dim.clone()];
+            match feed {
+                Feed::Obs => {
+                    dims.push(t_dim.clone());
+                    dims.push(task.obs_dim.to_dim());
+                }
+                Feed::Images => {
+                    dims.push(t_dim.clone());
+                    dims.extend(IMAGE_SHAPE.iter().map(|d| d.to_dim()));
+                }
+                Feed::PrevActions => {
+                    dims.push(t_dim.clone() - 1);
+                    dims.push(task.act_dim.to_dim());
+                }
+                Feed::Noise => dims.extend(sig.noise_dims.iter().map(|d| d.to_dim())),
+            }
+            // Input order in tract follows the graph's non-initializer inputs.
+            model
+                .set_input_fact(i, f32::fact(dims).into())
+                .map_err(|e| unsupported(format!("{e:#}")))?;
+        }
+        let outputs = model.output_outlets().map(|o| o.len()).unwrap_or(0);
+        if outputs != 1 {
+            return Err(mismatch(format!(
+                "the model has {outputs} outputs; it must have exactly one, the actions [B, H, act_dim] or [B, act_dim]"
+            )));
+        }
+        let typed = model.into_typed().map_err(|e| {
+            unsupported(format!(
+                "tract could not analyse the graph with the declared input shapes: {e:#}"
+            ))
+        })?;
+        let out_name = proto
+            .graph
+            .as_ref()
+            .and_then(|g| g.output.first())
+            .map(|o| o.name.clone())
+            .unwrap_or_else(|| "output".into());
+        check_output(&typed, &out_name, manifest, task)?;
+        Ok(Model {
+            typed,
+            batch,
+            window,
+            plans: Mutex::new(HashMap::new()),
+        })
+    }
+
+    /// The plan for `batch` rows (a bucket size, or the fixed batch) and window `w`.
+    pub(super) fn plan(&self, batch: usize, w: usize) -> Result<Plan, String> {
+        let key = (batch, w);
+        if let Some(p) = self.plans.lock().map_err(|e| e.to_string())?.get(&key) {
+            return Ok(p.clone());
+        }
+        let subs: HashMap<Symbol, TDim> = [
+            (self.batch.clone(), batch.to_dim()),
+            (self.window.clone(), w.to_dim()),
+        ]
+        .into_iter()
+        .collect();
+        let plan = self
+            .typed
+            .set_symbols(&subs)
+            .and_then(|m| m.into_optimized())
+            .and_then(|m| m.into_runnable())
+            .map_err(|e| {
+                format!("tract could not prepare the graph for batch {batch}, window {w}: {e:#}")
+            })?;
+        self.plans
+            .lock()
+            .map_err(|e| e.to_string())?
+            .insert(key, plan.clone());
+        Ok(plan)
+    }
+}
+
+fn check_output(
+    typed: &TypedModel,
+    out_name: &str,
+    manifest: &PolicyManifest,
+    task: &TaskSpec,
+) -> Result<(), PolicyError> {
+    let slug = task.task.slug();
+    let out = typed
+        .output_fact(0)
+        .map_err(|e| unsupported(format!("{e:#}")))?
+        .clone();
+    if out.datum_type != f32::datum_type() {
+        return Err(mismatch(format!(
+            "output `{out_name}` has type {:?}; it must be float32",
+            out.datum_type
+        )));
+    }
+    let dims: Vec<Option<i64>> = out.shape.iter().map(|d| d.as_i64()).collect();
+    let shown = format!(
+        "[{}]",
+        out.shape
+            .iter()
+            .map(|d| d.to_string())
+            .collect::<Vec<_>>()
+            .join(", ")
+    );
+    let want_act = task.act_dim as i64;
+    let h = manifest.horizon as i64;
+    let expect = if h == 1 {
+        format!("[B, {want_act}] or [B, 1, {want_act}]")
+    } else {
+        format!("[B, {h}, {want_act}]")
+    };
+    let last = dims.last().copied().flatten();
+    match (dims.len(), last) {
+        (2 | 3, Some(a)) if a != want_act => Err(mismatch(format!(
+            "output `{out_name}` has last dimension {a} but task {slug} expects {want_act} ({})",
+            act_description(task.task)
+        ))),
+        (2, Some(_)) if h != 1 => Err(mismatch(format!(
+            "output `{out_name}` has shape {shown} (one action per row) but the manifest says horizon H = {h}; expected {expect}"
+        ))),
+        (3, Some(_)) if dims[1].is_some_and(|x| x != h) => Err(mismatch(format!(
+            "output `{out_name}` has shape {shown} but the manifest says horizon H = {h}; expected {expect}"
+        ))),
+        (2 | 3, Some(_)) => Ok(()),
+        _ => Err(mismatch(format!(
+            "output `{out_name}` has shape {shown}; expected {expect}"
+        ))),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::bucket;
+
+    #[test]
+    fn buckets_cover_every_batch_and_waste_at_most_a_third() {
+        for b in 1..=5000 {
+            let s = bucket(b);
+            assert!(s >= b && (s as f64) <= (b as f64) * 1.5 + 1.0, "{b} -> {s}");
+        }
+        assert_eq!(bucket(48), 48);
+        assert_eq!(bucket(96), 96);
+    }
+}

@@ -1,0 +1,178 @@
+//! Issue 16 on the server: `GET /api/v1/compare`, and the submission page and
+//! results API naming the initial-state set and counting rollouts that ended
+//! with an unstable simulation. Real SQLite, real HTTP on 127.0.0.1.
+
+mod common;
+use common::*;
+use d3il_protocol::*;
+use serde_json::Value;
+
+/// A Pushing paper-protocol result on the original contexts: 30 states × 16
+/// rollouts, state c succeeding in `k(c)` of 16 rollouts; the first
+/// `unstable` rollouts are failures that ended unstable.
+fn result(k: impl Fn(usize) -> usize, unstable: usize) -> EvalResult {
+    let mut outcomes = vec![];
+    let mut rollouts = vec![];
+    for c in 0..30 {
+        for r in 0..16 {
+            let i = c * 16 + r;
+            let ended = i < unstable;
+            let success = !ended && r < k(c);
+            let label = (r % 2).to_string();
+            outcomes.push(d3il_metrics::Outcome::new(c, success, Some(&label)));
+            rollouts.push(RolloutRecord {
+                context_index: c,
+                rollout_index: r,
+                success,
+                behaviour: serde_json::json!(r % 2),
+                steps: 400,
+                path: None,
+                failure: ended.then(|| RolloutFailure {
+                    reason: FailureReason::SimUnstable,
+                    message: "Nan, Inf or huge value in QACC at DOF 0".into(),
+                    step: 17,
+                }),
+            });
+        }
+    }
+    let ev = d3il_metrics::evaluate(
+        TaskId::Pushing,
+        &outcomes,
+        1.0,
+        &d3il_metrics::Bootstrap::default(),
+    )
+    .unwrap();
+    EvalResult {
+        manifest: ProtocolManifest {
+            task: TaskId::Pushing,
+            task_version: "v1".into(),
+            obs_type: ObsType::State,
+            protocol: ProtocolKind::Paper,
+            mjcf_sha256: "m".into(),
+            initial_states_sha256:
+                "16e158084f5a7940e3dac06b1d91a58a853b5a3fdc6b1a5783dccaa5d21b789f".into(),
+            initial_states: "pushing-v2.json".into(),
+            mujoco_version: "2.2.2".into(),
+            evaluator_version: "0".into(),
+            n_contexts: 30,
+            rollouts_per_context: 16,
+            max_steps: 400,
+            policy_sha256: "p".into(),
+            history: 1,
+            horizon: 1,
+            execute: 1,
+            seed: 0,
+        },
+        metrics: ev.metrics,
+        per_context: ev.per_context,
+        rollouts,
+        rollouts_ended_unstable: unstable,
+    }
+}
+
+async fn submit(app: &TestApp, method: &str, task: &str) -> i64 {
+    let m = manifest(task);
+    let r = app
+        .submit(
+            &[
+                ("method", method),
+                ("task", task),
+                ("training_seed", "0"),
+                ("protocol", "paper"),
+                ("manifest", m.as_str()),
+            ],
+            Some(fake_onnx()),
+        )
+        .await;
+    assert_eq!(r.status(), 201);
+    r.json::<Value>().await.unwrap()["id"].as_i64().unwrap()
+}
+
+/// Completes the oldest queued job with `result`, as a worker would.
+async fn complete(app: &TestApp, result: &EvalResult) -> i64 {
+    let store = &app.state.store;
+    let claimed = store.claim_job("test", 60).await.unwrap().unwrap();
+    store
+        .complete_job(claimed.job.id, claimed.submission.id, result, &[])
+        .await
+        .unwrap();
+    claimed.submission.id
+}
+
+#[tokio::test]
+async fn compare_endpoint_pairs_two_submissions_by_initial_state() {
+    let app = spawn_app().await;
+    let a = submit(&app, "A", "pushing").await;
+    let b = submit(&app, "B", "pushing").await;
+    let c = submit(&app, "C", "pushing").await;
+    // A succeeds in 12 of 16 rollouts everywhere, B in 8 (gap 0.25); C like
+    // B but with 300 of its 480 rollouts ended unstable.
+    assert_eq!(complete(&app, &result(|_| 12, 0)).await, a);
+    assert_eq!(complete(&app, &result(|_| 8, 0)).await, b);
+    assert_eq!(complete(&app, &result(|_| 8, 300)).await, c);
+
+    let (s, v) = app.get_json(&format!("/api/v1/compare?a={a}&b={b}")).await;
+    assert_eq!(s, 200, "{v}");
+    let d = &v["success_rate"];
+    assert!(
+        (d["difference"]["value"].as_f64().unwrap() - 0.25).abs() < 1e-9,
+        "{v}"
+    );
+    assert!(d["p_value"].as_f64().unwrap() < 0.01, "{v}");
+    assert!(d["difference"]["ci_low"].as_f64().unwrap() <= 0.25);
+    assert_eq!(v["initial_states"], "pushing-v2.json");
+    assert_eq!(v["n_contexts"], 30);
+
+    let (s, v) = app.get_json(&format!("/api/v1/compare?a={a}&b={a}")).await;
+    assert_eq!(s, 200, "{v}");
+    assert_eq!(v["success_rate"]["difference"]["value"], 0.0);
+    assert_eq!(v["success_rate"]["p_value"], 1.0);
+    assert_eq!(v["conditional_entropy"]["p_value"], 1.0);
+
+    // Clear errors for bad requests.
+    let (s, v) = app.get_json(&format!("/api/v1/compare?a={a}")).await;
+    assert_eq!(s, 400, "{v}");
+    assert_eq!(v["error"]["field"], "b");
+    let (s, v) = app.get_json("/api/v1/compare?a=x&b=1").await;
+    assert_eq!(s, 400, "{v}");
+    let (s, v) = app
+        .get_json(&format!("/api/v1/compare?a={a}&b=999999"))
+        .await;
+    assert_eq!(s, 404, "{v}");
+    // Results on a different set are not paired.
+    let mut other = result(|_| 8, 0);
+    other.manifest.initial_states = "pushing-v1.json".into();
+    other.manifest.initial_states_sha256 = "932d".into();
+    let d = submit(&app, "D", "pushing").await;
+    assert_eq!(complete(&app, &other).await, d);
+    let (s, v) = app.get_json(&format!("/api/v1/compare?a={a}&b={d}")).await;
+    assert_eq!(s, 400, "{v}");
+    assert!(
+        v["error"]["message"]
+            .as_str()
+            .unwrap()
+            .contains("initial-state set"),
+        "{v}"
+    );
+
+    // The results API and the page name the set and count unstable rollouts.
+    let (_, r) = app
+        .get_json(&format!("/api/v1/submissions/{c}/results"))
+        .await;
+    assert_eq!(r["rollouts_ended_unstable"], 300, "{r}");
+    assert_eq!(r["mostly_unstable"], true);
+    assert_eq!(r["initial_states_label"], "the original D3IL test contexts");
+    assert_eq!(r["rollouts"][0]["failure"]["reason"], "sim_unstable");
+    let (_, page) = app.get_text(&format!("/submissions/{c}")).await;
+    assert!(
+        page.contains("Rollouts ended unstable: 300 of 480"),
+        "{page}"
+    );
+    assert!(page.contains("id=\"unstable-warning\""));
+    assert!(page.contains("pushing-v2.json (the original D3IL test contexts)"));
+    let (_, page) = app.get_text(&format!("/submissions/{a}")).await;
+    assert!(page.contains("Rollouts ended unstable: 0 of 480"));
+    assert!(!page.contains("id=\"unstable-warning\""));
+    let (_, page) = app.get_text(&format!("/submissions/{d}")).await;
+    assert!(page.contains("pushing-v1.json (our sample)"), "{page}");
+}
