@@ -32,9 +32,6 @@ pub struct BoardRow {
     /// Evaluation protocol of evaluated rows (None for reported rows).
     #[schema(value_type = Option<schema::Protocol>)]
     pub protocol: Option<ProtocolKind>,
-    /// The initial-state set of evaluated rows (`pushing-v2.json`; None for
-    /// reported rows): rows on different sets are ranked apart.
-    pub initial_states: Option<String>,
     #[schema(value_type = schema::Stat)]
     pub success: Stat,
     /// Conditional behaviour entropy (the paper's "Entropy").
@@ -107,8 +104,6 @@ pub struct EvaluatedSeed {
     pub training_seed: i64,
     pub data_fraction: f64,
     pub protocol: ProtocolKind,
-    /// The initial-state set's name ([`d3il_protocol::ProtocolManifest::initial_states_name`]).
-    pub initial_states: String,
     pub success_rate: f64,
     pub behaviour_entropy: f64,
     pub conditional_entropy: f64,
@@ -229,7 +224,6 @@ pub fn evaluated_rows(seeds: &[EvaluatedSeed]) -> Result<Vec<BoardRow>, MetricsE
                 control: None,
                 source: Source::Evaluated,
                 protocol: Some(f.protocol),
-                initial_states: Some(f.initial_states.clone()),
                 success: aggregate_seeds(&g.success)?,
                 entropy: aggregate_seeds(&g.entropy)?,
                 behaviour_entropy: Some(aggregate_seeds(&g.behaviour)?),
@@ -504,7 +498,6 @@ mod tests {
             training_seed,
             data_fraction: 1.0,
             protocol: ProtocolKind::Paper,
-            initial_states: "aligning-v2.json".into(),
             success_rate: success,
             behaviour_entropy: 0.5,
             conditional_entropy: 0.25,
@@ -541,7 +534,7 @@ mod tests {
         let mut quick = seed(5, 0, 1.0);
         quick.protocol = ProtocolKind::Quick;
         let mut other_set = seed(6, 1, 0.9);
-        other_set.initial_states = "aligning-v1.json".into();
+        other_set.initial_states = "pushing-v1.json".into();
         let mut rows = evaluated_rows(&[seed(1, 0, 0.5), quick, other_set]).unwrap();
         let mut reported = rows[0].clone();
         reported.source = Source::Reported;
@@ -552,8 +545,8 @@ mod tests {
         assert_eq!(
             groups,
             vec![
-                RankGroup::Evaluated("aligning-v1.json".into()),
-                RankGroup::Evaluated("aligning-v2.json".into()),
+                RankGroup::Evaluated("pushing-v1.json".into()),
+                RankGroup::Evaluated("pushing-v2.json".into()),
                 RankGroup::Reported,
                 RankGroup::Smoke
             ]

@@ -114,7 +114,6 @@ impl Store {
                     control: (!r.control.is_empty()).then_some(r.control),
                     source: Source::Reported,
                     protocol: None,
-                    initial_states: None,
                     success: Stat {
                         mean: r.success_mean,
                         std: r.success_std,

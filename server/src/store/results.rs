@@ -93,23 +93,13 @@ struct SeedDbRow {
     stacking_json: Option<Json<[f64; 3]>>,
     stacking_levels_json: Option<Json<[StackingLevel; 3]>>,
     inference_ms: f64,
-<<<<<<< HEAD
-    manifest_json: Json<serde_json::Value>,
-=======
     /// The manifest's `initial_states` (NULL or empty before sets were named).
     initial_states: Option<String>,
->>>>>>> main
 }
 
 impl SeedDbRow {
     fn into_seed(self) -> EvaluatedSeed {
-        // Every stored manifest parses; one that did not would be from before
-        // the sets were named, i.e. the task's v1 set.
-        let initial_states = serde_json::from_value::<ProtocolManifest>(self.manifest_json.0)
-            .map(|m| m.initial_states_name())
-            .unwrap_or_else(|_| format!("{}-v1.json", self.task));
         EvaluatedSeed {
-            initial_states,
             submission_id: self.submission_id,
             method: self.method,
             method_id: self.method_id,
@@ -159,12 +149,8 @@ impl Store {
         let db: Vec<SeedDbRow> = sqlx::query_as(
             "SELECT s.id AS submission_id, m.name AS method, m.id AS method_id, s.task, s.obs_type, s.training_seed, \
              s.data_fraction, s.protocol, r.success_rate, r.behaviour_entropy, r.conditional_entropy, r.stacking_json, \
-<<<<<<< HEAD
-             r.stacking_levels_json, r.inference_ms, r.manifest_json FROM submissions s JOIN results r ON r.submission_id = s.id \
-=======
              r.stacking_levels_json, r.inference_ms, json_extract(r.manifest_json, '$.initial_states') AS initial_states \
              FROM submissions s JOIN results r ON r.submission_id = s.id \
->>>>>>> main
              JOIN methods m ON m.id = s.method_id WHERE s.status = ? ORDER BY s.id",
         )
         .bind(SubmissionStatus::Completed)
