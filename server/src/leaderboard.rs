@@ -324,6 +324,57 @@ pub fn by_title(rows: Vec<BoardRow>) -> Vec<(String, Vec<BoardRow>)> {
     out
 }
 
+// ----------------------------------------------------------------- ranking
+
+/// Rows ranked together on a board. Rows of different groups are never
+/// interleaved: numbers evaluated here, numbers the paper reports, numbers on
+/// different initial-state sets and quick smoke tests are not comparable.
+#[derive(Debug, Clone, PartialEq, Eq, PartialOrd, Ord)]
+pub enum RankGroup {
+    /// Evaluated here with the full (paper) protocol on one initial-state set.
+    Evaluated(String),
+    /// Reported in the D3IL paper.
+    Reported,
+    /// Quick-protocol smoke tests: below the board, unranked, off the Pareto front.
+    Smoke,
+}
+
+impl RankGroup {
+    pub fn of(r: &BoardRow) -> RankGroup {
+        match (r.source, r.protocol) {
+            (Source::Reported, _) => RankGroup::Reported,
+            (Source::Evaluated, Some(ProtocolKind::Quick)) => RankGroup::Smoke,
+            (Source::Evaluated, _) => {
+                RankGroup::Evaluated(r.initial_states.clone().unwrap_or_default())
+            }
+        }
+    }
+
+    /// Whether rows of the group get rank numbers (smoke tests do not).
+    pub fn ranked(&self) -> bool {
+        *self != RankGroup::Smoke
+    }
+
+    pub fn heading(&self) -> String {
+        match self {
+            RankGroup::Evaluated(set) => format!("Evaluated here (initial states {set})"),
+            RankGroup::Reported => "Reported in the D3IL paper".into(),
+            RankGroup::Smoke => "Smoke tests (quick protocol, not ranked)".into(),
+        }
+    }
+}
+
+/// Splits rows into their [`RankGroup`]s: evaluated (one group per
+/// initial-state set), then reported, then smoke tests; row order is kept
+/// within a group.
+pub fn rank_groups(rows: Vec<BoardRow>) -> Vec<(RankGroup, Vec<BoardRow>)> {
+    let mut groups: BTreeMap<RankGroup, Vec<BoardRow>> = BTreeMap::new();
+    for r in rows {
+        groups.entry(RankGroup::of(&r)).or_default().push(r);
+    }
+    groups.into_iter().collect()
+}
+
 // ----------------------------------------------------------------- sorting
 
 /// Sortable columns: (query key, column header).
@@ -367,14 +418,13 @@ pub fn sort_rows(rows: &mut [BoardRow], key: &str, desc: bool) {
 
 // ------------------------------------------------------------ figure input
 
-/// Success vs conditional entropy of each row (quick-protocol runs labelled).
+/// Success vs conditional entropy of each row that belongs on the board's
+/// Pareto front: quick-protocol smoke tests are left off.
 pub fn pareto_points(rows: &[BoardRow]) -> Vec<ParetoPoint> {
     rows.iter()
+        .filter(|r| RankGroup::of(r) != RankGroup::Smoke)
         .map(|r| ParetoPoint {
-            label: match (r.source, r.protocol) {
-                (Source::Evaluated, Some(ProtocolKind::Quick)) => format!("{} (quick)", r.method),
-                _ => r.method.clone(),
-            },
+            label: r.method.clone(),
             entropy: r.entropy.mean,
             success: r.success.mean,
             evaluated: r.source == Source::Evaluated,
@@ -477,6 +527,34 @@ mod tests {
         // One seed: std 0 (as the paper's tables over one seed).
         let one = evaluated_rows(&[seed(9, 0, 0.7)]).unwrap();
         assert_eq!((one[0].success.mean, one[0].success.std), (0.7, 0.0));
+    }
+
+    #[test]
+    fn quick_reported_and_other_sets_are_ranked_apart() {
+        let mut quick = seed(5, 0, 1.0);
+        quick.protocol = ProtocolKind::Quick;
+        let mut other_set = seed(6, 1, 0.9);
+        other_set.initial_states = "pushing-v1.json".into();
+        let mut rows = evaluated_rows(&[seed(1, 0, 0.5), quick, other_set]).unwrap();
+        let mut reported = rows[0].clone();
+        reported.source = Source::Reported;
+        reported.protocol = None;
+        reported.initial_states = None;
+        rows.push(reported);
+        let groups: Vec<RankGroup> = rank_groups(rows.clone()).into_iter().map(|g| g.0).collect();
+        assert_eq!(
+            groups,
+            vec![
+                RankGroup::Evaluated("pushing-v1.json".into()),
+                RankGroup::Evaluated("pushing-v2.json".into()),
+                RankGroup::Reported,
+                RankGroup::Smoke
+            ]
+        );
+        // The quick run (success 1.0) is off the Pareto front.
+        let points = pareto_points(&rows);
+        assert_eq!(points.len(), 3);
+        assert!(points.iter().all(|p| p.success < 1.0));
     }
 
     #[test]

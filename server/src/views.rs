@@ -24,16 +24,12 @@ pub struct Progress {
 
 pub async fn progress(state: &AppState, job: &JobRow) -> Result<Progress, AppError> {
     let pos = state.store.queue_position(job.id).await?;
-    // Without history, guess ten minutes per evaluation.
-    let mean = state
-        .store
-        .mean_job_seconds()
-        .await?
-        .unwrap_or(600.0)
-        .max(1.0);
+    // Past runs are the only basis for an estimate: without them (and
+    // without progress to extrapolate from) there is none, never a guess.
+    let mean = state.store.mean_job_seconds().await?.map(|m| m.max(1.0));
     let workers = state.cfg.workers.max(1) as f64;
     let eta = match (job.state, pos) {
-        (JobState::Queued, Some(p)) => Some(((p as f64 / workers).floor() + 1.0) * mean),
+        (JobState::Queued, Some(p)) => mean.map(|m| ((p as f64 / workers).floor() + 1.0) * m),
         (JobState::Leased, _) => {
             let frac = if job.rollouts_total > 0 {
                 job.rollouts_done as f64 / job.rollouts_total as f64
@@ -41,12 +37,13 @@ pub async fn progress(state: &AppState, job: &JobRow) -> Result<Progress, AppErr
                 0.0
             };
             let elapsed = (now() - job.started_at.unwrap_or_else(now)) as f64;
-            // Extrapolate from progress once there is some; else from history.
-            Some(if frac > 0.05 {
-                elapsed / frac - elapsed
+            // Extrapolate from progress once there is some; else from history
+            // while the run is within its usual time.
+            if frac > 0.05 {
+                Some(elapsed / frac - elapsed)
             } else {
-                (mean - elapsed).max(0.0)
-            })
+                mean.map(|m| m - elapsed).filter(|e| *e >= 1.0)
+            }
         }
         _ => None,
     };
@@ -86,7 +83,8 @@ pub struct SubmissionView {
     pub progress: ProgressView,
     /// Jobs ahead of this one (0 = next); null unless queued.
     pub queue_position: Option<i64>,
-    /// Estimated seconds until the result; null when finished.
+    /// Estimated seconds until the result, from past runs or this run's
+    /// progress; null when finished or when there is no basis for one yet.
     pub eta_seconds: Option<i64>,
     pub created_at: i64,
     pub updated_at: i64,
@@ -331,4 +329,102 @@ pub struct LeaderboardView {
     #[schema(value_type = String)]
     pub view: &'static str,
     pub rows: Vec<BoardRow>,
+}
+
+/// The query of the submission lists (`/submissions`, `GET /api/v1/submissions`).
+#[derive(Debug, Clone, Default, serde::Deserialize, utoipa::IntoParams)]
+#[into_params(parameter_in = Query)]
+pub struct SubmissionListQuery {
+    /// Task slug (`aligning`).
+    pub task: Option<String>,
+    /// Exact method name.
+    pub method: Option<String>,
+    /// `queued`, `running`, `completed` or `failed`.
+    pub status: Option<String>,
+    /// Exact submitter name.
+    pub submitter: Option<String>,
+}
+
+impl SubmissionListQuery {
+    /// The typed filter; a task or status that names nothing is an error
+    /// naming the field and the choices. Empty fields (an unset form
+    /// select) filter nothing.
+    pub fn filter(&self) -> Result<crate::store::SubmissionFilter, AppError> {
+        fn given(v: &Option<String>) -> Option<&str> {
+            v.as_deref().map(str::trim).filter(|v| !v.is_empty())
+        }
+        let task = given(&self.task)
+            .map(|t| t.parse::<TaskId>())
+            .transpose()
+            .map_err(|e| AppError::invalid("task", e.to_string()))?;
+        let status = match given(&self.status) {
+            None => None,
+            Some(st) => Some(
+                [
+                    SubmissionStatus::Queued,
+                    SubmissionStatus::Running,
+                    SubmissionStatus::Completed,
+                    SubmissionStatus::Failed,
+                ]
+                .into_iter()
+                .find(|s| s.as_str() == st)
+                .ok_or_else(|| {
+                    AppError::invalid(
+                        "status",
+                        format!("unknown status `{st}`; use queued, running, completed or failed"),
+                    )
+                })?,
+            ),
+        };
+        Ok(crate::store::SubmissionFilter {
+            task,
+            method: given(&self.method).map(String::from),
+            status,
+            submitter: given(&self.submitter).map(String::from),
+        })
+    }
+}
+
+/// One line of a submission list.
+#[derive(Debug, Serialize, ToSchema)]
+pub struct SubmissionSummary {
+    pub id: i64,
+    /// The submission's page.
+    pub url: String,
+    pub status: SubmissionStatus,
+    pub method: String,
+    pub submitter: Option<String>,
+    #[schema(value_type = schema::Task)]
+    pub task: TaskId,
+    #[schema(value_type = schema::Obs)]
+    pub obs_type: ObsType,
+    pub training_seed: i64,
+    pub data_fraction: f64,
+    #[schema(value_type = schema::Protocol)]
+    pub protocol: ProtocolKind,
+    pub created_at: i64,
+}
+
+impl From<crate::store::SubmissionRow> for SubmissionSummary {
+    fn from(s: crate::store::SubmissionRow) -> Self {
+        SubmissionSummary {
+            url: format!("/submissions/{}", s.id),
+            id: s.id,
+            status: s.status,
+            method: s.method,
+            submitter: s.submitter,
+            task: s.task,
+            obs_type: s.obs_type,
+            training_seed: s.training_seed,
+            data_fraction: s.data_fraction,
+            protocol: s.protocol,
+            created_at: s.created_at,
+        }
+    }
+}
+
+/// Submissions matching a filter, newest first.
+#[derive(Debug, Serialize, ToSchema)]
+pub struct SubmissionList {
+    pub submissions: Vec<SubmissionSummary>,
 }

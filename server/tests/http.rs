@@ -210,7 +210,7 @@ async fn accepted_submission_is_durable_queued_and_duplicate_seed_conflicts() {
     // The page shows the queue position.
     let (s, page) = app.get_text(&format!("/submissions/{}", v["id"])).await;
     assert_eq!(s, 200);
-    assert!(page.contains("Queue position: 1"), "{page}");
+    assert!(page.contains("Waiting (position 1 in the queue"), "{page}");
     assert!(page.contains("http-equiv=\"refresh\""));
     // Another submitter may not use this method name.
     let other = app.state.store.create_token("someone-else").await.unwrap();

@@ -95,3 +95,21 @@ async fn validation_error_json() {
     assert_eq!(r.status(), 400);
     insta::assert_snapshot!(r.text().await.unwrap());
 }
+
+#[tokio::test]
+async fn methods_page() {
+    let app = spawn_app().await;
+    let (s, page) = app.get_text("/methods").await;
+    assert_eq!(s, 200);
+    insta::assert_snapshot!(page);
+}
+
+#[tokio::test]
+async fn submissions_page_filter_form() {
+    let app = spawn_app().await;
+    let (s, page) = app
+        .get_text("/submissions?task=stacking&status=failed&method=X%3Cy")
+        .await;
+    assert_eq!(s, 200);
+    insta::assert_snapshot!(page);
+}

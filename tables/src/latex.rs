@@ -50,7 +50,11 @@ fn cell(v: &Option<Value>) -> String {
             } else {
                 v.mean_text()
             };
-            format!("${mean} {{\\scriptstyle \\pm {}}}$", v.std_text())
+            if v.shows_spread() {
+                format!("${mean} {{\\scriptstyle \\pm {}}}$", v.std_text())
+            } else {
+                format!("${mean}$")
+            }
         }
     }
 }

@@ -29,6 +29,7 @@ use std::str::FromStr;
 pub use csv::write_csv;
 pub use figures::{render_avoiding_paths, render_figure, FigureKind};
 pub use model::{build_table, Block, Group, Metric, Row, TableModel, Value};
+pub use numfmt::{mean_std, three_decimals};
 
 /// Which of the paper's tables to regenerate.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]

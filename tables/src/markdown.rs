@@ -33,8 +33,18 @@ fn row_label(row: &Row, annotate_source: bool) -> String {
 fn cell(v: &Option<Value>) -> String {
     match v {
         None => "–".to_string(),
-        Some(v) if v.bold => format!("**{}** ± {}", v.mean_text(), v.std_text()),
-        Some(v) => format!("{} ± {}", v.mean_text(), v.std_text()),
+        Some(v) => {
+            let mean = if v.bold {
+                format!("**{}**", v.mean_text())
+            } else {
+                v.mean_text()
+            };
+            if v.shows_spread() {
+                format!("{mean} ± {}", v.std_text())
+            } else {
+                mean
+            }
+        }
     }
 }
 

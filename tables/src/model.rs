@@ -92,6 +92,12 @@ impl Value {
     pub fn mean_text(&self) -> String {
         numfmt::number(self.mean, self.source)
     }
+    /// Whether `± std` is printed: reported values as the paper printed
+    /// them; evaluated values only over two or more seeds (one seed has no
+    /// spread to show).
+    pub fn shows_spread(&self) -> bool {
+        self.source == Source::Reported || self.n_seeds >= 2
+    }
     pub fn std_text(&self) -> String {
         numfmt::number(self.std, self.source)
     }

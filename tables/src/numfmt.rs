@@ -14,13 +14,36 @@ pub fn number(x: f64, source: Source) -> String {
             .map(|d| format!("{x:.d$}"))
             .find(|s| s.parse::<f64>().ok() == Some(x))
             .unwrap_or_else(|| format!("{x}")),
-        Source::Evaluated => format!("{x:.3}"),
+        Source::Evaluated => return three_decimals(x),
     };
+    no_negative_zero(s)
+}
+
+/// The one format of a number on the pages and of evaluated numbers in the
+/// tables: three decimals (a tiny negative value prints as `0.000`).
+pub fn three_decimals(x: f64) -> String {
+    no_negative_zero(format!("{x:.3}"))
+}
+
+fn no_negative_zero(s: String) -> String {
     // A tiny negative value must not print as `-0.000`.
     if s.starts_with('-') && s[1..].chars().all(|c| c == '0' || c == '.') {
         s[1..].to_string()
     } else {
         s
+    }
+}
+
+/// `mean ± std` over `n` training seeds, three decimals each: the spread only
+/// where there is one (n >= 2); one seed prints its value alone. `—` for a
+/// missing (non-finite) mean.
+pub fn mean_std(mean: f64, std: f64, n: usize) -> String {
+    if !mean.is_finite() {
+        "—".into()
+    } else if n >= 2 && std.is_finite() {
+        format!("{} ± {}", three_decimals(mean), three_decimals(std))
+    } else {
+        three_decimals(mean)
     }
 }
 
@@ -96,6 +119,15 @@ mod tests {
         assert_eq!(number(0.72345, Source::Evaluated), "0.723");
         assert_eq!(number(-0.0001, Source::Evaluated), "0.000");
         assert_eq!(number(1.0, Source::Evaluated), "1.000");
+    }
+
+    #[test]
+    fn spread_only_over_two_or_more_seeds() {
+        assert_eq!(mean_std(0.5, 0.01944, 3), "0.500 ± 0.019");
+        assert_eq!(mean_std(1.0, 0.0, 1), "1.000");
+        assert_eq!(mean_std(0.25, 0.0, 0), "0.250");
+        assert_eq!(mean_std(f64::NAN, 0.0, 2), "—");
+        assert_eq!(mean_std(0.0009, 0.0, 2), "0.001 ± 0.000");
     }
 
     #[test]

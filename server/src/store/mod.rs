@@ -20,7 +20,7 @@ pub mod types;
 pub use jobs::{ClaimedJob, JobRow};
 pub use methods::{MethodRow, NewMethod};
 pub use results::{ResultRow, RolloutRow, SeedSummary};
-pub use submissions::{NewPolicy, NewSubmission, SeedKey, SubmissionRow};
+pub use submissions::{NewPolicy, NewSubmission, SeedKey, SubmissionFilter, SubmissionRow};
 pub use tokens::{token_hash, Revoked, Submitter, LAST_USED_RESOLUTION_S, TOKEN_PREFIX_LEN};
 pub use types::{JobState, PolicyKind, SubmissionStatus};
 

@@ -53,6 +53,17 @@ pub struct NewSubmission {
     pub manifest_json: String,
 }
 
+/// Which submissions a list shows (every field optional; all must match).
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct SubmissionFilter {
+    pub task: Option<TaskId>,
+    /// Exact method name.
+    pub method: Option<String>,
+    pub status: Option<SubmissionStatus>,
+    /// Exact submitter (token) name.
+    pub submitter: Option<String>,
+}
+
 /// What makes a training seed unique (the `submissions_unique_seed` index).
 #[derive(Debug, Clone)]
 pub struct SeedKey {
@@ -228,6 +239,42 @@ impl Store {
         .bind(method_id)
         .fetch_all(&self.pool)
         .await?)
+    }
+
+    /// Submissions matching every given filter, newest first, at most `limit`.
+    pub async fn list_submissions(
+        &self,
+        f: &SubmissionFilter,
+        limit: i64,
+    ) -> Result<Vec<SubmissionRow>, StoreError> {
+        let mut sql = format!("{SUBMISSION_SELECT} WHERE 1 = 1");
+        if f.task.is_some() {
+            sql.push_str(" AND s.task = ?");
+        }
+        if f.method.is_some() {
+            sql.push_str(" AND m.name = ?");
+        }
+        if f.status.is_some() {
+            sql.push_str(" AND s.status = ?");
+        }
+        if f.submitter.is_some() {
+            sql.push_str(" AND sub.name = ?");
+        }
+        sql.push_str(" ORDER BY s.id DESC LIMIT ?");
+        let mut q = sqlx::query_as(sqlx::AssertSqlSafe(sql));
+        if let Some(t) = f.task {
+            q = q.bind(t.slug());
+        }
+        if let Some(m) = &f.method {
+            q = q.bind(m.clone());
+        }
+        if let Some(st) = f.status {
+            q = q.bind(st);
+        }
+        if let Some(who) = &f.submitter {
+            q = q.bind(who.clone());
+        }
+        Ok(q.bind(limit).fetch_all(&self.pool).await?)
     }
 
     pub async fn latest_submissions(&self, limit: i64) -> Result<Vec<SubmissionRow>, StoreError> {

@@ -32,6 +32,7 @@ pub fn router(max_upload: usize) -> Router<AppState> {
         .route(
             "/submissions",
             post(create_submission)
+                .get(list_submissions)
                 // The multipart reader refuses bodies past the limit as they stream in.
                 .layer(DefaultBodyLimit::max(max_upload + (1 << 20))),
         )
@@ -235,6 +236,22 @@ async fn get_leaderboard_csv(
         &format!("d3il-{}-{}{suffix}.csv", task.slug(), obs),
         &board_csv(&rows)?,
     ))
+}
+
+#[utoipa::path(get, path = "/submissions", tag = "submissions",
+    summary = "List submissions (newest first, at most 500), filtered by task, method, status, submitter",
+    params(crate::views::SubmissionListQuery),
+    responses(
+        (status = 200, description = "Matching submissions", body = crate::views::SubmissionList),
+        (status = 400, description = "Unknown task or status (`field` names it)", body = ErrorBody)))]
+async fn list_submissions(
+    State(state): State<AppState>,
+    Query(q): Query<crate::views::SubmissionListQuery>,
+) -> Result<Json<crate::views::SubmissionList>, AppError> {
+    let rows = state.store.list_submissions(&q.filter()?, 500).await?;
+    Ok(Json(crate::views::SubmissionList {
+        submissions: rows.into_iter().map(Into::into).collect(),
+    }))
 }
 
 #[utoipa::path(get, path = "/methods", tag = "leaderboards",

@@ -22,6 +22,7 @@ use utoipa::{Modify, OpenApi};
     servers((url = "/api/v1")),
     paths(
         super::create_submission,
+        super::list_submissions,
         super::get_submission,
         super::get_results,
         super::list_leaderboards,
@@ -40,6 +41,7 @@ use utoipa::{Modify, OpenApi};
         LeaderboardList,
         LeaderboardView,
         MethodList,
+        crate::views::SubmissionList,
         WhoAmI,
         schema::Task,
         schema::Obs,

@@ -1,14 +1,14 @@
 //! The home page, the leaderboards (main and data-fraction views, CSV) and
 //! the method pages.
 
-use super::format::{fmt_opt_ms, fmt_stat, fmt_time, method_url};
+use super::format::{fmt_num, fmt_opt_ms, fmt_stat, fmt_stat_n, fmt_time, method_url};
 use super::render;
 use crate::error::{AppError, PageError};
 use crate::http::csv::{board_csv, csv_response};
 use crate::http::extract::{obs_query, Param};
 use crate::leaderboard::{
-    board_for, by_title, fraction_rows, fraction_series, pareto_points, protocol_str, sort_rows,
-    BoardRow, SORT_KEYS,
+    board_for, by_title, fraction_rows, fraction_series, pareto_points, protocol_str, rank_groups,
+    sort_rows, BoardRow, RankGroup, SORT_KEYS,
 };
 use crate::state::AppState;
 use crate::store::MethodRow;
@@ -21,7 +21,8 @@ use serde::Deserialize;
 
 #[derive(Debug, Clone)]
 pub struct RowView {
-    pub rank: usize,
+    /// Rank within the row's group; empty for unranked smoke tests.
+    pub rank: String,
     pub method: String,
     pub method_url: String,
     pub reported: bool,
@@ -38,18 +39,18 @@ pub struct RowView {
     pub initial_states: String,
 }
 
-fn row_view(rank: usize, r: &BoardRow) -> RowView {
+fn row_view(rank: Option<usize>, r: &BoardRow) -> RowView {
     RowView {
-        rank,
+        rank: rank.map(|n| n.to_string()).unwrap_or_default(),
         method: r.method.clone(),
         method_url: method_url(&r.method),
         reported: r.source == Source::Reported,
         protocol: r.protocol.map(protocol_str).unwrap_or("").to_string(),
-        success: fmt_stat(r.success.mean, r.success.std),
-        entropy: fmt_stat(r.entropy.mean, r.entropy.std),
+        success: fmt_stat(r.success, r.n_seeds),
+        entropy: fmt_stat(r.entropy, r.n_seeds),
         behaviour: r
             .behaviour_entropy
-            .map(|s| fmt_stat(s.mean, s.std))
+            .map(|s| fmt_stat(s, r.n_seeds))
             .unwrap_or_else(|| "—".into()),
         seeds: r.n_seeds.to_string(),
         inference: fmt_opt_ms(r.inference_ms),
@@ -102,7 +103,7 @@ pub(super) async fn home(State(state): State<AppState>) -> Result<Html<String>, 
                 .filter(|r| r.success.mean.is_finite())
                 .filter(|r| r.protocol != Some(ProtocolKind::Quick))
                 .max_by(|a, b| a.success.mean.total_cmp(&b.success.mean))
-                .map(|r| format!("{} ({:.3})", r.method, r.success.mean))
+                .map(|r| format!("{} ({})", r.method, fmt_num(r.success.mean)))
                 .unwrap_or_else(|| "—".into());
             TaskCard {
                 slug: t.slug(),
@@ -162,9 +163,17 @@ struct Tab {
     active: bool,
 }
 
+/// Rows ranked together ([`RankGroup`]): one table each.
+struct Group {
+    heading: String,
+    /// `evaluated`, `reported` or `smoke` (the table's `data-group`).
+    kind: &'static str,
+    rows: Vec<RowView>,
+}
+
 struct Section {
     title: String,
-    rows: Vec<RowView>,
+    groups: Vec<Group>,
     svg: String,
 }
 
@@ -234,22 +243,32 @@ pub(super) async fn leaderboard(
     let base = format!("/tasks/{}", task.slug());
     let rows = board_for(&state.store.board_rows().await?, task, obs);
     let mut sections = vec![];
-    for (title, mut rs) in by_title(rows) {
+    for (title, rs) in by_title(rows) {
         let svg = figures::pareto_svg(
             &format!("{title}: success vs diversity"),
             &pareto_points(&rs),
         )
         .map_err(|e| AppError::Internal(e.to_string()))?;
-        sort_rows(&mut rs, key, desc);
-        sections.push(Section {
-            title,
-            rows: rs
-                .iter()
-                .enumerate()
-                .map(|(i, r)| row_view(i + 1, r))
-                .collect(),
-            svg,
-        });
+        let groups = rank_groups(rs)
+            .into_iter()
+            .map(|(g, mut rs)| {
+                sort_rows(&mut rs, key, desc);
+                Group {
+                    heading: g.heading(),
+                    kind: match g {
+                        RankGroup::Evaluated(_) => "evaluated",
+                        RankGroup::Reported => "reported",
+                        RankGroup::Smoke => "smoke",
+                    },
+                    rows: rs
+                        .iter()
+                        .enumerate()
+                        .map(|(i, r)| row_view(g.ranked().then_some(i + 1), r))
+                        .collect(),
+                }
+            })
+            .collect();
+        sections.push(Section { title, groups, svg });
     }
     let headers = SORT_KEYS
         .iter()
@@ -376,8 +395,8 @@ pub(super) async fn data_fraction(
         };
         row.cells[i] = format!(
             "{} / {}",
-            fmt_stat(r.success.mean, r.success.std),
-            fmt_stat(r.entropy.mean, r.entropy.std)
+            fmt_stat(r.success, r.n_seeds),
+            fmt_stat_n(r.entropy, r.n_seeds)
         );
     }
     let svg = figures::data_fraction_svg(
@@ -449,8 +468,8 @@ pub(super) async fn method_page(
             control: r.control.clone().unwrap_or_default(),
             reported: r.source == Source::Reported,
             protocol: r.protocol.map(protocol_str).unwrap_or("").into(),
-            success: fmt_stat(r.success.mean, r.success.std),
-            entropy: fmt_stat(r.entropy.mean, r.entropy.std),
+            success: fmt_stat(r.success, r.n_seeds),
+            entropy: fmt_stat(r.entropy, r.n_seeds),
             seeds: r.n_seeds.to_string(),
         })
         .collect();

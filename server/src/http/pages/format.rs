@@ -1,8 +1,28 @@
 //! How the pages print numbers, times and links.
 
-pub fn fmt_stat(mean: f64, std: f64) -> String {
-    if mean.is_finite() {
-        format!("{mean:.3} ± {std:.3}")
+use d3il_protocol::Stat;
+
+/// A statistic over `n` seeds as every page prints it: the tables crate's one
+/// number format (three decimals, `± std` only with n >= 2).
+pub fn fmt_stat(s: Stat, n: usize) -> String {
+    d3il_tables::mean_std(s.mean, s.std, n)
+}
+
+/// [`fmt_stat`] with the number of seeds shown after the spread (`(n = 3)`),
+/// for cells without a seeds column.
+pub fn fmt_stat_n(s: Stat, n: usize) -> String {
+    let v = fmt_stat(s, n);
+    if n >= 2 {
+        format!("{v} (n = {n})")
+    } else {
+        v
+    }
+}
+
+/// One number as the pages print it (three decimals).
+pub fn fmt_num(x: f64) -> String {
+    if x.is_finite() {
+        d3il_tables::three_decimals(x)
     } else {
         "—".into()
     }

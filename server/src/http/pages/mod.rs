@@ -4,6 +4,7 @@
 
 mod boards;
 mod format;
+mod lists;
 mod site;
 mod submission;
 
@@ -15,6 +16,7 @@ use axum::response::Html;
 use axum::routing::get;
 use axum::Router;
 use boards::{data_fraction, home, leaderboard, leaderboard_csv, method_page};
+use lists::{methods_page, submissions_page};
 use site::{admin_page, api_docs, stylesheet, submit_form, submit_post};
 use submission::{submission_download, submission_page};
 
@@ -24,7 +26,9 @@ pub fn router(max_upload: usize) -> Router<AppState> {
         .route("/tasks/{task}", get(leaderboard))
         .route("/tasks/{task}/csv", get(leaderboard_csv))
         .route("/tasks/{task}/data-fraction", get(data_fraction))
+        .route("/methods", get(methods_page))
         .route("/methods/{name}", get(method_page))
+        .route("/submissions", get(submissions_page))
         .route("/submissions/{id}", get(submission_page))
         .route("/submissions/{id}/json", get(submission_download))
         .route(

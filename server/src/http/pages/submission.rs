@@ -1,7 +1,7 @@
 //! A submission's page (status, progress, metrics, figures, its other seeds)
 //! and its JSON download.
 
-use super::format::{fmt_duration, fmt_time};
+use super::format::{fmt_duration, fmt_num, fmt_time};
 use super::render;
 use crate::error::{AppError, PageError};
 use crate::http::extract::Param;
@@ -90,21 +90,21 @@ pub(super) async fn submission_page(
     let mut paths_svg = None;
     let mut behaviours_svg = None;
     if let Some(r) = &result {
-        let ci = |lo: f64, hi: f64| format!("[{lo:.3}, {hi:.3}]");
+        let ci = |lo: f64, hi: f64| format!("[{}, {}]", fmt_num(lo), fmt_num(hi));
         metrics = vec![
             MetricLine {
                 name: "Success rate",
-                value: format!("{:.3}", r.success_rate),
+                value: fmt_num(r.success_rate),
                 ci: ci(r.success_ci_low, r.success_ci_high),
             },
             MetricLine {
                 name: "Conditional behaviour entropy",
-                value: format!("{:.3}", r.conditional_entropy),
+                value: fmt_num(r.conditional_entropy),
                 ci: ci(r.conditional_ci_low, r.conditional_ci_high),
             },
             MetricLine {
                 name: "Behaviour entropy H(π(β))",
-                value: format!("{:.3}", r.behaviour_entropy),
+                value: fmt_num(r.behaviour_entropy),
                 ci: ci(r.behaviour_ci_low, r.behaviour_ci_high),
             },
             MetricLine {
@@ -139,7 +139,7 @@ pub(super) async fn submission_page(
                 {
                     metrics.push(MetricLine {
                         name,
-                        value: format!("{:.3}", e.value),
+                        value: fmt_num(e.value),
                         ci: ci(e.ci_low, e.ci_high),
                     });
                 }
@@ -156,7 +156,7 @@ pub(super) async fn submission_page(
             {
                 metrics.push(MetricLine {
                     name,
-                    value: format!("{:.3}", st[k]),
+                    value: fmt_num(st[k]),
                     ci: String::new(),
                 });
             }
@@ -166,8 +166,8 @@ pub(super) async fn submission_page(
             .iter()
             .map(|c| ContextLine {
                 index: c.context_index,
-                success: format!("{:.3}", c.success_rate),
-                entropy: format!("{:.3}", c.conditional_entropy),
+                success: fmt_num(c.success_rate),
+                entropy: fmt_num(c.conditional_entropy),
                 behaviours: c
                     .behaviours
                     .iter()
@@ -211,9 +211,7 @@ pub(super) async fn submission_page(
             id: o.id,
             seed: o.training_seed,
             status: o.status.to_string(),
-            success: o
-                .success_rate
-                .map_or_else(|| "—".into(), |v| format!("{v:.3}")),
+            success: o.success_rate.map_or_else(|| "—".into(), fmt_num),
             this: o.id == s.id,
         })
         .collect();
@@ -233,7 +231,12 @@ pub(super) async fn submission_page(
             s.status,
             SubmissionStatus::Queued | SubmissionStatus::Running
         ),
-        attempts: format!("{} of {}", job.attempts, job.max_attempts),
+        // A job not yet started shows its queue position, not "Attempt 0 of 3".
+        attempts: if job.attempts > 0 {
+            format!("{} of {}", job.attempts, job.max_attempts)
+        } else {
+            String::new()
+        },
         progress_done: p.rollouts_done,
         progress_total: p.rollouts_total,
         queue_position: p.queue_position,
