@@ -114,3 +114,31 @@ fn announced_protocol_matches_the_task_definitions() {
         );
     }
 }
+
+/// Every sampled set is reproduced exactly by `d3il contexts generate` from
+/// the seed it records. This is why the evaluator keeps rand 0.8 (ChaCha8
+/// with rand 0.8's `gen_range`) while the policy and metrics crates use
+/// rand 0.9: rand 0.9 changed its range sampling, so the recorded seeds
+/// would no longer give the committed sets.
+#[test]
+fn every_sampled_set_is_reproduced_from_its_recorded_seed() {
+    use d3il_evaluator::tasks::contexts::generate;
+    let mut checked = 0;
+    for task in ALL {
+        let def = task_def(task).unwrap();
+        for set in def.context_sets().unwrap() {
+            let Some(seed) = set.file.seed else {
+                assert!(
+                    set.file.source.is_some(),
+                    "{}: neither seed nor source",
+                    set.name
+                );
+                continue;
+            };
+            let again = generate(def.as_ref(), seed, set.file.contexts.len());
+            assert_eq!(again.contexts, set.file.contexts, "{}", set.name);
+            checked += 1;
+        }
+    }
+    assert!(checked >= 8, "only {checked} sampled sets were checked");
+}
