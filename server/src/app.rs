@@ -13,6 +13,10 @@ use std::sync::Arc;
 pub fn router(state: AppState) -> Router {
     Router::new()
         .merge(crate::http::router(state.cfg.max_upload_bytes))
+        .layer(axum::middleware::from_fn_with_state(
+            state.clone(),
+            client_rate_limits,
+        ))
         .layer(axum::middleware::map_response(security_headers))
         .with_state(state)
 }
@@ -39,6 +43,70 @@ async fn security_headers(mut resp: axum::response::Response) -> axum::response:
         }
     }
     resp
+}
+
+/// Per-address rate limits (issue 17). A request without credentials (no
+/// `Authorization` header, not a POST) counts against the anonymous limit;
+/// one with credentials is refused while its address is over the limit of
+/// failed token checks, and counts as a failure when it ends in 401. API
+/// requests get the JSON error, pages the HTML error page.
+async fn client_rate_limits(
+    axum::extract::State(state): axum::extract::State<AppState>,
+    req: axum::extract::Request,
+    next: axum::middleware::Next,
+) -> axum::response::Response {
+    use axum::http::{header, Method, StatusCode};
+    use axum::response::IntoResponse;
+    let Some(ip) = req
+        .extensions()
+        .get::<axum::extract::ConnectInfo<SocketAddr>>()
+        .map(|c| client_key(c.0.ip()))
+    else {
+        return next.run(req).await;
+    };
+    let limits = &state.client_limits;
+    let credentialed =
+        req.headers().contains_key(header::AUTHORIZATION) || req.method() == Method::POST;
+    let over = if credentialed {
+        limits.failed_auth.peek(ip)
+    } else {
+        limits.anonymous.check(ip)
+    };
+    if let Err(retry_after) = over {
+        let e = crate::error::AppError::RateLimited { retry_after };
+        if req.uri().path().starts_with("/api/") {
+            return e.into_response();
+        }
+        let mut resp = (
+            e.status(),
+            axum::response::Html(crate::error::error_page(&e)),
+        )
+            .into_response();
+        if let Ok(v) = header::HeaderValue::from_str(&retry_after.to_string()) {
+            resp.headers_mut().insert(header::RETRY_AFTER, v);
+        }
+        return resp;
+    }
+    let resp = next.run(req).await;
+    if credentialed && resp.status() == StatusCode::UNAUTHORIZED {
+        let _ = limits.failed_auth.check(ip);
+    }
+    resp
+}
+
+/// The rate-limit key of a client address: IPv4 (also IPv4-mapped IPv6) as
+/// is, other IPv6 addresses by their /64 (one host usually holds a whole /64).
+pub fn client_key(ip: std::net::IpAddr) -> std::net::IpAddr {
+    match ip {
+        std::net::IpAddr::V6(v6) => match v6.to_ipv4_mapped() {
+            Some(v4) => v4.into(),
+            None => {
+                let s = v6.segments();
+                std::net::Ipv6Addr::new(s[0], s[1], s[2], s[3], 0, 0, 0, 0).into()
+            }
+        },
+        v4 => v4,
+    }
 }
 
 /// The production job runner: the sandboxed worker process.
@@ -114,7 +182,15 @@ pub async fn serve_listener(listener: tokio::net::TcpListener, state: AppState) 
             }
             *n += 1;
         }
-        let app = app.clone();
+        // Handlers and the per-address rate limits see the peer address.
+        let app = tower::ServiceExt::map_request(
+            app.clone(),
+            move |mut req: axum::http::Request<hyper::body::Incoming>| {
+                req.extensions_mut()
+                    .insert(axum::extract::ConnectInfo(peer));
+                req
+            },
+        );
         let per_client = per_client.clone();
         let timeout = limits.header_read_timeout;
         tokio::spawn(async move {
@@ -145,6 +221,10 @@ pub async fn prepare(
     runner: Arc<dyn JobRunner>,
 ) -> Result<(tokio::net::TcpListener, Running), ServeError> {
     let store = Store::open(&cfg.db).await?;
+    // Temporary uploads of a crashed run, files of failed submissions.
+    store.clean_policy_files().await?;
+    // Pool jobs and dry-runs share the worker slots.
+    let runner = crate::runner::SharedSlots::wrap(runner, cfg.workers);
     let listener = tokio::net::TcpListener::bind(cfg.bind)
         .await
         .map_err(|source| ServeError::Bind {
@@ -170,6 +250,13 @@ pub async fn prepare(
         sandbox,
         store,
         limiter: Arc::new(RateLimiter::new(cfg.rate_limit_per_minute)),
+        client_limits: Arc::new(crate::ratelimit::ClientLimits::new(
+            cfg.anonymous_rate_limit_per_minute,
+            cfg.failed_auth_per_minute,
+        )),
+        uploads: Arc::new(tokio::sync::Semaphore::new(
+            cfg.max_concurrent_uploads.max(1),
+        )),
         cfg: Arc::new(cfg),
         signal,
         runner,

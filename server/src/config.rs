@@ -20,6 +20,15 @@ pub struct ServerConfig {
     pub max_upload_bytes: usize,
     /// Authenticated API requests per token per minute.
     pub rate_limit_per_minute: u32,
+    /// Requests without a token per client address per minute.
+    pub anonymous_rate_limit_per_minute: u32,
+    /// Failed token checks per client address per minute; past it the
+    /// address gets 429 until the minute is over.
+    pub failed_auth_per_minute: u32,
+    /// Bytes of policy files one submitter may keep on disk (None: no cap).
+    pub max_disk_bytes_per_submitter: Option<u64>,
+    /// Uploads streaming at once; more wait before their body is read.
+    pub max_concurrent_uploads: usize,
     /// Attempts per job before the submission fails (crashes, lost leases).
     pub max_attempts: i64,
     pub lease_seconds: i64,
@@ -66,6 +75,10 @@ impl ServerConfig {
             assets_dir: default_assets_dir(),
             max_upload_bytes: 256 << 20,
             rate_limit_per_minute: 60,
+            anonymous_rate_limit_per_minute: 1200,
+            failed_auth_per_minute: 20,
+            max_disk_bytes_per_submitter: Some(4096 << 20),
+            max_concurrent_uploads: 4,
             max_attempts: 3,
             lease_seconds: 30,
             worker: WorkerProcess {

@@ -72,3 +72,70 @@ pub fn production_runner(cmd: &WorkerProcess) -> Arc<dyn JobRunner> {
         },
     })
 }
+
+/// A counting semaphore for blocking threads (the runner is called on them).
+struct Slots {
+    free: std::sync::Mutex<usize>,
+    freed: std::sync::Condvar,
+}
+
+impl Slots {
+    fn acquire(&self) -> SlotGuard<'_> {
+        let mut free = self.free.lock().unwrap_or_else(|p| p.into_inner());
+        while *free == 0 {
+            free = self.freed.wait(free).unwrap_or_else(|p| p.into_inner());
+        }
+        *free -= 1;
+        SlotGuard(self)
+    }
+}
+
+struct SlotGuard<'a>(&'a Slots);
+
+impl Drop for SlotGuard<'_> {
+    fn drop(&mut self) {
+        *self.0.free.lock().unwrap_or_else(|p| p.into_inner()) += 1;
+        self.0.freed.notify_one();
+    }
+}
+
+/// Every run of the pool's jobs and of submission dry-runs goes through the
+/// same `workers` slots: at most that many worker processes run at once, and
+/// a dry-run beyond them queues (its request waits) instead of starting
+/// another process (issue 17).
+pub struct SharedSlots {
+    inner: Arc<dyn JobRunner>,
+    slots: Slots,
+    capacity: usize,
+}
+
+impl SharedSlots {
+    /// `workers` slots (at least one, so dry-runs run on a server without
+    /// pool slots).
+    pub fn wrap(inner: Arc<dyn JobRunner>, workers: usize) -> Arc<dyn JobRunner> {
+        let capacity = workers.max(1);
+        Arc::new(SharedSlots {
+            inner,
+            slots: Slots {
+                free: std::sync::Mutex::new(capacity),
+                freed: std::sync::Condvar::new(),
+            },
+            capacity,
+        })
+    }
+
+    pub fn capacity(&self) -> usize {
+        self.capacity
+    }
+}
+
+impl JobRunner for SharedSlots {
+    fn run(&self, job: &Job, on_progress: &mut dyn FnMut(usize, usize)) -> RunReport {
+        let _slot = self.slots.acquire();
+        self.inner.run(job, on_progress)
+    }
+
+    fn check_sandbox(&self, assets_dir: &std::path::Path) -> Result<Vec<SandboxMechanism>, String> {
+        self.inner.check_sandbox(assets_dir)
+    }
+}

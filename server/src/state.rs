@@ -13,6 +13,10 @@ pub struct AppState {
     pub cfg: Arc<ServerConfig>,
     pub signal: QueueSignal,
     pub limiter: Arc<RateLimiter>,
+    /// Anonymous requests and failed token checks per client address.
+    pub client_limits: Arc<crate::ratelimit::ClientLimits>,
+    /// Uploads streaming at once (`max_concurrent_uploads`).
+    pub uploads: Arc<tokio::sync::Semaphore>,
     /// Used for endpoint conformance dry-runs.
     pub runner: Arc<dyn JobRunner>,
     /// The sandbox mechanisms in force (admin page).

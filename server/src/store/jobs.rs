@@ -292,6 +292,15 @@ impl Store {
             finish_failed(&mut tx, job_id, job.submission_id, &kind, &err.message, t).await?;
         }
         tx.commit().await?;
+        if !requeued {
+            // A failed submission keeps its file's hash, not the file.
+            if let Err(e) = self.release_policy_of(job.submission_id).await {
+                tracing::warn!(
+                    "submission {}: policy file not deleted: {e}",
+                    job.submission_id
+                );
+            }
+        }
         Ok(requeued)
     }
 

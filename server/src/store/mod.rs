@@ -9,6 +9,7 @@
 //! Everything is plain runtime SQL (`query`/`query_as` + `FromRow`), so building
 //! needs no database.
 
+mod files;
 mod jobs;
 mod methods;
 mod paper;
@@ -17,6 +18,7 @@ mod submissions;
 mod tokens;
 pub mod types;
 
+pub use files::TMP_MARKER;
 pub use jobs::{ClaimedJob, JobRow};
 pub use methods::{MethodRow, NewMethod};
 pub use results::{ResultRow, RolloutRow, SeedSummary};

@@ -68,10 +68,10 @@ pub(super) async fn submit_post(
             message: format!("expected a multipart/form-data body: {e}"),
         })?;
         // The token is checked before any file part is read.
-        let (raw, who) = intake::read_form_authenticated(mp, max, &state).await?;
+        let (raw, who) = intake::read_multipart(mp, &state, intake::Caller::FormToken).await?;
         kept = raw.text.clone();
         kept.remove("token");
-        let valid = intake::validate(&raw, &state.cfg.limits)?;
+        let valid = intake::validate(raw, &state.cfg.limits)?;
         intake::accept(&state, valid, &who).await
     }
     .await;
