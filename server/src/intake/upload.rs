@@ -95,15 +95,17 @@ fn multipart_err(e: MultipartError, max: usize) -> AppError {
     }
 }
 
-/// Reads the body: text fields into memory, the `onnx` file streamed to a
-/// temporary file after the caller and the fields before it were checked.
+/// Reads the body into `raw`: text fields into memory, the `onnx` file
+/// streamed to a temporary file after the caller and the fields before it
+/// were checked. On an error `raw` holds the fields read so far (the HTML
+/// form shows them again).
 pub async fn read_multipart(
     mut mp: Multipart,
     state: &AppState,
     caller: Caller,
-) -> Result<(RawSubmission, Submitter), AppError> {
+    raw: &mut RawSubmission,
+) -> Result<Submitter, AppError> {
     let max = state.cfg.max_upload_bytes;
-    let mut raw = RawSubmission::default();
     let mut who = match caller {
         Caller::Known(w) => Some(w),
         Caller::FormToken => None,
@@ -111,7 +113,7 @@ pub async fn read_multipart(
     while let Some(mut field) = mp.next_field().await.map_err(|e| multipart_err(e, max))? {
         let name = field.name().unwrap_or_default().to_string();
         if who.is_none() && (name == "onnx" || name == "manifest_file") {
-            who = Some(authenticate_form_token(state, &raw).await?);
+            who = Some(authenticate_form_token(state, raw).await?);
         }
         if name == "onnx" {
             let Some(w) = &who else {
@@ -120,7 +122,7 @@ pub async fn read_multipart(
             if raw.onnx.is_some() {
                 return Err(AppError::invalid("onnx", "send one `onnx` file only"));
             }
-            let quota = precheck(state, &raw, w).await?;
+            let quota = precheck(state, raw, w).await?;
             let file = stream_to_file(state, &mut field, quota).await?;
             // Browsers send an empty file part when no file was chosen.
             if file.bytes > 0 {
@@ -149,11 +151,10 @@ pub async fn read_multipart(
             ));
         }
     }
-    let who = match who {
-        Some(w) => w,
-        None => authenticate_form_token(state, &raw).await?,
-    };
-    Ok((raw, who))
+    match who {
+        Some(w) => Ok(w),
+        None => authenticate_form_token(state, raw).await,
+    }
 }
 
 async fn authenticate_form_token(

@@ -149,7 +149,17 @@ impl Store {
 
     /// Inserts the submission and its queued job in one transaction; when this
     /// returns the submission is durable.
+    /// A database kept busy by another writer is retried
+    /// ([`super::retry_busy`]) before the error reaches the caller.
     pub async fn create_submission(
+        &self,
+        s: &NewSubmission,
+        max_attempts: i64,
+    ) -> Result<i64, StoreError> {
+        super::retry_busy(|| self.create_submission_once(s, max_attempts)).await
+    }
+
+    async fn create_submission_once(
         &self,
         s: &NewSubmission,
         max_attempts: i64,

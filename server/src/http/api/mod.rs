@@ -99,7 +99,8 @@ async fn create_submission(
         field: None,
         message: format!("expected a multipart/form-data body: {e}"),
     })?;
-    let (raw, who) = intake::read_multipart(mp, &state, intake::Caller::Known(who)).await?;
+    let mut raw = intake::RawSubmission::default();
+    let who = intake::read_multipart(mp, &state, intake::Caller::Known(who), &mut raw).await?;
     let valid = intake::validate(raw, &state.cfg.limits)?;
     let id = intake::accept(&state, valid, &who).await?;
     let body = submission_view(&state, id).await?;

@@ -68,9 +68,11 @@ pub(super) async fn submit_post(
             message: format!("expected a multipart/form-data body: {e}"),
         })?;
         // The token is checked before any file part is read.
-        let (raw, who) = intake::read_multipart(mp, &state, intake::Caller::FormToken).await?;
+        let mut raw = intake::RawSubmission::default();
+        let read = intake::read_multipart(mp, &state, intake::Caller::FormToken, &mut raw).await;
         kept = raw.text.clone();
         kept.remove("token");
+        let who = read?;
         let valid = intake::validate(raw, &state.cfg.limits)?;
         intake::accept(&state, valid, &who).await
     }

@@ -1,0 +1,260 @@
+//! Fair use under hostile load (issue 17), against a real server on
+//! 127.0.0.1/127.0.0.2 with a fresh SQLite file: per-address rate limits for
+//! anonymous requests and failed token checks, endpoint dry-runs that share
+//! the worker slots, and a busy database answered with 503 + Retry-After
+//! rather than 500.
+
+use d3il_protocol::{ErrorKind, Job, WorkerError};
+use d3il_server::app::{prepare, ServerConfig};
+use d3il_server::queue::{JobRunner, RunReport};
+use std::net::SocketAddr;
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::Arc;
+use std::time::Duration;
+
+struct App {
+    addr: SocketAddr,
+    state: d3il_server::app::AppState,
+    _dir: tempfile::TempDir,
+}
+
+impl App {
+    fn url(&self, path: &str) -> String {
+        format!("http://{}{path}", self.addr)
+    }
+}
+
+async fn spawn(cfg: impl FnOnce(&mut ServerConfig), runner: Arc<dyn JobRunner>) -> App {
+    let dir = tempfile::tempdir().unwrap();
+    let mut c = ServerConfig::new(
+        dir.path().join("t.sqlite"),
+        "127.0.0.1:0".parse().unwrap(),
+        "/bin/false".into(),
+    );
+    c.workers = 0;
+    cfg(&mut c);
+    let (listener, running) = prepare(c, runner).await.expect("server starts");
+    tokio::spawn(d3il_server::app::serve_listener(
+        listener,
+        running.state.clone(),
+    ));
+    App {
+        addr: running.addr,
+        state: running.state,
+        _dir: dir,
+    }
+}
+
+/// A client whose connections come from `ip` (127.0.0.0/8).
+fn client_from(ip: &str) -> reqwest::Client {
+    reqwest::Client::builder()
+        .local_address(Some(ip.parse().unwrap()))
+        .build()
+        .unwrap()
+}
+
+/// A runner that fails every job after a while, counting how many run at once.
+#[derive(Default)]
+struct Counting {
+    now: AtomicUsize,
+    max: AtomicUsize,
+    runs: AtomicUsize,
+}
+
+impl JobRunner for Counting {
+    fn run(&self, _job: &Job, _p: &mut dyn FnMut(usize, usize)) -> RunReport {
+        let n = self.now.fetch_add(1, Ordering::SeqCst) + 1;
+        self.max.fetch_max(n, Ordering::SeqCst);
+        std::thread::sleep(Duration::from_millis(300));
+        self.now.fetch_sub(1, Ordering::SeqCst);
+        self.runs.fetch_add(1, Ordering::SeqCst);
+        RunReport {
+            outcome: Err(WorkerError {
+                kind: ErrorKind::Remote,
+                message: "no endpoint here".into(),
+            }),
+            mechanisms: vec![],
+        }
+    }
+}
+
+fn idle_runner() -> Arc<dyn JobRunner> {
+    Arc::new(Counting::default())
+}
+
+#[tokio::test]
+async fn anonymous_requests_are_limited_per_client_address() {
+    let app = spawn(|c| c.anonymous_rate_limit_per_minute = 5, idle_runner()).await;
+    let token = app.state.store.create_token("alice").await.unwrap();
+    let a = client_from("127.0.0.1");
+    for _ in 0..5 {
+        let r = a.get(app.url("/api/v1/leaderboards")).send().await.unwrap();
+        assert_eq!(r.status(), 200);
+    }
+    let r = a.get(app.url("/api/v1/leaderboards")).send().await.unwrap();
+    assert_eq!(r.status(), 429);
+    let wait: u64 = r.headers()["retry-after"]
+        .to_str()
+        .unwrap()
+        .parse()
+        .unwrap();
+    assert!((1..=60).contains(&wait), "{wait}");
+    let body: serde_json::Value = r.json().await.unwrap();
+    assert_eq!(body["error"]["code"], "rate_limited", "{body}");
+    // A page answers with the HTML error page.
+    let r = a.get(app.url("/")).send().await.unwrap();
+    assert_eq!(r.status(), 429);
+    assert!(r.text().await.unwrap().contains("rate limit"));
+    // With a token the per-token limit applies instead.
+    let r = a
+        .get(app.url("/api/v1/whoami"))
+        .bearer_auth(&token)
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status(), 200);
+    // Another address has its own budget.
+    let b = client_from("127.0.0.2");
+    let r = b.get(app.url("/api/v1/leaderboards")).send().await.unwrap();
+    assert_eq!(r.status(), 200);
+}
+
+#[tokio::test]
+async fn failed_token_checks_are_limited_per_client_address() {
+    let app = spawn(|c| c.failed_auth_per_minute = 3, idle_runner()).await;
+    let token = app.state.store.create_token("alice").await.unwrap();
+    let a = client_from("127.0.0.1");
+    for i in 0..3 {
+        let r = a
+            .get(app.url("/api/v1/whoami"))
+            .bearer_auth(format!("d3il_guess{i}"))
+            .send()
+            .await
+            .unwrap();
+        assert_eq!(r.status(), 401);
+    }
+    // Now even the right token is refused from this address for the minute,
+    // and so are POSTs (the form carries its token in the body).
+    let r = a
+        .get(app.url("/api/v1/whoami"))
+        .bearer_auth(&token)
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status(), 429);
+    assert!(r.headers().contains_key("retry-after"));
+    let r = a.post(app.url("/submit")).send().await.unwrap();
+    assert_eq!(r.status(), 429);
+    // Reading pages without a token still works.
+    let r = a.get(app.url("/api/v1/leaderboards")).send().await.unwrap();
+    assert_eq!(r.status(), 200);
+    // Another address is not affected.
+    let r = client_from("127.0.0.2")
+        .get(app.url("/api/v1/whoami"))
+        .bearer_auth(&token)
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status(), 200);
+}
+
+/// Twenty concurrent endpoint submissions on a one-worker server run their
+/// dry-runs one at a time (they used to start twenty worker processes).
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn endpoint_dry_runs_share_the_worker_slots() {
+    let counting = Arc::new(Counting::default());
+    let app = spawn(|c| c.workers = 1, counting.clone()).await;
+    let token = app.state.store.create_token("alice").await.unwrap();
+    let http = reqwest::Client::new();
+    let mut tasks = Vec::new();
+    for seed in 0..6 {
+        let form = reqwest::multipart::Form::new()
+            .text("method", "Remote")
+            .text("task", "pushing")
+            .text("training_seed", seed.to_string())
+            .text("endpoint_url", "wss://policy.example.org/ws");
+        tasks.push(tokio::spawn(
+            http.post(app.url("/api/v1/submissions"))
+                .bearer_auth(&token)
+                .multipart(form)
+                .send(),
+        ));
+    }
+    for t in tasks {
+        let r = t.await.unwrap().unwrap();
+        assert_eq!(r.status(), 422, "the dry-run fails");
+    }
+    assert_eq!(counting.runs.load(Ordering::SeqCst), 6);
+    assert_eq!(
+        counting.max.load(Ordering::SeqCst),
+        1,
+        "dry-runs ran concurrently past --workers 1"
+    );
+}
+
+/// A write that finds the database locked past the busy timeout is answered
+/// with 503 `busy` and Retry-After (a real SQLITE_BUSY from a second
+/// connection), and the store's retry turns a lock held briefly into a
+/// normal answer.
+#[tokio::test]
+async fn a_busy_database_is_retried_then_answered_with_503() {
+    use d3il_server::error::AppError;
+    use d3il_server::store::StoreError;
+    use sqlx::ConnectOptions;
+    let app = spawn(|_| {}, idle_runner()).await;
+    let db = app.state.cfg.db.clone();
+    let opts = sqlx::sqlite::SqliteConnectOptions::new()
+        .filename(&db)
+        .busy_timeout(Duration::ZERO);
+    let mut holder = opts.connect().await.unwrap();
+    sqlx::query("BEGIN IMMEDIATE")
+        .execute(&mut holder)
+        .await
+        .unwrap();
+    let mut other = opts.connect().await.unwrap();
+    let err = sqlx::query("BEGIN IMMEDIATE")
+        .execute(&mut other)
+        .await
+        .expect_err("the lock is held");
+    let e = StoreError::Db(err);
+    assert!(e.is_busy(), "{e}");
+    let app_err: AppError = e.into();
+    assert_eq!(app_err.status().as_u16(), 503);
+    assert_eq!(app_err.code(), "busy");
+    sqlx::query("ROLLBACK").execute(&mut holder).await.unwrap();
+
+    // A submission while another process holds the write lock for 2 s: it
+    // waits (busy timeout) and is accepted, never a 500.
+    let token = app.state.store.create_token("alice").await.unwrap();
+    sqlx::query("BEGIN IMMEDIATE")
+        .execute(&mut holder)
+        .await
+        .unwrap();
+    let release = tokio::spawn(async move {
+        tokio::time::sleep(Duration::from_secs(2)).await;
+        sqlx::query("ROLLBACK").execute(&mut holder).await.unwrap();
+    });
+    let mut onnx = b"\x08\x07\x12\x04test".to_vec();
+    onnx.resize(64, 0);
+    let form = reqwest::multipart::Form::new()
+        .text("method", "Locked")
+        .text("task", "pushing")
+        .text("training_seed", "1")
+        .text(
+            "manifest",
+            r#"{"task": "pushing", "obs_type": "state", "history": 1, "horizon": 1, "execute": 1}"#,
+        )
+        .part(
+            "onnx",
+            reqwest::multipart::Part::bytes(onnx).file_name("p.onnx"),
+        );
+    let r = reqwest::Client::new()
+        .post(app.url("/api/v1/submissions"))
+        .bearer_auth(&token)
+        .multipart(form)
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status(), 201, "{}", r.text().await.unwrap());
+    release.await.unwrap();
+}
