@@ -258,3 +258,69 @@ async fn a_busy_database_is_retried_then_answered_with_503() {
     assert_eq!(r.status(), 201, "{}", r.text().await.unwrap());
     release.await.unwrap();
 }
+
+/// The admin page shows the limits the server was started with, each named
+/// with its flag.
+#[tokio::test]
+async fn the_admin_page_shows_the_configured_limits() {
+    let app = spawn(
+        |c| {
+            c.max_upload_bytes = 7 << 20;
+            c.max_disk_bytes_per_submitter = Some(33 << 20);
+            c.max_concurrent_uploads = 3;
+            c.anonymous_rate_limit_per_minute = 777;
+            c.failed_auth_per_minute = 9;
+            c.rate_limit_per_minute = 61;
+            c.max_attempts = 5;
+            c.connections.header_read_timeout = Duration::from_secs(13);
+            c.connections.max_connections = 999;
+            c.connections.max_connections_per_client = 42;
+        },
+        idle_runner(),
+    )
+    .await;
+    let admin = app
+        .state
+        .store
+        .create_token_with("ops", true)
+        .await
+        .unwrap();
+    let r = reqwest::Client::new()
+        .get(app.url("/admin"))
+        .bearer_auth(&admin)
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status(), 200);
+    let page = r.text().await.unwrap();
+    let table = page
+        .split("id=\"server-limits\">")
+        .nth(1)
+        .and_then(|t| t.split("</table>").next())
+        .expect("the server limits table");
+    let row = |flag: &str| {
+        table
+            .split("<tr>")
+            .find(|r| r.contains(flag))
+            .unwrap_or_else(|| panic!("no {flag} row in {table}"))
+            .to_string()
+    };
+    for (flag, value) in [
+        ("--max-upload-mb", "7 MiB"),
+        ("--max-disk-mb-per-submitter", "33 MiB"),
+        ("--max-concurrent-uploads", "3"),
+        ("--rate-limit)", "61 per minute"),
+        ("--anonymous-rate-limit", "777 per minute"),
+        ("--failed-auth-limit", "9 per minute"),
+        ("--header-timeout", "13 s"),
+        ("--max-connections)", "999"),
+        ("--max-connections-per-client", "42"),
+        ("--max-attempts", "5"),
+    ] {
+        assert!(
+            row(flag).contains(&format!("<td>{value}</td>")),
+            "{flag}: {}",
+            row(flag)
+        );
+    }
+}
