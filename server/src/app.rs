@@ -17,8 +17,73 @@ pub fn router(state: AppState) -> Router {
             state.clone(),
             client_rate_limits,
         ))
+        .layer(axum::middleware::from_fn(etag))
         .layer(axum::middleware::map_response(security_headers))
         .with_state(state)
+}
+
+/// Largest body given an ETag (pages, plots and JSON are far smaller).
+const ETAG_MAX_BODY: u64 = 8 << 20;
+
+/// Validators for what anyone may read (issue 17): a GET answered 200 with a
+/// page, plot, CSV or JSON gets a weak `ETag` (a hash of its body) and
+/// `Cache-Control: no-cache`, so a client revalidates and a request with the
+/// matching `If-None-Match` is answered `304 Not Modified` without a body.
+/// Requests with credentials and `/admin` are left alone.
+async fn etag(
+    req: axum::extract::Request,
+    next: axum::middleware::Next,
+) -> axum::response::Response {
+    use axum::body::HttpBody as _;
+    use axum::http::{header, HeaderValue, Method, StatusCode};
+    use axum::response::IntoResponse;
+    let cacheable = req.method() == Method::GET
+        && !req.headers().contains_key(header::AUTHORIZATION)
+        && !req.uri().path().starts_with("/admin");
+    let if_none_match = req.headers().get(header::IF_NONE_MATCH).cloned();
+    let resp = next.run(req).await;
+    let small = resp
+        .body()
+        .size_hint()
+        .exact()
+        .is_some_and(|n| n <= ETAG_MAX_BODY);
+    if !cacheable
+        || resp.status() != StatusCode::OK
+        || !small
+        || resp.headers().contains_key(header::ETAG)
+    {
+        return resp;
+    }
+    let (mut parts, body) = resp.into_parts();
+    let Ok(bytes) = axum::body::to_bytes(body, ETAG_MAX_BODY as usize).await else {
+        return StatusCode::INTERNAL_SERVER_ERROR.into_response();
+    };
+    let tag = {
+        use std::hash::{Hash, Hasher};
+        let mut h = std::collections::hash_map::DefaultHasher::new();
+        bytes.hash(&mut h);
+        format!("W/\"{:016x}-{:x}\"", h.finish(), bytes.len())
+    };
+    let Ok(tag_value) = HeaderValue::from_str(&tag) else {
+        return axum::response::Response::from_parts(parts, axum::body::Body::from(bytes));
+    };
+    if !parts.headers.contains_key(header::CACHE_CONTROL) {
+        parts
+            .headers
+            .insert(header::CACHE_CONTROL, HeaderValue::from_static("no-cache"));
+    }
+    parts.headers.insert(header::ETAG, tag_value);
+    let matches = if_none_match
+        .as_ref()
+        .and_then(|v| v.to_str().ok())
+        .is_some_and(|v| v.split(',').any(|t| t.trim() == tag || t.trim() == "*"));
+    if matches {
+        parts.status = StatusCode::NOT_MODIFIED;
+        parts.headers.remove(header::CONTENT_LENGTH);
+        parts.headers.remove(header::CONTENT_TYPE);
+        return axum::response::Response::from_parts(parts, axum::body::Body::empty());
+    }
+    axum::response::Response::from_parts(parts, axum::body::Body::from(bytes))
 }
 
 /// Content-Security-Policy of every response: the pages run no script, load
