@@ -324,3 +324,95 @@ async fn the_admin_page_shows_the_configured_limits() {
         );
     }
 }
+
+/// A raw multipart upload in two halves: `start` sends the header, the fields
+/// and `first` bytes of the file; `finish` sends the rest and reads the answer.
+struct RawUpload {
+    sock: tokio::net::TcpStream,
+    rest: usize,
+}
+
+const BOUNDARY: &str = "limitsBoundary42";
+
+impl RawUpload {
+    async fn start(app: &App, token: &str, seed: u32, file: usize, first: usize) -> RawUpload {
+        use tokio::io::AsyncWriteExt;
+        let mut head = String::new();
+        for (k, v) in [
+            ("method", "Uploader".to_string()),
+            ("task", "pushing".to_string()),
+            ("training_seed", seed.to_string()),
+            (
+                "manifest",
+                r#"{"task": "pushing", "obs_type": "state", "history": 1, "horizon": 1, "execute": 1}"#
+                    .to_string(),
+            ),
+        ] {
+            head += &format!(
+                "--{BOUNDARY}\r\nContent-Disposition: form-data; name=\"{k}\"\r\n\r\n{v}\r\n"
+            );
+        }
+        head += &format!(
+            "--{BOUNDARY}\r\nContent-Disposition: form-data; name=\"onnx\"; filename=\"p.onnx\"\r\n\r\n"
+        );
+        let len = head.len() + file + format!("\r\n--{BOUNDARY}--\r\n").len();
+        let mut sock = tokio::net::TcpStream::connect(app.addr).await.unwrap();
+        let req = format!(
+            "POST /api/v1/submissions HTTP/1.1\r\nHost: x\r\nAuthorization: Bearer {token}\r\n\
+             Content-Type: multipart/form-data; boundary={BOUNDARY}\r\nContent-Length: {len}\r\n\r\n{head}"
+        );
+        sock.write_all(req.as_bytes()).await.unwrap();
+        sock.write_all(&vec![7u8; first]).await.unwrap();
+        RawUpload {
+            sock,
+            rest: file - first,
+        }
+    }
+
+    async fn finish(mut self) -> String {
+        use tokio::io::{AsyncReadExt, AsyncWriteExt};
+        self.sock.write_all(&vec![7u8; self.rest]).await.unwrap();
+        self.sock
+            .write_all(format!("\r\n--{BOUNDARY}--\r\n").as_bytes())
+            .await
+            .unwrap();
+        let mut got = vec![0u8; 4096];
+        let n = tokio::time::timeout(Duration::from_secs(20), self.sock.read(&mut got))
+            .await
+            .expect("an answer")
+            .unwrap();
+        String::from_utf8_lossy(&got[..n]).into_owned()
+    }
+}
+
+fn temp_uploads(app: &App) -> usize {
+    std::fs::read_dir(app.state.store.policies_dir())
+        .unwrap()
+        .flatten()
+        .filter(|e| e.file_name().to_string_lossy().contains(".tmp"))
+        .count()
+}
+
+/// With `--max-concurrent-uploads 1` a second upload waits, its body unread,
+/// until the first is stored; then it streams in too.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn concurrent_uploads_are_capped() {
+    let app = spawn(|c| c.max_concurrent_uploads = 1, idle_runner()).await;
+    let token = app.state.store.create_token("alice").await.unwrap();
+    let a = RawUpload::start(&app, &token, 1, 512 << 10, 256 << 10).await;
+    for _ in 0..100 {
+        if temp_uploads(&app) == 1 {
+            break;
+        }
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+    assert_eq!(temp_uploads(&app), 1, "the first upload streams to disk");
+    let b = RawUpload::start(&app, &token, 2, 512 << 10, 32 << 10).await;
+    tokio::time::sleep(Duration::from_millis(500)).await;
+    assert_eq!(temp_uploads(&app), 1, "the second upload waits for a slot");
+    let answer = a.finish().await;
+    assert!(answer.starts_with("HTTP/1.1 201"), "{answer}");
+    let answer = b.finish().await;
+    assert!(answer.starts_with("HTTP/1.1 201"), "{answer}");
+    assert_eq!(temp_uploads(&app), 0);
+}
