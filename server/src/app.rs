@@ -176,7 +176,7 @@ pub fn client_key(ip: std::net::IpAddr) -> std::net::IpAddr {
 
 /// The production job runner: the sandboxed worker process.
 pub fn default_runner(cfg: &ServerConfig) -> Arc<dyn JobRunner> {
-    crate::runner::production_runner(&cfg.worker)
+    crate::runner::production_runner_with(&cfg.worker, &cfg.limits)
 }
 
 #[derive(Debug, thiserror::Error)]

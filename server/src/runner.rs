@@ -3,12 +3,14 @@
 //! server, wall clock, output cap, rlimits/namespaces/landlock/seccomp inside).
 
 use crate::queue::{JobRunner, RunReport, WorkerProcess};
-use d3il_protocol::{Job, SandboxMechanism};
+use d3il_protocol::{Job, Limits, SandboxMechanism};
 use d3il_sandbox::{run_worker, Outcome, WorkerCommand};
 use std::sync::Arc;
 
 pub struct SandboxRunner {
     pub cmd: WorkerCommand,
+    /// The limits jobs get, for the sandbox check (admin page).
+    pub limits: Limits,
 }
 
 impl JobRunner for SandboxRunner {
@@ -36,6 +38,7 @@ impl JobRunner for SandboxRunner {
             .args(&self.cmd.args)
             .args(["--check-sandbox", "--json", "--assets"])
             .arg(assets_dir)
+            .args(limits_arg(&self.limits))
             .stdin(std::process::Stdio::null())
             .output()
             .map_err(|e| format!("could not start `{} --check-sandbox`: {e}", exe.display()))?;
@@ -61,9 +64,24 @@ impl JobRunner for SandboxRunner {
     }
 }
 
-/// The runner `d3il serve` uses.
+/// `--limits-json` for limits other than the defaults (a worker of an older
+/// build, or a test script, is then called exactly as before).
+fn limits_arg(limits: &Limits) -> Vec<String> {
+    match serde_json::to_string(limits) {
+        Ok(j) if *limits != Limits::default() => vec!["--limits-json".into(), j],
+        _ => vec![],
+    }
+}
+
+/// The runner `d3il serve` uses, with the default limits for its sandbox check.
 pub fn production_runner(cmd: &WorkerProcess) -> Arc<dyn JobRunner> {
+    production_runner_with(cmd, &Limits::default())
+}
+
+/// The runner `d3il serve` uses; its sandbox check confines with `limits`.
+pub fn production_runner_with(cmd: &WorkerProcess, limits: &Limits) -> Arc<dyn JobRunner> {
     Arc::new(SandboxRunner {
+        limits: limits.clone(),
         cmd: WorkerCommand {
             exe: cmd.exe.clone(),
             args: cmd.args.clone(),
