@@ -273,7 +273,8 @@ fn refused_uploads_leave_no_file() {
 }
 
 /// A submission that fails deletes its file (keeping the hash), and a
-/// restart removes temporary files a crash left behind.
+/// restart removes temporary files and unreferenced files a crash left
+/// behind while keeping the files of live submissions.
 #[test]
 fn failed_submissions_and_crash_debris_leave_no_files() {
     let dir = TempDir::new("upload-debris");
@@ -300,16 +301,27 @@ fn failed_submissions_and_crash_debris_leave_no_files() {
     assert!(gone.is_some(), "{:?}", files_in(&policies));
     server.kill();
 
-    // Debris of an upload interrupted by a crash.
+    // A queued submission's file (no worker runs it).
+    let server = Server::start(&db, &["--workers", "0"]);
+    let (s, body) = post_streamed(&server.base, &token, &fields("Kept", 1), 8192, 8192);
+    assert_eq!(s, 201, "{body}");
+    let kept = files_in(&policies);
+    assert_eq!(kept.len(), 1, "{kept:?}");
+    server.kill();
+
+    // Debris of an upload interrupted by a crash, and a stored file no
+    // submission refers to (a crash before its submission was recorded).
     let stray = policies.join("upload.onnx.tmp4242-7");
     std::fs::write(&stray, b"half an upload").unwrap();
     let other = policies.join("abc.onnx.tmp1-0");
     std::fs::write(&other, b"half a file").unwrap();
+    let orphan = policies.join(format!("{}.onnx", "e".repeat(64)));
+    std::fs::write(&orphan, b"nobody's file").unwrap();
     let server = Server::start(&db, &["--workers", "0"]);
-    assert!(
-        !stray.exists() && !other.exists(),
-        "{:?}",
-        files_in(&policies)
+    assert_eq!(
+        files_in(&policies),
+        kept,
+        "only the queued submission's file is left"
     );
     assert_eq!(server.get_text("/").0, 200);
 }

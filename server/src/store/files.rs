@@ -89,8 +89,9 @@ impl Store {
         Ok(n.max(0) as u64)
     }
 
-    /// At start: removes temporary uploads left by a crash and the files of
-    /// failed submissions that were never deleted. Returns how many files
+    /// At start: removes temporary uploads left by a crash, files no
+    /// submission refers to, and the files of failed submissions that were
+    /// never deleted. Returns how many files
     /// were removed.
     pub async fn clean_policy_files(&self) -> Result<usize, StoreError> {
         let dir = self.policies_dir();
@@ -102,6 +103,34 @@ impl Store {
                 match tokio::fs::remove_file(&p).await {
                     Ok(()) => removed += 1,
                     Err(err) => tracing::warn!("cannot remove stray upload {}: {err}", p.display()),
+                }
+            }
+        }
+        // Files no submission refers to (a crash between storing the file
+        // and recording its submission).
+        let known: std::collections::HashSet<String> = sqlx::query_scalar::<_, String>(
+            "SELECT DISTINCT onnx_path FROM submissions WHERE onnx_path IS NOT NULL",
+        )
+        .fetch_all(&self.pool)
+        .await?
+        .into_iter()
+        // By file name: a data directory moved with its database still
+        // matches its rows.
+        .filter_map(|p| {
+            Path::new(&p)
+                .file_name()
+                .map(|f| f.to_string_lossy().into_owned())
+        })
+        .collect();
+        let mut entries = tokio::fs::read_dir(&dir).await.map_err(io_err(&dir))?;
+        while let Some(e) = entries.next_entry().await.map_err(io_err(&dir))? {
+            let p = e.path();
+            let orphan = p.extension().is_some_and(|x| x == "onnx")
+                && !known.contains(e.file_name().to_string_lossy().as_ref());
+            if orphan {
+                match tokio::fs::remove_file(&p).await {
+                    Ok(()) => removed += 1,
+                    Err(err) => tracing::warn!("cannot remove unused {}: {err}", p.display()),
                 }
             }
         }
