@@ -44,8 +44,12 @@ impl Store {
     }
 
     /// Deletes the policy file at `path` unless a submission that is not
-    /// failed still uses it. Returns whether it was deleted.
+    /// failed still uses it. Returns whether it was deleted. Only files in
+    /// this store's policies directory are ever deleted.
     pub async fn release_policy_file(&self, path: &str) -> Result<bool, StoreError> {
+        if !Path::new(path).starts_with(self.policies_dir()) {
+            return Ok(false);
+        }
         let live: i64 = sqlx::query_scalar(
             "SELECT COUNT(*) FROM submissions WHERE onnx_path = ? AND status != 'failed'",
         )
