@@ -40,7 +40,10 @@ fn screenshot(url: &str, (w, h): (u32, u32), dir: &Path, name: &str) -> (usize, 
             "--disable-component-update",
             "--disable-sync",
         ])
-        .arg(format!("--user-data-dir={}", dir.join(format!("profile-{name}")).display()))
+        .arg(format!(
+            "--user-data-dir={}",
+            dir.join(format!("profile-{name}")).display()
+        ))
         .arg(format!("--window-size={w},{h}"))
         .arg(format!("--screenshot={}", out.display()))
         .arg(url)
@@ -100,8 +103,16 @@ fn chromium_draws_each_method_in_its_colour_with_the_legend_beside_the_data() {
         let xs = columns_of(w, &px, (c.0, c.1, c.2));
         let (legend, data): (Vec<usize>, Vec<usize>) =
             xs.iter().partition(|&&x| x as f64 >= legend_x);
-        assert!(legend.len() >= 10, "{m}: its legend marker is not drawn ({} px)", legend.len());
-        assert!(data.len() >= 10, "{m}: its point is not drawn ({} px)", data.len());
+        assert!(
+            legend.len() >= 10,
+            "{m}: its legend marker is not drawn ({} px)",
+            legend.len()
+        );
+        assert!(
+            data.len() >= 10,
+            "{m}: its point is not drawn ({} px)",
+            data.len()
+        );
     }
 
     // The leaderboard page at 1400 px embeds the same plot.
@@ -118,6 +129,10 @@ fn chromium_draws_each_method_in_its_colour_with_the_legend_beside_the_data() {
             columns_of(w, &px, (c.0, c.1, c.2)).len() >= 20
         })
         .count();
-    assert_eq!(drawn, PAPER_METHOD_ORDER.len(), "method colours on the page");
+    assert_eq!(
+        drawn,
+        PAPER_METHOD_ORDER.len(),
+        "method colours on the page"
+    );
     server.kill();
 }

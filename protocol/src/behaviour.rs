@@ -78,14 +78,22 @@ pub mod avoiding {
 }
 
 /// Sorting's colour order from its packed code (docs/original-d3il.md §11.1.6:
-/// MSB first, red 0, blue 1), e.g. `RB`; `None` when `task` is not Sorting.
+/// the first X slots as bits, red 0, blue 1, most significant bit first:
+/// Sorting-2 64 = `RB`, 128 = `BR`). `None` when `task` is not Sorting or the
+/// code is not a complete sequence (X/2 of each colour, nothing after the X
+/// bits; an unsorted slot also counts as 1, so e.g. 192 on Sorting-2 is
+/// "nothing sorted", not `BB`).
 pub fn sorting_order(task: TaskId, code: u64) -> Option<String> {
-    let n = match task {
+    let n: u32 = match task {
         TaskId::Sorting2 => 2,
         TaskId::Sorting4 => 4,
         TaskId::Sorting6 => 6,
         _ => return None,
     };
+    let used = (0xFFu64 << (8 - n)) & 0xFF;
+    if code & !used != 0 || code.count_ones() != n / 2 {
+        return None;
+    }
     Some(
         (0..n)
             .map(|i| if code >> (7 - i) & 1 == 1 { 'B' } else { 'R' })
@@ -141,12 +149,16 @@ mod tests {
         assert_eq!(behaviour_name(TaskId::Avoiding, &bits), "1-2-3");
         let cut = json!([0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]);
         assert_eq!(behaviour_name(TaskId::Avoiding, &cut), "2-x-x");
-        // Red then blue: 0b0111_1111 (unfilled slots are 1).
-        assert_eq!(behaviour_name(TaskId::Sorting2, &json!(127)), "RB");
+        // docs/original-d3il.md §11.1.6: Sorting-2 RB = 64, BR = 128.
+        assert_eq!(behaviour_name(TaskId::Sorting2, &json!(64)), "RB");
+        assert_eq!(behaviour_name(TaskId::Sorting2, &json!(128)), "BR");
         assert_eq!(
-            behaviour_name(TaskId::Sorting4, &json!(0b1001_1111)),
+            behaviour_name(TaskId::Sorting4, &json!(0b1001_0000)),
             "BRRB"
         );
+        assert_eq!(behaviour_name(TaskId::Sorting6, &json!(28)), "RRRBBB");
+        // Not a complete sequence (nothing sorted): the code itself.
+        assert_eq!(behaviour_name(TaskId::Sorting2, &json!(192)), "192");
         assert_eq!(behaviour_name(TaskId::Stacking, &json!("rgb")), "rgb");
         assert_eq!(behaviour_name(TaskId::Stacking, &json!("")), "none");
         assert_eq!(behaviour_name(TaskId::Pushing, &json!(2.0)), "2");

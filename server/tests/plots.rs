@@ -186,7 +186,8 @@ async fn served_plots_are_readable_and_colour_methods_as_the_cli_does() {
 async fn behaviour_bars_name_sorting_orders_and_print_integer_counts() {
     let app = spawn_app().await;
     // Sorting-2: 7 × red-then-blue, 3 × blue-then-red, 2 failures.
-    let codes = [0b0111_1111u32, 0b1011_1111];
+    // docs/original-d3il.md §11.1.6: RB = 64, BR = 128.
+    let codes = [64u32, 128];
     let rollouts = (0..12)
         .map(|i| RolloutRecord {
             context_index: 0,

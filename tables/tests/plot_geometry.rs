@@ -274,7 +274,7 @@ fn data_fraction_lines_have_error_bars_and_an_outside_legend() {
 #[test]
 fn behaviour_bars_show_names_and_integer_counts() {
     let names = [
-        (TaskId::Sorting2, json!(0b0111_1111u32)),
+        (TaskId::Sorting2, json!(64)),
         (TaskId::Stacking, json!("rgb")),
         (
             TaskId::Avoiding,
