@@ -214,3 +214,32 @@ async fn behaviour_bars_name_sorting_orders_and_print_integer_counts() {
     let (_, page) = app.get_text(&format!("/submissions/{id}")).await;
     assert!(page.contains(">RB</text>") && page.contains(">BR</text>"));
 }
+
+/// One plotting module: the server draws no figure itself (no plotters
+/// dependency, no SVG drawing code); it hands rows to `d3il_tables::board`.
+#[test]
+fn the_server_draws_no_figure_of_its_own() {
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+    let manifest = std::fs::read_to_string(root.join("Cargo.toml")).unwrap();
+    assert!(
+        !manifest.contains("plotters"),
+        "server/Cargo.toml depends on plotters"
+    );
+    let mut stack = vec![root.join("src")];
+    let mut files = 0;
+    while let Some(dir) = stack.pop() {
+        for e in std::fs::read_dir(&dir).unwrap() {
+            let p = e.unwrap().path();
+            if p.is_dir() {
+                stack.push(p);
+            } else if p.extension().is_some_and(|x| x == "rs") {
+                files += 1;
+                let src = std::fs::read_to_string(&p).unwrap();
+                for needle in ["plotters::", "SVGBackend", "<circle", "<polyline"] {
+                    assert!(!src.contains(needle), "{} draws ({needle})", p.display());
+                }
+            }
+        }
+    }
+    assert!(files > 10);
+}
