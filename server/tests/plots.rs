@@ -151,6 +151,12 @@ async fn served_plots_are_readable_and_colour_methods_as_the_cli_does() {
     let f = parse(&svg);
     let web: BTreeMap<String, String> = f.legend_entries.iter().cloned().collect();
     assert!(web.contains_key("BESO (evaluated)"), "{web:?}");
+    assert!(
+        f.labels
+            .iter()
+            .any(|l| l.group == "labels" && l.text == "BESO (evaluated)"),
+        "the evaluated point is labelled as such"
+    );
     assert_eq!(
         web.get("BESO (evaluated)"),
         web.get("BESO"),

@@ -63,7 +63,12 @@ pub fn pareto_svg(title: &str, points: &[ParetoPoint]) -> Result<String, TablesE
         let points: Vec<PlanePoint> = points
             .iter()
             .map(|p| PlanePoint {
-                label: p.label.clone(),
+                // As in the legend: an evaluated row never reads as the paper's.
+                label: if p.evaluated {
+                    format!("{} (evaluated)", p.label)
+                } else {
+                    p.label.clone()
+                },
                 method: p.method.clone(),
                 evaluated: p.evaluated,
                 entropy: p.entropy,

@@ -73,6 +73,10 @@ fn cli_figures_keep_legends_off_the_data_and_labels_apart() {
         let f = assert_readable(&svg, &format!("{kind} {obs}"));
         assert!(f.legend.is_some(), "{kind}: no legend");
         assert!(!f.points.is_empty(), "{kind}: no points");
+        if kind == FigureKind::Pareto {
+            let labels = f.labels.iter().filter(|l| l.group == "labels").count();
+            assert_eq!(labels, f.points.len(), "{obs}: every point is labelled");
+        }
         // The paper's rows have 4 to 6 seeds: every point has its error bar
         // (a bar and two caps, in one or both directions).
         assert!(
