@@ -20,6 +20,8 @@ mod latex;
 mod markdown;
 mod model;
 mod numfmt;
+mod panels;
+pub mod plot;
 
 use d3il_protocol::{ObsType, ResultCell, Source};
 use std::collections::BTreeMap;
