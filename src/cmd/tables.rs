@@ -94,25 +94,11 @@ async fn render(args: &Args) -> anyhow::Result<String> {
     }
 }
 
-/// History and action chunking of the methods submitters registered (the
-/// paper's own methods use the paper's properties inside d3il-tables). The
-/// method's free-text `prediction` counts as action chunking when it mentions
-/// a chunk; a method without a history is treated as history-free.
+/// History and action chunking of the methods submitters registered
+/// (`d3il_server::leaderboard::method_infos`, as the home page uses them).
 async fn method_infos(store: &Store) -> anyhow::Result<BTreeMap<String, MethodInfo>> {
     let rows = store.methods().await.context("reading methods")?;
-    Ok(rows
-        .into_iter()
-        .map(|m| {
-            let info = MethodInfo {
-                history: m.history.and_then(|h| u32::try_from(h).ok()).unwrap_or(1),
-                action_chunking: m
-                    .prediction
-                    .as_deref()
-                    .is_some_and(|p| p.to_ascii_lowercase().contains("chunk")),
-            };
-            (m.name, info)
-        })
-        .collect())
+    Ok(d3il_server::leaderboard::method_infos(&rows))
 }
 
 #[cfg(test)]

@@ -7,7 +7,8 @@ use crate::state::AppState;
 use axum::extract::{Query, State};
 use axum::Json;
 use d3il_metrics::Bootstrap;
-use d3il_protocol::Comparison;
+use crate::store::{ResultRow, SubmissionRow, SubmissionStatus};
+use d3il_protocol::{Comparison, ProtocolManifest};
 use serde::Deserialize;
 use utoipa::IntoParams;
 
@@ -48,25 +49,60 @@ pub async fn compare(
 ) -> Result<Json<Comparison>, AppError> {
     let a = id("a", q.a.as_deref())?;
     let b = id("b", q.b.as_deref())?;
-    let mut parts = vec![];
-    for (field, sid) in [("a", a), ("b", b)] {
-        state.store.submission(sid).await?;
-        let r = state.store.result_for(sid).await?.ok_or_else(|| {
-            AppError::NotFound(format!(
-                "submission {sid} (`{field}`) has no results yet; poll /api/v1/submissions/{sid}"
-            ))
-        })?;
-        let m = r.manifest().ok_or_else(|| {
-            AppError::Internal(format!("submission {sid}: stored manifest does not parse"))
-        })?;
-        parts.push((m, r.per_context_json.0));
+    let pa = finished(&state, "a", a).await?;
+    let pb = finished(&state, "b", b).await?;
+    paired(&pa, &pb).map(Json)
+}
+
+/// A finished submission with its stored result and protocol manifest: what
+/// a paired comparison needs (the API and the `/compare` page).
+pub struct Finished {
+    pub submission: SubmissionRow,
+    pub result: ResultRow,
+    pub manifest: ProtocolManifest,
+}
+
+/// Loads submission `sid` (query field `field`) for a comparison: it must
+/// exist (404), be completed (a 400 naming its status otherwise: queued, running, failed) and
+/// have a result.
+pub async fn finished(state: &AppState, field: &str, sid: i64) -> Result<Finished, AppError> {
+    let submission = state.store.submission(sid).await?;
+    if submission.status != SubmissionStatus::Completed {
+        return Err(AppError::invalid(
+            field,
+            format!(
+                "submission {sid} (`{field}`) is {}; only finished submissions can be compared: wait for its result (/submissions/{sid})",
+                submission.status
+            ),
+        ));
     }
+    let result = state.store.result_for(sid).await?.ok_or_else(|| {
+        AppError::NotFound(format!(
+            "submission {sid} (`{field}`) has no results yet; poll /api/v1/submissions/{sid}"
+        ))
+    })?;
+    let manifest = result.manifest().ok_or_else(|| {
+        AppError::Internal(format!("submission {sid}: stored manifest does not parse"))
+    })?;
+    Ok(Finished {
+        submission,
+        result,
+        manifest,
+    })
+}
+
+/// The paired comparison A − B (`d3il_metrics::compare_parts`, the same as
+/// `d3il compare`); results that cannot be paired are a 400 on `b`.
+pub fn paired(a: &Finished, b: &Finished) -> Result<Comparison, AppError> {
     let cfg = Bootstrap {
         resamples: 2000,
         confidence: 0.95,
         seed: 0,
     };
-    d3il_metrics::compare_parts((&parts[0].0, &parts[0].1), (&parts[1].0, &parts[1].1), &cfg)
-        .map(Json)
-        .map_err(|e| AppError::invalid("b", e.to_string()))
+    d3il_metrics::compare_parts(
+        (&a.manifest, &a.result.per_context_json.0),
+        (&b.manifest, &b.result.per_context_json.0),
+        &cfg,
+    )
+    .map_err(|e| AppError::invalid("b", e.to_string()))
 }
