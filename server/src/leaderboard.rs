@@ -8,7 +8,6 @@ use crate::schema;
 use d3il_metrics::{aggregate_seeds, MetricsError};
 use d3il_protocol::{ObsType, ProtocolKind, ResultCell, Source, StackingLevel, Stat, TaskId};
 use d3il_tables::board::{FractionSeries, ParetoPoint};
-use d3il_tables::MethodInfo;
 use std::collections::{BTreeMap, BTreeSet, HashMap};
 
 /// One leaderboard row: a method on a task (paper title), observation type and
@@ -71,27 +70,6 @@ impl BoardRow {
             initial_states: self.initial_states_label.clone(),
         }
     }
-}
-
-/// History and action chunking of the methods submitters registered, for
-/// the paper's tables (the paper's own methods use the paper's properties
-/// inside d3il-tables). The method's free-text `prediction` counts as action
-/// chunking when it mentions a chunk; a method without a history is treated
-/// as history-free. Used by `d3il tables` and the home page.
-pub fn method_infos(methods: &[crate::store::MethodRow]) -> BTreeMap<String, MethodInfo> {
-    methods
-        .iter()
-        .map(|m| {
-            let info = MethodInfo {
-                history: m.history.and_then(|h| u32::try_from(h).ok()).unwrap_or(1),
-                action_chunking: m
-                    .prediction
-                    .as_deref()
-                    .is_some_and(|p| p.to_ascii_lowercase().contains("chunk")),
-            };
-            (m.name.clone(), info)
-        })
-        .collect()
 }
 
 /// Maps a task title as the paper prints it (`Stacking-2 (T5)`) to our task.

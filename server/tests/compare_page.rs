@@ -141,7 +141,10 @@ async fn compare_page_shows_paired_differences_contexts_and_behaviours() {
         d["difference"]["ci_low"].as_f64().unwrap(),
         d["difference"]["ci_high"].as_f64().unwrap()
     )));
-    assert!(page.contains("&#60; 0.001"), "p-value of a clear difference: {page}");
+    assert!(
+        page.contains("&#60; 0.001"),
+        "p-value of a clear difference: {page}"
+    );
     // Thirty initial states side by side, and the behaviour counts of both.
     let contexts = &page[page.find("id=\"contexts\"").unwrap()..];
     assert_eq!(contexts.matches("<tr><td class=\"num\">").count(), 30);
@@ -188,7 +191,9 @@ async fn compare_page_shows_paired_differences_contexts_and_behaviours() {
     let (s, page) = app.get_text(&format!("/compare?a={a}&b={q}")).await;
     assert_eq!(s, 400);
     assert!(
-        page.contains(&format!("submission {q} (`b`) is queued; only finished submissions can be compared")),
+        page.contains(&format!(
+            "submission {q} (`b`) is queued; only finished submissions can be compared"
+        )),
         "{page}"
     );
     let (s, v) = app.get_json(&format!("/api/v1/compare?a={q}&b={a}")).await;
@@ -240,10 +245,16 @@ async fn home_page_shows_evaluated_rows_next_to_reported_ones_but_not_quick_runs
     assert!(alpha[..400].contains("evaluated here"), "{}", &alpha[..400]);
     assert!(table.contains("Methods not in the paper"));
     assert!(table.contains("<a href=\"/tasks/pushing?obs=state\">1.000</a>"));
-    assert!(!table.contains("QuickOnly"), "quick runs are not in the paper's table");
+    assert!(
+        !table.contains("QuickOnly"),
+        "quick runs are not in the paper's table"
+    );
     assert!(page.contains("Rows marked “evaluated here”"));
     // 1.000 beats every history-free reported Pushing success (VAE-ACT's 0.951): bold.
-    assert!(table.contains("<td class=\"num best\"><a href=\"/tasks/pushing?obs=state\">1.000</a>"), "{table}");
+    assert!(
+        table.contains("<td class=\"num best\"><a href=\"/tasks/pushing?obs=state\">1.000</a>"),
+        "{table}"
+    );
 
     // Image tab: the paper's image table; an unknown obs is a clear error.
     let (s, page) = app.get_text("/?obs=image").await;
@@ -253,7 +264,10 @@ async fn home_page_shows_evaluated_rows_next_to_reported_ones_but_not_quick_runs
     let table = &page[page.find("<table class=\"board main-table\"").unwrap()..];
     let table = &table[..table.find("</table>").unwrap()];
     assert!(table.contains("Aligning (T2)"));
-    assert!(!table.contains("Pushing (T3)"), "the image table has no Pushing");
+    assert!(
+        !table.contains("Pushing (T3)"),
+        "the image table has no Pushing"
+    );
     let (s, page) = app.get_text("/?obs=depth").await;
     assert_eq!(s, 400, "{page}");
 }

@@ -1,14 +1,14 @@
 //! `/compare?a=ID&b=ID`: two finished submissions side by side. The paired
 //! comparison (difference, interval, p-value) is the API's
-//! (`api::compare::paired`, i.e. `d3il_metrics::compare_parts`, the same as
+//! (`comparison::paired`, i.e. `d3il_metrics::compare_parts`, the same as
 //! `d3il compare`); per-initial-state success and the behaviour histograms
 //! are shown next to each other. The leaderboard's row selection sends
 //! `?s=ID&s=ID` (two ticked submissions), read the same way.
 
 use super::format::{fmt_num, method_url};
 use super::render;
+use crate::comparison::{finished, paired, Finished};
 use crate::error::{AppError, PageError};
-use crate::http::api::compare::{finished, paired, Finished};
 use crate::leaderboard::{behaviour_counts, protocol_str};
 use crate::state::AppState;
 use askama::Template;

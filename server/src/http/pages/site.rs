@@ -4,19 +4,19 @@
 use super::boards::{SubmissionLine, Tab};
 use super::format::{fmt_stat, fmt_time, method_url};
 use super::render;
-use crate::http::extract::obs_query;
-use crate::leaderboard::{method_infos, task_for_title};
-use axum::extract::Query;
-use d3il_protocol::{ObsType, Source, Stat};
-use d3il_tables::{SourceFilter, TableKind, TablesError};
 use crate::error::{AppError, PageError};
+use crate::http::extract::obs_query;
 use crate::intake;
+use crate::leaderboard::task_for_title;
 use crate::state::AppState;
 use askama::Template;
+use axum::extract::Query;
 use axum::extract::{Multipart, State};
 use axum::http::{header, HeaderMap, StatusCode};
 use axum::response::{Html, IntoResponse, Redirect, Response};
 use d3il_protocol::TaskId;
+use d3il_protocol::{ObsType, Source, Stat};
+use d3il_tables::{SourceFilter, TableKind, TablesError};
 use std::collections::HashMap;
 
 // ------------------------------------------------------------------------ home
@@ -192,7 +192,7 @@ pub(super) async fn home(
 ) -> Result<Html<String>, PageError> {
     let obs = obs_query(q.obs.as_deref())?;
     let cells = state.store.result_cells().await?;
-    let infos = method_infos(&state.store.methods().await?);
+    let infos = state.store.method_infos().await?;
     let (blocks, caption, any_evaluated) =
         match d3il_tables::build_table(&cells, TableKind::Main, obs, SourceFilter::Both, &infos) {
             Ok(model) => (
