@@ -97,7 +97,9 @@ impl Store {
     ) -> Result<Option<ClaimedJob>, StoreError> {
         loop {
             let t = now();
-            let mut tx = self.pool.begin().await?;
+            // IMMEDIATE: two slots claiming at once wait on the busy timeout
+            // instead of failing to upgrade a read transaction ("database is locked").
+            let mut tx = self.pool.begin_with("BEGIN IMMEDIATE").await?;
             let job: Option<JobRow> = sqlx::query_as(
                 "SELECT * FROM jobs WHERE (state = 'queued' OR (state = 'leased' AND lease_expires_at < ?)) \
                  AND (? IS NULL OR submission_id IN (SELECT id FROM submissions WHERE protocol = ?)) \
