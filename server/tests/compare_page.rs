@@ -167,6 +167,12 @@ async fn compare_page_shows_paired_differences_contexts_and_behaviours() {
     assert!(board.contains(&format!(
         "name=\"s\" value=\"{a}\" form=\"compare-selection\""
     )));
+    assert!(board.contains("<form method=\"get\" action=\"/compare\" id=\"compare-selection\""));
+    let (_, reported_only) = app.get_text("/tasks/avoiding").await;
+    assert!(
+        !reported_only.contains("id=\"compare-selection\""),
+        "nothing to tick"
+    );
     let (s, page2) = app.get_text(&format!("/compare?s={a}&s={b}")).await;
     assert_eq!(s, 200);
     assert!(page2.contains(&diff));

@@ -125,6 +125,8 @@ struct LeaderboardPage {
     protocol_ours: bool,
     /// Sorting-2/4/6: the reference's own protocol differed from the paper's.
     sorting: bool,
+    /// Some row has submissions: show the "compare the two ticked" form.
+    selectable: bool,
 }
 
 pub(super) fn obs_tabs(task: TaskId, obs: ObsType, base: &str) -> Vec<Tab> {
@@ -226,7 +228,13 @@ pub(super) async fn leaderboard(
             }
         })
         .collect();
+    let selectable = sections
+        .iter()
+        .flat_map(|s| &s.groups)
+        .flat_map(|g| &g.rows)
+        .any(|r| !r.submissions.is_empty());
     render(&LeaderboardPage {
+        selectable,
         title: task.title(),
         slug: task.slug(),
         obs: obs.as_str(),

@@ -74,12 +74,10 @@ struct ComparePage {
     shown: Option<Shown>,
 }
 
-/// `+0.250`: a difference with its sign, three decimals.
+/// `+0.250`: a difference with its sign, three decimals (`0.000` unsigned).
 fn signed(x: f64) -> String {
     let t = fmt_num(x);
-    if x.is_finite() && !t.starts_with('-') && t.trim_start_matches(['0', '.']).is_empty() {
-        t
-    } else if x > 0.0 {
+    if x > 0.0 && t != "0.000" {
         format!("+{t}")
     } else {
         t
