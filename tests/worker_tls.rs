@@ -223,8 +223,9 @@ fn d3il_eval_trusts_the_ca_file_named_by_the_environment() {
         outputs.push(stdout);
     }
     assert!(
-        outputs[0].starts_with("task avoiding (1 x 8 rollouts, protocol Quick, seed 0)")
-            && outputs[0].contains("success rate"),
+        outputs[0].starts_with(
+            "task avoiding, state observations (1 x 8 rollouts, quick protocol, seed 0)"
+        ) && outputs[0].contains("success rate"),
         "{}",
         outputs[0]
     );
