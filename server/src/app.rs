@@ -288,8 +288,10 @@ pub async fn prepare(
     let store = Store::open(&cfg.db).await?;
     // Temporary uploads of a crashed run, files of failed submissions.
     store.clean_policy_files().await?;
-    // Pool jobs and dry-runs share the worker slots.
-    let runner = crate::runner::SharedSlots::wrap(runner, cfg.workers);
+    // Pool jobs and dry-runs share the worker slots: the pool's `workers`
+    // general slots plus its quick-protocol slot (`queue::start_pool`).
+    let pool_slots = if cfg.workers > 0 { cfg.workers + 1 } else { 0 };
+    let runner = crate::runner::SharedSlots::wrap(runner, pool_slots);
     let listener = tokio::net::TcpListener::bind(cfg.bind)
         .await
         .map_err(|source| ServeError::Bind {

@@ -158,8 +158,9 @@ async fn failed_token_checks_are_limited_per_client_address() {
     assert_eq!(r.status(), 200);
 }
 
-/// Twenty concurrent endpoint submissions on a one-worker server run their
-/// dry-runs one at a time (they used to start twenty worker processes).
+/// Six concurrent endpoint submissions on a one-worker server (one general
+/// slot plus the quick slot) run at most two dry-runs at a time (they used
+/// to start a worker process each, without bound).
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn endpoint_dry_runs_share_the_worker_slots() {
     let counting = Arc::new(Counting::default());
@@ -185,10 +186,10 @@ async fn endpoint_dry_runs_share_the_worker_slots() {
         assert_eq!(r.status(), 422, "the dry-run fails");
     }
     assert_eq!(counting.runs.load(Ordering::SeqCst), 6);
-    assert_eq!(
-        counting.max.load(Ordering::SeqCst),
-        1,
-        "dry-runs ran concurrently past --workers 1"
+    let max = counting.max.load(Ordering::SeqCst);
+    assert!(
+        (1..=2).contains(&max),
+        "{max} dry-runs ran at once on a pool of 2 slots"
     );
 }
 
