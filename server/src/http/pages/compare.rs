@@ -199,7 +199,10 @@ async fn build(state: &AppState, a: i64, b: i64) -> Result<Shown, AppError> {
     let mut svgs = vec![];
     for (f, who) in [(&fa, "A"), (&fb, "B")] {
         let rollouts = state.store.rollouts_for(f.submission.id).await?;
-        let n = behaviour_counts(rollouts.iter().map(|r| (r.success, &r.behaviour.0)));
+        let n = behaviour_counts(
+            f.submission.task,
+            rollouts.iter().map(|r| (r.success, &r.behaviour.0)),
+        );
         svgs.push(if n.is_empty() {
             None
         } else {
