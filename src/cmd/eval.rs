@@ -289,6 +289,7 @@ pub fn metrics_table(result: &EvalResult) -> String {
     }
     // The same counts and labels as the server's behaviour plot.
     let counts = d3il_server::leaderboard::behaviour_counts(
+        result.manifest.task,
         result.rollouts.iter().map(|r| (r.success, &r.behaviour)),
     );
     let successes: usize = counts.iter().map(|c| c.1).sum();
