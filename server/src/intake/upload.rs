@@ -14,7 +14,6 @@ use axum::http::StatusCode;
 use sha2::{Digest, Sha256};
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
-use tokio::io::AsyncWriteExt;
 
 /// Text fields are small; anything longer is refused.
 const MAX_TEXT_FIELD: usize = 64 << 10;
@@ -233,6 +232,18 @@ pub fn disk_quota_error(used: u64, cap: u64) -> AppError {
     ))
 }
 
+/// Bytes read before they are handed to the writer thread.
+const WRITE_BATCH: usize = 1 << 20;
+
+/// The open temporary file and the running hash.
+type Sink = (std::fs::File, Sha256);
+
+async fn join_write(p: tokio::task::JoinHandle<std::io::Result<Sink>>) -> Result<Sink, AppError> {
+    p.await
+        .map_err(|e| AppError::Internal(format!("upload writer panicked: {e}")))?
+        .map_err(|e| AppError::Internal(format!("writing the upload: {e}")))
+}
+
 /// Streams the file part to a temporary file in the policy store, hashing as
 /// it goes and refusing it as soon as it passes the quota (the partial file is
 /// deleted). At most `--max-concurrent-uploads` stream at once; the others
@@ -249,27 +260,61 @@ async fn stream_to_file(
         .map_err(|_| AppError::Internal("upload semaphore closed".into()))?;
     let path = state.store.new_upload_path();
     let io = |e: std::io::Error| AppError::Internal(format!("writing the upload: {e}"));
-    let file = tokio::fs::File::create(&path).await.map_err(io)?;
+    let file = std::fs::File::create(&path).map_err(io)?;
     // From here on the guard deletes the file on every early return.
     let mut up = UploadedFile {
         tmp: Some(path),
         sha256: String::new(),
         bytes: 0,
     };
-    let mut out = tokio::io::BufWriter::with_capacity(256 << 10, file);
-    let mut hash = Sha256::new();
-    while let Some(chunk) = field
-        .chunk()
-        .await
-        .map_err(|e| multipart_err(e, quota.max_upload))?
-    {
-        up.bytes += chunk.len() as u64;
-        quota.check(up.bytes)?;
-        hash.update(&chunk);
-        out.write_all(&chunk).await.map_err(io)?;
+    // Hashing and writing run on a blocking thread, a batch at a time, while
+    // the next batch is read: the async workers only parse the body.
+    let mut sink = Some((file, Sha256::new()));
+    let mut pending: Option<tokio::task::JoinHandle<std::io::Result<Sink>>> = None;
+    let mut batch: Vec<axum::body::Bytes> = Vec::new();
+    let mut batch_len = 0usize;
+    loop {
+        let chunk = field
+            .chunk()
+            .await
+            .map_err(|e| multipart_err(e, quota.max_upload))?;
+        let last = chunk.is_none();
+        if let Some(c) = chunk {
+            up.bytes += c.len() as u64;
+            quota.check(up.bytes)?;
+            batch_len += c.len();
+            batch.push(c);
+        }
+        if batch_len >= WRITE_BATCH || (last && !batch.is_empty()) {
+            if let Some(p) = pending.take() {
+                sink = Some(join_write(p).await?);
+            }
+            let (mut f, mut h) = sink
+                .take()
+                .ok_or_else(|| AppError::Internal("upload writer lost".into()))?;
+            let b = std::mem::take(&mut batch);
+            batch_len = 0;
+            pending = Some(tokio::task::spawn_blocking(move || {
+                use std::io::Write;
+                for c in &b {
+                    h.update(c);
+                    f.write_all(c)?;
+                }
+                Ok((f, h))
+            }));
+        }
+        if last {
+            break;
+        }
     }
-    out.flush().await.map_err(io)?;
-    out.into_inner().sync_all().await.map_err(io)?;
+    if let Some(p) = pending.take() {
+        sink = Some(join_write(p).await?);
+    }
+    let (file, hash) = sink.ok_or_else(|| AppError::Internal("upload writer lost".into()))?;
+    tokio::task::spawn_blocking(move || file.sync_all())
+        .await
+        .map_err(|e| AppError::Internal(format!("upload writer panicked: {e}")))?
+        .map_err(io)?;
     up.sha256 = hex::encode(hash.finalize());
     Ok(up)
 }
