@@ -116,7 +116,7 @@ impl Store {
             let updated = sqlx::query(
                 "UPDATE jobs SET attempts = CASE WHEN state = 'queued' THEN attempts + 1 ELSE attempts END, \
                  state = 'leased', lease_owner = ?, lease_expires_at = ?, heartbeat_at = ?, \
-                 started_at = ?, rollouts_done = 0 \
+                 started_at = ?, rollouts_done = 0, rollouts_total = 0 \
                  WHERE id = ? AND (state = 'queued' OR (state = 'leased' AND lease_expires_at < ?))",
             )
             .bind(owner)
