@@ -172,7 +172,7 @@ fn a_200_mib_upload_is_streamed_to_disk_in_bounded_memory() {
     let dir = TempDir::new("upload-rss");
     let db = dir.path().join("lb.sqlite");
     let token = create_token(&db, "alice");
-    let server = Server::start(&db, &["--workers", "0"]);
+    let server = Server::start(&db, &["--workers", "0", "--no-upload-dry-run"]);
     let pid = server.child.id();
     // Warm up every path a submission takes (pages, API, a small upload).
     assert_eq!(server.get_text("/").0, 200);
@@ -229,6 +229,7 @@ fn refused_uploads_leave_no_file() {
         &[
             "--workers",
             "0",
+            "--no-upload-dry-run",
             "--max-upload-mb",
             "8",
             "--max-disk-mb-per-submitter",
@@ -281,7 +282,7 @@ fn failed_submissions_and_crash_debris_leave_no_files() {
     let db = dir.path().join("lb.sqlite");
     let token = create_token(&db, "alice");
     let policies = policies_dir(&db);
-    let server = Server::start(&db, &["--workers", "1"]);
+    let server = Server::start(&db, &["--workers", "1", "--no-upload-dry-run"]);
     // 4 kB of filler is no ONNX model: the real worker fails it.
     let (s, body) = post_streamed(&server.base, &token, &fields("Junk", 1), 4096, 4096);
     assert_eq!(s, 201, "{body}");
@@ -302,7 +303,7 @@ fn failed_submissions_and_crash_debris_leave_no_files() {
     server.kill();
 
     // A queued submission's file (no worker runs it).
-    let server = Server::start(&db, &["--workers", "0"]);
+    let server = Server::start(&db, &["--workers", "0", "--no-upload-dry-run"]);
     let (s, body) = post_streamed(&server.base, &token, &fields("Kept", 1), 8192, 8192);
     assert_eq!(s, 201, "{body}");
     let kept = files_in(&policies);
@@ -317,11 +318,57 @@ fn failed_submissions_and_crash_debris_leave_no_files() {
     std::fs::write(&other, b"half a file").unwrap();
     let orphan = policies.join(format!("{}.onnx", "e".repeat(64)));
     std::fs::write(&orphan, b"nobody's file").unwrap();
-    let server = Server::start(&db, &["--workers", "0"]);
+    let server = Server::start(&db, &["--workers", "0", "--no-upload-dry-run"]);
     assert_eq!(
         files_in(&policies),
         kept,
         "only the queued submission's file is left"
     );
     assert_eq!(server.get_text("/").0, 200);
+}
+
+/// By default an uploaded model runs a few sandboxed steps of the quick
+/// protocol before it is queued: one that cannot run is refused at
+/// submission (400 naming the `onnx` field, the worker's reason, no file
+/// kept), one that runs is accepted.
+#[test]
+fn an_upload_that_cannot_run_is_refused_at_submission() {
+    let dir = TempDir::new("upload-dry-run");
+    let db = dir.path().join("lb.sqlite");
+    let token = create_token(&db, "alice");
+    let policies = policies_dir(&db);
+    let server = Server::start(&db, &["--workers", "0"]);
+    let client = server.client(Some(&token));
+    let fixtures = d3il_test_support::fixtures_dir();
+    let manifest = std::fs::read_to_string(fixtures.join("aligning_mlp.json")).unwrap();
+    let form = |method: &str| {
+        vec![
+            ("method", method.to_string()),
+            ("task", "aligning".to_string()),
+            ("training_seed", "0".to_string()),
+            ("manifest", manifest.clone()),
+        ]
+    };
+    let junk = dir.path().join("junk.onnx");
+    std::fs::write(&junk, filler()).unwrap();
+    match client.submit(&form("Junk"), Some(&junk)) {
+        Err(d3il_server::client::ClientError::Api {
+            status,
+            field,
+            message,
+            ..
+        }) => {
+            assert_eq!(status, 400, "{message}");
+            assert_eq!(field.as_deref(), Some("onnx"), "{message}");
+            assert!(message.contains("dry run"), "{message}");
+            assert!(message.contains("bad_model"), "{message}");
+        }
+        other => panic!("a junk model was not refused: {other:?}"),
+    }
+    assert_eq!(files_in(&policies), Vec::<String>::new());
+    let created = client
+        .submit(&form("Runs"), Some(&fixtures.join("aligning_mlp.onnx")))
+        .expect("a model that runs is accepted");
+    assert_eq!(created["status"], "queued", "{created}");
+    assert_eq!(files_in(&policies).len(), 1);
 }

@@ -229,6 +229,7 @@ pub fn check_sandbox_with(
         seed: 0,
         limits: limits.clone(),
         assets_dir: assets_dir.display().to_string(),
+        dry_run_steps: None,
     };
     let mut mechanisms = confine::confine(&job, None)?;
     mechanisms.extend(crate::selftest::probes(assets_dir));

@@ -31,6 +31,10 @@ pub struct ServerConfig {
     pub max_concurrent_uploads: usize,
     /// Attempts per job before the submission fails (crashes, lost leases).
     pub max_attempts: i64,
+    /// Uploaded models run a short sandboxed dry run before they are queued
+    /// (`intake::dry_run`); off, a model that cannot run fails at its
+    /// evaluation instead.
+    pub dry_run_uploads: bool,
     pub lease_seconds: i64,
     /// Limits handed to every worker.
     pub limits: Limits,
@@ -80,6 +84,7 @@ impl ServerConfig {
             max_disk_bytes_per_submitter: Some(4096 << 20),
             max_concurrent_uploads: 4,
             max_attempts: 3,
+            dry_run_uploads: true,
             lease_seconds: 30,
             worker: WorkerProcess {
                 exe: worker_exe,

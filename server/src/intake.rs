@@ -455,43 +455,66 @@ fn check_endpoint_host(url: &url::Url, limits: &Limits) -> Result<(), AppError> 
     })
 }
 
-/// Runs a remote endpoint through a short quick-protocol evaluation before it
-/// is queued; any failure is reported to the submitter and nothing is stored.
-pub async fn endpoint_dry_run(
+/// Env steps per rollout of an uploaded model's dry run (at least two policy
+/// calls whatever the manifest's `execute`).
+pub const DRY_RUN_MIN_STEPS: usize = 16;
+
+/// Runs a submission's policy through a short sandboxed quick-protocol
+/// evaluation before it is queued; any failure is reported to the submitter
+/// and nothing is stored. A remote endpoint runs the whole quick protocol (its
+/// conformance dry-run); an uploaded model runs it with every rollout cut
+/// after a few steps, which loads it, feeds it real observations at batch
+/// ≥ 2 and checks its actions, so a graph that cannot run is refused here,
+/// never at rollout 0 of its evaluation.
+pub async fn dry_run(
     runner: Arc<dyn JobRunner>,
     state: &AppState,
     v: &ValidSubmission,
-    url: &str,
+    policy: PolicySource,
 ) -> Result<(), AppError> {
     let mut limits = state.cfg.limits.clone();
     limits.wall_seconds = limits.wall_seconds.min(120);
+    let remote = matches!(policy, PolicySource::Remote { .. });
     let job = Job {
         job_id: "dry-run".into(),
         task: v.task,
         protocol: ProtocolKind::Quick,
-        policy: PolicySource::Remote { url: url.into() },
+        policy,
         manifest: v.manifest.clone(),
         seed: 0,
         limits,
         assets_dir: state.cfg.assets_dir.to_string_lossy().into_owned(),
+        dry_run_steps: (!remote).then(|| (2 * v.manifest.execute).max(DRY_RUN_MIN_STEPS)),
     };
     let report = tokio::task::spawn_blocking(move || runner.run(&job, &mut |_, _| {}))
         .await
         .map_err(|e| AppError::Internal(format!("dry-run panicked: {e}")))?;
-    match report.outcome {
-        Ok(_) => Ok(()),
-        Err(e) if e.kind == ErrorKind::Internal => Err(AppError::Internal(e.message)),
-        Err(e) => Err(AppError::EndpointRejected {
-            kind: serde_json::to_value(e.kind)
-                .ok()
-                .and_then(|v| v.as_str().map(str::to_string))
-                .unwrap_or_default(),
+    let e = match report.outcome {
+        Ok(_) => return Ok(()),
+        Err(e) if e.kind == ErrorKind::Internal => return Err(AppError::Internal(e.message)),
+        Err(e) => e,
+    };
+    let kind = serde_json::to_value(e.kind)
+        .ok()
+        .and_then(|v| v.as_str().map(str::to_string))
+        .unwrap_or_default();
+    Err(if remote {
+        AppError::EndpointRejected {
+            kind,
             message: format!(
                 "the endpoint failed the conformance dry-run (docs/remote-protocol.md): {}",
                 e.message
             ),
-        }),
-    }
+        }
+    } else {
+        AppError::invalid(
+            "onnx",
+            format!(
+                "the model failed its dry run in the sandbox ({kind}): {}; check it with `d3il eval --protocol quick` (docs/export.md)",
+                e.message
+            ),
+        )
+    })
 }
 
 /// Stores a validated submission and queues its job; returns the submission id
@@ -514,8 +537,20 @@ pub async fn accept(
         v.protocol,
     )
     .await?;
-    if let ValidPolicy::Remote(url) = &v.policy {
-        endpoint_dry_run(state.runner.clone(), state, &v, url).await?;
+    let dry = match &v.policy {
+        ValidPolicy::Remote(url) => Some(PolicySource::Remote { url: url.clone() }),
+        ValidPolicy::Onnx(_) if !state.cfg.dry_run_uploads => None,
+        ValidPolicy::Onnx(file) => Some(PolicySource::Onnx {
+            path: file
+                .path()
+                .ok_or_else(|| AppError::Internal("the upload was already stored".into()))?
+                .to_string_lossy()
+                .into_owned(),
+            sha256: file.sha256.clone(),
+        }),
+    };
+    if let Some(policy) = dry {
+        dry_run(state.runner.clone(), state, &v, policy).await?;
     }
     // Only an accepted submission creates its method (a refused dry-run
     // leaves nothing behind).

@@ -32,6 +32,8 @@ async fn spawn(cfg: impl FnOnce(&mut ServerConfig), runner: Arc<dyn JobRunner>) 
         "/bin/false".into(),
     );
     c.workers = 0;
+    // The runner here is a stub: uploads are not dry-run (root tests cover it).
+    c.dry_run_uploads = false;
     cfg(&mut c);
     let (listener, running) = prepare(c, runner).await.expect("server starts");
     tokio::spawn(d3il_server::app::serve_listener(

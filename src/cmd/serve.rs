@@ -42,6 +42,11 @@ pub struct Args {
     /// Attempts per evaluation before a crashing job fails.
     #[arg(long, default_value_t = 3)]
     pub max_attempts: i64,
+    /// Queue uploaded models without the submission-time dry run (a few
+    /// sandboxed steps of the quick protocol); a model that cannot run then
+    /// fails at its evaluation instead of being refused at submission.
+    #[arg(long)]
+    pub no_upload_dry_run: bool,
     /// Seconds a client has to send a request header (also the keep-alive
     /// idle timeout); then the connection is closed.
     #[arg(long, default_value_t = 20)]
@@ -88,6 +93,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     cfg.max_concurrent_uploads = args.max_concurrent_uploads.max(1);
     anyhow::ensure!(args.max_attempts >= 1, "--max-attempts must be at least 1");
     cfg.max_attempts = args.max_attempts;
+    cfg.dry_run_uploads = !args.no_upload_dry_run;
     anyhow::ensure!(
         args.header_timeout >= 1
             && args.max_connections >= 1
