@@ -431,6 +431,10 @@ fn a_dry_run_cuts_every_rollout_after_its_step_budget() {
         assert_eq!(x.steps, 7, "{x:?}");
         assert!(!x.success, "{x:?}");
     }
-    let full = run_job(&scripted_job(TaskId::Aligning, "aligning:both"), &mut |_, _| {}).unwrap();
+    let full = run_job(
+        &scripted_job(TaskId::Aligning, "aligning:both"),
+        &mut |_, _| {},
+    )
+    .unwrap();
     assert!(full.rollouts.iter().all(|x| x.steps > 7));
 }
