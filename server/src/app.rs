@@ -22,6 +22,9 @@ pub fn router(state: AppState) -> Router {
         .with_state(state)
 }
 
+/// Results documents kept in memory (a paper-protocol one is a few hundred kB).
+const FINISHED_CACHE_ENTRIES: usize = 256;
+
 /// Largest body given an ETag (pages, plots and JSON are far smaller).
 const ETAG_MAX_BODY: u64 = 8 << 20;
 
@@ -327,6 +330,7 @@ pub async fn prepare(
         cfg: Arc::new(cfg),
         signal,
         runner,
+        finished: Arc::new(crate::cache::FinishedCache::new(FINISHED_CACHE_ENTRIES)),
     };
     Ok((listener, Running { addr, state }))
 }

@@ -21,4 +21,6 @@ pub struct AppState {
     pub runner: Arc<dyn JobRunner>,
     /// The sandbox mechanisms in force (admin page).
     pub sandbox: Arc<SandboxStatus>,
+    /// Rendered results documents of finished submissions.
+    pub finished: Arc<crate::cache::FinishedCache>,
 }
