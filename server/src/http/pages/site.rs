@@ -527,7 +527,7 @@ fn server_limits(c: &crate::config::ServerConfig) -> Vec<(&'static str, String)>
             c.max_attempts.to_string(),
         ),
         (
-            "Worker slots (--workers; plus one for quick runs, shared with endpoint dry-runs)",
+            "Worker slots (--workers; plus one for quick runs, shared with submission dry-runs)",
             c.workers.to_string(),
         ),
     ]
