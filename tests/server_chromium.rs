@@ -288,60 +288,13 @@ fn two_finished_submissions(db: &std::path::Path) -> (i64, i64) {
     use d3il_protocol::*;
     use d3il_server::store::{NewMethod, NewPolicy, NewSubmission, Store};
     let result = |k: usize| {
-        let mut outcomes = vec![];
-        let mut rollouts = vec![];
-        for c in 0..30 {
-            for r in 0..16 {
-                let success = r < k + c % 3;
-                let label = r % 2;
-                outcomes.push(d3il_metrics::Outcome::new(
-                    c,
-                    success,
-                    Some(&label.to_string()),
-                ));
-                rollouts.push(RolloutRecord {
-                    context_index: c,
-                    rollout_index: r,
-                    success,
-                    behaviour: serde_json::json!(label),
-                    steps: 400,
-                    path: None,
-                    failure: None,
-                });
+        d3il_test_support::pushing_result(ProtocolKind::Paper, |c, r| {
+            d3il_test_support::SynthRollout {
+                success: r < k + c % 3,
+                label: r % 2,
+                unstable: false,
             }
-        }
-        let ev = d3il_metrics::evaluate(
-            TaskId::Pushing,
-            &outcomes,
-            1.0,
-            &d3il_metrics::Bootstrap::default(),
-        )
-        .expect("metrics");
-        EvalResult {
-            manifest: ProtocolManifest {
-                task: TaskId::Pushing,
-                task_version: "v1".into(),
-                obs_type: ObsType::State,
-                protocol: ProtocolKind::Paper,
-                mjcf_sha256: "m".into(),
-                initial_states_sha256: "s".into(),
-                initial_states: "pushing-v2.json".into(),
-                mujoco_version: "2.2.2".into(),
-                evaluator_version: "0".into(),
-                n_contexts: 30,
-                rollouts_per_context: 16,
-                max_steps: 400,
-                policy_sha256: "p".into(),
-                history: 1,
-                horizon: 1,
-                execute: 1,
-                seed: 0,
-            },
-            metrics: ev.metrics,
-            per_context: ev.per_context,
-            rollouts,
-            rollouts_ended_unstable: 0,
-        }
+        })
     };
     let rt = tokio::runtime::Builder::new_current_thread()
         .enable_all()

@@ -5,69 +5,18 @@
 mod common;
 use common::*;
 use d3il_protocol::*;
+use d3il_test_support::{pushing_result, SynthRollout};
 use serde_json::Value;
 
 /// A Pushing paper-protocol result on the original contexts: 30 states × 16
 /// rollouts, state c succeeding in `k(c)` of 16 rollouts; the first
 /// `unstable` rollouts are failures that ended unstable.
 fn result(k: impl Fn(usize) -> usize, unstable: usize) -> EvalResult {
-    let mut outcomes = vec![];
-    let mut rollouts = vec![];
-    for c in 0..30 {
-        for r in 0..16 {
-            let i = c * 16 + r;
-            let ended = i < unstable;
-            let success = !ended && r < k(c);
-            let label = (r % 2).to_string();
-            outcomes.push(d3il_metrics::Outcome::new(c, success, Some(&label)));
-            rollouts.push(RolloutRecord {
-                context_index: c,
-                rollout_index: r,
-                success,
-                behaviour: serde_json::json!(r % 2),
-                steps: 400,
-                path: None,
-                failure: ended.then(|| RolloutFailure {
-                    reason: FailureReason::SimUnstable,
-                    message: "Nan, Inf or huge value in QACC at DOF 0".into(),
-                    step: 17,
-                }),
-            });
-        }
-    }
-    let ev = d3il_metrics::evaluate(
-        TaskId::Pushing,
-        &outcomes,
-        1.0,
-        &d3il_metrics::Bootstrap::default(),
-    )
-    .unwrap();
-    EvalResult {
-        manifest: ProtocolManifest {
-            task: TaskId::Pushing,
-            task_version: "v1".into(),
-            obs_type: ObsType::State,
-            protocol: ProtocolKind::Paper,
-            mjcf_sha256: "m".into(),
-            initial_states_sha256:
-                "16e158084f5a7940e3dac06b1d91a58a853b5a3fdc6b1a5783dccaa5d21b789f".into(),
-            initial_states: "pushing-v2.json".into(),
-            mujoco_version: "2.2.2".into(),
-            evaluator_version: "0".into(),
-            n_contexts: 30,
-            rollouts_per_context: 16,
-            max_steps: 400,
-            policy_sha256: "p".into(),
-            history: 1,
-            horizon: 1,
-            execute: 1,
-            seed: 0,
-        },
-        metrics: ev.metrics,
-        per_context: ev.per_context,
-        rollouts,
-        rollouts_ended_unstable: unstable,
-    }
+    pushing_result(ProtocolKind::Paper, |c, r| SynthRollout {
+        success: r < k(c),
+        label: r % 2,
+        unstable: c * 16 + r < unstable,
+    })
 }
 
 async fn submit(app: &TestApp, method: &str, task: &str) -> i64 {

@@ -5,67 +5,18 @@
 mod common;
 use common::*;
 use d3il_protocol::*;
+use d3il_test_support::{pushing_result, SynthRollout};
 use serde_json::Value;
 
 /// A Pushing result on the original contexts (30 states × 16 rollouts) with
-/// state c succeeding in `k(c)` of its 16 rollouts; successful rollouts
-/// alternate between behaviours 0 and 1 (`ones` of them 1 per state).
+/// state c succeeding in `k(c)` of its 16 rollouts; the first `ones` rollouts
+/// of each state have behaviour 1, the others 0.
 fn result(protocol: ProtocolKind, k: impl Fn(usize) -> usize, ones: usize) -> EvalResult {
-    let mut outcomes = vec![];
-    let mut rollouts = vec![];
-    for c in 0..30 {
-        for r in 0..16 {
-            let success = r < k(c);
-            let label = if r < ones { 1 } else { 0 };
-            outcomes.push(d3il_metrics::Outcome::new(
-                c,
-                success,
-                Some(&label.to_string()),
-            ));
-            rollouts.push(RolloutRecord {
-                context_index: c,
-                rollout_index: r,
-                success,
-                behaviour: serde_json::json!(label),
-                steps: 400,
-                path: None,
-                failure: None,
-            });
-        }
-    }
-    let ev = d3il_metrics::evaluate(
-        TaskId::Pushing,
-        &outcomes,
-        1.0,
-        &d3il_metrics::Bootstrap::default(),
-    )
-    .unwrap();
-    EvalResult {
-        manifest: ProtocolManifest {
-            task: TaskId::Pushing,
-            task_version: "v1".into(),
-            obs_type: ObsType::State,
-            protocol,
-            mjcf_sha256: "m".into(),
-            initial_states_sha256:
-                "16e158084f5a7940e3dac06b1d91a58a853b5a3fdc6b1a5783dccaa5d21b789f".into(),
-            initial_states: "pushing-v2.json".into(),
-            mujoco_version: "2.2.2".into(),
-            evaluator_version: "0".into(),
-            n_contexts: 30,
-            rollouts_per_context: 16,
-            max_steps: 400,
-            policy_sha256: "p".into(),
-            history: 1,
-            horizon: 1,
-            execute: 1,
-            seed: 0,
-        },
-        metrics: ev.metrics,
-        per_context: ev.per_context,
-        rollouts,
-        rollouts_ended_unstable: 0,
-    }
+    pushing_result(protocol, |c, r| SynthRollout {
+        success: r < k(c),
+        label: usize::from(r < ones),
+        unstable: false,
+    })
 }
 
 async fn submit(app: &TestApp, method: &str, task: &str, protocol: &str) -> i64 {

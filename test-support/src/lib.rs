@@ -8,7 +8,10 @@
 //! of the workspace can dev-depend on it without a cycle.
 #![forbid(unsafe_code)]
 
-use d3il_protocol::{Job, Limits, ObsType, PolicyManifest, PolicySource, ProtocolKind, TaskId};
+use d3il_protocol::{
+    EvalResult, FailureReason, Job, Limits, ObsType, PolicyManifest, PolicySource, ProtocolKind,
+    ProtocolManifest, RolloutFailure, RolloutRecord, TaskId,
+};
 use rcgen::{BasicConstraints, CertificateParams, DnType, IsCa, Issuer, KeyPair, KeyUsagePurpose};
 use serde_json::Value;
 use std::path::{Path, PathBuf};
@@ -98,6 +101,87 @@ pub fn loopback_limits() -> Limits {
         remote_frame_bytes: 1 << 20,
         allow_private_endpoints: true,
         ..Limits::default()
+    }
+}
+
+/// sha256 of `assets/contexts/pushing-v2.json` (the original test contexts).
+pub const PUSHING_V2_SHA256: &str =
+    "16e158084f5a7940e3dac06b1d91a58a853b5a3fdc6b1a5783dccaa5d21b789f";
+
+/// One synthetic rollout: success, behaviour label, ended unstable.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct SynthRollout {
+    pub success: bool,
+    pub label: usize,
+    pub unstable: bool,
+}
+
+/// A Pushing result on the original contexts (30 states × 16 rollouts) as a
+/// worker would store it, with its metrics computed by the metrics crate from
+/// `rollout(context, index)`. An unstable rollout is recorded as a failure
+/// (`sim_unstable` at step 17) and counted.
+pub fn pushing_result(
+    protocol: ProtocolKind,
+    rollout: impl Fn(usize, usize) -> SynthRollout,
+) -> EvalResult {
+    let (n_contexts, per) = (30, 16);
+    let mut outcomes = vec![];
+    let mut rollouts = vec![];
+    for c in 0..n_contexts {
+        for r in 0..per {
+            let x = rollout(c, r);
+            let success = x.success && !x.unstable;
+            outcomes.push(d3il_metrics::Outcome::new(
+                c,
+                success,
+                Some(&x.label.to_string()),
+            ));
+            rollouts.push(RolloutRecord {
+                context_index: c,
+                rollout_index: r,
+                success,
+                behaviour: serde_json::json!(x.label),
+                steps: 400,
+                path: None,
+                failure: x.unstable.then(|| RolloutFailure {
+                    reason: FailureReason::SimUnstable,
+                    message: "Nan, Inf or huge value in QACC at DOF 0".into(),
+                    step: 17,
+                }),
+            });
+        }
+    }
+    let ev = d3il_metrics::evaluate(
+        TaskId::Pushing,
+        &outcomes,
+        1.0,
+        &d3il_metrics::Bootstrap::default(),
+    )
+    .expect("metrics of a synthetic result");
+    EvalResult {
+        manifest: ProtocolManifest {
+            task: TaskId::Pushing,
+            task_version: "v1".into(),
+            obs_type: ObsType::State,
+            protocol,
+            mjcf_sha256: "m".into(),
+            initial_states_sha256: PUSHING_V2_SHA256.into(),
+            initial_states: "pushing-v2.json".into(),
+            mujoco_version: "2.2.2".into(),
+            evaluator_version: "0".into(),
+            n_contexts,
+            rollouts_per_context: per,
+            max_steps: 400,
+            policy_sha256: "p".into(),
+            history: 1,
+            horizon: 1,
+            execute: 1,
+            seed: 0,
+        },
+        metrics: ev.metrics,
+        per_context: ev.per_context,
+        rollouts_ended_unstable: rollouts.iter().filter(|r| r.failure.is_some()).count(),
+        rollouts,
     }
 }
 
