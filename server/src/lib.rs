@@ -13,7 +13,10 @@
 //!   [`schema`] describes the protocol's types for the OpenAPI document.
 //!
 //! [`app`] wires it together (router, `serve`); [`cli`] and [`client`] are what
-//! the `d3il` binary calls.
+//! the `d3il` binary calls. [`cache`] keeps finished submissions' results
+//! documents in memory.
+
+#![forbid(unsafe_code)]
 
 pub mod app;
 pub mod auth;
