@@ -4,7 +4,7 @@
 use anyhow::{bail, Context};
 use d3il_evaluator::eval::{self, EvalOptions, PolicyInfo};
 use d3il_evaluator::tasks::LoadedTask;
-use d3il_protocol::{Job, ObsType, PolicyManifest, PolicySource, ProtocolKind, TaskId};
+use d3il_protocol::{EvalResult, Job, ObsType, PolicyManifest, PolicySource, ProtocolKind, TaskId};
 use std::io::Write;
 use std::path::PathBuf;
 use std::time::Instant;
@@ -40,13 +40,18 @@ pub struct Args {
     /// policy's manifest says it itself.
     #[arg(long, default_value = "state")]
     pub obs_type: ObsType,
+    /// Evaluate only shard K of N (contiguous blocks of whole initial states)
+    /// and write a part file to --json; join the parts with `d3il merge`
+    /// (docs/cluster.md).
+    #[arg(long, value_name = "K/N")]
+    pub shard: Option<d3il_evaluator::shard::Shard>,
     /// Limits of the sandboxed worker (--sandbox); the remote deadline, frame
     /// cap and private-address rule apply without --sandbox too.
     #[command(flatten)]
     pub limits: super::limits::LimitArgs,
 }
 
-fn progress_bar(done: usize, total: usize, started: Instant) {
+pub fn progress_bar(done: usize, total: usize, started: Instant) {
     let frac = done as f64 / total.max(1) as f64;
     let width = 30;
     let filled = (frac * width as f64).round() as usize;
@@ -144,6 +149,9 @@ pub fn build_job(args: &Args) -> anyhow::Result<Job> {
 
 pub fn run(args: Args) -> anyhow::Result<()> {
     let job = build_job(&args)?;
+    if let Some(shard) = args.shard {
+        return super::merge::run_shard(&args, &job, shard);
+    }
     let started = Instant::now();
     let mut last = usize::MAX;
     let mut on_progress = |d: usize, t: usize| {
@@ -190,6 +198,17 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         );
         r
     };
+    print_table(&result);
+    if let Some(path) = &args.json {
+        std::fs::write(path, serde_json::to_vec_pretty(&result)?)
+            .with_context(|| format!("writing {}", path.display()))?;
+        eprintln!("wrote {}", path.display());
+    }
+    Ok(())
+}
+
+/// The metrics table of a result (also printed by `d3il merge`).
+pub fn print_table(result: &EvalResult) {
     let m = &result.metrics;
     println!(
         "task {} ({} x {} rollouts, protocol {:?}, seed {})",
@@ -248,10 +267,4 @@ pub fn run(args: Args) -> anyhow::Result<()> {
              these numbers say more about the simulation than about the policy"
         );
     }
-    if let Some(path) = &args.json {
-        std::fs::write(path, serde_json::to_vec_pretty(&result)?)
-            .with_context(|| format!("writing {}", path.display()))?;
-        eprintln!("wrote {}", path.display());
-    }
-    Ok(())
 }
