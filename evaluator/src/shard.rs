@@ -103,7 +103,7 @@ pub enum MergeError {
     )]
     Format { file: String, found: String },
     #[error(
-        "{a} and {b} come from different {what}: {field} is `{va}` in {a} but `{vb}` in {b}; \
+        "{a} and {b} come from different {what}: {field} is {values}; \
          merge only the parts of one evaluation"
     )]
     Mismatch {
@@ -111,8 +111,8 @@ pub enum MergeError {
         field: String,
         a: String,
         b: String,
-        va: String,
-        vb: String,
+        /// "`x` in a but `y` in b".
+        values: String,
     },
     #[error("{a} is shard {sa} but {b} is shard {sb}: all parts must split the evaluation into the same number of shards")]
     ShardCount {
@@ -223,8 +223,11 @@ pub fn merge(parts: Vec<(String, EvalPart)>) -> Result<EvalResult, MergeError> {
                         field: f.clone(),
                         a: first_file.clone(),
                         b: file.clone(),
-                        va: show(va),
-                        vb: show(vb),
+                        values: format!(
+                            "`{}` in {first_file} but `{}` in {file}",
+                            show(va),
+                            show(vb)
+                        ),
                     });
                 }
             }
@@ -235,8 +238,10 @@ pub fn merge(parts: Vec<(String, EvalPart)>) -> Result<EvalResult, MergeError> {
                 field: "bootstrap_resamples".into(),
                 a: first_file.clone(),
                 b: file.clone(),
-                va: first.bootstrap_resamples.to_string(),
-                vb: p.bootstrap_resamples.to_string(),
+                values: format!(
+                    "{} in {first_file} but {} in {file}",
+                    first.bootstrap_resamples, p.bootstrap_resamples
+                ),
             });
         }
         if p.shard.count != first.shard.count {
