@@ -84,7 +84,11 @@ impl Store {
     ) -> Result<Option<ClaimedJob>, StoreError> {
         loop {
             let t = now();
-            let mut tx = self.pool.begin().await?;
+            // IMMEDIATE: a deferred transaction that reads and then writes
+            // gets SQLITE_BUSY at once (no busy timeout) when another
+            // connection wrote in between; taking the write lock first makes
+            // it wait like every other writer.
+            let mut tx = self.pool.begin_with("BEGIN IMMEDIATE").await?;
             let job: Option<JobRow> = sqlx::query_as(
                 "SELECT * FROM jobs WHERE state = 'queued' OR (state = 'leased' AND lease_expires_at < ?) \
                  ORDER BY id LIMIT 1",
