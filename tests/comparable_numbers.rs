@@ -8,16 +8,10 @@ use d3il_evaluator::tasks::contexts::sha256_hex;
 use d3il_evaluator::tasks::LoadedTask;
 use d3il_policy::{ActionChunks, Policy, PolicyError, PolicyShape, Query};
 use d3il_protocol::{EvalResult, FailureReason, ObsType, ProtocolKind, TaskId};
+use d3il_test_support::TempDir;
 use serde_json::{json, Value};
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::Command;
-
-fn scratch(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("d3il-issue16-{name}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
-}
 
 fn d3il(args: &[&str]) -> (bool, String, String) {
     let out = Command::new(env!("CARGO_BIN_EXE_d3il"))
@@ -55,7 +49,8 @@ fn pushing_names_the_original_contexts_in_its_manifest() {
         d3il_evaluator::eval::protocol_size(&task, ProtocolKind::Paper, set.len()),
         (30, 16)
     );
-    let dir = scratch("pushing");
+    let tmp = TempDir::new("issue16-pushing");
+    let dir = tmp.path().to_path_buf();
     let out = dir.join("out.json");
     let (ok, stdout, stderr) = d3il(&[
         "eval",
@@ -106,7 +101,8 @@ fn pushing_names_the_original_contexts_in_its_manifest() {
 /// (the conditional entropy used to print 0.654 with 0.340–0.600).
 #[test]
 fn avoiding_quick_prints_intervals_that_contain_the_estimates() {
-    let dir = scratch("avoiding");
+    let tmp = TempDir::new("issue16-avoiding");
+    let dir = tmp.path().to_path_buf();
     let out = dir.join("a.json");
     let (ok, stdout, stderr) = d3il(&[
         "eval",
@@ -169,7 +165,8 @@ fn avoiding_quick_prints_intervals_that_contain_the_estimates() {
 /// contexts, prints a table, and refuses results from different tasks.
 #[test]
 fn compare_pairs_two_policies_and_refuses_different_tasks() {
-    let dir = scratch("compare");
+    let tmp = TempDir::new("issue16-compare");
+    let dir = tmp.path().to_path_buf();
     let run = |policy: &str, task: &str, file: &str| {
         let p = dir.join(file);
         let (ok, _, stderr) = d3il(&[
@@ -213,7 +210,8 @@ fn compare_pairs_two_policies_and_refuses_different_tasks() {
 /// box2 = green, box3 = blue) replay as they are, identically to ours.
 #[test]
 fn inserting_replay_accepts_the_original_box_names() {
-    let dir = scratch("inserting");
+    let tmp = TempDir::new("issue16-inserting");
+    let dir = tmp.path().to_path_buf();
     let pose = |x: f64, y: f64, yaw: f64| json!([x, y, yaw]);
     let quat = |yaw: f64| {
         let h = yaw.to_radians() / 2.0;

@@ -3,6 +3,7 @@
 //! (inside the sandboxed worker, which renders headless under landlock and
 //! seccomp) under the quick protocol.
 
+use d3il_test_support::TempDir;
 use serde_json::Value;
 use std::process::Command;
 
@@ -12,15 +13,10 @@ fn d3il() -> Command {
     c
 }
 
-fn temp_dir(tag: &str) -> std::path::PathBuf {
-    let d = std::env::temp_dir().join(format!("d3il-{tag}-{}", std::process::id()));
-    std::fs::create_dir_all(&d).unwrap();
-    d
-}
-
 #[test]
 fn render_writes_both_cameras_side_by_side() {
-    let dir = temp_dir("render");
+    let tmp = TempDir::new("render");
+    let dir = tmp.path().to_path_buf();
     let out = dir.join("frame.png");
     let run = d3il()
         .args(["render", "--task", "sorting-4", "--context", "2", "--out"])
@@ -72,7 +68,8 @@ fn render_writes_both_cameras_side_by_side() {
 
 #[test]
 fn render_names_the_bad_argument() {
-    let dir = temp_dir("render-bad");
+    let tmp = TempDir::new("render-bad");
+    let dir = tmp.path().to_path_buf();
     let run = d3il()
         .args(["render", "--task", "aligning", "--context", "60", "--out"])
         .arg(dir.join("x.png"))
@@ -90,7 +87,8 @@ fn render_names_the_bad_argument() {
 
 #[test]
 fn image_onnx_policy_runs_through_sandboxed_eval_quick() {
-    let dir = temp_dir("image-eval");
+    let tmp = TempDir::new("image-eval");
+    let dir = tmp.path().to_path_buf();
     let json = dir.join("result.json");
     let fixture = concat!(
         env!("CARGO_MANIFEST_DIR"),

@@ -23,7 +23,13 @@ fn chromium() -> String {
 }
 
 fn dump_dom(browser: &str, url: &str, profile: &std::path::Path) -> String {
+    dump_dom_at(browser, url, profile, 1400)
+}
+
+/// The DOM Chromium built for `url` in a window `width` px wide.
+fn dump_dom_at(browser: &str, url: &str, profile: &std::path::Path, width: u32) -> String {
     let out = Command::new(browser)
+        .arg(format!("--window-size={width},1000"))
         .args([
             "--headless",
             "--no-sandbox",
@@ -207,6 +213,8 @@ fn pages_have_no_horizontal_overflow_at_1400_and_760_px() {
             "/tasks/aligning/data-fraction",
             "/tasks/pushing/data-fraction",
             "/methods",
+            "/?obs=image",
+            "/compare",
         ] {
             let (scroll, client) = layout_widths(
                 &browser,
@@ -224,6 +232,197 @@ fn pages_have_no_horizontal_overflow_at_1400_and_760_px() {
                 "{path} at {width} px overflows horizontally: content {scroll} px, viewport {client} px"
             );
         }
+    }
+    server.kill();
+}
+
+/// The paper's main table on the home page, as Chromium builds it at 1400
+/// and 760 px: one table per block of three tasks, the paper's eleven
+/// methods in their two groups, success and entropy per task, and every cell
+/// linking to its task's board; the page body does not overflow.
+#[test]
+fn chromium_renders_the_home_page_main_table_at_1400_and_760_px() {
+    let browser = chromium();
+    let dir = TempDir::new("chromium-home");
+    let db = dir.path().join("lb.sqlite");
+    let server = Server::start(&db, &["--workers", "0"]);
+    for width in [1400, 760] {
+        let profile = dir.path().join(format!("profile-home-{width}"));
+        let dom = dump_dom_at(&browser, &format!("{}/", server.base), &profile, width);
+        let tables: Vec<&str> = dom
+            .split("<table class=\"board main-table\"")
+            .skip(1)
+            .map(|t| &t[..t.find("</table>").expect("table end")])
+            .collect();
+        assert_eq!(
+            tables.len(),
+            3,
+            "three blocks of three tasks (state, Table 2)"
+        );
+        let first = tables[0];
+        for task in ["Avoiding (T1)", "Aligning (T2)", "Pushing (T3)"] {
+            assert!(first.contains(task), "{task} column");
+        }
+        assert!(first.contains("<a href=\"/tasks/avoiding?obs=state\">"));
+        assert_eq!(first.matches("<tr class=\"reported\">").count(), 11);
+        assert_eq!(first.matches(">Success</th>").count(), 3);
+        assert_eq!(first.matches(">Entropy</th>").count(), 3);
+        assert!(first.contains("History-free methods") && first.contains("History-based methods"));
+        assert!(first.contains("class=\"num best\""), "bold values");
+        assert!(
+            dom.contains("id=\"how-to-read\""),
+            "grouping and bold explained"
+        );
+        let (scroll, client) = layout_widths(&browser, &server, "/", width, &profile);
+        assert!(
+            scroll <= client,
+            "home page at {width} px overflows: {scroll} > {client}"
+        );
+    }
+    server.kill();
+}
+
+/// Two finished Pushing submissions written into the database as a worker
+/// would (the store's claim and completion), before the server starts.
+fn two_finished_submissions(db: &std::path::Path) -> (i64, i64) {
+    use d3il_protocol::*;
+    use d3il_server::store::{NewMethod, NewPolicy, NewSubmission, Store};
+    let result = |k: usize| {
+        let mut outcomes = vec![];
+        let mut rollouts = vec![];
+        for c in 0..30 {
+            for r in 0..16 {
+                let success = r < k + c % 3;
+                let label = r % 2;
+                outcomes.push(d3il_metrics::Outcome::new(
+                    c,
+                    success,
+                    Some(&label.to_string()),
+                ));
+                rollouts.push(RolloutRecord {
+                    context_index: c,
+                    rollout_index: r,
+                    success,
+                    behaviour: serde_json::json!(label),
+                    steps: 400,
+                    path: None,
+                    failure: None,
+                });
+            }
+        }
+        let ev = d3il_metrics::evaluate(
+            TaskId::Pushing,
+            &outcomes,
+            1.0,
+            &d3il_metrics::Bootstrap::default(),
+        )
+        .expect("metrics");
+        EvalResult {
+            manifest: ProtocolManifest {
+                task: TaskId::Pushing,
+                task_version: "v1".into(),
+                obs_type: ObsType::State,
+                protocol: ProtocolKind::Paper,
+                mjcf_sha256: "m".into(),
+                initial_states_sha256: "s".into(),
+                initial_states: "pushing-v2.json".into(),
+                mujoco_version: "2.2.2".into(),
+                evaluator_version: "0".into(),
+                n_contexts: 30,
+                rollouts_per_context: 16,
+                max_steps: 400,
+                policy_sha256: "p".into(),
+                history: 1,
+                horizon: 1,
+                execute: 1,
+                seed: 0,
+            },
+            metrics: ev.metrics,
+            per_context: ev.per_context,
+            rollouts,
+            rollouts_ended_unstable: 0,
+        }
+    };
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .expect("runtime");
+    rt.block_on(async {
+        let store = Store::open(db).await.expect("open store");
+        let mut ids = vec![];
+        for (name, k) in [("Alpha", 12), ("Beta", 6)] {
+            let m = store
+                .ensure_method(
+                    &NewMethod {
+                        name: name.into(),
+                        ..NewMethod::default()
+                    },
+                    None,
+                )
+                .await
+                .expect("method");
+            let id = store
+                .create_submission(
+                    &NewSubmission {
+                        method_id: m.id,
+                        submitter_id: None,
+                        task: TaskId::Pushing,
+                        obs_type: ObsType::State,
+                        training_seed: 0,
+                        data_fraction: 1.0,
+                        protocol: ProtocolKind::Paper,
+                        policy: NewPolicy::Remote {
+                            url: "http://127.0.0.1:9/".into(),
+                        },
+                        manifest_json: r#"{"task": "pushing", "obs_type": "state", "history": 1, "horizon": 1, "execute": 1}"#.into(),
+                    },
+                    3,
+                )
+                .await
+                .expect("submission");
+            let c = store.claim_job("test", 60).await.expect("claim").expect("a job");
+            assert_eq!(c.submission.id, id);
+            store
+                .complete_job(c.job.id, id, &result(k), &[])
+                .await
+                .expect("complete");
+            ids.push(id);
+        }
+        (ids[0], ids[1])
+    })
+}
+
+/// The compare page for two finished submissions, as Chromium renders it at
+/// 1400 and 760 px: the paired differences, both behaviour histograms and
+/// the per-state table, without horizontal overflow of the page body.
+#[test]
+fn chromium_renders_the_compare_page_for_two_finished_submissions() {
+    let browser = chromium();
+    let dir = TempDir::new("chromium-compare");
+    let db = dir.path().join("lb.sqlite");
+    let (a, b) = two_finished_submissions(&db);
+    let server = Server::start(&db, &["--workers", "0"]);
+    let path = format!("/compare?a={a}&b={b}");
+    for width in [1400, 760] {
+        let profile = dir.path().join(format!("profile-compare-{width}"));
+        let dom = dump_dom_at(&browser, &format!("{}{path}", server.base), &profile, width);
+        let diffs = &dom[dom.find("id=\"differences\"").expect("differences table")..];
+        let diffs = &diffs[..diffs.find("</table>").expect("end")];
+        // Alpha succeeds in 12 + c % 3, Beta in 6 + c % 3 of 16: A − B = 6/16.
+        assert!(diffs.contains(">+0.375<"), "{diffs}");
+        assert!(diffs.contains("Conditional behaviour entropy"));
+        for id in ["behaviours-a", "behaviours-b"] {
+            let fig = &dom[dom.find(&format!("id=\"{id}\"")).expect("histogram")..];
+            assert!(fig[..fig.find("</figure>").expect("end")].contains("<svg"));
+        }
+        let ctx = &dom[dom.find("id=\"contexts\"").expect("per-state table")..];
+        let ctx = &ctx[..ctx.find("</table>").expect("end")];
+        assert_eq!(ctx.matches("<tr>").count(), 31, "header and 30 states");
+        let (scroll, client) = layout_widths(&browser, &server, &path, width, &profile);
+        assert!(
+            scroll <= client,
+            "compare page at {width} px overflows: {scroll} > {client}"
+        );
     }
     server.kill();
 }

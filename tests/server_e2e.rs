@@ -1,5 +1,5 @@
 //! End to end through the real binary: `d3il serve` with one sandboxed worker,
-//! `d3il token create`, `d3il submit --wait` of an ONNX fixture under the quick
+//! `d3il token create`, `d3il submit --wait [--json]` of an ONNX fixture under the quick
 //! protocol (real `d3il worker`, tract, MuJoCo), then the result on the
 //! leaderboard page, in the CSV and on the submission page.
 
@@ -39,6 +39,7 @@ fn onnx_submission_is_evaluated_and_published() {
             "--description",
             "Follows one path <between> the obstacles",
             "--wait",
+            "--json",
             "--timeout",
             "900",
         ])
@@ -113,4 +114,29 @@ fn onnx_submission_is_evaluated_and_published() {
         svg.contains("<polyline") || svg.contains("<path"),
         "paths are drawn"
     );
+
+    // Without --json, `submit --wait` prints the metrics table of `d3il
+    // eval`; the manifest is found next to the .onnx (no --manifest).
+    let out = Command::new(EXE)
+        .arg("submit")
+        .args(["--server", &server.base, "--token", &token])
+        .args(["--method", "E2E-Path", "--task", "avoiding"])
+        .args(["--training-seed", "1", "--protocol", "quick"])
+        .args(["--wait", "--timeout", "900", "--onnx"])
+        .arg(fixture("avoiding_path.onnx"))
+        .output()
+        .expect("run d3il submit");
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "d3il submit failed:\n{stdout}\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(!stdout.contains('{'), "a table, not JSON: {stdout}");
+    assert!(
+        stdout.contains("task avoiding, state observations (") && stdout.contains("quick protocol"),
+        "{stdout}"
+    );
+    assert!(stdout.contains("success rate") && stdout.contains("conditional entropy"));
+    assert!(stdout.contains("behaviours of the "), "{stdout}");
 }

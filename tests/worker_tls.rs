@@ -11,47 +11,12 @@ mod worker_common;
 
 use d3il_protocol::{ErrorKind, EvalResult, Limits, PolicySource};
 use d3il_sandbox::{Outcome, WorkerRun};
-use rcgen::{BasicConstraints, CertificateParams, DnType, IsCa, Issuer, KeyPair, KeyUsagePurpose};
+use d3il_test_support::Pki;
 use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::time::Duration;
 use worker_common::*;
-
-/// A fresh test CA (PEM) and a server certificate for 127.0.0.1 it signed,
-/// written to `dir` as server.pem / server.key / ca.pem.
-struct Pki {
-    ca_pem: String,
-    ca_file: PathBuf,
-    cert: PathBuf,
-    key: PathBuf,
-}
-
-fn pki(dir: &Path) -> Pki {
-    let mut ca = CertificateParams::new(Vec::<String>::new()).unwrap();
-    ca.is_ca = IsCa::Ca(BasicConstraints::Unconstrained);
-    ca.distinguished_name
-        .push(DnType::CommonName, "D3IL worker test CA");
-    ca.key_usages = vec![KeyUsagePurpose::KeyCertSign, KeyUsagePurpose::CrlSign];
-    let ca_key = KeyPair::generate().unwrap();
-    let ca_pem = ca.self_signed(&ca_key).unwrap().pem();
-    let issuer = Issuer::new(ca, ca_key);
-    let key = KeyPair::generate().unwrap();
-    let leaf = CertificateParams::new(vec!["127.0.0.1".to_string()])
-        .unwrap()
-        .signed_by(&key, &issuer)
-        .unwrap();
-    let p = Pki {
-        ca_pem,
-        ca_file: dir.join("ca.pem"),
-        cert: dir.join("server.pem"),
-        key: dir.join("server.key"),
-    };
-    std::fs::write(&p.ca_file, &p.ca_pem).unwrap();
-    std::fs::write(&p.cert, leaf.pem()).unwrap();
-    std::fs::write(&p.key, key.serialize_pem()).unwrap();
-    p
-}
 
 /// The reference server with its avoiding demo policy, killed when dropped.
 struct Server {
@@ -121,7 +86,7 @@ fn completed(r: &WorkerRun) -> &EvalResult {
 #[test]
 fn a_wss_endpoint_trusted_through_the_extra_ca_completes_like_ws() {
     let dir = scratch("wss-ok");
-    let p = pki(&dir);
+    let p = Pki::new(&dir, &["127.0.0.1"]);
     let tls = start(Some(&p));
     let r = run_url(
         format!("wss://127.0.0.1:{}/", tls.port),
@@ -167,7 +132,7 @@ fn a_wss_endpoint_trusted_through_the_extra_ca_completes_like_ws() {
 #[test]
 fn without_the_extra_ca_the_worker_reports_the_certificate() {
     let dir = scratch("wss-untrusted");
-    let p = pki(&dir);
+    let p = Pki::new(&dir, &["127.0.0.1"]);
     let tls = start(Some(&p));
     let r = run_url(format!("wss://127.0.0.1:{}/", tls.port), tls_limits(None));
     let e = failure(&r);
@@ -189,7 +154,7 @@ fn without_the_extra_ca_the_worker_reports_the_certificate() {
 #[test]
 fn ws_to_a_tls_port_and_wss_to_a_plain_port_fail_clearly() {
     let dir = scratch("wss-mismatch");
-    let p = pki(&dir);
+    let p = Pki::new(&dir, &["127.0.0.1"]);
     let tls = start(Some(&p));
     let r = run_url(format!("ws://127.0.0.1:{}/", tls.port), tls_limits(None));
     let e = failure(&r);
@@ -239,7 +204,7 @@ fn eval_cli(port: u16, ca_file: Option<&Path>, sandbox: bool) -> std::process::O
 #[test]
 fn d3il_eval_trusts_the_ca_file_named_by_the_environment() {
     let dir = scratch("wss-cli");
-    let p = pki(&dir);
+    let p = Pki::new(&dir, &["127.0.0.1"]);
     let tls = start(Some(&p));
     let mut outputs = Vec::new();
     for sandbox in [true, false] {
@@ -258,8 +223,9 @@ fn d3il_eval_trusts_the_ca_file_named_by_the_environment() {
         outputs.push(stdout);
     }
     assert!(
-        outputs[0].starts_with("task avoiding (1 x 8 rollouts, protocol Quick, seed 0)")
-            && outputs[0].contains("success rate"),
+        outputs[0].starts_with(
+            "task avoiding, state observations (1 x 8 rollouts, quick protocol, seed 0)"
+        ) && outputs[0].contains("success rate"),
         "{}",
         outputs[0]
     );

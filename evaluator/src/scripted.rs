@@ -80,14 +80,35 @@ pub struct ScriptedPolicy {
 
 #[derive(Debug, thiserror::Error)]
 #[error(
-    "unknown scripted policy `{0}`; available: avoiding:path=<0..23>, avoiding:all-paths, \
-     aligning:inside, aligning:outside, aligning:both, pushing:mode=<0..3>, pushing:all-modes, \
-     sorting-2|sorting-4|sorting-6:order=<sequence of R and B, X/2 of each, e.g. RB, RBBR>, \
-     sorting-2|sorting-4|sorting-6:all-orders, stacking:order=<sequence of distinct r, g, b, e.g. r, rgb>, \
-     stacking:all-orders, inserting:box=<r|g|b> \
-     (the task before the colon must be the task evaluated)"
+    "unknown scripted policy `{name}` for task {task}; the scripted policies of {task} are: {}",
+    names_for(*task)
 )]
-pub struct UnknownScript(pub String);
+pub struct UnknownScript {
+    pub name: String,
+    /// The task evaluated: the message lists its scripted policies.
+    pub task: TaskId,
+}
+
+/// The scripted policy names of `task` (`scripted:<name>`), as the error
+/// for an unknown name lists them.
+pub fn names_for(task: TaskId) -> &'static str {
+    match task {
+        TaskId::Avoiding => "avoiding:path=<0..23>, avoiding:all-paths",
+        TaskId::Aligning => "aligning:inside, aligning:outside, aligning:both",
+        TaskId::Pushing => "pushing:mode=<0..3>, pushing:all-modes",
+        TaskId::Sorting2 => "sorting-2:order=<R and B, one of each, e.g. RB>, sorting-2:all-orders",
+        TaskId::Sorting4 => {
+            "sorting-4:order=<R and B, two of each, e.g. RBBR>, sorting-4:all-orders"
+        }
+        TaskId::Sorting6 => {
+            "sorting-6:order=<R and B, three of each, e.g. RBRBRB>, sorting-6:all-orders"
+        }
+        TaskId::Stacking => {
+            "stacking:order=<distinct letters of r, g, b, e.g. r, rgb>, stacking:all-orders"
+        }
+        TaskId::Inserting => "inserting:box=<r|g|b>",
+    }
+}
 
 /// Every distinct arrangement of `n` R and `n` B, in lexicographic order.
 fn sorting_orders(n: usize) -> Vec<String> {
@@ -133,7 +154,10 @@ impl ScriptedPolicy {
     /// Parses names like `avoiding:path=3`, `sorting-4:order=RBBR` or
     /// `stacking:all-orders`; the task part must be `spec.task`.
     pub fn from_name(name: &str, spec: TaskSpec) -> Result<Self, UnknownScript> {
-        let unknown = || UnknownScript(name.to_string());
+        let unknown = || UnknownScript {
+            name: name.to_string(),
+            task: spec.task,
+        };
         let (task, what) = name.split_once(':').ok_or_else(unknown)?;
         let task: TaskId = task.parse().map_err(|_| unknown())?;
         if task != spec.task {

@@ -5,12 +5,8 @@ mod common;
 use d3il_evaluator::tasks::aligning::{AligningScript, AligningStyle};
 use d3il_evaluator::tasks::{LoadedTask, TaskError};
 use d3il_protocol::TaskId;
+use d3il_test_support::reference_rollout;
 use serde_json::{json, Value};
-
-const REFERENCE: &str = concat!(
-    env!("CARGO_MANIFEST_DIR"),
-    "/../tests/data/reference-rollouts/aligning/ctx0_inside_push.json"
-);
 
 struct Run {
     success: bool,
@@ -175,14 +171,10 @@ fn bad_contexts_name_the_field() {
 /// Open-loop replay of the reference rollout (MuJoCo 2.3.2, original D3IL):
 /// the reset observation and the free-motion phase must match to 1e-4 m; the
 /// contact phase is chaotic (docs/original-d3il.md §01.7.10), so only the outcome is compared
-/// loosely. Skipped when the shared reference data is not present.
+/// loosely.
 #[test]
 fn reference_rollout_replays() {
-    let Ok(text) = std::fs::read_to_string(REFERENCE) else {
-        eprintln!("skipping: {REFERENCE} not available");
-        return;
-    };
-    let r: Value = serde_json::from_str(&text).unwrap();
+    let r = reference_rollout("aligning/ctx0_inside_push.json");
     let task = LoadedTask::load(TaskId::Aligning).unwrap();
     let mut env = task.env().unwrap();
     let obs0 = env.reset(&r["context"]).unwrap();

@@ -5,12 +5,8 @@ mod common;
 use d3il_evaluator::tasks::pushing::{detect_mode, PushingScript};
 use d3il_evaluator::tasks::{LoadedTask, TaskError};
 use d3il_protocol::TaskId;
+use d3il_test_support::reference_rollout;
 use serde_json::{json, Value};
-
-const REFERENCE: &str = concat!(
-    env!("CARGO_MANIFEST_DIR"),
-    "/../tests/data/reference-rollouts/pushing/ctx0_red_to_red_green_to_green.json"
-);
 
 struct Run {
     success: bool,
@@ -189,14 +185,9 @@ fn bad_contexts_name_the_field() {
 
 /// Open-loop replay of the reference rollout (original D3IL, MuJoCo 2.3.2):
 /// reset observation and free motion to 1e-4 m, the contact phase loosely.
-/// Skipped when the shared reference data is not present.
 #[test]
 fn reference_rollout_replays() {
-    let Ok(text) = std::fs::read_to_string(REFERENCE) else {
-        eprintln!("skipping: {REFERENCE} not available");
-        return;
-    };
-    let r: Value = serde_json::from_str(&text).unwrap();
+    let r = reference_rollout("pushing/ctx0_red_to_red_green_to_green.json");
     let task = LoadedTask::load(TaskId::Pushing).unwrap();
     let mut env = task.env().unwrap();
     let obs0 = env.reset(&r["context"]).unwrap();

@@ -7,12 +7,7 @@ use d3il_protocol::TaskId;
 use serde_json::Value;
 
 fn reference() -> Value {
-    let path = concat!(
-        env!("CARGO_MANIFEST_DIR"),
-        "/../tests/data/reference-rollouts/avoiding/route_top_top_top.json"
-    );
-    let text = std::fs::read_to_string(path).expect("tests/data/reference-rollouts is committed");
-    serde_json::from_str(&text).expect("reference rollout is JSON")
+    d3il_test_support::reference_rollout("avoiding/route_top_top_top.json")
 }
 
 fn rows(v: &Value) -> Vec<Vec<f64>> {

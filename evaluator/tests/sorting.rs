@@ -7,24 +7,8 @@ use d3il_evaluator::tasks::sorting::{
 };
 use d3il_evaluator::tasks::{Env, LoadedTask};
 use d3il_protocol::TaskId;
+use d3il_test_support::reference_rollout;
 use serde_json::{json, Value};
-use std::path::PathBuf;
-
-fn reference(rel: &str) -> Value {
-    let dir = std::env::var_os("D3IL_REFERENCE_ROLLOUTS")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| {
-            PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../tests/data/reference-rollouts")
-        });
-    let path = dir.join(rel);
-    let text = std::fs::read_to_string(&path).unwrap_or_else(|e| {
-        panic!(
-            "reference rollout {} not readable ({e}); set D3IL_REFERENCE_ROLLOUTS to the reference-rollouts directory",
-            path.display()
-        )
-    });
-    serde_json::from_str(&text).unwrap()
-}
 
 /// A context from (x, y, yaw_deg) per slot: first X/2 red, then blue.
 fn context(poses: &[(f64, f64, f64)]) -> Value {
@@ -160,7 +144,7 @@ fn zero_action_sorts_nothing() {
 
 #[test]
 fn reference_rollout_replays_with_matching_free_motion() {
-    let r = reference("sorting_2/ctxA_sort_all.json");
+    let r = reference_rollout("sorting_2/ctxA_sort_all.json");
     let task = LoadedTask::load(TaskId::Sorting2).unwrap();
     let mut env = task.env().unwrap();
     let first = env.reset(&r["context"]).unwrap();

@@ -5,26 +5,8 @@ mod common;
 use d3il_evaluator::tasks::stacking::StackingScript;
 use d3il_evaluator::tasks::{Env, LoadedTask};
 use d3il_protocol::TaskId;
+use d3il_test_support::reference_rollout;
 use serde_json::{json, Value};
-use std::path::PathBuf;
-
-/// The reference rollouts recorded in the original simulator (sibling
-/// `shared/` directory of the checkout, or `D3IL_REFERENCE_ROLLOUTS`).
-fn reference(rel: &str) -> Value {
-    let dir = std::env::var_os("D3IL_REFERENCE_ROLLOUTS")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| {
-            PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../tests/data/reference-rollouts")
-        });
-    let path = dir.join(rel);
-    let text = std::fs::read_to_string(&path).unwrap_or_else(|e| {
-        panic!(
-            "reference rollout {} not readable ({e}); set D3IL_REFERENCE_ROLLOUTS to the reference-rollouts directory",
-            path.display()
-        )
-    });
-    serde_json::from_str(&text).unwrap()
-}
 
 fn f32s(v: &Value) -> Vec<f32> {
     v.as_array()
@@ -69,7 +51,7 @@ fn run_script(env: &mut Env, ctx: &Value, order: &str) {
 
 #[test]
 fn joint_space_replay_tracks_the_reference_joint_trajectory() {
-    let r = reference("stacking/ctx0_joint_sweep_gripper.json");
+    let r = reference_rollout("stacking/ctx0_joint_sweep_gripper.json");
     let task = LoadedTask::load(TaskId::Stacking).unwrap();
     let mut env = task.env().unwrap();
     // The reference's context object is accepted as-is.

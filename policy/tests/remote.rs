@@ -58,9 +58,7 @@ fn testing(mode: &str) -> Server {
 fn limits() -> Limits {
     Limits {
         remote_deadline_ms: 1500,
-        remote_frame_bytes: 1 << 20,
-        allow_private_endpoints: true,
-        ..Limits::default()
+        ..d3il_test_support::loopback_limits()
     }
 }
 

@@ -8,50 +8,10 @@ mod common;
 use common::{repo, spec};
 use d3il_policy::{validate_actions, Policy, PolicyError, Query, RemotePolicy};
 use d3il_protocol::{ErrorKind, Limits, ObsType, TaskId};
-use rcgen::{BasicConstraints, CertificateParams, DnType, IsCa, Issuer, KeyPair, KeyUsagePurpose};
+use d3il_test_support::{loopback_limits, Pki};
 use std::io::{BufRead, BufReader};
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::process::{Child, Command, Stdio};
-
-/// A test CA and a server certificate it signed, as PEM files in `dir`.
-struct Pki {
-    ca_pem: String,
-    cert: PathBuf,
-    key: PathBuf,
-}
-
-fn ca() -> (String, Issuer<'static, KeyPair>) {
-    let mut params = CertificateParams::new(Vec::<String>::new()).unwrap();
-    params.is_ca = IsCa::Ca(BasicConstraints::Unconstrained);
-    params
-        .distinguished_name
-        .push(DnType::CommonName, "D3IL test CA");
-    params.key_usages = vec![KeyUsagePurpose::KeyCertSign, KeyUsagePurpose::CrlSign];
-    let key = KeyPair::generate().unwrap();
-    let cert = params.self_signed(&key).unwrap();
-    (cert.pem(), Issuer::new(params, key))
-}
-
-/// A server certificate for `names` signed by a fresh CA, written to `dir`.
-fn pki(dir: &Path, names: &[&str]) -> Pki {
-    std::fs::create_dir_all(dir).unwrap();
-    let (ca_pem, issuer) = ca();
-    let key = KeyPair::generate().unwrap();
-    let mut params =
-        CertificateParams::new(names.iter().map(|s| s.to_string()).collect::<Vec<_>>()).unwrap();
-    params
-        .distinguished_name
-        .push(DnType::CommonName, "d3il test policy server");
-    let cert = params.signed_by(&key, &issuer).unwrap();
-    let p = Pki {
-        ca_pem,
-        cert: dir.join("server.pem"),
-        key: dir.join("server.key"),
-    };
-    std::fs::write(&p.cert, cert.pem()).unwrap();
-    std::fs::write(&p.key, key.serialize_pem()).unwrap();
-    p
-}
 
 fn scratch(name: &str) -> PathBuf {
     let d = PathBuf::from(env!("CARGO_TARGET_TMPDIR"))
@@ -107,10 +67,8 @@ fn start(tls: Option<&Pki>) -> Server {
 fn limits(extra_ca: Option<&str>) -> Limits {
     Limits {
         remote_deadline_ms: 3000,
-        remote_frame_bytes: 1 << 20,
-        allow_private_endpoints: true,
         extra_ca_pem: extra_ca.map(str::to_string),
-        ..Limits::default()
+        ..loopback_limits()
     }
 }
 
@@ -133,7 +91,7 @@ fn err(r: Result<RemotePolicy, PolicyError>) -> PolicyError {
 
 #[test]
 fn a_wss_endpoint_trusted_through_the_extra_ca_serves_actions() {
-    let p = pki(&scratch("ok"), &["127.0.0.1", "localhost"]);
+    let p = Pki::new(&scratch("ok"), &["127.0.0.1", "localhost"]);
     let s = start(Some(&p));
     let url = format!("wss://{}/", s.addr);
     let mut policy = connect(&url, Some(&p.ca_pem)).unwrap();
@@ -155,7 +113,7 @@ fn a_wss_endpoint_trusted_through_the_extra_ca_serves_actions() {
 
 #[test]
 fn without_the_extra_ca_the_certificate_is_refused() {
-    let p = pki(&scratch("untrusted"), &["127.0.0.1"]);
+    let p = Pki::new(&scratch("untrusted"), &["127.0.0.1"]);
     let s = start(Some(&p));
     let e = err(connect(&format!("wss://{}/", s.addr), None));
     assert_eq!(e.kind(), ErrorKind::BadEndpoint, "{e}");
@@ -166,7 +124,7 @@ fn without_the_extra_ca_the_certificate_is_refused() {
     );
     assert!(m.contains("not signed by a publicly trusted CA"), "{m}");
     // Another CA (here with the same name) does not help either.
-    let (other_ca, _) = ca();
+    let other_ca = Pki::new(&scratch("other-ca"), &["127.0.0.1"]).ca_pem;
     let e = err(connect(&format!("wss://{}/", s.addr), Some(&other_ca)));
     let m = e.to_string();
     assert!(
@@ -178,7 +136,7 @@ fn without_the_extra_ca_the_certificate_is_refused() {
 
 #[test]
 fn a_certificate_for_another_name_is_refused_naming_the_host() {
-    let p = pki(&scratch("wrong-name"), &["policy.example.org"]);
+    let p = Pki::new(&scratch("wrong-name"), &["policy.example.org"]);
     let s = start(Some(&p));
     let e = err(connect(&format!("wss://{}/", s.addr), Some(&p.ca_pem)));
     assert_eq!(e.kind(), ErrorKind::BadEndpoint, "{e}");
@@ -192,7 +150,7 @@ fn a_certificate_for_another_name_is_refused_naming_the_host() {
 
 #[test]
 fn ws_against_a_tls_port_and_wss_against_a_plain_port_say_which_to_use() {
-    let p = pki(&scratch("mismatch"), &["127.0.0.1"]);
+    let p = Pki::new(&scratch("mismatch"), &["127.0.0.1"]);
     let tls = start(Some(&p));
     // OpenSSL drops a plain HTTP request without answering, so the client
     // only sees the connection close (a transient-looking Remote error).
@@ -223,7 +181,7 @@ fn ws_against_a_tls_port_and_wss_against_a_plain_port_say_which_to_use() {
 
 #[test]
 fn an_unusable_extra_ca_is_an_operator_error() {
-    let p = pki(&scratch("bad-ca"), &["127.0.0.1"]);
+    let p = Pki::new(&scratch("bad-ca"), &["127.0.0.1"]);
     let s = start(Some(&p));
     let e = err(connect(&format!("wss://{}/", s.addr), Some("no PEM here")));
     assert_eq!(e.kind(), ErrorKind::Internal, "{e}");

@@ -4,11 +4,13 @@
 #![forbid(unsafe_code)]
 
 pub mod address;
+pub mod behaviour;
 pub mod job;
 pub mod paper;
 pub mod results;
 pub mod task;
 
+pub use behaviour::{behaviour_name, sorting_order};
 pub use job::*;
 pub use results::*;
 pub use task::*;

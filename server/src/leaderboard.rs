@@ -8,6 +8,7 @@ use crate::schema;
 use d3il_metrics::{aggregate_seeds, MetricsError};
 use d3il_protocol::{ObsType, ProtocolKind, ResultCell, Source, StackingLevel, Stat, TaskId};
 use d3il_tables::board::{FractionSeries, ParetoPoint};
+use d3il_tables::plot::Est;
 use std::collections::{BTreeMap, BTreeSet, HashMap};
 
 /// One leaderboard row: a method on a task (paper title), observation type and
@@ -425,8 +426,9 @@ pub fn pareto_points(rows: &[BoardRow]) -> Vec<ParetoPoint> {
         .filter(|r| RankGroup::of(r) != RankGroup::Smoke)
         .map(|r| ParetoPoint {
             label: r.method.clone(),
-            entropy: r.entropy.mean,
-            success: r.success.mean,
+            method: r.method.clone(),
+            entropy: Est::new(r.entropy.mean, r.entropy.std, r.n_seeds),
+            success: Est::new(r.success.mean, r.success.std, r.n_seeds),
             evaluated: r.source == Source::Evaluated,
         })
         .collect()
@@ -435,8 +437,8 @@ pub fn pareto_points(rows: &[BoardRow]) -> Vec<ParetoPoint> {
 /// One line per method (and task title, where a task has several) through
 /// its values at each data fraction.
 pub fn fraction_series(rows: &[BoardRow]) -> Vec<FractionSeries> {
-    type Points = Vec<(f64, f64, f64)>;
-    let mut by: BTreeMap<(String, String), Points> = BTreeMap::new();
+    type Points = Vec<(f64, Est, Est)>;
+    let mut by: BTreeMap<(String, String), (String, bool, Points)> = BTreeMap::new();
     for r in rows {
         let label = match (r.source, r.protocol) {
             (Source::Reported, _) => r.method.clone(),
@@ -446,15 +448,18 @@ pub fn fraction_series(rows: &[BoardRow]) -> Vec<FractionSeries> {
             }
             (Source::Evaluated, _) => format!("{} (evaluated)", r.method),
         };
-        by.entry((r.task_title.clone(), label)).or_default().push((
-            r.data_fraction,
-            r.success.mean,
-            r.entropy.mean,
-        ));
+        by.entry((r.task_title.clone(), label))
+            .or_insert_with(|| (r.method.clone(), r.source == Source::Evaluated, Vec::new()))
+            .2
+            .push((
+                r.data_fraction,
+                Est::new(r.success.mean, r.success.std, r.n_seeds),
+                Est::new(r.entropy.mean, r.entropy.std, r.n_seeds),
+            ));
     }
     let multi_title = by.keys().map(|k| &k.0).collect::<BTreeSet<_>>().len() > 1;
     by.into_iter()
-        .map(|((title, label), mut points)| {
+        .map(|((title, label), (method, evaluated, mut points))| {
             points.sort_by(|a, b| a.0.total_cmp(&b.0));
             FractionSeries {
                 label: if multi_title {
@@ -462,21 +467,25 @@ pub fn fraction_series(rows: &[BoardRow]) -> Vec<FractionSeries> {
                 } else {
                     label
                 },
+                method,
+                evaluated,
                 points,
             }
         })
         .collect()
 }
 
-/// Successful-rollout counts per behaviour label, most frequent first, from
+/// Successful-rollout counts per behaviour, named for the task
+/// ([`d3il_protocol::behaviour_name`]), most frequent first, from
 /// (success, behaviour) pairs.
 pub fn behaviour_counts<'a>(
+    task: TaskId,
     rollouts: impl IntoIterator<Item = (bool, &'a serde_json::Value)>,
 ) -> Vec<(String, usize)> {
     let mut counts: BTreeMap<String, usize> = BTreeMap::new();
     for (_, b) in rollouts.into_iter().filter(|(success, _)| *success) {
         *counts
-            .entry(d3il_tables::board::behaviour_label(b))
+            .entry(d3il_tables::board::behaviour_label(task, b))
             .or_default() += 1;
     }
     let mut v: Vec<_> = counts.into_iter().collect();
@@ -554,7 +563,7 @@ mod tests {
         // The quick run (success 1.0) is off the Pareto front.
         let points = pareto_points(&rows);
         assert_eq!(points.len(), 3);
-        assert!(points.iter().all(|p| p.success < 1.0));
+        assert!(points.iter().all(|p| p.success.mean < 1.0));
     }
 
     #[test]

@@ -3,7 +3,8 @@
 //! Dependencies point one way (a test, `tests/layout.rs`, refuses cycles):
 //!
 //! - [`http`] (`api`, `pages`, `plots`; never importing each other) sits on
-//!   [`views`] (what the API shows), [`auth`] (the token extractor) and
+//!   [`views`] (what the API shows), [`comparison`] (pairing two finished
+//!   submissions), [`auth`] (the token extractor) and
 //!   [`intake`] (validating and accepting a submission);
 //! - those sit on [`state`] (what handlers share), [`queue`] (the worker pool),
 //!   [`store`] (SQLite, one module per resource) and [`leaderboard`] (pure
@@ -18,6 +19,7 @@ pub mod app;
 pub mod auth;
 pub mod cli;
 pub mod client;
+pub mod comparison;
 pub mod config;
 pub mod error;
 pub mod http;

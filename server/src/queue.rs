@@ -1,10 +1,12 @@
-//! The worker pool: N slots lease jobs from the durable queue in the database,
+//! The worker pool: N slots (plus one for quick smoke tests) lease jobs from
+//! the durable queue in the database,
 //! run them through a [`JobRunner`] (a sandboxed `d3il worker` process in
 //! production), heartbeat while they run and write the result idempotently.
 
 use crate::store::{ClaimedJob, PolicyKind, Store, StoreError};
 use d3il_protocol::{
-    ErrorKind, EvalResult, Job, Limits, PolicyManifest, PolicySource, SandboxMechanism, WorkerError,
+    ErrorKind, EvalResult, Job, Limits, PolicyManifest, PolicySource, ProtocolKind,
+    SandboxMechanism, WorkerError,
 };
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -113,7 +115,9 @@ impl QueueSignal {
     }
 }
 
-/// Requeues abandoned jobs, then starts `cfg.workers` slots.
+/// Requeues abandoned jobs, then starts `cfg.workers` slots that take any
+/// job, oldest first, plus (when `cfg.workers > 0`) one slot that takes only
+/// quick-protocol jobs.
 pub async fn start_pool(
     store: Store,
     runner: Arc<dyn JobRunner>,
@@ -133,6 +137,19 @@ pub async fn start_pool(
             cfg.clone(),
             signal.clone(),
             owner,
+            None,
+        ));
+    }
+    if cfg.workers > 0 {
+        // One more slot for quick-protocol jobs only: a smoke test never
+        // waits behind hour-long paper runs (the other slots take any job).
+        tokio::spawn(slot_loop(
+            store.clone(),
+            runner.clone(),
+            cfg.clone(),
+            signal.clone(),
+            format!("{}-quick", std::process::id()),
+            Some(ProtocolKind::Quick),
         ));
     }
     Ok(())
@@ -144,10 +161,11 @@ async fn slot_loop(
     cfg: Arc<PoolConfig>,
     signal: QueueSignal,
     owner: String,
+    only: Option<ProtocolKind>,
 ) {
     loop {
         let notified = signal.0.notified();
-        match store.claim_job(&owner, cfg.lease_seconds).await {
+        match store.claim_job_of(&owner, cfg.lease_seconds, only).await {
             Ok(Some(c)) => {
                 if let Err(e) = run_claimed(&store, &runner, &cfg, &owner, c).await {
                     tracing::error!("worker slot {owner}: {e}");

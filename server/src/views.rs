@@ -2,6 +2,7 @@
 //! results.
 
 use crate::error::AppError;
+use crate::leaderboard::protocol_str;
 use crate::leaderboard::BoardRow;
 use crate::schema;
 use crate::state::AppState;
@@ -12,6 +13,7 @@ use d3il_protocol::{
 };
 use serde::Serialize;
 use serde_json::Value;
+use std::collections::HashMap;
 use utoipa::ToSchema;
 
 /// Progress, queue position and an ETA for a submission.
@@ -22,14 +24,46 @@ pub struct Progress {
     pub eta_seconds: Option<i64>,
 }
 
-pub async fn progress(state: &AppState, job: &JobRow) -> Result<Progress, AppError> {
+/// Estimated seconds until the result of a job of `task` and `protocol`.
+///
+/// Past runs of the same task and protocol are the only basis: without them
+/// (and without progress to extrapolate from) there is no estimate, never a
+/// guess and never "0 s". A queued job waits for the jobs ahead of it (each
+/// at its own kind's mean, spread over the slots), then runs; a queued quick
+/// job has the pool's quick slot and waits only for quick jobs ahead of it.
+pub async fn progress(
+    state: &AppState,
+    job: &JobRow,
+    task: TaskId,
+    protocol: ProtocolKind,
+) -> Result<Progress, AppError> {
     let pos = state.store.queue_position(job.id).await?;
-    // Past runs are the only basis for an estimate: without them (and
-    // without progress to extrapolate from) there is none, never a guess.
-    let mean = state.store.mean_job_seconds().await?.map(|m| m.max(1.0));
+    let means: HashMap<(String, String), f64> = state
+        .store
+        .mean_job_seconds_by_kind()
+        .await?
+        .into_iter()
+        .map(|(t, p, m)| ((t, p), m.max(1.0)))
+        .collect();
+    let own = means
+        .get(&(task.slug().to_string(), protocol_str(protocol).to_string()))
+        .copied();
     let workers = state.cfg.workers.max(1) as f64;
     let eta = match (job.state, pos) {
-        (JobState::Queued, Some(p)) => mean.map(|m| ((p as f64 / workers).floor() + 1.0) * m),
+        (JobState::Queued, Some(_)) => match own {
+            None => None,
+            Some(own) => {
+                let quick_slot = state.cfg.workers > 0 && protocol == ProtocolKind::Quick;
+                let ahead = state.store.queued_ahead(job.id).await?;
+                let waits: Vec<f64> = ahead
+                    .iter()
+                    .filter(|(_, p)| !quick_slot || p == protocol_str(ProtocolKind::Quick))
+                    .map(|k| means.get(k).copied().unwrap_or(own))
+                    .collect();
+                let slots = if quick_slot { workers + 1.0 } else { workers };
+                Some(waits.iter().sum::<f64>() / slots + own)
+            }
+        },
         (JobState::Leased, _) => {
             let frac = if job.rollouts_total > 0 {
                 job.rollouts_done as f64 / job.rollouts_total as f64
@@ -42,7 +76,7 @@ pub async fn progress(state: &AppState, job: &JobRow) -> Result<Progress, AppErr
             if frac > 0.05 {
                 Some(elapsed / frac - elapsed)
             } else {
-                mean.map(|m| m - elapsed).filter(|e| *e >= 1.0)
+                own.map(|m| m - elapsed)
             }
         }
         _ => None,
@@ -51,7 +85,8 @@ pub async fn progress(state: &AppState, job: &JobRow) -> Result<Progress, AppErr
         rollouts_done: job.rollouts_done,
         rollouts_total: job.rollouts_total,
         queue_position: pos,
-        eta_seconds: eta.map(|e| e.round() as i64),
+        // Under a second left is "no estimate", not "0 s".
+        eta_seconds: eta.filter(|e| *e >= 1.0).map(|e| e.round() as i64),
     })
 }
 
@@ -185,7 +220,7 @@ pub struct RolloutView {
 pub async fn submission_view(state: &AppState, id: i64) -> Result<SubmissionView, AppError> {
     let s = state.store.submission(id).await?;
     let job = state.store.job_for(id).await?;
-    let p = progress(state, &job).await?;
+    let p = progress(state, &job, s.task, s.protocol).await?;
     let result = match state.store.result_for(id).await? {
         Some(r) => Some(results_view(state, r).await?),
         None => None,

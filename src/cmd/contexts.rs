@@ -14,6 +14,7 @@ pub struct Args {
 pub enum Action {
     /// Sample a new set from the task's distribution and write it (then record its sha256 in the task's code).
     Generate {
+        /// Task: avoiding, aligning, pushing, sorting-2/4/6, stacking, inserting.
         #[arg(long)]
         task: TaskId,
         /// Seed of the ChaCha8 sampler, recorded in the file.
@@ -22,6 +23,7 @@ pub enum Action {
         /// Number of initial states.
         #[arg(long)]
         count: usize,
+        /// Where to write the set (e.g. assets/contexts/pushing-v3.json).
         #[arg(long)]
         out: std::path::PathBuf,
     },
@@ -29,6 +31,7 @@ pub enum Action {
     /// as in shared/reference-contexts), same order; every context is checked by
     /// resetting the task's environment to it. Then record its sha256 in the task's code.
     Import {
+        /// Task: avoiding, aligning, pushing, sorting-2/4/6, stacking, inserting.
         #[arg(long)]
         task: TaskId,
         /// The decoded reference file, e.g. shared/reference-contexts/pushing.json.
@@ -37,12 +40,14 @@ pub enum Action {
         /// Version of the new set, e.g. v2.
         #[arg(long)]
         version: String,
+        /// Where to write the set (e.g. assets/contexts/pushing-v2.json).
         #[arg(long)]
         out: std::path::PathBuf,
     },
     /// Verify the committed sets of a task (the one in use and the older ones
     /// that stored results refer to) against the hashes recorded in the code.
     Verify {
+        /// Task: avoiding, aligning, pushing, sorting-2/4/6, stacking, inserting.
         #[arg(long)]
         task: TaskId,
     },

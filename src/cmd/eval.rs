@@ -6,7 +6,7 @@ use d3il_evaluator::eval::{self, EvalOptions, PolicyInfo};
 use d3il_evaluator::tasks::LoadedTask;
 use d3il_protocol::{EvalResult, Job, ObsType, PolicyManifest, PolicySource, ProtocolKind, TaskId};
 use std::io::Write;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 #[derive(clap::Args)]
@@ -25,6 +25,8 @@ pub struct Args {
     /// Seed of the evaluator's RNG (policy noise, bootstrap).
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
+    /// `paper` (the full protocol of the D3IL paper) or `quick` (a smoke
+    /// test on a few initial states).
     #[arg(long, default_value = "paper")]
     pub protocol: ProtocolKind,
     /// Write the full result (metrics, manifest, per-rollout records) here.
@@ -74,6 +76,27 @@ pub fn progress_bar(done: usize, total: usize, started: Instant) {
     let _ = std::io::stderr().flush();
 }
 
+/// The policy manifest of an ONNX file: `manifest` when given, else the
+/// `.onnx` path with `.json` (`policy.onnx` -> `policy.json`). Returns its
+/// path, text and parsed form. `d3il eval` and `d3il submit` both find it here.
+pub fn read_manifest(
+    onnx: &Path,
+    manifest: Option<&Path>,
+) -> anyhow::Result<(PathBuf, String, PolicyManifest)> {
+    let mpath = manifest
+        .map(Path::to_path_buf)
+        .unwrap_or_else(|| onnx.with_extension("json"));
+    let mtext = std::fs::read_to_string(&mpath).with_context(|| {
+        format!(
+            "reading the policy manifest {} (put it next to the .onnx file with the same name, or pass --manifest; format in docs/submission.md)",
+            mpath.display()
+        )
+    })?;
+    let parsed: PolicyManifest = serde_json::from_str(&mtext)
+        .with_context(|| format!("{} is not a valid policy manifest", mpath.display()))?;
+    Ok((mpath, mtext, parsed))
+}
+
 pub fn build_job(args: &Args) -> anyhow::Result<Job> {
     let (policy, manifest) = if let Some(name) = args.policy.strip_prefix("scripted:") {
         (
@@ -107,18 +130,7 @@ pub fn build_job(args: &Args) -> anyhow::Result<Job> {
     } else {
         let path = PathBuf::from(&args.policy);
         let bytes = std::fs::read(&path).with_context(|| format!("reading {}", path.display()))?;
-        let mpath = args
-            .manifest
-            .clone()
-            .unwrap_or_else(|| path.with_extension("json"));
-        let mtext = std::fs::read_to_string(&mpath).with_context(|| {
-            format!(
-                "reading the policy manifest {} (pass --manifest; format in docs/submission.md)",
-                mpath.display()
-            )
-        })?;
-        let manifest: PolicyManifest = serde_json::from_str(&mtext)
-            .with_context(|| format!("{} is not a valid policy manifest", mpath.display()))?;
+        let (_, _, manifest) = read_manifest(&path, args.manifest.as_deref())?;
         let abs = std::fs::canonicalize(&path)?;
         (
             PolicySource::Onnx {
@@ -198,7 +210,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         );
         r
     };
-    print_table(&result);
+    print!("{}", metrics_table(&result));
     if let Some(path) = &args.json {
         std::fs::write(path, serde_json::to_vec_pretty(&result)?)
             .with_context(|| format!("writing {}", path.display()))?;
@@ -207,27 +219,39 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// The metrics table of a result (also printed by `d3il merge`).
-pub fn print_table(result: &EvalResult) {
+/// The metrics table `d3il eval` prints and `d3il submit --wait` prints for
+/// the server's result: task, observation type, protocol, the metrics with
+/// their intervals, the initial states, unstable rollouts and a histogram of
+/// the behaviours of the successful rollouts.
+pub fn metrics_table(result: &EvalResult) -> String {
+    use std::fmt::Write as _;
+    let mut out = String::new();
     let m = &result.metrics;
-    println!(
-        "task {} ({} x {} rollouts, protocol {:?}, seed {})",
-        result.manifest.task,
-        result.manifest.n_contexts,
-        result.manifest.rollouts_per_context,
-        result.manifest.protocol,
-        result.manifest.seed
+    let man = &result.manifest;
+    let _ = writeln!(
+        out,
+        "task {}, {} observations ({} x {} rollouts, {} protocol, seed {})",
+        man.task,
+        man.obs_type,
+        man.n_contexts,
+        man.rollouts_per_context,
+        d3il_server::leaderboard::protocol_str(man.protocol),
+        man.seed
     );
-    println!("{:<28} {:>8} {:>20}", "metric", "value", "95% CI");
+    let _ = writeln!(out, "{:<28} {:>8} {:>20}", "metric", "value", "95% CI");
+    let line = |out: &mut String, name: &str, e: d3il_protocol::Estimate| {
+        let _ = writeln!(
+            out,
+            "{name:<28} {:>8.3} {:>9.3} – {:<8.3}",
+            e.value, e.ci_low, e.ci_high
+        );
+    };
     for (name, e) in [
         ("success rate", m.success_rate),
         ("conditional entropy", m.conditional_entropy),
         ("behaviour entropy", m.behaviour_entropy),
     ] {
-        println!(
-            "{name:<28} {:>8.3} {:>9.3} – {:<8.3}",
-            e.value, e.ci_low, e.ci_high
-        );
+        line(&mut out, name, e);
     }
     if let Some(levels) = &m.stacking_levels {
         for (i, l) in levels.iter().enumerate() {
@@ -236,35 +260,61 @@ pub fn print_table(result: &EvalResult) {
                 ("cond. entropy", l.conditional_entropy),
                 ("behaviour entropy", l.behaviour_entropy),
             ] {
-                let name = format!("stacking-{} {what}", i + 1);
-                println!(
-                    "{name:<28} {:>8.3} {:>9.3} – {:<8.3}",
-                    e.value, e.ci_low, e.ci_high
-                );
+                line(&mut out, &format!("stacking-{} {what}", i + 1), e);
             }
         }
     } else if let Some(s) = m.stacking {
-        println!(
+        let _ = writeln!(
+            out,
             "{:<28} {:.3} / {:.3} / {:.3}",
             "stacking-1/2/3 success", s[0], s[1], s[2]
         );
     }
-    println!("{:<28} {:>8.3}", "inference ms per call", m.inference_ms);
-    println!(
-        "initial states: {} ({}), sha256 {}",
-        result.manifest.initial_states_name(),
-        result.manifest.initial_states_origin(),
-        result.manifest.initial_states_sha256
+    let _ = writeln!(
+        out,
+        "{:<28} {:>8.3}",
+        "inference ms per call", m.inference_ms
     );
-    println!(
+    let _ = writeln!(
+        out,
+        "initial states: {} ({}), sha256 {}",
+        man.initial_states_name(),
+        man.initial_states_origin(),
+        man.initial_states_sha256
+    );
+    let _ = writeln!(
+        out,
         "rollouts ended unstable: {} of {} (counted as failures)",
         result.rollouts_ended_unstable,
         result.rollouts.len()
     );
     if result.mostly_unstable() {
-        println!(
+        let _ = writeln!(
+            out,
             "WARNING: more than half of the rollouts ended with an unstable simulation; \
              these numbers say more about the simulation than about the policy"
         );
     }
+    // The same counts and labels as the server's behaviour plot.
+    let counts = d3il_server::leaderboard::behaviour_counts(
+        result.manifest.task,
+        result.rollouts.iter().map(|r| (r.success, &r.behaviour)),
+    );
+    let successes: usize = counts.iter().map(|c| c.1).sum();
+    if counts.is_empty() {
+        let _ = writeln!(out, "behaviours: no successful rollout");
+    } else {
+        let _ = writeln!(out, "behaviours of the {successes} successful rollouts:");
+        let top = counts.iter().map(|c| c.1).max().unwrap_or(1).max(1);
+        let width = counts
+            .iter()
+            .map(|c| c.0.chars().count())
+            .max()
+            .unwrap_or(0);
+        for (label, n) in &counts {
+            let bar = (n * 40).div_ceil(top);
+            let _ = writeln!(out, "  {label:<width$} {n:>6}  {}", "#".repeat(bar));
+        }
+    }
+    out
 }

@@ -18,10 +18,15 @@ pub struct Args {
     /// Task slug (avoiding, aligning, pushing, sorting-2/4/6, stacking, inserting).
     #[arg(long)]
     pub task: String,
+    /// Observation type: `state` or `image` (must match the manifest).
     #[arg(long, default_value = "state")]
     pub obs_type: String,
+    /// Training seed of this policy (0, 1, ...): the seeds of one method,
+    /// task and setting are aggregated into one leaderboard row (mean ± std).
     #[arg(long)]
     pub training_seed: i64,
+    /// Fraction of the demonstrations the policy was trained on (0 < f ≤ 1;
+    /// below 1 it shows in the data-fraction view).
     #[arg(long, default_value_t = 1.0)]
     pub data_fraction: f64,
     /// `paper` (full protocol) or `quick` (smoke test).
@@ -30,31 +35,43 @@ pub struct Args {
     /// ONNX policy file.
     #[arg(long, conflicts_with = "endpoint")]
     pub onnx: Option<PathBuf>,
-    /// Policy manifest JSON file (required with --onnx).
+    /// Policy manifest JSON file for --onnx (default: the .onnx path with
+    /// .json, as `d3il eval` finds it).
     #[arg(long)]
     pub manifest: Option<PathBuf>,
     /// Remote policy endpoint URL (instead of --onnx).
     #[arg(long)]
     pub endpoint: Option<String>,
-    /// Method metadata.
+    /// Method metadata: observation history length k (1 = history-free;
+    /// decides the method's group in the paper's tables).
     #[arg(long)]
     pub history: Option<u32>,
+    /// Method metadata: the network backbone (e.g. `MLP`, `GPT`).
     #[arg(long)]
     pub backbone: Option<String>,
+    /// Method metadata: what the policy predicts (e.g. `single action`,
+    /// `action chunk`; a chunk marks the method † in the tables).
     #[arg(long)]
     pub prediction: Option<String>,
+    /// Method metadata: where its diversity comes from (e.g. `diffusion`).
     #[arg(long)]
     pub diversity: Option<String>,
+    /// Method metadata: URL of the method's code.
     #[arg(long)]
     pub code_url: Option<String>,
+    /// Method metadata: URL of the method's paper.
     #[arg(long)]
     pub paper_url: Option<String>,
     /// One-paragraph description of the method (shown on its page).
     #[arg(long)]
     pub description: Option<String>,
-    /// Wait for the evaluation and print the result.
+    /// Wait for the evaluation and print its metrics table (as `d3il eval`).
     #[arg(long)]
     pub wait: bool,
+    /// With --wait: print the server's full JSON document of the submission
+    /// instead of the table.
+    #[arg(long, requires = "wait")]
+    pub json: bool,
     /// Give up waiting after this many seconds.
     #[arg(long, default_value_t = 7200)]
     pub timeout: u64,
@@ -90,15 +107,18 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             fields.push((k, v));
         }
     }
-    if let Some(m) = &a.manifest {
+    anyhow::ensure!(
+        a.onnx.is_some() || a.endpoint.is_some(),
+        "give --onnx FILE (its manifest next to it as FILE.json, or --manifest) or --endpoint URL"
+    );
+    if let Some(onnx) = &a.onnx {
+        let (_, text, _) = super::eval::read_manifest(onnx, a.manifest.as_deref())?;
+        fields.push(("manifest", text));
+    } else if let Some(m) = &a.manifest {
         let text = std::fs::read_to_string(m)
             .with_context(|| format!("cannot read the manifest {}", m.display()))?;
         fields.push(("manifest", text));
     }
-    anyhow::ensure!(
-        a.onnx.is_some() || a.endpoint.is_some(),
-        "give --onnx FILE (with --manifest) or --endpoint URL"
-    );
     let created = client.submit(&fields, a.onnx.as_deref())?;
     let id = created["id"]
         .as_i64()
@@ -124,11 +144,32 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             last = line;
         }
     })?;
-    println!("{}", serde_json::to_string_pretty(&done)?);
+    if a.json {
+        println!("{}", serde_json::to_string_pretty(&done)?);
+    }
     anyhow::ensure!(
         done["status"] == "completed",
         "the evaluation failed: {}",
         done["error"]
     );
+    if !a.json {
+        print!("{}", super::eval::metrics_table(&result_of(&done)?));
+    }
     Ok(())
+}
+
+/// The evaluation result inside the server's submission document
+/// (`result`: metrics, protocol manifest, per-state and per-rollout records).
+pub fn result_of(doc: &serde_json::Value) -> anyhow::Result<d3il_protocol::EvalResult> {
+    let r = &doc["result"];
+    let v = serde_json::json!({
+        "manifest": r["protocol_manifest"],
+        "metrics": r["metrics"],
+        "per_context": r["per_context"],
+        "rollouts": r["rollouts"],
+        "rollouts_ended_unstable": r["rollouts_ended_unstable"].as_u64().unwrap_or(0),
+    });
+    serde_json::from_value(v).context(
+        "the server's result document is not what this client expects; use --json to see it",
+    )
 }

@@ -5,8 +5,7 @@
 use anyhow::Context;
 use d3il_protocol::ObsType;
 use d3il_server::store::Store;
-use d3il_tables::{FigureKind, Format, MethodInfo, SourceFilter, TableKind};
-use std::collections::BTreeMap;
+use d3il_tables::{FigureKind, Format, SourceFilter, TableKind};
 use std::path::PathBuf;
 
 #[derive(clap::Args, Debug)]
@@ -72,7 +71,7 @@ async fn render(args: &Args) -> anyhow::Result<String> {
         return Ok(d3il_tables::render_avoiding_paths(&paths, &title)?);
     }
     let cells = store.result_cells().await.context("reading result cells")?;
-    let methods = method_infos(&store).await?;
+    let methods = store.method_infos().await.context("reading methods")?;
     match (args.table, args.figure) {
         (Some(kind), _) => Ok(d3il_tables::render_table_with(
             &cells,
@@ -92,27 +91,6 @@ async fn render(args: &Args) -> anyhow::Result<String> {
         // clap's required group guarantees one of the two.
         (None, None) => anyhow::bail!("pass --table or --figure"),
     }
-}
-
-/// History and action chunking of the methods submitters registered (the
-/// paper's own methods use the paper's properties inside d3il-tables). The
-/// method's free-text `prediction` counts as action chunking when it mentions
-/// a chunk; a method without a history is treated as history-free.
-async fn method_infos(store: &Store) -> anyhow::Result<BTreeMap<String, MethodInfo>> {
-    let rows = store.methods().await.context("reading methods")?;
-    Ok(rows
-        .into_iter()
-        .map(|m| {
-            let info = MethodInfo {
-                history: m.history.and_then(|h| u32::try_from(h).ok()).unwrap_or(1),
-                action_chunking: m
-                    .prediction
-                    .as_deref()
-                    .is_some_and(|p| p.to_ascii_lowercase().contains("chunk")),
-            };
-            (m.name, info)
-        })
-        .collect())
 }
 
 #[cfg(test)]

@@ -1,233 +1,244 @@
 //! The leaderboard's figures (the server's pages and plot endpoints draw
 //! these): one task's success-vs-entropy plane with its Pareto front, the
-//! data-fraction lines and a submission's behaviour bars. The Pareto front and
-//! the handling of missing values are the paper figures' own
-//! ([`crate::figures::pareto_front`]: points without a finite success rate and
-//! entropy are not drawn).
+//! data-fraction lines and a submission's behaviour bars. They are built from
+//! the same panels and style as the paper figures of `d3il tables --figure`
+//! ([`crate::panels`], [`crate::plot`]): one colour per method everywhere,
+//! error bars (seed std) wherever a row has two or more seeds, legends beside
+//! the data, labels placed without collisions and axes fitted to the data.
+//! Points without a finite success rate and entropy are not drawn.
 
-use crate::figures::pareto_front;
+use crate::panels::{fraction_panel, pareto_panel, shape, FractionLine, PlanePoint, FRONT};
+use crate::plot::{hex, legend, pe, text_width, with_legend, Est, LegendEntry, Overlay};
 use crate::TablesError;
+use d3il_protocol::TaskId;
 use plotters::prelude::*;
-
-fn perr<E: std::fmt::Debug>(e: E) -> TablesError {
-    TablesError::Plot(format!("{e:?}"))
-}
 
 /// One method on the success-vs-entropy plane.
 #[derive(Debug, Clone)]
 pub struct ParetoPoint {
     pub label: String,
-    pub entropy: f64,
-    pub success: f64,
+    /// Decides the colour ([`crate::plot::method_colour`]).
+    pub method: String,
+    pub entropy: Est,
+    pub success: Est,
     pub evaluated: bool,
 }
 
-const REPORTED: RGBColor = RGBColor(70, 110, 180);
-const EVALUATED: RGBColor = RGBColor(215, 95, 30);
-const FRONT: RGBColor = RGBColor(40, 150, 80);
-
 /// Success rate vs conditional behaviour entropy with the Pareto front.
 pub fn pareto_svg(title: &str, points: &[ParetoPoint]) -> Result<String, TablesError> {
+    let mut entries: Vec<LegendEntry> = Vec::new();
+    for p in points {
+        let label = if p.evaluated {
+            format!("{} (evaluated)", p.label)
+        } else {
+            p.label.clone()
+        };
+        if !entries.iter().any(|e| e.label == label) {
+            entries.push(LegendEntry {
+                label,
+                colour: crate::plot::method_colour(&p.method),
+                shape: Some(shape(p.evaluated)),
+                line: None,
+            });
+        }
+    }
+    entries.push(LegendEntry {
+        label: "Pareto front".into(),
+        colour: FRONT,
+        shape: None,
+        line: Some(true),
+    });
+    let (plot_w, plot_h) = (640u32, 480u32);
+    let (width, height, legend_x) = with_legend((plot_w, plot_h), None, &entries);
+    let mut ov = Overlay::default();
     let mut buf = String::new();
     {
-        let root = SVGBackend::with_string(&mut buf, (720, 480)).into_drawing_area();
-        root.fill(&WHITE).map_err(perr)?;
-        let mut chart = ChartBuilder::on(&root)
-            .caption(title, ("sans-serif", 20))
-            .margin(12)
-            .x_label_area_size(44)
-            .y_label_area_size(54)
-            .build_cartesian_2d(0f64..1.05f64, 0f64..1.05f64)
-            .map_err(perr)?;
-        chart
-            .configure_mesh()
-            .x_desc("Conditional behaviour entropy")
-            .y_desc("Success rate")
-            .light_line_style(RGBColor(235, 235, 235))
-            .draw()
-            .map_err(perr)?;
-        let front = pareto_front(
-            &points
-                .iter()
-                .map(|p| (p.entropy, p.success))
-                .collect::<Vec<_>>(),
-        );
-        chart
-            .draw_series(LineSeries::new(front, FRONT.stroke_width(2)))
-            .map_err(perr)?
-            .label("Pareto front")
-            .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], FRONT.stroke_width(2)));
-        for (evaluated, colour, name) in [
-            (false, REPORTED, "reported (paper)"),
-            (true, EVALUATED, "evaluated here"),
-        ] {
-            chart
-                .draw_series(
-                    points
-                        .iter()
-                        .filter(|p| {
-                            p.evaluated == evaluated
-                                && p.success.is_finite()
-                                && p.entropy.is_finite()
-                        })
-                        .map(|p| Circle::new((p.entropy, p.success), 5, colour.filled())),
-                )
-                .map_err(perr)?
-                .label(name)
-                .legend(move |(x, y)| Circle::new((x + 8, y), 5, colour.filled()));
-        }
-        chart
-            .draw_series(
-                points
-                    .iter()
-                    .filter(|p| p.success.is_finite() && p.entropy.is_finite())
-                    .map(|p| {
-                        Text::new(
-                            p.label.clone(),
-                            (p.entropy + 0.012, p.success + 0.012),
-                            ("sans-serif", 11).into_font().color(&RGBColor(60, 60, 60)),
-                        )
-                    }),
-            )
-            .map_err(perr)?;
-        chart
-            .configure_series_labels()
-            .position(SeriesLabelPosition::LowerRight)
-            .background_style(WHITE.mix(0.85))
-            .border_style(RGBColor(200, 200, 200))
-            .draw()
-            .map_err(perr)?;
-        root.present().map_err(perr)?;
+        let root = SVGBackend::with_string(&mut buf, (width, height)).into_drawing_area();
+        root.fill(&WHITE).map_err(pe)?;
+        let (plot, _) = root.split_horizontally(plot_w);
+        let (plot, _) = plot.split_vertically(plot_h);
+        let plot = plot
+            .titled(title, ("sans-serif", 18).into_font())
+            .map_err(pe)?;
+        let points: Vec<PlanePoint> = points
+            .iter()
+            .map(|p| PlanePoint {
+                // As in the legend: an evaluated row never reads as the paper's.
+                label: if p.evaluated {
+                    format!("{} (evaluated)", p.label)
+                } else {
+                    p.label.clone()
+                },
+                method: p.method.clone(),
+                evaluated: p.evaluated,
+                entropy: p.entropy,
+                success: p.success,
+            })
+            .collect();
+        pareto_panel(&plot, &mut ov, "", &points, true)?;
+        legend(&mut ov, (legend_x, 40.0), None, &entries);
+        root.present().map_err(pe)?;
     }
-    Ok(buf)
+    Ok(ov.splice(buf))
 }
 
 /// One method's values at each training-data fraction.
 #[derive(Debug, Clone)]
 pub struct FractionSeries {
     pub label: String,
+    /// Decides the colour ([`crate::plot::method_colour`]).
+    pub method: String,
+    pub evaluated: bool,
     /// (fraction, success, entropy)
-    pub points: Vec<(f64, f64, f64)>,
+    pub points: Vec<(f64, Est, Est)>,
 }
 
 /// The paper's data-size figure: success (left) and entropy (right) vs the
-/// fraction of training data, one line per method.
+/// fraction of training data, one line per method, legend on the right.
 pub fn data_fraction_svg(title: &str, series: &[FractionSeries]) -> Result<String, TablesError> {
+    let entries: Vec<LegendEntry> = series
+        .iter()
+        .map(|s| LegendEntry {
+            label: s.label.clone(),
+            colour: crate::plot::method_colour(&s.method),
+            shape: Some(shape(s.evaluated)),
+            line: Some(s.evaluated),
+        })
+        .collect();
+    let (panel_w, plot_h) = (460u32, 420u32);
+    let (width, height, legend_x) = with_legend((2 * panel_w, plot_h), None, &entries);
+    let mut ov = Overlay::default();
     let mut buf = String::new();
     {
-        let root = SVGBackend::with_string(&mut buf, (960, 420)).into_drawing_area();
-        root.fill(&WHITE).map_err(perr)?;
-        let root = root.titled(title, ("sans-serif", 20)).map_err(perr)?;
-        let (left, right) = root.split_horizontally(480);
+        let root = SVGBackend::with_string(&mut buf, (width, height)).into_drawing_area();
+        root.fill(&WHITE).map_err(pe)?;
+        let (plots, _) = root.split_horizontally(2 * panel_w);
+        let (plots, _) = plots.split_vertically(plot_h);
+        let plots = plots
+            .titled(title, ("sans-serif", 18).into_font())
+            .map_err(pe)?;
+        let (left, right) = plots.split_horizontally(panel_w);
         for (area, which, ylab) in [(left, 0, "Success rate"), (right, 1, "Conditional entropy")] {
-            let mut chart = ChartBuilder::on(&area)
-                .margin(10)
-                .x_label_area_size(40)
-                .y_label_area_size(50)
-                .build_cartesian_2d(0f64..1.02f64, 0f64..1.02f64)
-                .map_err(perr)?;
-            chart
-                .configure_mesh()
-                .x_desc("Fraction of training data")
-                .y_desc(ylab)
-                .light_line_style(RGBColor(235, 235, 235))
-                .draw()
-                .map_err(perr)?;
-            for (i, s) in series.iter().enumerate() {
-                let colour = Palette99::pick(i).to_rgba();
-                let pts: Vec<(f64, f64)> = s
-                    .points
-                    .iter()
-                    .map(|&(f, su, en)| (f, if which == 0 { su } else { en }))
-                    .filter(|p| p.1.is_finite())
-                    .collect();
-                let drawn = chart
-                    .draw_series(LineSeries::new(pts.clone(), colour.stroke_width(2)))
-                    .map_err(perr)?;
-                if which == 0 {
-                    drawn.label(s.label.clone()).legend(move |(x, y)| {
-                        PathElement::new(vec![(x, y), (x + 16, y)], colour.stroke_width(2))
-                    });
-                }
-                chart
-                    .draw_series(pts.into_iter().map(|p| Circle::new(p, 3, colour.filled())))
-                    .map_err(perr)?;
-            }
-            if which == 0 && !series.is_empty() {
-                chart
-                    .configure_series_labels()
-                    .position(SeriesLabelPosition::LowerRight)
-                    .background_style(WHITE.mix(0.85))
-                    .border_style(RGBColor(200, 200, 200))
-                    .draw()
-                    .map_err(perr)?;
-            }
+            let lines: Vec<FractionLine> = series
+                .iter()
+                .map(|s| FractionLine {
+                    method: s.method.clone(),
+                    evaluated: s.evaluated,
+                    points: s
+                        .points
+                        .iter()
+                        .map(|&(f, su, en)| (f, if which == 0 { su } else { en }))
+                        .collect(),
+                })
+                .collect();
+            fraction_panel(&area, &mut ov, "", ylab, &lines)?;
         }
-        root.present().map_err(perr)?;
+        if !entries.is_empty() {
+            legend(&mut ov, (legend_x, 40.0), None, &entries);
+        }
+        root.present().map_err(pe)?;
     }
-    Ok(buf)
+    Ok(ov.splice(buf))
 }
 
-/// Compact label of a behaviour code (`[1,0,2]` -> `1-0-2`).
-pub fn behaviour_label(v: &serde_json::Value) -> String {
-    match v {
-        serde_json::Value::Array(a) => a.iter().map(behaviour_label).collect::<Vec<_>>().join("-"),
-        serde_json::Value::String(s) => s.clone(),
-        serde_json::Value::Null => "none".into(),
-        other => other.to_string(),
-    }
+/// Readable label of a stored behaviour value for a task
+/// ([`d3il_protocol::behaviour_name`]: Avoiding corridors, Sorting colour
+/// orders like "RB", Stacking letters like "rgb", integer modes otherwise).
+pub fn behaviour_label(task: TaskId, v: &serde_json::Value) -> String {
+    d3il_protocol::behaviour_name(task, v)
 }
 
-/// Bar chart of how often each behaviour occurred among successful rollouts.
+/// Horizontal bars: how often each behaviour occurred among successful
+/// rollouts, names on the left, integer counts at the bar ends.
 pub fn behaviour_bars_svg(title: &str, counts: &[(String, usize)]) -> Result<String, TablesError> {
-    let n = counts.len().max(1);
+    const ROW: f64 = 22.0;
+    const FONT: f64 = 12.0;
+    let name_w = counts
+        .iter()
+        .map(|(n, _)| text_width(n, FONT))
+        .fold(60.0, f64::max)
+        + 16.0;
     let top = counts.iter().map(|c| c.1).max().unwrap_or(1).max(1) as f64;
+    let width = 720u32.max(name_w as u32 + 360);
+    let height = (110.0 + ROW * counts.len().max(1) as f64) as u32;
+    let mut ov = Overlay::default();
     let mut buf = String::new();
     {
-        let root = SVGBackend::with_string(&mut buf, (720, 360)).into_drawing_area();
-        root.fill(&WHITE).map_err(perr)?;
+        let root = SVGBackend::with_string(&mut buf, (width, height)).into_drawing_area();
+        root.fill(&WHITE).map_err(pe)?;
+        let root = root
+            .titled(title, ("sans-serif", 18).into_font())
+            .map_err(pe)?;
+        // Room for the count printed after the longest bar.
+        let x_max = top * 1.12 + 1.0;
+        let int_tick = |v: &f64| {
+            if (v - v.round()).abs() < 1e-9 {
+                format!("{}", v.round() as i64)
+            } else {
+                String::new()
+            }
+        };
         let mut chart = ChartBuilder::on(&root)
-            .caption(title, ("sans-serif", 20))
             .margin(12)
-            .x_label_area_size(60)
-            .y_label_area_size(50)
-            .build_cartesian_2d(0f64..n as f64, 0f64..top * 1.1)
-            .map_err(perr)?;
-        let labels: Vec<String> = counts.iter().map(|c| c.0.clone()).collect();
+            .x_label_area_size(40)
+            .y_label_area_size(name_w as u32)
+            .build_cartesian_2d(0f64..x_max, 0f64..counts.len().max(1) as f64)
+            .map_err(pe)?;
         chart
             .configure_mesh()
-            .disable_x_mesh()
-            .x_labels(n.min(30))
-            .x_label_formatter(&|x| {
-                let i = x.floor() as usize;
-                labels.get(i).cloned().unwrap_or_default()
-            })
-            .x_desc("Behaviour")
-            .y_desc("Successful rollouts")
+            .disable_y_mesh()
+            .y_labels(0)
+            .x_labels(((top as usize) + 1).min(8))
+            .x_label_formatter(&int_tick)
+            .x_desc("Successful rollouts")
+            .label_style(("sans-serif", 14).into_font())
+            .axis_desc_style(("sans-serif", 15).into_font())
+            .light_line_style(TRANSPARENT)
+            .bold_line_style(RGBColor(225, 225, 225))
             .draw()
-            .map_err(perr)?;
-        chart
-            .draw_series(counts.iter().enumerate().map(|(i, (_, c))| {
-                Rectangle::new(
-                    [(i as f64 + 0.15, 0.0), (i as f64 + 0.85, *c as f64)],
-                    EVALUATED.filled(),
-                )
-            }))
-            .map_err(perr)?;
-        root.present().map_err(perr)?;
+            .map_err(pe)?;
+        let colour = crate::plot::PAPER_COLOURS[3];
+        for (i, (name, c)) in counts.iter().enumerate() {
+            // Most frequent on top.
+            let y_hi = counts.len() as f64 - i as f64;
+            let (x0, y0) = chart.backend_coord(&(0.0, y_hi - 0.15));
+            let (x1, y1) = chart.backend_coord(&(*c as f64, y_hi - 0.85));
+            ov.rect(
+                "points",
+                crate::plot::Rect::new(x0 as f64, y0 as f64, x1 as f64, y1 as f64),
+                &hex(colour),
+                "none",
+            );
+            let mid = (y0 + y1) as f64 / 2.0;
+            ov.text(
+                "labels",
+                (x0 as f64 - 8.0 - text_width(name, FONT), mid - FONT / 2.0),
+                FONT,
+                name,
+            );
+            ov.text(
+                "labels",
+                (x1 as f64 + 4.0, mid - FONT / 2.0),
+                FONT,
+                &c.to_string(),
+            );
+        }
+        root.present().map_err(pe)?;
     }
-    Ok(buf)
+    Ok(ov.splice(buf))
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::figures::pareto_front;
 
     fn p(e: f64, s: f64) -> ParetoPoint {
         ParetoPoint {
             label: format!("{e}/{s}"),
-            entropy: e,
-            success: s,
+            method: "M".into(),
+            entropy: Est::new(e, 0.0, 1),
+            success: Est::new(s, 0.0, 1),
             evaluated: false,
         }
     }
@@ -242,7 +253,10 @@ mod tests {
             p(0.8, 0.2),
             p(f64::NAN, 1.0),
         ];
-        let xy: Vec<(f64, f64)> = pts.iter().map(|p| (p.entropy, p.success)).collect();
+        let xy: Vec<(f64, f64)> = pts
+            .iter()
+            .map(|p| (p.entropy.mean, p.success.mean))
+            .collect();
         // Points 0, 1 and 3; the one without an entropy is not on the front.
         assert_eq!(pareto_front(&xy), vec![(0.0, 0.9), (0.5, 0.8), (0.9, 0.3)]);
     }

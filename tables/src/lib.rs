@@ -20,6 +20,8 @@ mod latex;
 mod markdown;
 mod model;
 mod numfmt;
+mod panels;
+pub mod plot;
 
 use d3il_protocol::{ObsType, ResultCell, Source};
 use std::collections::BTreeMap;
@@ -30,6 +32,13 @@ pub use csv::write_csv;
 pub use figures::{render_avoiding_paths, render_figure, FigureKind};
 pub use model::{build_table, Block, Group, Metric, Row, TableModel, Value};
 pub use numfmt::{mean_std, three_decimals};
+
+/// The caption of a table model in plain (Unicode) text: what is shown, the
+/// protocol, the seeds and what the marks and bold mean (the same words the
+/// LaTeX and Markdown tables print; the web's main table shows it too).
+pub fn caption_text(model: &TableModel) -> String {
+    caption::caption(model, caption::Style::Plain)
+}
 
 /// Which of the paper's tables to regenerate.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]

@@ -1,8 +1,8 @@
 //! Shared by the tests/worker_*.rs tests: jobs for the real `d3il worker`,
 //! fixture copies and leftover checks.
-#![allow(dead_code)]
+#![allow(dead_code, unused_imports)] // each test file uses a subset
 
-use d3il_protocol::{Job, Limits, ObsType, PolicyManifest, PolicySource, ProtocolKind, TaskId};
+use d3il_protocol::{Job, Limits, PolicySource};
 use d3il_sandbox::{run_worker, Outcome, WorkerCommand, WorkerRun};
 use std::path::{Path, PathBuf};
 use std::time::Duration;
@@ -12,9 +12,7 @@ pub fn d3il() -> PathBuf {
     PathBuf::from(env!("CARGO_BIN_EXE_d3il"))
 }
 
-pub fn assets_dir() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("assets")
-}
+pub use d3il_test_support::{assets_dir, fixtures_dir};
 
 /// Per test binary: the TMPDIR and working directory every worker inherits
 /// (both must stay empty: the sandbox lets a worker write nowhere) and the
@@ -84,21 +82,7 @@ pub fn limits() -> Limits {
 pub fn avoiding_job(policy: PolicySource, limits: Limits) -> Job {
     Job {
         job_id: "worker-test".into(),
-        task: TaskId::Avoiding,
-        protocol: ProtocolKind::Quick,
-        policy,
-        manifest: PolicyManifest {
-            task: TaskId::Avoiding,
-            obs_type: ObsType::State,
-            history: 1,
-            horizon: 1,
-            execute: 1,
-            normalisation: None,
-            window: Default::default(),
-        },
-        seed: 1,
-        limits,
-        assets_dir: assets_dir().display().to_string(),
+        ..d3il_test_support::avoiding_job(policy, limits)
     }
 }
 
@@ -169,10 +153,6 @@ pub fn failure(r: &WorkerRun) -> &d3il_protocol::WorkerError {
 /// Live (not zombie) processes whose process group is `pgid`.
 pub fn group_members(pgid: i32) -> Vec<i32> {
     d3il_sandbox::live_group_members(pgid)
-}
-
-pub fn fixtures_dir() -> PathBuf {
-    assets_dir().join("fixtures")
 }
 
 /// Copy a fixture next to nothing else, as an uploaded submission would be (a

@@ -10,38 +10,9 @@ use crate::sim::Sim;
 use d3il_protocol::TaskId;
 use serde_json::{json, Value};
 
-// Layout constants, computed as the reference does (docs/original-d3il.md §10.2.1).
-const MID_X: f64 = 0.5;
-const OFFSET: f64 = 0.075;
-const FIRST_ROW_Y: f64 = -0.1;
-const ROW_SPACING: f64 = 0.18;
-
-fn row_y(k: f64) -> f64 {
-    FIRST_ROW_Y + k * ROW_SPACING
-}
-
-/// Obstacle (name, x, y, radius, half-length).
-fn obstacles() -> [(&'static str, f64, f64, f64, f64); 6] {
-    [
-        ("l1_obs", MID_X, row_y(0.0), 0.03, 0.07),
-        ("l2_top_obs", MID_X - OFFSET, row_y(1.0), 0.025, 0.1),
-        ("l2_bottom_obs", MID_X + OFFSET, row_y(1.0), 0.025, 0.1),
-        ("l3_top_obs", MID_X - 2.0 * OFFSET, row_y(2.0), 0.025, 0.1),
-        ("l3_mid_obs", MID_X, row_y(2.0), 0.025, 0.1),
-        (
-            "l3_bottom_obs",
-            MID_X + 2.0 * OFFSET,
-            row_y(2.0),
-            0.025,
-            0.1,
-        ),
-    ]
-}
-
-/// Finish line y (docs/original-d3il.md §10.2.1: −0.1 + 2.5·0.18 = 0.35).
-fn finish_y() -> f64 {
-    row_y(2.5)
-}
+// The field is named once, in the protocol crate (the figures draw the same
+// one; docs/original-d3il.md §10.2.1).
+use d3il_protocol::behaviour::avoiding::{finish_y, obstacles, row_y, MID_X, OFFSET};
 
 const CONTEXTS_V1: &[u8] = include_bytes!("../../../assets/contexts/avoiding-v1.json");
 pub const CONTEXTS_V1_SHA256: &str =
@@ -58,8 +29,13 @@ impl TaskDef for Avoiding {
     }
     fn scene(&self) -> SceneSpec {
         let mut s = SceneSpec::new(RobotVariant::Rod);
-        for (name, x, y, r, h) in obstacles() {
-            let mut p = Primitive::new(name, Shape::Cylinder, [x, y, 0.0], &[r, h]);
+        for o in obstacles() {
+            let mut p = Primitive::new(
+                o.name,
+                Shape::Cylinder,
+                [o.x, o.y, 0.0],
+                &[o.radius, o.half_length],
+            );
             p.rgba = [1.0, 0.0, 0.0, 1.0];
             p.is_static = true;
             s.primitives.push(p);
@@ -97,8 +73,8 @@ impl TaskDef for Avoiding {
     }
     fn new_logic(&self, model: &Model) -> Result<Box<dyn TaskLogic>, TaskError> {
         let mut obstacle_geoms = [0; 6];
-        for (i, (name, ..)) in obstacles().iter().enumerate() {
-            obstacle_geoms[i] = geom_id(model, &format!("{name}:geom"))?;
+        for (i, o) in obstacles().iter().enumerate() {
+            obstacle_geoms[i] = geom_id(model, &format!("{}:geom", o.name))?;
         }
         Ok(Box::new(AvoidingLogic {
             rod: geom_id(model, "rod:geom_rb0")?,

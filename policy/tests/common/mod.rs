@@ -1,12 +1,9 @@
 //! Shared helpers for the integration tests (included with `mod common;`).
-#![allow(dead_code)]
+#![allow(dead_code, unused_imports)] // each test file uses a subset
 
 use d3il_protocol::{PolicyManifest, TaskId, TaskSpec};
-use std::path::PathBuf;
 
-pub fn repo() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("..")
-}
+pub use d3il_test_support::repo_dir as repo;
 
 /// Dimensions from docs/original-d3il.md §10.5 (Avoiding 4/2, Aligning 20/3).
 pub fn spec(task: TaskId) -> TaskSpec {
@@ -27,12 +24,7 @@ pub fn spec(task: TaskId) -> TaskSpec {
 
 /// Bytes and manifest of a committed fixture in assets/fixtures.
 pub fn fixture(name: &str) -> (Vec<u8>, PolicyManifest) {
-    let dir = repo().join("assets/fixtures");
-    let bytes = std::fs::read(dir.join(format!("{name}.onnx")))
+    let bytes = std::fs::read(d3il_test_support::fixtures_dir().join(format!("{name}.onnx")))
         .unwrap_or_else(|e| panic!("fixture {name}.onnx: {e} (run scripts/make_fixtures.py)"));
-    let man: PolicyManifest = serde_json::from_slice(
-        &std::fs::read(dir.join(format!("{name}.json"))).expect("fixture manifest"),
-    )
-    .expect("manifest parses");
-    (bytes, man)
+    (bytes, d3il_test_support::fixture_manifest(name))
 }

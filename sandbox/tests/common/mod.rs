@@ -1,15 +1,13 @@
 //! Helpers shared by the sandbox's integration tests: jobs for the self-test
 //! child, and a /proc scan for processes left in a worker's process group.
-#![allow(dead_code)]
+#![allow(dead_code, unused_imports)] // each test file uses a subset
 
-use d3il_protocol::{Job, Limits, ObsType, PolicyManifest, PolicySource, TaskId};
+use d3il_protocol::{Job, Limits, PolicySource};
 use d3il_sandbox::{run_worker, Outcome, WorkerCommand, WorkerRun};
 use std::path::PathBuf;
 use std::time::Duration;
 
-pub fn assets_dir() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../assets")
-}
+pub use d3il_test_support::assets_dir;
 
 pub fn limits() -> Limits {
     Limits {
@@ -28,21 +26,9 @@ pub fn limits() -> Limits {
 pub fn job(policy: PolicySource, limits: Limits) -> Job {
     Job {
         job_id: "selftest".into(),
-        task: TaskId::Avoiding,
         protocol: Default::default(),
-        policy,
-        manifest: PolicyManifest {
-            task: TaskId::Avoiding,
-            obs_type: ObsType::State,
-            history: 1,
-            horizon: 1,
-            execute: 1,
-            normalisation: None,
-            window: Default::default(),
-        },
         seed: 7,
-        limits,
-        assets_dir: assets_dir().display().to_string(),
+        ..d3il_test_support::avoiding_job(policy, limits)
     }
 }
 

@@ -85,9 +85,9 @@ async fn behaviours(
     State(state): State<AppState>,
     Param(id): Param<i64>,
 ) -> Result<Response, AppError> {
-    state.store.submission(id).await?;
+    let s = state.store.submission(id).await?;
     let rollouts = state.store.rollouts_for(id).await?;
-    let counts = behaviour_counts(rollouts.iter().map(|r| (r.success, &r.behaviour.0)));
+    let counts = behaviour_counts(s.task, rollouts.iter().map(|r| (r.success, &r.behaviour.0)));
     svg(board::behaviour_bars_svg(
         &format!("Submission {id}: behaviours"),
         &counts,

@@ -4,7 +4,8 @@
 use super::submissions::SubmissionRow;
 use super::types::{JobState, SubmissionStatus};
 use super::{now, to_json, Store, StoreError};
-use d3il_protocol::{EvalResult, SandboxMechanism, WorkerError};
+use crate::leaderboard::protocol_str;
+use d3il_protocol::{EvalResult, ProtocolKind, SandboxMechanism, WorkerError};
 use sqlx::types::Json;
 use sqlx::FromRow;
 
@@ -82,6 +83,18 @@ impl Store {
         owner: &str,
         lease: i64,
     ) -> Result<Option<ClaimedJob>, StoreError> {
+        self.claim_job_of(owner, lease, None).await
+    }
+
+    /// [`Store::claim_job`] restricted to jobs of one protocol (`None`: any):
+    /// the pool's quick slot claims only quick-protocol jobs, so a smoke test
+    /// never waits behind paper runs.
+    pub async fn claim_job_of(
+        &self,
+        owner: &str,
+        lease: i64,
+        only: Option<ProtocolKind>,
+    ) -> Result<Option<ClaimedJob>, StoreError> {
         loop {
             let t = now();
             // IMMEDIATE: a deferred transaction that reads and then writes
@@ -90,10 +103,13 @@ impl Store {
             // it wait like every other writer.
             let mut tx = self.pool.begin_with("BEGIN IMMEDIATE").await?;
             let job: Option<JobRow> = sqlx::query_as(
-                "SELECT * FROM jobs WHERE state = 'queued' OR (state = 'leased' AND lease_expires_at < ?) \
+                "SELECT * FROM jobs WHERE (state = 'queued' OR (state = 'leased' AND lease_expires_at < ?)) \
+                 AND (? IS NULL OR submission_id IN (SELECT id FROM submissions WHERE protocol = ?)) \
                  ORDER BY id LIMIT 1",
             )
             .bind(t)
+            .bind(only.map(protocol_str))
+            .bind(only.map(protocol_str))
             .fetch_optional(&mut *tx)
             .await?;
             let Some(job) = job else { return Ok(None) };
@@ -316,13 +332,29 @@ impl Store {
         ))
     }
 
-    /// Mean wall time of the last 20 finished jobs, seconds.
-    pub async fn mean_job_seconds(&self) -> Result<Option<f64>, StoreError> {
-        Ok(sqlx::query_scalar(
-            "SELECT AVG(finished_at - started_at) FROM (SELECT finished_at, started_at FROM jobs \
-             WHERE state = 'done' AND started_at IS NOT NULL ORDER BY finished_at DESC LIMIT 20)",
+    /// Mean wall time, in seconds, of the last 20 finished jobs of each
+    /// (task slug, protocol) pair: the basis of ETAs (a Stacking paper run and
+    /// an Aligning smoke test take very different times).
+    pub async fn mean_job_seconds_by_kind(&self) -> Result<Vec<(String, String, f64)>, StoreError> {
+        Ok(sqlx::query_as(
+            "SELECT task, protocol, AVG(d) FROM (SELECT s.task AS task, s.protocol AS protocol, \
+             CAST(j.finished_at - j.started_at AS REAL) AS d, ROW_NUMBER() OVER (PARTITION BY s.task, s.protocol \
+             ORDER BY j.finished_at DESC) AS n FROM jobs j JOIN submissions s ON s.id = j.submission_id \
+             WHERE j.state = 'done' AND j.started_at IS NOT NULL AND j.finished_at IS NOT NULL) \
+             WHERE n <= 20 GROUP BY task, protocol",
         )
-        .fetch_one(&self.pool)
+        .fetch_all(&self.pool)
+        .await?)
+    }
+
+    /// (task slug, protocol) of the queued jobs ahead of `job_id`, oldest first.
+    pub async fn queued_ahead(&self, job_id: i64) -> Result<Vec<(String, String)>, StoreError> {
+        Ok(sqlx::query_as(
+            "SELECT s.task, s.protocol FROM jobs j JOIN submissions s ON s.id = j.submission_id \
+             WHERE j.state = 'queued' AND j.id < ? ORDER BY j.id",
+        )
+        .bind(job_id)
+        .fetch_all(&self.pool)
         .await?)
     }
 

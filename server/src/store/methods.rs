@@ -44,6 +44,31 @@ impl Store {
         .await?)
     }
 
+    /// History and action chunking of every registered method, for the
+    /// paper's tables (`d3il tables` and the home page; the paper's own
+    /// methods use the paper's properties inside d3il-tables). The free-text
+    /// `prediction` counts as action chunking when it mentions a chunk; a
+    /// method without a history is treated as history-free.
+    pub async fn method_infos(
+        &self,
+    ) -> Result<std::collections::BTreeMap<String, d3il_tables::MethodInfo>, StoreError> {
+        Ok(self
+            .methods()
+            .await?
+            .into_iter()
+            .map(|m| {
+                let info = d3il_tables::MethodInfo {
+                    history: m.history.and_then(|h| u32::try_from(h).ok()).unwrap_or(1),
+                    action_chunking: m
+                        .prediction
+                        .as_deref()
+                        .is_some_and(|p| p.to_ascii_lowercase().contains("chunk")),
+                };
+                (m.name, info)
+            })
+            .collect())
+    }
+
     pub async fn method_by_name(&self, name: &str) -> Result<Option<MethodRow>, StoreError> {
         Ok(sqlx::query_as(
             "SELECT id, name, history, backbone, prediction, diversity, code_url, paper_url, description, \

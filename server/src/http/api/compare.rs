@@ -2,11 +2,11 @@
 //! two evaluated submissions on the same task, protocol and initial states
 //! (`d3il_metrics::compare`, the same as `d3il compare a.json b.json`).
 
+use crate::comparison::{finished, paired};
 use crate::error::{AppError, ErrorBody};
 use crate::state::AppState;
 use axum::extract::{Query, State};
 use axum::Json;
-use d3il_metrics::Bootstrap;
 use d3il_protocol::Comparison;
 use serde::Deserialize;
 use utoipa::IntoParams;
@@ -40,7 +40,7 @@ fn id(field: &str, v: Option<&str>) -> Result<i64, AppError> {
     params(CompareQuery),
     responses(
         (status = 200, description = "Differences in success rate and conditional entropy with paired bootstrap intervals, p-values and minimum detectable differences", body = Object),
-        (status = 400, description = "Missing or malformed ids, or results that cannot be paired (different task, protocol or initial states)", body = ErrorBody),
+        (status = 400, description = "Missing or malformed ids, a submission that has not finished, or results that cannot be paired (different task, protocol or initial states)", body = ErrorBody),
         (status = 404, description = "No such submission or no result yet", body = ErrorBody)))]
 pub async fn compare(
     State(state): State<AppState>,
@@ -48,25 +48,7 @@ pub async fn compare(
 ) -> Result<Json<Comparison>, AppError> {
     let a = id("a", q.a.as_deref())?;
     let b = id("b", q.b.as_deref())?;
-    let mut parts = vec![];
-    for (field, sid) in [("a", a), ("b", b)] {
-        state.store.submission(sid).await?;
-        let r = state.store.result_for(sid).await?.ok_or_else(|| {
-            AppError::NotFound(format!(
-                "submission {sid} (`{field}`) has no results yet; poll /api/v1/submissions/{sid}"
-            ))
-        })?;
-        let m = r.manifest().ok_or_else(|| {
-            AppError::Internal(format!("submission {sid}: stored manifest does not parse"))
-        })?;
-        parts.push((m, r.per_context_json.0));
-    }
-    let cfg = Bootstrap {
-        resamples: 2000,
-        confidence: 0.95,
-        seed: 0,
-    };
-    d3il_metrics::compare_parts((&parts[0].0, &parts[0].1), (&parts[1].0, &parts[1].1), &cfg)
-        .map(Json)
-        .map_err(|e| AppError::invalid("b", e.to_string()))
+    let pa = finished(&state, "a", a).await?;
+    let pb = finished(&state, "b", b).await?;
+    paired(&pa, &pb).map(Json)
 }

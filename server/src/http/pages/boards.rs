@@ -1,7 +1,7 @@
 //! The home page, the leaderboards (main and data-fraction views, CSV) and
 //! the method pages.
 
-use super::format::{fmt_num, fmt_opt_ms, fmt_stat, fmt_stat_n, fmt_time, method_url};
+use super::format::{fmt_opt_ms, fmt_stat, fmt_stat_n, fmt_time, method_url};
 use super::render;
 use crate::error::{AppError, PageError};
 use crate::http::csv::{board_csv, csv_response};
@@ -61,85 +61,15 @@ fn row_view(rank: Option<usize>, r: &BoardRow) -> RowView {
     }
 }
 
-// ------------------------------------------------------------------------ home
-
-struct TaskCard {
-    slug: &'static str,
-    title: &'static str,
-    reported: usize,
-    evaluated: usize,
-    best: String,
-    has_image: bool,
-}
-
-struct SubmissionLine {
-    id: i64,
-    method: String,
-    method_url: String,
-    task: String,
-    obs: String,
-    status: String,
-    when: String,
-}
-
-#[derive(Template)]
-#[template(path = "home.html")]
-struct HomePage {
-    tasks: Vec<TaskCard>,
-    latest: Vec<SubmissionLine>,
-    queued: i64,
-    running: i64,
-}
-
-pub(super) async fn home(State(state): State<AppState>) -> Result<Html<String>, PageError> {
-    let rows = state.store.board_rows().await?;
-    let tasks = TaskId::ALL
-        .into_iter()
-        .map(|t| {
-            let mine: Vec<&BoardRow> = rows.iter().filter(|r| r.task == Some(t)).collect();
-            // "Best" ranks paper-protocol and reported rows only, not quick smoke runs.
-            let best = board_for(&rows, t, ObsType::State)
-                .into_iter()
-                .filter(|r| r.success.mean.is_finite())
-                .filter(|r| r.protocol != Some(ProtocolKind::Quick))
-                .max_by(|a, b| a.success.mean.total_cmp(&b.success.mean))
-                .map(|r| format!("{} ({})", r.method, fmt_num(r.success.mean)))
-                .unwrap_or_else(|| "—".into());
-            TaskCard {
-                slug: t.slug(),
-                title: t.title(),
-                reported: mine.iter().filter(|r| r.source == Source::Reported).count(),
-                evaluated: mine
-                    .iter()
-                    .filter(|r| r.source == Source::Evaluated)
-                    .count(),
-                best,
-                has_image: t.has_image_variant(),
-            }
-        })
-        .collect();
-    let latest = state
-        .store
-        .latest_submissions(10)
-        .await?
-        .into_iter()
-        .map(|s| SubmissionLine {
-            id: s.id,
-            method_url: method_url(&s.method),
-            method: s.method,
-            task: s.task.to_string(),
-            obs: s.obs_type.to_string(),
-            status: s.status.to_string(),
-            when: fmt_time(s.created_at),
-        })
-        .collect();
-    let (queued, running) = state.store.queue_counts().await?;
-    render(&HomePage {
-        tasks,
-        latest,
-        queued,
-        running,
-    })
+/// A submission in a short list (home page, method page).
+pub(super) struct SubmissionLine {
+    pub(super) id: i64,
+    pub(super) method: String,
+    pub(super) method_url: String,
+    pub(super) task: String,
+    pub(super) obs: String,
+    pub(super) status: String,
+    pub(super) when: String,
 }
 
 // ----------------------------------------------------------------- leaderboard
@@ -157,10 +87,10 @@ struct Header {
     arrow: &'static str,
 }
 
-struct Tab {
-    label: &'static str,
-    url: String,
-    active: bool,
+pub(super) struct Tab {
+    pub(super) label: &'static str,
+    pub(super) url: String,
+    pub(super) active: bool,
 }
 
 /// Rows ranked together ([`RankGroup`]): one table each.
@@ -195,9 +125,11 @@ struct LeaderboardPage {
     protocol_ours: bool,
     /// Sorting-2/4/6: the reference's own protocol differed from the paper's.
     sorting: bool,
+    /// Some row has submissions: show the "compare the two ticked" form.
+    selectable: bool,
 }
 
-fn obs_tabs(task: TaskId, obs: ObsType, base: &str) -> Vec<Tab> {
+pub(super) fn obs_tabs(task: TaskId, obs: ObsType, base: &str) -> Vec<Tab> {
     let mut tabs = vec![Tab {
         label: "State",
         url: format!("{base}?obs=state"),
@@ -296,7 +228,13 @@ pub(super) async fn leaderboard(
             }
         })
         .collect();
+    let selectable = sections
+        .iter()
+        .flat_map(|s| &s.groups)
+        .flat_map(|g| &g.rows)
+        .any(|r| !r.submissions.is_empty());
     render(&LeaderboardPage {
+        selectable,
         title: task.title(),
         slug: task.slug(),
         obs: obs.as_str(),

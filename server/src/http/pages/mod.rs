@@ -3,6 +3,7 @@
 //! generate ourselves (plotters escapes the text it draws).
 
 mod boards;
+mod compare;
 mod format;
 mod lists;
 mod site;
@@ -15,9 +16,10 @@ use axum::extract::DefaultBodyLimit;
 use axum::response::Html;
 use axum::routing::get;
 use axum::Router;
-use boards::{data_fraction, home, leaderboard, leaderboard_csv, method_page};
+use boards::{data_fraction, leaderboard, leaderboard_csv, method_page};
+use compare::compare_page;
 use lists::{methods_page, submissions_page};
-use site::{admin_page, api_docs, stylesheet, submit_form, submit_post};
+use site::{admin_page, api_docs, home, stylesheet, submit_form, submit_post};
 use submission::{submission_download, submission_page};
 
 pub fn router(max_upload: usize) -> Router<AppState> {
@@ -28,6 +30,7 @@ pub fn router(max_upload: usize) -> Router<AppState> {
         .route("/tasks/{task}/data-fraction", get(data_fraction))
         .route("/methods", get(methods_page))
         .route("/methods/{name}", get(method_page))
+        .route("/compare", get(compare_page))
         .route("/submissions", get(submissions_page))
         .route("/submissions/{id}", get(submission_page))
         .route("/submissions/{id}/json", get(submission_download))

@@ -1,17 +1,257 @@
-//! The submit form, the API docs page, the stylesheet and the operators'
-//! admin page.
+//! The home page (the paper's main table on the web), the submit form, the
+//! API docs page, the stylesheet and the operators' admin page.
 
-use super::format::fmt_time;
+use super::boards::{SubmissionLine, Tab};
+use super::format::{fmt_stat, fmt_time, method_url};
 use super::render;
 use crate::error::{AppError, PageError};
+use crate::http::extract::obs_query;
 use crate::intake;
+use crate::leaderboard::task_for_title;
 use crate::state::AppState;
 use askama::Template;
+use axum::extract::Query;
 use axum::extract::{Multipart, State};
 use axum::http::{header, HeaderMap, StatusCode};
 use axum::response::{Html, IntoResponse, Redirect, Response};
 use d3il_protocol::TaskId;
+use d3il_protocol::{ObsType, Source, Stat};
+use d3il_tables::{SourceFilter, TableKind, TablesError};
 use std::collections::HashMap;
+
+// ------------------------------------------------------------------------ home
+
+/// A task column of the main table, linking to its board.
+struct TaskHead {
+    title: String,
+    url: String,
+}
+
+struct MainCell {
+    text: String,
+    bold: bool,
+    url: String,
+}
+
+struct MainRow {
+    method: String,
+    method_url: String,
+    /// `reported` or `evaluated`.
+    source: &'static str,
+    /// † action chunking, ‡ history.
+    marks: String,
+    /// Control mode and initial-state set, when the row has them.
+    note: String,
+    cells: Vec<MainCell>,
+}
+
+/// Rows of one of the paper's groups (history-free, history-based, methods
+/// not in the paper), separated by a heading row.
+struct MainSection {
+    label: &'static str,
+    rows: Vec<MainRow>,
+}
+
+struct MainBlock {
+    tasks: Vec<TaskHead>,
+    sections: Vec<MainSection>,
+}
+
+struct TaskCard {
+    slug: &'static str,
+    title: &'static str,
+    has_image: bool,
+}
+
+#[derive(Template)]
+#[template(path = "home.html")]
+struct HomePage {
+    obs: &'static str,
+    tabs: Vec<Tab>,
+    blocks: Vec<MainBlock>,
+    caption: String,
+    any_evaluated: bool,
+    tasks: Vec<TaskCard>,
+    latest: Vec<SubmissionLine>,
+    queued: i64,
+    running: i64,
+}
+
+#[derive(Debug, serde::Deserialize, Default)]
+pub(super) struct HomeQuery {
+    obs: Option<String>,
+}
+
+fn section_label(section: u8) -> &'static str {
+    match section {
+        0 => "History-free methods (the paper's first group)",
+        1 => "History-based methods ‡ (the paper's second group)",
+        _ => "Methods not in the paper",
+    }
+}
+
+/// The paper's main table (`d3il_tables::build_table`, the same model as
+/// `d3il tables --table main`) as page rows: reported and evaluated rows of a
+/// method next to each other, every cell linking to its task's board.
+fn main_blocks(model: &d3il_tables::TableModel, obs: ObsType) -> Vec<MainBlock> {
+    model
+        .blocks
+        .iter()
+        .map(|b| {
+            let urls: Vec<String> = b
+                .groups
+                .iter()
+                .map(|g| match task_for_title(&g.task) {
+                    Some(t) => format!("/tasks/{}?obs={obs}", t.slug()),
+                    None => String::new(),
+                })
+                .collect();
+            let mut sections: Vec<MainSection> = vec![];
+            for r in &b.rows {
+                let mut marks = String::new();
+                if r.dagger() {
+                    marks.push('†');
+                }
+                if r.ddagger() {
+                    marks.push('‡');
+                }
+                let mut note: Vec<String> = vec![];
+                if let Some(c) = &r.control {
+                    note.push(c.clone());
+                }
+                if let Some(s) = &r.initial_states {
+                    note.push(format!("initial states: {s}"));
+                }
+                let cells = r
+                    .values
+                    .iter()
+                    .zip(&urls)
+                    .flat_map(|(vs, url)| {
+                        vs.iter().map(move |v| match v {
+                            Some(v) => MainCell {
+                                text: fmt_stat(
+                                    Stat {
+                                        mean: v.mean,
+                                        std: v.std,
+                                    },
+                                    v.n_seeds,
+                                ),
+                                bold: v.bold,
+                                url: url.clone(),
+                            },
+                            None => MainCell {
+                                text: "–".into(),
+                                bold: false,
+                                url: String::new(),
+                            },
+                        })
+                    })
+                    .collect();
+                let row = MainRow {
+                    method: r.method.clone(),
+                    method_url: method_url(&r.method),
+                    source: match r.source {
+                        Source::Reported => "reported",
+                        Source::Evaluated => "evaluated",
+                    },
+                    marks,
+                    note: note.join(", "),
+                    cells,
+                };
+                let label = section_label(r.section());
+                match sections.last_mut() {
+                    Some(s) if s.label == label => s.rows.push(row),
+                    _ => sections.push(MainSection {
+                        label,
+                        rows: vec![row],
+                    }),
+                }
+            }
+            MainBlock {
+                tasks: b
+                    .groups
+                    .iter()
+                    .zip(urls)
+                    .map(|(g, url)| TaskHead {
+                        title: g.task.clone(),
+                        url,
+                    })
+                    .collect(),
+                sections,
+            }
+        })
+        .collect()
+}
+
+/// `/`: the paper's main table (methods × tasks, success rate and
+/// conditional entropy) with our evaluated rows next to the reported ones,
+/// state/image tabs (`?obs=`), then the tasks and the latest submissions.
+pub(super) async fn home(
+    State(state): State<AppState>,
+    Query(q): Query<HomeQuery>,
+) -> Result<Html<String>, PageError> {
+    let obs = obs_query(q.obs.as_deref())?;
+    let cells = state.store.result_cells().await?;
+    let infos = state.store.method_infos().await?;
+    let (blocks, caption, any_evaluated) =
+        match d3il_tables::build_table(&cells, TableKind::Main, obs, SourceFilter::Both, &infos) {
+            Ok(model) => (
+                main_blocks(&model, obs),
+                d3il_tables::caption_text(&model),
+                !model.facts.evaluated_seeds.is_empty(),
+            ),
+            Err(TablesError::NoCells { .. }) => (vec![], String::new(), false),
+            Err(e) => return Err(AppError::Internal(e.to_string()).into()),
+        };
+    let tabs = [ObsType::State, ObsType::Image]
+        .into_iter()
+        .map(|o| Tab {
+            label: match o {
+                ObsType::State => "State",
+                ObsType::Image => "Image",
+            },
+            url: format!("/?obs={o}"),
+            active: o == obs,
+        })
+        .collect();
+    let tasks = TaskId::ALL
+        .into_iter()
+        .map(|t| TaskCard {
+            slug: t.slug(),
+            title: t.title(),
+            has_image: t.has_image_variant(),
+        })
+        .collect();
+    let latest = state
+        .store
+        .latest_submissions(10)
+        .await?
+        .into_iter()
+        .map(|s| SubmissionLine {
+            id: s.id,
+            method_url: method_url(&s.method),
+            method: s.method,
+            task: s.task.to_string(),
+            obs: s.obs_type.to_string(),
+            status: s.status.to_string(),
+            when: fmt_time(s.created_at),
+        })
+        .collect();
+    let (queued, running) = state.store.queue_counts().await?;
+    render(&HomePage {
+        obs: obs.as_str(),
+        tabs,
+        blocks,
+        caption,
+        any_evaluated,
+        tasks,
+        latest,
+        queued,
+        running,
+    })
+}
+
+// ---------------------------------------------------------------- submit form
 
 #[derive(Template)]
 #[template(path = "submit.html")]

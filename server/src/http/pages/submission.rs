@@ -80,7 +80,7 @@ pub(super) async fn submission_page(
     let store = &state.store;
     let s = store.submission(id).await?;
     let job = store.job_for(id).await?;
-    let p = progress(&state, &job).await?;
+    let p = progress(&state, &job, s.task, s.protocol).await?;
     let result = store.result_for(id).await?;
     let mut metrics = vec![];
     let mut contexts = vec![];
@@ -187,7 +187,7 @@ pub(super) async fn submission_page(
         });
         let rollouts = store.rollouts_for(id).await?;
         unstable = Some((r.rollouts_ended_unstable, rollouts.len()));
-        let counts = behaviour_counts(rollouts.iter().map(|r| (r.success, &r.behaviour.0)));
+        let counts = behaviour_counts(s.task, rollouts.iter().map(|r| (r.success, &r.behaviour.0)));
         if !counts.is_empty() {
             behaviours_svg = Some(
                 figures::behaviour_bars_svg("Behaviours of successful rollouts", &counts)

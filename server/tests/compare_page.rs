@@ -1,0 +1,279 @@
+//! Issue 18: the `/compare` page over two finished submissions and the home
+//! page's main table with evaluated rows. Real server on 127.0.0.1 port 0,
+//! real SQLite; results are written through the store as a worker would.
+
+mod common;
+use common::*;
+use d3il_protocol::*;
+use serde_json::Value;
+
+/// A Pushing result on the original contexts (30 states × 16 rollouts) with
+/// state c succeeding in `k(c)` of its 16 rollouts; successful rollouts
+/// alternate between behaviours 0 and 1 (`ones` of them 1 per state).
+fn result(protocol: ProtocolKind, k: impl Fn(usize) -> usize, ones: usize) -> EvalResult {
+    let mut outcomes = vec![];
+    let mut rollouts = vec![];
+    for c in 0..30 {
+        for r in 0..16 {
+            let success = r < k(c);
+            let label = if r < ones { 1 } else { 0 };
+            outcomes.push(d3il_metrics::Outcome::new(
+                c,
+                success,
+                Some(&label.to_string()),
+            ));
+            rollouts.push(RolloutRecord {
+                context_index: c,
+                rollout_index: r,
+                success,
+                behaviour: serde_json::json!(label),
+                steps: 400,
+                path: None,
+                failure: None,
+            });
+        }
+    }
+    let ev = d3il_metrics::evaluate(
+        TaskId::Pushing,
+        &outcomes,
+        1.0,
+        &d3il_metrics::Bootstrap::default(),
+    )
+    .unwrap();
+    EvalResult {
+        manifest: ProtocolManifest {
+            task: TaskId::Pushing,
+            task_version: "v1".into(),
+            obs_type: ObsType::State,
+            protocol,
+            mjcf_sha256: "m".into(),
+            initial_states_sha256:
+                "16e158084f5a7940e3dac06b1d91a58a853b5a3fdc6b1a5783dccaa5d21b789f".into(),
+            initial_states: "pushing-v2.json".into(),
+            mujoco_version: "2.2.2".into(),
+            evaluator_version: "0".into(),
+            n_contexts: 30,
+            rollouts_per_context: 16,
+            max_steps: 400,
+            policy_sha256: "p".into(),
+            history: 1,
+            horizon: 1,
+            execute: 1,
+            seed: 0,
+        },
+        metrics: ev.metrics,
+        per_context: ev.per_context,
+        rollouts,
+        rollouts_ended_unstable: 0,
+    }
+}
+
+async fn submit(app: &TestApp, method: &str, task: &str, protocol: &str) -> i64 {
+    let m = manifest(task);
+    let r = app
+        .submit(
+            &[
+                ("method", method),
+                ("task", task),
+                ("training_seed", "0"),
+                ("protocol", protocol),
+                ("manifest", m.as_str()),
+            ],
+            Some(fake_onnx()),
+        )
+        .await;
+    assert_eq!(r.status(), 201);
+    r.json::<Value>().await.unwrap()["id"].as_i64().unwrap()
+}
+
+/// Completes the oldest queued job with `result`, as a worker would.
+async fn complete(app: &TestApp, result: &EvalResult) -> i64 {
+    let store = &app.state.store;
+    let claimed = store.claim_job("test", 60).await.unwrap().unwrap();
+    store
+        .complete_job(claimed.job.id, claimed.submission.id, result, &[])
+        .await
+        .unwrap();
+    claimed.submission.id
+}
+
+fn strip_svg(html: &str) -> String {
+    let mut out = String::new();
+    let mut rest = html;
+    while let Some(start) = rest.find("<svg") {
+        out.push_str(&rest[..start]);
+        out.push_str("[svg]");
+        match rest[start..].find("</svg>") {
+            Some(end) => rest = &rest[start + end + "</svg>".len()..],
+            None => {
+                rest = "";
+                break;
+            }
+        }
+    }
+    out.push_str(rest);
+    out
+}
+
+#[tokio::test]
+async fn compare_page_shows_paired_differences_contexts_and_behaviours() {
+    let app = spawn_app().await;
+    let a = submit(&app, "Alpha", "pushing", "paper").await;
+    let b = submit(&app, "Beta", "pushing", "paper").await;
+    assert_eq!(
+        complete(&app, &result(ProtocolKind::Paper, |_| 12, 6)).await,
+        a
+    );
+    assert_eq!(
+        complete(&app, &result(ProtocolKind::Paper, |c| c % 9, 2)).await,
+        b
+    );
+
+    let (s, page) = app.get_text(&format!("/compare?a={a}&b={b}")).await;
+    assert_eq!(s, 200, "{page}");
+    // The same numbers as the API (one computation).
+    let (_, api) = app.get_json(&format!("/api/v1/compare?a={a}&b={b}")).await;
+    let d = &api["success_rate"];
+    let diff = format!("+{:.3}", d["difference"]["value"].as_f64().unwrap());
+    assert!(page.contains(&diff), "difference {diff} on the page");
+    assert!(page.contains(&format!(
+        "[+{:.3}, +{:.3}]",
+        d["difference"]["ci_low"].as_f64().unwrap(),
+        d["difference"]["ci_high"].as_f64().unwrap()
+    )));
+    assert!(
+        page.contains("&#60; 0.001"),
+        "p-value of a clear difference: {page}"
+    );
+    // Thirty initial states side by side, and the behaviour counts of both.
+    let contexts = &page[page.find("id=\"contexts\"").unwrap()..];
+    assert_eq!(contexts.matches("<tr><td class=\"num\">").count(), 30);
+    assert!(contexts.contains("<td class=\"num\">0.750</td><td class=\"num\">0.000</td>"));
+    let beh = &page[page.find("id=\"behaviours\"").unwrap()..];
+    // A: 6 of 12 successes are behaviour 1 in each of 30 states.
+    assert!(
+        beh.contains("<td class=\"num\">180</td>"),
+        "{}",
+        &beh[..600]
+    );
+    assert!(page.contains("id=\"behaviours-a\"") && page.contains("id=\"behaviours-b\""));
+    insta::assert_snapshot!("compare_page", strip_svg(&page));
+
+    // Linked from the submission page.
+    let (_, sp) = app.get_text(&format!("/submissions/{a}")).await;
+    assert!(sp.contains(&format!("href=\"/compare?a={a}\"")), "{sp}");
+    // The leaderboard's row selection sends two `s`.
+    let (_, board) = app.get_text("/tasks/pushing").await;
+    assert!(board.contains(&format!(
+        "name=\"s\" value=\"{a}\" form=\"compare-selection\""
+    )));
+    assert!(board.contains("<form method=\"get\" action=\"/compare\" id=\"compare-selection\""));
+    let (_, reported_only) = app.get_text("/tasks/avoiding").await;
+    assert!(
+        !reported_only.contains("id=\"compare-selection\""),
+        "nothing to tick"
+    );
+    let (s, page2) = app.get_text(&format!("/compare?s={a}&s={b}")).await;
+    assert_eq!(s, 200);
+    assert!(page2.contains(&diff));
+
+    // Clear errors.
+    let (s, page) = app.get_text("/compare").await;
+    assert_eq!(s, 200, "the empty form");
+    assert!(page.contains("id=\"compare-form\"") && !page.contains("id=\"error-message\""));
+    let (s, page) = app.get_text(&format!("/compare?s={a}")).await;
+    assert_eq!(s, 400);
+    assert!(page.contains("select exactly two submissions to compare (you selected 1)"));
+    let (s, page) = app.get_text(&format!("/compare?a={a}")).await;
+    assert_eq!(s, 400);
+    assert!(page.contains("submission B is missing"));
+    let (s, page) = app.get_text(&format!("/compare?a={a}&b=x")).await;
+    assert_eq!(s, 400);
+    assert!(page.contains("`b` must be a submission id"));
+    let (s, page) = app.get_text(&format!("/compare?a={a}&b=99999")).await;
+    assert_eq!(s, 404, "{page}");
+    // Unfinished.
+    let q = submit(&app, "Gamma", "pushing", "paper").await;
+    let (s, page) = app.get_text(&format!("/compare?a={a}&b={q}")).await;
+    assert_eq!(s, 400);
+    assert!(
+        page.contains(&format!(
+            "submission {q} (`b`) is queued; only finished submissions can be compared"
+        )),
+        "{page}"
+    );
+    let (s, v) = app.get_json(&format!("/api/v1/compare?a={q}&b={a}")).await;
+    assert_eq!(s, 400, "{v}");
+    assert_eq!(v["error"]["field"], "a");
+    // Not comparable: a different initial-state set, a different task.
+    assert_eq!(
+        complete(&app, &{
+            let mut r = result(ProtocolKind::Paper, |_| 8, 0);
+            r.manifest.initial_states = "pushing-v1.json".into();
+            r.manifest.initial_states_sha256 = "932d".into();
+            r
+        })
+        .await,
+        q
+    );
+    let (s, page) = app.get_text(&format!("/compare?a={a}&b={q}")).await;
+    assert_eq!(s, 400);
+    assert!(page.contains("they differ in initial-state set"), "{page}");
+    let other = submit(&app, "Delta", "aligning", "paper").await;
+    let mut r = result(ProtocolKind::Paper, |_| 8, 0);
+    r.manifest.task = TaskId::Aligning;
+    assert_eq!(complete(&app, &r).await, other);
+    let (s, page) = app.get_text(&format!("/compare?a={a}&b={other}")).await;
+    assert_eq!(s, 400);
+    assert!(page.contains("they differ in task"), "{page}");
+}
+
+#[tokio::test]
+async fn home_page_shows_evaluated_rows_next_to_reported_ones_but_not_quick_runs() {
+    let app = spawn_app().await;
+    let a = submit(&app, "Alpha", "pushing", "paper").await;
+    let q = submit(&app, "QuickOnly", "pushing", "quick").await;
+    assert_eq!(
+        complete(&app, &result(ProtocolKind::Paper, |_| 16, 6)).await,
+        a
+    );
+    let mut quick = result(ProtocolKind::Quick, |_| 16, 0);
+    quick.manifest.protocol = ProtocolKind::Quick;
+    assert_eq!(complete(&app, &quick).await, q);
+
+    let (s, page) = app.get_text("/").await;
+    assert_eq!(s, 200);
+    let table = &page[page.find("<table class=\"board main-table\"").unwrap()..];
+    let table = &table[..table.find("</table>").unwrap()];
+    assert!(table.contains("Pushing (T3)"));
+    // The evaluated row is in the third group (not in the paper), labelled.
+    let alpha = &table[table.find(">Alpha</a>").expect("evaluated row")..];
+    assert!(alpha[..400].contains("evaluated here"), "{}", &alpha[..400]);
+    assert!(table.contains("Methods not in the paper"));
+    assert!(table.contains("<a href=\"/tasks/pushing?obs=state\">1.000</a>"));
+    assert!(
+        !table.contains("QuickOnly"),
+        "quick runs are not in the paper's table"
+    );
+    assert!(page.contains("Rows marked “evaluated here”"));
+    // 1.000 beats every history-free reported Pushing success (VAE-ACT's 0.951): bold.
+    assert!(
+        table.contains("<td class=\"num best\"><a href=\"/tasks/pushing?obs=state\">1.000</a>"),
+        "{table}"
+    );
+
+    // Image tab: the paper's image table; an unknown obs is a clear error.
+    let (s, page) = app.get_text("/?obs=image").await;
+    assert_eq!(s, 200);
+    assert!(page.contains("data-obs=\"image\""));
+    assert!(page.contains("for image observations (Table 3)"));
+    let table = &page[page.find("<table class=\"board main-table\"").unwrap()..];
+    let table = &table[..table.find("</table>").unwrap()];
+    assert!(table.contains("Aligning (T2)"));
+    assert!(
+        !table.contains("Pushing (T3)"),
+        "the image table has no Pushing"
+    );
+    let (s, page) = app.get_text("/?obs=depth").await;
+    assert_eq!(s, 400, "{page}");
+}

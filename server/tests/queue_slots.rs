@@ -1,0 +1,192 @@
+//! Issue 18: a quick smoke test has its own worker slot and never waits
+//! behind a paper run; ETAs come from past runs of the same task and
+//! protocol, or say there is no estimate (never "0 s"). Real server on
+//! 127.0.0.1 port 0, real SQLite, real worker processes (shell fixtures
+//! speaking the worker's JSON lines).
+
+mod common;
+use common::*;
+use d3il_protocol::*;
+use serde_json::Value;
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+fn script(dir: &Path, name: &str, body: &str) -> PathBuf {
+    let p = dir.join(name);
+    std::fs::write(&p, format!("#!/bin/sh\n{body}\n")).unwrap();
+    use std::os::unix::fs::PermissionsExt;
+    std::fs::set_permissions(&p, std::fs::Permissions::from_mode(0o755)).unwrap();
+    p
+}
+
+/// A small quick-protocol Aligning result as the worker prints it.
+fn result_line() -> String {
+    let outcomes: Vec<d3il_metrics::Outcome> = (0..6)
+        .map(|i| d3il_metrics::Outcome::new(i / 3, i % 2 == 0, Some("0")))
+        .collect();
+    let ev = d3il_metrics::evaluate(
+        TaskId::Aligning,
+        &outcomes,
+        1.0,
+        &d3il_metrics::Bootstrap::default(),
+    )
+    .unwrap();
+    let r = EvalResult {
+        manifest: ProtocolManifest {
+            task: TaskId::Aligning,
+            task_version: "fixture".into(),
+            obs_type: ObsType::State,
+            protocol: ProtocolKind::Quick,
+            mjcf_sha256: "a".repeat(64),
+            initial_states: "test-v1.json".into(),
+            initial_states_sha256: "b".repeat(64),
+            mujoco_version: "2.2.2".into(),
+            evaluator_version: "fixture".into(),
+            n_contexts: 2,
+            rollouts_per_context: 3,
+            max_steps: 100,
+            policy_sha256: "c".repeat(64),
+            history: 1,
+            horizon: 1,
+            execute: 1,
+            seed: 0,
+        },
+        metrics: ev.metrics,
+        per_context: ev.per_context,
+        rollouts: (0..6)
+            .map(|i| RolloutRecord {
+                context_index: i / 3,
+                rollout_index: i % 3,
+                success: i % 2 == 0,
+                behaviour: serde_json::json!(0),
+                steps: 40,
+                path: None,
+                failure: None,
+            })
+            .collect(),
+        rollouts_ended_unstable: 0,
+    };
+    serde_json::to_string(&WorkerMessage::Result(Box::new(r))).unwrap()
+}
+
+async fn submit(app: &TestApp, method: &str, task: &str, protocol: &str) -> i64 {
+    let m = manifest(task);
+    let r = app
+        .submit(
+            &[
+                ("method", method),
+                ("task", task),
+                ("training_seed", "0"),
+                ("protocol", protocol),
+                ("manifest", m.as_str()),
+            ],
+            Some(fake_onnx()),
+        )
+        .await;
+    assert_eq!(r.status(), 201);
+    r.json::<Value>().await.unwrap()["id"].as_i64().unwrap()
+}
+
+async fn status(app: &TestApp, id: i64) -> Value {
+    app.get_json(&format!("/api/v1/submissions/{id}")).await.1
+}
+
+#[tokio::test]
+async fn a_quick_job_runs_on_its_own_slot_while_paper_runs_hold_every_other_slot() {
+    let dir = tempfile::tempdir().unwrap();
+    let line = dir.path().join("result.jsonl");
+    std::fs::write(&line, result_line() + "\n").unwrap();
+    // Paper jobs hang (until the wall clock); quick jobs answer at once.
+    let worker = script(
+        dir.path(),
+        "worker.sh",
+        &format!(
+            "job=$(cat)\ncase \"$job\" in *'\"protocol\":\"paper\"'*) sleep 15 ;; esac\n\
+             echo '{{\"type\":\"sandbox\",\"mechanisms\":[]}}'\ncat '{}'",
+            line.display()
+        ),
+    );
+    let app = spawn_app_with(Options {
+        workers: 1,
+        worker_exe: Some(worker),
+        ..Default::default()
+    })
+    .await;
+    let p1 = submit(&app, "PaperOne", "aligning", "paper").await;
+    let p2 = submit(&app, "PaperTwo", "aligning", "paper").await;
+    let q = submit(&app, "Smoke", "aligning", "quick").await;
+    let mut done = None;
+    for _ in 0..300 {
+        let v = status(&app, q).await;
+        if v["status"] == "completed" || v["status"] == "failed" {
+            done = Some(v);
+            break;
+        }
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+    let v = done.expect("the quick job finished while a paper run held the only general slot");
+    assert_eq!(v["status"], "completed", "{v}");
+    // The paper runs: one running on the general slot, one still waiting.
+    let s1 = status(&app, p1).await;
+    let s2 = status(&app, p2).await;
+    assert_eq!(s1["status"], "running", "{s1}");
+    assert_eq!(s2["status"], "queued", "{s2}");
+    assert_eq!(s2["queue_position"], 0);
+}
+
+#[tokio::test]
+async fn etas_come_from_past_runs_of_the_same_task_and_protocol() {
+    let app = spawn_app().await; // no worker slots: jobs stay queued
+    let first = submit(&app, "First", "pushing", "paper").await;
+    // No past run: no estimate, on the API and the page (never "0 s").
+    let v = status(&app, first).await;
+    assert_eq!(v["eta_seconds"], Value::Null, "{v}");
+    let (_, page) = app.get_text(&format!("/submissions/{first}")).await;
+    assert!(page.contains("Estimated time to result: no estimate yet"));
+    assert!(page.contains("Waiting (position 1 in the queue, 0 ahead)"));
+    assert!(!page.contains("Attempt 0"));
+    // One finished Pushing paper run (it took under a second: counted as 1 s).
+    let store = &app.state.store;
+    let c = store.claim_job("test", 60).await.unwrap().unwrap();
+    assert_eq!(c.submission.id, first);
+    store
+        .fail_attempt(
+            c.job.id,
+            "test",
+            &WorkerError {
+                kind: ErrorKind::BadModel,
+                message: "x".into(),
+            },
+            false,
+        )
+        .await
+        .unwrap();
+    let means = store.mean_job_seconds_by_kind().await.unwrap();
+    assert!(means.is_empty(), "a failed job is no basis: {means:?}");
+    let second = submit(&app, "Second", "pushing", "paper").await;
+    let c = store.claim_job("test", 60).await.unwrap().unwrap();
+    assert_eq!(c.submission.id, second);
+    let WorkerMessage::Result(r) = serde_json::from_str(&result_line()).unwrap() else {
+        panic!("a result line")
+    };
+    store.complete_job(c.job.id, second, &r, &[]).await.unwrap();
+    let means = store.mean_job_seconds_by_kind().await.unwrap();
+    assert_eq!(
+        means,
+        vec![("pushing".to_string(), "paper".to_string(), 0.0)],
+        "{means:?}"
+    );
+    // Two queued Pushing paper jobs: 1 s each at the kind's mean; the second
+    // waits for the first.
+    let a = submit(&app, "Third", "pushing", "paper").await;
+    let b = submit(&app, "Fourth", "pushing", "paper").await;
+    assert_eq!(status(&app, a).await["eta_seconds"], 1);
+    assert_eq!(status(&app, b).await["eta_seconds"], 2);
+    let (_, page) = app.get_text(&format!("/submissions/{b}")).await;
+    assert!(page.contains("Estimated time to result: 2 s"), "{page}");
+    // Another task or protocol has no history yet: no estimate.
+    let other = submit(&app, "Fifth", "pushing", "quick").await;
+    assert_eq!(status(&app, other).await["eta_seconds"], Value::Null);
+    let other = submit(&app, "Sixth", "aligning", "paper").await;
+    assert_eq!(status(&app, other).await["eta_seconds"], Value::Null);
+}

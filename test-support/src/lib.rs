@@ -1,0 +1,204 @@
+//! Helpers the integration tests of several crates share (a dev-dependency
+//! only, never published): where the repository's assets, fixtures and
+//! reference rollouts are, the Avoiding job and manifest the worker tests run,
+//! limits for policies served on 127.0.0.1, a test PKI made with rcgen and a
+//! scratch directory removed on drop.
+//!
+//! Its dependencies stay minimal (protocol, serde_json, rcgen) so every crate
+//! of the workspace can dev-depend on it without a cycle.
+#![forbid(unsafe_code)]
+
+use d3il_protocol::{Job, Limits, ObsType, PolicyManifest, PolicySource, ProtocolKind, TaskId};
+use rcgen::{BasicConstraints, CertificateParams, DnType, IsCa, Issuer, KeyPair, KeyUsagePurpose};
+use serde_json::Value;
+use std::path::{Path, PathBuf};
+
+/// The repository's root directory (the workspace).
+pub fn repo_dir() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .parent()
+        .expect("test-support lives inside the repository")
+        .to_path_buf()
+}
+
+/// `assets/`: MJCF, meshes, context sets, fixtures.
+pub fn assets_dir() -> PathBuf {
+    repo_dir().join("assets")
+}
+
+/// `assets/fixtures/`: the committed ONNX fixtures (scripts/make_fixtures.py).
+pub fn fixtures_dir() -> PathBuf {
+    assets_dir().join("fixtures")
+}
+
+/// The manifest of fixture `stem` (`assets/fixtures/<stem>.json`).
+pub fn fixture_manifest(stem: &str) -> PolicyManifest {
+    let path = fixtures_dir().join(format!("{stem}.json"));
+    let text = std::fs::read_to_string(&path).unwrap_or_else(|e| {
+        panic!(
+            "fixture manifest {}: {e} (run scripts/make_fixtures.py)",
+            path.display()
+        )
+    });
+    serde_json::from_str(&text)
+        .unwrap_or_else(|e| panic!("fixture manifest {}: {e}", path.display()))
+}
+
+/// A reference rollout recorded in the original simulator, by its path under
+/// `tests/data/reference-rollouts/` (or under `$D3IL_REFERENCE_ROLLOUTS`).
+pub fn reference_rollout(rel: &str) -> Value {
+    let dir = std::env::var_os("D3IL_REFERENCE_ROLLOUTS")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| repo_dir().join("tests/data/reference-rollouts"));
+    let path = dir.join(rel);
+    let text = std::fs::read_to_string(&path).unwrap_or_else(|e| {
+        panic!(
+            "reference rollout {} not readable ({e}); set D3IL_REFERENCE_ROLLOUTS to the reference-rollouts directory",
+            path.display()
+        )
+    });
+    serde_json::from_str(&text)
+        .unwrap_or_else(|e| panic!("reference rollout {}: {e}", path.display()))
+}
+
+/// The smallest valid Avoiding manifest: state observations, one step of
+/// history, horizon and execution.
+pub fn avoiding_manifest() -> PolicyManifest {
+    PolicyManifest {
+        task: TaskId::Avoiding,
+        obs_type: ObsType::State,
+        history: 1,
+        horizon: 1,
+        execute: 1,
+        normalisation: None,
+        window: Default::default(),
+    }
+}
+
+/// An Avoiding job under the quick protocol (seed 1) with the repository's
+/// assets; tests change the fields they care about.
+pub fn avoiding_job(policy: PolicySource, limits: Limits) -> Job {
+    Job {
+        job_id: "test".into(),
+        task: TaskId::Avoiding,
+        protocol: ProtocolKind::Quick,
+        policy,
+        manifest: avoiding_manifest(),
+        seed: 1,
+        limits,
+        assets_dir: assets_dir().display().to_string(),
+    }
+}
+
+/// The default limits with private endpoints allowed (test policy servers
+/// listen on 127.0.0.1) and frames up to 1 MiB.
+pub fn loopback_limits() -> Limits {
+    Limits {
+        remote_frame_bytes: 1 << 20,
+        allow_private_endpoints: true,
+        ..Limits::default()
+    }
+}
+
+/// A fresh test CA and a server certificate for `names` it signed, written to
+/// a directory as `ca.pem`, `server.pem` and `server.key`.
+pub struct Pki {
+    pub ca_pem: String,
+    pub ca_file: PathBuf,
+    pub cert: PathBuf,
+    pub key: PathBuf,
+}
+
+impl Pki {
+    pub fn new(dir: &Path, names: &[&str]) -> Pki {
+        std::fs::create_dir_all(dir).expect("create the PKI directory");
+        let mut ca = CertificateParams::new(Vec::<String>::new()).expect("CA parameters");
+        ca.is_ca = IsCa::Ca(BasicConstraints::Unconstrained);
+        ca.distinguished_name
+            .push(DnType::CommonName, "D3IL test CA");
+        ca.key_usages = vec![KeyUsagePurpose::KeyCertSign, KeyUsagePurpose::CrlSign];
+        let ca_key = KeyPair::generate().expect("CA key");
+        let ca_pem = ca.self_signed(&ca_key).expect("self-signed CA").pem();
+        let issuer = Issuer::new(ca, ca_key);
+        let key = KeyPair::generate().expect("server key");
+        let mut leaf =
+            CertificateParams::new(names.iter().map(|s| s.to_string()).collect::<Vec<_>>())
+                .expect("server certificate parameters");
+        leaf.distinguished_name
+            .push(DnType::CommonName, "d3il test policy server");
+        let leaf = leaf
+            .signed_by(&key, &issuer)
+            .expect("signed server certificate");
+        let p = Pki {
+            ca_pem,
+            ca_file: dir.join("ca.pem"),
+            cert: dir.join("server.pem"),
+            key: dir.join("server.key"),
+        };
+        std::fs::write(&p.ca_file, &p.ca_pem).expect("write ca.pem");
+        std::fs::write(&p.cert, leaf.pem()).expect("write server.pem");
+        std::fs::write(&p.key, key.serialize_pem()).expect("write server.key");
+        p
+    }
+}
+
+/// A fresh directory under the system temp dir, removed on drop.
+pub struct TempDir(pub PathBuf);
+
+impl TempDir {
+    pub fn new(tag: &str) -> TempDir {
+        let nanos = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map(|d| d.as_nanos())
+            .unwrap_or(0);
+        let p = std::env::temp_dir().join(format!("d3il-{tag}-{}-{nanos}", std::process::id()));
+        std::fs::create_dir_all(&p).expect("create temp dir");
+        TempDir(p)
+    }
+    pub fn path(&self) -> &Path {
+        &self.0
+    }
+}
+
+impl Drop for TempDir {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.0);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn paths_point_into_the_repository() {
+        assert!(assets_dir().is_dir(), "{}", assets_dir().display());
+        assert!(fixtures_dir().is_dir(), "{}", fixtures_dir().display());
+        let r = reference_rollout("avoiding/route_top_top_top.json");
+        assert!(r["policy_actions"].is_array());
+    }
+
+    #[test]
+    fn avoiding_job_round_trips_and_its_manifest_is_valid_json() {
+        let job = avoiding_job(
+            PolicySource::Scripted { name: "x".into() },
+            loopback_limits(),
+        );
+        let back: Job = serde_json::from_str(&serde_json::to_string(&job).unwrap()).unwrap();
+        assert_eq!(back.manifest, avoiding_manifest());
+        assert!(back.limits.allow_private_endpoints);
+    }
+
+    #[test]
+    fn pki_writes_pem_files_and_temp_dir_is_removed() {
+        let t = TempDir::new("pki");
+        let p = Pki::new(t.path(), &["127.0.0.1"]);
+        for f in [&p.ca_file, &p.cert, &p.key] {
+            let text = std::fs::read_to_string(f).unwrap();
+            assert!(text.starts_with("-----BEGIN"), "{}", f.display());
+        }
+        let dir = t.path().to_path_buf();
+        drop(t);
+        assert!(!dir.exists());
+    }
+}

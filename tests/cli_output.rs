@@ -1,0 +1,175 @@
+//! Issue 18, the CLI: `d3il eval` prints the observation type, the protocol
+//! in lowercase and a behaviour histogram; scripted names are checked against
+//! the task with the task's own names listed; `d3il eval` and `d3il submit`
+//! find the manifest next to the .onnx the same way.
+
+use std::process::Command;
+
+const EXE: &str = env!("CARGO_BIN_EXE_d3il");
+
+fn fixture(name: &str) -> std::path::PathBuf {
+    std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("assets/fixtures")
+        .join(name)
+}
+
+#[test]
+fn eval_prints_observation_type_lowercase_protocol_and_behaviour_histogram() {
+    let dir = std::env::temp_dir().join(format!("d3il-cli-output-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let json = dir.join("r.json");
+    let out = Command::new(EXE)
+        .args([
+            "eval",
+            "--task",
+            "aligning",
+            "--protocol",
+            "quick",
+            "--policy",
+            "scripted:aligning:both",
+            "--json",
+        ])
+        .arg(&json)
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{stdout}\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(
+        stdout.starts_with(
+            "task aligning, state observations (3 x 2 rollouts, quick protocol, seed 0)"
+        ),
+        "{stdout}"
+    );
+    assert!(!stdout.contains("Quick"), "{stdout}");
+    // The histogram counts the successful rollouts by behaviour.
+    let r: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    let successes = r["rollouts"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|x| x["success"] == true)
+        .count();
+    assert!(successes > 0, "the scripted policy succeeds: {stdout}");
+    assert!(
+        stdout.contains(&format!(
+            "behaviours of the {successes} successful rollouts:"
+        )),
+        "{stdout}"
+    );
+    let hist: Vec<&str> = stdout
+        .lines()
+        .skip_while(|l| !l.starts_with("behaviours of the"))
+        .skip(1)
+        .take_while(|l| l.starts_with("  "))
+        .collect();
+    assert!(!hist.is_empty(), "{stdout}");
+    let counted: usize = hist
+        .iter()
+        .map(|l| {
+            let mut f = l.split_whitespace();
+            f.next();
+            f.next().unwrap().parse::<usize>().unwrap()
+        })
+        .sum();
+    assert_eq!(counted, successes, "{stdout}");
+    assert!(hist.iter().all(|l| l.trim_end().ends_with('#')), "{stdout}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn a_scripted_name_of_another_task_is_refused_with_the_tasks_own_names() {
+    let out = Command::new(EXE)
+        .args([
+            "eval",
+            "--task",
+            "avoiding",
+            "--protocol",
+            "quick",
+            "--policy",
+            "scripted:aligning:both",
+        ])
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        stderr.contains(
+            "unknown scripted policy `aligning:both` for task avoiding; the scripted policies of avoiding are: avoiding:path=<0..23>, avoiding:all-paths"
+        ),
+        "{stderr}"
+    );
+    assert!(!stderr.contains("aligning:inside"), "{stderr}");
+}
+
+#[test]
+fn eval_and_submit_find_the_manifest_next_to_the_onnx_file_the_same_way() {
+    let dir = std::env::temp_dir().join(format!("d3il-cli-manifest-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let onnx = dir.join("policy.onnx");
+    std::fs::copy(fixture("avoiding_path.onnx"), &onnx).unwrap();
+    let expect = format!(
+        "reading the policy manifest {} (put it next to the .onnx file with the same name, or pass --manifest",
+        dir.join("policy.json").display()
+    );
+    let eval = Command::new(EXE)
+        .args([
+            "eval",
+            "--task",
+            "avoiding",
+            "--protocol",
+            "quick",
+            "--policy",
+        ])
+        .arg(&onnx)
+        .output()
+        .unwrap();
+    assert!(!eval.status.success());
+    assert!(String::from_utf8_lossy(&eval.stderr).contains(&expect));
+    let submit = Command::new(EXE)
+        .args([
+            "submit",
+            "--server",
+            "http://127.0.0.1:9",
+            "--token",
+            "d3il_x",
+            "--method",
+            "M",
+            "--task",
+            "avoiding",
+            "--training-seed",
+            "0",
+            "--onnx",
+        ])
+        .arg(&onnx)
+        .output()
+        .unwrap();
+    assert!(!submit.status.success());
+    let stderr = String::from_utf8_lossy(&submit.stderr);
+    assert!(stderr.contains(&expect), "{stderr}");
+    // With the manifest next to the file, eval runs.
+    std::fs::copy(fixture("avoiding_path.json"), dir.join("policy.json")).unwrap();
+    let eval = Command::new(EXE)
+        .args([
+            "eval",
+            "--task",
+            "avoiding",
+            "--protocol",
+            "quick",
+            "--policy",
+        ])
+        .arg(&onnx)
+        .output()
+        .unwrap();
+    assert!(
+        eval.status.success(),
+        "{}",
+        String::from_utf8_lossy(&eval.stderr)
+    );
+    assert!(String::from_utf8_lossy(&eval.stdout).contains("task avoiding, state observations"));
+    std::fs::remove_dir_all(&dir).unwrap();
+}
