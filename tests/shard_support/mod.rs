@@ -1,6 +1,9 @@
 //! What the sharding tests share: the comparison of a merged result with
 //! a plain `d3il eval --json` result.
 
+// Each test binary that includes this module uses a part of it.
+#![allow(dead_code)]
+
 use d3il_protocol::EvalResult;
 use serde_json::Value;
 use std::path::Path;
