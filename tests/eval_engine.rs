@@ -28,6 +28,7 @@ fn onnx_job(name: &str, seed: u64) -> Job {
         seed,
         limits: Limits::default(),
         assets_dir: concat!(env!("CARGO_MANIFEST_DIR"), "/assets").into(),
+        dry_run_steps: None,
     }
 }
 
@@ -39,6 +40,7 @@ fn run(job: &Job) -> d3il_protocol::EvalResult {
         seed: job.seed,
         max_live: 5, // fewer slots than rollouts: exercises slot reuse
         bootstrap_resamples: 100,
+        step_cap: None,
     };
     evaluate(&task, policy.as_mut(), &info, &opts, &mut |_, _| {})
         .unwrap()
@@ -122,6 +124,7 @@ fn scripted_job(task: TaskId, name: &str) -> Job {
         seed: 0,
         limits: Limits::default(),
         assets_dir: concat!(env!("CARGO_MANIFEST_DIR"), "/assets").into(),
+        dry_run_steps: None,
     }
 }
 
@@ -348,6 +351,7 @@ fn run_recorded(job: &Job) -> (d3il_protocol::EvalResult, Vec<(u64, u64, Vec<f32
         seed: job.seed,
         max_live: 5,
         bootstrap_resamples: 100,
+        step_cap: None,
     };
     let r = evaluate(&task, &mut rec, &info, &opts, &mut |_, _| {})
         .unwrap()
@@ -411,4 +415,26 @@ fn a_rollout_is_queried_again_only_after_executing_e_actions() {
         assert_eq!(steps.len() as u64, n.div_ceil(3), "rollout {rollout}");
     }
     assert_eq!(r.manifest.execute, 3);
+}
+
+/// A submission-time dry run (`Job::dry_run_steps`) ends every rollout of the
+/// quick protocol after that many env steps, through the same engine.
+#[test]
+fn a_dry_run_cuts_every_rollout_after_its_step_budget() {
+    let job = Job {
+        dry_run_steps: Some(7),
+        ..scripted_job(TaskId::Aligning, "aligning:both")
+    };
+    let r = run_job(&job, &mut |_, _| {}).unwrap();
+    assert_eq!(r.rollouts.len(), 6);
+    for x in &r.rollouts {
+        assert_eq!(x.steps, 7, "{x:?}");
+        assert!(!x.success, "{x:?}");
+    }
+    let full = run_job(
+        &scripted_job(TaskId::Aligning, "aligning:both"),
+        &mut |_, _| {},
+    )
+    .unwrap();
+    assert!(full.rollouts.iter().all(|x| x.steps > 7));
 }

@@ -23,9 +23,17 @@ fn admin_page_lists_the_sandbox_mechanisms_the_worker_reports() {
         .join("assets")
         .canonicalize()
         .unwrap();
+    // The server below runs jobs with --cpu-seconds 777: its check confines
+    // with that limit too.
+    let limits = d3il_protocol::Limits {
+        cpu_seconds: 777,
+        ..Default::default()
+    };
     let out = Command::new(EXE)
         .args(["worker", "--check-sandbox", "--json", "--assets"])
         .arg(&assets)
+        .arg("--limits-json")
+        .arg(serde_json::to_string(&limits).unwrap())
         .stdin(Stdio::null())
         .output()
         .unwrap();
@@ -62,6 +70,12 @@ fn admin_page_lists_the_sandbox_mechanisms_the_worker_reports() {
         .and_then(|t| t.split("</table>").next())
         .unwrap_or_else(|| panic!("no sandbox table on the admin page:\n{page}"));
     let rows: Vec<&str> = table.split("<tr data-mechanism=").skip(1).collect();
+    // The rlimits row shows the configured CPU limit, not the default.
+    let rlimits = rows
+        .iter()
+        .find(|r| r.starts_with("\"rlimits\">"))
+        .expect("an rlimits row");
+    assert!(rlimits.contains("CPU 777 s"), "{rlimits}");
     assert_eq!(rows.len(), expected.len(), "{table}");
     for (m, row) in expected.iter().zip(&rows) {
         assert!(

@@ -81,6 +81,9 @@ pub struct EvalOptions {
     pub max_live: usize,
     /// Bootstrap resamples for the confidence intervals.
     pub bootstrap_resamples: usize,
+    /// Dry runs only: end every rollout after this many env steps
+    /// ([`d3il_protocol::Job::dry_run_steps`]).
+    pub step_cap: Option<usize>,
 }
 
 impl Default for EvalOptions {
@@ -90,6 +93,7 @@ impl Default for EvalOptions {
             seed: 0,
             max_live: 96,
             bootstrap_resamples: 1000,
+            step_cap: None,
         }
     }
 }
@@ -447,7 +451,8 @@ fn run_rollouts(
                 continue;
             };
             let failure = slot.failure.take();
-            if !slot.env.is_done() && failure.is_none() {
+            let capped = opts.step_cap.is_some_and(|c| slot.env.steps() >= c);
+            if !slot.env.is_done() && failure.is_none() && !capped {
                 continue;
             }
             let unstable = failure.is_some();
@@ -674,6 +679,7 @@ pub fn run_job(
     let opts = EvalOptions {
         protocol: job.protocol,
         seed: job.seed,
+        step_cap: job.dry_run_steps,
         ..EvalOptions::default()
     };
     evaluate(&task, policy.as_mut(), &info, &opts, on_progress)

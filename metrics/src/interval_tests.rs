@@ -224,6 +224,15 @@ fn the_interval_always_contains_the_estimate() {
     assert!((c.value - 8f64.ln() / 24f64.ln()).abs() < 1e-12);
     assert!(c.ci_low <= c.value && c.value <= c.ci_high, "{c:?}");
     assert!(c.ci_low < c.value, "a real interval, not a point: {c:?}");
+    // Aligning's quick protocol as `d3il eval` ran `scripted:aligning:both`:
+    // 3 starts × 2 rollouts, each start one of each behaviour → conditional
+    // entropy 1; the bias-corrected upper end was 1.492 before the clip.
+    let v: Vec<Outcome> = (0..6)
+        .map(|i| Outcome::new(i / 2, true, Some(&format!("{}", i % 2))))
+        .collect();
+    let ev = evaluate(TaskId::Aligning, &v, 0.0, &Bootstrap::default()).unwrap();
+    let c = ev.metrics.conditional_entropy;
+    assert!(c.ci_low <= c.value && c.ci_high <= 1.0, "{c:?}");
     // Many small and odd shapes, every task and statistic.
     let mut rng = ChaCha8Rng::seed_from_u64(7);
     for task in TaskId::ALL {
@@ -251,6 +260,12 @@ fn the_interval_always_contains_the_estimate() {
                     assert!(
                         e.ci_low <= e.value && e.value <= e.ci_high,
                         "{task} {n_ctx}x{per_ctx}: {e:?}"
+                    );
+                    // Rates and normalised entropies never leave [0, 1]
+                    // (Aligning's quick protocol once printed 0.492-1.492).
+                    assert!(
+                        e.ci_low >= 0.0 && e.ci_high <= 1f64.max(e.value),
+                        "{task} {n_ctx}x{per_ctx}: interval outside [0, 1]: {e:?}"
                     );
                 }
             }

@@ -274,6 +274,12 @@ pub struct Job {
     /// Directory holding the project's assets (MJCF, context sets). The worker
     /// may read it and nothing else besides the policy file.
     pub assets_dir: String,
+    /// A submission-time dry run: every rollout ends after this many env
+    /// steps, so the whole pipeline (loading, observations, windows, images,
+    /// batched inference, action checks) runs in seconds; the result is
+    /// discarded. `None` for real evaluations.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub dry_run_steps: Option<usize>,
 }
 
 /// Categories of failure a submitter can act on.

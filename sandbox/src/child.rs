@@ -201,6 +201,15 @@ fn missing_required(require: &[String], mechanisms: &[SandboxMechanism]) -> Opti
 /// mechanisms plus one `probe:` entry per check. The process stays confined:
 /// call this only right before exiting.
 pub fn check_sandbox(assets_dir: &Path) -> Result<Vec<SandboxMechanism>, confine::SandboxError> {
+    check_sandbox_with(assets_dir, &Default::default())
+}
+
+/// [`check_sandbox`] with the limits a server was configured with, so the
+/// report (its `rlimits` detail) shows the limits jobs actually get.
+pub fn check_sandbox_with(
+    assets_dir: &Path,
+    limits: &d3il_protocol::Limits,
+) -> Result<Vec<SandboxMechanism>, confine::SandboxError> {
     let job = Job {
         job_id: "check-sandbox".into(),
         task: d3il_protocol::TaskId::Avoiding,
@@ -218,8 +227,9 @@ pub fn check_sandbox(assets_dir: &Path) -> Result<Vec<SandboxMechanism>, confine
             window: Default::default(),
         },
         seed: 0,
-        limits: Default::default(),
+        limits: limits.clone(),
         assets_dir: assets_dir.display().to_string(),
+        dry_run_steps: None,
     };
     let mut mechanisms = confine::confine(&job, None)?;
     mechanisms.extend(crate::selftest::probes(assets_dir));

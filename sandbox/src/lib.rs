@@ -32,7 +32,7 @@ pub mod parent;
 #[allow(unsafe_code)]
 pub mod selftest;
 
-pub use child::{check_sandbox, worker_main, WorkerOptions};
+pub use child::{check_sandbox, check_sandbox_with, worker_main, WorkerOptions};
 pub use confine::{confine, SandboxError};
 pub use endpoint::{validate_endpoint, EndpointError};
 pub use parent::{

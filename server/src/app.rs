@@ -13,8 +13,80 @@ use std::sync::Arc;
 pub fn router(state: AppState) -> Router {
     Router::new()
         .merge(crate::http::router(state.cfg.max_upload_bytes))
+        .layer(axum::middleware::from_fn_with_state(
+            state.clone(),
+            client_rate_limits,
+        ))
+        .layer(axum::middleware::from_fn(etag))
         .layer(axum::middleware::map_response(security_headers))
         .with_state(state)
+}
+
+/// Results documents kept in memory (a paper-protocol one is a few hundred kB).
+const FINISHED_CACHE_ENTRIES: usize = 256;
+
+/// Largest body given an ETag (pages, plots and JSON are far smaller).
+const ETAG_MAX_BODY: u64 = 8 << 20;
+
+/// Validators for what anyone may read (issue 17): a GET answered 200 with a
+/// page, plot, CSV or JSON gets a weak `ETag` (a hash of its body) and
+/// `Cache-Control: no-cache`, so a client revalidates and a request with the
+/// matching `If-None-Match` is answered `304 Not Modified` without a body.
+/// Requests with credentials and `/admin` are left alone.
+async fn etag(
+    req: axum::extract::Request,
+    next: axum::middleware::Next,
+) -> axum::response::Response {
+    use axum::body::HttpBody as _;
+    use axum::http::{header, HeaderValue, Method, StatusCode};
+    use axum::response::IntoResponse;
+    let cacheable = req.method() == Method::GET
+        && !req.headers().contains_key(header::AUTHORIZATION)
+        && !req.uri().path().starts_with("/admin");
+    let if_none_match = req.headers().get(header::IF_NONE_MATCH).cloned();
+    let resp = next.run(req).await;
+    let small = resp
+        .body()
+        .size_hint()
+        .exact()
+        .is_some_and(|n| n <= ETAG_MAX_BODY);
+    if !cacheable
+        || resp.status() != StatusCode::OK
+        || !small
+        || resp.headers().contains_key(header::ETAG)
+    {
+        return resp;
+    }
+    let (mut parts, body) = resp.into_parts();
+    let Ok(bytes) = axum::body::to_bytes(body, ETAG_MAX_BODY as usize).await else {
+        return StatusCode::INTERNAL_SERVER_ERROR.into_response();
+    };
+    let tag = {
+        use std::hash::{Hash, Hasher};
+        let mut h = std::collections::hash_map::DefaultHasher::new();
+        bytes.hash(&mut h);
+        format!("W/\"{:016x}-{:x}\"", h.finish(), bytes.len())
+    };
+    let Ok(tag_value) = HeaderValue::from_str(&tag) else {
+        return axum::response::Response::from_parts(parts, axum::body::Body::from(bytes));
+    };
+    if !parts.headers.contains_key(header::CACHE_CONTROL) {
+        parts
+            .headers
+            .insert(header::CACHE_CONTROL, HeaderValue::from_static("no-cache"));
+    }
+    parts.headers.insert(header::ETAG, tag_value);
+    let matches = if_none_match
+        .as_ref()
+        .and_then(|v| v.to_str().ok())
+        .is_some_and(|v| v.split(',').any(|t| t.trim() == tag || t.trim() == "*"));
+    if matches {
+        parts.status = StatusCode::NOT_MODIFIED;
+        parts.headers.remove(header::CONTENT_LENGTH);
+        parts.headers.remove(header::CONTENT_TYPE);
+        return axum::response::Response::from_parts(parts, axum::body::Body::empty());
+    }
+    axum::response::Response::from_parts(parts, axum::body::Body::from(bytes))
 }
 
 /// Content-Security-Policy of every response: the pages run no script, load
@@ -41,9 +113,73 @@ async fn security_headers(mut resp: axum::response::Response) -> axum::response:
     resp
 }
 
+/// Per-address rate limits (issue 17). A request without credentials (no
+/// `Authorization` header, not a POST) counts against the anonymous limit;
+/// one with credentials is refused while its address is over the limit of
+/// failed token checks, and counts as a failure when it ends in 401. API
+/// requests get the JSON error, pages the HTML error page.
+async fn client_rate_limits(
+    axum::extract::State(state): axum::extract::State<AppState>,
+    req: axum::extract::Request,
+    next: axum::middleware::Next,
+) -> axum::response::Response {
+    use axum::http::{header, Method, StatusCode};
+    use axum::response::IntoResponse;
+    let Some(ip) = req
+        .extensions()
+        .get::<axum::extract::ConnectInfo<SocketAddr>>()
+        .map(|c| client_key(c.0.ip()))
+    else {
+        return next.run(req).await;
+    };
+    let limits = &state.client_limits;
+    let credentialed =
+        req.headers().contains_key(header::AUTHORIZATION) || req.method() == Method::POST;
+    let over = if credentialed {
+        limits.failed_auth.peek(ip)
+    } else {
+        limits.anonymous.check(ip)
+    };
+    if let Err(retry_after) = over {
+        let e = crate::error::AppError::RateLimited { retry_after };
+        if req.uri().path().starts_with("/api/") {
+            return e.into_response();
+        }
+        let mut resp = (
+            e.status(),
+            axum::response::Html(crate::error::error_page(&e)),
+        )
+            .into_response();
+        if let Ok(v) = header::HeaderValue::from_str(&retry_after.to_string()) {
+            resp.headers_mut().insert(header::RETRY_AFTER, v);
+        }
+        return resp;
+    }
+    let resp = next.run(req).await;
+    if credentialed && resp.status() == StatusCode::UNAUTHORIZED {
+        let _ = limits.failed_auth.check(ip);
+    }
+    resp
+}
+
+/// The rate-limit key of a client address: IPv4 (also IPv4-mapped IPv6) as
+/// is, other IPv6 addresses by their /64 (one host usually holds a whole /64).
+pub fn client_key(ip: std::net::IpAddr) -> std::net::IpAddr {
+    match ip {
+        std::net::IpAddr::V6(v6) => match v6.to_ipv4_mapped() {
+            Some(v4) => v4.into(),
+            None => {
+                let s = v6.segments();
+                std::net::Ipv6Addr::new(s[0], s[1], s[2], s[3], 0, 0, 0, 0).into()
+            }
+        },
+        v4 => v4,
+    }
+}
+
 /// The production job runner: the sandboxed worker process.
 pub fn default_runner(cfg: &ServerConfig) -> Arc<dyn JobRunner> {
-    crate::runner::production_runner(&cfg.worker)
+    crate::runner::production_runner_with(&cfg.worker, &cfg.limits)
 }
 
 #[derive(Debug, thiserror::Error)]
@@ -114,7 +250,15 @@ pub async fn serve_listener(listener: tokio::net::TcpListener, state: AppState) 
             }
             *n += 1;
         }
-        let app = app.clone();
+        // Handlers and the per-address rate limits see the peer address.
+        let app = tower::ServiceExt::map_request(
+            app.clone(),
+            move |mut req: axum::http::Request<hyper::body::Incoming>| {
+                req.extensions_mut()
+                    .insert(axum::extract::ConnectInfo(peer));
+                req
+            },
+        );
         let per_client = per_client.clone();
         let timeout = limits.header_read_timeout;
         tokio::spawn(async move {
@@ -145,6 +289,12 @@ pub async fn prepare(
     runner: Arc<dyn JobRunner>,
 ) -> Result<(tokio::net::TcpListener, Running), ServeError> {
     let store = Store::open(&cfg.db).await?;
+    // Temporary uploads of a crashed run, files of failed submissions.
+    store.clean_policy_files().await?;
+    // Pool jobs and dry-runs share the worker slots: the pool's `workers`
+    // general slots plus its quick-protocol slot (`queue::start_pool`).
+    let pool_slots = if cfg.workers > 0 { cfg.workers + 1 } else { 0 };
+    let runner = crate::runner::SharedSlots::wrap(runner, pool_slots);
     let listener = tokio::net::TcpListener::bind(cfg.bind)
         .await
         .map_err(|source| ServeError::Bind {
@@ -170,9 +320,41 @@ pub async fn prepare(
         sandbox,
         store,
         limiter: Arc::new(RateLimiter::new(cfg.rate_limit_per_minute)),
+        client_limits: Arc::new(crate::ratelimit::ClientLimits::new(
+            cfg.anonymous_rate_limit_per_minute,
+            cfg.failed_auth_per_minute,
+        )),
+        uploads: Arc::new(tokio::sync::Semaphore::new(
+            cfg.max_concurrent_uploads.max(1),
+        )),
         cfg: Arc::new(cfg),
         signal,
         runner,
+        finished: Arc::new(crate::cache::FinishedCache::new(FINISHED_CACHE_ENTRIES)),
     };
     Ok((listener, Running { addr, state }))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::client_key;
+    use std::net::IpAddr;
+
+    fn ip(s: &str) -> IpAddr {
+        s.parse().unwrap()
+    }
+
+    #[test]
+    fn rate_limit_keys_group_an_ipv6_64_and_unmap_ipv4() {
+        assert_eq!(client_key(ip("203.0.113.7")), ip("203.0.113.7"));
+        assert_eq!(client_key(ip("::ffff:203.0.113.7")), ip("203.0.113.7"));
+        assert_eq!(
+            client_key(ip("2001:db8:1:2:aaaa:bbbb:cccc:dddd")),
+            client_key(ip("2001:db8:1:2::1"))
+        );
+        assert_ne!(
+            client_key(ip("2001:db8:1:2::1")),
+            client_key(ip("2001:db8:1:3::1"))
+        );
+    }
 }

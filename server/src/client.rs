@@ -85,11 +85,15 @@ impl Client {
             form = form.text(k.to_string(), v.clone());
         }
         if let Some(p) = onnx {
-            let bytes = std::fs::read(p).map_err(|source| ClientError::Io {
+            // Streamed from the file (a policy can be hundreds of MB), with
+            // its length so the server can refuse an oversized one at once.
+            let io = |source| ClientError::Io {
                 path: p.display().to_string(),
                 source,
-            })?;
-            let part = reqwest::blocking::multipart::Part::bytes(bytes)
+            };
+            let file = std::fs::File::open(p).map_err(io)?;
+            let len = file.metadata().map_err(io)?.len();
+            let part = reqwest::blocking::multipart::Part::reader_with_length(file, len)
                 .file_name(
                     p.file_name()
                         .map(|f| f.to_string_lossy().into_owned())

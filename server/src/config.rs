@@ -20,8 +20,21 @@ pub struct ServerConfig {
     pub max_upload_bytes: usize,
     /// Authenticated API requests per token per minute.
     pub rate_limit_per_minute: u32,
+    /// Requests without a token per client address per minute.
+    pub anonymous_rate_limit_per_minute: u32,
+    /// Failed token checks per client address per minute; past it the
+    /// address gets 429 until the minute is over.
+    pub failed_auth_per_minute: u32,
+    /// Bytes of policy files one submitter may keep on disk (None: no cap).
+    pub max_disk_bytes_per_submitter: Option<u64>,
+    /// Uploads streaming at once; more wait before their body is read.
+    pub max_concurrent_uploads: usize,
     /// Attempts per job before the submission fails (crashes, lost leases).
     pub max_attempts: i64,
+    /// Uploaded models run a short sandboxed dry run before they are queued
+    /// (`intake::dry_run`); off, a model that cannot run fails at its
+    /// evaluation instead.
+    pub dry_run_uploads: bool,
     pub lease_seconds: i64,
     /// Limits handed to every worker.
     pub limits: Limits,
@@ -66,7 +79,12 @@ impl ServerConfig {
             assets_dir: default_assets_dir(),
             max_upload_bytes: 256 << 20,
             rate_limit_per_minute: 60,
+            anonymous_rate_limit_per_minute: 1200,
+            failed_auth_per_minute: 20,
+            max_disk_bytes_per_submitter: Some(4096 << 20),
+            max_concurrent_uploads: 4,
             max_attempts: 3,
+            dry_run_uploads: true,
             lease_seconds: 30,
             worker: WorkerProcess {
                 exe: worker_exe,

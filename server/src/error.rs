@@ -34,6 +34,10 @@ pub enum AppError {
     PayloadTooLarge(String),
     #[error("rate limit exceeded; retry in {retry_after} s")]
     RateLimited { retry_after: u64 },
+    /// The database stayed locked by another writer past the busy timeout
+    /// (and the store's retries): try again shortly.
+    #[error("the database is busy; retry in {retry_after} s")]
+    Busy { retry_after: u64 },
     /// The remote endpoint failed its conformance dry-run.
     #[error("{message}")]
     EndpointRejected { kind: String, message: String },
@@ -60,6 +64,7 @@ impl AppError {
             AppError::Conflict { .. } => StatusCode::CONFLICT,
             AppError::PayloadTooLarge(_) => StatusCode::PAYLOAD_TOO_LARGE,
             AppError::RateLimited { .. } => StatusCode::TOO_MANY_REQUESTS,
+            AppError::Busy { .. } => StatusCode::SERVICE_UNAVAILABLE,
             AppError::EndpointRejected { .. } => StatusCode::UNPROCESSABLE_ENTITY,
             AppError::Internal(_) => StatusCode::INTERNAL_SERVER_ERROR,
         }
@@ -75,6 +80,7 @@ impl AppError {
             AppError::Conflict { .. } => "conflict",
             AppError::PayloadTooLarge(_) => "payload_too_large",
             AppError::RateLimited { .. } => "rate_limited",
+            AppError::Busy { .. } => "busy",
             AppError::EndpointRejected { .. } => "endpoint_rejected",
             AppError::Internal(_) => "internal",
         }
@@ -106,7 +112,7 @@ impl AppError {
 
     fn headers(&self, resp: &mut Response) {
         match self {
-            AppError::RateLimited { retry_after } => {
+            AppError::RateLimited { retry_after } | AppError::Busy { retry_after } => {
                 if let Ok(v) = HeaderValue::from_str(&retry_after.to_string()) {
                     resp.headers_mut().insert(header::RETRY_AFTER, v);
                 }
@@ -140,7 +146,7 @@ pub struct ErrorDetail {
 }
 
 /// Every value of [`AppError::code`].
-pub const ERROR_CODES: [&str; 10] = [
+pub const ERROR_CODES: [&str; 11] = [
     "invalid_field",
     "unauthorized",
     "forbidden",
@@ -149,6 +155,7 @@ pub const ERROR_CODES: [&str; 10] = [
     "conflict",
     "payload_too_large",
     "rate_limited",
+    "busy",
     "endpoint_rejected",
     "internal",
 ];
@@ -168,6 +175,7 @@ impl From<StoreError> for AppError {
                 field: Some("training_seed".into()),
                 message,
             },
+            e if e.is_busy() => AppError::Busy { retry_after: 2 },
             other => AppError::Internal(other.to_string()),
         }
     }
@@ -249,6 +257,7 @@ mod tests {
             },
             AppError::PayloadTooLarge(String::new()),
             AppError::RateLimited { retry_after: 1 },
+            AppError::Busy { retry_after: 1 },
             AppError::EndpointRejected {
                 kind: String::new(),
                 message: String::new(),

@@ -1,47 +1,21 @@
 //! Reading, validating and accepting a submission (shared by the JSON API and
 //! the HTML submit form). Every error names the offending field.
 
+mod upload;
+
 use crate::error::AppError;
 use crate::queue::JobRunner;
 use crate::state::AppState;
 use crate::store::{NewMethod, NewPolicy, NewSubmission, SeedKey, Submitter};
-use axum::extract::multipart::{Field, Multipart, MultipartError};
-use axum::http::{header, HeaderMap, StatusCode};
+use axum::http::{header, HeaderMap};
 use d3il_protocol::{
     ErrorKind, Job, Limits, ObsType, PolicyManifest, PolicySource, ProtocolKind, TaskId,
 };
-use std::collections::HashMap;
 use std::str::FromStr;
 use std::sync::Arc;
-
-/// Text fields are small; anything longer is refused.
-const MAX_TEXT_FIELD: usize = 64 << 10;
-
-/// Fields accepted in a submission (multipart/form-data).
-pub const TEXT_FIELDS: &[&str] = &[
-    "method",
-    "history",
-    "backbone",
-    "prediction",
-    "diversity",
-    "code_url",
-    "paper_url",
-    "description",
-    "task",
-    "obs_type",
-    "training_seed",
-    "data_fraction",
-    "protocol",
-    "manifest",
-    "endpoint_url",
-    "token",
-];
-
-#[derive(Debug, Default)]
-pub struct RawSubmission {
-    pub text: HashMap<String, String>,
-    pub onnx: Option<Vec<u8>>,
-}
+pub use upload::{
+    disk_quota_error, read_multipart, Caller, Quota, RawSubmission, UploadedFile, TEXT_FIELDS,
+};
 
 /// Refuses a body whose declared length is over the limit before reading any
 /// of it (issue 7: oversized uploads refused before they are buffered).
@@ -66,119 +40,8 @@ fn too_large(max: usize) -> AppError {
     ))
 }
 
-fn multipart_err(e: MultipartError, max: usize) -> AppError {
-    if e.status() == StatusCode::PAYLOAD_TOO_LARGE {
-        too_large(max)
-    } else {
-        AppError::Invalid {
-            field: None,
-            message: format!("the request body is not valid multipart/form-data: {e}"),
-        }
-    }
-}
-
-/// Streams the multipart body, keeping at most `max` bytes of upload: the
-/// file is read chunk by chunk and refused as soon as it passes the limit.
-pub async fn read_multipart(mp: Multipart, max: usize) -> Result<RawSubmission, AppError> {
-    Ok(read_multipart_inner(mp, max, None).await?.0)
-}
-
-/// Like [`read_multipart`] for the HTML form, whose credentials travel in its
-/// `token` field: the token is authenticated before the first byte of a file
-/// field is read (the form puts it first), so a request without a valid token
-/// is refused before any upload is buffered.
-pub async fn read_form_authenticated(
-    mp: Multipart,
-    max: usize,
-    state: &AppState,
-) -> Result<(RawSubmission, Submitter), AppError> {
-    let (raw, who) = read_multipart_inner(mp, max, Some(state)).await?;
-    let who = who.ok_or_else(|| AppError::Unauthorized("the `token` field is required".into()))?;
-    Ok((raw, who))
-}
-
-async fn authenticate_form_token(
-    state: &AppState,
-    raw: &RawSubmission,
-) -> Result<Submitter, AppError> {
-    let token = raw
-        .text
-        .get("token")
-        .map(|t| t.trim().to_string())
-        .filter(|t| !t.is_empty())
-        .ok_or_else(|| {
-            AppError::Unauthorized(
-                "the `token` field is required (before the file fields): paste the API token from `d3il token create --name <you>`"
-                    .into(),
-            )
-        })?;
-    crate::auth::authenticate_token(state, &token).await
-}
-
-async fn read_multipart_inner(
-    mut mp: Multipart,
-    max: usize,
-    auth: Option<&AppState>,
-) -> Result<(RawSubmission, Option<Submitter>), AppError> {
-    let mut raw = RawSubmission::default();
-    let mut who = None;
-    while let Some(mut field) = mp.next_field().await.map_err(|e| multipart_err(e, max))? {
-        let name = field.name().unwrap_or_default().to_string();
-        if let (Some(state), None, true) = (auth, &who, name == "onnx" || name == "manifest_file") {
-            who = Some(authenticate_form_token(state, &raw).await?);
-        }
-        if name == "onnx" {
-            let bytes = read_limited(&mut field, max, &name).await?;
-            // Browsers send an empty file part when no file was chosen.
-            if !bytes.is_empty() {
-                raw.onnx = Some(bytes);
-            }
-        } else if name == "manifest_file" {
-            let bytes = read_limited(&mut field, MAX_TEXT_FIELD, "manifest").await?;
-            if !bytes.is_empty() {
-                let text = String::from_utf8(bytes).map_err(|_| {
-                    AppError::invalid("manifest", "the manifest must be UTF-8 JSON")
-                })?;
-                raw.text.insert("manifest".into(), text);
-            }
-        } else if TEXT_FIELDS.contains(&name.as_str()) {
-            let bytes = read_limited(&mut field, MAX_TEXT_FIELD, &name).await?;
-            let text = String::from_utf8(bytes)
-                .map_err(|_| AppError::invalid(&name, format!("`{name}` must be UTF-8 text")))?;
-            raw.text.insert(name, text);
-        } else {
-            return Err(AppError::invalid(
-                &name,
-                format!(
-                    "unknown field `{name}`; accepted fields: onnx, manifest_file, {}",
-                    TEXT_FIELDS.join(", ")
-                ),
-            ));
-        }
-    }
-    if let (Some(state), None) = (auth, &who) {
-        who = Some(authenticate_form_token(state, &raw).await?);
-    }
-    Ok((raw, who))
-}
-
-async fn read_limited(field: &mut Field<'_>, max: usize, name: &str) -> Result<Vec<u8>, AppError> {
-    let mut buf = Vec::new();
-    while let Some(chunk) = field.chunk().await.map_err(|e| multipart_err(e, max))? {
-        if buf.len() + chunk.len() > max {
-            return Err(if name == "onnx" {
-                too_large(max)
-            } else {
-                AppError::invalid(name, format!("`{name}` is longer than {max} bytes"))
-            });
-        }
-        buf.extend_from_slice(&chunk);
-    }
-    Ok(buf)
-}
-
 /// A submission that passed validation.
-#[derive(Debug, Clone)]
+#[derive(Debug)]
 pub struct ValidSubmission {
     pub method: NewMethod,
     pub task: TaskId,
@@ -190,9 +53,10 @@ pub struct ValidSubmission {
     pub policy: ValidPolicy,
 }
 
-#[derive(Debug, Clone)]
+#[derive(Debug)]
 pub enum ValidPolicy {
-    Onnx(Vec<u8>),
+    /// The streamed upload, still under its temporary name.
+    Onnx(UploadedFile),
     Remote(String),
 }
 
@@ -223,17 +87,17 @@ fn check_url(field: &str, v: &str, schemes: &[&str]) -> Result<url::Url, AppErro
 }
 
 /// Validates every field; the first problem is reported with its field name.
-pub fn validate(raw: &RawSubmission, limits: &Limits) -> Result<ValidSubmission, AppError> {
-    let method = method_fields(raw)?;
-    let (task, obs_type) = task_fields(raw)?;
-    let training_seed = seed_field(raw)?;
-    let data_fraction = fraction_field(raw)?;
-    let protocol = match opt(raw, "protocol") {
-        None => ProtocolKind::Paper,
-        Some(p) => ProtocolKind::from_str(&p).map_err(|e| AppError::invalid("protocol", e))?,
-    };
-    let manifest = manifest_field(raw, task, obs_type, method.history)?;
-    let policy = policy_fields(raw, limits)?;
+/// The upload (if any) moves into the result; on an error it is dropped,
+/// which deletes its file.
+pub fn validate(mut raw: RawSubmission, limits: &Limits) -> Result<ValidSubmission, AppError> {
+    let raw_ref = &raw;
+    let method = method_fields(raw_ref)?;
+    let (task, obs_type) = task_fields(raw_ref)?;
+    let training_seed = seed_field(raw_ref)?;
+    let data_fraction = fraction_field(raw_ref)?;
+    let protocol = protocol_field(raw_ref)?;
+    let manifest = manifest_field(raw_ref, task, obs_type, method.history)?;
+    let policy = policy_fields(&mut raw, limits)?;
     Ok(ValidSubmission {
         method,
         task,
@@ -244,6 +108,107 @@ pub fn validate(raw: &RawSubmission, limits: &Limits) -> Result<ValidSubmission,
         manifest,
         policy,
     })
+}
+
+fn protocol_field(raw: &RawSubmission) -> Result<ProtocolKind, AppError> {
+    match opt(raw, "protocol") {
+        None => Ok(ProtocolKind::Paper),
+        Some(p) => ProtocolKind::from_str(&p).map_err(|e| AppError::invalid("protocol", e)),
+    }
+}
+
+/// The checks that need no file, run on the fields sent before the `onnx`
+/// part and before any of it is read: a field that is there must be valid,
+/// the method must not belong to someone else, the seed must be free, and
+/// the submitter must have disk quota left. Returns the upload's quota.
+pub async fn precheck(
+    state: &AppState,
+    raw: &RawSubmission,
+    who: &Submitter,
+) -> Result<Quota, AppError> {
+    if opt(raw, "endpoint_url").is_some() {
+        return Err(AppError::invalid(
+            "endpoint_url",
+            "give either an `onnx` file or an `endpoint_url`, not both",
+        ));
+    }
+    let has = |k: &str| opt(raw, k).is_some();
+    let method = if has("method") {
+        Some(method_fields(raw)?)
+    } else {
+        None
+    };
+    let task = if has("task") {
+        let (task, obs_type) = task_fields(raw)?;
+        if has("manifest") {
+            manifest_field(raw, task, obs_type, method.as_ref().and_then(|m| m.history))?;
+        }
+        Some((task, obs_type))
+    } else {
+        None
+    };
+    let seed = if has("training_seed") {
+        Some(seed_field(raw)?)
+    } else {
+        None
+    };
+    let fraction = fraction_field(raw)?;
+    let protocol = protocol_field(raw)?;
+    if let Some(m) = &method {
+        let key = match (task, seed) {
+            (Some((task, obs_type)), Some(training_seed)) => Some((task, obs_type, training_seed)),
+            _ => None,
+        };
+        check_owner_and_seed(state, &m.name, who, key, fraction, protocol).await?;
+    }
+    let quota = Quota {
+        max_upload: state.cfg.max_upload_bytes,
+        disk_used: state.store.submitter_disk_bytes(who.id).await?,
+        disk_cap: state.cfg.max_disk_bytes_per_submitter,
+    };
+    if let Some(cap) = quota.disk_cap {
+        if quota.disk_used >= cap {
+            return Err(disk_quota_error(quota.disk_used, cap));
+        }
+    }
+    Ok(quota)
+}
+
+/// A method that exists must be the caller's; with the seed's key known,
+/// the seed must be free (`create_submission` checks again under the lock).
+async fn check_owner_and_seed(
+    state: &AppState,
+    method: &str,
+    who: &Submitter,
+    key: Option<(TaskId, ObsType, i64)>,
+    data_fraction: f64,
+    protocol: ProtocolKind,
+) -> Result<(), AppError> {
+    let Some(existing) = state.store.method_by_name(method).await? else {
+        return Ok(());
+    };
+    if existing.submitter_id.is_some() && existing.submitter_id != Some(who.id) {
+        return Err(AppError::Conflict {
+            field: Some("method".into()),
+            message: format!(
+                "method `{method}` belongs to another submitter; choose a different name"
+            ),
+        });
+    }
+    if let Some((task, obs_type, training_seed)) = key {
+        state
+            .store
+            .check_seed_free(&SeedKey {
+                method_id: existing.id,
+                task,
+                obs_type,
+                data_fraction,
+                protocol,
+                training_seed,
+            })
+            .await?;
+    }
+    Ok(())
 }
 
 /// The method's name and properties.
@@ -434,9 +399,10 @@ fn check_manifest_limits(manifest: &PolicyManifest) -> Result<(), AppError> {
 }
 
 /// Either an ONNX upload (with its manifest) or a remote endpoint.
-fn policy_fields(raw: &RawSubmission, limits: &Limits) -> Result<ValidPolicy, AppError> {
+fn policy_fields(raw: &mut RawSubmission, limits: &Limits) -> Result<ValidPolicy, AppError> {
     let endpoint = opt(raw, "endpoint_url");
-    Ok(match (&raw.onnx, endpoint) {
+    let has_manifest = opt(raw, "manifest").is_some();
+    Ok(match (raw.onnx.take(), endpoint) {
         (Some(_), Some(_)) => {
             return Err(AppError::invalid(
                 "endpoint_url",
@@ -449,21 +415,21 @@ fn policy_fields(raw: &RawSubmission, limits: &Limits) -> Result<ValidPolicy, Ap
                 "a policy is required: upload an `onnx` file (with `manifest`) or give an `endpoint_url`",
             ))
         }
-        (Some(bytes), None) => {
-            if opt(raw, "manifest").is_none() {
+        (Some(file), None) => {
+            if !has_manifest {
                 return Err(AppError::invalid(
                     "manifest",
                     "an ONNX upload needs its `manifest` (JSON, docs/submission.md)",
                 ));
             }
             // Only a size floor here: the worker's loader reads the model itself.
-            if bytes.len() < 16 {
+            if file.bytes < 16 {
                 return Err(AppError::invalid(
                     "onnx",
                     "the `onnx` file is too small to be an ONNX model",
                 ));
             }
-            ValidPolicy::Onnx(bytes.clone())
+            ValidPolicy::Onnx(file)
         }
         (None, Some(u)) => {
             let url = check_url("endpoint_url", &u, &["ws", "wss"])?;
@@ -489,89 +455,130 @@ fn check_endpoint_host(url: &url::Url, limits: &Limits) -> Result<(), AppError> 
     })
 }
 
-/// Runs a remote endpoint through a short quick-protocol evaluation before it
-/// is queued; any failure is reported to the submitter and nothing is stored.
-pub async fn endpoint_dry_run(
+/// Env steps per rollout of an uploaded model's dry run (at least two policy
+/// calls whatever the manifest's `execute`).
+pub const DRY_RUN_MIN_STEPS: usize = 16;
+
+/// Runs a submission's policy through a short sandboxed quick-protocol
+/// evaluation before it is queued; any failure is reported to the submitter
+/// and nothing is stored. A remote endpoint runs the whole quick protocol (its
+/// conformance dry-run); an uploaded model runs it with every rollout cut
+/// after a few steps, which loads it, feeds it real observations at batch
+/// ≥ 2 and checks its actions, so a graph that cannot run is refused here,
+/// never at rollout 0 of its evaluation.
+pub async fn dry_run(
     runner: Arc<dyn JobRunner>,
     state: &AppState,
     v: &ValidSubmission,
-    url: &str,
+    policy: PolicySource,
 ) -> Result<(), AppError> {
     let mut limits = state.cfg.limits.clone();
     limits.wall_seconds = limits.wall_seconds.min(120);
+    let remote = matches!(policy, PolicySource::Remote { .. });
     let job = Job {
         job_id: "dry-run".into(),
         task: v.task,
         protocol: ProtocolKind::Quick,
-        policy: PolicySource::Remote { url: url.into() },
+        policy,
         manifest: v.manifest.clone(),
         seed: 0,
         limits,
         assets_dir: state.cfg.assets_dir.to_string_lossy().into_owned(),
+        dry_run_steps: (!remote).then(|| (2 * v.manifest.execute).max(DRY_RUN_MIN_STEPS)),
     };
     let report = tokio::task::spawn_blocking(move || runner.run(&job, &mut |_, _| {}))
         .await
         .map_err(|e| AppError::Internal(format!("dry-run panicked: {e}")))?;
-    match report.outcome {
-        Ok(_) => Ok(()),
-        Err(e) if e.kind == ErrorKind::Internal => Err(AppError::Internal(e.message)),
-        Err(e) => Err(AppError::EndpointRejected {
-            kind: serde_json::to_value(e.kind)
-                .ok()
-                .and_then(|v| v.as_str().map(str::to_string))
-                .unwrap_or_default(),
+    let e = match report.outcome {
+        Ok(_) => return Ok(()),
+        Err(e) if e.kind == ErrorKind::Internal => return Err(AppError::Internal(e.message)),
+        Err(e) => e,
+    };
+    let kind = serde_json::to_value(e.kind)
+        .ok()
+        .and_then(|v| v.as_str().map(str::to_string))
+        .unwrap_or_default();
+    Err(if remote {
+        AppError::EndpointRejected {
+            kind,
             message: format!(
                 "the endpoint failed the conformance dry-run (docs/remote-protocol.md): {}",
                 e.message
             ),
-        }),
-    }
+        }
+    } else {
+        AppError::invalid(
+            "onnx",
+            format!(
+                "the model failed its dry run in the sandbox ({kind}): {}; check it with `d3il eval --protocol quick` (docs/export.md)",
+                e.message
+            ),
+        )
+    })
 }
 
 /// Stores a validated submission and queues its job; returns the submission id
 /// once it is durable.
 pub async fn accept(
     state: &AppState,
-    v: ValidSubmission,
+    mut v: ValidSubmission,
     who: &Submitter,
 ) -> Result<i64, AppError> {
     let store = &state.store;
-    if let Some(existing) = store.method_by_name(&v.method.name).await? {
-        if existing.submitter_id.is_some() && existing.submitter_id != Some(who.id) {
-            return Err(AppError::Conflict {
-                field: Some("method".into()),
-                message: format!(
-                    "method `{}` belongs to another submitter; choose a different name",
-                    v.method.name
-                ),
-            });
-        }
-        // A duplicate seed is refused before an endpoint's dry-run (which can
-        // take minutes) or an ONNX write; create_submission checks again
-        // under the write lock. A new method cannot hold the seed yet.
-        store
-            .check_seed_free(&SeedKey {
-                method_id: existing.id,
-                task: v.task,
-                obs_type: v.obs_type,
-                data_fraction: v.data_fraction,
-                protocol: v.protocol,
-                training_seed: v.training_seed,
-            })
-            .await?;
-    }
-    if let ValidPolicy::Remote(url) = &v.policy {
-        endpoint_dry_run(state.runner.clone(), state, &v, url).await?;
+    // A duplicate seed is refused before an endpoint's dry-run (which can
+    // take minutes) or an ONNX write; create_submission checks again under
+    // the write lock. A new method cannot hold the seed yet.
+    check_owner_and_seed(
+        state,
+        &v.method.name,
+        who,
+        Some((v.task, v.obs_type, v.training_seed)),
+        v.data_fraction,
+        v.protocol,
+    )
+    .await?;
+    let dry = match &v.policy {
+        ValidPolicy::Remote(url) => Some(PolicySource::Remote { url: url.clone() }),
+        ValidPolicy::Onnx(_) if !state.cfg.dry_run_uploads => None,
+        ValidPolicy::Onnx(file) => Some(PolicySource::Onnx {
+            path: file
+                .path()
+                .ok_or_else(|| AppError::Internal("the upload was already stored".into()))?
+                .to_string_lossy()
+                .into_owned(),
+            sha256: file.sha256.clone(),
+        }),
+    };
+    if let Some(policy) = dry {
+        dry_run(state.runner.clone(), state, &v, policy).await?;
     }
     // Only an accepted submission creates its method (a refused dry-run
     // leaves nothing behind).
     let method = store.ensure_method(&v.method, Some(who.id)).await?;
-    let policy = match &v.policy {
-        ValidPolicy::Onnx(bytes) => {
-            let (sha256, path) = store.store_onnx(bytes).await?;
+    // The upload becomes `<sha256>.onnx`; `created` when this request wrote
+    // it (so a refused insert deletes it again).
+    let mut created = None;
+    let policy = match &mut v.policy {
+        ValidPolicy::Onnx(file) => {
+            if let Some(cap) = state.cfg.max_disk_bytes_per_submitter {
+                // Concurrent uploads of one submitter are counted here.
+                let used = store.submitter_disk_bytes(who.id).await?;
+                if used + file.bytes > cap {
+                    return Err(disk_quota_error(used, cap));
+                }
+            }
+            let tmp = file
+                .path()
+                .ok_or_else(|| AppError::Internal("the upload was already stored".into()))?
+                .to_path_buf();
+            let (path, new) = store.commit_onnx(&tmp, &file.sha256).await?;
+            file.take_path();
+            if new {
+                created = Some(path.to_string_lossy().into_owned());
+            }
             NewPolicy::Onnx {
-                sha256,
-                bytes: bytes.len() as i64,
+                sha256: file.sha256.clone(),
+                bytes: file.bytes as i64,
                 path,
             }
         }
@@ -579,7 +586,7 @@ pub async fn accept(
     };
     let manifest_json = serde_json::to_string(&v.manifest)
         .map_err(|e| AppError::Internal(format!("manifest encoding: {e}")))?;
-    let id = store
+    let inserted = store
         .create_submission(
             &NewSubmission {
                 method_id: method.id,
@@ -594,7 +601,18 @@ pub async fn accept(
             },
             state.cfg.max_attempts,
         )
-        .await?;
+        .await;
+    let id = match inserted {
+        Ok(id) => id,
+        Err(e) => {
+            if let Some(path) = created {
+                if let Err(e) = store.release_policy_file(&path).await {
+                    tracing::warn!("refused upload {path} not deleted: {e}");
+                }
+            }
+            return Err(e.into());
+        }
+    };
     state.signal.job_queued();
     tracing::info!("submission {id} accepted from `{}`", who.name);
     Ok(id)

@@ -102,6 +102,7 @@ pub fn job_from_claim(
         seed: s.training_seed.max(0) as u64,
         limits: limits.clone(),
         assets_dir: assets_dir.to_string_lossy().into_owned(),
+        dry_run_steps: None,
     })
 }
 

@@ -13,8 +13,14 @@ pub struct AppState {
     pub cfg: Arc<ServerConfig>,
     pub signal: QueueSignal,
     pub limiter: Arc<RateLimiter>,
+    /// Anonymous requests and failed token checks per client address.
+    pub client_limits: Arc<crate::ratelimit::ClientLimits>,
+    /// Uploads streaming at once (`max_concurrent_uploads`).
+    pub uploads: Arc<tokio::sync::Semaphore>,
     /// Used for endpoint conformance dry-runs.
     pub runner: Arc<dyn JobRunner>,
     /// The sandbox mechanisms in force (admin page).
     pub sandbox: Arc<SandboxStatus>,
+    /// Rendered results documents of finished submissions.
+    pub finished: Arc<crate::cache::FinishedCache>,
 }

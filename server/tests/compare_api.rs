@@ -196,3 +196,29 @@ async fn compare_endpoint_pairs_two_submissions_by_initial_state() {
     assert!(board.contains("id=\"sorting-caveat\""));
     assert!(board.contains("60 × 8 (some agents 600 × 1)"));
 }
+
+/// A finished submission's results document is rendered once and then
+/// served from memory (issue 17 item 8): a change behind the server's back
+/// does not reach it, while a submission without a result is not cached.
+#[tokio::test]
+async fn results_of_a_finished_submission_are_served_from_memory() {
+    let app = spawn_app().await;
+    let a = submit(&app, "A", "pushing").await;
+    let path = format!("/api/v1/submissions/{a}/results");
+    let (s, _) = app.get_text(&path).await;
+    assert_eq!(s, 404, "no result yet, nothing cached");
+    assert_eq!(complete(&app, &result(|_| 12, 0)).await, a);
+    let (s, first) = app.get_text(&path).await;
+    assert_eq!(s, 200, "{first}");
+    let v: Value = serde_json::from_str(&first).unwrap();
+    assert_eq!(v["metrics"]["success_rate"]["value"], 0.75, "{v}");
+    sqlx::query("UPDATE results SET success_rate = 0.5 WHERE submission_id = ?")
+        .bind(a)
+        .execute(app.state.store.pool())
+        .await
+        .unwrap();
+    let (s, again) = app.get_text(&path).await;
+    assert_eq!(s, 200);
+    assert_eq!(again, first, "served from memory");
+    assert_eq!(app.state.finished.len(), 1);
+}

@@ -13,7 +13,7 @@ use std::time::Instant;
 
 #[derive(clap::Args)]
 pub struct Args {
-    /// Which benchmark: `physics`, `eval`, `render` or `agents`.
+    /// Which benchmark: `physics`, `eval`, `render`, `agents` or `serve`.
     pub which: String,
     /// Env steps to run (physics, render).
     #[arg(long, default_value_t = 3000)]
@@ -39,7 +39,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         "eval" => eval_bench(args.protocol, args.max_live),
         "render" => render_bench(args.steps, args.render_protocol, args.max_live, args.look),
         "agents" => agents_bench(args.max_live),
-        other => bail!("unknown benchmark `{other}`; available: physics, eval, render, agents"),
+        "serve" => super::bench_serve::run(),
+        other => {
+            bail!("unknown benchmark `{other}`; available: physics, eval, render, agents, serve")
+        }
     }
 }
 

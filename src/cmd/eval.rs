@@ -156,6 +156,7 @@ pub fn build_job(args: &Args) -> anyhow::Result<Job> {
         seed: args.seed,
         limits: args.limits.limits()?,
         assets_dir: crate::cmd::assets_dir().to_string_lossy().into_owned(),
+        dry_run_steps: None,
     })
 }
 

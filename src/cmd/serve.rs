@@ -25,9 +25,28 @@ pub struct Args {
     /// Authenticated API requests per token per minute.
     #[arg(long, default_value_t = 60)]
     pub rate_limit: u32,
+    /// Requests without a token per client address per minute (IPv6: per /64).
+    #[arg(long, default_value_t = 1200)]
+    pub anonymous_rate_limit: u32,
+    /// Failed token checks per client address per minute; past it the
+    /// address's requests with credentials get 429 until the minute is over.
+    #[arg(long, default_value_t = 20)]
+    pub failed_auth_limit: u32,
+    /// Disk space one submitter's stored ONNX files may use, MiB (files of
+    /// failed submissions are deleted and do not count); 0: no limit.
+    #[arg(long, default_value_t = 4096)]
+    pub max_disk_mb_per_submitter: u64,
+    /// Uploads streamed to disk at once; more wait before their body is read.
+    #[arg(long, default_value_t = 4)]
+    pub max_concurrent_uploads: usize,
     /// Attempts per evaluation before a crashing job fails.
     #[arg(long, default_value_t = 3)]
     pub max_attempts: i64,
+    /// Queue uploaded models without the submission-time dry run (a few
+    /// sandboxed steps of the quick protocol); a model that cannot run then
+    /// fails at its evaluation instead of being refused at submission.
+    #[arg(long)]
+    pub no_upload_dry_run: bool,
     /// Seconds a client has to send a request header (also the keep-alive
     /// idle timeout); then the connection is closed.
     #[arg(long, default_value_t = 20)]
@@ -67,8 +86,14 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     cfg.assets_dir = cfg.assets_dir.canonicalize().unwrap_or(cfg.assets_dir);
     cfg.max_upload_bytes = args.max_upload_mb.max(1) << 20;
     cfg.rate_limit_per_minute = args.rate_limit.max(1);
+    cfg.anonymous_rate_limit_per_minute = args.anonymous_rate_limit.max(1);
+    cfg.failed_auth_per_minute = args.failed_auth_limit.max(1);
+    cfg.max_disk_bytes_per_submitter =
+        (args.max_disk_mb_per_submitter > 0).then_some(args.max_disk_mb_per_submitter << 20);
+    cfg.max_concurrent_uploads = args.max_concurrent_uploads.max(1);
     anyhow::ensure!(args.max_attempts >= 1, "--max-attempts must be at least 1");
     cfg.max_attempts = args.max_attempts;
+    cfg.dry_run_uploads = !args.no_upload_dry_run;
     anyhow::ensure!(
         args.header_timeout >= 1
             && args.max_connections >= 1

@@ -25,6 +25,11 @@ pub struct Args {
     /// printed by --check-sandbox, or `all`). Default: $D3IL_SANDBOX_REQUIRE.
     #[arg(long, value_delimiter = ',')]
     pub require: Vec<String>,
+    /// With --check-sandbox: confine with these limits (JSON of
+    /// `d3il_protocol::Limits`, as the server passes its configured ones)
+    /// instead of the defaults.
+    #[arg(long, requires = "check_sandbox", hide = true)]
+    pub limits_json: Option<String>,
     /// Test-only misbehaving evaluation (see d3il_sandbox::selftest).
     #[arg(long, hide = true)]
     pub self_test: Option<String>,
@@ -62,7 +67,12 @@ pub fn run(args: Args) -> anyhow::Result<()> {
 }
 
 fn check(args: &Args) -> anyhow::Result<()> {
-    let mechanisms = d3il_sandbox::check_sandbox(&args.assets)
+    let limits: d3il_protocol::Limits = match &args.limits_json {
+        Some(j) => serde_json::from_str(j)
+            .map_err(|e| anyhow::anyhow!("--limits-json is not a limits document: {e}"))?,
+        None => Default::default(),
+    };
+    let mechanisms = d3il_sandbox::check_sandbox_with(&args.assets, &limits)
         .map_err(|e| anyhow::anyhow!("the sandbox could not be set up: {e}"))?;
     if args.json {
         println!("{}", serde_json::to_string_pretty(&mechanisms)?);

@@ -87,6 +87,7 @@ pub fn avoiding_job(policy: PolicySource, limits: Limits) -> Job {
         seed: 1,
         limits,
         assets_dir: assets_dir().display().to_string(),
+        dry_run_steps: None,
     }
 }
 

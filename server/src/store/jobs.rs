@@ -116,7 +116,7 @@ impl Store {
             let updated = sqlx::query(
                 "UPDATE jobs SET attempts = CASE WHEN state = 'queued' THEN attempts + 1 ELSE attempts END, \
                  state = 'leased', lease_owner = ?, lease_expires_at = ?, heartbeat_at = ?, \
-                 started_at = ?, rollouts_done = 0 \
+                 started_at = ?, rollouts_done = 0, rollouts_total = 0 \
                  WHERE id = ? AND (state = 'queued' OR (state = 'leased' AND lease_expires_at < ?))",
             )
             .bind(owner)
@@ -312,6 +312,15 @@ impl Store {
             finish_failed(&mut tx, job_id, job.submission_id, &kind, &err.message, t).await?;
         }
         tx.commit().await?;
+        if !requeued {
+            // A failed submission keeps its file's hash, not the file.
+            if let Err(e) = self.release_policy_of(job.submission_id).await {
+                tracing::warn!(
+                    "submission {}: policy file not deleted: {e}",
+                    job.submission_id
+                );
+            }
+        }
         Ok(requeued)
     }
 

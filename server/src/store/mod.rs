@@ -9,6 +9,7 @@
 //! Everything is plain runtime SQL (`query`/`query_as` + `FromRow`), so building
 //! needs no database.
 
+mod files;
 mod jobs;
 mod methods;
 mod paper;
@@ -17,6 +18,7 @@ mod submissions;
 mod tokens;
 pub mod types;
 
+pub use files::TMP_MARKER;
 pub use jobs::{ClaimedJob, JobRow};
 pub use methods::{MethodRow, NewMethod};
 pub use results::{ResultRow, RolloutRow, SeedSummary};
@@ -57,6 +59,42 @@ pub enum StoreError {
     Aggregate(#[from] d3il_metrics::MetricsError),
     #[error("job {job_id} is not leased to {owner}; its report is ignored")]
     LeaseLost { job_id: i64, owner: String },
+}
+
+impl StoreError {
+    /// SQLite's write lock stayed taken past the busy timeout
+    /// (`SQLITE_BUSY`, also `SQLITE_LOCKED`): worth a retry later.
+    pub fn is_busy(&self) -> bool {
+        match self {
+            StoreError::Db(sqlx::Error::Database(d)) => {
+                // Primary result codes 5 (BUSY) and 6 (LOCKED), with any extension.
+                let code = d.code().and_then(|c| c.parse::<i64>().ok()).unwrap_or(0);
+                matches!(code & 0xff, 5 | 6) || d.message().contains("database is locked")
+            }
+            _ => false,
+        }
+    }
+}
+
+/// Runs a write transaction again (up to three times in all) when SQLite
+/// reports it busy, so a writer holding the lock a little past the busy
+/// timeout delays a request instead of failing it.
+pub(crate) async fn retry_busy<T, F, Fut>(mut f: F) -> Result<T, StoreError>
+where
+    F: FnMut() -> Fut,
+    Fut: std::future::Future<Output = Result<T, StoreError>>,
+{
+    let mut tries = 0;
+    loop {
+        match f().await {
+            Err(e) if e.is_busy() && tries < 2 => {
+                tries += 1;
+                tracing::warn!("database busy; retrying ({tries}/2)");
+                tokio::time::sleep(Duration::from_millis(200 * tries)).await;
+            }
+            r => return r,
+        }
+    }
 }
 
 pub(crate) fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> StoreError + '_ {

@@ -2,10 +2,9 @@
 //! (written in one transaction), and the training-seed uniqueness rule.
 
 use super::types::{JobState, PolicyKind, Stored, SubmissionStatus};
-use super::{io_err, now, Store, StoreError};
+use super::{now, Store, StoreError};
 use crate::leaderboard::protocol_str;
 use d3il_protocol::{ObsType, ProtocolKind, TaskId};
-use sha2::{Digest, Sha256};
 use sqlx::types::Json;
 use sqlx::FromRow;
 use std::path::PathBuf;
@@ -90,7 +89,7 @@ impl NewSubmission {
 
 #[derive(Debug, Clone)]
 pub enum NewPolicy {
-    /// Already written to the data dir by [`Store::store_onnx`].
+    /// Already in the data dir ([`Store::commit_onnx`]).
     Onnx {
         sha256: String,
         bytes: i64,
@@ -107,36 +106,6 @@ const SUBMISSION_SELECT: &str = "SELECT s.id, s.method_id, m.name AS method, sub
      FROM submissions s JOIN methods m ON m.id = s.method_id LEFT JOIN submitters sub ON sub.id = s.submitter_id";
 
 impl Store {
-    /// Writes an uploaded ONNX file into the data dir under its SHA-256
-    /// (written to a temporary name, synced, then renamed, so a crash never
-    /// leaves a half file under a valid name).
-    pub async fn store_onnx(&self, bytes: &[u8]) -> Result<(String, PathBuf), StoreError> {
-        let sha = hex::encode(Sha256::digest(bytes));
-        let dir = self.data_dir.join("policies");
-        let path = dir.join(format!("{sha}.onnx"));
-        if tokio::fs::try_exists(&path).await.unwrap_or(false) {
-            return Ok((sha, path));
-        }
-        // One temporary name per write: concurrent uploads of the same file
-        // in this process must not rename each other's temporary away.
-        static WRITES: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
-        let n = WRITES.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-        let tmp = dir.join(format!("{sha}.onnx.tmp{}-{n}", std::process::id()));
-        let data = bytes.to_vec();
-        let (tmp2, path2) = (tmp.clone(), path.clone());
-        tokio::task::spawn_blocking(move || -> std::io::Result<()> {
-            use std::io::Write;
-            let mut f = std::fs::File::create(&tmp2)?;
-            f.write_all(&data)?;
-            f.sync_all()?;
-            std::fs::rename(&tmp2, &path2)
-        })
-        .await
-        .map_err(|e| StoreError::Corrupt(format!("file writer panicked: {e}")))?
-        .map_err(io_err(&tmp))?;
-        Ok((sha, path))
-    }
-
     /// The submission that already holds this seed, if any (checked before an
     /// endpoint's dry-run so a duplicate is refused at once; the insert checks
     /// again under the write lock).
@@ -149,7 +118,17 @@ impl Store {
 
     /// Inserts the submission and its queued job in one transaction; when this
     /// returns the submission is durable.
+    /// A database kept busy by another writer is retried
+    /// ([`super::retry_busy`]) before the error reaches the caller.
     pub async fn create_submission(
+        &self,
+        s: &NewSubmission,
+        max_attempts: i64,
+    ) -> Result<i64, StoreError> {
+        super::retry_busy(|| self.create_submission_once(s, max_attempts)).await
+    }
+
+    async fn create_submission_once(
         &self,
         s: &NewSubmission,
         max_attempts: i64,

@@ -120,6 +120,9 @@ pub async fn spawn_app_with(o: Options) -> TestApp {
     cfg.rate_limit_per_minute = o.rate_limit;
     cfg.max_upload_bytes = o.max_upload;
     cfg.lease_seconds = 3;
+    // The worker here is /bin/false or a test script, not `d3il worker`:
+    // uploads are judged by their evaluation (root tests cover the dry run).
+    cfg.dry_run_uploads = false;
     if let Some(c) = o.connections.clone() {
         cfg.connections = c;
     }

@@ -99,8 +99,9 @@ async fn create_submission(
         field: None,
         message: format!("expected a multipart/form-data body: {e}"),
     })?;
-    let raw = intake::read_multipart(mp, max).await?;
-    let valid = intake::validate(&raw, &state.cfg.limits)?;
+    let mut raw = intake::RawSubmission::default();
+    let who = intake::read_multipart(mp, &state, intake::Caller::Known(who), &mut raw).await?;
+    let valid = intake::validate(raw, &state.cfg.limits)?;
     let id = intake::accept(&state, valid, &who).await?;
     let body = submission_view(&state, id).await?;
     let mut resp = (StatusCode::CREATED, Json(body)).into_response();
@@ -132,7 +133,20 @@ async fn get_submission(
 async fn get_results(
     State(state): State<AppState>,
     Param(id): Param<i64>,
-) -> Result<Json<ResultsView>, AppError> {
+) -> Result<axum::response::Response, AppError> {
+    use crate::cache::Rendered;
+    use axum::response::IntoResponse;
+    let json = |body: std::sync::Arc<str>| {
+        (
+            [(axum::http::header::CONTENT_TYPE, "application/json")],
+            body.to_string(),
+        )
+            .into_response()
+    };
+    // A stored result never changes: render it once.
+    if let Some(body) = state.finished.get(Rendered::Results, id) {
+        return Ok(json(body));
+    }
     let s = state.store.submission(id).await?;
     let r = state.store.result_for(id).await?.ok_or_else(|| {
         AppError::NotFound(format!(
@@ -140,7 +154,10 @@ async fn get_results(
             s.status
         ))
     })?;
-    Ok(Json(results_view(&state, r).await?))
+    let view = results_view(&state, r).await?;
+    let body = serde_json::to_string(&view)
+        .map_err(|e| AppError::Internal(format!("results encoding: {e}")))?;
+    Ok(json(state.finished.put(Rendered::Results, id, body)))
 }
 
 #[derive(Debug, Deserialize, Default, IntoParams)]

@@ -308,10 +308,12 @@ pub(super) async fn submit_post(
             message: format!("expected a multipart/form-data body: {e}"),
         })?;
         // The token is checked before any file part is read.
-        let (raw, who) = intake::read_form_authenticated(mp, max, &state).await?;
+        let mut raw = intake::RawSubmission::default();
+        let read = intake::read_multipart(mp, &state, intake::Caller::FormToken, &mut raw).await;
         kept = raw.text.clone();
         kept.remove("token");
-        let valid = intake::validate(&raw, &state.cfg.limits)?;
+        let who = read?;
+        let valid = intake::validate(raw, &state.cfg.limits)?;
         intake::accept(&state, valid, &who).await
     }
     .await;
@@ -407,6 +409,7 @@ struct AdminPage {
     running: i64,
     workers: usize,
     limits: Vec<(&'static str, String)>,
+    server_limits: Vec<(&'static str, String)>,
 }
 
 /// Operators' view: the sandbox mechanisms in force on this host (what
@@ -468,7 +471,66 @@ pub(super) async fn admin_page(
         running,
         workers: state.cfg.workers,
         limits,
+        server_limits: server_limits(&state.cfg),
     })
+}
+
+/// The connection, upload, rate and attempt limits `d3il serve` was started
+/// with (issue 17), each named with its flag.
+fn server_limits(c: &crate::config::ServerConfig) -> Vec<(&'static str, String)> {
+    let per_min = |n: u32| {
+        if n == u32::MAX {
+            "unlimited".to_string()
+        } else {
+            format!("{n} per minute")
+        }
+    };
+    vec![
+        (
+            "Upload size (--max-upload-mb)",
+            bytes_text(c.max_upload_bytes as u64),
+        ),
+        (
+            "Disk per submitter (--max-disk-mb-per-submitter)",
+            bytes_text(c.max_disk_bytes_per_submitter.unwrap_or(0)),
+        ),
+        (
+            "Concurrent uploads (--max-concurrent-uploads)",
+            c.max_concurrent_uploads.to_string(),
+        ),
+        (
+            "Requests per token (--rate-limit)",
+            per_min(c.rate_limit_per_minute),
+        ),
+        (
+            "Requests without a token per address (--anonymous-rate-limit)",
+            per_min(c.anonymous_rate_limit_per_minute),
+        ),
+        (
+            "Failed token checks per address (--failed-auth-limit)",
+            per_min(c.failed_auth_per_minute),
+        ),
+        (
+            "Header-read and idle timeout (--header-timeout)",
+            format!("{} s", c.connections.header_read_timeout.as_secs()),
+        ),
+        (
+            "Open connections (--max-connections)",
+            c.connections.max_connections.to_string(),
+        ),
+        (
+            "Open connections per address (--max-connections-per-client)",
+            c.connections.max_connections_per_client.to_string(),
+        ),
+        (
+            "Attempts per job (--max-attempts)",
+            c.max_attempts.to_string(),
+        ),
+        (
+            "Worker slots (--workers; plus one for quick runs, shared with submission dry-runs)",
+            c.workers.to_string(),
+        ),
+    ]
 }
 
 fn bytes_text(b: u64) -> String {

@@ -1,0 +1,83 @@
+//! In-memory cache of the expensive read path of finished submissions
+//! (issue 17): a stored result never changes, so its results document (up to
+//! a few hundred kB with 480 rollouts and their paths) is rendered once and
+//! served from memory afterwards; the ETag layer in `app.rs` answers
+//! revalidations with 304. The submission page is not cached: it lists the
+//! row's other training seeds, which change. Bounded: the oldest entry goes
+//! when the cache is full.
+
+use std::collections::{HashMap, VecDeque};
+use std::sync::{Arc, Mutex};
+
+/// What is cached for a submission.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Rendered {
+    /// `GET /api/v1/submissions/{id}/results` (JSON).
+    Results,
+}
+
+type Key = (Rendered, i64);
+/// The bodies, and their keys oldest first.
+type Entries = (HashMap<Key, Arc<str>>, VecDeque<Key>);
+
+/// Bodies by (kind, submission id), at most `capacity` of them.
+#[derive(Debug)]
+pub struct FinishedCache {
+    capacity: usize,
+    inner: Mutex<Entries>,
+}
+
+impl FinishedCache {
+    pub fn new(capacity: usize) -> FinishedCache {
+        FinishedCache {
+            capacity: capacity.max(1),
+            inner: Mutex::new((HashMap::new(), VecDeque::new())),
+        }
+    }
+
+    pub fn get(&self, kind: Rendered, id: i64) -> Option<Arc<str>> {
+        let g = self.inner.lock().unwrap_or_else(|e| e.into_inner());
+        g.0.get(&(kind, id)).cloned()
+    }
+
+    /// Stores `body` (call only for what can no longer change) and returns it.
+    pub fn put(&self, kind: Rendered, id: i64, body: String) -> Arc<str> {
+        let body: Arc<str> = body.into();
+        let mut g = self.inner.lock().unwrap_or_else(|e| e.into_inner());
+        let (map, order) = &mut *g;
+        if map.insert((kind, id), body.clone()).is_none() {
+            order.push_back((kind, id));
+            while order.len() > self.capacity {
+                if let Some(old) = order.pop_front() {
+                    map.remove(&old);
+                }
+            }
+        }
+        body
+    }
+
+    pub fn len(&self) -> usize {
+        self.inner.lock().unwrap_or_else(|e| e.into_inner()).0.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_oldest_entry_goes_first() {
+        let c = FinishedCache::new(2);
+        c.put(Rendered::Results, 1, "r1".into());
+        c.put(Rendered::Results, 2, "r2".into());
+        assert_eq!(c.get(Rendered::Results, 1).as_deref(), Some("r1"));
+        c.put(Rendered::Results, 3, "r3".into());
+        assert_eq!(c.len(), 2);
+        assert!(c.get(Rendered::Results, 1).is_none());
+        assert_eq!(c.get(Rendered::Results, 3).as_deref(), Some("r3"));
+    }
+}

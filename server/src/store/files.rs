@@ -1,0 +1,159 @@
+//! Uploaded policy files in `<data dir>/policies/`: a streamed upload is
+//! written to a temporary name and renamed to `<sha256>.onnx` once accepted;
+//! temporary files left by a crash are removed at start, and the file of a
+//! failed submission is deleted once no live submission uses it (the row
+//! keeps its hash and size).
+
+use super::{io_err, Store, StoreError};
+use std::path::{Path, PathBuf};
+
+/// Temporary uploads carry this in their name (`….onnx.tmp<pid>-<n>`); any
+/// such file found at start is debris of an interrupted upload.
+pub const TMP_MARKER: &str = ".tmp";
+
+impl Store {
+    /// The directory of uploaded policies.
+    pub fn policies_dir(&self) -> PathBuf {
+        self.data_dir.join("policies")
+    }
+
+    /// A fresh temporary name in the policies directory for a streamed
+    /// upload (unique in this process; the pid keeps processes apart).
+    pub fn new_upload_path(&self) -> PathBuf {
+        static UPLOADS: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
+        let n = UPLOADS.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        self.policies_dir()
+            .join(format!("upload.onnx{TMP_MARKER}{}-{n}", std::process::id()))
+    }
+
+    /// Moves a complete, synced temporary upload to `<sha256>.onnx`. Returns
+    /// the final path and whether this call created it (an identical file
+    /// already stored is kept and the temporary removed).
+    pub async fn commit_onnx(
+        &self,
+        tmp: &Path,
+        sha256: &str,
+    ) -> Result<(PathBuf, bool), StoreError> {
+        let path = self.policies_dir().join(format!("{sha256}.onnx"));
+        if tokio::fs::try_exists(&path).await.unwrap_or(false) {
+            tokio::fs::remove_file(tmp).await.map_err(io_err(tmp))?;
+            return Ok((path, false));
+        }
+        tokio::fs::rename(tmp, &path).await.map_err(io_err(tmp))?;
+        Ok((path, true))
+    }
+
+    /// Deletes the policy file at `path` unless a submission that is not
+    /// failed still uses it. Returns whether it was deleted. Only files in
+    /// this store's policies directory are ever deleted.
+    pub async fn release_policy_file(&self, path: &str) -> Result<bool, StoreError> {
+        if !Path::new(path).starts_with(self.policies_dir()) {
+            return Ok(false);
+        }
+        let live: i64 = sqlx::query_scalar(
+            "SELECT COUNT(*) FROM submissions WHERE onnx_path = ? AND status != 'failed'",
+        )
+        .bind(path)
+        .fetch_one(&self.pool)
+        .await?;
+        if live > 0 {
+            return Ok(false);
+        }
+        match tokio::fs::remove_file(path).await {
+            Ok(()) => Ok(true),
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(false),
+            Err(e) => Err(io_err(Path::new(path))(e)),
+        }
+    }
+
+    /// Releases the policy file of submission `id` (after it failed).
+    pub async fn release_policy_of(&self, id: i64) -> Result<bool, StoreError> {
+        let path: Option<String> =
+            sqlx::query_scalar("SELECT onnx_path FROM submissions WHERE id = ?")
+                .bind(id)
+                .fetch_optional(&self.pool)
+                .await?
+                .flatten();
+        match path {
+            Some(p) => self.release_policy_file(&p).await,
+            None => Ok(false),
+        }
+    }
+
+    /// Bytes of policy files this submitter keeps on disk: distinct files of
+    /// their submissions that have not failed.
+    pub async fn submitter_disk_bytes(&self, submitter_id: i64) -> Result<u64, StoreError> {
+        let n: i64 = sqlx::query_scalar(
+            "SELECT COALESCE(SUM(b), 0) FROM (SELECT MAX(onnx_bytes) AS b FROM submissions \
+             WHERE submitter_id = ? AND status != 'failed' AND onnx_path IS NOT NULL GROUP BY onnx_path)",
+        )
+        .bind(submitter_id)
+        .fetch_one(&self.pool)
+        .await?;
+        Ok(n.max(0) as u64)
+    }
+
+    /// At start: removes temporary uploads left by a crash, files no
+    /// submission refers to, and the files of failed submissions that were
+    /// never deleted. Returns how many files
+    /// were removed.
+    pub async fn clean_policy_files(&self) -> Result<usize, StoreError> {
+        let dir = self.policies_dir();
+        let mut removed = 0;
+        let mut entries = tokio::fs::read_dir(&dir).await.map_err(io_err(&dir))?;
+        while let Some(e) = entries.next_entry().await.map_err(io_err(&dir))? {
+            if e.file_name().to_string_lossy().contains(TMP_MARKER) {
+                let p = e.path();
+                match tokio::fs::remove_file(&p).await {
+                    Ok(()) => removed += 1,
+                    Err(err) => tracing::warn!("cannot remove stray upload {}: {err}", p.display()),
+                }
+            }
+        }
+        // Files no submission refers to (a crash between storing the file
+        // and recording its submission).
+        let known: std::collections::HashSet<String> = sqlx::query_scalar::<_, String>(
+            "SELECT DISTINCT onnx_path FROM submissions WHERE onnx_path IS NOT NULL",
+        )
+        .fetch_all(&self.pool)
+        .await?
+        .into_iter()
+        // By file name: a data directory moved with its database still
+        // matches its rows.
+        .filter_map(|p| {
+            Path::new(&p)
+                .file_name()
+                .map(|f| f.to_string_lossy().into_owned())
+        })
+        .collect();
+        let mut entries = tokio::fs::read_dir(&dir).await.map_err(io_err(&dir))?;
+        while let Some(e) = entries.next_entry().await.map_err(io_err(&dir))? {
+            let p = e.path();
+            let orphan = p.extension().is_some_and(|x| x == "onnx")
+                && !known.contains(e.file_name().to_string_lossy().as_ref());
+            if orphan {
+                match tokio::fs::remove_file(&p).await {
+                    Ok(()) => removed += 1,
+                    Err(err) => tracing::warn!("cannot remove unused {}: {err}", p.display()),
+                }
+            }
+        }
+        let failed: Vec<String> = sqlx::query_scalar(
+            "SELECT DISTINCT onnx_path FROM submissions WHERE status = 'failed' AND onnx_path IS NOT NULL",
+        )
+        .fetch_all(&self.pool)
+        .await?;
+        for p in failed {
+            if self.release_policy_file(&p).await? {
+                removed += 1;
+            }
+        }
+        if removed > 0 {
+            tracing::info!(
+                "removed {removed} stray or unused policy file(s) in {}",
+                dir.display()
+            );
+        }
+        Ok(removed)
+    }
+}

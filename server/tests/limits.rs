@@ -1,0 +1,421 @@
+//! Fair use under hostile load (issue 17), against a real server on
+//! 127.0.0.1/127.0.0.2 with a fresh SQLite file: per-address rate limits for
+//! anonymous requests and failed token checks, endpoint dry-runs that share
+//! the worker slots, and a busy database answered with 503 + Retry-After
+//! rather than 500.
+
+use d3il_protocol::{ErrorKind, Job, WorkerError};
+use d3il_server::app::{prepare, ServerConfig};
+use d3il_server::queue::{JobRunner, RunReport};
+use std::net::SocketAddr;
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::Arc;
+use std::time::Duration;
+
+struct App {
+    addr: SocketAddr,
+    state: d3il_server::app::AppState,
+    _dir: tempfile::TempDir,
+}
+
+impl App {
+    fn url(&self, path: &str) -> String {
+        format!("http://{}{path}", self.addr)
+    }
+}
+
+async fn spawn(cfg: impl FnOnce(&mut ServerConfig), runner: Arc<dyn JobRunner>) -> App {
+    let dir = tempfile::tempdir().unwrap();
+    let mut c = ServerConfig::new(
+        dir.path().join("t.sqlite"),
+        "127.0.0.1:0".parse().unwrap(),
+        "/bin/false".into(),
+    );
+    c.workers = 0;
+    // The runner here is a stub: uploads are not dry-run (root tests cover it).
+    c.dry_run_uploads = false;
+    cfg(&mut c);
+    let (listener, running) = prepare(c, runner).await.expect("server starts");
+    tokio::spawn(d3il_server::app::serve_listener(
+        listener,
+        running.state.clone(),
+    ));
+    App {
+        addr: running.addr,
+        state: running.state,
+        _dir: dir,
+    }
+}
+
+/// A client whose connections come from `ip` (127.0.0.0/8).
+fn client_from(ip: &str) -> reqwest::Client {
+    reqwest::Client::builder()
+        .local_address(Some(ip.parse().unwrap()))
+        .build()
+        .unwrap()
+}
+
+/// A runner that fails every job after a while, counting how many run at once.
+#[derive(Default)]
+struct Counting {
+    now: AtomicUsize,
+    max: AtomicUsize,
+    runs: AtomicUsize,
+}
+
+impl JobRunner for Counting {
+    fn run(&self, _job: &Job, _p: &mut dyn FnMut(usize, usize)) -> RunReport {
+        let n = self.now.fetch_add(1, Ordering::SeqCst) + 1;
+        self.max.fetch_max(n, Ordering::SeqCst);
+        std::thread::sleep(Duration::from_millis(300));
+        self.now.fetch_sub(1, Ordering::SeqCst);
+        self.runs.fetch_add(1, Ordering::SeqCst);
+        RunReport {
+            outcome: Err(WorkerError {
+                kind: ErrorKind::Remote,
+                message: "no endpoint here".into(),
+            }),
+            mechanisms: vec![],
+        }
+    }
+}
+
+fn idle_runner() -> Arc<dyn JobRunner> {
+    Arc::new(Counting::default())
+}
+
+#[tokio::test]
+async fn anonymous_requests_are_limited_per_client_address() {
+    let app = spawn(|c| c.anonymous_rate_limit_per_minute = 5, idle_runner()).await;
+    let token = app.state.store.create_token("alice").await.unwrap();
+    let a = client_from("127.0.0.1");
+    for _ in 0..5 {
+        let r = a.get(app.url("/api/v1/leaderboards")).send().await.unwrap();
+        assert_eq!(r.status(), 200);
+    }
+    let r = a.get(app.url("/api/v1/leaderboards")).send().await.unwrap();
+    assert_eq!(r.status(), 429);
+    let wait: u64 = r.headers()["retry-after"]
+        .to_str()
+        .unwrap()
+        .parse()
+        .unwrap();
+    assert!((1..=60).contains(&wait), "{wait}");
+    let body: serde_json::Value = r.json().await.unwrap();
+    assert_eq!(body["error"]["code"], "rate_limited", "{body}");
+    // A page answers with the HTML error page.
+    let r = a.get(app.url("/")).send().await.unwrap();
+    assert_eq!(r.status(), 429);
+    assert!(r.text().await.unwrap().contains("rate limit"));
+    // With a token the per-token limit applies instead.
+    let r = a
+        .get(app.url("/api/v1/whoami"))
+        .bearer_auth(&token)
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status(), 200);
+    // Another address has its own budget.
+    let b = client_from("127.0.0.2");
+    let r = b.get(app.url("/api/v1/leaderboards")).send().await.unwrap();
+    assert_eq!(r.status(), 200);
+}
+
+#[tokio::test]
+async fn failed_token_checks_are_limited_per_client_address() {
+    let app = spawn(|c| c.failed_auth_per_minute = 3, idle_runner()).await;
+    let token = app.state.store.create_token("alice").await.unwrap();
+    let a = client_from("127.0.0.1");
+    for i in 0..3 {
+        let r = a
+            .get(app.url("/api/v1/whoami"))
+            .bearer_auth(format!("d3il_guess{i}"))
+            .send()
+            .await
+            .unwrap();
+        assert_eq!(r.status(), 401);
+    }
+    // Now even the right token is refused from this address for the minute,
+    // and so are POSTs (the form carries its token in the body).
+    let r = a
+        .get(app.url("/api/v1/whoami"))
+        .bearer_auth(&token)
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status(), 429);
+    assert!(r.headers().contains_key("retry-after"));
+    let r = a.post(app.url("/submit")).send().await.unwrap();
+    assert_eq!(r.status(), 429);
+    // Reading pages without a token still works.
+    let r = a.get(app.url("/api/v1/leaderboards")).send().await.unwrap();
+    assert_eq!(r.status(), 200);
+    // Another address is not affected.
+    let r = client_from("127.0.0.2")
+        .get(app.url("/api/v1/whoami"))
+        .bearer_auth(&token)
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status(), 200);
+}
+
+/// Six concurrent endpoint submissions on a one-worker server (one general
+/// slot plus the quick slot) run at most two dry-runs at a time (they used
+/// to start a worker process each, without bound).
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn endpoint_dry_runs_share_the_worker_slots() {
+    let counting = Arc::new(Counting::default());
+    let app = spawn(|c| c.workers = 1, counting.clone()).await;
+    let token = app.state.store.create_token("alice").await.unwrap();
+    let http = reqwest::Client::new();
+    let mut tasks = Vec::new();
+    for seed in 0..6 {
+        let form = reqwest::multipart::Form::new()
+            .text("method", "Remote")
+            .text("task", "pushing")
+            .text("training_seed", seed.to_string())
+            .text("endpoint_url", "wss://policy.example.org/ws");
+        tasks.push(tokio::spawn(
+            http.post(app.url("/api/v1/submissions"))
+                .bearer_auth(&token)
+                .multipart(form)
+                .send(),
+        ));
+    }
+    for t in tasks {
+        let r = t.await.unwrap().unwrap();
+        assert_eq!(r.status(), 422, "the dry-run fails");
+    }
+    assert_eq!(counting.runs.load(Ordering::SeqCst), 6);
+    let max = counting.max.load(Ordering::SeqCst);
+    assert!(
+        (1..=2).contains(&max),
+        "{max} dry-runs ran at once on a pool of 2 slots"
+    );
+}
+
+/// A write that finds the database locked past the busy timeout is answered
+/// with 503 `busy` and Retry-After (a real SQLITE_BUSY from a second
+/// connection), and the store's retry turns a lock held briefly into a
+/// normal answer.
+#[tokio::test]
+async fn a_busy_database_is_retried_then_answered_with_503() {
+    use d3il_server::error::AppError;
+    use d3il_server::store::StoreError;
+    use sqlx::ConnectOptions;
+    let app = spawn(|_| {}, idle_runner()).await;
+    let db = app.state.cfg.db.clone();
+    let opts = sqlx::sqlite::SqliteConnectOptions::new()
+        .filename(&db)
+        .busy_timeout(Duration::ZERO);
+    let mut holder = opts.connect().await.unwrap();
+    sqlx::query("BEGIN IMMEDIATE")
+        .execute(&mut holder)
+        .await
+        .unwrap();
+    let mut other = opts.connect().await.unwrap();
+    let err = sqlx::query("BEGIN IMMEDIATE")
+        .execute(&mut other)
+        .await
+        .expect_err("the lock is held");
+    let e = StoreError::Db(err);
+    assert!(e.is_busy(), "{e}");
+    let app_err: AppError = e.into();
+    assert_eq!(app_err.status().as_u16(), 503);
+    assert_eq!(app_err.code(), "busy");
+    sqlx::query("ROLLBACK").execute(&mut holder).await.unwrap();
+
+    // A submission while another process holds the write lock for 2 s: it
+    // waits (busy timeout) and is accepted, never a 500.
+    let token = app.state.store.create_token("alice").await.unwrap();
+    sqlx::query("BEGIN IMMEDIATE")
+        .execute(&mut holder)
+        .await
+        .unwrap();
+    let release = tokio::spawn(async move {
+        tokio::time::sleep(Duration::from_secs(2)).await;
+        sqlx::query("ROLLBACK").execute(&mut holder).await.unwrap();
+    });
+    let mut onnx = b"\x08\x07\x12\x04test".to_vec();
+    onnx.resize(64, 0);
+    let form = reqwest::multipart::Form::new()
+        .text("method", "Locked")
+        .text("task", "pushing")
+        .text("training_seed", "1")
+        .text(
+            "manifest",
+            r#"{"task": "pushing", "obs_type": "state", "history": 1, "horizon": 1, "execute": 1}"#,
+        )
+        .part(
+            "onnx",
+            reqwest::multipart::Part::bytes(onnx).file_name("p.onnx"),
+        );
+    let r = reqwest::Client::new()
+        .post(app.url("/api/v1/submissions"))
+        .bearer_auth(&token)
+        .multipart(form)
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status(), 201, "{}", r.text().await.unwrap());
+    release.await.unwrap();
+}
+
+/// The admin page shows the limits the server was started with, each named
+/// with its flag.
+#[tokio::test]
+async fn the_admin_page_shows_the_configured_limits() {
+    let app = spawn(
+        |c| {
+            c.max_upload_bytes = 7 << 20;
+            c.max_disk_bytes_per_submitter = Some(33 << 20);
+            c.max_concurrent_uploads = 3;
+            c.anonymous_rate_limit_per_minute = 777;
+            c.failed_auth_per_minute = 9;
+            c.rate_limit_per_minute = 61;
+            c.max_attempts = 5;
+            c.connections.header_read_timeout = Duration::from_secs(13);
+            c.connections.max_connections = 999;
+            c.connections.max_connections_per_client = 42;
+        },
+        idle_runner(),
+    )
+    .await;
+    let admin = app
+        .state
+        .store
+        .create_token_with("ops", true)
+        .await
+        .unwrap();
+    let r = reqwest::Client::new()
+        .get(app.url("/admin"))
+        .bearer_auth(&admin)
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status(), 200);
+    let page = r.text().await.unwrap();
+    let table = page
+        .split("id=\"server-limits\">")
+        .nth(1)
+        .and_then(|t| t.split("</table>").next())
+        .expect("the server limits table");
+    let row = |flag: &str| {
+        table
+            .split("<tr>")
+            .find(|r| r.contains(flag))
+            .unwrap_or_else(|| panic!("no {flag} row in {table}"))
+            .to_string()
+    };
+    for (flag, value) in [
+        ("--max-upload-mb", "7 MiB"),
+        ("--max-disk-mb-per-submitter", "33 MiB"),
+        ("--max-concurrent-uploads", "3"),
+        ("--rate-limit)", "61 per minute"),
+        ("--anonymous-rate-limit", "777 per minute"),
+        ("--failed-auth-limit", "9 per minute"),
+        ("--header-timeout", "13 s"),
+        ("--max-connections)", "999"),
+        ("--max-connections-per-client", "42"),
+        ("--max-attempts", "5"),
+    ] {
+        assert!(
+            row(flag).contains(&format!("<td>{value}</td>")),
+            "{flag}: {}",
+            row(flag)
+        );
+    }
+}
+
+/// A raw multipart upload in two halves: `start` sends the header, the fields
+/// and `first` bytes of the file; `finish` sends the rest and reads the answer.
+struct RawUpload {
+    sock: tokio::net::TcpStream,
+    rest: usize,
+}
+
+const BOUNDARY: &str = "limitsBoundary42";
+
+impl RawUpload {
+    async fn start(app: &App, token: &str, seed: u32, file: usize, first: usize) -> RawUpload {
+        use tokio::io::AsyncWriteExt;
+        let mut head = String::new();
+        for (k, v) in [
+            ("method", "Uploader".to_string()),
+            ("task", "pushing".to_string()),
+            ("training_seed", seed.to_string()),
+            (
+                "manifest",
+                r#"{"task": "pushing", "obs_type": "state", "history": 1, "horizon": 1, "execute": 1}"#
+                    .to_string(),
+            ),
+        ] {
+            head += &format!(
+                "--{BOUNDARY}\r\nContent-Disposition: form-data; name=\"{k}\"\r\n\r\n{v}\r\n"
+            );
+        }
+        head += &format!(
+            "--{BOUNDARY}\r\nContent-Disposition: form-data; name=\"onnx\"; filename=\"p.onnx\"\r\n\r\n"
+        );
+        let len = head.len() + file + format!("\r\n--{BOUNDARY}--\r\n").len();
+        let mut sock = tokio::net::TcpStream::connect(app.addr).await.unwrap();
+        let req = format!(
+            "POST /api/v1/submissions HTTP/1.1\r\nHost: x\r\nAuthorization: Bearer {token}\r\n\
+             Content-Type: multipart/form-data; boundary={BOUNDARY}\r\nContent-Length: {len}\r\n\r\n{head}"
+        );
+        sock.write_all(req.as_bytes()).await.unwrap();
+        sock.write_all(&vec![7u8; first]).await.unwrap();
+        RawUpload {
+            sock,
+            rest: file - first,
+        }
+    }
+
+    async fn finish(mut self) -> String {
+        use tokio::io::{AsyncReadExt, AsyncWriteExt};
+        self.sock.write_all(&vec![7u8; self.rest]).await.unwrap();
+        self.sock
+            .write_all(format!("\r\n--{BOUNDARY}--\r\n").as_bytes())
+            .await
+            .unwrap();
+        let mut got = vec![0u8; 4096];
+        let n = tokio::time::timeout(Duration::from_secs(20), self.sock.read(&mut got))
+            .await
+            .expect("an answer")
+            .unwrap();
+        String::from_utf8_lossy(&got[..n]).into_owned()
+    }
+}
+
+fn temp_uploads(app: &App) -> usize {
+    std::fs::read_dir(app.state.store.policies_dir())
+        .unwrap()
+        .flatten()
+        .filter(|e| e.file_name().to_string_lossy().contains(".tmp"))
+        .count()
+}
+
+/// With `--max-concurrent-uploads 1` a second upload waits, its body unread,
+/// until the first is stored; then it streams in too.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn concurrent_uploads_are_capped() {
+    let app = spawn(|c| c.max_concurrent_uploads = 1, idle_runner()).await;
+    let token = app.state.store.create_token("alice").await.unwrap();
+    let a = RawUpload::start(&app, &token, 1, 512 << 10, 256 << 10).await;
+    for _ in 0..100 {
+        if temp_uploads(&app) == 1 {
+            break;
+        }
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+    assert_eq!(temp_uploads(&app), 1, "the first upload streams to disk");
+    let b = RawUpload::start(&app, &token, 2, 512 << 10, 32 << 10).await;
+    tokio::time::sleep(Duration::from_millis(500)).await;
+    assert_eq!(temp_uploads(&app), 1, "the second upload waits for a slot");
+    let answer = a.finish().await;
+    assert!(answer.starts_with("HTTP/1.1 201"), "{answer}");
+    let answer = b.finish().await;
+    assert!(answer.starts_with("HTTP/1.1 201"), "{answer}");
+    assert_eq!(temp_uploads(&app), 0);
+}
