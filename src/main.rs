@@ -30,6 +30,8 @@ enum Command {
     Contexts(cmd::contexts::Args),
     /// Evaluate a policy (ONNX file, ws:// or wss:// endpoint, or scripted) on a task and print the D3IL metrics.
     Eval(cmd::eval::Args),
+    /// Merge the part files of a sharded `d3il eval --shard K/N` into one result (docs/cluster.md).
+    Merge(cmd::merge::Args),
     /// Render what an image policy sees (both 96x96 cameras) to a PNG.
     Render(cmd::render::Args),
     /// Replay an episode open-loop from policy-level actions and print JSON.
@@ -52,6 +54,7 @@ fn main() -> anyhow::Result<()> {
         Command::Bench(a) => cmd::bench::run(a),
         Command::Compare(a) => cmd::compare::run(a),
         Command::Contexts(a) => cmd::contexts::run(a),
+        Command::Merge(a) => cmd::merge::run(a),
         Command::Render(a) => cmd::render::run(a),
         Command::Replay(a) => cmd::replay::run(a),
         Command::Eval(a) => cmd::eval::run(a),

@@ -4,6 +4,7 @@
 //! rollouts in parallel (rayon), retire finished ones and start pending ones.
 
 use crate::scripted::ScriptedPolicy;
+use crate::shard::{EvalPart, Shard};
 use crate::tasks::{Env, LoadedTask, TaskError};
 use d3il_metrics::{Bootstrap, Outcome};
 use d3il_policy::{
@@ -147,10 +148,146 @@ pub fn evaluate(
     on_progress: &mut dyn FnMut(usize, usize),
 ) -> Result<(EvalResult, Timing), EvalError> {
     let t0 = Instant::now();
+    let run = run_rollouts(task, policy, info, opts, None, on_progress)?;
+    let mut timing = run.timing;
+    let result = assemble(
+        run.manifest,
+        run.rollouts,
+        &run.behaviour_keys,
+        inference_ms(timing.policy_s, timing.policy_calls),
+        opts.bootstrap_resamples,
+    )?;
+    // As before the split: the total includes the metrics' bootstrap.
+    timing.total_s = t0.elapsed().as_secs_f64();
+    Ok((result, timing))
+}
+
+/// Runs only shard `shard` of the protocol (a contiguous block of whole
+/// initial states, [`Shard::contexts`]) and returns the part that
+/// [`crate::shard::merge`] joins with the other shards into the result a
+/// plain [`evaluate`] gives. Rollouts keep their global indices, so the
+/// policy sees the same rollout ids (and noise) as in an unsharded run.
+pub fn evaluate_shard(
+    task: &LoadedTask,
+    policy: &mut dyn Policy,
+    info: &PolicyInfo,
+    opts: &EvalOptions,
+    shard: Shard,
+    on_progress: &mut dyn FnMut(usize, usize),
+) -> Result<(EvalPart, Timing), EvalError> {
+    let run = run_rollouts(task, policy, info, opts, Some(shard), on_progress)?;
+    Ok((
+        EvalPart {
+            format: crate::shard::PART_FORMAT.into(),
+            manifest: run.manifest,
+            shard,
+            contexts: [run.contexts.start, run.contexts.end],
+            rollouts: run.rollouts,
+            behaviour_keys: run.behaviour_keys,
+            policy_seconds: run.timing.policy_s,
+            policy_calls: run.timing.policy_calls,
+            bootstrap_resamples: opts.bootstrap_resamples,
+        },
+        run.timing,
+    ))
+}
+
+/// Mean wall-clock milliseconds per batched policy call.
+pub fn inference_ms(policy_s: f64, policy_calls: usize) -> f64 {
+    if policy_calls > 0 {
+        1000.0 * policy_s / policy_calls as f64
+    } else {
+        0.0
+    }
+}
+
+/// The one place where rollout records become an [`EvalResult`]: the D3IL
+/// metrics (bootstrap seeded by the manifest's seed), the per-context
+/// breakdown and the unstable-rollout count. `behaviour_keys[i]` is the
+/// metrics' behaviour key of `rollouts[i]` ([`d3il_metrics::Outcome::behaviour`]).
+/// Used by [`evaluate`] and by [`crate::shard::merge`].
+pub fn assemble(
+    manifest: ProtocolManifest,
+    rollouts: Vec<RolloutRecord>,
+    behaviour_keys: &[Option<String>],
+    inference_ms: f64,
+    bootstrap_resamples: usize,
+) -> Result<EvalResult, EvalError> {
+    if behaviour_keys.len() != rollouts.len() {
+        return Err(EvalError::Setup(format!(
+            "{} rollout records but {} behaviour keys",
+            rollouts.len(),
+            behaviour_keys.len()
+        )));
+    }
+    let outcomes: Vec<Outcome> = rollouts
+        .iter()
+        .zip(behaviour_keys)
+        .map(|(r, key)| Outcome {
+            context_index: r.context_index,
+            success: r.success,
+            behaviour: key.clone(),
+        })
+        .collect();
+    let rollouts_ended_unstable = rollouts
+        .iter()
+        .filter(|r| {
+            r.failure
+                .as_ref()
+                .is_some_and(|f| f.reason == FailureReason::SimUnstable)
+        })
+        .count();
+    let evaluation = d3il_metrics::evaluate(
+        manifest.task,
+        &outcomes,
+        inference_ms,
+        &Bootstrap {
+            resamples: bootstrap_resamples,
+            confidence: 0.95,
+            seed: manifest.seed,
+        },
+    )?;
+    Ok(EvalResult {
+        manifest,
+        metrics: evaluation.metrics,
+        per_context: evaluation.per_context,
+        rollouts,
+        rollouts_ended_unstable,
+    })
+}
+
+/// The rollouts of one evaluation (or of one shard of it), before metrics.
+struct Run {
+    manifest: ProtocolManifest,
+    /// The initial states this run covered (all of them without a shard).
+    contexts: std::ops::Range<usize>,
+    rollouts: Vec<RolloutRecord>,
+    behaviour_keys: Vec<Option<String>>,
+    timing: Timing,
+}
+
+fn run_rollouts(
+    task: &LoadedTask,
+    policy: &mut dyn Policy,
+    info: &PolicyInfo,
+    opts: &EvalOptions,
+    shard: Option<Shard>,
+    on_progress: &mut dyn FnMut(usize, usize),
+) -> Result<Run, EvalError> {
+    let t0 = Instant::now();
     let mut timing = Timing::default();
     let set = task.def.context_set()?;
     let (n_ctx, per_ctx) = protocol_size(task, opts.protocol, set.len());
-    let total = n_ctx * per_ctx;
+    let ctx_range = match shard {
+        Some(s) => s
+            .contexts(n_ctx)
+            .map_err(|e| EvalError::Setup(e.to_string()))?,
+        None => 0..n_ctx,
+    };
+    // Rollout ids are global (context * per_ctx + index): a shard's rollouts
+    // get the ids, hence the policy noise, they have in the whole evaluation.
+    let first_id = ctx_range.start * per_ctx;
+    let total = ctx_range.len() * per_ctx;
     let shape = policy.shape();
     let spec = task.spec();
     if shape.obs_type != task.obs_type {
@@ -195,7 +332,7 @@ pub fn evaluate(
     }
     let mut next = 0usize;
     let mut records: Vec<Option<RolloutRecord>> = vec![None; total];
-    let mut outcomes: Vec<Option<Outcome>> = vec![None; total];
+    let mut keys: Vec<Option<Option<String>>> = vec![None; total];
     let contexts: Vec<Value> = (0..n_ctx)
         .map(|i| set.get(i).cloned().unwrap_or(Value::Null))
         .collect();
@@ -206,7 +343,7 @@ pub fn evaluate(
             slot.rollout = None;
             return Ok(None);
         }
-        let id = *next;
+        let id = first_id + *next;
         *next += 1;
         let (ctx, r) = (id / per_ctx, id % per_ctx);
         slot.env.reset(&contexts[ctx])?;
@@ -334,12 +471,8 @@ pub fn evaluate(
             } else {
                 slot.env.behaviour_key()
             };
-            outcomes[id] = Some(Outcome {
-                context_index: ctx,
-                success,
-                behaviour: key,
-            });
-            records[id] = Some(RolloutRecord {
+            keys[id - first_id] = Some(key);
+            records[id - first_id] = Some(RolloutRecord {
                 context_index: ctx,
                 rollout_index: r,
                 success,
@@ -359,31 +492,8 @@ pub fn evaluate(
         on_progress(done_count, total);
     }
 
-    let outcomes: Vec<Outcome> = outcomes.into_iter().flatten().collect();
+    let behaviour_keys: Vec<Option<String>> = keys.into_iter().flatten().collect();
     let rollouts: Vec<RolloutRecord> = records.into_iter().flatten().collect();
-    let rollouts_ended_unstable = rollouts
-        .iter()
-        .filter(|r| {
-            r.failure
-                .as_ref()
-                .is_some_and(|f| f.reason == FailureReason::SimUnstable)
-        })
-        .count();
-    let inference_ms = if timing.policy_calls > 0 {
-        1000.0 * timing.policy_s / timing.policy_calls as f64
-    } else {
-        0.0
-    };
-    let evaluation = d3il_metrics::evaluate(
-        task.def.id(),
-        &outcomes,
-        inference_ms,
-        &Bootstrap {
-            resamples: opts.bootstrap_resamples,
-            confidence: 0.95,
-            seed: opts.seed,
-        },
-    )?;
     let manifest = ProtocolManifest {
         task: task.def.id(),
         task_version: task.def.version().into(),
@@ -406,16 +516,13 @@ pub fn evaluate(
     timing.total_s = t0.elapsed().as_secs_f64();
     timing.step_cpu_s = slots.iter().map(|s| s.step_cpu_s).sum();
     timing.render_cpu_s = slots.iter().map(|s| s.env.render_seconds()).sum();
-    Ok((
-        EvalResult {
-            manifest,
-            metrics: evaluation.metrics,
-            per_context: evaluation.per_context,
-            rollouts,
-            rollouts_ended_unstable,
-        },
+    Ok(Run {
+        manifest,
+        contexts: ctx_range,
+        rollouts,
+        behaviour_keys,
         timing,
-    ))
+    })
 }
 
 /// One env step of a live slot: the next queued action, then the new

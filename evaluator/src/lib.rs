@@ -14,5 +14,7 @@ pub mod mujoco;
 pub mod robot;
 #[cfg(feature = "engine")]
 pub mod scripted;
+#[cfg(feature = "engine")]
+pub mod shard;
 pub mod sim;
 pub mod tasks;

@@ -42,13 +42,18 @@ pub struct Args {
     /// policy's manifest says it itself.
     #[arg(long, default_value = "state")]
     pub obs_type: ObsType,
+    /// Evaluate only shard K of N (contiguous blocks of whole initial states)
+    /// and write a part file to --json; join the parts with `d3il merge`
+    /// (docs/cluster.md).
+    #[arg(long, value_name = "K/N")]
+    pub shard: Option<d3il_evaluator::shard::Shard>,
     /// Limits of the sandboxed worker (--sandbox); the remote deadline, frame
     /// cap and private-address rule apply without --sandbox too.
     #[command(flatten)]
     pub limits: super::limits::LimitArgs,
 }
 
-fn progress_bar(done: usize, total: usize, started: Instant) {
+pub fn progress_bar(done: usize, total: usize, started: Instant) {
     let frac = done as f64 / total.max(1) as f64;
     let width = 30;
     let filled = (frac * width as f64).round() as usize;
@@ -157,6 +162,9 @@ pub fn build_job(args: &Args) -> anyhow::Result<Job> {
 
 pub fn run(args: Args) -> anyhow::Result<()> {
     let job = build_job(&args)?;
+    if let Some(shard) = args.shard {
+        return super::merge::run_shard(&args, &job, shard);
+    }
     let started = Instant::now();
     let mut last = usize::MAX;
     let mut on_progress = |d: usize, t: usize| {

@@ -4,6 +4,7 @@ pub mod compare;
 pub mod contexts;
 pub mod eval;
 pub mod limits;
+pub mod merge;
 pub mod render;
 pub mod replay;
 pub mod serve;

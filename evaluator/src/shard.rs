@@ -1,0 +1,341 @@
+//! Sharded evaluations (docs/cluster.md): shard K of N evaluates a
+//! contiguous block of whole initial states, [`crate::eval::evaluate_shard`]
+//! writes it as an [`EvalPart`], and [`merge`] joins the N parts into the
+//! [`EvalResult`] a plain evaluation gives, bit for bit (every metric and
+//! rollout record; only the measured inference time differs). Rollout ids,
+//! and with them the policy noise keyed by (seed, rollout, step), are global.
+
+use crate::eval::{assemble, inference_ms, EvalError};
+use d3il_protocol::{EvalResult, ProtocolManifest, RolloutRecord};
+use serde::{Deserialize, Serialize};
+use std::fmt;
+use std::ops::Range;
+use std::str::FromStr;
+
+/// The `format` of a part file; a part of another format is refused.
+pub const PART_FORMAT: &str = "d3il-eval-part/1";
+
+/// Shard `index` of `count` (1-based: `2/6` is the second of six).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Shard {
+    pub index: usize,
+    pub count: usize,
+}
+
+#[derive(Debug, thiserror::Error, PartialEq, Eq)]
+pub enum ShardError {
+    #[error(
+        "`{0}` is not a shard: write K/N with 1 <= K <= N, e.g. 2/6 for the second of six shards"
+    )]
+    Syntax(String),
+    #[error(
+        "shard {shard}: the protocol has only {n_contexts} initial states and a shard holds whole \
+         initial states, so use at most {n_contexts} shards"
+    )]
+    TooManyShards { shard: Shard, n_contexts: usize },
+}
+
+impl fmt::Display for Shard {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{}/{}", self.index, self.count)
+    }
+}
+
+impl FromStr for Shard {
+    type Err = ShardError;
+
+    fn from_str(s: &str) -> Result<Self, ShardError> {
+        let bad = || ShardError::Syntax(s.to_string());
+        let (k, n) = s.split_once('/').ok_or_else(bad)?;
+        let index: usize = k.trim().parse().map_err(|_| bad())?;
+        let count: usize = n.trim().parse().map_err(|_| bad())?;
+        if index == 0 || index > count {
+            return Err(bad());
+        }
+        Ok(Shard { index, count })
+    }
+}
+
+impl Shard {
+    /// The initial states (indices into the protocol's first `n_contexts`)
+    /// of this shard: shard k of N holds `[(k-1)·n/N, k·n/N)`, so the shards
+    /// tile the set in order and differ in size by at most one.
+    pub fn contexts(&self, n_contexts: usize) -> Result<Range<usize>, ShardError> {
+        if self.count > n_contexts || self.index == 0 || self.index > self.count {
+            return Err(ShardError::TooManyShards {
+                shard: *self,
+                n_contexts,
+            });
+        }
+        let at = |k: usize| k * n_contexts / self.count;
+        Ok(at(self.index - 1)..at(self.index))
+    }
+}
+
+/// What `d3il eval --shard K/N --json part.json` writes: the protocol manifest
+/// of the whole evaluation (task, policy sha256, initial-state set name and
+/// sha256, seed, ...), which shard this is, and its rollouts.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct EvalPart {
+    /// [`PART_FORMAT`].
+    pub format: String,
+    pub manifest: ProtocolManifest,
+    pub shard: Shard,
+    /// The initial states covered, `[start, end)`.
+    pub contexts: [usize; 2],
+    /// Records in rollout order (initial state, then index within it).
+    pub rollouts: Vec<RolloutRecord>,
+    /// The metrics' behaviour key of each record (see [`crate::eval::assemble`]).
+    pub behaviour_keys: Vec<Option<String>>,
+    /// Wall-clock seconds in policy calls, and their number (inference time).
+    pub policy_seconds: f64,
+    pub policy_calls: usize,
+    pub bootstrap_resamples: usize,
+}
+
+/// Why parts cannot be merged; each names the files and what to do.
+#[derive(Debug, thiserror::Error)]
+pub enum MergeError {
+    #[error("no part files given: pass the files `d3il eval --shard K/N --json FILE` wrote")]
+    NoParts,
+    #[error(
+        "{file} is not a part file of this version (format `{found}`, expected `{PART_FORMAT}`)"
+    )]
+    Format { file: String, found: String },
+    #[error(
+        "{a} and {b} come from different {what}: {field} is {values}; \
+         merge only the parts of one evaluation"
+    )]
+    Mismatch {
+        what: &'static str,
+        field: String,
+        a: String,
+        b: String,
+        /// "`x` in a but `y` in b".
+        values: String,
+    },
+    #[error("{a} is shard {sa} but {b} is shard {sb}: all parts must split the evaluation into the same number of shards")]
+    ShardCount {
+        a: String,
+        b: String,
+        sa: Shard,
+        sb: Shard,
+    },
+    #[error("shard {shard} is given twice ({a} and {b}); pass each shard once")]
+    Duplicate { shard: Shard, a: String, b: String },
+    #[error(
+        "missing {missing}: run `d3il eval ... --shard K/N` for them and merge all {count} parts"
+    )]
+    Missing { missing: String, count: usize },
+    #[error("{file} is inconsistent ({why}); rerun its shard")]
+    Inconsistent { file: String, why: String },
+    #[error(transparent)]
+    Eval(#[from] EvalError),
+}
+
+/// Which evaluation a manifest field identifies, for the mismatch message.
+fn field_kind(field: &str) -> &'static str {
+    match field {
+        "policy_sha256" | "history" | "horizon" | "execute" | "obs_type" => "policies",
+        "initial_states" | "initial_states_sha256" => "initial-state sets",
+        "task" | "task_version" | "mjcf_sha256" => "tasks",
+        "evaluator_version" | "mujoco_version" => "evaluator builds",
+        _ => "protocols",
+    }
+}
+
+fn check_part(file: &str, p: &EvalPart) -> Result<(), MergeError> {
+    let bad = |why: String| MergeError::Inconsistent {
+        file: file.to_string(),
+        why,
+    };
+    let range = p
+        .shard
+        .contexts(p.manifest.n_contexts)
+        .map_err(|e| bad(e.to_string()))?;
+    if p.contexts != [range.start, range.end] {
+        return Err(bad(format!(
+            "shard {} of {} initial states covers {range:?}, the file says {:?}",
+            p.shard, p.manifest.n_contexts, p.contexts
+        )));
+    }
+    let per = p.manifest.rollouts_per_context;
+    if p.rollouts.len() != range.len() * per || p.behaviour_keys.len() != p.rollouts.len() {
+        return Err(bad(format!(
+            "{} records and {} behaviour keys for {} initial states x {per} rollouts",
+            p.rollouts.len(),
+            p.behaviour_keys.len(),
+            range.len()
+        )));
+    }
+    for (i, r) in p.rollouts.iter().enumerate() {
+        let want = (range.start + i / per, i % per);
+        if (r.context_index, r.rollout_index) != want {
+            return Err(bad(format!(
+                "record {i} is rollout {} of initial state {}, expected rollout {} of {}",
+                r.rollout_index, r.context_index, want.1, want.0
+            )));
+        }
+    }
+    Ok(())
+}
+
+/// Joins the parts of one sharded evaluation (`(file name, part)`, any order)
+/// into its result, computed by the same [`assemble`] as a plain evaluation.
+/// Refuses parts of different policies, protocols or initial-state sets,
+/// missing and duplicate shards.
+pub fn merge(parts: Vec<(String, EvalPart)>) -> Result<EvalResult, MergeError> {
+    let Some((first_file, first)) = parts.first() else {
+        return Err(MergeError::NoParts);
+    };
+    let first_manifest =
+        serde_json::to_value(&first.manifest).map_err(|e| MergeError::Inconsistent {
+            file: first_file.clone(),
+            why: e.to_string(),
+        })?;
+    for (file, p) in &parts {
+        if p.format != PART_FORMAT {
+            return Err(MergeError::Format {
+                file: file.clone(),
+                found: p.format.clone(),
+            });
+        }
+        check_part(file, p)?;
+        let m = serde_json::to_value(&p.manifest).map_err(|e| MergeError::Inconsistent {
+            file: file.clone(),
+            why: e.to_string(),
+        })?;
+        if let (Some(a), Some(b)) = (first_manifest.as_object(), m.as_object()) {
+            // Policy first: the likeliest mistake and the most useful message.
+            let mut fields: Vec<&String> = a.keys().chain(b.keys()).collect();
+            fields.sort_by_key(|f| (field_kind(f) != "policies", f.as_str()));
+            fields.dedup();
+            for f in fields {
+                let (va, vb) = (a.get(f), b.get(f));
+                if va != vb {
+                    let show = |v: Option<&serde_json::Value>| match v {
+                        Some(serde_json::Value::String(s)) => s.clone(),
+                        Some(v) => v.to_string(),
+                        None => "absent".into(),
+                    };
+                    return Err(MergeError::Mismatch {
+                        what: field_kind(f),
+                        field: f.clone(),
+                        a: first_file.clone(),
+                        b: file.clone(),
+                        values: format!(
+                            "`{}` in {first_file} but `{}` in {file}",
+                            show(va),
+                            show(vb)
+                        ),
+                    });
+                }
+            }
+        }
+        if p.bootstrap_resamples != first.bootstrap_resamples {
+            return Err(MergeError::Mismatch {
+                what: "protocols",
+                field: "bootstrap_resamples".into(),
+                a: first_file.clone(),
+                b: file.clone(),
+                values: format!(
+                    "{} in {first_file} but {} in {file}",
+                    first.bootstrap_resamples, p.bootstrap_resamples
+                ),
+            });
+        }
+        if p.shard.count != first.shard.count {
+            return Err(MergeError::ShardCount {
+                a: first_file.clone(),
+                b: file.clone(),
+                sa: first.shard,
+                sb: p.shard,
+            });
+        }
+    }
+    let count = first.shard.count;
+    let mut slots: Vec<Option<(String, EvalPart)>> = vec![None; count];
+    for (file, p) in parts {
+        let slot = &mut slots[p.shard.index - 1];
+        if let Some((a, _)) = slot {
+            return Err(MergeError::Duplicate {
+                shard: p.shard,
+                a: a.clone(),
+                b: file,
+            });
+        }
+        *slot = Some((file, p));
+    }
+    let missing: Vec<String> = slots
+        .iter()
+        .enumerate()
+        .filter(|(_, s)| s.is_none())
+        .map(|(i, _)| format!("{}/{count}", i + 1))
+        .collect();
+    if !missing.is_empty() {
+        return Err(MergeError::Missing {
+            missing: format!(
+                "shard{} {}",
+                if missing.len() > 1 { "s" } else { "" },
+                missing.join(", ")
+            ),
+            count,
+        });
+    }
+    let mut manifest = None;
+    let mut rollouts = Vec::new();
+    let mut keys = Vec::new();
+    let (mut policy_s, mut calls, mut resamples) = (0.0, 0, 0);
+    for (_, p) in slots.into_iter().flatten() {
+        policy_s += p.policy_seconds;
+        calls += p.policy_calls;
+        resamples = p.bootstrap_resamples;
+        rollouts.extend(p.rollouts);
+        keys.extend(p.behaviour_keys);
+        manifest.get_or_insert(p.manifest);
+    }
+    let manifest = manifest.ok_or(MergeError::NoParts)?;
+    Ok(assemble(
+        manifest,
+        rollouts,
+        &keys,
+        inference_ms(policy_s, calls),
+        resamples,
+    )?)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn shards_tile_the_contexts_in_order() {
+        for n in 1..=12 {
+            for count in 1..=n {
+                let mut next = 0;
+                for index in 1..=count {
+                    let r = Shard { index, count }.contexts(n).unwrap();
+                    assert_eq!(r.start, next);
+                    assert!(!r.is_empty());
+                    next = r.end;
+                }
+                assert_eq!(next, n);
+            }
+        }
+        let r = Shard { index: 2, count: 6 }.contexts(60).unwrap();
+        assert_eq!(r, 10..20);
+    }
+
+    #[test]
+    fn shard_syntax_and_limits() {
+        assert_eq!("2/6".parse::<Shard>(), Ok(Shard { index: 2, count: 6 }));
+        for bad in ["0/6", "7/6", "2", "a/b", "2/0", ""] {
+            assert!(
+                matches!(bad.parse::<Shard>(), Err(ShardError::Syntax(_))),
+                "{bad}"
+            );
+        }
+        let e = Shard { index: 1, count: 4 }.contexts(3).unwrap_err();
+        assert!(e.to_string().contains("at most 3 shards"), "{e}");
+    }
+}
