@@ -70,7 +70,9 @@ struct Fixture {
 fn fixture() -> &'static Fixture {
     static F: OnceLock<Fixture> = OnceLock::new();
     F.get_or_init(|| {
-        let dir = std::env::temp_dir().join(format!("d3il-shard-cli-{}", std::process::id()));
+        // Cargo's scratch space for integration tests (a static is never
+        // dropped, so nothing under /tmp would be removed).
+        let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("shard-cli");
         let _ = std::fs::remove_dir_all(&dir);
         std::fs::create_dir_all(&dir).unwrap();
         let plain_stdout = ok(
