@@ -558,6 +558,9 @@ pub async fn accept(
     // The upload becomes `<sha256>.onnx`; `created` when this request wrote
     // it (so a refused insert deletes it again).
     let mut created = None;
+    // No failed submission's file release may run between placing the file
+    // and recording the submission that refers to it.
+    let files = store.lock_policy_files().await;
     let policy = match &mut v.policy {
         ValidPolicy::Onnx(file) => {
             if let Some(cap) = state.cfg.max_disk_bytes_per_submitter {
@@ -602,6 +605,7 @@ pub async fn accept(
             state.cfg.max_attempts,
         )
         .await;
+    drop(files);
     let id = match inserted {
         Ok(id) => id,
         Err(e) => {

@@ -496,3 +496,64 @@ async fn bad_stored_data_fails_to_decode_naming_the_column() {
         store.submission(sub).await.unwrap();
     }
 }
+
+/// A failed submission's file release waits while another request places
+/// the same file and records its submission, then sees the new reference and
+/// keeps the file (the release used to count references while the new
+/// submission was not recorded yet, and delete its file).
+#[tokio::test]
+async fn releasing_a_file_waits_for_an_upload_being_recorded() {
+    let dir = tempfile::tempdir().unwrap();
+    let store = Store::open(&dir.path().join("s.sqlite")).await.unwrap();
+    let sha = "ab".repeat(32);
+    let tmp = store.policies_dir().join("upload.onnx.tmp1-0");
+    std::fs::write(&tmp, b"model").unwrap();
+    let files = store.lock_policy_files().await;
+    let (path, _) = store.commit_onnx(&tmp, &sha).await.unwrap();
+    let path_s = path.to_string_lossy().into_owned();
+    let release = tokio::spawn({
+        let store = store.clone();
+        let p = path_s.clone();
+        async move { store.release_policy_file(&p).await.unwrap() }
+    });
+    tokio::time::sleep(std::time::Duration::from_millis(200)).await;
+    assert!(!release.is_finished(), "the release did not wait");
+    assert!(path.exists());
+    let m = store
+        .ensure_method(
+            &NewMethod {
+                name: "M".into(),
+                ..Default::default()
+            },
+            None,
+        )
+        .await
+        .unwrap();
+    store
+        .create_submission(
+            &NewSubmission {
+                method_id: m.id,
+                submitter_id: None,
+                task: TaskId::Aligning,
+                obs_type: ObsType::State,
+                training_seed: 0,
+                data_fraction: 1.0,
+                protocol: ProtocolKind::Paper,
+                policy: NewPolicy::Onnx {
+                    sha256: sha.clone(),
+                    bytes: 5,
+                    path: path.clone(),
+                },
+                manifest_json: "{}".into(),
+            },
+            3,
+        )
+        .await
+        .unwrap();
+    drop(files);
+    assert!(
+        !release.await.unwrap(),
+        "a live submission's file was released"
+    );
+    assert!(path.exists());
+}

@@ -50,6 +50,7 @@ impl Store {
         if !Path::new(path).starts_with(self.policies_dir()) {
             return Ok(false);
         }
+        let _files = self.files.lock().await;
         let live: i64 = sqlx::query_scalar(
             "SELECT COUNT(*) FROM submissions WHERE onnx_path = ? AND status != 'failed'",
         )
@@ -64,6 +65,12 @@ impl Store {
             Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(false),
             Err(e) => Err(io_err(Path::new(path))(e)),
         }
+    }
+
+    /// Holds off [`Store::release_policy_file`] while a policy file is placed
+    /// and its submission recorded (release nothing while holding it).
+    pub async fn lock_policy_files(&self) -> tokio::sync::MutexGuard<'_, ()> {
+        self.files.lock().await
     }
 
     /// Releases the policy file of submission `id` (after it failed).

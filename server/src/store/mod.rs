@@ -118,6 +118,11 @@ pub struct Store {
     /// Token id -> when this process last wrote (or started writing) its
     /// `last_used_at`: one write per token per minute, even while the
     /// database is locked and the previous write is still waiting.
+    /// Held while a policy file is placed and its submission recorded, and
+    /// while a file is checked for live submissions and deleted, so that a
+    /// failed submission's release never deletes the file an identical
+    /// upload is being recorded with.
+    files: std::sync::Arc<tokio::sync::Mutex<()>>,
     last_used: std::sync::Arc<std::sync::Mutex<std::collections::HashMap<i64, i64>>>,
 }
 
@@ -156,6 +161,7 @@ impl Store {
             pool,
             data_dir,
             last_used: Default::default(),
+            files: Default::default(),
         };
         store
             .load_paper(&d3il_protocol::paper::load_embedded())
