@@ -72,6 +72,20 @@ pub(super) struct SubmissionLine {
     pub(super) when: String,
 }
 
+impl From<crate::store::SubmissionRow> for SubmissionLine {
+    fn from(s: crate::store::SubmissionRow) -> Self {
+        SubmissionLine {
+            id: s.id,
+            method_url: method_url(&s.method),
+            method: s.method,
+            task: s.task.to_string(),
+            obs: s.obs_type.to_string(),
+            status: s.status.to_string(),
+            when: fmt_time(s.created_at),
+        }
+    }
+}
+
 // ----------------------------------------------------------------- leaderboard
 
 #[derive(Debug, Deserialize, Default)]
@@ -416,15 +430,7 @@ pub(super) async fn method_page(
         .submissions_of_method(m.id)
         .await?
         .into_iter()
-        .map(|s| SubmissionLine {
-            id: s.id,
-            method_url: method_url(&s.method),
-            method: s.method,
-            task: s.task.to_string(),
-            obs: s.obs_type.to_string(),
-            status: s.status.to_string(),
-            when: fmt_time(s.created_at),
-        })
+        .map(SubmissionLine::from)
         .collect();
     render(&MethodPage {
         history: m

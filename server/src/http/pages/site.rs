@@ -227,15 +227,7 @@ pub(super) async fn home(
         .latest_submissions(10)
         .await?
         .into_iter()
-        .map(|s| SubmissionLine {
-            id: s.id,
-            method_url: method_url(&s.method),
-            method: s.method,
-            task: s.task.to_string(),
-            obs: s.obs_type.to_string(),
-            status: s.status.to_string(),
-            when: fmt_time(s.created_at),
-        })
+        .map(SubmissionLine::from)
         .collect();
     let (queued, running) = state.store.queue_counts().await?;
     render(&HomePage {
