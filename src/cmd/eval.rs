@@ -53,7 +53,7 @@ pub struct Args {
     pub limits: super::limits::LimitArgs,
 }
 
-pub fn progress_bar(done: usize, total: usize, started: Instant) {
+fn progress_bar(done: usize, total: usize, started: Instant) {
     let frac = done as f64 / total.max(1) as f64;
     let width = 30;
     let filled = (frac * width as f64).round() as usize;
@@ -74,6 +74,50 @@ pub fn progress_bar(done: usize, total: usize, started: Instant) {
         }
     );
     let _ = std::io::stderr().flush();
+}
+
+/// A progress callback for an evaluation: redraws the bar on stderr when the
+/// count of finished rollouts changes.
+pub fn progress_printer() -> impl FnMut(usize, usize) {
+    let started = Instant::now();
+    let mut last = usize::MAX;
+    move |d: usize, t: usize| {
+        if d != last {
+            last = d;
+            progress_bar(d, t, started);
+        }
+    }
+}
+
+/// What an in-process evaluation of `job` needs: the task, the loaded policy
+/// and the options (`d3il eval` without --sandbox, and each shard).
+pub fn load_in_process(
+    args: &Args,
+    job: &Job,
+) -> anyhow::Result<(
+    LoadedTask,
+    Box<dyn d3il_policy::Policy>,
+    PolicyInfo,
+    EvalOptions,
+)> {
+    let task = LoadedTask::load_obs(job.task, job.manifest.obs_type)?;
+    let (policy, info) = eval::load_policy(job, &task)?;
+    let opts = EvalOptions {
+        protocol: job.protocol,
+        seed: job.seed,
+        max_live: args.max_live,
+        ..EvalOptions::default()
+    };
+    Ok((task, policy, info, opts))
+}
+
+/// Ends the progress bar's line and prints where an evaluation's time went.
+pub fn print_timing(t: &eval::Timing) {
+    eprintln!();
+    eprintln!(
+        "time {:.1}s: stepping {:.1}s, policy {:.2}s over {} batched calls",
+        t.total_s, t.physics_s, t.policy_s, t.policy_calls
+    );
 }
 
 /// The policy manifest of an ONNX file: `manifest` when given, else the
@@ -165,14 +209,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     if let Some(shard) = args.shard {
         return super::merge::run_shard(&args, &job, shard);
     }
-    let started = Instant::now();
-    let mut last = usize::MAX;
-    let mut on_progress = |d: usize, t: usize| {
-        if d != last {
-            last = d;
-            progress_bar(d, t, started);
-        }
-    };
+    let mut on_progress = progress_printer();
     let result = if args.sandbox {
         let cmd = d3il_sandbox::WorkerCommand {
             exe: std::env::current_exe()?,
@@ -195,20 +232,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             d3il_sandbox::Outcome::Failed(e) => bail!("{:?}: {}", e.kind, e.message),
         }
     } else {
-        let task = LoadedTask::load_obs(job.task, job.manifest.obs_type)?;
-        let (mut policy, info): (_, PolicyInfo) = eval::load_policy(&job, &task)?;
-        let opts = EvalOptions {
-            protocol: job.protocol,
-            seed: job.seed,
-            max_live: args.max_live,
-            ..EvalOptions::default()
-        };
+        let (task, mut policy, info, opts) = load_in_process(&args, &job)?;
         let (r, t) = eval::evaluate(&task, policy.as_mut(), &info, &opts, &mut on_progress)?;
-        eprintln!();
-        eprintln!(
-            "time {:.1}s: stepping {:.1}s, policy {:.2}s over {} batched calls",
-            t.total_s, t.physics_s, t.policy_s, t.policy_calls
-        );
+        print_timing(&t);
         r
     };
     print!("{}", metrics_table(&result));

@@ -3,12 +3,10 @@
 //! which joins the parts into the result (and table) of a plain `d3il eval`.
 
 use anyhow::{bail, Context};
-use d3il_evaluator::eval::{self, EvalOptions};
+use d3il_evaluator::eval;
 use d3il_evaluator::shard::{self, EvalPart, Shard};
-use d3il_evaluator::tasks::LoadedTask;
 use d3il_protocol::Job;
 use std::path::PathBuf;
-use std::time::Instant;
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -29,22 +27,8 @@ pub fn run_shard(args: &super::eval::Args, job: &Job, shard: Shard) -> anyhow::R
     if args.sandbox {
         bail!("--shard cannot be combined with --sandbox yet: run the shard without --sandbox");
     }
-    let task = LoadedTask::load_obs(job.task, job.manifest.obs_type)?;
-    let (mut policy, info) = eval::load_policy(job, &task)?;
-    let opts = EvalOptions {
-        protocol: job.protocol,
-        seed: job.seed,
-        max_live: args.max_live,
-        ..EvalOptions::default()
-    };
-    let started = Instant::now();
-    let mut last = usize::MAX;
-    let mut on_progress = |d: usize, t: usize| {
-        if d != last {
-            last = d;
-            super::eval::progress_bar(d, t, started);
-        }
-    };
+    let (task, mut policy, info, opts) = super::eval::load_in_process(args, job)?;
+    let mut on_progress = super::eval::progress_printer();
     let (part, t) = eval::evaluate_shard(
         &task,
         policy.as_mut(),
@@ -53,11 +37,7 @@ pub fn run_shard(args: &super::eval::Args, job: &Job, shard: Shard) -> anyhow::R
         shard,
         &mut on_progress,
     )?;
-    eprintln!();
-    eprintln!(
-        "time {:.1}s: stepping {:.1}s, policy {:.2}s over {} batched calls",
-        t.total_s, t.physics_s, t.policy_s, t.policy_calls
-    );
+    super::eval::print_timing(&t);
     println!(
         "task {} shard {shard}: initial states {}..{} of {}, {} rollouts (merge all {} parts with `d3il merge`)",
         part.manifest.task,
