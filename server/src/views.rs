@@ -37,7 +37,21 @@ pub async fn progress(
     task: TaskId,
     protocol: ProtocolKind,
 ) -> Result<Progress, AppError> {
-    let pos = state.store.queue_position(job.id).await?;
+    // A finished job has no position and no estimate: no queries.
+    if !matches!(job.state, JobState::Queued | JobState::Leased) {
+        return Ok(Progress {
+            rollouts_done: job.rollouts_done,
+            rollouts_total: job.rollouts_total,
+            queue_position: None,
+            eta_seconds: None,
+        });
+    }
+    // (task, protocol) of the queued jobs ahead; their count is the position.
+    let ahead = match job.state {
+        JobState::Queued => Some(state.store.queued_ahead(job.id).await?),
+        _ => None,
+    };
+    let pos = ahead.as_ref().map(|a| a.len() as i64);
     let means: HashMap<(String, String), f64> = state
         .store
         .mean_job_seconds_by_kind()
@@ -49,12 +63,11 @@ pub async fn progress(
         .get(&(task.slug().to_string(), protocol_str(protocol).to_string()))
         .copied();
     let workers = state.cfg.workers.max(1) as f64;
-    let eta = match (job.state, pos) {
-        (JobState::Queued, Some(_)) => match own {
+    let eta = match (job.state, &ahead) {
+        (JobState::Queued, Some(ahead)) => match own {
             None => None,
             Some(own) => {
                 let quick_slot = state.cfg.workers > 0 && protocol == ProtocolKind::Quick;
-                let ahead = state.store.queued_ahead(job.id).await?;
                 let waits: Vec<f64> = ahead
                     .iter()
                     .filter(|(_, p)| !quick_slot || p == protocol_str(ProtocolKind::Quick))

@@ -317,7 +317,9 @@ async fn leases_expire_retries_are_bounded_and_restart_requeues() {
     let db = dir.path().join("lb.sqlite");
     let mut store = Store::open(&db).await.unwrap();
     let (sub, job) = submit(&store, "Flaky", TaskId::Pushing, 0).await;
-    assert_eq!(store.queue_position(job).await.unwrap(), Some(0));
+    // Queued, with nothing ahead of it (position 0).
+    assert_eq!(store.job_for(sub).await.unwrap().state, JobState::Queued);
+    assert!(store.queued_ahead(job).await.unwrap().is_empty());
     let c = store.claim_job("w0", 60).await.unwrap().unwrap();
     assert_eq!(c.job.attempts, 1);
     assert!(

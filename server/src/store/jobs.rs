@@ -324,23 +324,6 @@ impl Store {
         Ok(requeued)
     }
 
-    /// Jobs ahead of this one in the queue (0 = next), or None if it is not queued.
-    pub async fn queue_position(&self, job_id: i64) -> Result<Option<i64>, StoreError> {
-        let state: JobState = sqlx::query_scalar("SELECT state FROM jobs WHERE id = ?")
-            .bind(job_id)
-            .fetch_one(&self.pool)
-            .await?;
-        if state != JobState::Queued {
-            return Ok(None);
-        }
-        Ok(Some(
-            sqlx::query_scalar("SELECT COUNT(*) FROM jobs WHERE state = 'queued' AND id < ?")
-                .bind(job_id)
-                .fetch_one(&self.pool)
-                .await?,
-        ))
-    }
-
     /// Mean wall time, in seconds, of the last 20 finished jobs of each
     /// (task slug, protocol) pair: the basis of ETAs (a Stacking paper run and
     /// an Aligning smoke test take very different times).
