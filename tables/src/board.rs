@@ -184,19 +184,17 @@ pub fn behaviour_bars_svg(title: &str, counts: &[(String, usize)]) -> Result<Str
             .y_label_area_size(name_w as u32)
             .build_cartesian_2d(0f64..x_max, 0f64..counts.len().max(1) as f64)
             .map_err(pe)?;
-        chart
-            .configure_mesh()
-            .disable_y_mesh()
-            .y_labels(0)
-            .x_labels(((top as usize) + 1).min(8))
-            .x_label_formatter(&int_tick)
-            .x_desc("Successful rollouts")
-            .label_style(("sans-serif", 14).into_font())
-            .axis_desc_style(("sans-serif", 15).into_font())
-            .light_line_style(TRANSPARENT)
-            .bold_line_style(RGBColor(225, 225, 225))
-            .draw()
-            .map_err(pe)?;
+        crate::plot::house_mesh(
+            chart
+                .configure_mesh()
+                .disable_y_mesh()
+                .y_labels(0)
+                .x_labels(((top as usize) + 1).min(8))
+                .x_label_formatter(&int_tick)
+                .x_desc("Successful rollouts"),
+        )
+        .draw()
+        .map_err(pe)?;
         let colour = crate::plot::PAPER_COLOURS[3];
         for (i, (name, c)) in counts.iter().enumerate() {
             // Most frequent on top.

@@ -415,18 +415,16 @@ pub fn render_avoiding_paths(
             .y_label_area_size(60)
             .build_cartesian_2d(x0..x1, y0..y1)
             .map_err(pe)?;
-        chart
-            .configure_mesh()
-            .x_desc("x (m)")
-            .y_desc("y (m)")
-            .x_label_formatter(&tick)
-            .y_label_formatter(&tick)
-            .label_style(("sans-serif", 14).into_font())
-            .axis_desc_style(("sans-serif", 15).into_font())
-            .light_line_style(TRANSPARENT)
-            .bold_line_style(RGBColor(225, 225, 225))
-            .draw()
-            .map_err(pe)?;
+        crate::plot::house_mesh(
+            chart
+                .configure_mesh()
+                .x_desc("x (m)")
+                .y_desc("y (m)")
+                .x_label_formatter(&tick)
+                .y_label_formatter(&tick),
+        )
+        .draw()
+        .map_err(pe)?;
         let fy = avoiding::finish_y();
         chart
             .draw_series(std::iter::once(PathElement::new(

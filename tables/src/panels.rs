@@ -85,20 +85,18 @@ pub fn chart<'a, DB: DrawingBackend>(
         .build_cartesian_2d(x, y)
         .map_err(pe)?;
     let (fx, fy) = (tick_fmt(xs), tick_fmt(ys));
-    chart
-        .configure_mesh()
-        .x_desc(x_desc)
-        .y_desc(y_desc)
-        .x_labels(6)
-        .y_labels(6)
-        .x_label_formatter(&fx)
-        .y_label_formatter(&fy)
-        .label_style(("sans-serif", 14).into_font())
-        .axis_desc_style(("sans-serif", 15).into_font())
-        .light_line_style(TRANSPARENT)
-        .bold_line_style(RGBColor(225, 225, 225))
-        .draw()
-        .map_err(pe)?;
+    crate::plot::house_mesh(
+        chart
+            .configure_mesh()
+            .x_desc(x_desc)
+            .y_desc(y_desc)
+            .x_labels(6)
+            .y_labels(6)
+            .x_label_formatter(&fx)
+            .y_label_formatter(&fy),
+    )
+    .draw()
+    .map_err(pe)?;
     Ok(chart)
 }
 

@@ -60,6 +60,24 @@ pub fn method_colour(method: &str) -> RGBColor {
     EXTRA_COLOURS[(h % EXTRA_COLOURS.len() as u64) as usize]
 }
 
+/// The axes' house style of every chart (Pareto, data-fraction, paths,
+/// behaviour bars): tick labels at 14 px, axis titles at 15 px, no minor grid
+/// and a light major grid.
+pub fn house_mesh<'m, 'a, 'b, X, Y, DB>(
+    mesh: &'m mut plotters::chart::MeshStyle<'a, 'b, X, Y, DB>,
+) -> &'m mut plotters::chart::MeshStyle<'a, 'b, X, Y, DB>
+where
+    X: plotters::coord::ranged1d::Ranged,
+    Y: plotters::coord::ranged1d::Ranged,
+    DB: plotters::backend::DrawingBackend,
+{
+    use plotters::style::{IntoFont, TRANSPARENT};
+    mesh.label_style(("sans-serif", 14).into_font())
+        .axis_desc_style(("sans-serif", 15).into_font())
+        .light_line_style(TRANSPARENT)
+        .bold_line_style(RGBColor(225, 225, 225))
+}
+
 /// `#rrggbb` of a colour.
 pub fn hex(c: RGBColor) -> String {
     format!("#{:02x}{:02x}{:02x}", c.0, c.1, c.2)
