@@ -9,8 +9,10 @@ use std::time::Duration;
 /// Everything `d3il serve` can be told.
 #[derive(Debug, Clone)]
 pub struct ServerConfig {
-    /// SQLite file (created if missing).
-    pub db: PathBuf,
+    /// SQLite file (created if missing) or PostgreSQL URL.
+    pub db: crate::store::DbTarget,
+    /// Where uploaded policies live (`Store::connect`); needed with PostgreSQL.
+    pub policy_store: Option<PathBuf>,
     pub bind: SocketAddr,
     /// Worker slots (concurrent evaluations).
     pub workers: usize,
@@ -68,10 +70,15 @@ impl Default for ConnectionLimits {
 
 impl ServerConfig {
     /// Defaults with the given database, bind address and worker executable.
-    pub fn new(db: PathBuf, bind: SocketAddr, worker_exe: PathBuf) -> Self {
+    pub fn new(
+        db: impl Into<crate::store::DbTarget>,
+        bind: SocketAddr,
+        worker_exe: PathBuf,
+    ) -> Self {
         let limits = Limits::default();
         ServerConfig {
-            db,
+            db: db.into(),
+            policy_store: None,
             bind,
             workers: std::thread::available_parallelism()
                 .map(|n| n.get())

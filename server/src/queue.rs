@@ -116,22 +116,29 @@ impl QueueSignal {
     }
 }
 
-/// Requeues abandoned jobs, then starts `cfg.workers` slots that take any
-/// job, oldest first, plus (when `cfg.workers > 0`) one slot that takes only
-/// quick-protocol jobs.
+/// Requeues abandoned jobs (SQLite: the one server owns the file, so every
+/// lease left is its own from before a restart; on PostgreSQL other hosts'
+/// leases are live, and a dead host's lease expires instead), then starts
+/// `cfg.workers` slots that take any job, oldest first, plus (when
+/// `cfg.workers > 0`) one slot that takes only quick-protocol jobs.
 pub async fn start_pool(
     store: Store,
     runner: Arc<dyn JobRunner>,
     cfg: PoolConfig,
     signal: QueueSignal,
 ) -> Result<(), StoreError> {
-    let n = store.requeue_abandoned().await?;
-    if n > 0 {
-        tracing::info!("requeued {n} job(s) interrupted by the previous shutdown");
+    if !store.is_postgres() {
+        let n = store.requeue_abandoned().await?;
+        if n > 0 {
+            tracing::info!("requeued {n} job(s) interrupted by the previous shutdown");
+        }
     }
     let cfg = Arc::new(cfg);
+    // Lease owners name the host and process, so hosts sharing a database
+    // never hold a lease under the same name.
+    let host = owner_host();
     for slot in 0..cfg.workers {
-        let owner = format!("{}-slot{slot}", std::process::id());
+        let owner = format!("{host}-{}-slot{slot}", std::process::id());
         tokio::spawn(slot_loop(
             store.clone(),
             runner.clone(),
@@ -149,11 +156,20 @@ pub async fn start_pool(
             runner.clone(),
             cfg.clone(),
             signal.clone(),
-            format!("{}-quick", std::process::id()),
+            format!("{host}-{}-quick", std::process::id()),
             Some(ProtocolKind::Quick),
         ));
     }
     Ok(())
+}
+
+/// This host's name (`/proc/sys/kernel/hostname`), for lease owners.
+fn owner_host() -> String {
+    std::fs::read_to_string("/proc/sys/kernel/hostname")
+        .map(|h| h.trim().to_string())
+        .ok()
+        .filter(|h| !h.is_empty())
+        .unwrap_or_else(|| "host".into())
 }
 
 async fn slot_loop(

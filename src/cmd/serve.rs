@@ -6,10 +6,8 @@ use std::path::PathBuf;
 
 #[derive(clap::Args, Debug)]
 pub struct Args {
-    /// SQLite database file (created and migrated if missing; the paper's
-    /// results are loaded on first start).
-    #[arg(long, default_value = "d3il.sqlite")]
-    pub db: PathBuf,
+    #[command(flatten)]
+    pub db: super::db::DbArgs,
     /// Address to listen on (port 0 picks a free port).
     #[arg(long, default_value = "127.0.0.1:8080")]
     pub bind: SocketAddr,
@@ -71,7 +69,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             std::env::current_exe().context("cannot find the d3il executable to start workers")?
         }
     };
-    let mut cfg = d3il_server::app::ServerConfig::new(args.db, args.bind, exe);
+    let mut cfg = d3il_server::app::ServerConfig::new(args.db.db, args.bind, exe);
+    cfg.policy_store = args.db.policy_store;
     if let Some(w) = args.workers {
         cfg.workers = w;
     }

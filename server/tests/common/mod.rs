@@ -165,3 +165,60 @@ pub fn fake_onnx() -> Vec<u8> {
     v.resize(64, 0);
     v
 }
+
+/// Which database a store test runs on.
+#[derive(Debug, Clone, Copy)]
+pub enum Backend {
+    Sqlite,
+    Postgres,
+}
+
+/// A fresh database of either backend (a SQLite file in a temporary
+/// directory, or a new database on the throw-away PostgreSQL cluster) with
+/// its own policy store; `open` may be called again to simulate a restart.
+pub struct TestDb {
+    pub target: d3il_server::store::DbTarget,
+    pub policies: PathBuf,
+    pub dir: tempfile::TempDir,
+}
+
+impl TestDb {
+    pub fn new(b: Backend) -> TestDb {
+        let dir = tempfile::tempdir().expect("temp dir");
+        let target = match b {
+            Backend::Sqlite => d3il_server::store::DbTarget::Sqlite(dir.path().join("lb.sqlite")),
+            Backend::Postgres => {
+                d3il_server::store::DbTarget::Postgres(d3il_test_support::pg::fresh_database())
+            }
+        };
+        TestDb {
+            target,
+            policies: dir.path().join("policy-store"),
+            dir,
+        }
+    }
+
+    pub async fn open(&self) -> d3il_server::store::Store {
+        d3il_server::store::Store::connect(&self.target, Some(&self.policies))
+            .await
+            .expect("open the test store")
+    }
+}
+
+/// For each `async fn name(b: Backend)`, a module `name` with the tests
+/// `sqlite` and `postgres` running it on each backend.
+macro_rules! on_both_backends {
+    ($($name:ident),+ $(,)?) => {$(
+        mod $name {
+            #[tokio::test]
+            async fn sqlite() {
+                super::$name(super::Backend::Sqlite).await
+            }
+            #[tokio::test]
+            async fn postgres() {
+                super::$name(super::Backend::Postgres).await
+            }
+        }
+    )+};
+}
+pub(crate) use on_both_backends;
