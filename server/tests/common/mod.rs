@@ -87,6 +87,8 @@ pub struct Options {
     pub db: Option<PathBuf>,
     /// Connection limits; default: the server's.
     pub connections: Option<d3il_server::config::ConnectionLimits>,
+    /// SQLite (default) or a fresh database on the test PostgreSQL.
+    pub backend: Backend,
 }
 
 impl Default for Options {
@@ -98,6 +100,7 @@ impl Default for Options {
             max_upload: 1 << 20,
             db: None,
             connections: None,
+            backend: Backend::Sqlite,
         }
     }
 }
@@ -115,7 +118,15 @@ pub async fn spawn_app_with(o: Options) -> TestApp {
         .worker_exe
         .clone()
         .unwrap_or_else(|| PathBuf::from("/bin/false"));
-    let mut cfg = ServerConfig::new(db.clone(), "127.0.0.1:0".parse().unwrap(), exe);
+    let target = match o.backend {
+        Backend::Sqlite => d3il_server::store::DbTarget::Sqlite(db.clone()),
+        Backend::Postgres => {
+            d3il_server::store::DbTarget::Postgres(d3il_test_support::pg::fresh_database())
+        }
+    };
+    let mut cfg = ServerConfig::new(target, "127.0.0.1:0".parse().unwrap(), exe);
+    cfg.policy_store =
+        matches!(o.backend, Backend::Postgres).then(|| dir.path().join("policy-store"));
     cfg.workers = o.workers;
     cfg.rate_limit_per_minute = o.rate_limit;
     cfg.max_upload_bytes = o.max_upload;
