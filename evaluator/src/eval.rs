@@ -6,7 +6,6 @@
 use crate::scripted::ScriptedPolicy;
 use crate::shard::{EvalPart, Shard};
 use crate::tasks::{Env, LoadedTask, TaskError};
-use d3il_metrics::{Bootstrap, Outcome};
 use d3il_policy::{
     validate_actions, HistoryBuffer, OnnxPolicy, Policy, PolicyError, Query, RemotePolicy,
 };
@@ -192,69 +191,7 @@ pub fn evaluate_shard(
     ))
 }
 
-/// Mean wall-clock milliseconds per batched policy call.
-pub fn inference_ms(policy_s: f64, policy_calls: usize) -> f64 {
-    if policy_calls > 0 {
-        1000.0 * policy_s / policy_calls as f64
-    } else {
-        0.0
-    }
-}
-
-/// The one place where rollout records become an [`EvalResult`]: the D3IL
-/// metrics (bootstrap seeded by the manifest's seed), the per-context
-/// breakdown and the unstable-rollout count. `behaviour_keys[i]` is the
-/// metrics' behaviour key of `rollouts[i]` ([`d3il_metrics::Outcome::behaviour`]).
-/// Used by [`evaluate`] and by [`crate::shard::merge`].
-pub fn assemble(
-    manifest: ProtocolManifest,
-    rollouts: Vec<RolloutRecord>,
-    behaviour_keys: &[Option<String>],
-    inference_ms: f64,
-    bootstrap_resamples: usize,
-) -> Result<EvalResult, EvalError> {
-    if behaviour_keys.len() != rollouts.len() {
-        return Err(EvalError::Setup(format!(
-            "{} rollout records but {} behaviour keys",
-            rollouts.len(),
-            behaviour_keys.len()
-        )));
-    }
-    let outcomes: Vec<Outcome> = rollouts
-        .iter()
-        .zip(behaviour_keys)
-        .map(|(r, key)| Outcome {
-            context_index: r.context_index,
-            success: r.success,
-            behaviour: key.clone(),
-        })
-        .collect();
-    let rollouts_ended_unstable = rollouts
-        .iter()
-        .filter(|r| {
-            r.failure
-                .as_ref()
-                .is_some_and(|f| f.reason == FailureReason::SimUnstable)
-        })
-        .count();
-    let evaluation = d3il_metrics::evaluate(
-        manifest.task,
-        &outcomes,
-        inference_ms,
-        &Bootstrap {
-            resamples: bootstrap_resamples,
-            confidence: 0.95,
-            seed: manifest.seed,
-        },
-    )?;
-    Ok(EvalResult {
-        manifest,
-        metrics: evaluation.metrics,
-        per_context: evaluation.per_context,
-        rollouts,
-        rollouts_ended_unstable,
-    })
-}
+pub use d3il_metrics::shard::{assemble, inference_ms};
 
 /// The rollouts of one evaluation (or of one shard of it), before metrics.
 struct Run {

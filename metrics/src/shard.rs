@@ -1,12 +1,16 @@
 //! Sharded evaluations (docs/cluster.md): shard K of N evaluates a
-//! contiguous block of whole initial states, [`crate::eval::evaluate_shard`]
+//! contiguous block of whole initial states, the evaluator's `evaluate_shard`
 //! writes it as an [`EvalPart`], and [`merge`] joins the N parts into the
 //! [`EvalResult`] a plain evaluation gives, bit for bit (every metric and
 //! rollout record; only the measured inference time differs). Rollout ids,
 //! and with them the policy noise keyed by (seed, rollout, step), are global.
 
-use crate::eval::{assemble, inference_ms, EvalError};
-use d3il_protocol::{EvalResult, ProtocolManifest, RolloutRecord};
+//! Here, in the metrics crate, because records become a result in one place
+//! ([`assemble`]) for a plain evaluation, the CLI's `d3il merge` and the
+//! server merging the shards its worker hosts ran.
+
+use crate::{Bootstrap, MetricsError, Outcome};
+use d3il_protocol::{EvalResult, FailureReason, ProtocolManifest, RolloutRecord};
 use serde::{Deserialize, Serialize};
 use std::fmt;
 use std::ops::Range;
@@ -130,7 +134,7 @@ pub enum MergeError {
     #[error("{file} is inconsistent ({why}); rerun its shard")]
     Inconsistent { file: String, why: String },
     #[error(transparent)]
-    Eval(#[from] EvalError),
+    Metrics(#[from] MetricsError),
 }
 
 /// Which evaluation a manifest field identifies, for the mismatch message.
@@ -302,6 +306,70 @@ pub fn merge(parts: Vec<(String, EvalPart)>) -> Result<EvalResult, MergeError> {
         inference_ms(policy_s, calls),
         resamples,
     )?)
+}
+
+/// Mean wall-clock milliseconds per batched policy call.
+pub fn inference_ms(policy_s: f64, policy_calls: usize) -> f64 {
+    if policy_calls > 0 {
+        1000.0 * policy_s / policy_calls as f64
+    } else {
+        0.0
+    }
+}
+
+/// The one place where rollout records become an [`EvalResult`]: the D3IL
+/// metrics (bootstrap seeded by the manifest's seed), the per-context
+/// breakdown and the unstable-rollout count. `behaviour_keys[i]` is the
+/// metrics' behaviour key of `rollouts[i]` ([`crate::Outcome::behaviour`]).
+/// Used by the evaluator's `evaluate` and by [`merge`].
+pub fn assemble(
+    manifest: ProtocolManifest,
+    rollouts: Vec<RolloutRecord>,
+    behaviour_keys: &[Option<String>],
+    inference_ms: f64,
+    bootstrap_resamples: usize,
+) -> Result<EvalResult, MetricsError> {
+    if behaviour_keys.len() != rollouts.len() {
+        return Err(MetricsError::Records(format!(
+            "{} rollout records but {} behaviour keys",
+            rollouts.len(),
+            behaviour_keys.len()
+        )));
+    }
+    let outcomes: Vec<Outcome> = rollouts
+        .iter()
+        .zip(behaviour_keys)
+        .map(|(r, key)| Outcome {
+            context_index: r.context_index,
+            success: r.success,
+            behaviour: key.clone(),
+        })
+        .collect();
+    let rollouts_ended_unstable = rollouts
+        .iter()
+        .filter(|r| {
+            r.failure
+                .as_ref()
+                .is_some_and(|f| f.reason == FailureReason::SimUnstable)
+        })
+        .count();
+    let evaluation = crate::evaluate(
+        manifest.task,
+        &outcomes,
+        inference_ms,
+        &Bootstrap {
+            resamples: bootstrap_resamples,
+            confidence: 0.95,
+            seed: manifest.seed,
+        },
+    )?;
+    Ok(EvalResult {
+        manifest,
+        metrics: evaluation.metrics,
+        per_context: evaluation.per_context,
+        rollouts,
+        rollouts_ended_unstable,
+    })
 }
 
 #[cfg(test)]
