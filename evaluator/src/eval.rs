@@ -10,7 +10,7 @@ use d3il_policy::{
     validate_actions, HistoryBuffer, OnnxPolicy, Policy, PolicyError, Query, RemotePolicy,
 };
 use d3il_protocol::{
-    ErrorKind, EvalResult, FailureReason, Job, ObsType, PolicySource, ProtocolKind,
+    ErrorKind, EvalResult, Evaluated, FailureReason, Job, ObsType, PolicySource, ProtocolKind,
     ProtocolManifest, RolloutFailure, RolloutRecord, TaskId, WorkerError,
 };
 use rayon::prelude::*;
@@ -595,6 +595,21 @@ pub fn run_job(
     job: &Job,
     on_progress: &mut dyn FnMut(usize, usize),
 ) -> Result<EvalResult, WorkerError> {
+    match run_job_or_shard(job, on_progress)? {
+        Evaluated::Result(r) => Ok(*r),
+        Evaluated::Part(_) => Err(WorkerError {
+            kind: ErrorKind::BadJob,
+            message: "this job is one shard of an evaluation; its part is not a result".into(),
+        }),
+    }
+}
+
+/// [`run_job`] for any job: a job with [`Job::shard`] runs only that shard
+/// ([`evaluate_shard`]) and gives its part.
+pub fn run_job_or_shard(
+    job: &Job,
+    on_progress: &mut dyn FnMut(usize, usize),
+) -> Result<Evaluated, WorkerError> {
     let to_worker = |e: EvalError| WorkerError {
         kind: e.kind(),
         message: e.to_string(),
@@ -611,7 +626,11 @@ pub fn run_job(
     // query to running the rollouts, not to loading the policy.
     if let Ok(set) = task.def.context_set() {
         let (n_ctx, per_ctx) = protocol_size(&task, job.protocol, set.len());
-        on_progress(0, n_ctx * per_ctx);
+        let n = match job.shard.map(|s| s.contexts(n_ctx)) {
+            Some(Ok(range)) => range.len(),
+            _ => n_ctx,
+        };
+        on_progress(0, n * per_ctx);
     }
     let opts = EvalOptions {
         protocol: job.protocol,
@@ -619,7 +638,11 @@ pub fn run_job(
         step_cap: job.dry_run_steps,
         ..EvalOptions::default()
     };
-    evaluate(&task, policy.as_mut(), &info, &opts, on_progress)
-        .map(|(r, _)| r)
-        .map_err(to_worker)
+    match job.shard {
+        Some(shard) => evaluate_shard(&task, policy.as_mut(), &info, &opts, shard, on_progress)
+            .map(|(p, _)| Evaluated::Part(Box::new(p))),
+        None => evaluate(&task, policy.as_mut(), &info, &opts, on_progress)
+            .map(|(r, _)| Evaluated::Result(Box::new(r))),
+    }
+    .map_err(to_worker)
 }

@@ -33,6 +33,10 @@ pub struct ServerConfig {
     pub max_concurrent_uploads: usize,
     /// Attempts per job before the submission fails (crashes, lost leases).
     pub max_attempts: i64,
+    /// Shards a paper-protocol job is split into (whole initial states each,
+    /// at most the protocol's number); 1: not split. Shards run on any worker
+    /// slot or host and are merged when all are done (issue 19).
+    pub shards: usize,
     /// Uploaded models run a short sandboxed dry run before they are queued
     /// (`intake::dry_run`); off, a model that cannot run fails at its
     /// evaluation instead.
@@ -91,6 +95,7 @@ impl ServerConfig {
             max_disk_bytes_per_submitter: Some(4096 << 20),
             max_concurrent_uploads: 4,
             max_attempts: 3,
+            shards: 1,
             dry_run_uploads: true,
             lease_seconds: 30,
             worker: WorkerProcess {

@@ -5,7 +5,7 @@
 
 use crate::store::{ClaimedJob, PolicyKind, Store, StoreError};
 use d3il_protocol::{
-    ErrorKind, EvalResult, Job, Limits, PolicyManifest, PolicySource, ProtocolKind,
+    ErrorKind, Evaluated, Job, Limits, PolicyManifest, PolicySource, ProtocolKind,
     SandboxMechanism, WorkerError,
 };
 use std::path::PathBuf;
@@ -16,7 +16,8 @@ use tokio::sync::{mpsc, Notify};
 /// What one run of a job produced.
 #[derive(Debug, Clone)]
 pub struct RunReport {
-    pub outcome: Result<Box<EvalResult>, WorkerError>,
+    /// A whole result, or the part of the shard the job asked for.
+    pub outcome: Result<Evaluated, WorkerError>,
     /// Confinement mechanisms that were in force (shown on the submission page).
     pub mechanisms: Vec<SandboxMechanism>,
 }
@@ -103,6 +104,7 @@ pub fn job_from_claim(
         limits: limits.clone(),
         assets_dir: assets_dir.to_string_lossy().into_owned(),
         dry_run_steps: None,
+        shard: c.job.shard(),
     })
 }
 
@@ -210,6 +212,7 @@ async fn run_claimed(
 ) -> Result<(), StoreError> {
     let job_id = c.job.id;
     let submission_id = c.submission.id;
+    let shard = c.job.shard();
     let job = match job_from_claim(&c, &cfg.assets_dir, &cfg.limits) {
         Ok(j) => j,
         Err(message) => {
@@ -265,11 +268,42 @@ async fn run_claimed(
         },
     };
     match report.outcome {
-        Ok(result) => {
+        Ok(Evaluated::Result(result)) if shard.is_none() => {
             store
                 .complete_job(job_id, submission_id, &result, &report.mechanisms)
                 .await?;
             tracing::info!("job {job_id} completed");
+        }
+        Ok(Evaluated::Part(part)) if shard == Some(part.shard) => {
+            let Some(merged) = lease_lost_is_a_warning(
+                store
+                    .complete_shard(job_id, owner, &part, &report.mechanisms)
+                    .await,
+            )?
+            else {
+                return Ok(());
+            };
+            tracing::info!(
+                "job {job_id} (shard {} of submission {submission_id}) completed{}",
+                part.shard,
+                if merged {
+                    "; all shards done, result merged"
+                } else {
+                    ""
+                }
+            );
+        }
+        Ok(_) => {
+            let err = WorkerError {
+                kind: ErrorKind::ProtocolViolation,
+                message: match shard {
+                    Some(s) => format!(
+                        "the worker was asked for shard {s} and answered with something else"
+                    ),
+                    None => "the worker answered a whole evaluation with a shard's part".into(),
+                },
+            };
+            lease_lost_is_a_warning(store.fail_attempt(job_id, owner, &err, false).await)?;
         }
         Err(err) => {
             let Some(requeued) = lease_lost_is_a_warning(

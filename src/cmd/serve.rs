@@ -40,6 +40,11 @@ pub struct Args {
     /// Attempts per evaluation before a crashing job fails.
     #[arg(long, default_value_t = 3)]
     pub max_attempts: i64,
+    /// Split each paper-protocol evaluation into this many shards of whole
+    /// initial states, run by any worker slot or host (`d3il workers`) and
+    /// merged when all are done; the result is bit-identical to one run.
+    #[arg(long, default_value_t = 1)]
+    pub shards: usize,
     /// Queue uploaded models without the submission-time dry run (a few
     /// sandboxed steps of the quick protocol); a model that cannot run then
     /// fails at its evaluation instead of being refused at submission.
@@ -92,6 +97,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     cfg.max_concurrent_uploads = args.max_concurrent_uploads.max(1);
     anyhow::ensure!(args.max_attempts >= 1, "--max-attempts must be at least 1");
     cfg.max_attempts = args.max_attempts;
+    cfg.shards = args.shards.max(1);
     cfg.dry_run_uploads = !args.no_upload_dry_run;
     anyhow::ensure!(
         args.header_timeout >= 1

@@ -97,6 +97,7 @@ pub fn avoiding_job(policy: PolicySource, limits: Limits) -> Job {
         limits,
         assets_dir: assets_dir().display().to_string(),
         dry_run_steps: None,
+        shard: None,
     }
 }
 

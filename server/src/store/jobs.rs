@@ -6,8 +6,67 @@ use super::types::Json;
 use super::types::{JobState, SubmissionStatus};
 use super::{now, to_json, Store, StoreError};
 use crate::leaderboard::protocol_str;
+use d3il_protocol::shard::EvalPart;
 use d3il_protocol::{EvalResult, ProtocolKind, SandboxMechanism, WorkerError};
 use sqlx::FromRow;
+
+/// Writes a submission's result and rollouts and marks it completed, inside
+/// the caller's transaction (idempotent: an existing result is kept).
+macro_rules! insert_result {
+    ($tx:expr, $submission_id:expr, $result:expr, $t:expr) => {{
+        let (submission_id, result, t): (i64, &EvalResult, i64) = ($submission_id, $result, $t);
+        let m = &result.metrics;
+        sqlx::query(
+            "INSERT INTO results (submission_id, success_rate, success_ci_low, success_ci_high, behaviour_entropy, \
+             behaviour_ci_low, behaviour_ci_high, conditional_entropy, conditional_ci_low, conditional_ci_high, \
+             stacking_json, stacking_levels_json, inference_ms, manifest_json, per_context_json, created_at, \
+             rollouts_ended_unstable) \
+             VALUES ($1, $2, $3, $4, $5, $6, $7, $8, $9, $10, $11, $12, $13, $14, $15, $16, $17) ON CONFLICT(submission_id) DO NOTHING",
+        )
+        .bind(submission_id)
+        .bind(m.success_rate.value)
+        .bind(m.success_rate.ci_low)
+        .bind(m.success_rate.ci_high)
+        .bind(m.behaviour_entropy.value)
+        .bind(m.behaviour_entropy.ci_low)
+        .bind(m.behaviour_entropy.ci_high)
+        .bind(m.conditional_entropy.value)
+        .bind(m.conditional_entropy.ci_low)
+        .bind(m.conditional_entropy.ci_high)
+        .bind(m.stacking.map(|s| to_json(&s)))
+        .bind(m.stacking_levels.map(|s| to_json(&s)))
+        .bind(m.inference_ms)
+        .bind(to_json(&result.manifest))
+        .bind(to_json(&result.per_context))
+        .bind(t)
+        .bind(result.rollouts_ended_unstable as i64)
+        .execute($tx)
+        .await?;
+        for r in &result.rollouts {
+            sqlx::query(
+                "INSERT INTO rollouts (submission_id, context_index, rollout_index, success, behaviour_json, steps, path_json, \
+                 failure_json) VALUES ($1, $2, $3, $4, $5, $6, $7, $8) ON CONFLICT(submission_id, context_index, rollout_index) DO NOTHING",
+            )
+            .bind(submission_id)
+            .bind(r.context_index as i64)
+            .bind(r.rollout_index as i64)
+            .bind(r.success)
+            .bind(r.behaviour.to_string())
+            .bind(r.steps as i64)
+            .bind(r.path.as_ref().map(to_json))
+            .bind(r.failure.as_ref().map(to_json))
+            .execute($tx)
+            .await?;
+        }
+        sqlx::query(
+            "UPDATE submissions SET status = 'completed', error_kind = NULL, error_message = NULL, updated_at = $1 WHERE id = $2",
+        )
+        .bind(t)
+        .bind(submission_id)
+        .execute($tx)
+        .await?;
+    }};
+}
 
 /// Fails the job and its submission for good, inside the caller's transaction.
 macro_rules! finish_failed {
@@ -20,6 +79,18 @@ macro_rules! finish_failed {
         .bind($kind)
         .bind($message)
         .bind($job_id)
+        .execute($tx)
+        .await?;
+        // The other shards of a sharded job end with it (a shard still
+        // running loses its lease: its report is ignored).
+        sqlx::query(
+            "UPDATE jobs SET state = 'failed', lease_owner = NULL, lease_expires_at = NULL, finished_at = $1, \
+             error_kind = $2, error_message = $3 WHERE submission_id = $4 AND state IN ('queued', 'leased')",
+        )
+        .bind($t)
+        .bind($kind)
+        .bind($message)
+        .bind($submission_id)
         .execute($tx)
         .await?;
         sqlx::query(
@@ -54,6 +125,57 @@ pub struct JobRow {
     /// When the current (latest) attempt started: ETAs extrapolate from it.
     pub started_at: Option<i64>,
     pub finished_at: Option<i64>,
+    /// This row's shard (0-based) of `shard_count`: a paper-protocol job
+    /// may be split into shards of whole initial states (issue 19); a
+    /// plain job is shard 0 of 1.
+    pub shard_index: i64,
+    pub shard_count: i64,
+}
+
+impl JobRow {
+    /// The shard this row runs (1-based, as `d3il eval --shard` writes it),
+    /// `None` for an unsharded job.
+    pub fn shard(&self) -> Option<d3il_protocol::shard::Shard> {
+        (self.shard_count > 1).then(|| d3il_protocol::shard::Shard {
+            index: self.shard_index.max(0) as usize + 1,
+            count: self.shard_count as usize,
+        })
+    }
+
+    /// The rows of one submission's shards seen as one job: failed if one
+    /// failed, done when all are, leased while any runs, else queued; counts
+    /// and attempts summed up, the first start and the last finish.
+    fn summarise(rows: Vec<JobRow>) -> Option<JobRow> {
+        let mut it = rows.into_iter();
+        let mut job = it.next()?;
+        for r in it {
+            use JobState::*;
+            job.state = match (job.state, r.state) {
+                (Failed, _) | (_, Failed) => Failed,
+                (Leased, _) | (_, Leased) => Leased,
+                (Queued, _) | (_, Queued) => Queued,
+                (Done, Done) => Done,
+            };
+            job.attempts = job.attempts.max(r.attempts);
+            job.lease_owner = job.lease_owner.or(r.lease_owner);
+            job.lease_expires_at = job.lease_expires_at.max(r.lease_expires_at);
+            job.heartbeat_at = job.heartbeat_at.max(r.heartbeat_at);
+            job.rollouts_done += r.rollouts_done;
+            job.rollouts_total += r.rollouts_total;
+            job.error_kind = job.error_kind.or(r.error_kind);
+            job.error_message = job.error_message.or(r.error_message);
+            job.sandbox_json = job.sandbox_json.or(r.sandbox_json);
+            job.started_at = match (job.started_at, r.started_at) {
+                (Some(a), Some(b)) => Some(a.min(b)),
+                (a, b) => a.or(b),
+            };
+            job.finished_at = job.finished_at.max(r.finished_at);
+        }
+        if job.state != JobState::Done {
+            job.finished_at = None;
+        }
+        Some(job)
+    }
 }
 
 /// A job handed to a worker slot.
@@ -64,12 +186,26 @@ pub struct ClaimedJob {
 }
 
 impl Store {
+    /// The job of a submission (its shards summarised as one, see
+    /// [`JobRow::summarise`]; the id is the first shard's).
     pub async fn job_for(&self, submission_id: i64) -> Result<JobRow, StoreError> {
-        on_db!(&self.db, pool => sqlx::query_as("SELECT * FROM jobs WHERE submission_id = $1")
-            .bind(submission_id)
+        let rows: Vec<JobRow> = on_db!(&self.db, pool => sqlx::query_as(
+            "SELECT * FROM jobs WHERE submission_id = $1 ORDER BY shard_index",
+        )
+        .bind(submission_id)
+        .fetch_all(pool)
+        .await)?;
+        JobRow::summarise(rows)
+            .ok_or_else(|| StoreError::NotFound(format!("job of submission {submission_id}")))
+    }
+
+    /// One job row (one shard) by id.
+    pub async fn job(&self, job_id: i64) -> Result<JobRow, StoreError> {
+        on_db!(&self.db, pool => sqlx::query_as("SELECT * FROM jobs WHERE id = $1")
+            .bind(job_id)
             .fetch_optional(pool)
             .await)?
-        .ok_or_else(|| StoreError::NotFound(format!("job of submission {submission_id}")))
+        .ok_or_else(|| StoreError::NotFound(format!("job {job_id}")))
     }
 
     /// Puts every leased job back in the queue. Called once at start-up: a
@@ -223,73 +359,109 @@ impl Store {
         mechanisms: &[SandboxMechanism],
     ) -> Result<(), StoreError> {
         let t = now();
-        let m = &result.metrics;
+        let total = result.rollouts.len() as i64;
         on_db!(&self.db, pool => {
-        let mut tx = pool.begin().await?;
-        sqlx::query(
-            "INSERT INTO results (submission_id, success_rate, success_ci_low, success_ci_high, behaviour_entropy, \
-             behaviour_ci_low, behaviour_ci_high, conditional_entropy, conditional_ci_low, conditional_ci_high, \
-             stacking_json, stacking_levels_json, inference_ms, manifest_json, per_context_json, created_at, \
-             rollouts_ended_unstable) \
-             VALUES ($1, $2, $3, $4, $5, $6, $7, $8, $9, $10, $11, $12, $13, $14, $15, $16, $17) ON CONFLICT(submission_id) DO NOTHING",
-        )
-        .bind(submission_id)
-        .bind(m.success_rate.value)
-        .bind(m.success_rate.ci_low)
-        .bind(m.success_rate.ci_high)
-        .bind(m.behaviour_entropy.value)
-        .bind(m.behaviour_entropy.ci_low)
-        .bind(m.behaviour_entropy.ci_high)
-        .bind(m.conditional_entropy.value)
-        .bind(m.conditional_entropy.ci_low)
-        .bind(m.conditional_entropy.ci_high)
-        .bind(m.stacking.map(|s| to_json(&s)))
-        .bind(m.stacking_levels.map(|s| to_json(&s)))
-        .bind(m.inference_ms)
-        .bind(to_json(&result.manifest))
-        .bind(to_json(&result.per_context))
-        .bind(t)
-        .bind(result.rollouts_ended_unstable as i64)
-        .execute(&mut *tx)
-        .await?;
-        for r in &result.rollouts {
+            let mut tx = pool.begin().await?;
+            insert_result!(&mut *tx, submission_id, result, t);
             sqlx::query(
-                "INSERT INTO rollouts (submission_id, context_index, rollout_index, success, behaviour_json, steps, path_json, \
-                 failure_json) VALUES ($1, $2, $3, $4, $5, $6, $7, $8) ON CONFLICT(submission_id, context_index, rollout_index) DO NOTHING",
+                "UPDATE jobs SET state = 'done', lease_owner = NULL, lease_expires_at = NULL, finished_at = $1, \
+                 rollouts_done = CASE WHEN rollouts_done > $2 THEN rollouts_done ELSE $2 END, \
+                 rollouts_total = CASE WHEN rollouts_total > $2 THEN rollouts_total ELSE $2 END, sandbox_json = $3, \
+                 error_kind = NULL, error_message = NULL WHERE id = $4",
             )
-            .bind(submission_id)
-            .bind(r.context_index as i64)
-            .bind(r.rollout_index as i64)
-            .bind(r.success)
-            .bind(r.behaviour.to_string())
-            .bind(r.steps as i64)
-            .bind(r.path.as_ref().map(to_json))
-            .bind(r.failure.as_ref().map(to_json))
+            .bind(t)
+            .bind(total)
+            .bind(to_json(&mechanisms))
+            .bind(job_id)
             .execute(&mut *tx)
             .await?;
-        }
-        let total = result.rollouts.len() as i64;
-        sqlx::query(
-            "UPDATE jobs SET state = 'done', lease_owner = NULL, lease_expires_at = NULL, finished_at = $1, \
-             rollouts_done = CASE WHEN rollouts_done > $2 THEN rollouts_done ELSE $2 END, \
-             rollouts_total = CASE WHEN rollouts_total > $2 THEN rollouts_total ELSE $2 END, sandbox_json = $3, \
-             error_kind = NULL, error_message = NULL WHERE id = $4",
-        )
-        .bind(t)
-        .bind(total)
-        .bind(to_json(&mechanisms))
-        .bind(job_id)
-        .execute(&mut *tx)
-        .await?;
-        sqlx::query(
-            "UPDATE submissions SET status = 'completed', error_kind = NULL, error_message = NULL, updated_at = $1 WHERE id = $2",
-        )
-        .bind(t)
-        .bind(submission_id)
-        .execute(&mut *tx)
-        .await?;
-        tx.commit().await?;
-        Ok(())
+            tx.commit().await?;
+            Ok(())
+        })
+    }
+
+    /// Stores the part of one shard, run by `owner`. When it is the last
+    /// shard of its submission, the parts are merged
+    /// (`d3il_metrics::shard::merge`, the same as `d3il merge`) and the
+    /// result stored: returns whether that happened. A slot that no longer
+    /// holds the lease changes nothing ([`StoreError::LeaseLost`]; the part
+    /// another slot ran, or will run, is the same bit for bit).
+    pub async fn complete_shard(
+        &self,
+        job_id: i64,
+        owner: &str,
+        part: &EvalPart,
+        mechanisms: &[SandboxMechanism],
+    ) -> Result<bool, StoreError> {
+        let t = now();
+        let n = part.rollouts.len() as i64;
+        // Shards of one submission finish one at a time (the submission row
+        // is locked on PostgreSQL, the database on SQLite), so exactly one
+        // of them sees every part and merges.
+        let lock_submission = if self.is_postgres() {
+            "SELECT id FROM submissions WHERE id = $1 FOR UPDATE"
+        } else {
+            "SELECT id FROM submissions WHERE id = $1"
+        };
+        on_db!(&self.db, pool => {
+            let mut tx = begin_write!(self, pool);
+            let submission_id: Option<i64> = sqlx::query_scalar(
+                "SELECT submission_id FROM jobs WHERE id = $1 AND state = 'leased' AND lease_owner = $2",
+            )
+            .bind(job_id)
+            .bind(owner)
+            .fetch_optional(&mut *tx)
+            .await?;
+            let Some(submission_id) = submission_id else {
+                return Err(StoreError::LeaseLost { job_id, owner: owner.to_string() });
+            };
+            sqlx::query(lock_submission).bind(submission_id).execute(&mut *tx).await?;
+            sqlx::query(
+                "UPDATE jobs SET state = 'done', lease_owner = NULL, lease_expires_at = NULL, finished_at = $1, \
+                 rollouts_done = $2, rollouts_total = $2, sandbox_json = $3, part_json = $4, \
+                 error_kind = NULL, error_message = NULL WHERE id = $5",
+            )
+            .bind(t)
+            .bind(n)
+            .bind(to_json(&mechanisms))
+            .bind(to_json(part))
+            .bind(job_id)
+            .execute(&mut *tx)
+            .await?;
+            let parts: Vec<(i64, String, Option<String>)> = sqlx::query_as(
+                "SELECT shard_index, state, part_json FROM jobs WHERE submission_id = $1 ORDER BY shard_index",
+            )
+            .bind(submission_id)
+            .fetch_all(&mut *tx)
+            .await?;
+            if parts.iter().any(|(_, state, _)| state != JobState::Done.as_str()) {
+                tx.commit().await?;
+                return Ok(false);
+            }
+            let mut decoded = Vec::with_capacity(parts.len());
+            for (index, _, json) in parts {
+                let part: EvalPart = serde_json::from_str(json.as_deref().unwrap_or("")).map_err(|e| {
+                    StoreError::Corrupt(format!("shard {} of submission {submission_id}: {e}", index + 1))
+                })?;
+                decoded.push((format!("shard {}", index + 1), part));
+            }
+            let merged = d3il_metrics::shard::merge(decoded);
+            match merged {
+                Ok(result) => {
+                    insert_result!(&mut *tx, submission_id, &result, t);
+                    // The parts are in the result now.
+                    sqlx::query("UPDATE jobs SET part_json = NULL WHERE submission_id = $1")
+                        .bind(submission_id)
+                        .execute(&mut *tx)
+                        .await?;
+                }
+                Err(e) => {
+                    let message = format!("the shards could not be merged: {e}");
+                    finish_failed!(&mut *tx, job_id, submission_id, "internal", &message, t);
+                }
+            }
+            tx.commit().await?;
+            Ok(true)
         })
     }
 

@@ -146,13 +146,27 @@ impl Store {
         s: &NewSubmission,
         max_attempts: i64,
     ) -> Result<i64, StoreError> {
-        super::retry_busy(|| self.create_submission_once(s, max_attempts)).await
+        self.create_submission_sharded(s, max_attempts, 1).await
+    }
+
+    /// [`Store::create_submission`] with its job split into `shards` shards
+    /// of whole initial states (at least 1), each a job row that any worker
+    /// slot or host leases on its own; the last one to finish merges.
+    pub async fn create_submission_sharded(
+        &self,
+        s: &NewSubmission,
+        max_attempts: i64,
+        shards: usize,
+    ) -> Result<i64, StoreError> {
+        let shards = shards.max(1) as i64;
+        super::retry_busy(|| self.create_submission_once(s, max_attempts, shards)).await
     }
 
     async fn create_submission_once(
         &self,
         s: &NewSubmission,
         max_attempts: i64,
+        shards: i64,
     ) -> Result<i64, StoreError> {
         // SQLite's IMMEDIATE takes the write lock before the duplicate check,
         // so two concurrent submissions of the same seed cannot both pass it
@@ -208,15 +222,20 @@ impl Store {
             }
             _ => e.into(),
         })?;
-        sqlx::query(
-            "INSERT INTO jobs (submission_id, state, max_attempts, created_at) VALUES ($1, $2, $3, $4)",
-        )
-        .bind(id)
-        .bind(JobState::Queued)
-        .bind(max_attempts)
-        .bind(t)
-        .execute(&mut *tx)
-        .await?;
+        for index in 0..shards {
+            sqlx::query(
+                "INSERT INTO jobs (submission_id, state, max_attempts, created_at, shard_index, shard_count) \
+                 VALUES ($1, $2, $3, $4, $5, $6)",
+            )
+            .bind(id)
+            .bind(JobState::Queued)
+            .bind(max_attempts)
+            .bind(t)
+            .bind(index)
+            .bind(shards)
+            .execute(&mut *tx)
+            .await?;
+        }
         tx.commit().await?;
         Ok(id)
         })
