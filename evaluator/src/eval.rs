@@ -54,21 +54,9 @@ impl EvalError {
 
 /// How many initial states and rollouts per state a protocol uses.
 pub fn protocol_size(task: &LoadedTask, protocol: ProtocolKind, n_set: usize) -> (usize, usize) {
-    let paper = (
-        task.def.n_contexts_paper(n_set),
-        task.def.rollouts_per_context(),
-    );
-    match protocol {
-        ProtocolKind::Paper => paper,
-        // A smoke-test subset: the first few initial states, few rollouts each.
-        ProtocolKind::Quick => {
-            if paper.0 == 1 {
-                (1, paper.1.min(8))
-            } else {
-                (paper.0.min(3), paper.1.min(2))
-            }
-        }
-    }
+    // The task definition may cap the set (Pushing uses the first 30 of 60).
+    let set_len = task.def.n_contexts_paper(n_set);
+    task.def.id().protocol_size(protocol, set_len)
 }
 
 /// Knobs of one evaluation.

@@ -590,12 +590,12 @@ pub async fn accept(
     };
     let manifest_json = serde_json::to_string(&v.manifest)
         .map_err(|e| AppError::Internal(format!("manifest encoding: {e}")))?;
-    // Paper-protocol jobs are split into `--shards` shards of whole initial
-    // states (never more than the protocol has), run by any worker slot or host.
-    let shards = match v.protocol {
-        ProtocolKind::Paper => state.cfg.shards.min(v.task.paper_protocol().contexts),
-        ProtocolKind::Quick => 1,
-    };
+    // Jobs are split into `--shards` shards of whole initial states (never
+    // more than the protocol has), run by any worker slot or host.
+    let shards = state
+        .cfg
+        .shards
+        .min(v.task.protocol_size(v.protocol, usize::MAX).0);
     let inserted = store
         .create_submission_sharded(
             &NewSubmission {

@@ -218,6 +218,7 @@ impl TestDb {
 
 /// For each `async fn name(b: Backend)`, a module `name` with the tests
 /// `sqlite` and `postgres` running it on each backend.
+#[allow(unused_macros)]
 macro_rules! on_both_backends {
     ($($name:ident),+ $(,)?) => {$(
         mod $name {
@@ -232,4 +233,5 @@ macro_rules! on_both_backends {
         }
     )+};
 }
+#[allow(unused_imports)]
 pub(crate) use on_both_backends;
