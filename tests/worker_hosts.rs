@@ -73,6 +73,14 @@ impl Host {
 impl Drop for Host {
     fn drop(&mut self) {
         self.kill();
+        if std::thread::panicking() {
+            let log = std::fs::read_to_string(&self.log).unwrap_or_default();
+            let tail: Vec<&str> = log.lines().rev().take(40).collect();
+            eprintln!("--- {} (last lines) ---", self.log.display());
+            for l in tail.iter().rev() {
+                eprintln!("{l}");
+            }
+        }
     }
 }
 
@@ -89,7 +97,12 @@ impl Cluster {
         let dir = TempDir::new(tag);
         let url = d3il_test_support::pg::fresh_database();
         let store = dir.path().join("policy-store");
-        let db_args = ["--db", url.as_str(), "--policy-store", store.to_str().unwrap()];
+        let db_args = [
+            "--db",
+            url.as_str(),
+            "--policy-store",
+            store.to_str().unwrap(),
+        ];
         let token = create_token_on("hosts-tester", &db_args);
         let mut front_args = db_args[2..].to_vec();
         front_args.extend(["--workers", "0", "--shards", "3", "--no-upload-dry-run"]);
@@ -104,7 +117,11 @@ impl Cluster {
     }
 
     fn host(&self, name: &str) -> Host {
-        Host::start(&self.url, &self.store, self.dir.path().join(format!("{name}.log")))
+        Host::start(
+            &self.url,
+            &self.store,
+            self.dir.path().join(format!("{name}.log")),
+        )
     }
 
     fn submit(&self, seed: u32) -> i64 {
@@ -160,7 +177,14 @@ impl Cluster {
 fn plain_eval(dir: &Path, seed: u32) -> Value {
     let out_json = dir.join(format!("plain-{seed}.json"));
     let out = Command::new(EXE)
-        .args(["eval", "--task", "aligning", "--protocol", "quick", "--seed"])
+        .args([
+            "eval",
+            "--task",
+            "aligning",
+            "--protocol",
+            "quick",
+            "--seed",
+        ])
         .arg(seed.to_string())
         .arg("--policy")
         .arg(fixture("aligning_mlp.onnx"))
@@ -182,7 +206,10 @@ fn plain_eval(dir: &Path, seed: u32) -> Value {
 fn assert_same_result(done: &Value, plain: &Value) {
     let merged = &done["result"];
     for metric in ["success_rate", "behaviour_entropy", "conditional_entropy"] {
-        assert_eq!(merged["metrics"][metric], plain["metrics"][metric], "{metric}");
+        assert_eq!(
+            merged["metrics"][metric], plain["metrics"][metric],
+            "{metric}"
+        );
     }
     let rollouts = merged["rollouts"].as_array().unwrap();
     let plain_rollouts = plain["rollouts"].as_array().unwrap();
@@ -222,7 +249,13 @@ fn two_hosts_share_one_queue_run_each_shard_once_and_merge_bit_for_bit() {
     let mut started: Vec<i64> = a.started().into_iter().chain(b.started()).collect();
     started.sort();
     let all: Vec<i64> = shards.iter().map(|s| s.0).collect();
-    assert_eq!(started, all, "host a: {:?}, host b: {:?}", a.started(), b.started());
+    assert_eq!(
+        started,
+        all,
+        "host a: {:?}, host b: {:?}",
+        a.started(),
+        b.started()
+    );
 
     for (seed, d) in done.iter().enumerate() {
         assert_same_result(d, &plain_eval(c.dir.path(), seed as u32));

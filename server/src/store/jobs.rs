@@ -306,14 +306,15 @@ impl Store {
                         .execute(&mut *tx)
                         .await?;
                     tx.commit().await?;
-                    Some(job.submission_id)
+                    Some(job.id)
                 }
             });
-            let Some(submission_id) = claimed else {
+            let Some(job_id) = claimed else {
                 continue;
             };
-            let job = self.job_for(submission_id).await?;
-            let submission = self.submission(submission_id).await?;
+            // The claimed row (one shard), not the submission's summary.
+            let job = self.job(job_id).await?;
+            let submission = self.submission(job.submission_id).await?;
             return Ok(Some(ClaimedJob { job, submission }));
         }
     }
