@@ -112,7 +112,7 @@ fn a_well_behaved_endpoint_completes_with_network_only_for_it() {
     let r = run_against("ok");
     match &r.outcome {
         Outcome::Completed(res) => assert!(!res.rollouts.is_empty()),
-        Outcome::Failed(e) => panic!("{e:?}\n{}", r.stderr),
+        other => panic!("{other:?}\n{}", r.stderr),
     }
     let net = r
         .mechanisms

@@ -79,7 +79,7 @@ fn run_url(url: String, limits: Limits) -> WorkerRun {
 fn completed(r: &WorkerRun) -> &EvalResult {
     match &r.outcome {
         Outcome::Completed(res) => res,
-        Outcome::Failed(e) => panic!("{e:?}\n{}", r.stderr),
+        other => panic!("{other:?}\n{}", r.stderr),
     }
 }
 

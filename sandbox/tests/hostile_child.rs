@@ -20,7 +20,7 @@ fn a_good_run_completes_with_progress_and_all_mechanisms_active() {
     let (run, seen) = run_mode("ok", &job(scripted(), limits()), WALL);
     match &run.outcome {
         Outcome::Completed(r) => assert_eq!(r.manifest.evaluator_version, "selftest"),
-        Outcome::Failed(e) => panic!("{e:?}\n{}", run.stderr),
+        other => panic!("{other:?}\n{}", run.stderr),
     }
     assert_eq!(seen, vec![(0, 2), (1, 2), (2, 2)]);
     let names: Vec<&str> = run.mechanisms.iter().map(|m| m.name.as_str()).collect();

@@ -146,7 +146,7 @@ pub fn assert_nothing_left(r: &WorkerRun) {
 pub fn failure(r: &WorkerRun) -> &d3il_protocol::WorkerError {
     match &r.outcome {
         Outcome::Failed(e) => e,
-        Outcome::Completed(_) => panic!("expected a failure, got a result\n{}", r.stderr),
+        other => panic!("expected a failure, got {other:?}\n{}", r.stderr),
     }
 }
 

@@ -29,7 +29,7 @@ fn main() {
         std::process::exit(code);
     }
     let code = d3il_sandbox::worker_main(&opts, |job, progress| {
-        d3il_sandbox::selftest::evaluate(&mode, job, progress)
+        d3il_sandbox::selftest::evaluate(&mode, job, progress).map(Into::into)
     });
     std::process::exit(code);
 }

@@ -75,8 +75,6 @@ pub fn group_members(pgid: i32) -> Vec<i32> {
 pub fn expect_failed(run: &WorkerRun) -> &d3il_protocol::WorkerError {
     match &run.outcome {
         Outcome::Failed(e) => e,
-        Outcome::Completed(_) => {
-            panic!("expected a failure, got a result (stderr: {})", run.stderr)
-        }
+        other => panic!("expected a failure, got {other:?} (stderr: {})", run.stderr),
     }
 }

@@ -104,12 +104,23 @@ impl Store {
     /// submission refers to, and the files of failed submissions that were
     /// never deleted. Returns how many files
     /// were removed.
+    /// On PostgreSQL the directory is shared with other front ends that may
+    /// be writing an upload right now, so only files untouched for an hour
+    /// count as debris there.
     pub async fn clean_policy_files(&self) -> Result<usize, StoreError> {
         let dir = self.policies_dir();
+        let min_age = std::time::Duration::from_secs(if self.is_postgres() { 3600 } else { 0 });
+        let settled = |e: &tokio::fs::DirEntry| {
+            let e = e.path();
+            async move {
+                let modified = tokio::fs::metadata(&e).await.and_then(|m| m.modified());
+                modified.is_ok_and(|t| t.elapsed().unwrap_or_default() >= min_age)
+            }
+        };
         let mut removed = 0;
         let mut entries = tokio::fs::read_dir(&dir).await.map_err(io_err(&dir))?;
         while let Some(e) = entries.next_entry().await.map_err(io_err(&dir))? {
-            if e.file_name().to_string_lossy().contains(TMP_MARKER) {
+            if e.file_name().to_string_lossy().contains(TMP_MARKER) && settled(&e).await {
                 let p = e.path();
                 match tokio::fs::remove_file(&p).await {
                     Ok(()) => removed += 1,
@@ -138,7 +149,8 @@ impl Store {
         while let Some(e) = entries.next_entry().await.map_err(io_err(&dir))? {
             let p = e.path();
             let orphan = p.extension().is_some_and(|x| x == "onnx")
-                && !known.contains(e.file_name().to_string_lossy().as_ref());
+                && !known.contains(e.file_name().to_string_lossy().as_ref())
+                && settled(&e).await;
             if orphan {
                 match tokio::fs::remove_file(&p).await {
                     Ok(()) => removed += 1,

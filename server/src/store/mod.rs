@@ -168,13 +168,18 @@ pub enum StoreError {
 
 impl StoreError {
     /// SQLite's write lock stayed taken past the busy timeout
-    /// (`SQLITE_BUSY`, also `SQLITE_LOCKED`): worth a retry later.
+    /// (`SQLITE_BUSY`, also `SQLITE_LOCKED`), or PostgreSQL gave up a
+    /// transaction on a serialization failure or deadlock: worth a retry later.
     pub fn is_busy(&self) -> bool {
         match self {
             StoreError::Db(sqlx::Error::Database(d)) => {
-                // Primary result codes 5 (BUSY) and 6 (LOCKED), with any extension.
-                let code = d.code().and_then(|c| c.parse::<i64>().ok()).unwrap_or(0);
-                matches!(code & 0xff, 5 | 6) || d.message().contains("database is locked")
+                if d.try_downcast_ref::<sqlx::sqlite::SqliteError>().is_some() {
+                    // Primary result codes 5 (BUSY) and 6 (LOCKED), with any extension.
+                    let code = d.code().and_then(|c| c.parse::<i64>().ok()).unwrap_or(0);
+                    matches!(code & 0xff, 5 | 6) || d.message().contains("database is locked")
+                } else {
+                    matches!(d.code().as_deref(), Some("40001" | "40P01"))
+                }
             }
             _ => false,
         }
