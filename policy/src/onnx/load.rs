@@ -138,7 +138,10 @@ impl Model {
             .typed
             .set_symbols(&subs)
             .and_then(|m| m.into_optimized())
-            .and_then(|m| m.into_runnable())
+            .and_then(|mut m| {
+                super::fast::speed_up(&mut m)?;
+                m.into_runnable()
+            })
             .map_err(|e| {
                 format!("tract could not prepare the graph for batch {batch}, window {w}: {e:#}")
             })?;

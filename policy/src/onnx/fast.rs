@@ -1,0 +1,620 @@
+//! Our own kernels for three patterns that tract 0.23 runs through slow
+//! generic paths, swapped into each optimised plan ([`speed_up`]):
+//!
+//! - `Cast<f32>(x > c)` (any comparison of an f32 tensor with a scalar
+//!   constant, turned into 0/1): a relu's derivative in hand-written
+//!   gradients (IBC). tract compares through an ndarray broadcast and then
+//!   casts the booleans; here one pass writes 0.0 / 1.0.
+//! - Element-wise `+ − × ÷ max min` of two f32 tensors broadcast along a
+//!   middle axis (`[B, S, d] + [B, 1, d]`), which tract's fast by-scalar and
+//!   unicast kernels do not take: here a loop over the outer indices with a
+//!   contiguous inner row.
+//! - Softmax over the last axis of f32 rows whose length is not a multiple
+//!   of 4 (attention over 10 tokens): tract runs its SIMD kernels per row with
+//!   an aligned scratch copy each time; here a plain loop per row.
+//!
+//! The first two give exactly the values tract gives (the same IEEE operation
+//! per element). The softmax computes `exp(x − max) / Σ` with the platform's
+//! `expf` instead of tract's polynomial, well within the agreement with
+//! onnxruntime the agent fixture tests check (`tract_matches_onnxruntime_*`).
+//! Tensors that are not plain and contiguous go back to tract's own op.
+
+use tract_onnx::prelude::tract_linalg::routines::Func;
+use tract_onnx::prelude::*;
+use tract_onnx::tract_core::internal::*;
+use tract_onnx::tract_core::ops::binary::TypedBinOp;
+use tract_onnx::tract_core::ops::cast::Cast;
+use tract_onnx::tract_core::ops::logic::{CompEq, CompGT, CompGTE, CompLT, CompLTE, CompNE};
+use tract_onnx::tract_core::ops::math::{Add, Div, Max, Min, Mul, Sub};
+use tract_onnx::tract_core::ops::nn::{Softmax, SoftmaxKind};
+
+/// Swaps the three patterns for our kernels in an optimised model.
+pub(super) fn speed_up(model: &mut TypedModel) -> TractResult<()> {
+    let ids: Vec<usize> = model.eval_order()?;
+    for id in ids {
+        let node = model.node(id).clone();
+        let patch = if let Some(cast) = node.op_as::<Cast>() {
+            cmp_cast(model, &node, cast)?
+        } else if let Some(bin) = node.op_as::<TypedBinOp>() {
+            broadcast_bin(model, &node, bin)?
+        } else if let Some(sm) = node.op_as::<Softmax>() {
+            softmax(model, &node, sm)?
+        } else {
+            None
+        };
+        if let Some(p) = patch {
+            p.apply(model)?;
+        }
+    }
+    Ok(())
+}
+
+fn is_f32(model: &TypedModel, o: OutletId) -> TractResult<bool> {
+    Ok(model.outlet_fact(o)?.datum_type == f32::datum_type())
+}
+
+fn concrete(model: &TypedModel, o: OutletId) -> TractResult<Option<TVec<usize>>> {
+    Ok(model.outlet_fact(o)?.shape.as_concrete().map(|s| s.into()))
+}
+
+fn natural(t: &Tensor) -> bool {
+    t.strides() == &*Tensor::natural_strides(t.shape())
+}
+
+// ------------------------------------------------------------ comparisons --
+
+#[derive(Debug, Clone, Copy, Hash, PartialEq, Eq)]
+enum Cmp {
+    Gt,
+    Ge,
+    Lt,
+    Le,
+    Eq,
+    Ne,
+}
+
+impl Cmp {
+    /// The comparison with its operands swapped (`c < x` is `x > c`).
+    fn flip(self) -> Cmp {
+        match self {
+            Cmp::Gt => Cmp::Lt,
+            Cmp::Ge => Cmp::Le,
+            Cmp::Lt => Cmp::Gt,
+            Cmp::Le => Cmp::Ge,
+            other => other,
+        }
+    }
+}
+
+/// `(x cmp c) as f32` for an f32 tensor `x` and a scalar `c`.
+#[derive(Debug, Clone, Hash, PartialEq, Eq)]
+struct CmpToF32 {
+    cmp: Cmp,
+    c_bits: u32,
+}
+
+impl Op for CmpToF32 {
+    fn name(&self) -> StaticName {
+        "D3ilCmpToF32".into()
+    }
+    op_as_typed_op!();
+}
+
+impl EvalOp for CmpToF32 {
+    op_out_of_plan!();
+
+    fn eval(&self, _ctx: &EvalContext, inputs: TVec<TValue>) -> TractResult<TVec<TValue>> {
+        let x = args_1!(inputs);
+        let c = f32::from_bits(self.c_bits);
+        let mut out = Tensor::zero::<f32>(x.shape())?;
+        if natural(&x) {
+            let xs_view = x.try_as_plain_ram()?;
+            let xs = xs_view.as_slice::<f32>()?;
+            let mut out_view = out.try_as_plain_ram_mut()?;
+            let os = out_view.as_slice_mut::<f32>()?;
+            macro_rules! run {
+                ($op:tt) => {
+                    for (o, &v) in os.iter_mut().zip(xs) {
+                        *o = if v $op c { 1.0 } else { 0.0 };
+                    }
+                };
+            }
+            match self.cmp {
+                Cmp::Gt => run!(>),
+                Cmp::Ge => run!(>=),
+                Cmp::Lt => run!(<),
+                Cmp::Le => run!(<=),
+                Cmp::Eq => run!(==),
+                Cmp::Ne => run!(!=),
+            }
+            return Ok(tvec!(out.into_tvalue()));
+        }
+        // A strided view: compare the slow way.
+        let v = x.to_plain_array_view::<f32>()?;
+        let mut out_view = out.try_as_plain_ram_mut()?;
+        let os = out_view.as_slice_mut::<f32>()?;
+        for (o, &v) in os.iter_mut().zip(v.iter()) {
+            let r = match self.cmp {
+                Cmp::Gt => v > c,
+                Cmp::Ge => v >= c,
+                Cmp::Lt => v < c,
+                Cmp::Le => v <= c,
+                Cmp::Eq => v == c,
+                Cmp::Ne => v != c,
+            };
+            *o = if r { 1.0 } else { 0.0 };
+        }
+        Ok(tvec!(out.into_tvalue()))
+    }
+}
+
+impl TypedOp for CmpToF32 {
+    fn output_facts(&self, inputs: &[&TypedFact]) -> TractResult<TVec<TypedFact>> {
+        Ok(tvec!(f32::fact(inputs[0].shape.clone())))
+    }
+    as_op!();
+}
+
+fn cmp_of(bin: &TypedBinOp) -> Option<Cmp> {
+    let m = &bin.0;
+    Some(if m.is::<CompGT>() {
+        Cmp::Gt
+    } else if m.is::<CompGTE>() {
+        Cmp::Ge
+    } else if m.is::<CompLT>() {
+        Cmp::Lt
+    } else if m.is::<CompLTE>() {
+        Cmp::Le
+    } else if m.is::<CompEq>() {
+        Cmp::Eq
+    } else if m.is::<CompNE>() {
+        Cmp::Ne
+    } else {
+        return None;
+    })
+}
+
+/// `Cast<f32>(Comparison(x, scalar))` with an f32 `x` → [`CmpToF32`].
+fn cmp_cast(
+    model: &TypedModel,
+    node: &TypedNode,
+    cast: &Cast,
+) -> TractResult<Option<TypedModelPatch>> {
+    if cast.to != f32::datum_type() {
+        return Ok(None);
+    }
+    let prev = model.node(node.inputs[0].node);
+    let Some(bin) = prev.op_as::<TypedBinOp>() else {
+        return Ok(None);
+    };
+    let Some(cmp) = cmp_of(bin) else {
+        return Ok(None);
+    };
+    let out_shape = concrete(model, node.id.into())?;
+    for (var, konst, cmp) in [(0, 1, cmp), (1, 0, cmp.flip())] {
+        let (x, k) = (prev.inputs[var], prev.inputs[konst]);
+        let kf = model.outlet_fact(k)?;
+        let Some(c) = kf.konst.as_ref() else {
+            continue;
+        };
+        if c.datum_type() != f32::datum_type() || c.len() != 1 || !is_f32(model, x)? {
+            continue;
+        }
+        // The comparison must not broadcast x: its output has x's shape.
+        if out_shape.is_none() || concrete(model, x)? != out_shape {
+            continue;
+        }
+        let c = c.cast_to_scalar::<f32>()?;
+        let mut patch = TypedModelPatch::default();
+        let tap = patch.tap_model(model, x)?;
+        let wire = patch.wire_node(
+            &node.name,
+            CmpToF32 {
+                cmp,
+                c_bits: c.to_bits(),
+            },
+            &[tap],
+        )?;
+        patch.shunt_outside(model, node.id.into(), wire[0])?;
+        return Ok(Some(patch));
+    }
+    Ok(None)
+}
+
+// ------------------------------------------------ broadcast element-wise --
+
+#[derive(Debug, Clone, Copy, Hash, PartialEq, Eq)]
+enum Bin {
+    Add,
+    Sub,
+    Mul,
+    Div,
+    Max,
+    Min,
+}
+
+impl Bin {
+    fn of(bin: &TypedBinOp) -> Option<Bin> {
+        let m = &bin.0;
+        Some(if m.is::<Add>() {
+            Bin::Add
+        } else if m.is::<Sub>() {
+            Bin::Sub
+        } else if m.is::<Mul>() {
+            Bin::Mul
+        } else if m.is::<Div>() {
+            Bin::Div
+        } else if m.is::<Max>() {
+            Bin::Max
+        } else if m.is::<Min>() {
+            Bin::Min
+        } else {
+            return None;
+        })
+    }
+
+    /// tract's own op, for inputs this kernel does not take.
+    fn tract(self) -> TypedBinOp {
+        let mini: Box<dyn tract_onnx::tract_core::ops::binary::BinMiniOp> = match self {
+            Bin::Add => Box::new(Add),
+            Bin::Sub => Box::new(Sub),
+            Bin::Mul => Box::new(Mul),
+            Bin::Div => Box::new(Div),
+            Bin::Max => Box::new(Max),
+            Bin::Min => Box::new(Min),
+        };
+        TypedBinOp(mini, None)
+    }
+}
+
+/// `a op b` for f32 tensors of equal rank with numpy broadcasting.
+#[derive(Debug, Clone, Hash, PartialEq, Eq)]
+struct BroadcastBin {
+    op: Bin,
+}
+
+impl Op for BroadcastBin {
+    fn name(&self) -> StaticName {
+        format!("D3ilBroadcast{:?}", self.op).into()
+    }
+    op_as_typed_op!();
+}
+
+/// `out[o] = f(a[o], b[o])` over the rows of the output's last axis, each
+/// input read with stride 1 or 0 (broadcast) along each axis.
+fn broadcast_rows(
+    a: &[f32],
+    a_shape: &[usize],
+    b: &[f32],
+    b_shape: &[usize],
+    out: &mut [f32],
+    out_shape: &[usize],
+    f: impl Fn(f32, f32) -> f32 + Copy,
+) {
+    let rank = out_shape.len();
+    let strides = |shape: &[usize]| -> Vec<usize> {
+        let mut s = vec![0; rank];
+        let mut acc = 1;
+        for i in (0..rank).rev() {
+            s[i] = if shape[i] == 1 { 0 } else { acc };
+            acc *= shape[i];
+        }
+        s
+    };
+    let (sa, sb) = (strides(a_shape), strides(b_shape));
+    let n = out_shape[rank - 1];
+    let (ia, ib) = (sa[rank - 1], sb[rank - 1]);
+    let mut idx = vec![0usize; rank - 1];
+    let (mut oa, mut ob) = (0usize, 0usize);
+    for row in out.chunks_exact_mut(n) {
+        match (ia, ib) {
+            (1, 1) => {
+                for ((o, &x), &y) in row.iter_mut().zip(&a[oa..oa + n]).zip(&b[ob..ob + n]) {
+                    *o = f(x, y);
+                }
+            }
+            (1, 0) => {
+                let y = b[ob];
+                for (o, &x) in row.iter_mut().zip(&a[oa..oa + n]) {
+                    *o = f(x, y);
+                }
+            }
+            (0, 1) => {
+                let x = a[oa];
+                for (o, &y) in row.iter_mut().zip(&b[ob..ob + n]) {
+                    *o = f(x, y);
+                }
+            }
+            _ => {
+                let v = f(a[oa], b[ob]);
+                row.iter_mut().for_each(|o| *o = v);
+            }
+        }
+        // Next row: odometer over the outer axes.
+        for ax in (0..rank - 1).rev() {
+            idx[ax] += 1;
+            oa += sa[ax];
+            ob += sb[ax];
+            if idx[ax] < out_shape[ax] {
+                break;
+            }
+            oa -= sa[ax] * idx[ax];
+            ob -= sb[ax] * idx[ax];
+            idx[ax] = 0;
+        }
+    }
+}
+
+impl EvalOp for BroadcastBin {
+    op_out_of_plan!();
+
+    fn eval(&self, ctx: &EvalContext, inputs: TVec<TValue>) -> TractResult<TVec<TValue>> {
+        let (a, b) = (&inputs[0], &inputs[1]);
+        let shape = tract_onnx::tract_core::broadcast::multi_broadcast(&[a.shape(), b.shape()])?;
+        let ok = a.rank() == b.rank()
+            && !shape.is_empty()
+            && a.datum_type() == f32::datum_type()
+            && b.datum_type() == f32::datum_type()
+            && natural(a)
+            && natural(b)
+            && shape.iter().all(|&d| d > 0);
+        if !ok {
+            return self.op.tract().eval(ctx, inputs);
+        }
+        let mut out = Tensor::zero::<f32>(&shape)?;
+        {
+            let av = a.try_as_plain_ram()?;
+            let bv = b.try_as_plain_ram()?;
+            let mut ov = out.try_as_plain_ram_mut()?;
+            let (xs, ys, os) = (
+                av.as_slice::<f32>()?,
+                bv.as_slice::<f32>()?,
+                ov.as_slice_mut::<f32>()?,
+            );
+            let (sa, sb) = (a.shape(), b.shape());
+            match self.op {
+                Bin::Add => broadcast_rows(xs, sa, ys, sb, os, &shape, |x, y| x + y),
+                Bin::Sub => broadcast_rows(xs, sa, ys, sb, os, &shape, |x, y| x - y),
+                Bin::Mul => broadcast_rows(xs, sa, ys, sb, os, &shape, |x, y| x * y),
+                Bin::Div => broadcast_rows(xs, sa, ys, sb, os, &shape, |x, y| x / y),
+                // tract's Max / Min: `if a > b { a } else { b }` and the converse.
+                Bin::Max => {
+                    broadcast_rows(xs, sa, ys, sb, os, &shape, |x, y| if x > y { x } else { y })
+                }
+                Bin::Min => {
+                    broadcast_rows(xs, sa, ys, sb, os, &shape, |x, y| if x < y { x } else { y })
+                }
+            }
+        }
+        Ok(tvec!(out.into_tvalue()))
+    }
+}
+
+impl TypedOp for BroadcastBin {
+    fn output_facts(&self, inputs: &[&TypedFact]) -> TractResult<TVec<TypedFact>> {
+        self.op.tract().output_facts(inputs)
+    }
+    as_op!();
+}
+
+/// A generic f32 `TypedBinOp` left by the optimiser (its fast kernels did
+/// not apply) → [`BroadcastBin`].
+fn broadcast_bin(
+    model: &TypedModel,
+    node: &TypedNode,
+    bin: &TypedBinOp,
+) -> TractResult<Option<TypedModelPatch>> {
+    let Some(op) = Bin::of(bin) else {
+        return Ok(None);
+    };
+    if bin.1.is_some_and(|dt| dt != f32::datum_type())
+        || !is_f32(model, node.inputs[0])?
+        || !is_f32(model, node.inputs[1])?
+        || !is_f32(model, node.id.into())?
+    {
+        return Ok(None);
+    }
+    let (Some(a), Some(b)) = (
+        concrete(model, node.inputs[0])?,
+        concrete(model, node.inputs[1])?,
+    ) else {
+        return Ok(None);
+    };
+    if a.len() != b.len() || a.is_empty() {
+        return Ok(None);
+    }
+    Ok(Some(TypedModelPatch::replace_single_op(
+        model,
+        node,
+        &node.inputs,
+        BroadcastBin { op },
+    )?))
+}
+
+// ---------------------------------------------------------------- softmax --
+
+/// Softmax over the last axis of an f32 tensor.
+#[derive(Debug, Clone, Hash, PartialEq, Eq)]
+struct LastAxisSoftmax {
+    tract: Softmax,
+}
+
+impl Op for LastAxisSoftmax {
+    fn name(&self) -> StaticName {
+        "D3ilSoftmax".into()
+    }
+    op_as_typed_op!();
+}
+
+impl EvalOp for LastAxisSoftmax {
+    op_out_of_plan!();
+
+    fn eval(&self, ctx: &EvalContext, inputs: TVec<TValue>) -> TractResult<TVec<TValue>> {
+        let x = &inputs[0];
+        let n = x.shape().last().copied().unwrap_or(0);
+        if x.datum_type() != f32::datum_type() || !natural(x) || n == 0 {
+            return self.tract.eval(ctx, inputs);
+        }
+        let mut out = args_1!(inputs).into_tensor();
+        {
+            let mut view = out.try_as_plain_ram_mut()?;
+            let data = view.as_slice_mut::<f32>()?;
+            // x − max per row, then tract's own exp kernel over the whole
+            // buffer at once (the same values its per-row kernel gives: it
+            // subtracts the max itself), then the sums per row.
+            for row in data.chunks_exact_mut(n) {
+                let max = row.iter().copied().fold(f32::NEG_INFINITY, f32::max);
+                row.iter_mut().for_each(|v| *v -= max);
+            }
+            Func::Softmax2
+                .map_reduce_f32()?
+                .run_with_params(data, 0.0)?;
+            for row in data.chunks_exact_mut(n) {
+                let r = row.iter().sum::<f32>().recip();
+                row.iter_mut().for_each(|v| *v *= r);
+            }
+        }
+        Ok(tvec!(out.into_tvalue()))
+    }
+}
+
+impl TypedOp for LastAxisSoftmax {
+    fn output_facts(&self, inputs: &[&TypedFact]) -> TractResult<TVec<TypedFact>> {
+        self.tract.output_facts(inputs)
+    }
+    as_op!();
+}
+
+/// A float softmax over the last axis whose rows tract's row kernel does not
+/// take (length not a multiple of 4) → [`LastAxisSoftmax`].
+fn softmax(
+    model: &TypedModel,
+    node: &TypedNode,
+    sm: &Softmax,
+) -> TractResult<Option<TypedModelPatch>> {
+    let Some(shape) = concrete(model, node.inputs[0])? else {
+        return Ok(None);
+    };
+    let rank = shape.len();
+    if sm.kind != SoftmaxKind::Softmax
+        || sm.quant_output_dt.is_some()
+        || !is_f32(model, node.inputs[0])?
+        || rank == 0
+        || *sm.axes != [rank - 1]
+        || shape[rank - 1] % 4 == 0
+    {
+        return Ok(None);
+    }
+    Ok(Some(TypedModelPatch::replace_single_op(
+        model,
+        node,
+        &node.inputs,
+        LastAxisSoftmax { tract: sm.clone() },
+    )?))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn values(shape: &[usize], k: f32) -> Tensor {
+        let n: usize = shape.iter().product();
+        let v: Vec<f32> = (0..n)
+            .map(|i| ((i as f32 + k) * 0.731).sin() * 3.0)
+            .collect();
+        Tensor::from_shape(shape, &v).unwrap()
+    }
+
+    fn run(model: &TypedModel, inputs: &[Tensor]) -> Vec<Tensor> {
+        let plan = model.clone().into_runnable().unwrap();
+        let ins: TVec<TValue> = inputs.iter().map(|t| t.clone().into_tvalue()).collect();
+        plan.run(ins)
+            .unwrap()
+            .into_iter()
+            .map(|t| t.into_tensor())
+            .collect()
+    }
+
+    /// Every pattern is swapped for our kernel, and the results are tract's:
+    /// bit for bit for comparisons and element-wise ops (each broadcasting
+    /// layout of the inner row), to rounding for the softmax.
+    #[test]
+    fn our_kernels_replace_tracts_and_agree_with_them() {
+        let mut m = TypedModel::default();
+        let a = m.add_source("a", f32::fact([2, 3, 5])).unwrap();
+        let b = m.add_source("b", f32::fact([2, 1, 5])).unwrap();
+        let c = m.add_source("c", f32::fact([2, 3, 1])).unwrap();
+        let d = m.add_source("d", f32::fact([1, 1, 5])).unwrap();
+        let bin = |m: &mut TypedModel, name: &str, op: Bin, x: OutletId, y: OutletId| {
+            m.wire_node(name, op.tract(), &[x, y]).unwrap()[0]
+        };
+        let add = bin(&mut m, "add", Bin::Add, a, b);
+        let sub = bin(&mut m, "sub", Bin::Sub, b, a);
+        let mul = bin(&mut m, "mul", Bin::Mul, c, d);
+        let div = bin(&mut m, "div", Bin::Div, a, c);
+        let max = bin(&mut m, "max", Bin::Max, d, c);
+        let zero = m.add_const("zero", tensor3(&[[[0.5f32]]])).unwrap();
+        let mut outs = vec![add, sub, mul, div, max];
+        for (name, mini, left) in [
+            (
+                "gt",
+                Box::new(CompGT) as Box<dyn tract_onnx::tract_core::ops::binary::BinMiniOp>,
+                true,
+            ),
+            ("le", Box::new(CompLTE), false),
+        ] {
+            let ins = if left { [add, zero] } else { [zero, add] };
+            let cmp = m.wire_node(name, TypedBinOp(mini, None), &ins).unwrap();
+            let cast = m
+                .wire_node(
+                    format!("{name}.cast"),
+                    Cast {
+                        to: f32::datum_type(),
+                    },
+                    &cmp,
+                )
+                .unwrap();
+            outs.push(cast[0]);
+        }
+        let sm = Softmax {
+            axes: tvec![2],
+            quant_output_dt: None,
+            kind: SoftmaxKind::Softmax,
+        };
+        outs.push(m.wire_node("softmax", sm, &[add]).unwrap()[0]);
+        m.select_output_outlets(&outs).unwrap();
+
+        let inputs = [
+            values(&[2, 3, 5], 0.0),
+            values(&[2, 1, 5], 1.0),
+            values(&[2, 3, 1], 2.0),
+            values(&[1, 1, 5], 3.0),
+        ];
+        let want = run(&m, &inputs);
+        let mut fast = m.clone();
+        speed_up(&mut fast).unwrap();
+        let ours: Vec<String> = fast
+            .eval_order()
+            .unwrap()
+            .into_iter()
+            .map(|n| fast.node(n).op().name().to_string())
+            .filter(|n| n.starts_with("D3il"))
+            .collect();
+        assert_eq!(ours.len(), 8, "{ours:?}");
+        let got = run(&fast, &inputs);
+        for (i, (g, w)) in got.iter().zip(&want).enumerate() {
+            assert_eq!(g.shape(), w.shape(), "output {i}");
+            let (g, w) = (
+                g.to_plain_array_view::<f32>().unwrap(),
+                w.to_plain_array_view::<f32>().unwrap(),
+            );
+            for (x, y) in g.iter().zip(w.iter()) {
+                if i < 7 {
+                    assert_eq!(x.to_bits(), y.to_bits(), "output {i}: {x} vs {y}");
+                } else {
+                    assert!((x - y).abs() <= 1e-6, "softmax: {x} vs {y}");
+                }
+            }
+        }
+    }
+}
