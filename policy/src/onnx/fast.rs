@@ -485,8 +485,7 @@ impl TypedOp for LastAxisSoftmax {
     as_op!();
 }
 
-/// A float softmax over the last axis whose rows tract's row kernel does not
-/// take (length not a multiple of 4) → [`LastAxisSoftmax`].
+/// An f32 softmax over the last axis → [`LastAxisSoftmax`].
 fn softmax(
     model: &TypedModel,
     node: &TypedNode,
@@ -501,7 +500,6 @@ fn softmax(
         || !is_f32(model, node.inputs[0])?
         || rank == 0
         || *sm.axes != [rank - 1]
-        || shape[rank - 1] % 4 == 0
     {
         return Ok(None);
     }
