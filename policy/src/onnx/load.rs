@@ -25,6 +25,9 @@ pub(super) struct Model {
     batch: Symbol,
     window: Symbol,
     plans: Mutex<HashMap<(usize, usize), Plan>>,
+    /// tract's cost estimate of one row at the full window (multiply-adds
+    /// plus other element operations; `u64::MAX` when it cannot tell).
+    work_per_row: u64,
 }
 
 /// Batch sizes plans are made for: a call with b rows runs on the plan of the
@@ -114,12 +117,19 @@ impl Model {
             .map(|o| o.name.clone())
             .unwrap_or_else(|| "output".into());
         check_output(&typed, &out_name, manifest, task)?;
+        let work_per_row = work_per_row(&typed, &batch, &window, manifest.history);
         Ok(Model {
             typed,
             batch,
             window,
             plans: Mutex::new(HashMap::new()),
+            work_per_row,
         })
+    }
+
+    /// tract's cost estimate of one row at the full window.
+    pub(super) fn work_per_row(&self) -> u64 {
+        self.work_per_row
     }
 
     /// The plan for `batch` rows (a bucket size, or the fixed batch) and window `w`.
@@ -151,6 +161,27 @@ impl Model {
             .insert(key, plan.clone());
         Ok(plan)
     }
+}
+
+/// tract's cost estimate of one row (batch 1, window `k`), summed over the
+/// graph's nodes; `u64::MAX` when some cost is not a number.
+fn work_per_row(typed: &TypedModel, batch: &Symbol, window: &Symbol, k: usize) -> u64 {
+    let subs: HashMap<Symbol, TDim> = [(batch.clone(), 1.to_dim()), (window.clone(), k.to_dim())]
+        .into_iter()
+        .collect();
+    let total = || -> TractResult<u64> {
+        let m = typed.set_symbols(&subs)?;
+        let mut total = 0u64;
+        for n in m.eval_order()? {
+            let facts = m.node_input_facts(n)?;
+            for (_, count) in m.node(n).op.cost(&facts)? {
+                let c = count.to_i64()?;
+                total = total.saturating_add(u64::try_from(c).unwrap_or(0));
+            }
+        }
+        Ok(total)
+    };
+    total().unwrap_or(u64::MAX)
 }
 
 fn check_output(
