@@ -1,28 +1,30 @@
-//! Our own kernels for three patterns that tract 0.23 runs through slow
-//! generic paths, swapped into each optimised plan ([`speed_up`]):
+//! Our own kernels for patterns that tract 0.23 runs through slow generic
+//! paths, swapped into each optimised plan ([`speed_up`]):
 //!
 //! - `Cast<f32>(x > c)` (any comparison of an f32 tensor with a scalar
 //!   constant, turned into 0/1): a relu's derivative in hand-written
 //!   gradients (IBC). tract compares through an ndarray broadcast and then
-//!   casts the booleans; here one pass writes 0.0 / 1.0.
+//!   casts the booleans; here one pass writes 0.0 / 1.0, and when the mask
+//!   is multiplied with a tensor, one pass writes the product.
 //! - Element-wise `+ − × ÷ max min` of two f32 tensors broadcast along a
 //!   middle axis (`[B, S, d] + [B, 1, d]`), which tract's fast by-scalar and
 //!   unicast kernels do not take: here a loop over the outer indices with a
 //!   contiguous inner row.
-//! - Softmax over the last axis of f32 rows whose length is not a multiple
-//!   of 4 (attention over 10 tokens): tract runs its SIMD kernels per row with
-//!   an aligned scratch copy each time; here a plain loop per row.
+//! - Softmax over the last axis of short f32 rows (attention over 10 or 12
+//!   tokens): tract runs its SIMD kernels once per row (with an aligned
+//!   scratch copy each time when the length is not a multiple of 4); here its
+//!   exp kernel runs once over the whole tensor.
 //!
-//! The first two give exactly the values tract gives (the same IEEE operation
-//! per element). The softmax computes `exp(x − max) / Σ` with the platform's
-//! `expf` instead of tract's polynomial, well within the agreement with
-//! onnxruntime the agent fixture tests check (`tract_matches_onnxruntime_*`).
+//! All but the softmax give exactly the values tract gives (the same IEEE
+//! operation per element); the softmax gives tract's exponentials, summed per
+//! row in another order (well within the agreement with onnxruntime the agent
+//! fixture tests check, `tract_matches_onnxruntime_on_recorded_inputs`).
 //! Tensors that are not plain and contiguous go back to tract's own op.
 
 use tract_onnx::prelude::tract_linalg::routines::Func;
 use tract_onnx::prelude::*;
 use tract_onnx::tract_core::internal::*;
-use tract_onnx::tract_core::ops::binary::TypedBinOp;
+use tract_onnx::tract_core::ops::binary::{OptBinByScalar, OptBinUnicast, TypedBinOp};
 use tract_onnx::tract_core::ops::cast::Cast;
 use tract_onnx::tract_core::ops::logic::{CompEq, CompGT, CompGTE, CompLT, CompLTE, CompNE};
 use tract_onnx::tract_core::ops::math::{Add, Div, Max, Min, Mul, Sub};
@@ -35,6 +37,8 @@ pub(super) fn speed_up(model: &mut TypedModel) -> TractResult<()> {
         let node = model.node(id).clone();
         let patch = if let Some(cast) = node.op_as::<Cast>() {
             cmp_cast(model, &node, cast)?
+        } else if let Some(p) = mask_mul(model, &node)? {
+            Some(p)
         } else if let Some(bin) = node.op_as::<TypedBinOp>() {
             broadcast_bin(model, &node, bin)?
         } else if let Some(sm) = node.op_as::<Softmax>() {
@@ -431,6 +435,143 @@ fn broadcast_bin(
     )?))
 }
 
+// ---------------------------------------------------------- masked product --
+
+/// `(x cmp c) as f32 × y`, i.e. `y` where the comparison holds and `0 × y`
+/// elsewhere (the same bits as the product with 1.0 or 0.0), with `y`
+/// broadcast to `x`'s shape: a relu's derivative applied to a gradient.
+#[derive(Debug, Clone, Hash, PartialEq, Eq)]
+struct MaskMul {
+    cmp: Cmp,
+    c_bits: u32,
+}
+
+impl Op for MaskMul {
+    fn name(&self) -> StaticName {
+        "D3ilMaskMul".into()
+    }
+    op_as_typed_op!();
+}
+
+impl EvalOp for MaskMul {
+    op_out_of_plan!();
+
+    fn eval(&self, ctx: &EvalContext, inputs: TVec<TValue>) -> TractResult<TVec<TValue>> {
+        let (x, y) = (&inputs[0], &inputs[1]);
+        let ok = x.rank() == y.rank()
+            && !x.shape().is_empty()
+            && x.datum_type() == f32::datum_type()
+            && y.datum_type() == f32::datum_type()
+            && natural(x)
+            && natural(y)
+            && x.shape().iter().all(|&d| d > 0)
+            && x.shape()
+                .iter()
+                .zip(y.shape())
+                .all(|(a, b)| a == b || *b == 1);
+        if !ok {
+            // The two steps, by tract and by our comparison.
+            let cmp = CmpToF32 {
+                cmp: self.cmp,
+                c_bits: self.c_bits,
+            };
+            let (x, y) = args_2!(inputs);
+            let mask = cmp.eval(ctx, tvec!(x))?.remove(0);
+            return Bin::Mul.tract().eval(ctx, tvec!(mask, y));
+        }
+        let c = f32::from_bits(self.c_bits);
+        let shape: TVec<usize> = x.shape().into();
+        let mut out = Tensor::zero::<f32>(&shape)?;
+        {
+            let xv = x.try_as_plain_ram()?;
+            let yv = y.try_as_plain_ram()?;
+            let mut ov = out.try_as_plain_ram_mut()?;
+            let (xs, ys, os) = (
+                xv.as_slice::<f32>()?,
+                yv.as_slice::<f32>()?,
+                ov.as_slice_mut::<f32>()?,
+            );
+            let (sx, sy) = (x.shape(), y.shape());
+            macro_rules! run {
+                ($op:tt) => {
+                    broadcast_rows(xs, sx, ys, sy, os, &shape, |v, w| {
+                        if v $op c { w } else { 0.0 * w }
+                    })
+                };
+            }
+            match self.cmp {
+                Cmp::Gt => run!(>),
+                Cmp::Ge => run!(>=),
+                Cmp::Lt => run!(<),
+                Cmp::Le => run!(<=),
+                Cmp::Eq => run!(==),
+                Cmp::Ne => run!(!=),
+            }
+        }
+        Ok(tvec!(out.into_tvalue()))
+    }
+}
+
+impl TypedOp for MaskMul {
+    fn output_facts(&self, inputs: &[&TypedFact]) -> TractResult<TVec<TypedFact>> {
+        Ok(tvec!(f32::fact(inputs[0].shape.clone())))
+    }
+    as_op!();
+}
+
+/// A product (any of tract's forms, or ours) of a [`CmpToF32`] mask with an
+/// f32 tensor of the same rank that broadcasts to the mask's shape →
+/// [`MaskMul`].
+fn mask_mul(model: &TypedModel, node: &TypedNode) -> TractResult<Option<TypedModelPatch>> {
+    let is_mul = node
+        .op_as::<TypedBinOp>()
+        .is_some_and(|b| b.0.is::<Mul>() && b.1.is_none())
+        || node
+            .op_as::<OptBinUnicast>()
+            .is_some_and(|b| b.binop.is::<Mul>())
+        || node
+            .op_as::<OptBinByScalar>()
+            .is_some_and(|b| b.binop.is::<Mul>())
+        || node
+            .op_as::<BroadcastBin>()
+            .is_some_and(|b| b.op == Bin::Mul);
+    if !is_mul || node.inputs.len() != 2 || !is_f32(model, node.id.into())? {
+        return Ok(None);
+    }
+    let Some(out) = concrete(model, node.id.into())? else {
+        return Ok(None);
+    };
+    for (m, other) in [(0, 1), (1, 0)] {
+        let producer = model.node(node.inputs[m].node);
+        let Some(cmp) = producer.op_as::<CmpToF32>() else {
+            continue;
+        };
+        let x = producer.inputs[0];
+        let y = node.inputs[other];
+        let (Some(xs), Some(ys)) = (concrete(model, x)?, concrete(model, y)?) else {
+            continue;
+        };
+        let fits =
+            xs == out && ys.len() == xs.len() && xs.iter().zip(&ys).all(|(a, b)| a == b || *b == 1);
+        if !fits || !is_f32(model, y)? {
+            continue;
+        }
+        let mut patch = TypedModelPatch::default();
+        let taps = patch.taps(model, &[x, y])?;
+        let wire = patch.wire_node(
+            &node.name,
+            MaskMul {
+                cmp: cmp.cmp,
+                c_bits: cmp.c_bits,
+            },
+            &taps,
+        )?;
+        patch.shunt_outside(model, node.id.into(), wire[0])?;
+        return Ok(Some(patch));
+    }
+    Ok(None)
+}
+
 // ---------------------------------------------------------------- softmax --
 
 /// Softmax over the last axis of an f32 tensor.
@@ -534,8 +675,8 @@ mod tests {
     }
 
     /// Every pattern is swapped for our kernel, and the results are tract's:
-    /// bit for bit for comparisons and element-wise ops (each broadcasting
-    /// layout of the inner row), to rounding for the softmax.
+    /// bit for bit for comparisons, masks and element-wise ops (each
+    /// broadcasting layout of the inner row), to rounding for the softmax.
     #[test]
     fn our_kernels_replace_tracts_and_agree_with_them() {
         let mut m = TypedModel::default();
@@ -573,6 +714,10 @@ mod tests {
                 )
                 .unwrap();
             outs.push(cast[0]);
+            if left {
+                // The mask applied to a tensor broadcast along the middle axis.
+                outs.push(bin(&mut m, "masked", Bin::Mul, b, cast[0]));
+            }
         }
         let sm = Softmax {
             axes: tvec![2],
@@ -598,7 +743,7 @@ mod tests {
             .map(|n| fast.node(n).op().name().to_string())
             .filter(|n| n.starts_with("D3il"))
             .collect();
-        assert_eq!(ours.len(), 8, "{ours:?}");
+        assert_eq!(ours.len(), 9, "{ours:?}");
         let got = run(&fast, &inputs);
         for (i, (g, w)) in got.iter().zip(&want).enumerate() {
             assert_eq!(g.shape(), w.shape(), "output {i}");
@@ -607,7 +752,7 @@ mod tests {
                 w.to_plain_array_view::<f32>().unwrap(),
             );
             for (x, y) in g.iter().zip(w.iter()) {
-                if i < 7 {
+                if i < 8 {
                     assert_eq!(x.to_bits(), y.to_bits(), "output {i}: {x} vs {y}");
                 } else {
                     assert!((x - y).abs() <= 1e-6, "softmax: {x} vs {y}");
