@@ -18,6 +18,16 @@ type GroupOutput = (usize, Vec<f32>);
 /// Fewest rows worth a thread of their own.
 const MIN_ROWS_PER_THREAD: usize = 2;
 
+/// Largest intermediate tensor of one plan run a call aims at: groups of
+/// rows stay below it (about a quarter of a core's L2 cache here), so a
+/// model with wide per-row activations (IBC: 64 samples × 64 units per row)
+/// runs in several smaller plan runs per thread, each in cache.
+const MAX_GROUP_BYTES: usize = 512 * 1024;
+
+/// Fewest rows a group is cut down to for [`MAX_GROUP_BYTES`] (models whose
+/// rows alone exceed the cache, such as image networks, are not cut finer).
+const MIN_GROUP_ROWS: usize = 8;
+
 /// Least work (tract's cost estimate: multiply-adds plus other element
 /// operations) worth a thread of its own, about 0.1 ms on one core; below
 /// it spawning the thread costs more than it saves.
@@ -63,7 +73,12 @@ impl OnnxPolicy {
             }
             None if b > 0 => {
                 let t = threads.min(b.div_ceil(MIN_ROWS_PER_THREAD)).max(1);
-                let per = b.div_ceil(t);
+                // As many groups per thread as keep a group's largest
+                // intermediate tensor within MAX_GROUP_BYTES (cache-sized).
+                let cap =
+                    (MAX_GROUP_BYTES / self.model.largest_row_bytes().max(1)).max(MIN_GROUP_ROWS);
+                let per_thread = b.div_ceil(t).div_ceil(cap);
+                let per = b.div_ceil(t * per_thread);
                 let mut start = 0;
                 while start < b {
                     let end = (start + per).min(b);
