@@ -158,9 +158,14 @@ impl Model {
             .typed
             .set_symbols(&subs)
             .and_then(|m| m.into_optimized())
-            .and_then(|mut m| {
-                super::fast::speed_up(&mut m)?;
-                m.into_runnable()
+            .and_then(|m| {
+                // Our kernels where they apply; tract's plan as it is if the
+                // swap fails on some graph.
+                let mut fast = m.clone();
+                match super::fast::speed_up(&mut fast) {
+                    Ok(()) => fast.into_runnable(),
+                    Err(_) => m.into_runnable(),
+                }
             })
             .map_err(|e| {
                 format!("tract could not prepare the graph for batch {batch}, window {w}: {e:#}")
