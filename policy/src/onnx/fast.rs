@@ -110,17 +110,19 @@ impl EvalOp for CmpToF32 {
     fn eval(&self, _ctx: &EvalContext, inputs: TVec<TValue>) -> TractResult<TVec<TValue>> {
         let x = args_1!(inputs);
         let c = f32::from_bits(self.c_bits);
-        let mut out = Tensor::zero::<f32>(x.shape())?;
-        if natural(&x) {
-            let xs_view = x.try_as_plain_ram()?;
-            let xs = xs_view.as_slice::<f32>()?;
-            let mut out_view = out.try_as_plain_ram_mut()?;
-            let os = out_view.as_slice_mut::<f32>()?;
+        // The mask overwrites x (a copy of it when x is read elsewhere too).
+        let mut out = if natural(&x) {
+            x.into_tensor()
+        } else {
+            let v = x.to_plain_array_view::<f32>()?;
+            Tensor::from_shape(x.shape(), &v.iter().copied().collect::<Vec<f32>>())?
+        };
+        {
+            let mut ov = out.try_as_plain_ram_mut()?;
+            let os = ov.as_slice_mut::<f32>()?;
             macro_rules! run {
                 ($op:tt) => {
-                    for (o, &v) in os.iter_mut().zip(xs) {
-                        *o = if v $op c { 1.0 } else { 0.0 };
-                    }
+                    os.iter_mut().for_each(|v| *v = if *v $op c { 1.0 } else { 0.0 })
                 };
             }
             match self.cmp {
@@ -131,22 +133,6 @@ impl EvalOp for CmpToF32 {
                 Cmp::Eq => run!(==),
                 Cmp::Ne => run!(!=),
             }
-            return Ok(tvec!(out.into_tvalue()));
-        }
-        // A strided view: compare the slow way.
-        let v = x.to_plain_array_view::<f32>()?;
-        let mut out_view = out.try_as_plain_ram_mut()?;
-        let os = out_view.as_slice_mut::<f32>()?;
-        for (o, &v) in os.iter_mut().zip(v.iter()) {
-            let r = match self.cmp {
-                Cmp::Gt => v > c,
-                Cmp::Ge => v >= c,
-                Cmp::Lt => v < c,
-                Cmp::Le => v <= c,
-                Cmp::Eq => v == c,
-                Cmp::Ne => v != c,
-            };
-            *o = if r { 1.0 } else { 0.0 };
         }
         Ok(tvec!(out.into_tvalue()))
     }
@@ -349,44 +335,123 @@ fn broadcast_rows(
     }
 }
 
+/// `o[i] = f(o[i], b[i])` in place, `o` having the full `shape` and `b`
+/// broadcast to it (stride 1 or 0 along each axis).
+fn broadcast_rows_in_place(
+    o: &mut [f32],
+    b: &[f32],
+    b_shape: &[usize],
+    shape: &[usize],
+    f: impl Fn(f32, f32) -> f32 + Copy,
+) {
+    let rank = shape.len();
+    let mut sb = vec![0; rank];
+    let mut acc = 1;
+    for i in (0..rank).rev() {
+        sb[i] = if b_shape[i] == 1 { 0 } else { acc };
+        acc *= b_shape[i];
+    }
+    let n = shape[rank - 1];
+    let ib = sb[rank - 1];
+    let mut idx = vec![0usize; rank - 1];
+    let mut ob = 0usize;
+    for row in o.chunks_exact_mut(n) {
+        if ib == 1 {
+            for (x, &y) in row.iter_mut().zip(&b[ob..ob + n]) {
+                *x = f(*x, y);
+            }
+        } else {
+            let y = b[ob];
+            row.iter_mut().for_each(|x| *x = f(*x, y));
+        }
+        for ax in (0..rank - 1).rev() {
+            idx[ax] += 1;
+            ob += sb[ax];
+            if idx[ax] < shape[ax] {
+                break;
+            }
+            ob -= sb[ax] * idx[ax];
+            idx[ax] = 0;
+        }
+    }
+}
+
+/// Whether `t` is an f32 tensor, plain and contiguous, of rank ≥ 1 with no
+/// empty axis: what our kernels take.
+fn plain_f32(t: &Tensor) -> bool {
+    t.datum_type() == f32::datum_type()
+        && natural(t)
+        && t.rank() > 0
+        && t.shape().iter().all(|&d| d > 0)
+}
+
+/// Whether `small` broadcasts to `full` (equal rank, each axis equal or 1).
+fn broadcasts_to(small: &[usize], full: &[usize]) -> bool {
+    small.len() == full.len() && small.iter().zip(full).all(|(a, b)| a == b || *a == 1)
+}
+
 impl EvalOp for BroadcastBin {
     op_out_of_plan!();
 
     fn eval(&self, ctx: &EvalContext, inputs: TVec<TValue>) -> TractResult<TVec<TValue>> {
         let (a, b) = (&inputs[0], &inputs[1]);
         let shape = tract_onnx::tract_core::broadcast::multi_broadcast(&[a.shape(), b.shape()])?;
-        let ok = a.rank() == b.rank()
-            && !shape.is_empty()
-            && a.datum_type() == f32::datum_type()
-            && b.datum_type() == f32::datum_type()
-            && natural(a)
-            && natural(b)
-            && shape.iter().all(|&d| d > 0);
-        if !ok {
+        if !(plain_f32(a) && plain_f32(b) && a.rank() == b.rank()) {
             return self.op.tract().eval(ctx, inputs);
         }
-        let mut out = Tensor::zero::<f32>(&shape)?;
+        let commutes = matches!(self.op, Bin::Add | Bin::Mul | Bin::Max | Bin::Min);
+        // The output overwrites the input that has its shape: a, or b when
+        // the operation commutes (the same bits either way round).
+        let (a, b) = args_2!(inputs);
+        let (full, other) = if *a.shape() == *shape {
+            (a, b)
+        } else if commutes && *b.shape() == *shape {
+            (b, a)
+        } else {
+            let mut out = Tensor::zero::<f32>(&shape)?;
+            {
+                let av = a.try_as_plain_ram()?;
+                let bv = b.try_as_plain_ram()?;
+                let mut ov = out.try_as_plain_ram_mut()?;
+                let (xs, ys, os) = (
+                    av.as_slice::<f32>()?,
+                    bv.as_slice::<f32>()?,
+                    ov.as_slice_mut::<f32>()?,
+                );
+                let (sa, sb) = (a.shape(), b.shape());
+                match self.op {
+                    Bin::Add => broadcast_rows(xs, sa, ys, sb, os, &shape, |x, y| x + y),
+                    Bin::Sub => broadcast_rows(xs, sa, ys, sb, os, &shape, |x, y| x - y),
+                    Bin::Mul => broadcast_rows(xs, sa, ys, sb, os, &shape, |x, y| x * y),
+                    Bin::Div => broadcast_rows(xs, sa, ys, sb, os, &shape, |x, y| x / y),
+                    // tract's Max / Min: `if a > b { a } else { b }` and the converse.
+                    Bin::Max => {
+                        broadcast_rows(xs, sa, ys, sb, os, &shape, |x, y| if x > y { x } else { y })
+                    }
+                    Bin::Min => {
+                        broadcast_rows(xs, sa, ys, sb, os, &shape, |x, y| if x < y { x } else { y })
+                    }
+                }
+            }
+            return Ok(tvec!(out.into_tvalue()));
+        };
+        let mut out = full.into_tensor();
         {
-            let av = a.try_as_plain_ram()?;
-            let bv = b.try_as_plain_ram()?;
+            let ov_b = other.try_as_plain_ram()?;
+            let ys = ov_b.as_slice::<f32>()?;
             let mut ov = out.try_as_plain_ram_mut()?;
-            let (xs, ys, os) = (
-                av.as_slice::<f32>()?,
-                bv.as_slice::<f32>()?,
-                ov.as_slice_mut::<f32>()?,
-            );
-            let (sa, sb) = (a.shape(), b.shape());
+            let os = ov.as_slice_mut::<f32>()?;
+            let sb = other.shape();
             match self.op {
-                Bin::Add => broadcast_rows(xs, sa, ys, sb, os, &shape, |x, y| x + y),
-                Bin::Sub => broadcast_rows(xs, sa, ys, sb, os, &shape, |x, y| x - y),
-                Bin::Mul => broadcast_rows(xs, sa, ys, sb, os, &shape, |x, y| x * y),
-                Bin::Div => broadcast_rows(xs, sa, ys, sb, os, &shape, |x, y| x / y),
-                // tract's Max / Min: `if a > b { a } else { b }` and the converse.
+                Bin::Add => broadcast_rows_in_place(os, ys, sb, &shape, |x, y| x + y),
+                Bin::Mul => broadcast_rows_in_place(os, ys, sb, &shape, |x, y| x * y),
+                Bin::Sub => broadcast_rows_in_place(os, ys, sb, &shape, |x, y| x - y),
+                Bin::Div => broadcast_rows_in_place(os, ys, sb, &shape, |x, y| x / y),
                 Bin::Max => {
-                    broadcast_rows(xs, sa, ys, sb, os, &shape, |x, y| if x > y { x } else { y })
+                    broadcast_rows_in_place(os, ys, sb, &shape, |x, y| if x > y { x } else { y })
                 }
                 Bin::Min => {
-                    broadcast_rows(xs, sa, ys, sb, os, &shape, |x, y| if x < y { x } else { y })
+                    broadcast_rows_in_place(os, ys, sb, &shape, |x, y| if x < y { x } else { y })
                 }
             }
         }
@@ -458,18 +523,7 @@ impl EvalOp for MaskMul {
 
     fn eval(&self, ctx: &EvalContext, inputs: TVec<TValue>) -> TractResult<TVec<TValue>> {
         let (x, y) = (&inputs[0], &inputs[1]);
-        let ok = x.rank() == y.rank()
-            && !x.shape().is_empty()
-            && x.datum_type() == f32::datum_type()
-            && y.datum_type() == f32::datum_type()
-            && natural(x)
-            && natural(y)
-            && x.shape().iter().all(|&d| d > 0)
-            && x.shape()
-                .iter()
-                .zip(y.shape())
-                .all(|(a, b)| a == b || *b == 1);
-        if !ok {
+        if !(plain_f32(x) && plain_f32(y) && broadcasts_to(y.shape(), x.shape())) {
             // The two steps, by tract and by our comparison.
             let cmp = CmpToF32 {
                 cmp: self.cmp,
@@ -481,22 +535,30 @@ impl EvalOp for MaskMul {
         }
         let c = f32::from_bits(self.c_bits);
         let shape: TVec<usize> = x.shape().into();
-        let mut out = Tensor::zero::<f32>(&shape)?;
+        let (x, y) = args_2!(inputs);
+        // The result overwrites y when it has the full shape, else x.
+        let y_full = *y.shape() == *shape;
+        let (full, other) = if y_full { (y, x) } else { (x, y) };
+        let mut out = full.into_tensor();
         {
-            let xv = x.try_as_plain_ram()?;
-            let yv = y.try_as_plain_ram()?;
+            let bv = other.try_as_plain_ram()?;
+            let bs = bv.as_slice::<f32>()?;
             let mut ov = out.try_as_plain_ram_mut()?;
-            let (xs, ys, os) = (
-                xv.as_slice::<f32>()?,
-                yv.as_slice::<f32>()?,
-                ov.as_slice_mut::<f32>()?,
-            );
-            let (sx, sy) = (x.shape(), y.shape());
+            let os = ov.as_slice_mut::<f32>()?;
+            let sb = other.shape();
             macro_rules! run {
                 ($op:tt) => {
-                    broadcast_rows(xs, sx, ys, sy, os, &shape, |v, w| {
-                        if v $op c { w } else { 0.0 * w }
-                    })
+                    if y_full {
+                        // o = y, b = x
+                        broadcast_rows_in_place(os, bs, sb, &shape, |w, v| {
+                            if v $op c { w } else { 0.0 * w }
+                        })
+                    } else {
+                        // o = x, b = y
+                        broadcast_rows_in_place(os, bs, sb, &shape, |v, w| {
+                            if v $op c { w } else { 0.0 * w }
+                        })
+                    }
                 };
             }
             match self.cmp {
@@ -692,8 +754,10 @@ mod tests {
         let mul = bin(&mut m, "mul", Bin::Mul, c, d);
         let div = bin(&mut m, "div", Bin::Div, a, c);
         let max = bin(&mut m, "max", Bin::Max, d, c);
+        // The full-shape operand second: the output overwrites it.
+        let mul2 = bin(&mut m, "mul2", Bin::Mul, b, a);
         let zero = m.add_const("zero", tensor3(&[[[0.5f32]]])).unwrap();
-        let mut outs = vec![add, sub, mul, div, max];
+        let mut outs = vec![add, sub, mul, div, max, mul2];
         for (name, mini, left) in [
             (
                 "gt",
@@ -715,8 +779,10 @@ mod tests {
                 .unwrap();
             outs.push(cast[0]);
             if left {
-                // The mask applied to a tensor broadcast along the middle axis.
+                // The mask applied to a tensor broadcast along the middle
+                // axis, and to one of its own shape.
                 outs.push(bin(&mut m, "masked", Bin::Mul, b, cast[0]));
+                outs.push(bin(&mut m, "masked2", Bin::Mul, cast[0], a));
             }
         }
         let sm = Softmax {
@@ -743,7 +809,7 @@ mod tests {
             .map(|n| fast.node(n).op().name().to_string())
             .filter(|n| n.starts_with("D3il"))
             .collect();
-        assert_eq!(ours.len(), 9, "{ours:?}");
+        assert_eq!(ours.len(), 11, "{ours:?}");
         let got = run(&fast, &inputs);
         for (i, (g, w)) in got.iter().zip(&want).enumerate() {
             assert_eq!(g.shape(), w.shape(), "output {i}");
@@ -752,7 +818,7 @@ mod tests {
                 w.to_plain_array_view::<f32>().unwrap(),
             );
             for (x, y) in g.iter().zip(w.iter()) {
-                if i < 8 {
+                if i < 10 {
                     assert_eq!(x.to_bits(), y.to_bits(), "output {i}: {x} vs {y}");
                 } else {
                     assert!((x - y).abs() <= 1e-6, "softmax: {x} vs {y}");
