@@ -46,6 +46,8 @@ enum Command {
     Submit(cmd::submit::Args),
     /// Evaluate one job from stdin inside the sandbox (started by the server; see docs/sandbox.md).
     Worker(cmd::worker::Args),
+    /// Run a worker host: only the worker pool, on a PostgreSQL queue shared with `d3il serve` (docs/cluster.md).
+    Workers(cmd::workers::Args),
 }
 
 fn main() -> anyhow::Result<()> {
@@ -63,6 +65,7 @@ fn main() -> anyhow::Result<()> {
         Command::Token(a) => cmd::token::run(a),
         Command::Submit(a) => cmd::submit::run(a),
         Command::Worker(a) => cmd::worker::run(a),
+        Command::Workers(a) => cmd::workers::run(a),
     }
 }
 

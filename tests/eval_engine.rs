@@ -29,6 +29,7 @@ fn onnx_job(name: &str, seed: u64) -> Job {
         limits: Limits::default(),
         assets_dir: concat!(env!("CARGO_MANIFEST_DIR"), "/assets").into(),
         dry_run_steps: None,
+        shard: None,
     }
 }
 
@@ -125,6 +126,7 @@ fn scripted_job(task: TaskId, name: &str) -> Job {
         limits: Limits::default(),
         assets_dir: concat!(env!("CARGO_MANIFEST_DIR"), "/assets").into(),
         dry_run_steps: None,
+        shard: None,
     }
 }
 
@@ -423,6 +425,7 @@ fn a_rollout_is_queried_again_only_after_executing_e_actions() {
 fn a_dry_run_cuts_every_rollout_after_its_step_budget() {
     let job = Job {
         dry_run_steps: Some(7),
+        shard: None,
         ..scripted_job(TaskId::Aligning, "aligning:both")
     };
     let r = run_job(&job, &mut |_, _| {}).unwrap();

@@ -6,12 +6,11 @@
 use crate::scripted::ScriptedPolicy;
 use crate::shard::{EvalPart, Shard};
 use crate::tasks::{Env, LoadedTask, TaskError};
-use d3il_metrics::{Bootstrap, Outcome};
 use d3il_policy::{
     validate_actions, HistoryBuffer, OnnxPolicy, Policy, PolicyError, Query, RemotePolicy,
 };
 use d3il_protocol::{
-    ErrorKind, EvalResult, FailureReason, Job, ObsType, PolicySource, ProtocolKind,
+    ErrorKind, EvalResult, Evaluated, FailureReason, Job, ObsType, PolicySource, ProtocolKind,
     ProtocolManifest, RolloutFailure, RolloutRecord, TaskId, WorkerError,
 };
 use rayon::prelude::*;
@@ -55,21 +54,9 @@ impl EvalError {
 
 /// How many initial states and rollouts per state a protocol uses.
 pub fn protocol_size(task: &LoadedTask, protocol: ProtocolKind, n_set: usize) -> (usize, usize) {
-    let paper = (
-        task.def.n_contexts_paper(n_set),
-        task.def.rollouts_per_context(),
-    );
-    match protocol {
-        ProtocolKind::Paper => paper,
-        // A smoke-test subset: the first few initial states, few rollouts each.
-        ProtocolKind::Quick => {
-            if paper.0 == 1 {
-                (1, paper.1.min(8))
-            } else {
-                (paper.0.min(3), paper.1.min(2))
-            }
-        }
-    }
+    // The task definition may cap the set (Pushing uses the first 30 of 60).
+    let set_len = task.def.n_contexts_paper(n_set);
+    task.def.id().protocol_size(protocol, set_len)
 }
 
 /// Knobs of one evaluation.
@@ -192,69 +179,7 @@ pub fn evaluate_shard(
     ))
 }
 
-/// Mean wall-clock milliseconds per batched policy call.
-pub fn inference_ms(policy_s: f64, policy_calls: usize) -> f64 {
-    if policy_calls > 0 {
-        1000.0 * policy_s / policy_calls as f64
-    } else {
-        0.0
-    }
-}
-
-/// The one place where rollout records become an [`EvalResult`]: the D3IL
-/// metrics (bootstrap seeded by the manifest's seed), the per-context
-/// breakdown and the unstable-rollout count. `behaviour_keys[i]` is the
-/// metrics' behaviour key of `rollouts[i]` ([`d3il_metrics::Outcome::behaviour`]).
-/// Used by [`evaluate`] and by [`crate::shard::merge`].
-pub fn assemble(
-    manifest: ProtocolManifest,
-    rollouts: Vec<RolloutRecord>,
-    behaviour_keys: &[Option<String>],
-    inference_ms: f64,
-    bootstrap_resamples: usize,
-) -> Result<EvalResult, EvalError> {
-    if behaviour_keys.len() != rollouts.len() {
-        return Err(EvalError::Setup(format!(
-            "{} rollout records but {} behaviour keys",
-            rollouts.len(),
-            behaviour_keys.len()
-        )));
-    }
-    let outcomes: Vec<Outcome> = rollouts
-        .iter()
-        .zip(behaviour_keys)
-        .map(|(r, key)| Outcome {
-            context_index: r.context_index,
-            success: r.success,
-            behaviour: key.clone(),
-        })
-        .collect();
-    let rollouts_ended_unstable = rollouts
-        .iter()
-        .filter(|r| {
-            r.failure
-                .as_ref()
-                .is_some_and(|f| f.reason == FailureReason::SimUnstable)
-        })
-        .count();
-    let evaluation = d3il_metrics::evaluate(
-        manifest.task,
-        &outcomes,
-        inference_ms,
-        &Bootstrap {
-            resamples: bootstrap_resamples,
-            confidence: 0.95,
-            seed: manifest.seed,
-        },
-    )?;
-    Ok(EvalResult {
-        manifest,
-        metrics: evaluation.metrics,
-        per_context: evaluation.per_context,
-        rollouts,
-        rollouts_ended_unstable,
-    })
-}
+pub use d3il_metrics::shard::{assemble, inference_ms};
 
 /// The rollouts of one evaluation (or of one shard of it), before metrics.
 struct Run {
@@ -658,6 +583,21 @@ pub fn run_job(
     job: &Job,
     on_progress: &mut dyn FnMut(usize, usize),
 ) -> Result<EvalResult, WorkerError> {
+    match run_job_or_shard(job, on_progress)? {
+        Evaluated::Result(r) => Ok(*r),
+        Evaluated::Part(_) => Err(WorkerError {
+            kind: ErrorKind::BadJob,
+            message: "this job is one shard of an evaluation; its part is not a result".into(),
+        }),
+    }
+}
+
+/// [`run_job`] for any job: a job with [`Job::shard`] runs only that shard
+/// ([`evaluate_shard`]) and gives its part.
+pub fn run_job_or_shard(
+    job: &Job,
+    on_progress: &mut dyn FnMut(usize, usize),
+) -> Result<Evaluated, WorkerError> {
     let to_worker = |e: EvalError| WorkerError {
         kind: e.kind(),
         message: e.to_string(),
@@ -674,7 +614,11 @@ pub fn run_job(
     // query to running the rollouts, not to loading the policy.
     if let Ok(set) = task.def.context_set() {
         let (n_ctx, per_ctx) = protocol_size(&task, job.protocol, set.len());
-        on_progress(0, n_ctx * per_ctx);
+        let n = match job.shard.map(|s| s.contexts(n_ctx)) {
+            Some(Ok(range)) => range.len(),
+            _ => n_ctx,
+        };
+        on_progress(0, n * per_ctx);
     }
     let opts = EvalOptions {
         protocol: job.protocol,
@@ -682,7 +626,11 @@ pub fn run_job(
         step_cap: job.dry_run_steps,
         ..EvalOptions::default()
     };
-    evaluate(&task, policy.as_mut(), &info, &opts, on_progress)
-        .map(|(r, _)| r)
-        .map_err(to_worker)
+    match job.shard {
+        Some(shard) => evaluate_shard(&task, policy.as_mut(), &info, &opts, shard, on_progress)
+            .map(|(p, _)| Evaluated::Part(Box::new(p))),
+        None => evaluate(&task, policy.as_mut(), &info, &opts, on_progress)
+            .map(|(r, _)| Evaluated::Result(Box::new(r))),
+    }
+    .map_err(to_worker)
 }

@@ -15,6 +15,6 @@ pub mod robot;
 #[cfg(feature = "engine")]
 pub mod scripted;
 #[cfg(feature = "engine")]
-pub mod shard;
+pub use d3il_metrics::shard;
 pub mod sim;
 pub mod tasks;

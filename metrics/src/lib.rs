@@ -24,6 +24,7 @@
 #![forbid(unsafe_code)]
 
 pub mod compare;
+pub mod shard;
 pub use compare::{compare, compare_parts, compare_states, normal_quantile, ContextSummary};
 pub use d3il_protocol::StackingLevel;
 use d3il_protocol::{ContextResult, Estimate, Metrics, Stat, TaskId};
@@ -75,6 +76,9 @@ pub enum MetricsError {
     NoSeeds,
     #[error("the two results cannot be compared: {0}")]
     NotComparable(String),
+    /// Rollout records that do not fit together (e.g. one behaviour key per record).
+    #[error("inconsistent rollout records: {0}")]
+    Records(String),
 }
 
 /// How contexts without any labelled success enter the conditional entropy.

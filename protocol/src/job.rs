@@ -280,6 +280,25 @@ pub struct Job {
     /// discarded. `None` for real evaluations.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub dry_run_steps: Option<usize>,
+    /// Evaluate only this shard (whole initial states) and answer with its
+    /// [`crate::shard::EvalPart`] instead of a result: a server splits a
+    /// paper-protocol job into shards that any worker host runs.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub shard: Option<crate::shard::Shard>,
+}
+
+/// What a worker's evaluation produced: a whole result, or the part of one
+/// shard ([`Job::shard`]).
+#[derive(Debug, Clone, PartialEq)]
+pub enum Evaluated {
+    Result(Box<EvalResult>),
+    Part(Box<crate::shard::EvalPart>),
+}
+
+impl From<EvalResult> for Evaluated {
+    fn from(r: EvalResult) -> Self {
+        Evaluated::Result(Box::new(r))
+    }
 }
 
 /// Categories of failure a submitter can act on.
@@ -328,6 +347,8 @@ pub enum WorkerMessage {
         rollouts_total: usize,
     },
     Result(Box<EvalResult>),
+    /// The part of one shard (a job with [`Job::shard`]).
+    Part(Box<crate::shard::EvalPart>),
     Error(WorkerError),
 }
 

@@ -8,6 +8,7 @@ pub mod behaviour;
 pub mod job;
 pub mod paper;
 pub mod results;
+pub mod shard;
 pub mod task;
 
 pub use behaviour::{behaviour_name, sorting_order};

@@ -100,6 +100,26 @@ impl TaskId {
         }
     }
 
+    /// (initial states, rollouts per initial state) of `protocol` on a set of
+    /// `set_len` stored initial states: the paper's protocol uses the first
+    /// `contexts` of the set; the quick protocol is a smoke-test subset (the
+    /// first few initial states, few rollouts each). The one rule the
+    /// evaluator runs and the server shards by.
+    pub fn protocol_size(self, protocol: crate::ProtocolKind, set_len: usize) -> (usize, usize) {
+        let p = self.paper_protocol();
+        let paper = (set_len.min(p.contexts), p.rollouts);
+        match protocol {
+            crate::ProtocolKind::Paper => paper,
+            crate::ProtocolKind::Quick => {
+                if paper.0 == 1 {
+                    (1, paper.1.min(8))
+                } else {
+                    (paper.0.min(3), paper.1.min(2))
+                }
+            }
+        }
+    }
+
     /// Whether the paper reports image-based results for this task.
     pub fn has_image_variant(self) -> bool {
         matches!(

@@ -9,7 +9,7 @@
 use crate::confine::{self, names};
 use crate::endpoint::validate_endpoint;
 use d3il_protocol::{
-    exit_code, ErrorKind, EvalResult, Job, PolicySource, SandboxMechanism, WorkerError,
+    exit_code, ErrorKind, Evaluated, Job, PolicySource, SandboxMechanism, WorkerError,
     WorkerMessage,
 };
 use std::fs::File;
@@ -74,7 +74,7 @@ impl ProtocolOut {
 /// Read the job from stdin, confine, run `evaluate`, report. Returns the exit code.
 pub fn worker_main<F>(opts: &WorkerOptions, evaluate: F) -> i32
 where
-    F: FnOnce(&Job, &mut dyn FnMut(usize, usize)) -> Result<EvalResult, WorkerError>,
+    F: FnOnce(&Job, &mut dyn FnMut(usize, usize)) -> Result<Evaluated, WorkerError>,
 {
     let mut out = match ProtocolOut::take_stdout() {
         Ok(o) => o,
@@ -142,8 +142,12 @@ where
         evaluate(&job, &mut progress)
     };
     match result {
-        Ok(r) => {
-            out.send(&WorkerMessage::Result(Box::new(r)));
+        Ok(Evaluated::Result(r)) => {
+            out.send(&WorkerMessage::Result(r));
+            exit_code::OK
+        }
+        Ok(Evaluated::Part(p)) => {
+            out.send(&WorkerMessage::Part(p));
             exit_code::OK
         }
         Err(e) => {
@@ -230,6 +234,7 @@ pub fn check_sandbox_with(
         limits: limits.clone(),
         assets_dir: assets_dir.display().to_string(),
         dry_run_steps: None,
+        shard: None,
     };
     let mut mechanisms = confine::confine(&job, None)?;
     mechanisms.extend(crate::selftest::probes(assets_dir));

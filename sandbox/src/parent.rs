@@ -55,6 +55,8 @@ impl WorkerCommand {
 #[derive(Debug, Clone, PartialEq)]
 pub enum Outcome {
     Completed(Box<EvalResult>),
+    /// The part of one shard (a job with `Job::shard`).
+    Part(Box<d3il_protocol::shard::EvalPart>),
     Failed(WorkerError),
 }
 
@@ -236,6 +238,7 @@ pub fn run_worker(
                     on_progress(rollouts_done, rollouts_total);
                 }
                 WorkerMessage::Result(r) => final_msg = Some(Outcome::Completed(r)),
+                WorkerMessage::Part(p) => final_msg = Some(Outcome::Part(p)),
                 WorkerMessage::Error(e) => final_msg = Some(Outcome::Failed(e)),
             },
             Ok(Event::Garbage(excerpt)) => {

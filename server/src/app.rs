@@ -214,6 +214,41 @@ pub async fn serve(
     Ok(())
 }
 
+/// A worker host (`d3il workers`): the worker pool alone on a database shared
+/// with front ends and other hosts (PostgreSQL). `on_ready` is called once the
+/// pool runs; then this runs until the process ends.
+pub async fn run_workers(
+    cfg: ServerConfig,
+    runner: Arc<dyn JobRunner>,
+    on_ready: impl FnOnce(&Store),
+) -> Result<(), ServeError> {
+    if !cfg.db.is_postgres() {
+        return Err(ServeError::Store(StoreError::Config(format!(
+            "d3il workers runs a worker pool on a database shared with `d3il serve`, which needs PostgreSQL \
+             (--db postgres://…); the SQLite file {} belongs to the one `d3il serve` that opens it, \
+             whose own --workers run its jobs",
+            cfg.db
+        ))));
+    }
+    let store = Store::connect(&cfg.db, cfg.policy_store.as_deref()).await?;
+    let runner = crate::runner::SharedSlots::wrap(runner, cfg.workers + 1);
+    start_pool(
+        store.clone(),
+        runner,
+        PoolConfig {
+            workers: cfg.workers,
+            lease_seconds: cfg.lease_seconds,
+            assets_dir: cfg.assets_dir.clone(),
+            limits: cfg.limits.clone(),
+        },
+        QueueSignal::default(),
+    )
+    .await?;
+    on_ready(&store);
+    std::future::pending::<()>().await;
+    Ok(())
+}
+
 /// Accepts connections until the process ends, with the connection limits of
 /// `state.cfg.connections`: a connection past the server's or its client
 /// address's cap is closed at once; one whose request header does not arrive
@@ -288,7 +323,7 @@ pub async fn prepare(
     cfg: ServerConfig,
     runner: Arc<dyn JobRunner>,
 ) -> Result<(tokio::net::TcpListener, Running), ServeError> {
-    let store = Store::open(&cfg.db).await?;
+    let store = Store::connect(&cfg.db, cfg.policy_store.as_deref()).await?;
     // Temporary uploads of a crashed run, files of failed submissions.
     store.clean_policy_files().await?;
     // Pool jobs and dry-runs share the worker slots: the pool's `workers`

@@ -1,8 +1,8 @@
 //! Blocking entry points for the `d3il` binary (which has no async runtime).
 
 use crate::app::{serve, ServeError, ServerConfig};
-use crate::store::{Revoked, Store, StoreError};
-use std::path::Path;
+use crate::store::{DbTarget, Revoked, Store, StoreError};
+use std::path::{Path, PathBuf};
 
 fn runtime() -> std::io::Result<tokio::runtime::Runtime> {
     tokio::runtime::Builder::new_multi_thread()
@@ -24,7 +24,27 @@ pub fn serve_blocking(cfg: ServerConfig) -> Result<(), ServeError> {
         let (db, workers) = (cfg.db.clone(), cfg.workers);
         serve(cfg, runner, |r| {
             println!("listening on http://{}", r.addr);
-            println!("database {} · {workers} worker slot(s)", db.display());
+            println!("database {db} · {workers} worker slot(s)");
+        })
+        .await
+    })
+}
+
+/// Runs a worker host (`d3il workers`) until the process is stopped. Prints
+/// one line `worker host ready: …` once its pool runs (tests wait for it).
+pub fn workers_blocking(cfg: ServerConfig) -> Result<(), ServeError> {
+    let _ = tracing_subscriber::fmt()
+        .with_writer(std::io::stderr)
+        .with_max_level(tracing::Level::INFO)
+        .try_init();
+    let rt = runtime()?;
+    rt.block_on(async move {
+        let runner = crate::app::default_runner(&cfg);
+        let (db, workers) = (cfg.db.clone(), cfg.workers);
+        crate::app::run_workers(cfg, runner, |_| {
+            println!(
+                "worker host ready: {workers} worker slot(s) (plus one for quick jobs) on {db}"
+            );
         })
         .await
     })
@@ -32,25 +52,34 @@ pub fn serve_blocking(cfg: ServerConfig) -> Result<(), ServeError> {
 
 /// Mints an API token for `name` in the database at `db` (`admin`: it may
 /// also see `/admin`).
-pub fn create_token_blocking(db: &Path, name: &str, admin: bool) -> Result<String, StoreError> {
+pub fn create_token_blocking(
+    db: &DbTarget,
+    policy_store: Option<&Path>,
+    name: &str,
+    admin: bool,
+) -> Result<String, StoreError> {
     let rt = runtime().map_err(|source| StoreError::Io {
-        path: db.to_path_buf(),
+        path: PathBuf::from(db.to_string()),
         source,
     })?;
     rt.block_on(async {
-        let store = Store::open(db).await?;
+        let store = Store::connect(db, policy_store).await?;
         store.create_token_with(name, admin).await
     })
 }
 
 /// Revokes a token (the whole token or its printed prefix) in `db`.
-pub fn revoke_token_blocking(db: &Path, token_or_prefix: &str) -> Result<Revoked, StoreError> {
+pub fn revoke_token_blocking(
+    db: &DbTarget,
+    policy_store: Option<&Path>,
+    token_or_prefix: &str,
+) -> Result<Revoked, StoreError> {
     let rt = runtime().map_err(|source| StoreError::Io {
-        path: db.to_path_buf(),
+        path: PathBuf::from(db.to_string()),
         source,
     })?;
     rt.block_on(async {
-        let store = Store::open(db).await?;
+        let store = Store::connect(db, policy_store).await?;
         store.revoke_token(token_or_prefix).await
     })
 }

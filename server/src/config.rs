@@ -9,8 +9,10 @@ use std::time::Duration;
 /// Everything `d3il serve` can be told.
 #[derive(Debug, Clone)]
 pub struct ServerConfig {
-    /// SQLite file (created if missing).
-    pub db: PathBuf,
+    /// SQLite file (created if missing) or PostgreSQL URL.
+    pub db: crate::store::DbTarget,
+    /// Where uploaded policies live (`Store::connect`); needed with PostgreSQL.
+    pub policy_store: Option<PathBuf>,
     pub bind: SocketAddr,
     /// Worker slots (concurrent evaluations).
     pub workers: usize,
@@ -31,6 +33,10 @@ pub struct ServerConfig {
     pub max_concurrent_uploads: usize,
     /// Attempts per job before the submission fails (crashes, lost leases).
     pub max_attempts: i64,
+    /// Shards a paper-protocol job is split into (whole initial states each,
+    /// at most the protocol's number); 1: not split. Shards run on any worker
+    /// slot or host and are merged when all are done (issue 19).
+    pub shards: usize,
     /// Uploaded models run a short sandboxed dry run before they are queued
     /// (`intake::dry_run`); off, a model that cannot run fails at its
     /// evaluation instead.
@@ -68,10 +74,15 @@ impl Default for ConnectionLimits {
 
 impl ServerConfig {
     /// Defaults with the given database, bind address and worker executable.
-    pub fn new(db: PathBuf, bind: SocketAddr, worker_exe: PathBuf) -> Self {
+    pub fn new(
+        db: impl Into<crate::store::DbTarget>,
+        bind: SocketAddr,
+        worker_exe: PathBuf,
+    ) -> Self {
         let limits = Limits::default();
         ServerConfig {
-            db,
+            db: db.into(),
+            policy_store: None,
             bind,
             workers: std::thread::available_parallelism()
                 .map(|n| n.get())
@@ -84,6 +95,7 @@ impl ServerConfig {
             max_disk_bytes_per_submitter: Some(4096 << 20),
             max_concurrent_uploads: 4,
             max_attempts: 3,
+            shards: 1,
             dry_run_uploads: true,
             lease_seconds: 30,
             worker: WorkerProcess {

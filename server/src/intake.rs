@@ -485,6 +485,7 @@ pub async fn dry_run(
         limits,
         assets_dir: state.cfg.assets_dir.to_string_lossy().into_owned(),
         dry_run_steps: (!remote).then(|| (2 * v.manifest.execute).max(DRY_RUN_MIN_STEPS)),
+        shard: None,
     };
     let report = tokio::task::spawn_blocking(move || runner.run(&job, &mut |_, _| {}))
         .await
@@ -589,8 +590,14 @@ pub async fn accept(
     };
     let manifest_json = serde_json::to_string(&v.manifest)
         .map_err(|e| AppError::Internal(format!("manifest encoding: {e}")))?;
+    // Jobs are split into `--shards` shards of whole initial states (never
+    // more than the protocol has), run by any worker slot or host.
+    let shards = state
+        .cfg
+        .shards
+        .min(v.task.protocol_size(v.protocol, usize::MAX).0);
     let inserted = store
-        .create_submission(
+        .create_submission_sharded(
             &NewSubmission {
                 method_id: method.id,
                 submitter_id: Some(who.id),
@@ -603,6 +610,7 @@ pub async fn accept(
                 manifest_json,
             },
             state.cfg.max_attempts,
+            shards,
         )
         .await;
     drop(files);

@@ -5,7 +5,7 @@
 
 use crate::store::{ClaimedJob, PolicyKind, Store, StoreError};
 use d3il_protocol::{
-    ErrorKind, EvalResult, Job, Limits, PolicyManifest, PolicySource, ProtocolKind,
+    ErrorKind, Evaluated, Job, Limits, PolicyManifest, PolicySource, ProtocolKind,
     SandboxMechanism, WorkerError,
 };
 use std::path::PathBuf;
@@ -16,7 +16,8 @@ use tokio::sync::{mpsc, Notify};
 /// What one run of a job produced.
 #[derive(Debug, Clone)]
 pub struct RunReport {
-    pub outcome: Result<Box<EvalResult>, WorkerError>,
+    /// A whole result, or the part of the shard the job asked for.
+    pub outcome: Result<Evaluated, WorkerError>,
     /// Confinement mechanisms that were in force (shown on the submission page).
     pub mechanisms: Vec<SandboxMechanism>,
 }
@@ -103,6 +104,7 @@ pub fn job_from_claim(
         limits: limits.clone(),
         assets_dir: assets_dir.to_string_lossy().into_owned(),
         dry_run_steps: None,
+        shard: c.job.shard(),
     })
 }
 
@@ -116,22 +118,29 @@ impl QueueSignal {
     }
 }
 
-/// Requeues abandoned jobs, then starts `cfg.workers` slots that take any
-/// job, oldest first, plus (when `cfg.workers > 0`) one slot that takes only
-/// quick-protocol jobs.
+/// Requeues abandoned jobs (SQLite: the one server owns the file, so every
+/// lease left is its own from before a restart; on PostgreSQL other hosts'
+/// leases are live, and a dead host's lease expires instead), then starts
+/// `cfg.workers` slots that take any job, oldest first, plus (when
+/// `cfg.workers > 0`) one slot that takes only quick-protocol jobs.
 pub async fn start_pool(
     store: Store,
     runner: Arc<dyn JobRunner>,
     cfg: PoolConfig,
     signal: QueueSignal,
 ) -> Result<(), StoreError> {
-    let n = store.requeue_abandoned().await?;
-    if n > 0 {
-        tracing::info!("requeued {n} job(s) interrupted by the previous shutdown");
+    if !store.is_postgres() {
+        let n = store.requeue_abandoned().await?;
+        if n > 0 {
+            tracing::info!("requeued {n} job(s) interrupted by the previous shutdown");
+        }
     }
     let cfg = Arc::new(cfg);
+    // Lease owners name the host and process, so hosts sharing a database
+    // never hold a lease under the same name.
+    let host = owner_host();
     for slot in 0..cfg.workers {
-        let owner = format!("{}-slot{slot}", std::process::id());
+        let owner = format!("{host}-{}-slot{slot}", std::process::id());
         tokio::spawn(slot_loop(
             store.clone(),
             runner.clone(),
@@ -149,11 +158,20 @@ pub async fn start_pool(
             runner.clone(),
             cfg.clone(),
             signal.clone(),
-            format!("{}-quick", std::process::id()),
+            format!("{host}-{}-quick", std::process::id()),
             Some(ProtocolKind::Quick),
         ));
     }
     Ok(())
+}
+
+/// This host's name (`/proc/sys/kernel/hostname`), for lease owners.
+fn owner_host() -> String {
+    std::fs::read_to_string("/proc/sys/kernel/hostname")
+        .map(|h| h.trim().to_string())
+        .ok()
+        .filter(|h| !h.is_empty())
+        .unwrap_or_else(|| "host".into())
 }
 
 async fn slot_loop(
@@ -194,6 +212,7 @@ async fn run_claimed(
 ) -> Result<(), StoreError> {
     let job_id = c.job.id;
     let submission_id = c.submission.id;
+    let shard = c.job.shard();
     let job = match job_from_claim(&c, &cfg.assets_dir, &cfg.limits) {
         Ok(j) => j,
         Err(message) => {
@@ -249,11 +268,42 @@ async fn run_claimed(
         },
     };
     match report.outcome {
-        Ok(result) => {
+        Ok(Evaluated::Result(result)) if shard.is_none() => {
             store
                 .complete_job(job_id, submission_id, &result, &report.mechanisms)
                 .await?;
             tracing::info!("job {job_id} completed");
+        }
+        Ok(Evaluated::Part(part)) if shard == Some(part.shard) => {
+            let Some(merged) = lease_lost_is_a_warning(
+                store
+                    .complete_shard(job_id, owner, &part, &report.mechanisms)
+                    .await,
+            )?
+            else {
+                return Ok(());
+            };
+            tracing::info!(
+                "job {job_id} (shard {} of submission {submission_id}) completed{}",
+                part.shard,
+                if merged {
+                    "; all shards done, result merged"
+                } else {
+                    ""
+                }
+            );
+        }
+        Ok(_) => {
+            let err = WorkerError {
+                kind: ErrorKind::ProtocolViolation,
+                message: match shard {
+                    Some(s) => format!(
+                        "the worker was asked for shard {s} and answered with something else"
+                    ),
+                    None => "the worker answered a whole evaluation with a shard's part".into(),
+                },
+            };
+            lease_lost_is_a_warning(store.fail_attempt(job_id, owner, &err, false).await)?;
         }
         Err(err) => {
             let Some(requeued) = lease_lost_is_a_warning(

@@ -3,7 +3,7 @@
 //! server, wall clock, output cap, rlimits/namespaces/landlock/seccomp inside).
 
 use crate::queue::{JobRunner, RunReport, WorkerProcess};
-use d3il_protocol::{Job, Limits, SandboxMechanism};
+use d3il_protocol::{Evaluated, Job, Limits, SandboxMechanism};
 use d3il_sandbox::{run_worker, Outcome, WorkerCommand};
 use std::sync::Arc;
 
@@ -22,7 +22,8 @@ impl JobRunner for SandboxRunner {
         }
         RunReport {
             outcome: match run.outcome {
-                Outcome::Completed(r) => Ok(r),
+                Outcome::Completed(r) => Ok(Evaluated::Result(r)),
+                Outcome::Part(p) => Ok(Evaluated::Part(p)),
                 Outcome::Failed(e) => Err(e),
             },
             mechanisms: run.mechanisms,

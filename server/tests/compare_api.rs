@@ -163,7 +163,7 @@ async fn results_of_a_finished_submission_are_served_from_memory() {
     assert_eq!(v["metrics"]["success_rate"]["value"], 0.75, "{v}");
     sqlx::query("UPDATE results SET success_rate = 0.5 WHERE submission_id = ?")
         .bind(a)
-        .execute(app.state.store.pool())
+        .execute(app.state.store.sqlite_pool().expect("a SQLite store"))
         .await
         .unwrap();
     let (s, again) = app.get_text(&path).await;

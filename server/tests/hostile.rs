@@ -52,7 +52,7 @@ async fn every_response_carries_the_security_headers() {
 async fn last_used(app: &TestApp, token: &str) -> Option<i64> {
     sqlx::query_scalar("SELECT last_used_at FROM api_tokens WHERE prefix = ?")
         .bind(&token[..d3il_server::store::TOKEN_PREFIX_LEN])
-        .fetch_one(app.state.store.pool())
+        .fetch_one(app.state.store.sqlite_pool().expect("a SQLite store"))
         .await
         .unwrap()
 }
@@ -83,7 +83,7 @@ async fn last_used_is_written_once_a_minute_and_a_held_write_lock_does_not_fail_
     sqlx::query("UPDATE api_tokens SET last_used_at = ? WHERE prefix = ?")
         .bind(first - 30)
         .bind(&token[..d3il_server::store::TOKEN_PREFIX_LEN])
-        .execute(app.state.store.pool())
+        .execute(app.state.store.sqlite_pool().expect("a SQLite store"))
         .await
         .unwrap();
     assert_eq!(whoami(&app, &token).await, 200);

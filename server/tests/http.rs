@@ -168,7 +168,7 @@ async fn every_bad_field_is_named() {
     );
     // Nothing was stored by any of the refused requests.
     let n: i64 = sqlx::query_scalar("SELECT COUNT(*) FROM submissions")
-        .fetch_one(app.state.store.pool())
+        .fetch_one(app.state.store.sqlite_pool().expect("a SQLite store"))
         .await
         .unwrap();
     assert_eq!(n, 0);

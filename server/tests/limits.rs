@@ -205,7 +205,9 @@ async fn a_busy_database_is_retried_then_answered_with_503() {
     use d3il_server::store::StoreError;
     use sqlx::ConnectOptions;
     let app = spawn(|_| {}, idle_runner()).await;
-    let db = app.state.cfg.db.clone();
+    let d3il_server::store::DbTarget::Sqlite(db) = app.state.cfg.db.clone() else {
+        panic!("this test holds SQLite's write lock")
+    };
     let opts = sqlx::sqlite::SqliteConnectOptions::new()
         .filename(&db)
         .busy_timeout(Duration::ZERO);

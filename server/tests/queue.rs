@@ -103,8 +103,7 @@ async fn submit_one(app: &TestApp, method: &str, task: &str) -> i64 {
     r.json::<Value>().await.unwrap()["id"].as_i64().unwrap()
 }
 
-#[tokio::test]
-async fn completed_job_is_stored_and_shown() {
+async fn completed_job_is_stored_and_shown(b: Backend) {
     let dir = tempfile::tempdir().unwrap();
     let result = dir.path().join("result.jsonl");
     std::fs::write(&result, result_line(TaskId::Pushing) + "\n").unwrap();
@@ -117,6 +116,7 @@ async fn completed_job_is_stored_and_shown() {
         ),
     );
     let app = spawn_app_with(Options {
+        backend: b,
         workers: 1,
         worker_exe: Some(worker),
         ..Default::default()
@@ -154,8 +154,7 @@ async fn completed_job_is_stored_and_shown() {
     assert!(cells.iter().all(|c| c.method != "Fixture"));
 }
 
-#[tokio::test]
-async fn crashing_worker_is_retried_then_fails_with_a_typed_error() {
+async fn crashing_worker_is_retried_then_fails_with_a_typed_error(b: Backend) {
     let dir = tempfile::tempdir().unwrap();
     let count = dir.path().join("count");
     let worker = script(
@@ -167,6 +166,7 @@ async fn crashing_worker_is_retried_then_fails_with_a_typed_error() {
         ),
     );
     let app = spawn_app_with(Options {
+        backend: b,
         workers: 1,
         worker_exe: Some(worker),
         ..Default::default()
@@ -186,8 +186,7 @@ async fn crashing_worker_is_retried_then_fails_with_a_typed_error() {
     assert!(page.contains("Evaluation failed: <code>crashed</code>"));
 }
 
-#[tokio::test]
-async fn policy_errors_fail_at_once_and_garbage_output_is_a_protocol_violation() {
+async fn policy_errors_fail_at_once_and_garbage_output_is_a_protocol_violation(b: Backend) {
     let dir = tempfile::tempdir().unwrap();
     let bad_model = script(
         dir.path(),
@@ -195,6 +194,7 @@ async fn policy_errors_fail_at_once_and_garbage_output_is_a_protocol_violation()
         "cat > /dev/null\necho '{\"type\":\"error\",\"kind\":\"bad_model\",\"message\":\"input `obs` has 3 columns, the task needs 4\"}'\nexit 2",
     );
     let app = spawn_app_with(Options {
+        backend: b,
         workers: 1,
         worker_exe: Some(bad_model),
         ..Default::default()
@@ -212,6 +212,7 @@ async fn policy_errors_fail_at_once_and_garbage_output_is_a_protocol_violation()
         "cat > /dev/null\necho 'hello, I am not JSON'\nsleep 5",
     );
     let app = spawn_app_with(Options {
+        backend: b,
         workers: 1,
         worker_exe: Some(garbage),
         ..Default::default()
@@ -222,8 +223,7 @@ async fn policy_errors_fail_at_once_and_garbage_output_is_a_protocol_violation()
     assert_eq!(v["error"]["kind"], "protocol_violation", "{v}");
 }
 
-#[tokio::test]
-async fn stacking_levels_are_stored_and_shown_each_with_its_own_numbers() {
+async fn stacking_levels_are_stored_and_shown_each_with_its_own_numbers(b: Backend) {
     // Two initial states; per rollout the registration order and whether the
     // full stack stood. The levels see different data: Stacking-1 the first
     // letters, Stacking-2 the first two, Stacking-3 the full stacks.
@@ -306,6 +306,7 @@ async fn stacking_levels_are_stored_and_shown_each_with_its_own_numbers() {
         ),
     );
     let app = spawn_app_with(Options {
+        backend: b,
         workers: 1,
         worker_exe: Some(worker),
         ..Default::default()
@@ -398,3 +399,10 @@ async fn stacking_levels_are_stored_and_shown_each_with_its_own_numbers() {
         );
     }
 }
+
+common::on_both_backends!(
+    completed_job_is_stored_and_shown,
+    crashing_worker_is_retried_then_fails_with_a_typed_error,
+    policy_errors_fail_at_once_and_garbage_output_is_a_protocol_violation,
+    stacking_levels_are_stored_and_shown_each_with_its_own_numbers
+);

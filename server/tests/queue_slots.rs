@@ -91,8 +91,7 @@ async fn status(app: &TestApp, id: i64) -> Value {
     app.get_json(&format!("/api/v1/submissions/{id}")).await.1
 }
 
-#[tokio::test]
-async fn a_quick_job_runs_on_its_own_slot_while_paper_runs_hold_every_other_slot() {
+async fn a_quick_job_runs_on_its_own_slot_while_paper_runs_hold_every_other_slot(b: Backend) {
     let dir = tempfile::tempdir().unwrap();
     let line = dir.path().join("result.jsonl");
     std::fs::write(&line, result_line() + "\n").unwrap();
@@ -107,6 +106,7 @@ async fn a_quick_job_runs_on_its_own_slot_while_paper_runs_hold_every_other_slot
         ),
     );
     let app = spawn_app_with(Options {
+        backend: b,
         workers: 1,
         worker_exe: Some(worker),
         ..Default::default()
@@ -134,9 +134,12 @@ async fn a_quick_job_runs_on_its_own_slot_while_paper_runs_hold_every_other_slot
     assert_eq!(s2["queue_position"], 0);
 }
 
-#[tokio::test]
-async fn etas_come_from_past_runs_of_the_same_task_and_protocol() {
-    let app = spawn_app().await; // no worker slots: jobs stay queued
+async fn etas_come_from_past_runs_of_the_same_task_and_protocol(b: Backend) {
+    let app = spawn_app_with(Options {
+        backend: b,
+        ..Default::default()
+    })
+    .await; // no worker slots: jobs stay queued
     let first = submit(&app, "First", "pushing", "paper").await;
     // No past run: no estimate, on the API and the page (never "0 s").
     let v = status(&app, first).await;
@@ -190,3 +193,8 @@ async fn etas_come_from_past_runs_of_the_same_task_and_protocol() {
     let other = submit(&app, "Sixth", "aligning", "paper").await;
     assert_eq!(status(&app, other).await["eta_seconds"], Value::Null);
 }
+
+common::on_both_backends!(
+    a_quick_job_runs_on_its_own_slot_while_paper_runs_hold_every_other_slot,
+    etas_come_from_past_runs_of_the_same_task_and_protocol
+);

@@ -1,6 +1,11 @@
-//! Store tests on real SQLite files.
+//! Store tests, each on both backends: a real SQLite file and a real
+//! PostgreSQL database (a throw-away cluster, `d3il_test_support::pg`).
+
+mod common;
+use common::{Backend, TestDb};
 
 use d3il_protocol::*;
+use d3il_server::on_db;
 use d3il_server::store::{JobState, NewMethod, NewPolicy, NewSubmission, Store, StoreError};
 
 fn eval_result(task: TaskId, success: f64, cond: f64, paths: bool) -> EvalResult {
@@ -56,6 +61,18 @@ fn eval_result(task: TaskId, success: f64, cond: f64, paths: bool) -> EvalResult
 }
 
 async fn submit(store: &Store, method: &str, task: TaskId, seed: i64) -> (i64, i64) {
+    submit_sharded(store, method, task, seed, 1).await
+}
+
+/// A submission whose job is split into `shards` rows; returns (submission,
+/// first shard's job id).
+async fn submit_sharded(
+    store: &Store,
+    method: &str,
+    task: TaskId,
+    seed: i64,
+    shards: usize,
+) -> (i64, i64) {
     let m = store
         .ensure_method(
             &NewMethod {
@@ -67,7 +84,7 @@ async fn submit(store: &Store, method: &str, task: TaskId, seed: i64) -> (i64, i
         .await
         .unwrap();
     let id = store
-        .create_submission(
+        .create_submission_sharded(
             &NewSubmission {
                 method_id: m.id,
                 submitter_id: None,
@@ -82,6 +99,7 @@ async fn submit(store: &Store, method: &str, task: TaskId, seed: i64) -> (i64, i
                 manifest_json: "{}".into(),
             },
             3,
+            shards,
         )
         .await
         .unwrap();
@@ -89,18 +107,16 @@ async fn submit(store: &Store, method: &str, task: TaskId, seed: i64) -> (i64, i
     (id, job.id)
 }
 
-#[tokio::test]
-async fn paper_rows_load_once_and_match_the_embedded_cells() {
-    let dir = tempfile::tempdir().unwrap();
-    let db = dir.path().join("lb.sqlite");
-    let store = Store::open(&db).await.unwrap();
+async fn paper_rows_load_once_and_match_the_embedded_cells(b: Backend) {
+    let db = TestDb::new(b);
+    let store = db.open().await;
     let cells = store.result_cells().await.unwrap();
     let paper = paper::load_embedded();
     assert_eq!(cells, paper.cells());
     assert_eq!(store.methods().await.unwrap().len(), 11);
     drop(store);
     // A second start must not duplicate anything.
-    let store = Store::open(&db).await.unwrap();
+    let store = db.open().await;
     assert_eq!(
         store.result_cells().await.unwrap().len(),
         paper.cells().len()
@@ -111,10 +127,9 @@ async fn paper_rows_load_once_and_match_the_embedded_cells() {
     assert!(bc.from_paper);
 }
 
-#[tokio::test]
-async fn evaluated_rows_aggregate_over_seeds_with_sample_std() {
-    let dir = tempfile::tempdir().unwrap();
-    let store = Store::open(&dir.path().join("lb.sqlite")).await.unwrap();
+async fn evaluated_rows_aggregate_over_seeds_with_sample_std(b: Backend) {
+    let db = TestDb::new(b);
+    let store = db.open().await;
     for (seed, s) in [(0, 0.6), (1, 0.8)] {
         let (sub, job) = submit(&store, "MyPolicy", TaskId::Aligning, seed).await;
         let claimed = store.claim_job("w0", 60).await.unwrap().unwrap();
@@ -139,10 +154,9 @@ async fn evaluated_rows_aggregate_over_seeds_with_sample_std() {
     assert!((c.entropy.mean - 0.3).abs() < 1e-12);
 }
 
-#[tokio::test]
-async fn duplicate_seed_is_refused_and_stacking_expands() {
-    let dir = tempfile::tempdir().unwrap();
-    let store = Store::open(&dir.path().join("lb.sqlite")).await.unwrap();
+async fn duplicate_seed_is_refused_and_stacking_expands(b: Backend) {
+    let db = TestDb::new(b);
+    let store = db.open().await;
     let (sub, job) = submit(&store, "Stacker", TaskId::Stacking, 7).await;
     let m = store.method_by_name("Stacker").await.unwrap().unwrap();
     let dup = store
@@ -258,10 +272,9 @@ fn stacking_result(rollouts: &[(&str, bool)]) -> EvalResult {
     r
 }
 
-#[tokio::test]
-async fn stacking_results_stored_before_the_levels_share_one_entropy() {
-    let dir = tempfile::tempdir().unwrap();
-    let store = Store::open(&dir.path().join("lb.sqlite")).await.unwrap();
+async fn stacking_results_stored_before_the_levels_share_one_entropy(b: Backend) {
+    let db = TestDb::new(b);
+    let store = db.open().await;
     let (sub, job) = submit(&store, "OldStacker", TaskId::Stacking, 1).await;
     store.claim_job("w", 60).await.unwrap().unwrap();
     // Rates only, as results were stored before migration 0002.
@@ -290,10 +303,9 @@ async fn stacking_results_stored_before_the_levels_share_one_entropy() {
     );
 }
 
-#[tokio::test]
-async fn avoiding_paths_come_back_with_behaviours() {
-    let dir = tempfile::tempdir().unwrap();
-    let store = Store::open(&dir.path().join("lb.sqlite")).await.unwrap();
+async fn avoiding_paths_come_back_with_behaviours(b: Backend) {
+    let db = TestDb::new(b);
+    let store = db.open().await;
     let (sub, job) = submit(&store, "Avoider", TaskId::Avoiding, 0).await;
     store.claim_job("w", 60).await.unwrap().unwrap();
     store
@@ -311,11 +323,9 @@ async fn avoiding_paths_come_back_with_behaviours() {
     assert_eq!(paths[1].1[0], [0.5, -0.3]);
 }
 
-#[tokio::test]
-async fn leases_expire_retries_are_bounded_and_restart_requeues() {
-    let dir = tempfile::tempdir().unwrap();
-    let db = dir.path().join("lb.sqlite");
-    let mut store = Store::open(&db).await.unwrap();
+async fn leases_expire_retries_are_bounded_and_restart_requeues(b: Backend) {
+    let db = TestDb::new(b);
+    let mut store = db.open().await;
     let (sub, job) = submit(&store, "Flaky", TaskId::Pushing, 0).await;
     // Queued, with nothing ahead of it (position 0).
     assert_eq!(store.job_for(sub).await.unwrap().state, JobState::Queued);
@@ -335,7 +345,7 @@ async fn leases_expire_retries_are_bounded_and_restart_requeues() {
     // queue; the interrupted attempt is not counted (issue 17), twice over.
     for _ in 0..2 {
         drop(store);
-        store = Store::open(&db).await.unwrap();
+        store = db.open().await;
         assert_eq!(store.requeue_abandoned().await.unwrap(), 1);
         assert_eq!(store.submission(sub).await.unwrap().status, "queued");
         assert_eq!(store.job_for(sub).await.unwrap().attempts, 0);
@@ -369,10 +379,9 @@ async fn leases_expire_retries_are_bounded_and_restart_requeues() {
     submit(&store, "Flaky", TaskId::Pushing, 0).await;
 }
 
-#[tokio::test]
-async fn a_slot_that_lost_its_lease_cannot_requeue_or_fail_the_job() {
-    let dir = tempfile::tempdir().unwrap();
-    let store = Store::open(&dir.path().join("lb.sqlite")).await.unwrap();
+async fn a_slot_that_lost_its_lease_cannot_requeue_or_fail_the_job(b: Backend) {
+    let db = TestDb::new(b);
+    let store = db.open().await;
     let (sub, job) = submit(&store, "Slow", TaskId::Pushing, 0).await;
     // w0's lease is already over when it is granted; w1 takes the job over.
     store.claim_job("w0", -1).await.unwrap().unwrap();
@@ -401,10 +410,9 @@ async fn a_slot_that_lost_its_lease_cannot_requeue_or_fail_the_job() {
     assert_eq!(store.job_for(sub).await.unwrap().state, JobState::Queued);
 }
 
-#[tokio::test]
-async fn sibling_seeds_lists_the_rows_seeds_with_their_success() {
-    let dir = tempfile::tempdir().unwrap();
-    let store = Store::open(&dir.path().join("lb.sqlite")).await.unwrap();
+async fn sibling_seeds_lists_the_rows_seeds_with_their_success(b: Backend) {
+    let db = TestDb::new(b);
+    let store = db.open().await;
     let (first, job) = submit(&store, "Seeds", TaskId::Aligning, 3).await;
     store.claim_job("w", 60).await.unwrap().unwrap();
     store
@@ -434,10 +442,9 @@ async fn sibling_seeds_lists_the_rows_seeds_with_their_success() {
     );
 }
 
-#[tokio::test]
-async fn bad_stored_data_fails_to_decode_naming_the_column() {
-    let dir = tempfile::tempdir().unwrap();
-    let store = Store::open(&dir.path().join("lb.sqlite")).await.unwrap();
+async fn bad_stored_data_fails_to_decode_naming_the_column(b: Backend) {
+    let db = TestDb::new(b);
+    let store = db.open().await;
     let (sub, job) = submit(&store, "Corrupt", TaskId::Aligning, 0).await;
     store.claim_job("w", 60).await.unwrap().unwrap();
     store
@@ -453,26 +460,27 @@ async fn bad_stored_data_fails_to_decode_naming_the_column() {
     assert!(rows.iter().any(|r| r.method == "Corrupt"));
     for (sql, column) in [
         (
-            "UPDATE submissions SET task = 'juggling' WHERE id = ?",
+            "UPDATE submissions SET task = 'juggling' WHERE id = $1",
             "task",
         ),
         (
-            "UPDATE results SET per_context_json = '{oops' WHERE submission_id = ?",
+            "UPDATE results SET per_context_json = '{oops' WHERE submission_id = $1",
             "per_context_json",
         ),
     ] {
-        let restore: (String, String, String) = sqlx::query_as(
-            "SELECT s.task, s.status, r.per_context_json FROM submissions s JOIN results r ON r.submission_id = s.id WHERE s.id = ?",
+        let restore: (String, String, String) = on_db!(store.db(), pool => sqlx::query_as(
+            "SELECT s.task, s.status, r.per_context_json FROM submissions s JOIN results r ON r.submission_id = s.id WHERE s.id = $1",
         )
         .bind(sub)
-        .fetch_one(store.pool())
+        .fetch_one(pool)
         .await
-        .unwrap();
-        sqlx::query(sql)
+        .unwrap());
+        on_db!(store.db(), pool => sqlx::query(sql)
             .bind(sub)
-            .execute(store.pool())
+            .execute(pool)
             .await
-            .unwrap();
+            .map(|_| ())
+            .unwrap());
         let e = match column {
             "per_context_json" => store.result_for(sub).await.unwrap_err(),
             _ => store.submission(sub).await.unwrap_err(),
@@ -482,19 +490,21 @@ async fn bad_stored_data_fails_to_decode_naming_the_column() {
             let e = store.board_rows().await.unwrap_err();
             assert!(e.to_string().contains("juggling"), "{e}");
         }
-        sqlx::query("UPDATE submissions SET task = ?, status = ? WHERE id = ?")
-            .bind(&restore.0)
-            .bind(&restore.1)
-            .bind(sub)
-            .execute(store.pool())
-            .await
-            .unwrap();
-        sqlx::query("UPDATE results SET per_context_json = ? WHERE submission_id = ?")
-            .bind(&restore.2)
-            .bind(sub)
-            .execute(store.pool())
-            .await
-            .unwrap();
+        on_db!(store.db(), pool => {
+            sqlx::query("UPDATE submissions SET task = $1, status = $2 WHERE id = $3")
+                .bind(&restore.0)
+                .bind(&restore.1)
+                .bind(sub)
+                .execute(pool)
+                .await
+                .unwrap();
+            sqlx::query("UPDATE results SET per_context_json = $1 WHERE submission_id = $2")
+                .bind(&restore.2)
+                .bind(sub)
+                .execute(pool)
+                .await
+                .unwrap();
+        });
         store.submission(sub).await.unwrap();
     }
 }
@@ -503,10 +513,9 @@ async fn bad_stored_data_fails_to_decode_naming_the_column() {
 /// the same file and records its submission, then sees the new reference and
 /// keeps the file (the release used to count references while the new
 /// submission was not recorded yet, and delete its file).
-#[tokio::test]
-async fn releasing_a_file_waits_for_an_upload_being_recorded() {
-    let dir = tempfile::tempdir().unwrap();
-    let store = Store::open(&dir.path().join("s.sqlite")).await.unwrap();
+async fn releasing_a_file_waits_for_an_upload_being_recorded(b: Backend) {
+    let db = TestDb::new(b);
+    let store = db.open().await;
     let sha = "ab".repeat(32);
     let tmp = store.policies_dir().join("upload.onnx.tmp1-0");
     std::fs::write(&tmp, b"model").unwrap();
@@ -559,3 +568,120 @@ async fn releasing_a_file_waits_for_an_upload_being_recorded() {
     );
     assert!(path.exists());
 }
+
+/// Two pools (two store handles with their own connections, as two hosts
+/// have) claim from one queue at once, four slots each: every shard is
+/// handed out exactly once.
+async fn concurrent_pools_never_take_a_shard_twice(b: Backend) {
+    let db = TestDb::new(b);
+    let (one, two) = (db.open().await, db.open().await);
+    let mut subs = vec![];
+    for seed in 0..4 {
+        subs.push(
+            submit_sharded(&one, "Shards", TaskId::Aligning, seed, 5)
+                .await
+                .0,
+        );
+    }
+    let mut slots = vec![];
+    for (n, store) in [one.clone(), two.clone()].into_iter().enumerate() {
+        for slot in 0..4 {
+            let store = store.clone();
+            slots.push(tokio::spawn(async move {
+                let mut got = vec![];
+                while let Some(c) = store
+                    .claim_job(&format!("host{n}-slot{slot}"), 60)
+                    .await
+                    .unwrap()
+                {
+                    got.push(c.job.id);
+                }
+                got
+            }));
+        }
+    }
+    let mut claimed = vec![];
+    for s in slots {
+        claimed.extend(s.await.unwrap());
+    }
+    claimed.sort();
+    assert_eq!(claimed.len(), 20, "4 submissions x 5 shards: {claimed:?}");
+    claimed.dedup();
+    assert_eq!(claimed.len(), 20, "no shard handed out twice");
+    for sub in subs {
+        let j = one.job_for(sub).await.unwrap();
+        assert_eq!((j.state, j.shard_count), (JobState::Leased, 5));
+    }
+}
+
+/// A shard that fails for good fails its submission and the sibling shards
+/// (one still queued, one running: its later report is refused).
+async fn a_failed_shard_ends_its_siblings(b: Backend) {
+    let db = TestDb::new(b);
+    let store = db.open().await;
+    let (sub, _) = submit_sharded(&store, "Broken", TaskId::Aligning, 0, 3).await;
+    let first = store.claim_job("w0", 60).await.unwrap().unwrap();
+    let second = store.claim_job("w1", 60).await.unwrap().unwrap();
+    assert_eq!(
+        (first.job.shard(), second.job.shard()),
+        (
+            Some(d3il_protocol::shard::Shard { index: 1, count: 3 }),
+            Some(d3il_protocol::shard::Shard { index: 2, count: 3 })
+        )
+    );
+    let err = WorkerError {
+        kind: ErrorKind::BadAction,
+        message: "NaN action".into(),
+    };
+    assert!(!store
+        .fail_attempt(first.job.id, "w0", &err, false)
+        .await
+        .unwrap());
+    let j = store.job_for(sub).await.unwrap();
+    assert_eq!(j.state, JobState::Failed);
+    assert_eq!(store.submission(sub).await.unwrap().status, "failed");
+    assert!(
+        store.claim_job("w2", 60).await.unwrap().is_none(),
+        "the queued shard ended too"
+    );
+    let r = store.fail_attempt(second.job.id, "w1", &err, true).await;
+    assert!(matches!(r, Err(StoreError::LeaseLost { .. })), "{r:?}");
+}
+
+/// A slot's heartbeats keep the lease of the shard it claimed, with and
+/// without progress.
+async fn heartbeats_keep_a_shards_lease(b: Backend) {
+    let db = TestDb::new(b);
+    let store = db.open().await;
+    submit_sharded(&store, "Beating", TaskId::Aligning, 0, 3).await;
+    let c = store.claim_job("host-slot0", 3).await.unwrap().unwrap();
+    assert!(store
+        .heartbeat(c.job.id, "host-slot0", 3, None)
+        .await
+        .unwrap());
+    assert!(store
+        .heartbeat(c.job.id, "host-slot0", 3, Some((1, 2)))
+        .await
+        .unwrap());
+    let j = store.job(c.job.id).await.unwrap();
+    assert_eq!((j.rollouts_done, j.rollouts_total), (1, 2));
+}
+
+common::on_both_backends!(
+    concurrent_pools_never_take_a_shard_twice,
+    a_failed_shard_ends_its_siblings,
+    heartbeats_keep_a_shards_lease
+);
+
+common::on_both_backends!(
+    paper_rows_load_once_and_match_the_embedded_cells,
+    evaluated_rows_aggregate_over_seeds_with_sample_std,
+    duplicate_seed_is_refused_and_stacking_expands,
+    stacking_results_stored_before_the_levels_share_one_entropy,
+    avoiding_paths_come_back_with_behaviours,
+    leases_expire_retries_are_bounded_and_restart_requeues,
+    a_slot_that_lost_its_lease_cannot_requeue_or_fail_the_job,
+    sibling_seeds_lists_the_rows_seeds_with_their_success,
+    bad_stored_data_fails_to_decode_naming_the_column,
+    releasing_a_file_waits_for_an_upload_being_recorded
+);

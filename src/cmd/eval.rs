@@ -201,6 +201,7 @@ pub fn build_job(args: &Args) -> anyhow::Result<Job> {
         limits: args.limits.limits()?,
         assets_dir: crate::cmd::assets_dir().to_string_lossy().into_owned(),
         dry_run_steps: None,
+        shard: None,
     })
 }
 
@@ -229,6 +230,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         }
         match run.outcome {
             d3il_sandbox::Outcome::Completed(r) => *r,
+            d3il_sandbox::Outcome::Part(_) => {
+                bail!("the worker answered a whole evaluation with a shard's part")
+            }
             d3il_sandbox::Outcome::Failed(e) => bail!("{:?}: {}", e.kind, e.message),
         }
     } else {

@@ -2,6 +2,7 @@ pub mod bench;
 pub mod bench_serve;
 pub mod compare;
 pub mod contexts;
+pub mod db;
 pub mod eval;
 pub mod limits;
 pub mod merge;
@@ -12,6 +13,7 @@ pub mod submit;
 pub mod tables;
 pub mod token;
 pub mod worker;
+pub mod workers;
 
 /// The assets directory (MJCF, context sets, fixtures): `$D3IL_ASSETS` or the
 /// repository's `assets/`.

@@ -6,10 +6,8 @@ use std::path::PathBuf;
 
 #[derive(clap::Args, Debug)]
 pub struct Args {
-    /// SQLite database file (created and migrated if missing; the paper's
-    /// results are loaded on first start).
-    #[arg(long, default_value = "d3il.sqlite")]
-    pub db: PathBuf,
+    #[command(flatten)]
+    pub db: super::db::DbArgs,
     /// Address to listen on (port 0 picks a free port).
     #[arg(long, default_value = "127.0.0.1:8080")]
     pub bind: SocketAddr,
@@ -42,6 +40,11 @@ pub struct Args {
     /// Attempts per evaluation before a crashing job fails.
     #[arg(long, default_value_t = 3)]
     pub max_attempts: i64,
+    /// Split each paper-protocol evaluation into this many shards of whole
+    /// initial states, run by any worker slot or host (`d3il workers`) and
+    /// merged when all are done; the result is bit-identical to one run.
+    #[arg(long, default_value_t = 1)]
+    pub shards: usize,
     /// Queue uploaded models without the submission-time dry run (a few
     /// sandboxed steps of the quick protocol); a model that cannot run then
     /// fails at its evaluation instead of being refused at submission.
@@ -71,7 +74,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             std::env::current_exe().context("cannot find the d3il executable to start workers")?
         }
     };
-    let mut cfg = d3il_server::app::ServerConfig::new(args.db, args.bind, exe);
+    let mut cfg = d3il_server::app::ServerConfig::new(args.db.db, args.bind, exe);
+    cfg.policy_store = args.db.policy_store;
     if let Some(w) = args.workers {
         cfg.workers = w;
     }
@@ -93,6 +97,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     cfg.max_concurrent_uploads = args.max_concurrent_uploads.max(1);
     anyhow::ensure!(args.max_attempts >= 1, "--max-attempts must be at least 1");
     cfg.max_attempts = args.max_attempts;
+    cfg.shards = args.shards.max(1);
     cfg.dry_run_uploads = !args.no_upload_dry_run;
     anyhow::ensure!(
         args.header_timeout >= 1

@@ -26,9 +26,8 @@ pub struct Args {
     /// Rows to show: the paper's reported numbers, our evaluations, or both.
     #[arg(long, default_value = "both")]
     pub source: SourceFilter,
-    /// SQLite database of the server (created with the paper's results if missing).
-    #[arg(long, default_value = "d3il.sqlite")]
-    pub db: PathBuf,
+    #[command(flatten)]
+    pub db: super::db::DbArgs,
     /// Output file (default: standard output).
     #[arg(long)]
     pub out: Option<PathBuf>,
@@ -56,9 +55,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
 }
 
 async fn render(args: &Args) -> anyhow::Result<String> {
-    let store = Store::open(&args.db)
+    let store = Store::connect(&args.db.db, args.db.policy_store.as_deref())
         .await
-        .with_context(|| format!("opening the database {}", args.db.display()))?;
+        .with_context(|| format!("opening the database {}", args.db.db))?;
     if let Some(FigureKind::AvoidingPaths) = args.figure {
         let id = args.submission.context(
             "--figure avoiding-paths draws the rollouts of one submission: pass --submission ID of an evaluated Avoiding submission",
@@ -112,7 +111,10 @@ mod tests {
             obs: ObsType::State,
             format: Format::Latex,
             source: SourceFilter::Both,
-            db,
+            db: super::super::db::DbArgs {
+                db: db.into(),
+                policy_store: None,
+            },
             out: Some(out),
             submission: None,
         }

@@ -2,7 +2,6 @@
 //! only its hash is stored). `d3il token revoke TOKEN_OR_PREFIX`: revoke one.
 
 use anyhow::Context;
-use std::path::PathBuf;
 
 #[derive(clap::Args, Debug)]
 pub struct Args {
@@ -20,17 +19,15 @@ pub enum Action {
         /// An operator's token: it may also open the admin page (`/admin`).
         #[arg(long)]
         admin: bool,
-        /// SQLite database of the server.
-        #[arg(long, default_value = "d3il.sqlite")]
-        db: PathBuf,
+        #[command(flatten)]
+        db: super::db::DbArgs,
     },
     /// Revoke a token: requests with it are refused from now on.
     Revoke {
         /// The whole token, or its first 13 characters (`d3il_` and 8 more).
         token: String,
-        /// SQLite database of the server.
-        #[arg(long, default_value = "d3il.sqlite")]
-        db: PathBuf,
+        #[command(flatten)]
+        db: super::db::DbArgs,
     },
 }
 
@@ -42,8 +39,13 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 !name.is_empty() && name.chars().count() <= 64,
                 "--name must be 1-64 characters"
             );
-            let token = d3il_server::cli::create_token_blocking(&db, &name, admin)
-                .with_context(|| format!("cannot create a token in {}", db.display()))?;
+            let token = d3il_server::cli::create_token_blocking(
+                &db.db,
+                db.policy_store.as_deref(),
+                &name,
+                admin,
+            )
+            .with_context(|| format!("cannot create a token in {}", db.db))?;
             println!("{token}");
             let prefix = &token[..d3il_server::store::TOKEN_PREFIX_LEN];
             eprintln!(
@@ -54,8 +56,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             Ok(())
         }
         Action::Revoke { token, db } => {
-            let revoked = d3il_server::cli::revoke_token_blocking(&db, &token)
-                .with_context(|| format!("cannot revoke a token in {}", db.display()))?;
+            let revoked =
+                d3il_server::cli::revoke_token_blocking(&db.db, db.policy_store.as_deref(), &token)
+                    .with_context(|| format!("cannot revoke a token in {}", db.db))?;
             if revoked.prefixes.is_empty() {
                 eprintln!("that token was already revoked");
             } else {

@@ -56,11 +56,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 std::process::exit(code);
             }
             d3il_sandbox::worker_main(&opts, |job, progress| {
-                d3il_sandbox::selftest::evaluate(mode, job, progress)
+                d3il_sandbox::selftest::evaluate(mode, job, progress).map(Into::into)
             })
         }
         None => d3il_sandbox::worker_main(&opts, |job, progress| {
-            d3il_evaluator::eval::run_job(job, progress)
+            d3il_evaluator::eval::run_job_or_shard(job, progress)
         }),
     };
     std::process::exit(code);

@@ -4,9 +4,15 @@
 //! limits for policies served on 127.0.0.1, a test PKI made with rcgen and a
 //! scratch directory removed on drop.
 //!
-//! Its dependencies stay minimal (protocol, serde_json, rcgen) so every crate
-//! of the workspace can dev-depend on it without a cycle.
-#![forbid(unsafe_code)]
+//! It also starts a throw-away PostgreSQL for the store tests ([`pg`]).
+//!
+//! Its dependencies stay minimal (protocol, serde_json, rcgen, libc) so every
+//! crate of the workspace can dev-depend on it without a cycle.
+#![deny(unsafe_code)]
+
+/// The only unsafe code: the PostgreSQL child's parent-death signal.
+#[allow(unsafe_code)]
+pub mod pg;
 
 use d3il_protocol::{
     EvalResult, FailureReason, Job, Limits, ObsType, PolicyManifest, PolicySource, ProtocolKind,
@@ -91,6 +97,7 @@ pub fn avoiding_job(policy: PolicySource, limits: Limits) -> Job {
         limits,
         assets_dir: assets_dir().display().to_string(),
         dry_run_steps: None,
+        shard: None,
     }
 }
 

@@ -21,6 +21,11 @@ impl Server {
     /// Starts `d3il serve --db DB --bind 127.0.0.1:0 EXTRA...` and waits for
     /// its `listening on` line.
     pub fn start(db: &Path, extra: &[&str]) -> Server {
+        Server::start_on(db.as_os_str(), extra)
+    }
+
+    /// [`Server::start`] on any `--db` (a SQLite path or a PostgreSQL URL).
+    pub fn start_on(db: &std::ffi::OsStr, extra: &[&str]) -> Server {
         let mut child = Command::new(EXE)
             .arg("serve")
             .arg("--db")
@@ -79,11 +84,17 @@ pub fn create_admin_token(db: &Path, name: &str) -> String {
 }
 
 fn create_token_args(db: &Path, name: &str, extra: &[&str]) -> String {
+    let mut args = vec!["--db", db.to_str().expect("utf-8 path")];
+    args.extend_from_slice(extra);
+    create_token_on(name, &args)
+}
+
+/// `d3il token create --name NAME ARGS...` (ARGS give `--db` and, for
+/// PostgreSQL, `--policy-store`); returns the token.
+pub fn create_token_on(name: &str, args: &[&str]) -> String {
     let out = Command::new(EXE)
         .args(["token", "create", "--name", name])
-        .args(extra)
-        .arg("--db")
-        .arg(db)
+        .args(args)
         .output()
         .expect("run d3il token create");
     assert!(

@@ -51,12 +51,12 @@ impl Store {
             return Ok(false);
         }
         let _files = self.files.lock().await;
-        let live: i64 = sqlx::query_scalar(
-            "SELECT COUNT(*) FROM submissions WHERE onnx_path = ? AND status != 'failed'",
+        let live: i64 = on_db!(&self.db, pool => sqlx::query_scalar(
+            "SELECT COUNT(*) FROM submissions WHERE onnx_path = $1 AND status != 'failed'",
         )
         .bind(path)
-        .fetch_one(&self.pool)
-        .await?;
+        .fetch_one(pool)
+        .await)?;
         if live > 0 {
             return Ok(false);
         }
@@ -76,10 +76,10 @@ impl Store {
     /// Releases the policy file of submission `id` (after it failed).
     pub async fn release_policy_of(&self, id: i64) -> Result<bool, StoreError> {
         let path: Option<String> =
-            sqlx::query_scalar("SELECT onnx_path FROM submissions WHERE id = ?")
+            on_db!(&self.db, pool => sqlx::query_scalar("SELECT onnx_path FROM submissions WHERE id = $1")
                 .bind(id)
-                .fetch_optional(&self.pool)
-                .await?
+                .fetch_optional(pool)
+                .await)?
                 .flatten();
         match path {
             Some(p) => self.release_policy_file(&p).await,
@@ -90,13 +90,13 @@ impl Store {
     /// Bytes of policy files this submitter keeps on disk: distinct files of
     /// their submissions that have not failed.
     pub async fn submitter_disk_bytes(&self, submitter_id: i64) -> Result<u64, StoreError> {
-        let n: i64 = sqlx::query_scalar(
-            "SELECT COALESCE(SUM(b), 0) FROM (SELECT MAX(onnx_bytes) AS b FROM submissions \
-             WHERE submitter_id = ? AND status != 'failed' AND onnx_path IS NOT NULL GROUP BY onnx_path)",
+        let n: i64 = on_db!(&self.db, pool => sqlx::query_scalar(
+            "SELECT CAST(COALESCE(SUM(b), 0) AS BIGINT) FROM (SELECT MAX(onnx_bytes) AS b FROM submissions \
+             WHERE submitter_id = $1 AND status != 'failed' AND onnx_path IS NOT NULL GROUP BY onnx_path) AS files",
         )
         .bind(submitter_id)
-        .fetch_one(&self.pool)
-        .await?;
+        .fetch_one(pool)
+        .await)?;
         Ok(n.max(0) as u64)
     }
 
@@ -119,20 +119,21 @@ impl Store {
         }
         // Files no submission refers to (a crash between storing the file
         // and recording its submission).
-        let known: std::collections::HashSet<String> = sqlx::query_scalar::<_, String>(
+        let known: std::collections::HashSet<String> =
+            on_db!(&self.db, pool => sqlx::query_scalar::<_, String>(
             "SELECT DISTINCT onnx_path FROM submissions WHERE onnx_path IS NOT NULL",
         )
-        .fetch_all(&self.pool)
-        .await?
-        .into_iter()
-        // By file name: a data directory moved with its database still
-        // matches its rows.
-        .filter_map(|p| {
-            Path::new(&p)
-                .file_name()
-                .map(|f| f.to_string_lossy().into_owned())
-        })
-        .collect();
+        .fetch_all(pool)
+        .await)?
+            .into_iter()
+            // By file name: a data directory moved with its database still
+            // matches its rows.
+            .filter_map(|p| {
+                Path::new(&p)
+                    .file_name()
+                    .map(|f| f.to_string_lossy().into_owned())
+            })
+            .collect();
         let mut entries = tokio::fs::read_dir(&dir).await.map_err(io_err(&dir))?;
         while let Some(e) = entries.next_entry().await.map_err(io_err(&dir))? {
             let p = e.path();
@@ -145,11 +146,11 @@ impl Store {
                 }
             }
         }
-        let failed: Vec<String> = sqlx::query_scalar(
+        let failed: Vec<String> = on_db!(&self.db, pool => sqlx::query_scalar(
             "SELECT DISTINCT onnx_path FROM submissions WHERE status = 'failed' AND onnx_path IS NOT NULL",
         )
-        .fetch_all(&self.pool)
-        .await?;
+        .fetch_all(pool)
+        .await)?;
         for p in failed {
             if self.release_policy_file(&p).await? {
                 removed += 1;

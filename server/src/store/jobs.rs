@@ -2,12 +2,108 @@
 //! attempts. A slot acts on a job only while it holds the job's lease.
 
 use super::submissions::SubmissionRow;
+use super::types::Json;
 use super::types::{JobState, SubmissionStatus};
 use super::{now, to_json, Store, StoreError};
 use crate::leaderboard::protocol_str;
+use d3il_protocol::shard::EvalPart;
 use d3il_protocol::{EvalResult, ProtocolKind, SandboxMechanism, WorkerError};
-use sqlx::types::Json;
 use sqlx::FromRow;
+
+/// Writes a submission's result and rollouts and marks it completed, inside
+/// the caller's transaction (idempotent: an existing result is kept).
+macro_rules! insert_result {
+    ($tx:expr, $submission_id:expr, $result:expr, $t:expr) => {{
+        let (submission_id, result, t): (i64, &EvalResult, i64) = ($submission_id, $result, $t);
+        let m = &result.metrics;
+        sqlx::query(
+            "INSERT INTO results (submission_id, success_rate, success_ci_low, success_ci_high, behaviour_entropy, \
+             behaviour_ci_low, behaviour_ci_high, conditional_entropy, conditional_ci_low, conditional_ci_high, \
+             stacking_json, stacking_levels_json, inference_ms, manifest_json, per_context_json, created_at, \
+             rollouts_ended_unstable) \
+             VALUES ($1, $2, $3, $4, $5, $6, $7, $8, $9, $10, $11, $12, $13, $14, $15, $16, $17) ON CONFLICT(submission_id) DO NOTHING",
+        )
+        .bind(submission_id)
+        .bind(m.success_rate.value)
+        .bind(m.success_rate.ci_low)
+        .bind(m.success_rate.ci_high)
+        .bind(m.behaviour_entropy.value)
+        .bind(m.behaviour_entropy.ci_low)
+        .bind(m.behaviour_entropy.ci_high)
+        .bind(m.conditional_entropy.value)
+        .bind(m.conditional_entropy.ci_low)
+        .bind(m.conditional_entropy.ci_high)
+        .bind(m.stacking.map(|s| to_json(&s)))
+        .bind(m.stacking_levels.map(|s| to_json(&s)))
+        .bind(m.inference_ms)
+        .bind(to_json(&result.manifest))
+        .bind(to_json(&result.per_context))
+        .bind(t)
+        .bind(result.rollouts_ended_unstable as i64)
+        .execute($tx)
+        .await?;
+        for r in &result.rollouts {
+            sqlx::query(
+                "INSERT INTO rollouts (submission_id, context_index, rollout_index, success, behaviour_json, steps, path_json, \
+                 failure_json) VALUES ($1, $2, $3, $4, $5, $6, $7, $8) ON CONFLICT(submission_id, context_index, rollout_index) DO NOTHING",
+            )
+            .bind(submission_id)
+            .bind(r.context_index as i64)
+            .bind(r.rollout_index as i64)
+            .bind(r.success)
+            .bind(r.behaviour.to_string())
+            .bind(r.steps as i64)
+            .bind(r.path.as_ref().map(to_json))
+            .bind(r.failure.as_ref().map(to_json))
+            .execute($tx)
+            .await?;
+        }
+        sqlx::query(
+            "UPDATE submissions SET status = 'completed', error_kind = NULL, error_message = NULL, updated_at = $1 WHERE id = $2",
+        )
+        .bind(t)
+        .bind(submission_id)
+        .execute($tx)
+        .await?;
+    }};
+}
+
+/// Fails the job and its submission for good, inside the caller's transaction.
+macro_rules! finish_failed {
+    ($tx:expr, $job_id:expr, $submission_id:expr, $kind:expr, $message:expr, $t:expr) => {{
+        sqlx::query(
+            "UPDATE jobs SET state = 'failed', lease_owner = NULL, lease_expires_at = NULL, finished_at = $1, \
+             error_kind = $2, error_message = $3 WHERE id = $4",
+        )
+        .bind($t)
+        .bind($kind)
+        .bind($message)
+        .bind($job_id)
+        .execute($tx)
+        .await?;
+        // The other shards of a sharded job end with it (a shard still
+        // running loses its lease: its report is ignored).
+        sqlx::query(
+            "UPDATE jobs SET state = 'failed', lease_owner = NULL, lease_expires_at = NULL, finished_at = $1, \
+             error_kind = $2, error_message = $3 WHERE submission_id = $4 AND state IN ('queued', 'leased')",
+        )
+        .bind($t)
+        .bind($kind)
+        .bind($message)
+        .bind($submission_id)
+        .execute($tx)
+        .await?;
+        sqlx::query(
+            "UPDATE submissions SET status = 'failed', error_kind = $1, error_message = $2, updated_at = $3 WHERE id = $4",
+        )
+        .bind($kind)
+        .bind($message)
+        .bind($t)
+        .bind($submission_id)
+        .execute($tx)
+        .await?;
+    }};
+}
 
 #[derive(Debug, Clone, FromRow, serde::Serialize)]
 pub struct JobRow {
@@ -29,6 +125,57 @@ pub struct JobRow {
     /// When the current (latest) attempt started: ETAs extrapolate from it.
     pub started_at: Option<i64>,
     pub finished_at: Option<i64>,
+    /// This row's shard (0-based) of `shard_count`: a paper-protocol job
+    /// may be split into shards of whole initial states (issue 19); a
+    /// plain job is shard 0 of 1.
+    pub shard_index: i64,
+    pub shard_count: i64,
+}
+
+impl JobRow {
+    /// The shard this row runs (1-based, as `d3il eval --shard` writes it),
+    /// `None` for an unsharded job.
+    pub fn shard(&self) -> Option<d3il_protocol::shard::Shard> {
+        (self.shard_count > 1).then(|| d3il_protocol::shard::Shard {
+            index: self.shard_index.max(0) as usize + 1,
+            count: self.shard_count as usize,
+        })
+    }
+
+    /// The rows of one submission's shards seen as one job: failed if one
+    /// failed, done when all are, leased while any runs, else queued; counts
+    /// and attempts summed up, the first start and the last finish.
+    fn summarise(rows: Vec<JobRow>) -> Option<JobRow> {
+        let mut it = rows.into_iter();
+        let mut job = it.next()?;
+        for r in it {
+            use JobState::*;
+            job.state = match (job.state, r.state) {
+                (Failed, _) | (_, Failed) => Failed,
+                (Leased, _) | (_, Leased) => Leased,
+                (Queued, _) | (_, Queued) => Queued,
+                (Done, Done) => Done,
+            };
+            job.attempts = job.attempts.max(r.attempts);
+            job.lease_owner = job.lease_owner.or(r.lease_owner);
+            job.lease_expires_at = job.lease_expires_at.max(r.lease_expires_at);
+            job.heartbeat_at = job.heartbeat_at.max(r.heartbeat_at);
+            job.rollouts_done += r.rollouts_done;
+            job.rollouts_total += r.rollouts_total;
+            job.error_kind = job.error_kind.or(r.error_kind);
+            job.error_message = job.error_message.or(r.error_message);
+            job.sandbox_json = job.sandbox_json.or(r.sandbox_json);
+            job.started_at = match (job.started_at, r.started_at) {
+                (Some(a), Some(b)) => Some(a.min(b)),
+                (a, b) => a.or(b),
+            };
+            job.finished_at = job.finished_at.max(r.finished_at);
+        }
+        if job.state != JobState::Done {
+            job.finished_at = None;
+        }
+        Some(job)
+    }
 }
 
 /// A job handed to a worker slot.
@@ -39,12 +186,26 @@ pub struct ClaimedJob {
 }
 
 impl Store {
+    /// The job of a submission (its shards summarised as one, see
+    /// [`JobRow::summarise`]; the id is the first shard's).
     pub async fn job_for(&self, submission_id: i64) -> Result<JobRow, StoreError> {
-        sqlx::query_as("SELECT * FROM jobs WHERE submission_id = ?")
-            .bind(submission_id)
-            .fetch_optional(&self.pool)
-            .await?
+        let rows: Vec<JobRow> = on_db!(&self.db, pool => sqlx::query_as(
+            "SELECT * FROM jobs WHERE submission_id = $1 ORDER BY shard_index",
+        )
+        .bind(submission_id)
+        .fetch_all(pool)
+        .await)?;
+        JobRow::summarise(rows)
             .ok_or_else(|| StoreError::NotFound(format!("job of submission {submission_id}")))
+    }
+
+    /// One job row (one shard) by id.
+    pub async fn job(&self, job_id: i64) -> Result<JobRow, StoreError> {
+        on_db!(&self.db, pool => sqlx::query_as("SELECT * FROM jobs WHERE id = $1")
+            .bind(job_id)
+            .fetch_optional(pool)
+            .await)?
+        .ok_or_else(|| StoreError::NotFound(format!("job {job_id}")))
     }
 
     /// Puts every leased job back in the queue. Called once at start-up: a
@@ -54,23 +215,25 @@ impl Store {
     /// the policy's fault and does not count against `--max-attempts`
     /// (issue 17).
     pub async fn requeue_abandoned(&self) -> Result<u64, StoreError> {
-        let mut tx = self.pool.begin().await?;
-        let n = sqlx::query(
-            "UPDATE jobs SET state = 'queued', lease_owner = NULL, lease_expires_at = NULL, \
-             attempts = MAX(attempts - 1, 0) WHERE state = 'leased'",
-        )
-        .execute(&mut *tx)
-        .await?
-        .rows_affected();
-        sqlx::query(
-            "UPDATE submissions SET status = 'queued', updated_at = ? WHERE status = 'running' \
-             AND id IN (SELECT submission_id FROM jobs WHERE state = 'queued')",
-        )
-        .bind(now())
-        .execute(&mut *tx)
-        .await?;
-        tx.commit().await?;
-        Ok(n)
+        on_db!(&self.db, pool => {
+            let mut tx = pool.begin().await?;
+            let n = sqlx::query(
+                "UPDATE jobs SET state = 'queued', lease_owner = NULL, lease_expires_at = NULL, \
+                 attempts = CASE WHEN attempts > 0 THEN attempts - 1 ELSE 0 END WHERE state = 'leased'",
+            )
+            .execute(&mut *tx)
+            .await?
+            .rows_affected();
+            sqlx::query(
+                "UPDATE submissions SET status = 'queued', updated_at = $1 WHERE status = 'running' \
+                 AND id IN (SELECT submission_id FROM jobs WHERE state = 'queued')",
+            )
+            .bind(now())
+            .execute(&mut *tx)
+            .await?;
+            tx.commit().await?;
+            Ok(n)
+        })
     }
 
     /// Leases the oldest runnable job (queued, or leased with an expired
@@ -95,51 +258,62 @@ impl Store {
         lease: i64,
         only: Option<ProtocolKind>,
     ) -> Result<Option<ClaimedJob>, StoreError> {
+        // SQLite: IMMEDIATE, because a deferred transaction that reads and
+        // then writes gets SQLITE_BUSY at once (no busy timeout) when another
+        // connection wrote in between; taking the write lock first makes it
+        // wait like every other writer. PostgreSQL: the row is locked, and
+        // rows other hosts hold are skipped, so two pools never take the
+        // same job.
+        const PICK: &str = "SELECT * FROM jobs WHERE (state = 'queued' OR (state = 'leased' AND lease_expires_at < $1)) \
+             AND ($2 IS NULL OR submission_id IN (SELECT id FROM submissions WHERE protocol = $2)) \
+             ORDER BY id LIMIT 1";
+        let pick = if self.is_postgres() {
+            format!("{PICK} FOR UPDATE SKIP LOCKED")
+        } else {
+            PICK.to_string()
+        };
         loop {
             let t = now();
-            // IMMEDIATE: a deferred transaction that reads and then writes
-            // gets SQLITE_BUSY at once (no busy timeout) when another
-            // connection wrote in between; taking the write lock first makes
-            // it wait like every other writer.
-            let mut tx = self.pool.begin_with("BEGIN IMMEDIATE").await?;
-            let job: Option<JobRow> = sqlx::query_as(
-                "SELECT * FROM jobs WHERE (state = 'queued' OR (state = 'leased' AND lease_expires_at < ?)) \
-                 AND (? IS NULL OR submission_id IN (SELECT id FROM submissions WHERE protocol = ?)) \
-                 ORDER BY id LIMIT 1",
-            )
-            .bind(t)
-            .bind(only.map(protocol_str))
-            .bind(only.map(protocol_str))
-            .fetch_optional(&mut *tx)
-            .await?;
-            let Some(job) = job else { return Ok(None) };
-            let updated = sqlx::query(
-                "UPDATE jobs SET attempts = CASE WHEN state = 'queued' THEN attempts + 1 ELSE attempts END, \
-                 state = 'leased', lease_owner = ?, lease_expires_at = ?, heartbeat_at = ?, \
-                 started_at = ?, rollouts_done = 0, rollouts_total = 0 \
-                 WHERE id = ? AND (state = 'queued' OR (state = 'leased' AND lease_expires_at < ?))",
-            )
-            .bind(owner)
-            .bind(t + lease)
-            .bind(t)
-            .bind(t)
-            .bind(job.id)
-            .bind(t)
-            .execute(&mut *tx)
-            .await?
-            .rows_affected();
-            if updated == 0 {
-                // Someone else took it between the select and the update.
-                tx.rollback().await?;
-                continue;
-            }
-            sqlx::query("UPDATE submissions SET status = 'running', updated_at = ? WHERE id = ?")
+            let claimed = on_db!(&self.db, pool => {
+                let mut tx = begin_write!(self, pool);
+                let job: Option<JobRow> = sqlx::query_as(sqlx::AssertSqlSafe(pick.as_str()))
+                    .bind(t)
+                    .bind(only.map(protocol_str))
+                    .fetch_optional(&mut *tx)
+                    .await?;
+                let Some(job) = job else { return Ok(None) };
+                let updated = sqlx::query(
+                    "UPDATE jobs SET attempts = CASE WHEN state = 'queued' THEN attempts + 1 ELSE attempts END, \
+                     state = 'leased', lease_owner = $1, lease_expires_at = $2, heartbeat_at = $3, \
+                     started_at = $3, rollouts_done = 0, rollouts_total = 0 \
+                     WHERE id = $4 AND (state = 'queued' OR (state = 'leased' AND lease_expires_at < $3))",
+                )
+                .bind(owner)
+                .bind(t + lease)
                 .bind(t)
-                .bind(job.submission_id)
+                .bind(job.id)
                 .execute(&mut *tx)
-                .await?;
-            tx.commit().await?;
-            let job = self.job_for(job.submission_id).await?;
+                .await?
+                .rows_affected();
+                if updated == 0 {
+                    // Someone else took it between the select and the update.
+                    tx.rollback().await?;
+                    None
+                } else {
+                    sqlx::query("UPDATE submissions SET status = 'running', updated_at = $1 WHERE id = $2")
+                        .bind(t)
+                        .bind(job.submission_id)
+                        .execute(&mut *tx)
+                        .await?;
+                    tx.commit().await?;
+                    Some(job.id)
+                }
+            });
+            let Some(job_id) = claimed else {
+                continue;
+            };
+            // The claimed row (one shard), not the submission's summary.
+            let job = self.job(job_id).await?;
             let submission = self.submission(job.submission_id).await?;
             return Ok(Some(ClaimedJob { job, submission }));
         }
@@ -155,28 +329,24 @@ impl Store {
         progress: Option<(usize, usize)>,
     ) -> Result<bool, StoreError> {
         let t = now();
-        let n = match progress {
-            Some((done, total)) => sqlx::query(
-                "UPDATE jobs SET heartbeat_at = ?, lease_expires_at = ?, rollouts_done = ?, rollouts_total = ? \
-                 WHERE id = ? AND lease_owner = ? AND state = 'leased'",
-            )
-            .bind(t)
-            .bind(t + lease)
-            .bind(done as i64)
-            .bind(total as i64)
-            .bind(job_id)
-            .bind(owner),
-            None => sqlx::query(
-                "UPDATE jobs SET heartbeat_at = ?, lease_expires_at = ? WHERE id = ? AND lease_owner = ? AND state = 'leased'",
-            )
-            .bind(t)
-            .bind(t + lease)
-            .bind(job_id)
-            .bind(owner),
-        }
-        .execute(&self.pool)
-        .await?
-        .rows_affected();
+        // Without progress, the counts stay as they are (NULL parameters).
+        let (done, total) = match progress {
+            Some((d, n)) => (Some(d as i64), Some(n as i64)),
+            None => (None, None),
+        };
+        let n = on_db!(&self.db, pool => sqlx::query(
+            "UPDATE jobs SET heartbeat_at = $1, lease_expires_at = $2, rollouts_done = COALESCE($3, rollouts_done), \
+             rollouts_total = COALESCE($4, rollouts_total) WHERE id = $5 AND lease_owner = $6 AND state = 'leased'",
+        )
+        .bind(t)
+        .bind(t + lease)
+        .bind(done)
+        .bind(total)
+        .bind(job_id)
+        .bind(owner)
+        .execute(pool)
+        .await
+        .map(|r| r.rows_affected()))?;
         Ok(n == 1)
     }
 
@@ -190,72 +360,110 @@ impl Store {
         mechanisms: &[SandboxMechanism],
     ) -> Result<(), StoreError> {
         let t = now();
-        let m = &result.metrics;
-        let mut tx = self.pool.begin().await?;
-        sqlx::query(
-            "INSERT INTO results (submission_id, success_rate, success_ci_low, success_ci_high, behaviour_entropy, \
-             behaviour_ci_low, behaviour_ci_high, conditional_entropy, conditional_ci_low, conditional_ci_high, \
-             stacking_json, stacking_levels_json, inference_ms, manifest_json, per_context_json, created_at, \
-             rollouts_ended_unstable) \
-             VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?) ON CONFLICT(submission_id) DO NOTHING",
-        )
-        .bind(submission_id)
-        .bind(m.success_rate.value)
-        .bind(m.success_rate.ci_low)
-        .bind(m.success_rate.ci_high)
-        .bind(m.behaviour_entropy.value)
-        .bind(m.behaviour_entropy.ci_low)
-        .bind(m.behaviour_entropy.ci_high)
-        .bind(m.conditional_entropy.value)
-        .bind(m.conditional_entropy.ci_low)
-        .bind(m.conditional_entropy.ci_high)
-        .bind(m.stacking.map(|s| to_json(&s)))
-        .bind(m.stacking_levels.map(|s| to_json(&s)))
-        .bind(m.inference_ms)
-        .bind(to_json(&result.manifest))
-        .bind(to_json(&result.per_context))
-        .bind(t)
-        .bind(result.rollouts_ended_unstable as i64)
-        .execute(&mut *tx)
-        .await?;
-        for r in &result.rollouts {
+        let total = result.rollouts.len() as i64;
+        on_db!(&self.db, pool => {
+            let mut tx = pool.begin().await?;
+            insert_result!(&mut *tx, submission_id, result, t);
             sqlx::query(
-                "INSERT INTO rollouts (submission_id, context_index, rollout_index, success, behaviour_json, steps, path_json, \
-                 failure_json) VALUES (?, ?, ?, ?, ?, ?, ?, ?) ON CONFLICT(submission_id, context_index, rollout_index) DO NOTHING",
+                "UPDATE jobs SET state = 'done', lease_owner = NULL, lease_expires_at = NULL, finished_at = $1, \
+                 rollouts_done = CASE WHEN rollouts_done > $2 THEN rollouts_done ELSE $2 END, \
+                 rollouts_total = CASE WHEN rollouts_total > $2 THEN rollouts_total ELSE $2 END, sandbox_json = $3, \
+                 error_kind = NULL, error_message = NULL WHERE id = $4",
             )
-            .bind(submission_id)
-            .bind(r.context_index as i64)
-            .bind(r.rollout_index as i64)
-            .bind(r.success)
-            .bind(r.behaviour.to_string())
-            .bind(r.steps as i64)
-            .bind(r.path.as_ref().map(to_json))
-            .bind(r.failure.as_ref().map(to_json))
+            .bind(t)
+            .bind(total)
+            .bind(to_json(&mechanisms))
+            .bind(job_id)
             .execute(&mut *tx)
             .await?;
-        }
-        let total = result.rollouts.len() as i64;
-        sqlx::query(
-            "UPDATE jobs SET state = 'done', lease_owner = NULL, lease_expires_at = NULL, finished_at = ?, \
-             rollouts_done = MAX(rollouts_done, ?), rollouts_total = MAX(rollouts_total, ?), sandbox_json = ?, \
-             error_kind = NULL, error_message = NULL WHERE id = ?",
-        )
-        .bind(t)
-        .bind(total)
-        .bind(total)
-        .bind(to_json(&mechanisms))
-        .bind(job_id)
-        .execute(&mut *tx)
-        .await?;
-        sqlx::query(
-            "UPDATE submissions SET status = 'completed', error_kind = NULL, error_message = NULL, updated_at = ? WHERE id = ?",
-        )
-        .bind(t)
-        .bind(submission_id)
-        .execute(&mut *tx)
-        .await?;
-        tx.commit().await?;
-        Ok(())
+            tx.commit().await?;
+            Ok(())
+        })
+    }
+
+    /// Stores the part of one shard, run by `owner`. When it is the last
+    /// shard of its submission, the parts are merged
+    /// (`d3il_metrics::shard::merge`, the same as `d3il merge`) and the
+    /// result stored: returns whether that happened. A slot that no longer
+    /// holds the lease changes nothing ([`StoreError::LeaseLost`]; the part
+    /// another slot ran, or will run, is the same bit for bit).
+    pub async fn complete_shard(
+        &self,
+        job_id: i64,
+        owner: &str,
+        part: &EvalPart,
+        mechanisms: &[SandboxMechanism],
+    ) -> Result<bool, StoreError> {
+        let t = now();
+        let n = part.rollouts.len() as i64;
+        // Shards of one submission finish one at a time (the submission row
+        // is locked on PostgreSQL, the database on SQLite), so exactly one
+        // of them sees every part and merges.
+        let lock_submission = if self.is_postgres() {
+            "SELECT id FROM submissions WHERE id = $1 FOR UPDATE"
+        } else {
+            "SELECT id FROM submissions WHERE id = $1"
+        };
+        on_db!(&self.db, pool => {
+            let mut tx = begin_write!(self, pool);
+            let submission_id: Option<i64> = sqlx::query_scalar(
+                "SELECT submission_id FROM jobs WHERE id = $1 AND state = 'leased' AND lease_owner = $2",
+            )
+            .bind(job_id)
+            .bind(owner)
+            .fetch_optional(&mut *tx)
+            .await?;
+            let Some(submission_id) = submission_id else {
+                return Err(StoreError::LeaseLost { job_id, owner: owner.to_string() });
+            };
+            sqlx::query(lock_submission).bind(submission_id).execute(&mut *tx).await?;
+            sqlx::query(
+                "UPDATE jobs SET state = 'done', lease_owner = NULL, lease_expires_at = NULL, finished_at = $1, \
+                 rollouts_done = $2, rollouts_total = $2, sandbox_json = $3, part_json = $4, \
+                 error_kind = NULL, error_message = NULL WHERE id = $5",
+            )
+            .bind(t)
+            .bind(n)
+            .bind(to_json(&mechanisms))
+            .bind(to_json(part))
+            .bind(job_id)
+            .execute(&mut *tx)
+            .await?;
+            let parts: Vec<(i64, String, Option<String>)> = sqlx::query_as(
+                "SELECT shard_index, state, part_json FROM jobs WHERE submission_id = $1 ORDER BY shard_index",
+            )
+            .bind(submission_id)
+            .fetch_all(&mut *tx)
+            .await?;
+            if parts.iter().any(|(_, state, _)| state != JobState::Done.as_str()) {
+                tx.commit().await?;
+                return Ok(false);
+            }
+            let mut decoded = Vec::with_capacity(parts.len());
+            for (index, _, json) in parts {
+                let part: EvalPart = serde_json::from_str(json.as_deref().unwrap_or("")).map_err(|e| {
+                    StoreError::Corrupt(format!("shard {} of submission {submission_id}: {e}", index + 1))
+                })?;
+                decoded.push((format!("shard {}", index + 1), part));
+            }
+            let merged = d3il_metrics::shard::merge(decoded);
+            match merged {
+                Ok(result) => {
+                    insert_result!(&mut *tx, submission_id, &result, t);
+                    // The parts are in the result now.
+                    sqlx::query("UPDATE jobs SET part_json = NULL WHERE submission_id = $1")
+                        .bind(submission_id)
+                        .execute(&mut *tx)
+                        .await?;
+                }
+                Err(e) => {
+                    let message = format!("the shards could not be merged: {e}");
+                    finish_failed!(&mut *tx, job_id, submission_id, "internal", &message, t);
+                }
+            }
+            tx.commit().await?;
+            Ok(true)
+        })
     }
 
     /// Records a failed attempt of the job leased to `owner`: requeues it when
@@ -275,10 +483,18 @@ impl Store {
             .ok()
             .and_then(|v| v.as_str().map(str::to_string))
             .unwrap_or_else(|| "internal".into());
-        // IMMEDIATE: the lease check and the update see the same state.
-        let mut tx = self.pool.begin_with("BEGIN IMMEDIATE").await?;
+        // The lease check and the update see the same state: SQLite's
+        // IMMEDIATE takes the write lock, PostgreSQL locks the row.
+        const LEASED: &str = "SELECT * FROM jobs WHERE id = $1 AND state = $2 AND lease_owner = $3";
+        let leased = if self.is_postgres() {
+            format!("{LEASED} FOR UPDATE")
+        } else {
+            LEASED.to_string()
+        };
+        let (requeued, submission_id) = on_db!(&self.db, pool => {
+        let mut tx = begin_write!(self, pool);
         let job: Option<JobRow> =
-            sqlx::query_as("SELECT * FROM jobs WHERE id = ? AND state = ? AND lease_owner = ?")
+            sqlx::query_as(sqlx::AssertSqlSafe(leased.as_str()))
                 .bind(job_id)
                 .bind(JobState::Leased)
                 .bind(owner)
@@ -293,8 +509,8 @@ impl Store {
         let requeued = retry && job.attempts < job.max_attempts;
         if requeued {
             sqlx::query(
-                "UPDATE jobs SET state = ?, lease_owner = NULL, lease_expires_at = NULL, error_kind = ?, \
-                 error_message = ? WHERE id = ?",
+                "UPDATE jobs SET state = $1, lease_owner = NULL, lease_expires_at = NULL, error_kind = $2, \
+                 error_message = $3 WHERE id = $4",
             )
             .bind(JobState::Queued)
             .bind(&kind)
@@ -302,23 +518,22 @@ impl Store {
             .bind(job_id)
             .execute(&mut *tx)
             .await?;
-            sqlx::query("UPDATE submissions SET status = ?, updated_at = ? WHERE id = ?")
+            sqlx::query("UPDATE submissions SET status = $1, updated_at = $2 WHERE id = $3")
                 .bind(SubmissionStatus::Queued)
                 .bind(t)
                 .bind(job.submission_id)
                 .execute(&mut *tx)
                 .await?;
         } else {
-            finish_failed(&mut tx, job_id, job.submission_id, &kind, &err.message, t).await?;
+            finish_failed!(&mut *tx, job_id, job.submission_id, &kind, &err.message, t);
         }
         tx.commit().await?;
+        (requeued, job.submission_id)
+        });
         if !requeued {
             // A failed submission keeps its file's hash, not the file.
-            if let Err(e) = self.release_policy_of(job.submission_id).await {
-                tracing::warn!(
-                    "submission {}: policy file not deleted: {e}",
-                    job.submission_id
-                );
+            if let Err(e) = self.release_policy_of(submission_id).await {
+                tracing::warn!("submission {submission_id}: policy file not deleted: {e}");
             }
         }
         Ok(requeued)
@@ -328,26 +543,26 @@ impl Store {
     /// (task slug, protocol) pair: the basis of ETAs (a Stacking paper run and
     /// an Aligning smoke test take very different times).
     pub async fn mean_job_seconds_by_kind(&self) -> Result<Vec<(String, String, f64)>, StoreError> {
-        Ok(sqlx::query_as(
+        Ok(on_db!(&self.db, pool => sqlx::query_as(
             "SELECT task, protocol, AVG(d) FROM (SELECT s.task AS task, s.protocol AS protocol, \
-             CAST(j.finished_at - j.started_at AS REAL) AS d, ROW_NUMBER() OVER (PARTITION BY s.task, s.protocol \
+             CAST(j.finished_at - j.started_at AS DOUBLE PRECISION) AS d, ROW_NUMBER() OVER (PARTITION BY s.task, s.protocol \
              ORDER BY j.finished_at DESC) AS n FROM jobs j JOIN submissions s ON s.id = j.submission_id \
-             WHERE j.state = 'done' AND j.started_at IS NOT NULL AND j.finished_at IS NOT NULL) \
+             WHERE j.state = 'done' AND j.started_at IS NOT NULL AND j.finished_at IS NOT NULL) AS recent \
              WHERE n <= 20 GROUP BY task, protocol",
         )
-        .fetch_all(&self.pool)
-        .await?)
+        .fetch_all(pool)
+        .await)?)
     }
 
     /// (task slug, protocol) of the queued jobs ahead of `job_id`, oldest first.
     pub async fn queued_ahead(&self, job_id: i64) -> Result<Vec<(String, String)>, StoreError> {
-        Ok(sqlx::query_as(
+        Ok(on_db!(&self.db, pool => sqlx::query_as(
             "SELECT s.task, s.protocol FROM jobs j JOIN submissions s ON s.id = j.submission_id \
-             WHERE j.state = 'queued' AND j.id < ? ORDER BY j.id",
+             WHERE j.state = 'queued' AND j.id < $1 ORDER BY j.id",
         )
         .bind(job_id)
-        .fetch_all(&self.pool)
-        .await?)
+        .fetch_all(pool)
+        .await)?)
     }
 
     /// The sandbox report of the most recently finished job that has one:
@@ -355,49 +570,20 @@ impl Store {
     pub async fn latest_sandbox_report(
         &self,
     ) -> Result<Option<(i64, i64, Json<Vec<SandboxMechanism>>)>, StoreError> {
-        Ok(sqlx::query_as(
+        Ok(on_db!(&self.db, pool => sqlx::query_as(
             "SELECT submission_id, COALESCE(finished_at, 0), sandbox_json FROM jobs \
              WHERE sandbox_json IS NOT NULL ORDER BY finished_at DESC, id DESC LIMIT 1",
         )
-        .fetch_optional(&self.pool)
-        .await?)
+        .fetch_optional(pool)
+        .await)?)
     }
 
     pub async fn queue_counts(&self) -> Result<(i64, i64), StoreError> {
-        Ok(sqlx::query_as(
-            "SELECT COALESCE(SUM(state = 'queued'), 0), COALESCE(SUM(state = 'leased'), 0) FROM jobs",
+        Ok(on_db!(&self.db, pool => sqlx::query_as(
+            "SELECT CAST(COALESCE(SUM(CASE WHEN state = 'queued' THEN 1 ELSE 0 END), 0) AS BIGINT), \
+             CAST(COALESCE(SUM(CASE WHEN state = 'leased' THEN 1 ELSE 0 END), 0) AS BIGINT) FROM jobs",
         )
-        .fetch_one(&self.pool)
-        .await?)
+        .fetch_one(pool)
+        .await)?)
     }
-}
-
-async fn finish_failed(
-    tx: &mut sqlx::Transaction<'_, sqlx::Sqlite>,
-    job_id: i64,
-    submission_id: i64,
-    kind: &str,
-    message: &str,
-    t: i64,
-) -> Result<(), StoreError> {
-    sqlx::query(
-        "UPDATE jobs SET state = 'failed', lease_owner = NULL, lease_expires_at = NULL, finished_at = ?, \
-         error_kind = ?, error_message = ? WHERE id = ?",
-    )
-    .bind(t)
-    .bind(kind)
-    .bind(message)
-    .bind(job_id)
-    .execute(&mut **tx)
-    .await?;
-    sqlx::query(
-        "UPDATE submissions SET status = 'failed', error_kind = ?, error_message = ?, updated_at = ? WHERE id = ?",
-    )
-    .bind(kind)
-    .bind(message)
-    .bind(t)
-    .bind(submission_id)
-    .execute(&mut **tx)
-    .await?;
-    Ok(())
 }

@@ -36,12 +36,12 @@ pub struct NewMethod {
 
 impl Store {
     pub async fn methods(&self) -> Result<Vec<MethodRow>, StoreError> {
-        Ok(sqlx::query_as(
+        Ok(on_db!(&self.db, pool => sqlx::query_as(
             "SELECT id, name, history, backbone, prediction, diversity, code_url, paper_url, description, \
              from_paper, state_inference_ms, image_inference_ms, submitter_id FROM methods ORDER BY from_paper DESC, id",
         )
-        .fetch_all(&self.pool)
-        .await?)
+        .fetch_all(pool)
+        .await)?)
     }
 
     /// History and action chunking of every registered method, for the
@@ -70,13 +70,13 @@ impl Store {
     }
 
     pub async fn method_by_name(&self, name: &str) -> Result<Option<MethodRow>, StoreError> {
-        Ok(sqlx::query_as(
+        Ok(on_db!(&self.db, pool => sqlx::query_as(
             "SELECT id, name, history, backbone, prediction, diversity, code_url, paper_url, description, \
-             from_paper, state_inference_ms, image_inference_ms, submitter_id FROM methods WHERE name = ?",
+             from_paper, state_inference_ms, image_inference_ms, submitter_id FROM methods WHERE name = $1",
         )
         .bind(name)
-        .fetch_optional(&self.pool)
-        .await?)
+        .fetch_optional(pool)
+        .await)?)
     }
 
     /// Returns the method with this name, creating it (owned by `submitter_id`)
@@ -86,9 +86,9 @@ impl Store {
         m: &NewMethod,
         submitter_id: Option<i64>,
     ) -> Result<MethodRow, StoreError> {
-        sqlx::query(
+        on_db!(&self.db, pool => sqlx::query(
             "INSERT INTO methods (name, history, backbone, prediction, diversity, code_url, paper_url, description, submitter_id) \
-             VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?) ON CONFLICT(name) DO NOTHING",
+             VALUES ($1, $2, $3, $4, $5, $6, $7, $8, $9) ON CONFLICT(name) DO NOTHING",
         )
         .bind(&m.name)
         .bind(m.history)
@@ -99,8 +99,9 @@ impl Store {
         .bind(&m.paper_url)
         .bind(&m.description)
         .bind(submitter_id)
-        .execute(&self.pool)
-        .await?;
+        .execute(pool)
+        .await
+        .map(|r| r.rows_affected()))?;
         self.method_by_name(&m.name)
             .await?
             .ok_or_else(|| StoreError::NotFound(format!("method `{}`", m.name)))

@@ -1,4 +1,6 @@
-//! The SQLite store: schema (migrations/), one module per resource: the
+//! The store, on SQLite (the embedded default, a file) or PostgreSQL (shared
+//! by several hosts, `--db postgres://…`): schema (migrations/sqlite and
+//! migrations/postgres, kept in step), one module per resource: the
 //! paper's reported results ([`paper`]), [`methods`], API [`tokens`],
 //! [`submissions`], the durable job queue ([`jobs`]) and evaluation
 //! [`results`]. Column types are in [`types`]: states, statuses and kinds are
@@ -7,7 +9,38 @@
 //! read as an empty value.
 //!
 //! Everything is plain runtime SQL (`query`/`query_as` + `FromRow`), so building
-//! needs no database.
+//! needs no database. Each query is written once, in the SQL both backends
+//! understand (`$1` parameters, `CASE` instead of two-argument `MAX`, `CAST`
+//! to `BIGINT`/`DOUBLE PRECISION`), and runs on either pool through
+//! [`on_db!`]; the few statements that differ (row locks, JSON access) are
+//! chosen by [`Store::is_postgres`].
+
+/// Runs `$body` with `$pool` bound to the store's pool, whichever backend it
+/// is: the body is compiled once per backend, so a query written once runs
+/// on both. Exported for tests that write raw SQL (`Store::db`).
+#[macro_export]
+macro_rules! on_db {
+    ($db:expr, $pool:ident => $body:expr) => {
+        match $db {
+            $crate::store::Db::Sqlite($pool) => $body,
+            $crate::store::Db::Postgres($pool) => $body,
+        }
+    };
+}
+
+/// Begins a write transaction on `$pool` (inside [`on_db!`]): SQLite takes
+/// the write lock at once (`BEGIN IMMEDIATE`), so a transaction that reads and
+/// then writes waits on the busy timeout instead of failing with
+/// SQLITE_BUSY; PostgreSQL begins normally and its statements lock rows.
+macro_rules! begin_write {
+    ($store:expr, $pool:ident) => {
+        if $store.is_postgres() {
+            $pool.begin().await?
+        } else {
+            $pool.begin_with("BEGIN IMMEDIATE").await?
+        }
+    };
+}
 
 mod files;
 mod jobs;
@@ -26,13 +59,81 @@ pub use submissions::{NewPolicy, NewSubmission, SeedKey, SubmissionFilter, Submi
 pub use tokens::{token_hash, Revoked, Submitter, LAST_USED_RESOLUTION_S, TOKEN_PREFIX_LEN};
 pub use types::{JobState, PolicyKind, SubmissionStatus};
 
+use sqlx::postgres::PgPoolOptions;
 use sqlx::sqlite::{SqliteConnectOptions, SqliteJournalMode, SqlitePoolOptions, SqliteSynchronous};
-use sqlx::SqlitePool;
+use sqlx::{PgPool, SqlitePool};
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 /// Migrations embedded at compile time (server/build.rs reruns on change).
-pub static MIGRATOR: sqlx::migrate::Migrator = sqlx::migrate!("../migrations");
+pub static MIGRATOR: sqlx::migrate::Migrator = sqlx::migrate!("../migrations/sqlite");
+/// The same schema for PostgreSQL (one file per SQLite migration).
+pub static MIGRATOR_PG: sqlx::migrate::Migrator = sqlx::migrate!("../migrations/postgres");
+
+/// The database a store lives in, as `--db` gives it: a PostgreSQL URL
+/// (`postgres://…` or `postgresql://…`), else a SQLite file path (an optional
+/// `sqlite://` prefix is accepted).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum DbTarget {
+    Sqlite(PathBuf),
+    Postgres(String),
+}
+
+impl DbTarget {
+    pub fn parse(s: &str) -> DbTarget {
+        if s.starts_with("postgres://") || s.starts_with("postgresql://") {
+            DbTarget::Postgres(s.to_string())
+        } else {
+            DbTarget::Sqlite(PathBuf::from(s.strip_prefix("sqlite://").unwrap_or(s)))
+        }
+    }
+
+    pub fn is_postgres(&self) -> bool {
+        matches!(self, DbTarget::Postgres(_))
+    }
+}
+
+impl std::str::FromStr for DbTarget {
+    type Err = std::convert::Infallible;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        Ok(DbTarget::parse(s))
+    }
+}
+
+impl From<PathBuf> for DbTarget {
+    fn from(p: PathBuf) -> Self {
+        DbTarget::Sqlite(p)
+    }
+}
+
+impl From<&Path> for DbTarget {
+    fn from(p: &Path) -> Self {
+        DbTarget::Sqlite(p.to_path_buf())
+    }
+}
+
+/// Shown in logs and errors: a PostgreSQL URL without its password.
+impl std::fmt::Display for DbTarget {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            DbTarget::Sqlite(p) => write!(f, "{}", p.display()),
+            DbTarget::Postgres(url) => match url.parse::<url::Url>() {
+                Ok(mut u) if u.password().is_some() => {
+                    let _ = u.set_password(Some("***"));
+                    write!(f, "{u}")
+                }
+                _ => f.write_str(url),
+            },
+        }
+    }
+}
+
+/// The connection pool of either backend (see [`on_db!`]).
+#[derive(Debug, Clone)]
+pub enum Db {
+    Sqlite(SqlitePool),
+    Postgres(PgPool),
+}
 
 #[derive(Debug, thiserror::Error)]
 pub enum StoreError {
@@ -47,6 +148,10 @@ pub enum StoreError {
     },
     #[error("stored data is corrupt: {0}")]
     Corrupt(String),
+    /// The store cannot be opened as asked (e.g. PostgreSQL without a
+    /// shared policy store).
+    #[error("{0}")]
+    Config(String),
     #[error("{0} not found")]
     NotFound(String),
     /// A uniqueness rule was violated (e.g. the same training seed twice).
@@ -113,7 +218,7 @@ pub fn now() -> i64 {
 
 #[derive(Debug, Clone)]
 pub struct Store {
-    pool: SqlitePool,
+    db: Db,
     data_dir: PathBuf,
     /// Token id -> when this process last wrote (or started writing) its
     /// `last_used_at`: one write per token per minute, even while the
@@ -157,8 +262,49 @@ impl Store {
             .connect_with(opts)
             .await?;
         MIGRATOR.run(&pool).await?;
+        Store::ready(Db::Sqlite(pool), data_dir).await
+    }
+
+    /// Opens the store `--db` names. A SQLite file keeps its policies next to
+    /// it unless `policy_store` is given; PostgreSQL, shared by several
+    /// hosts, needs `policy_store`: a directory every host reads (uploaded
+    /// policies live in its `policies/`).
+    pub async fn connect(
+        target: &DbTarget,
+        policy_store: Option<&Path>,
+    ) -> Result<Store, StoreError> {
+        match target {
+            DbTarget::Sqlite(path) => {
+                let mut store = Store::open(path).await?;
+                if let Some(dir) = policy_store {
+                    store.data_dir = policy_store_dir(dir)?;
+                }
+                Ok(store)
+            }
+            DbTarget::Postgres(url) => {
+                let dir = policy_store.ok_or_else(|| {
+                    StoreError::Config(format!(
+                        "--db {target} is shared by several hosts, so uploaded policies need a directory every \
+                         host can read: add --policy-store DIR (the same shared directory on every host)"
+                    ))
+                })?;
+                let data_dir = policy_store_dir(dir)?;
+                let pool = PgPoolOptions::new()
+                    .max_connections(8)
+                    .acquire_timeout(Duration::from_secs(10))
+                    .connect(url)
+                    .await?;
+                // Concurrent hosts starting together: the migrator takes an
+                // advisory lock, so the schema is applied once.
+                MIGRATOR_PG.run(&pool).await?;
+                Store::ready(Db::Postgres(pool), data_dir).await
+            }
+        }
+    }
+
+    async fn ready(db: Db, data_dir: PathBuf) -> Result<Store, StoreError> {
         let store = Store {
-            pool,
+            db,
             data_dir,
             last_used: Default::default(),
             files: Default::default(),
@@ -169,13 +315,36 @@ impl Store {
         Ok(store)
     }
 
-    pub fn pool(&self) -> &SqlitePool {
-        &self.pool
+    /// The connection pool of either backend (tests use it for raw SQL).
+    pub fn db(&self) -> &Db {
+        &self.db
+    }
+
+    /// The SQLite pool, for callers that only ever open a SQLite file.
+    pub fn sqlite_pool(&self) -> Option<&SqlitePool> {
+        match &self.db {
+            Db::Sqlite(p) => Some(p),
+            Db::Postgres(_) => None,
+        }
+    }
+
+    /// Whether the store is PostgreSQL (shared by hosts) rather than a file
+    /// one process owns.
+    pub fn is_postgres(&self) -> bool {
+        matches!(self.db, Db::Postgres(_))
     }
 
     pub fn data_dir(&self) -> &Path {
         &self.data_dir
     }
+}
+
+/// `dir` made absolute (the sandboxed worker is given paths inside it) with
+/// its `policies/` created.
+fn policy_store_dir(dir: &Path) -> Result<PathBuf, StoreError> {
+    let abs = std::path::absolute(dir).map_err(io_err(dir))?;
+    std::fs::create_dir_all(abs.join("policies")).map_err(io_err(&abs))?;
+    Ok(abs)
 }
 
 /// JSON encoding of plain data (these types always serialise).

@@ -33,11 +33,12 @@ impl Store {
     /// Inserts the paper's methods and reported rows; rows already present are
     /// left untouched, so this runs on every start.
     pub async fn load_paper(&self, paper: &PaperResults) -> Result<(), StoreError> {
-        let mut tx = self.pool.begin().await?;
+        on_db!(&self.db, pool => {
+        let mut tx = pool.begin().await?;
         for (name, m) in &paper.methods {
             sqlx::query(
                 "INSERT INTO methods (name, history, backbone, prediction, diversity, paper_url, description, \
-                 from_paper, state_inference_ms, image_inference_ms) VALUES (?, ?, ?, ?, ?, ?, ?, 1, ?, ?) \
+                 from_paper, state_inference_ms, image_inference_ms) VALUES ($1, $2, $3, $4, $5, $6, $7, TRUE, $8, $9) \
                  ON CONFLICT(name) DO NOTHING",
             )
             .bind(name)
@@ -53,7 +54,7 @@ impl Store {
             .await?;
         }
         for r in &paper.results {
-            let method_id: i64 = sqlx::query_scalar("SELECT id FROM methods WHERE name = ?")
+            let method_id: i64 = sqlx::query_scalar("SELECT id FROM methods WHERE name = $1")
                 .bind(&r.method)
                 .fetch_optional(&mut *tx)
                 .await?
@@ -66,7 +67,7 @@ impl Store {
             sqlx::query(
                 "INSERT INTO reported_results (paper_table, method_id, task_title, obs_type, data_fraction, control, \
                  success_mean, success_std, success_bold, entropy_mean, entropy_std, entropy_bold, n_seeds, subtasks_json) \
-                 VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?) \
+                 VALUES ($1, $2, $3, $4, $5, $6, $7, $8, $9, $10, $11, $12, $13, $14) \
                  ON CONFLICT(paper_table, method_id, task_title, obs_type, data_fraction, control) DO NOTHING",
             )
             .bind(&r.table)
@@ -88,17 +89,18 @@ impl Store {
         }
         tx.commit().await?;
         Ok(())
+        })
     }
 
     pub(super) async fn reported_rows(&self) -> Result<Vec<BoardRow>, StoreError> {
-        let db: Vec<ReportedDbRow> = sqlx::query_as(
+        let db: Vec<ReportedDbRow> = on_db!(&self.db, pool => sqlx::query_as(
             "SELECT r.paper_table, m.name AS method, m.id AS method_id, r.task_title, r.obs_type, r.data_fraction, \
              r.control, r.success_mean, r.success_std, r.success_bold, r.entropy_mean, r.entropy_std, r.entropy_bold, \
              r.n_seeds, m.state_inference_ms, m.image_inference_ms \
              FROM reported_results r JOIN methods m ON m.id = r.method_id ORDER BY r.id",
         )
-        .fetch_all(&self.pool)
-        .await?;
+        .fetch_all(pool)
+        .await)?;
         Ok(db
             .into_iter()
             .map(|r| {

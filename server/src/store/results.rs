@@ -3,6 +3,7 @@
 //! and the training seeds of a leaderboard row.
 
 use super::submissions::SubmissionRow;
+use super::types::Json;
 use super::types::{Stored, SubmissionStatus};
 use super::{Store, StoreError};
 use crate::leaderboard::{evaluated_rows, protocol_str, BoardRow, EvaluatedSeed};
@@ -10,7 +11,6 @@ use d3il_protocol::{
     ContextResult, ObsType, ProtocolKind, ProtocolManifest, ResultCell, RolloutFailure, Source,
     StackingLevel, TaskId,
 };
-use sqlx::types::Json;
 use sqlx::FromRow;
 
 #[derive(Debug, Clone, FromRow, serde::Serialize)]
@@ -146,16 +146,23 @@ impl Store {
     }
 
     async fn evaluated_rows(&self) -> Result<Vec<BoardRow>, StoreError> {
-        let db: Vec<SeedDbRow> = sqlx::query_as(
+        // The manifest's `initial_states`, read by each backend's JSON function.
+        let initial_states = if self.is_postgres() {
+            "CAST(r.manifest_json AS JSONB) ->> 'initial_states'"
+        } else {
+            "json_extract(r.manifest_json, '$.initial_states')"
+        };
+        let sql = format!(
             "SELECT s.id AS submission_id, m.name AS method, m.id AS method_id, s.task, s.obs_type, s.training_seed, \
              s.data_fraction, s.protocol, r.success_rate, r.behaviour_entropy, r.conditional_entropy, r.stacking_json, \
-             r.stacking_levels_json, r.inference_ms, json_extract(r.manifest_json, '$.initial_states') AS initial_states \
+             r.stacking_levels_json, r.inference_ms, {initial_states} AS initial_states \
              FROM submissions s JOIN results r ON r.submission_id = s.id \
-             JOIN methods m ON m.id = s.method_id WHERE s.status = ? ORDER BY s.id",
-        )
+             JOIN methods m ON m.id = s.method_id WHERE s.status = $1 ORDER BY s.id"
+        );
+        let db: Vec<SeedDbRow> = on_db!(&self.db, pool => sqlx::query_as(sqlx::AssertSqlSafe(sql.as_str()))
         .bind(SubmissionStatus::Completed)
-        .fetch_all(&self.pool)
-        .await?;
+        .fetch_all(pool)
+        .await)?;
         let seeds: Vec<EvaluatedSeed> = db.into_iter().map(SeedDbRow::into_seed).collect();
         Ok(evaluated_rows(&seeds)?)
     }
@@ -166,54 +173,54 @@ impl Store {
         &self,
         submission_id: i64,
     ) -> Result<Vec<(serde_json::Value, Vec<[f32; 2]>)>, StoreError> {
-        let rows: Vec<(Json<serde_json::Value>, Json<XyPath>)> = sqlx::query_as(
-            "SELECT behaviour_json, path_json FROM rollouts WHERE submission_id = ? AND path_json IS NOT NULL \
+        let rows: Vec<(Json<serde_json::Value>, Json<XyPath>)> = on_db!(&self.db, pool => sqlx::query_as(
+            "SELECT behaviour_json, path_json FROM rollouts WHERE submission_id = $1 AND path_json IS NOT NULL \
              ORDER BY context_index, rollout_index",
         )
         .bind(submission_id)
-        .fetch_all(&self.pool)
-        .await?;
+        .fetch_all(pool)
+        .await)?;
         Ok(rows.into_iter().map(|(b, p)| (b.0, p.0)).collect())
     }
 
     pub async fn result_for(&self, submission_id: i64) -> Result<Option<ResultRow>, StoreError> {
-        Ok(sqlx::query_as(
+        Ok(on_db!(&self.db, pool => sqlx::query_as(
             "SELECT submission_id, success_rate, success_ci_low, success_ci_high, behaviour_entropy, behaviour_ci_low, \
              behaviour_ci_high, conditional_entropy, conditional_ci_low, conditional_ci_high, stacking_json, \
              stacking_levels_json, inference_ms, manifest_json, per_context_json, created_at, rollouts_ended_unstable \
-             FROM results WHERE submission_id = ?",
+             FROM results WHERE submission_id = $1",
         )
         .bind(submission_id)
-        .fetch_optional(&self.pool)
-        .await?)
+        .fetch_optional(pool)
+        .await)?)
     }
 
     pub async fn rollouts_for(&self, submission_id: i64) -> Result<Vec<RolloutRow>, StoreError> {
-        Ok(sqlx::query_as(
+        Ok(on_db!(&self.db, pool => sqlx::query_as(
             "SELECT context_index, rollout_index, success, behaviour_json AS behaviour, steps, path_json, \
              failure_json AS failure FROM rollouts \
-             WHERE submission_id = ? ORDER BY context_index, rollout_index",
+             WHERE submission_id = $1 ORDER BY context_index, rollout_index",
         )
         .bind(submission_id)
-        .fetch_all(&self.pool)
-        .await?)
+        .fetch_all(pool)
+        .await)?)
     }
 
     /// Every training seed of the leaderboard row `s` belongs to (same method,
     /// task, observation type, data fraction and protocol), `s` included, with
     /// its success rate once evaluated: one query.
     pub async fn sibling_seeds(&self, s: &SubmissionRow) -> Result<Vec<SeedSummary>, StoreError> {
-        Ok(sqlx::query_as(
+        Ok(on_db!(&self.db, pool => sqlx::query_as(
             "SELECT s.id, s.training_seed, s.status, r.success_rate FROM submissions s \
-             LEFT JOIN results r ON r.submission_id = s.id WHERE s.method_id = ? AND s.task = ? \
-             AND s.obs_type = ? AND s.data_fraction = ? AND s.protocol = ? ORDER BY s.training_seed, s.id",
+             LEFT JOIN results r ON r.submission_id = s.id WHERE s.method_id = $1 AND s.task = $2 \
+             AND s.obs_type = $3 AND s.data_fraction = $4 AND s.protocol = $5 ORDER BY s.training_seed, s.id",
         )
         .bind(s.method_id)
         .bind(s.task.slug())
         .bind(s.obs_type.as_str())
         .bind(s.data_fraction)
         .bind(protocol_str(s.protocol))
-        .fetch_all(&self.pool)
-        .await?)
+        .fetch_all(pool)
+        .await)?)
     }
 }

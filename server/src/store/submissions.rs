@@ -1,13 +1,34 @@
 //! Submissions: the uploaded policy file, the record and its queued job
 //! (written in one transaction), and the training-seed uniqueness rule.
 
+use super::types::Json;
 use super::types::{JobState, PolicyKind, Stored, SubmissionStatus};
 use super::{now, Store, StoreError};
 use crate::leaderboard::protocol_str;
 use d3il_protocol::{ObsType, ProtocolKind, TaskId};
-use sqlx::types::Json;
 use sqlx::FromRow;
 use std::path::PathBuf;
+
+/// The id of the live submission holding this seed, if any, read through
+/// `$db` (a pool or the caller's transaction).
+macro_rules! duplicate_seed {
+    ($db:expr, $s:expr) => {{
+        let s: &SeedKey = $s;
+        let id: Option<i64> = sqlx::query_scalar(
+            "SELECT id FROM submissions WHERE method_id = $1 AND task = $2 AND obs_type = $3 AND data_fraction = $4 \
+             AND protocol = $5 AND training_seed = $6 AND status != 'failed'",
+        )
+        .bind(s.method_id)
+        .bind(s.task.slug())
+        .bind(s.obs_type.as_str())
+        .bind(s.data_fraction)
+        .bind(protocol_str(s.protocol))
+        .bind(s.training_seed)
+        .fetch_optional($db)
+        .await?;
+        id
+    }};
+}
 
 #[derive(Debug, Clone, FromRow, serde::Serialize)]
 pub struct SubmissionRow {
@@ -110,7 +131,7 @@ impl Store {
     /// endpoint's dry-run so a duplicate is refused at once; the insert checks
     /// again under the write lock).
     pub async fn check_seed_free(&self, s: &SeedKey) -> Result<(), StoreError> {
-        match duplicate_seed(&self.pool, s).await? {
+        match on_db!(&self.db, pool => duplicate_seed!(pool, s)) {
             Some(id) => Err(duplicate_seed_error(s.training_seed, Some(id))),
             None => Ok(()),
         }
@@ -125,19 +146,35 @@ impl Store {
         s: &NewSubmission,
         max_attempts: i64,
     ) -> Result<i64, StoreError> {
-        super::retry_busy(|| self.create_submission_once(s, max_attempts)).await
+        self.create_submission_sharded(s, max_attempts, 1).await
+    }
+
+    /// [`Store::create_submission`] with its job split into `shards` shards
+    /// of whole initial states (at least 1), each a job row that any worker
+    /// slot or host leases on its own; the last one to finish merges.
+    pub async fn create_submission_sharded(
+        &self,
+        s: &NewSubmission,
+        max_attempts: i64,
+        shards: usize,
+    ) -> Result<i64, StoreError> {
+        let shards = shards.max(1) as i64;
+        super::retry_busy(|| self.create_submission_once(s, max_attempts, shards)).await
     }
 
     async fn create_submission_once(
         &self,
         s: &NewSubmission,
         max_attempts: i64,
+        shards: i64,
     ) -> Result<i64, StoreError> {
-        // IMMEDIATE takes the write lock before the duplicate check, so two
-        // concurrent submissions of the same seed cannot both pass it (the
-        // second waits on the busy timeout, then sees the first).
-        let mut tx = self.pool.begin_with("BEGIN IMMEDIATE").await?;
-        if let Some(id) = duplicate_seed(&mut *tx, &s.seed_key()).await? {
+        // SQLite's IMMEDIATE takes the write lock before the duplicate check,
+        // so two concurrent submissions of the same seed cannot both pass it
+        // (the second waits on the busy timeout, then sees the first). On
+        // PostgreSQL both may pass it; the unique index refuses the second.
+        on_db!(&self.db, pool => {
+        let mut tx = begin_write!(self, pool);
+        if let Some(id) = duplicate_seed!(&mut *tx, &s.seed_key()) {
             return Err(duplicate_seed_error(s.training_seed, Some(id)));
         }
         let (kind, sha, bytes, path, url) = match &s.policy {
@@ -158,7 +195,7 @@ impl Store {
         let id: i64 = sqlx::query_scalar(
             "INSERT INTO submissions (method_id, submitter_id, task, obs_type, training_seed, data_fraction, protocol, \
              policy_kind, onnx_sha256, onnx_bytes, onnx_path, endpoint_url, manifest_json, status, created_at, updated_at) \
-             VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?) RETURNING id",
+             VALUES ($1, $2, $3, $4, $5, $6, $7, $8, $9, $10, $11, $12, $13, $14, $15, $16) RETURNING id",
         )
         .bind(s.method_id)
         .bind(s.submitter_id)
@@ -185,26 +222,32 @@ impl Store {
             }
             _ => e.into(),
         })?;
-        sqlx::query(
-            "INSERT INTO jobs (submission_id, state, max_attempts, created_at) VALUES (?, ?, ?, ?)",
-        )
-        .bind(id)
-        .bind(JobState::Queued)
-        .bind(max_attempts)
-        .bind(t)
-        .execute(&mut *tx)
-        .await?;
+        for index in 0..shards {
+            sqlx::query(
+                "INSERT INTO jobs (submission_id, state, max_attempts, created_at, shard_index, shard_count) \
+                 VALUES ($1, $2, $3, $4, $5, $6)",
+            )
+            .bind(id)
+            .bind(JobState::Queued)
+            .bind(max_attempts)
+            .bind(t)
+            .bind(index)
+            .bind(shards)
+            .execute(&mut *tx)
+            .await?;
+        }
         tx.commit().await?;
         Ok(id)
+        })
     }
 
     pub async fn submission(&self, id: i64) -> Result<SubmissionRow, StoreError> {
-        sqlx::query_as(sqlx::AssertSqlSafe(format!(
-            "{SUBMISSION_SELECT} WHERE s.id = ?"
+        on_db!(&self.db, pool => sqlx::query_as(sqlx::AssertSqlSafe(format!(
+            "{SUBMISSION_SELECT} WHERE s.id = $1"
         )))
         .bind(id)
-        .fetch_optional(&self.pool)
-        .await?
+        .fetch_optional(pool)
+        .await)?
         .ok_or_else(|| StoreError::NotFound(format!("submission {id}")))
     }
 
@@ -212,12 +255,14 @@ impl Store {
         &self,
         method_id: i64,
     ) -> Result<Vec<SubmissionRow>, StoreError> {
-        Ok(sqlx::query_as(sqlx::AssertSqlSafe(format!(
-            "{SUBMISSION_SELECT} WHERE s.method_id = ? ORDER BY s.id DESC"
+        Ok(
+            on_db!(&self.db, pool => sqlx::query_as(sqlx::AssertSqlSafe(format!(
+            "{SUBMISSION_SELECT} WHERE s.method_id = $1 ORDER BY s.id DESC"
         )))
         .bind(method_id)
-        .fetch_all(&self.pool)
-        .await?)
+        .fetch_all(pool)
+        .await)?,
+        )
     }
 
     /// Submissions matching every given filter, newest first, at most `limit`.
@@ -226,62 +271,33 @@ impl Store {
         f: &SubmissionFilter,
         limit: i64,
     ) -> Result<Vec<SubmissionRow>, StoreError> {
-        let mut sql = format!("{SUBMISSION_SELECT} WHERE 1 = 1");
-        if f.task.is_some() {
-            sql.push_str(" AND s.task = ?");
-        }
-        if f.method.is_some() {
-            sql.push_str(" AND m.name = ?");
-        }
-        if f.status.is_some() {
-            sql.push_str(" AND s.status = ?");
-        }
-        if f.submitter.is_some() {
-            sql.push_str(" AND sub.name = ?");
-        }
-        sql.push_str(" ORDER BY s.id DESC LIMIT ?");
-        let mut q = sqlx::query_as(sqlx::AssertSqlSafe(sql));
-        if let Some(t) = f.task {
-            q = q.bind(t.slug());
-        }
-        if let Some(m) = &f.method {
-            q = q.bind(m.clone());
-        }
-        if let Some(st) = f.status {
-            q = q.bind(st);
-        }
-        if let Some(who) = &f.submitter {
-            q = q.bind(who.clone());
-        }
-        Ok(q.bind(limit).fetch_all(&self.pool).await?)
+        // A filter not given is a NULL parameter that matches every row.
+        let sql = format!(
+            "{SUBMISSION_SELECT} WHERE ($1 IS NULL OR s.task = $1) AND ($2 IS NULL OR m.name = $2) \
+             AND ($3 IS NULL OR s.status = $3) AND ($4 IS NULL OR sub.name = $4) ORDER BY s.id DESC LIMIT $5"
+        );
+        Ok(
+            on_db!(&self.db, pool => sqlx::query_as(sqlx::AssertSqlSafe(sql.as_str()))
+            .bind(f.task.map(|t| t.slug()))
+            .bind(f.method.as_deref())
+            .bind(f.status.map(|s| s.as_str()))
+            .bind(f.submitter.as_deref())
+            .bind(limit)
+            .fetch_all(pool)
+            .await)?,
+        )
     }
 
     pub async fn latest_submissions(&self, limit: i64) -> Result<Vec<SubmissionRow>, StoreError> {
-        Ok(sqlx::query_as(sqlx::AssertSqlSafe(format!(
-            "{SUBMISSION_SELECT} ORDER BY s.id DESC LIMIT ?"
+        Ok(
+            on_db!(&self.db, pool => sqlx::query_as(sqlx::AssertSqlSafe(format!(
+            "{SUBMISSION_SELECT} ORDER BY s.id DESC LIMIT $1"
         )))
         .bind(limit)
-        .fetch_all(&self.pool)
-        .await?)
+        .fetch_all(pool)
+        .await)?,
+        )
     }
-}
-
-async fn duplicate_seed<'e>(
-    db: impl sqlx::SqliteExecutor<'e>,
-    s: &SeedKey,
-) -> Result<Option<i64>, StoreError> {
-    Ok(sqlx::query_scalar(
-        "SELECT id FROM submissions WHERE method_id = ? AND task = ? AND obs_type = ? AND data_fraction = ? \
-         AND protocol = ? AND training_seed = ? AND status != 'failed'",
-    )
-    .bind(s.method_id)
-    .bind(s.task.slug())
-    .bind(s.obs_type.as_str())
-    .bind(s.data_fraction)
-    .bind(protocol_str(s.protocol))
-    .bind(s.training_seed)
-    .fetch_optional(db)
-    .await?)
 }
 
 fn duplicate_seed_error(seed: i64, existing: Option<i64>) -> StoreError {

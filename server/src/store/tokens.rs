@@ -40,17 +40,18 @@ impl Store {
         getrandom::fill(&mut raw)
             .map_err(|e| StoreError::Corrupt(format!("no randomness available: {e}")))?;
         let token = format!("d3il_{}", hex::encode(raw));
-        let mut tx = self.pool.begin().await?;
-        sqlx::query("INSERT INTO submitters (name) VALUES (?) ON CONFLICT(name) DO NOTHING")
+        on_db!(&self.db, pool => {
+        let mut tx = pool.begin().await?;
+        sqlx::query("INSERT INTO submitters (name) VALUES ($1) ON CONFLICT(name) DO NOTHING")
             .bind(name)
             .execute(&mut *tx)
             .await?;
-        let submitter_id: i64 = sqlx::query_scalar("SELECT id FROM submitters WHERE name = ?")
+        let submitter_id: i64 = sqlx::query_scalar("SELECT id FROM submitters WHERE name = $1")
             .bind(name)
             .fetch_one(&mut *tx)
             .await?;
         sqlx::query(
-            "INSERT INTO api_tokens (submitter_id, token_sha256, prefix, is_admin) VALUES (?, ?, ?, ?)",
+            "INSERT INTO api_tokens (submitter_id, token_sha256, prefix, is_admin) VALUES ($1, $2, $3, $4)",
         )
         .bind(submitter_id)
         .bind(token_hash(&token))
@@ -59,18 +60,20 @@ impl Store {
             .execute(&mut *tx)
             .await?;
         tx.commit().await?;
+        Ok::<(), StoreError>(())
+        })?;
         Ok(token)
     }
 
     /// The submitter owning this (unrevoked) token, if any.
     pub async fn authenticate(&self, token: &str) -> Result<Option<Submitter>, StoreError> {
-        let row: Option<Submitter> = sqlx::query_as(
+        let row: Option<Submitter> = on_db!(&self.db, pool => sqlx::query_as(
             "SELECT s.id, s.name, t.id AS token_id, t.is_admin, t.last_used_at FROM api_tokens t JOIN submitters s ON s.id = t.submitter_id \
-             WHERE t.token_sha256 = ? AND t.revoked_at IS NULL",
+             WHERE t.token_sha256 = $1 AND t.revoked_at IS NULL",
         )
         .bind(token_hash(token))
-        .fetch_optional(&self.pool)
-        .await?;
+        .fetch_optional(pool)
+        .await)?;
         // Recording the use is bookkeeping, not the request's business: it
         // is written at most once a minute, in the background, so a held
         // write lock never delays or fails an authenticated read.
@@ -89,18 +92,19 @@ impl Store {
                 due_here
             };
             if write {
-                let pool = self.pool.clone();
+                let db = self.db.clone();
                 let id = s.token_id;
                 tokio::spawn(async move {
-                    let r = sqlx::query(
-                        "UPDATE api_tokens SET last_used_at = ? WHERE id = ? \
-                         AND (last_used_at IS NULL OR last_used_at <= ?)",
+                    let r = on_db!(&db, pool => sqlx::query(
+                        "UPDATE api_tokens SET last_used_at = $1 WHERE id = $2 \
+                         AND (last_used_at IS NULL OR last_used_at <= $3)",
                     )
                     .bind(t)
                     .bind(id)
                     .bind(t - LAST_USED_RESOLUTION_S)
-                    .execute(&pool)
-                    .await;
+                    .execute(pool)
+                    .await
+                    .map(|_| ()));
                     if let Err(e) = r {
                         tracing::warn!("token {id}: last_used_at not recorded: {e}");
                     }
@@ -121,15 +125,15 @@ impl Store {
     pub async fn revoke_token(&self, token_or_prefix: &str) -> Result<Revoked, StoreError> {
         let t = token_or_prefix.trim();
         let rows: Vec<(i64, String, Option<i64>)> = if t.len() > TOKEN_PREFIX_LEN {
-            sqlx::query_as("SELECT id, prefix, revoked_at FROM api_tokens WHERE token_sha256 = ?")
+            on_db!(&self.db, pool => sqlx::query_as("SELECT id, prefix, revoked_at FROM api_tokens WHERE token_sha256 = $1")
                 .bind(token_hash(t))
-                .fetch_all(&self.pool)
-                .await?
+                .fetch_all(pool)
+                .await)?
         } else {
-            sqlx::query_as("SELECT id, prefix, revoked_at FROM api_tokens WHERE prefix = ?")
+            on_db!(&self.db, pool => sqlx::query_as("SELECT id, prefix, revoked_at FROM api_tokens WHERE prefix = $1")
                 .bind(t)
-                .fetch_all(&self.pool)
-                .await?
+                .fetch_all(pool)
+                .await)?
         };
         if rows.is_empty() {
             return Err(StoreError::NotFound(format!(
@@ -139,13 +143,14 @@ impl Store {
         let mut prefixes = vec![];
         for (id, prefix, revoked) in rows {
             if revoked.is_none() {
-                sqlx::query(
-                    "UPDATE api_tokens SET revoked_at = ? WHERE id = ? AND revoked_at IS NULL",
+                on_db!(&self.db, pool => sqlx::query(
+                    "UPDATE api_tokens SET revoked_at = $1 WHERE id = $2 AND revoked_at IS NULL",
                 )
                 .bind(now())
                 .bind(id)
-                .execute(&self.pool)
-                .await?;
+                .execute(pool)
+                .await
+                .map(|r| r.rows_affected()))?;
                 prefixes.push(prefix);
             }
         }

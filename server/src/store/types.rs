@@ -2,26 +2,79 @@
 //! `sqlx::Type` stored as lowercase text, and the protocol's own enums (task,
 //! observation type, protocol) decode through [`Stored`]: a row holding anything
 //! else fails to decode with an error naming the column, instead of being
-//! read as an empty or default value.
+//! read as an empty or default value. JSON columns are TEXT on both backends
+//! and decode through [`Json`].
+//!
+//! Every impl here is generic over the database (SQLite and PostgreSQL):
+//! a value is stored as the backend's text type.
 
 use d3il_protocol::{ObsType, ProtocolKind, TaskId};
+use sqlx::encode::IsNull;
 use sqlx::error::BoxDynError;
-use sqlx::sqlite::{Sqlite, SqliteTypeInfo, SqliteValueRef};
-use sqlx::{Decode, Type};
+use sqlx::{Database, Decode, Encode, Type};
 use std::fmt;
 use std::str::FromStr;
+
+/// Implements `Type` (the backend's text type) for `$t`.
+macro_rules! text_type {
+    ([$($g:tt)*] $t:ty) => {
+        impl<DB: Database, $($g)*> Type<DB> for $t
+        where
+            str: Type<DB>,
+            for<'a> &'a str: Type<DB>,
+        {
+            fn type_info() -> DB::TypeInfo {
+                <str as Type<DB>>::type_info()
+            }
+
+            fn compatible(ty: &DB::TypeInfo) -> bool {
+                <&str as Type<DB>>::compatible(ty)
+            }
+        }
+    };
+}
 
 macro_rules! text_enum {
     ($(#[$m:meta])* $name:ident { $($(#[$vm:meta])* $v:ident = $s:literal),+ $(,)? }) => {
         $(#[$m])*
-        #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, sqlx::Type, serde::Serialize, utoipa::ToSchema)]
-        #[sqlx(rename_all = "lowercase")]
+        #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Serialize, utoipa::ToSchema)]
         #[serde(rename_all = "lowercase")]
         pub enum $name { $($(#[$vm])* $v),+ }
 
         impl $name {
             pub fn as_str(self) -> &'static str {
                 match self { $($name::$v => $s),+ }
+            }
+        }
+
+        impl FromStr for $name {
+            type Err = String;
+            fn from_str(s: &str) -> Result<Self, String> {
+                match s {
+                    $($s => Ok($name::$v),)+
+                    other => Err(format!("`{other}` is not a {}", stringify!($name))),
+                }
+            }
+        }
+
+        text_type!([] $name);
+
+        impl<'q, DB: Database> Encode<'q, DB> for $name
+        where
+            &'q str: Encode<'q, DB>,
+        {
+            fn encode_by_ref(&self, buf: &mut DB::ArgumentBuffer) -> Result<IsNull, BoxDynError> {
+                <&str as Encode<DB>>::encode(self.as_str(), buf)
+            }
+        }
+
+        impl<'r, DB: Database> Decode<'r, DB> for $name
+        where
+            &'r str: Decode<'r, DB>,
+        {
+            fn decode(value: DB::ValueRef<'r>) -> Result<Self, BoxDynError> {
+                let text = <&str as Decode<DB>>::decode(value)?;
+                text.parse().map_err(|e: String| format!("stored data is corrupt: {e}").into())
             }
         }
 
@@ -76,26 +129,45 @@ text_enum!(
 #[derive(Debug, Clone, Copy)]
 pub struct Stored<T>(pub T);
 
-impl<T> Type<Sqlite> for Stored<T> {
-    fn type_info() -> SqliteTypeInfo {
-        <String as Type<Sqlite>>::type_info()
-    }
+text_type!([T] Stored<T>);
 
-    fn compatible(ty: &SqliteTypeInfo) -> bool {
-        <String as Type<Sqlite>>::compatible(ty)
-    }
-}
-
-impl<'r, T> Decode<'r, Sqlite> for Stored<T>
+impl<'r, DB: Database, T> Decode<'r, DB> for Stored<T>
 where
     T: FromStr,
     T::Err: fmt::Display,
+    &'r str: Decode<'r, DB>,
 {
-    fn decode(value: SqliteValueRef<'r>) -> Result<Self, BoxDynError> {
-        let text = <&str as Decode<Sqlite>>::decode(value)?;
+    fn decode(value: DB::ValueRef<'r>) -> Result<Self, BoxDynError> {
+        let text = <&str as Decode<DB>>::decode(value)?;
         T::from_str(text)
             .map(Stored)
             .map_err(|e| format!("stored data is corrupt: {e}").into())
+    }
+}
+
+/// A JSON document in a TEXT column (both backends), decoded into `T`: a
+/// column that does not hold a `T` fails to decode.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+#[serde(transparent)]
+pub struct Json<T>(pub T);
+
+text_type!([T] Json<T>);
+
+impl<T> std::ops::Deref for Json<T> {
+    type Target = T;
+    fn deref(&self) -> &T {
+        &self.0
+    }
+}
+
+impl<'r, DB: Database, T> Decode<'r, DB> for Json<T>
+where
+    T: serde::de::DeserializeOwned,
+    &'r str: Decode<'r, DB>,
+{
+    fn decode(value: DB::ValueRef<'r>) -> Result<Self, BoxDynError> {
+        let text = <&str as Decode<DB>>::decode(value)?;
+        Ok(Json(serde_json::from_str(text)?))
     }
 }
 

@@ -87,6 +87,8 @@ pub struct Options {
     pub db: Option<PathBuf>,
     /// Connection limits; default: the server's.
     pub connections: Option<d3il_server::config::ConnectionLimits>,
+    /// SQLite (default) or a fresh database on the test PostgreSQL.
+    pub backend: Backend,
 }
 
 impl Default for Options {
@@ -98,6 +100,7 @@ impl Default for Options {
             max_upload: 1 << 20,
             db: None,
             connections: None,
+            backend: Backend::Sqlite,
         }
     }
 }
@@ -115,7 +118,15 @@ pub async fn spawn_app_with(o: Options) -> TestApp {
         .worker_exe
         .clone()
         .unwrap_or_else(|| PathBuf::from("/bin/false"));
-    let mut cfg = ServerConfig::new(db.clone(), "127.0.0.1:0".parse().unwrap(), exe);
+    let target = match o.backend {
+        Backend::Sqlite => d3il_server::store::DbTarget::Sqlite(db.clone()),
+        Backend::Postgres => {
+            d3il_server::store::DbTarget::Postgres(d3il_test_support::pg::fresh_database())
+        }
+    };
+    let mut cfg = ServerConfig::new(target, "127.0.0.1:0".parse().unwrap(), exe);
+    cfg.policy_store =
+        matches!(o.backend, Backend::Postgres).then(|| dir.path().join("policy-store"));
     cfg.workers = o.workers;
     cfg.rate_limit_per_minute = o.rate_limit;
     cfg.max_upload_bytes = o.max_upload;
@@ -165,3 +176,62 @@ pub fn fake_onnx() -> Vec<u8> {
     v.resize(64, 0);
     v
 }
+
+/// Which database a store test runs on.
+#[derive(Debug, Clone, Copy)]
+pub enum Backend {
+    Sqlite,
+    Postgres,
+}
+
+/// A fresh database of either backend (a SQLite file in a temporary
+/// directory, or a new database on the throw-away PostgreSQL cluster) with
+/// its own policy store; `open` may be called again to simulate a restart.
+pub struct TestDb {
+    pub target: d3il_server::store::DbTarget,
+    pub policies: PathBuf,
+    pub dir: tempfile::TempDir,
+}
+
+impl TestDb {
+    pub fn new(b: Backend) -> TestDb {
+        let dir = tempfile::tempdir().expect("temp dir");
+        let target = match b {
+            Backend::Sqlite => d3il_server::store::DbTarget::Sqlite(dir.path().join("lb.sqlite")),
+            Backend::Postgres => {
+                d3il_server::store::DbTarget::Postgres(d3il_test_support::pg::fresh_database())
+            }
+        };
+        TestDb {
+            target,
+            policies: dir.path().join("policy-store"),
+            dir,
+        }
+    }
+
+    pub async fn open(&self) -> d3il_server::store::Store {
+        d3il_server::store::Store::connect(&self.target, Some(&self.policies))
+            .await
+            .expect("open the test store")
+    }
+}
+
+/// For each `async fn name(b: Backend)`, a module `name` with the tests
+/// `sqlite` and `postgres` running it on each backend.
+#[allow(unused_macros)]
+macro_rules! on_both_backends {
+    ($($name:ident),+ $(,)?) => {$(
+        mod $name {
+            #[tokio::test]
+            async fn sqlite() {
+                super::$name(super::Backend::Sqlite).await
+            }
+            #[tokio::test]
+            async fn postgres() {
+                super::$name(super::Backend::Postgres).await
+            }
+        }
+    )+};
+}
+#[allow(unused_imports)]
+pub(crate) use on_both_backends;

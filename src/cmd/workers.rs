@@ -1,0 +1,62 @@
+//! `d3il workers --db postgres://… --policy-store DIR`: a worker host. It runs
+//! only the worker pool, leasing jobs from the PostgreSQL queue that front
+//! ends (`d3il serve`) and other hosts share; see docs/cluster.md.
+
+use anyhow::Context;
+use std::path::PathBuf;
+
+#[derive(clap::Args, Debug)]
+pub struct Args {
+    #[command(flatten)]
+    pub db: super::db::DbArgs,
+    /// Concurrent evaluations on this host (sandboxed worker processes), plus
+    /// one slot for quick-protocol jobs; default: number of cores.
+    #[arg(long)]
+    pub workers: Option<usize>,
+    /// Project assets (MJCF, initial-state sets); default as for `d3il serve`.
+    #[arg(long)]
+    pub assets: Option<PathBuf>,
+    /// Seconds a lease lasts without a heartbeat; a host that dies loses its
+    /// jobs to other hosts after this long.
+    #[arg(long, default_value_t = 30)]
+    pub lease_seconds: i64,
+    #[command(flatten)]
+    pub limits: super::limits::LimitArgs,
+    /// Worker executable (default: this binary, run as `d3il worker`).
+    #[arg(long, hide = true)]
+    pub worker_exe: Option<PathBuf>,
+}
+
+pub fn run(args: Args) -> anyhow::Result<()> {
+    let exe = match args.worker_exe {
+        Some(p) => p,
+        None => {
+            std::env::current_exe().context("cannot find the d3il executable to start workers")?
+        }
+    };
+    // The bind address is unused: a worker host serves no HTTP.
+    let unused = std::net::SocketAddr::from(([127, 0, 0, 1], 0));
+    let mut cfg = d3il_server::app::ServerConfig::new(args.db.db, unused, exe);
+    cfg.policy_store = args.db.policy_store;
+    if let Some(w) = args.workers {
+        cfg.workers = w.max(1);
+    }
+    if let Some(a) = args.assets {
+        cfg.assets_dir = a;
+    }
+    anyhow::ensure!(
+        cfg.assets_dir.is_dir(),
+        "assets directory {} does not exist; pass --assets or set D3IL_ASSETS",
+        cfg.assets_dir.display()
+    );
+    cfg.assets_dir = cfg.assets_dir.canonicalize().unwrap_or(cfg.assets_dir);
+    anyhow::ensure!(
+        args.lease_seconds >= 3,
+        "--lease-seconds must be at least 3"
+    );
+    cfg.lease_seconds = args.lease_seconds;
+    cfg.limits = args.limits.limits()?;
+    cfg.worker.wall_clock = std::time::Duration::from_secs(cfg.limits.wall_seconds + 30);
+    d3il_server::cli::workers_blocking(cfg).context("d3il workers failed")?;
+    Ok(())
+}
