@@ -150,6 +150,33 @@ fn two_uneven_shards_merge_to_the_plain_evaluation() {
     assert_same_result(&f.dir.join("plain.json"), &dir.join("merged.json"));
 }
 
+/// A shard run in the sandboxed worker (`--sandbox`, as the server's worker
+/// hosts run shards) writes the same part as the in-process shard.
+#[test]
+fn a_sandboxed_shard_writes_the_same_part() {
+    let f = fixture();
+    let dir = f.dir.join("sandboxed");
+    std::fs::create_dir_all(&dir).unwrap();
+    ok(
+        d3il(
+            &eval_args(
+                POLICY,
+                &["--shard", "2/3", "--sandbox", "--json", "part2.json"],
+            ),
+            &dir,
+        ),
+        "sandboxed shard eval",
+    );
+    let read = |p: PathBuf| -> Value {
+        let mut v: Value = serde_json::from_slice(&std::fs::read(p).unwrap()).unwrap();
+        v["policy_seconds"] = Value::Null;
+        v
+    };
+    let (boxed, plain) = (read(dir.join("part2.json")), read(f.dir.join("part2.json")));
+    assert_eq!(boxed["contexts"], serde_json::json!([1, 2]));
+    assert_eq!(boxed, plain);
+}
+
 /// Writes a copy of `part` with `edit` applied to its JSON.
 fn edited(dir: &Path, part: &str, name: &str, edit: impl FnOnce(&mut Value)) -> String {
     let mut v: Value = serde_json::from_slice(&std::fs::read(dir.join(part)).unwrap()).unwrap();

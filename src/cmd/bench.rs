@@ -13,12 +13,12 @@ use std::time::Instant;
 
 #[derive(clap::Args)]
 pub struct Args {
-    /// Which benchmark: `physics`, `eval`, `render`, `agents` or `serve`.
+    /// Which benchmark: `physics`, `eval`, `render`, `agents`, `serve` or `scale`.
     pub which: String,
     /// Env steps to run (physics, render).
     #[arg(long, default_value_t = 3000)]
     pub steps: usize,
-    /// Protocol of `eval` (paper: Aligning's 60 x 8 = 480 rollouts).
+    /// Protocol of `eval` and `scale` (paper: Aligning's 60 x 8 = 480 rollouts).
     #[arg(long, default_value = "paper")]
     pub protocol: ProtocolKind,
     /// Protocol of the image evaluation in `render` (quick: 3 initial states x 2 rollouts).
@@ -31,6 +31,12 @@ pub struct Args {
     /// set for; meshes: the Panda meshes image evaluations use when present).
     #[arg(long, value_enum, default_value_t = super::render::Look::Primitives)]
     pub look: super::render::Look,
+    /// Worker hosts of `scale` (each pinned to a core of its own).
+    #[arg(long, default_value_t = 2)]
+    pub hosts: usize,
+    /// Shards the evaluation of `scale` is split into.
+    #[arg(long, default_value_t = 6)]
+    pub shards: usize,
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
@@ -40,8 +46,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         "render" => render_bench(args.steps, args.render_protocol, args.max_live, args.look),
         "agents" => agents_bench(args.max_live),
         "serve" => super::bench_serve::run(),
+        "scale" => super::bench_scale::run(args.protocol, args.hosts, args.shards),
         other => {
-            bail!("unknown benchmark `{other}`; available: physics, eval, render, agents, serve")
+            bail!("unknown benchmark `{other}`; available: physics, eval, render, agents, serve, scale")
         }
     }
 }

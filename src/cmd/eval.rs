@@ -205,6 +205,34 @@ pub fn build_job(args: &Args) -> anyhow::Result<Job> {
     })
 }
 
+/// Runs `job` in a sandboxed `d3il worker` (as the server does), prints the
+/// mechanisms in force and returns what it answered; a failure is an error.
+pub fn sandboxed(
+    job: &Job,
+    on_progress: &mut dyn FnMut(usize, usize),
+) -> anyhow::Result<d3il_sandbox::Outcome> {
+    let cmd = d3il_sandbox::WorkerCommand {
+        exe: std::env::current_exe()?,
+        args: vec!["worker".into()],
+        wall_clock: std::time::Duration::from_secs(job.limits.wall_seconds),
+        max_output_bytes: 256 << 20,
+    };
+    let run = d3il_sandbox::run_worker(&cmd, job, on_progress);
+    eprintln!();
+    for m in &run.mechanisms {
+        eprintln!(
+            "sandbox: {} {} ({})",
+            m.name,
+            if m.active { "active" } else { "INACTIVE" },
+            m.detail
+        );
+    }
+    match run.outcome {
+        d3il_sandbox::Outcome::Failed(e) => bail!("{:?}: {}", e.kind, e.message),
+        other => Ok(other),
+    }
+}
+
 pub fn run(args: Args) -> anyhow::Result<()> {
     let job = build_job(&args)?;
     if let Some(shard) = args.shard {
@@ -212,28 +240,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     }
     let mut on_progress = progress_printer();
     let result = if args.sandbox {
-        let cmd = d3il_sandbox::WorkerCommand {
-            exe: std::env::current_exe()?,
-            args: vec!["worker".into()],
-            wall_clock: std::time::Duration::from_secs(job.limits.wall_seconds),
-            max_output_bytes: 256 << 20,
-        };
-        let run = d3il_sandbox::run_worker(&cmd, &job, &mut on_progress);
-        eprintln!();
-        for m in &run.mechanisms {
-            eprintln!(
-                "sandbox: {} {} ({})",
-                m.name,
-                if m.active { "active" } else { "INACTIVE" },
-                m.detail
-            );
-        }
-        match run.outcome {
+        match sandboxed(&job, &mut on_progress)? {
             d3il_sandbox::Outcome::Completed(r) => *r,
-            d3il_sandbox::Outcome::Part(_) => {
-                bail!("the worker answered a whole evaluation with a shard's part")
-            }
-            d3il_sandbox::Outcome::Failed(e) => bail!("{:?}: {}", e.kind, e.message),
+            _ => bail!("the worker answered a whole evaluation with a shard's part"),
         }
     } else {
         let (task, mut policy, info, opts) = load_in_process(&args, &job)?;

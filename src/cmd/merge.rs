@@ -24,20 +24,30 @@ pub fn run_shard(args: &super::eval::Args, job: &Job, shard: Shard) -> anyhow::R
     let Some(path) = &args.json else {
         bail!("--shard {shard} needs --json FILE: the part file `d3il merge` joins with the other shards");
     };
-    if args.sandbox {
-        bail!("--shard cannot be combined with --sandbox yet: run the shard without --sandbox");
-    }
-    let (task, mut policy, info, opts) = super::eval::load_in_process(args, job)?;
     let mut on_progress = super::eval::progress_printer();
-    let (part, t) = eval::evaluate_shard(
-        &task,
-        policy.as_mut(),
-        &info,
-        &opts,
-        shard,
-        &mut on_progress,
-    )?;
-    super::eval::print_timing(&t);
+    let part = if args.sandbox {
+        // The worker runs the shard (`Job::shard`) and answers with its part.
+        let job = Job {
+            shard: Some(shard),
+            ..job.clone()
+        };
+        match super::eval::sandboxed(&job, &mut on_progress)? {
+            d3il_sandbox::Outcome::Part(p) => *p,
+            _ => bail!("the worker answered shard {shard} with a whole result"),
+        }
+    } else {
+        let (task, mut policy, info, opts) = super::eval::load_in_process(args, job)?;
+        let (part, t) = eval::evaluate_shard(
+            &task,
+            policy.as_mut(),
+            &info,
+            &opts,
+            shard,
+            &mut on_progress,
+        )?;
+        super::eval::print_timing(&t);
+        part
+    };
     println!(
         "task {} shard {shard}: initial states {}..{} of {}, {} rollouts (merge all {} parts with `d3il merge`)",
         part.manifest.task,

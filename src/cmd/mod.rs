@@ -1,4 +1,5 @@
 pub mod bench;
+pub mod bench_scale;
 pub mod bench_serve;
 pub mod compare;
 pub mod contexts;

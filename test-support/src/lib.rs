@@ -4,15 +4,13 @@
 //! limits for policies served on 127.0.0.1, a test PKI made with rcgen and a
 //! scratch directory removed on drop.
 //!
-//! It also starts a throw-away PostgreSQL for the store tests ([`pg`]).
+//! It also re-exports the throw-away PostgreSQL of the store tests ([`pg`]).
 //!
-//! Its dependencies stay minimal (protocol, serde_json, rcgen, libc) so every
-//! crate of the workspace can dev-depend on it without a cycle.
-#![deny(unsafe_code)]
+//! Its dependencies stay minimal (protocol, serde_json, rcgen, pgtemp) so
+//! every crate of the workspace can dev-depend on it without a cycle.
+#![forbid(unsafe_code)]
 
-/// The only unsafe code: the PostgreSQL child's parent-death signal.
-#[allow(unsafe_code)]
-pub mod pg;
+pub use d3il_pgtemp as pg;
 
 use d3il_protocol::{
     EvalResult, FailureReason, Job, Limits, ObsType, PolicyManifest, PolicySource, ProtocolKind,

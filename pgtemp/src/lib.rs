@@ -1,4 +1,4 @@
-//! A throw-away PostgreSQL for tests (issue 19): one cluster per test process,
+//! A throw-away PostgreSQL: one cluster per process (tests, `d3il bench scale`),
 //! made with Debian's `initdb` in a temporary directory and started on a free
 //! port of 127.0.0.1, trust authentication, no Unix socket. As root (where
 //! `initdb` refuses to run) the cluster belongs to `nobody`. Each test takes
@@ -8,6 +8,9 @@
 //! die with it (`PR_SET_PDEATHSIG`), so it goes when the test process does;
 //! data directories of test processes that are gone are removed at the next
 //! start.
+//!
+//! Used by the store tests (through `d3il-test-support`) and by
+//! `d3il bench scale`, which needs a PostgreSQL queue and has none given.
 
 use std::net::TcpListener;
 use std::os::unix::process::CommandExt;
