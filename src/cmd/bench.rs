@@ -525,7 +525,7 @@ fn agents_bench(batch: usize) -> anyhow::Result<()> {
             if projected > wall { " (OVER the wall limit)" } else { "" }
         );
     }
-    drop(time_ort);
+    drop(ort_in); // end of input: the script exits
     let _ = ort.kill();
     let _ = ort.wait();
     println!(
