@@ -420,9 +420,13 @@ fn physics(env_steps: usize) -> anyhow::Result<()> {
 /// Every agent fixture of assets/fixtures/agents (one per D3IL method family)
 /// at batch `batch`: ms per policy call, the projected inference time of
 /// Aligning's paper protocol (⌈480 / batch⌉ groups × ⌈400 / E⌉ calls), and the
-/// same calls timed in onnxruntime (clients/python/bench_onnxruntime.py) on
-/// the same files. Last line: the ratio of our total time to onnxruntime's.
+/// same calls timed in onnxruntime (clients/python/bench_onnxruntime.py
+/// `--serve`) on the same files. The two are timed in turn, [`AGENT_ROUNDS`]
+/// rounds of [`AGENT_ROUND_S`] each per fixture, and each side's median round
+/// counts, so that both see the same load on a shared machine. Last line: the
+/// ratio of our total time to onnxruntime's.
 fn agents_bench(batch: usize) -> anyhow::Result<()> {
+    use std::io::{BufRead, Write};
     let dir = super::assets_dir().join("fixtures").join("agents");
     let task = LoadedTask::load(TaskId::Aligning)?;
     let spec = task.spec();
@@ -434,20 +438,31 @@ fn agents_bench(batch: usize) -> anyhow::Result<()> {
         .join("clients")
         .join("python")
         .join("bench_onnxruntime.py");
-    let ort = std::process::Command::new("python3")
+    let mut ort = std::process::Command::new("python3")
         .arg(&script)
+        .arg("--serve")
         .arg(&dir)
         .arg(batch.to_string())
-        .output()
+        .stdin(std::process::Stdio::piped())
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
         .with_context(|| format!("running {}", script.display()))?;
-    if !ort.status.success() {
-        bail!(
-            "onnxruntime benchmark failed (pip install -r clients/python/requirements.txt): {}",
-            String::from_utf8_lossy(&ort.stderr)
-        );
-    }
-    let ort: serde_json::Map<String, Value> =
-        serde_json::from_slice(&ort.stdout).context("reading the onnxruntime benchmark's JSON")?;
+    let (Some(mut ort_in), Some(ort_out)) = (ort.stdin.take(), ort.stdout.take()) else {
+        bail!("no pipes to {}", script.display());
+    };
+    let mut ort_out = std::io::BufReader::new(ort_out);
+    // One onnxruntime timing of `name`; its error output when it fails.
+    let mut time_ort = |name: &str| -> anyhow::Result<f64> {
+        let mut line = String::new();
+        writeln!(ort_in, "{name} {AGENT_ROUND_S}")
+            .and_then(|_| ort_in.flush())
+            .and_then(|_| ort_out.read_line(&mut line).map(|_| ()))
+            .ok();
+        line.trim().parse::<f64>().ok().context(
+            "the onnxruntime benchmark stopped (pip install -r clients/python/requirements.txt)",
+        )
+    };
     let mut names: Vec<String> = std::fs::read_dir(&dir)?
         .filter_map(|e| e.ok()?.file_name().into_string().ok())
         .filter_map(|n| n.strip_suffix(".onnx").map(str::to_string))
@@ -477,15 +492,29 @@ fn agents_bench(batch: usize) -> anyhow::Result<()> {
             q.prev_actions = Some(&prev);
         }
         policy.infer(&q)?; // plans for this batch are made here
-        let (mut n, t0) = (0usize, Instant::now());
-        while n < 3 || t0.elapsed().as_secs_f64() < 1.0 {
-            policy.infer(&q)?;
-            n += 1;
+        let (mut ours, mut theirs) = (vec![], vec![]);
+        for _ in 0..AGENT_ROUNDS {
+            theirs.push(match time_ort(name) {
+                Ok(ms) => ms,
+                Err(e) => {
+                    let mut err = String::new();
+                    let _ = ort.kill();
+                    if let Some(mut s) = ort.stderr.take() {
+                        let _ = std::io::Read::read_to_string(&mut s, &mut err);
+                    }
+                    return Err(e.context(err));
+                }
+            });
+            let (mut n, t0) = (0usize, Instant::now());
+            while n < 3 || t0.elapsed().as_secs_f64() < AGENT_ROUND_S {
+                policy.infer(&q)?;
+                n += 1;
+            }
+            ours.push(1000.0 * t0.elapsed().as_secs_f64() / n as f64);
         }
-        let ms = 1000.0 * t0.elapsed().as_secs_f64() / n as f64;
+        let (ms, ort_ms) = (median(&mut ours), median(&mut theirs));
         let calls = groups * paper.max_steps.div_ceil(manifest.execute);
         let projected = calls as f64 * ms / 1000.0;
-        let ort_ms = ort.get(name).and_then(Value::as_f64).unwrap_or(f64::NAN);
         ours_total += calls as f64 * ms;
         ort_total += calls as f64 * ort_ms;
         println!(
@@ -496,9 +525,28 @@ fn agents_bench(batch: usize) -> anyhow::Result<()> {
             if projected > wall { " (OVER the wall limit)" } else { "" }
         );
     }
+    drop(ort_in); // end of input: the script exits
+    let _ = ort.kill();
+    let _ = ort.wait();
     println!(
         "ratio ours/onnxruntime over the paper-protocol inference time of all agents: {:.3} (goal <= 1.0)",
         ours_total / ort_total
     );
     Ok(())
+}
+
+/// Rounds of timing per fixture and side in `bench agents`.
+const AGENT_ROUNDS: usize = 5;
+/// Seconds of calls per round.
+const AGENT_ROUND_S: f64 = 0.4;
+
+/// The median of `v` (the mean of the middle two for an even length).
+fn median(v: &mut [f64]) -> f64 {
+    v.sort_by(f64::total_cmp);
+    let n = v.len();
+    match n {
+        0 => f64::NAN,
+        _ if n % 2 == 1 => v[n / 2],
+        _ => 0.5 * (v[n / 2 - 1] + v[n / 2]),
+    }
 }

@@ -25,6 +25,12 @@ pub(super) struct Model {
     batch: Symbol,
     window: Symbol,
     plans: Mutex<HashMap<(usize, usize), Plan>>,
+    /// tract's cost estimate of one row at the full window (multiply-adds
+    /// plus other element operations; `u64::MAX` when it cannot tell).
+    work_per_row: u64,
+    /// Bytes of the largest intermediate tensor of one row at the full
+    /// window (0 when it cannot tell).
+    largest_row_bytes: usize,
 }
 
 /// Batch sizes plans are made for: a call with b rows runs on the plan of the
@@ -114,12 +120,26 @@ impl Model {
             .map(|o| o.name.clone())
             .unwrap_or_else(|| "output".into());
         check_output(&typed, &out_name, manifest, task)?;
+        let (work_per_row, largest_row_bytes) =
+            row_costs(&typed, &batch, &window, manifest.history);
         Ok(Model {
             typed,
             batch,
             window,
             plans: Mutex::new(HashMap::new()),
+            work_per_row,
+            largest_row_bytes,
         })
+    }
+
+    /// tract's cost estimate of one row at the full window.
+    pub(super) fn work_per_row(&self) -> u64 {
+        self.work_per_row
+    }
+
+    /// Bytes of the largest intermediate tensor of one row (0: unknown).
+    pub(super) fn largest_row_bytes(&self) -> usize {
+        self.largest_row_bytes
     }
 
     /// The plan for `batch` rows (a bucket size, or the fixed batch) and window `w`.
@@ -138,7 +158,15 @@ impl Model {
             .typed
             .set_symbols(&subs)
             .and_then(|m| m.into_optimized())
-            .and_then(|m| m.into_runnable())
+            .and_then(|m| {
+                // Our kernels where they apply; tract's plan as it is if the
+                // swap fails on some graph.
+                let mut fast = m.clone();
+                match super::fast::speed_up(&mut fast) {
+                    Ok(()) => fast.into_runnable(),
+                    Err(_) => m.into_runnable(),
+                }
+            })
             .map_err(|e| {
                 format!("tract could not prepare the graph for batch {batch}, window {w}: {e:#}")
             })?;
@@ -148,6 +176,45 @@ impl Model {
             .insert(key, plan.clone());
         Ok(plan)
     }
+}
+
+/// tract's cost estimate of one row (batch 1, window `k`), summed over the
+/// graph's nodes (`u64::MAX` when some cost is not a number), and the bytes of
+/// the row's largest intermediate tensor (0 when unknown).
+fn row_costs(typed: &TypedModel, batch: &Symbol, window: &Symbol, k: usize) -> (u64, usize) {
+    let subs: HashMap<Symbol, TDim> = [(batch.clone(), 1.to_dim()), (window.clone(), k.to_dim())]
+        .into_iter()
+        .collect();
+    let Ok(m) = typed.set_symbols(&subs) else {
+        return (u64::MAX, 0);
+    };
+    let work = || -> TractResult<u64> {
+        let mut total = 0u64;
+        for n in m.eval_order()? {
+            let facts = m.node_input_facts(n)?;
+            for (_, count) in m.node(n).op.cost(&facts)? {
+                let c = count.to_i64()?;
+                total = total.saturating_add(u64::try_from(c).unwrap_or(0));
+            }
+        }
+        Ok(total)
+    };
+    let largest = || -> TractResult<usize> {
+        let mut largest = 0;
+        for n in m.eval_order()? {
+            for f in m.node_output_facts(n)? {
+                // Weights are not per row.
+                if f.konst.is_some() {
+                    continue;
+                }
+                if let Some(v) = f.shape.as_concrete() {
+                    largest = largest.max(v.iter().product::<usize>() * f.datum_type.size_of());
+                }
+            }
+        }
+        Ok(largest)
+    };
+    (work().unwrap_or(u64::MAX), largest().unwrap_or(0))
 }
 
 fn check_output(

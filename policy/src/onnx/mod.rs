@@ -9,10 +9,12 @@
 //! One output: float32 `[B, H, act_dim]` or `[B, act_dim]` (H = 1).
 //!
 //! The job is split three ways: [`admit`] checks the file and the manifest,
-//! `load` analyses the graph and makes plans per (batch, window), `run`
-//! builds the inputs and runs the batch on every core.
+//! `load` analyses the graph and makes plans per (batch, window) (with `fast`
+//! swapping a few slow tract kernels for ours), `run` builds the inputs and
+//! runs the batch on every core.
 
 mod admit;
+mod fast;
 mod load;
 mod run;
 

@@ -18,6 +18,21 @@ type GroupOutput = (usize, Vec<f32>);
 /// Fewest rows worth a thread of their own.
 const MIN_ROWS_PER_THREAD: usize = 2;
 
+/// Largest intermediate tensor of one plan run a call aims at: groups of
+/// rows stay below it (about a quarter of a core's L2 cache here), so a
+/// model with wide per-row activations (IBC: 64 samples × 64 units per row)
+/// runs in several smaller plan runs per thread, each in cache.
+const MAX_GROUP_BYTES: usize = 512 * 1024;
+
+/// Fewest rows a group is cut down to for [`MAX_GROUP_BYTES`] (models whose
+/// rows alone exceed the cache, such as image networks, are not cut finer).
+const MIN_GROUP_ROWS: usize = 8;
+
+/// Least work (tract's cost estimate: multiply-adds plus other element
+/// operations) worth a thread of its own, about 0.1 ms on one core; below
+/// it spawning the thread costs more than it saves.
+const MIN_WORK_PER_THREAD: u64 = 2_000_000;
+
 impl OnnxPolicy {
     /// Standard normal noise for one row, a pure function of (seed, rollout, step)
     /// so results do not depend on batch composition or chunking.
@@ -39,6 +54,13 @@ impl OnnxPolicy {
     /// fixed batch); returns `[B, H, act_dim]` flattened, in row order.
     pub(super) fn run_query(&self, q: &Query<'_>) -> Result<Vec<f32>, PolicyError> {
         let b = q.batch();
+        // Small calls stay on one thread: a spawned thread costs more than
+        // it saves below MIN_WORK_PER_THREAD.
+        let work = (b as u64).saturating_mul(self.model.work_per_row());
+        let threads = self
+            .threads
+            .min(usize::try_from(work / MIN_WORK_PER_THREAD).unwrap_or(usize::MAX))
+            .max(1);
         let mut groups: Vec<(std::ops::Range<usize>, usize)> = vec![];
         match self.sig.fixed_batch {
             Some(n) => {
@@ -50,8 +72,13 @@ impl OnnxPolicy {
                 }
             }
             None if b > 0 => {
-                let t = self.threads.min(b.div_ceil(MIN_ROWS_PER_THREAD)).max(1);
-                let per = b.div_ceil(t);
+                let t = threads.min(b.div_ceil(MIN_ROWS_PER_THREAD)).max(1);
+                // As many groups per thread as keep a group's largest
+                // intermediate tensor within MAX_GROUP_BYTES (cache-sized).
+                let cap =
+                    (MAX_GROUP_BYTES / self.model.largest_row_bytes().max(1)).max(MIN_GROUP_ROWS);
+                let per_thread = b.div_ceil(t).div_ceil(cap);
+                let per = b.div_ceil(t * per_thread);
                 let mut start = 0;
                 while start < b {
                     let end = (start + per).min(b);
@@ -63,38 +90,44 @@ impl OnnxPolicy {
         }
         let per_row = self.shape.horizon * self.shape.act_dim;
         let mut data = Vec::with_capacity(b * per_row);
-        if groups.len() <= 1 || self.threads <= 1 {
+        if groups.len() <= 1 || threads <= 1 {
             for (rows, n) in groups {
                 self.run_rows(q, rows, n, &mut data)?;
             }
             return Ok(data);
         }
-        // Groups beyond the thread count run in turn on their thread.
-        let threads = self.threads.min(groups.len());
+        // Groups beyond the thread count run in turn on their thread; the
+        // calling thread takes its share too, so a call spawns threads − 1.
+        let threads = threads.min(groups.len());
+        let share = |t: usize| -> Vec<(usize, (std::ops::Range<usize>, usize))> {
+            groups
+                .iter()
+                .enumerate()
+                .filter(|(i, _)| i % threads == t)
+                .map(|(i, g)| (i, g.clone()))
+                .collect()
+        };
+        let run_share = |mine: Vec<(usize, (std::ops::Range<usize>, usize))>| {
+            let mut outs = vec![];
+            for (i, (rows, n)) in mine {
+                let mut out = Vec::new();
+                self.run_rows(q, rows, n, &mut out)?;
+                outs.push((i, out));
+            }
+            Ok(outs)
+        };
         let results: Vec<Result<Vec<GroupOutput>, PolicyError>> = std::thread::scope(|scope| {
-            let handles: Vec<_> = (0..threads)
+            let handles: Vec<_> = (1..threads)
                 .map(|t| {
-                    let mine: Vec<_> = groups
-                        .iter()
-                        .enumerate()
-                        .filter(|(i, _)| i % threads == t)
-                        .map(|(i, g)| (i, g.clone()))
-                        .collect();
-                    scope.spawn(move || {
-                        let mut outs = vec![];
-                        for (i, (rows, n)) in mine {
-                            let mut out = Vec::new();
-                            self.run_rows(q, rows, n, &mut out)?;
-                            outs.push((i, out));
-                        }
-                        Ok(outs)
-                    })
+                    let mine = share(t);
+                    scope.spawn(move || run_share(mine))
                 })
                 .collect();
-            handles
-                .into_iter()
-                .map(|h| {
-                    h.join().unwrap_or_else(|p| {
+            let own = catch_unwind(AssertUnwindSafe(|| run_share(share(0))));
+            std::iter::once(own)
+                .chain(handles.into_iter().map(|h| h.join()))
+                .map(|r| {
+                    r.unwrap_or_else(|p| {
                         let (rollout, step) = (q.rollout_ids[0], q.steps[0]);
                         Err(panic_error(
                             p,
