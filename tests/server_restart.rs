@@ -6,10 +6,8 @@
 //! step limit, several seconds) in the real sandboxed `d3il worker`.
 
 mod server_support;
-use serde_json::Value;
 use server_support::*;
 use std::path::PathBuf;
-use std::process::Command;
 use std::time::Duration;
 
 fn fixture(name: &str) -> PathBuf {
@@ -119,46 +117,10 @@ fn server_killed_twice_mid_evaluation_finishes_it_after_restarts() {
     // The stored result is the evaluation itself: the same fixture evaluated
     // directly (same seed, same protocol) gives the same numbers, rollout by
     // rollout.
-    let direct_json = dir.path().join("direct.json");
-    let out = Command::new(EXE)
-        .args([
-            "eval",
-            "--task",
-            "aligning",
-            "--protocol",
-            "quick",
-            "--seed",
-            "0",
-        ])
-        .arg("--policy")
-        .arg(fixture("aligning_mlp.onnx"))
-        .arg("--json")
-        .arg(&direct_json)
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
+    assert_same_result(
+        &done,
+        &plain_eval(dir.path(), &fixture("aligning_mlp.onnx"), 0),
     );
-    let direct: Value = serde_json::from_slice(&std::fs::read(&direct_json).unwrap()).unwrap();
-    for metric in ["success_rate", "conditional_entropy", "behaviour_entropy"] {
-        assert_eq!(
-            result["metrics"][metric], direct["metrics"][metric],
-            "{metric}"
-        );
-    }
-    for (stored, fresh) in rollouts.iter().zip(direct["rollouts"].as_array().unwrap()) {
-        for k in [
-            "context_index",
-            "rollout_index",
-            "success",
-            "steps",
-            "behaviour",
-        ] {
-            assert_eq!(stored[k], fresh[k], "{k}: {stored} vs {fresh}");
-        }
-    }
 
     // Exactly one evaluated row: nothing lost, nothing doubled.
     let (_, csv) = server.get_text("/tasks/aligning/csv");

@@ -172,65 +172,6 @@ impl Cluster {
     }
 }
 
-/// The result of the same fixture evaluated by a plain `d3il eval` (one
-/// process, no shards) with the training seed as the evaluator seed.
-fn plain_eval(dir: &Path, seed: u32) -> Value {
-    let out_json = dir.join(format!("plain-{seed}.json"));
-    let out = Command::new(EXE)
-        .args([
-            "eval",
-            "--task",
-            "aligning",
-            "--protocol",
-            "quick",
-            "--seed",
-        ])
-        .arg(seed.to_string())
-        .arg("--policy")
-        .arg(fixture("aligning_mlp.onnx"))
-        .arg("--json")
-        .arg(&out_json)
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    serde_json::from_slice(&std::fs::read(&out_json).unwrap()).unwrap()
-}
-
-/// The merged result equals the plain one bit for bit: every metric with
-/// its interval, the per-initial-state breakdown and every rollout record.
-/// (Only the measured inference time may differ.)
-fn assert_same_result(done: &Value, plain: &Value) {
-    let merged = &done["result"];
-    for metric in ["success_rate", "behaviour_entropy", "conditional_entropy"] {
-        assert_eq!(
-            merged["metrics"][metric], plain["metrics"][metric],
-            "{metric}"
-        );
-    }
-    let rollouts = merged["rollouts"].as_array().unwrap();
-    let plain_rollouts = plain["rollouts"].as_array().unwrap();
-    assert_eq!(rollouts.len(), plain_rollouts.len());
-    for (a, b) in rollouts.iter().zip(plain_rollouts) {
-        for k in [
-            "context_index",
-            "rollout_index",
-            "success",
-            "steps",
-            "behaviour",
-        ] {
-            assert_eq!(a[k], b[k], "{k}: {a} vs {b}");
-        }
-    }
-    assert_eq!(
-        merged["protocol_manifest"]["policy_sha256"], plain["manifest"]["policy_sha256"],
-        "the same policy"
-    );
-}
-
 #[test]
 fn two_hosts_share_one_queue_run_each_shard_once_and_merge_bit_for_bit() {
     let c = Cluster::start("hosts-share");
@@ -258,7 +199,10 @@ fn two_hosts_share_one_queue_run_each_shard_once_and_merge_bit_for_bit() {
     );
 
     for (seed, d) in done.iter().enumerate() {
-        assert_same_result(d, &plain_eval(c.dir.path(), seed as u32));
+        assert_same_result(
+            d,
+            &plain_eval(c.dir.path(), &fixture("aligning_mlp.onnx"), seed as u32),
+        );
     }
 }
 
@@ -300,5 +244,8 @@ fn a_host_killed_mid_shard_loses_only_its_lease_and_another_finishes() {
             b.started()
         );
     }
-    assert_same_result(&done, &plain_eval(c.dir.path(), 0));
+    assert_same_result(
+        &done,
+        &plain_eval(c.dir.path(), &fixture("aligning_mlp.onnx"), 0),
+    );
 }

@@ -10,14 +10,18 @@ fn runtime() -> std::io::Result<tokio::runtime::Runtime> {
         .build()
 }
 
-/// Runs the server until the process is stopped. Prints one line
-/// `listening on http://ADDR` (tests read the port from it).
-pub fn serve_blocking(cfg: ServerConfig) -> Result<(), ServeError> {
-    // Logs go to stderr; stdout carries the `listening on` line.
+/// Logs go to stderr; stdout carries the lines tests and scripts read.
+fn log_to_stderr() {
     let _ = tracing_subscriber::fmt()
         .with_writer(std::io::stderr)
         .with_max_level(tracing::Level::INFO)
         .try_init();
+}
+
+/// Runs the server until the process is stopped. Prints one line
+/// `listening on http://ADDR` (tests read the port from it).
+pub fn serve_blocking(cfg: ServerConfig) -> Result<(), ServeError> {
+    log_to_stderr();
     let rt = runtime()?;
     rt.block_on(async move {
         let runner = crate::app::default_runner(&cfg);
@@ -33,10 +37,7 @@ pub fn serve_blocking(cfg: ServerConfig) -> Result<(), ServeError> {
 /// Runs a worker host (`d3il workers`) until the process is stopped. Prints
 /// one line `worker host ready: …` once its pool runs (tests wait for it).
 pub fn workers_blocking(cfg: ServerConfig) -> Result<(), ServeError> {
-    let _ = tracing_subscriber::fmt()
-        .with_writer(std::io::stderr)
-        .with_max_level(tracing::Level::INFO)
-        .try_init();
+    log_to_stderr();
     let rt = runtime()?;
     rt.block_on(async move {
         let runner = crate::app::default_runner(&cfg);

@@ -67,19 +67,28 @@ pub struct Args {
     pub worker_exe: Option<PathBuf>,
 }
 
-pub fn run(args: Args) -> anyhow::Result<()> {
-    let exe = match args.worker_exe {
+/// The configuration `serve` and `workers` share: database and policy
+/// store, worker executable, slots, assets and worker limits.
+pub fn base_config(
+    db: super::db::DbArgs,
+    bind: SocketAddr,
+    worker_exe: Option<PathBuf>,
+    workers: Option<usize>,
+    assets: Option<PathBuf>,
+    limits: &super::limits::LimitArgs,
+) -> anyhow::Result<d3il_server::app::ServerConfig> {
+    let exe = match worker_exe {
         Some(p) => p,
         None => {
             std::env::current_exe().context("cannot find the d3il executable to start workers")?
         }
     };
-    let mut cfg = d3il_server::app::ServerConfig::new(args.db.db, args.bind, exe);
-    cfg.policy_store = args.db.policy_store;
-    if let Some(w) = args.workers {
+    let mut cfg = d3il_server::app::ServerConfig::new(db.db, bind, exe);
+    cfg.policy_store = db.policy_store;
+    if let Some(w) = workers {
         cfg.workers = w;
     }
-    if let Some(a) = args.assets {
+    if let Some(a) = assets {
         cfg.assets_dir = a;
     }
     anyhow::ensure!(
@@ -88,6 +97,20 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         cfg.assets_dir.display()
     );
     cfg.assets_dir = cfg.assets_dir.canonicalize().unwrap_or(cfg.assets_dir);
+    cfg.limits = limits.limits()?;
+    cfg.worker.wall_clock = std::time::Duration::from_secs(cfg.limits.wall_seconds + 30);
+    Ok(cfg)
+}
+
+pub fn run(args: Args) -> anyhow::Result<()> {
+    let mut cfg = base_config(
+        args.db,
+        args.bind,
+        args.worker_exe,
+        args.workers,
+        args.assets,
+        &args.limits,
+    )?;
     cfg.max_upload_bytes = args.max_upload_mb.max(1) << 20;
     cfg.rate_limit_per_minute = args.rate_limit.max(1);
     cfg.anonymous_rate_limit_per_minute = args.anonymous_rate_limit.max(1);
@@ -110,8 +133,6 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         max_connections: args.max_connections,
         max_connections_per_client: args.max_connections_per_client,
     };
-    cfg.limits = args.limits.limits()?;
-    cfg.worker.wall_clock = std::time::Duration::from_secs(cfg.limits.wall_seconds + 30);
     d3il_server::cli::serve_blocking(cfg).context("d3il serve failed")?;
     Ok(())
 }

@@ -28,35 +28,21 @@ pub struct Args {
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
-    let exe = match args.worker_exe {
-        Some(p) => p,
-        None => {
-            std::env::current_exe().context("cannot find the d3il executable to start workers")?
-        }
-    };
     // The bind address is unused: a worker host serves no HTTP.
     let unused = std::net::SocketAddr::from(([127, 0, 0, 1], 0));
-    let mut cfg = d3il_server::app::ServerConfig::new(args.db.db, unused, exe);
-    cfg.policy_store = args.db.policy_store;
-    if let Some(w) = args.workers {
-        cfg.workers = w.max(1);
-    }
-    if let Some(a) = args.assets {
-        cfg.assets_dir = a;
-    }
-    anyhow::ensure!(
-        cfg.assets_dir.is_dir(),
-        "assets directory {} does not exist; pass --assets or set D3IL_ASSETS",
-        cfg.assets_dir.display()
-    );
-    cfg.assets_dir = cfg.assets_dir.canonicalize().unwrap_or(cfg.assets_dir);
+    let mut cfg = super::serve::base_config(
+        args.db,
+        unused,
+        args.worker_exe,
+        args.workers.map(|w| w.max(1)),
+        args.assets,
+        &args.limits,
+    )?;
     anyhow::ensure!(
         args.lease_seconds >= 3,
         "--lease-seconds must be at least 3"
     );
     cfg.lease_seconds = args.lease_seconds;
-    cfg.limits = args.limits.limits()?;
-    cfg.worker.wall_clock = std::time::Duration::from_secs(cfg.limits.wall_seconds + 30);
     d3il_server::cli::workers_blocking(cfg).context("d3il workers failed")?;
     Ok(())
 }

@@ -2,6 +2,7 @@
 //! SQLite file, `d3il token create`, and helpers to talk to it.
 #![allow(dead_code)]
 
+use serde_json::Value;
 use std::io::{BufRead, BufReader};
 use std::path::Path;
 use std::process::{Child, Command, Stdio};
@@ -120,4 +121,64 @@ pub fn wait_for<T>(timeout: Duration, mut f: impl FnMut() -> Option<T>) -> Optio
         std::thread::sleep(Duration::from_millis(200));
     }
     None
+}
+
+/// The result of the same fixture evaluated by a plain `d3il eval` (one
+/// process, no shards, Aligning quick protocol) with the training seed as the
+/// evaluator seed.
+pub fn plain_eval(dir: &Path, policy: &Path, seed: u32) -> Value {
+    let out_json = dir.join(format!("plain-{seed}.json"));
+    let out = Command::new(EXE)
+        .args([
+            "eval",
+            "--task",
+            "aligning",
+            "--protocol",
+            "quick",
+            "--seed",
+        ])
+        .arg(seed.to_string())
+        .arg("--policy")
+        .arg(policy)
+        .arg("--json")
+        .arg(&out_json)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    serde_json::from_slice(&std::fs::read(&out_json).unwrap()).unwrap()
+}
+
+/// The merged result equals the plain one bit for bit: every metric with
+/// its interval, the per-initial-state breakdown and every rollout record.
+/// (Only the measured inference time may differ.)
+pub fn assert_same_result(done: &Value, plain: &Value) {
+    let merged = &done["result"];
+    for metric in ["success_rate", "behaviour_entropy", "conditional_entropy"] {
+        assert_eq!(
+            merged["metrics"][metric], plain["metrics"][metric],
+            "{metric}"
+        );
+    }
+    let rollouts = merged["rollouts"].as_array().unwrap();
+    let plain_rollouts = plain["rollouts"].as_array().unwrap();
+    assert_eq!(rollouts.len(), plain_rollouts.len());
+    for (a, b) in rollouts.iter().zip(plain_rollouts) {
+        for k in [
+            "context_index",
+            "rollout_index",
+            "success",
+            "steps",
+            "behaviour",
+        ] {
+            assert_eq!(a[k], b[k], "{k}: {a} vs {b}");
+        }
+    }
+    assert_eq!(
+        merged["protocol_manifest"]["policy_sha256"], plain["manifest"]["policy_sha256"],
+        "the same policy"
+    );
 }
