@@ -7,8 +7,8 @@
 
 mod shard_support;
 
+use d3il_test_support::free_port;
 use shard_support::{assert_same_result, table};
-use std::net::TcpListener;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
@@ -43,14 +43,6 @@ fn program(name: &str) -> PathBuf {
         }
     }
     panic!("{name} is not installed: `./dev test` installs Debian's slurm-wlm and munge");
-}
-
-fn free_port() -> u16 {
-    TcpListener::bind("127.0.0.1:0")
-        .unwrap()
-        .local_addr()
-        .unwrap()
-        .port()
 }
 
 fn run(cmd: &mut Command, what: &str) -> String {

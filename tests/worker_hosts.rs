@@ -9,7 +9,6 @@
 mod server_support;
 use serde_json::Value;
 use server_support::*;
-use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::time::Duration;
@@ -36,18 +35,7 @@ impl Host {
             .stderr(std::fs::File::create(&log).expect("host log"))
             .spawn()
             .expect("start d3il workers");
-        let stdout = child.stdout.take().expect("stdout");
-        let mut lines = BufReader::new(stdout).lines();
-        loop {
-            let line = lines
-                .next()
-                .expect("d3il workers exited before it was ready")
-                .expect("read stdout");
-            if line.starts_with("worker host ready") {
-                break;
-            }
-        }
-        std::thread::spawn(move || for _ in lines {});
+        wait_for_line(&mut child, "worker host ready", "d3il workers");
         Host { child, log }
     }
 

@@ -11,6 +11,7 @@
 #![forbid(unsafe_code)]
 
 pub use d3il_pgtemp as pg;
+pub use d3il_pgtemp::free_port;
 
 use d3il_protocol::{
     EvalResult, FailureReason, Job, Limits, ObsType, PolicyManifest, PolicySource, ProtocolKind,

@@ -37,19 +37,8 @@ impl Server {
             .stderr(Stdio::inherit())
             .spawn()
             .expect("start d3il serve");
-        let stdout = child.stdout.take().expect("stdout");
-        let mut lines = BufReader::new(stdout).lines();
-        let base = loop {
-            let line = lines
-                .next()
-                .expect("d3il serve exited before listening")
-                .expect("read stdout");
-            if let Some(addr) = line.strip_prefix("listening on ") {
-                break addr.trim().to_string();
-            }
-        };
-        // Keep draining stdout so the server never blocks on a full pipe.
-        std::thread::spawn(move || for _ in lines {});
+        let line = wait_for_line(&mut child, "listening on ", "d3il serve");
+        let base = line["listening on ".len()..].trim().to_string();
         Server { child, base }
     }
 
@@ -109,6 +98,25 @@ pub fn create_token_on(name: &str, args: &[&str]) -> String {
         .to_string();
     assert!(token.starts_with("d3il_"), "{token}");
     token
+}
+
+/// Reads `child`'s stdout (piped) until a line starting with `prefix` and
+/// returns it; the rest of stdout is drained in the background so the child
+/// never blocks on a full pipe. Panics if `what` exits first.
+pub fn wait_for_line(child: &mut Child, prefix: &str, what: &str) -> String {
+    let stdout = child.stdout.take().expect("stdout is piped");
+    let mut lines = BufReader::new(stdout).lines();
+    let found = loop {
+        let line = lines
+            .next()
+            .unwrap_or_else(|| panic!("{what} exited before printing `{prefix}…`"))
+            .expect("read stdout");
+        if line.starts_with(prefix) {
+            break line;
+        }
+    };
+    std::thread::spawn(move || for _ in lines {});
+    found
 }
 
 /// Polls `f` until it returns Some or the timeout passes.

@@ -248,10 +248,7 @@ impl Store {
             .file_stem()
             .map(|s| s.to_string_lossy().into_owned())
             .unwrap_or_else(|| "d3il".into());
-        // Absolute, because the sandboxed worker is given this path to read.
-        let data_dir = std::path::absolute(path.with_file_name(format!("{stem}-data")))
-            .map_err(io_err(path))?;
-        std::fs::create_dir_all(data_dir.join("policies")).map_err(io_err(&data_dir))?;
+        let data_dir = policy_store_dir(&path.with_file_name(format!("{stem}-data")))?;
 
         // FULL synchronous: an accepted submission must survive a power cut
         // once the response is sent (issue 7, "durable before the response").
@@ -344,8 +341,8 @@ impl Store {
     }
 }
 
-/// `dir` made absolute (the sandboxed worker is given paths inside it) with
-/// its `policies/` created.
+/// `dir` made absolute (the sandboxed worker is given paths inside it to
+/// read) with its `policies/` created.
 fn policy_store_dir(dir: &Path) -> Result<PathBuf, StoreError> {
     let abs = std::path::absolute(dir).map_err(io_err(dir))?;
     std::fs::create_dir_all(abs.join("policies")).map_err(io_err(&abs))?;

@@ -118,12 +118,7 @@ pub async fn spawn_app_with(o: Options) -> TestApp {
         .worker_exe
         .clone()
         .unwrap_or_else(|| PathBuf::from("/bin/false"));
-    let target = match o.backend {
-        Backend::Sqlite => d3il_server::store::DbTarget::Sqlite(db.clone()),
-        Backend::Postgres => {
-            d3il_server::store::DbTarget::Postgres(d3il_test_support::pg::fresh_database())
-        }
-    };
+    let target = o.backend.target(db.clone());
     let mut cfg = ServerConfig::new(target, "127.0.0.1:0".parse().unwrap(), exe);
     cfg.policy_store =
         matches!(o.backend, Backend::Postgres).then(|| dir.path().join("policy-store"));
@@ -184,6 +179,19 @@ pub enum Backend {
     Postgres,
 }
 
+impl Backend {
+    /// A fresh database: the SQLite file `sqlite`, or a new database on the
+    /// throw-away PostgreSQL cluster.
+    pub fn target(self, sqlite: PathBuf) -> d3il_server::store::DbTarget {
+        match self {
+            Backend::Sqlite => d3il_server::store::DbTarget::Sqlite(sqlite),
+            Backend::Postgres => {
+                d3il_server::store::DbTarget::Postgres(d3il_test_support::pg::fresh_database())
+            }
+        }
+    }
+}
+
 /// A fresh database of either backend (a SQLite file in a temporary
 /// directory, or a new database on the throw-away PostgreSQL cluster) with
 /// its own policy store; `open` may be called again to simulate a restart.
@@ -196,12 +204,7 @@ pub struct TestDb {
 impl TestDb {
     pub fn new(b: Backend) -> TestDb {
         let dir = tempfile::tempdir().expect("temp dir");
-        let target = match b {
-            Backend::Sqlite => d3il_server::store::DbTarget::Sqlite(dir.path().join("lb.sqlite")),
-            Backend::Postgres => {
-                d3il_server::store::DbTarget::Postgres(d3il_test_support::pg::fresh_database())
-            }
-        };
+        let target = b.target(dir.path().join("lb.sqlite"));
         TestDb {
             target,
             policies: dir.path().join("policy-store"),
