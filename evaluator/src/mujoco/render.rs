@@ -125,16 +125,142 @@ fn egl_message(what: &str) -> String {
     )
 }
 
-/// The process-wide EGL display (surfaceless platform when available).
-struct Display(EglDisplay, &'static str);
-// SAFETY: an EGLDisplay handle is process-global and thread-safe by the EGL spec.
+/// The process-wide EGL display (Mesa's software device, else the
+/// surfaceless platform), and the software device when EGL lists it.
+struct Display(EglDisplay, &'static str, Option<EglDevice>);
+// SAFETY: EGLDisplay and EGLDeviceEXT handles are process-global and
+// thread-safe by the EGL spec.
 unsafe impl Send for Display {}
 unsafe impl Sync for Display {}
 
+type EglDevice = *mut c_void;
+type EglAttrib = isize;
+const EGL_DEVICE_EXT: EglAttrib = 0x322C;
+type GetPlatformDisplay = unsafe extern "C" fn(
+    platform: u32,
+    native: *mut c_void,
+    attrib: *const EglAttrib,
+) -> EglDisplay;
+
 static DISPLAY: std::sync::OnceLock<Result<Display, String>> = std::sync::OnceLock::new();
 
-fn display() -> Result<EglDisplay, MjError> {
-    display_and_platform().map(|d| d.0)
+/// The EGL displays renderers use: Mesa gives each display its own llvmpipe
+/// screen, and a screen rasterizes one context's frame at a time (its
+/// rasterizer sits behind one mutex), so renderers on different worker
+/// threads that shared a display would take turns (measured in
+/// docs/images.md). Entry k: the display and how many renderers use it.
+struct Pool(Vec<(EglDisplay, usize)>);
+// SAFETY: as for Display.
+unsafe impl Send for Pool {}
+
+static POOL: std::sync::Mutex<Pool> = std::sync::Mutex::new(Pool(Vec::new()));
+
+/// A renderer's display: a free one of the pool, a new one when Mesa can
+/// make another, else the least used.
+struct Lease {
+    dpy: EglDisplay,
+    slot: usize,
+}
+
+impl Lease {
+    fn acquire() -> Result<Lease, MjError> {
+        let base = display_and_platform()?;
+        let mut pool = POOL.lock().unwrap_or_else(|e| e.into_inner());
+        if pool.0.is_empty() {
+            pool.0.push((base.0, 0));
+        }
+        let free = pool.0.iter().position(|&(_, users)| users == 0);
+        let slot = match free {
+            Some(k) => k,
+            None => {
+                let k = pool.0.len();
+                // SAFETY: EGL calls with valid, EGL_NONE-terminated attribute lists.
+                match base.2.and_then(|dev| unsafe { other_display(dev, k) }) {
+                    Some(dpy) => {
+                        pool.0.push((dpy, 0));
+                        k
+                    }
+                    None => (0..k).min_by_key(|&i| pool.0[i].1).unwrap_or(0),
+                }
+            }
+        };
+        pool.0[slot].1 += 1;
+        Ok(Lease {
+            dpy: pool.0[slot].0,
+            slot,
+        })
+    }
+}
+
+impl Drop for Lease {
+    fn drop(&mut self) {
+        let mut pool = POOL.lock().unwrap_or_else(|e| e.into_inner());
+        pool.0[self.slot].1 -= 1;
+    }
+}
+
+/// Display `k` (k ≥ 1) of the pool, on Mesa's software device like the
+/// first. EGL 1.5 returns the same display for the same parameters only, and
+/// Mesa counts a missing attribute list and an empty one as different
+/// parameters (its `_eglFindDisplay`), so k = 1 is the device platform with
+/// an empty list and k = 2, 3 the surfaceless platform without and with one,
+/// each kept only if its device is the software one. Mesa accepts no other
+/// display attributes on these platforms, so there are at most four.
+///
+/// # Safety
+/// EGL must be loaded (it is linked).
+unsafe fn other_display(dev: EglDevice, k: usize) -> Option<EglDisplay> {
+    let f = eglGetProcAddress(c"eglGetPlatformDisplay".as_ptr());
+    if f.is_null() {
+        return None;
+    }
+    let f: GetPlatformDisplay = std::mem::transmute(f);
+    let empty = [EGL_NONE as EglAttrib];
+    let dpy = match k {
+        1 => f(EGL_PLATFORM_DEVICE_EXT, dev, empty.as_ptr()),
+        2 => f(
+            EGL_PLATFORM_SURFACELESS_MESA,
+            std::ptr::null_mut(),
+            std::ptr::null(),
+        ),
+        3 => f(
+            EGL_PLATFORM_SURFACELESS_MESA,
+            std::ptr::null_mut(),
+            empty.as_ptr(),
+        ),
+        _ => return None,
+    };
+    let (mut major, mut minor) = (0, 0);
+    if dpy.is_null() || eglInitialize(dpy, &mut major, &mut minor) == 0 {
+        return None;
+    }
+    (k == 1 || is_software(dpy)).then_some(dpy)
+}
+
+type QueryDisplayAttribExt =
+    unsafe extern "C" fn(dpy: EglDisplay, attribute: EglInt, value: *mut EglAttrib) -> EglBoolean;
+
+/// Whether an initialised display runs on Mesa's software device.
+///
+/// # Safety
+/// `dpy` must be an initialised display.
+unsafe fn is_software(dpy: EglDisplay) -> bool {
+    let q = eglGetProcAddress(c"eglQueryDisplayAttribEXT".as_ptr());
+    let qs = eglGetProcAddress(c"eglQueryDeviceStringEXT".as_ptr());
+    if q.is_null() || qs.is_null() {
+        return false;
+    }
+    let q: QueryDisplayAttribExt = std::mem::transmute(q);
+    let qs: QueryDeviceStringExt = std::mem::transmute(qs);
+    let mut dev: EglAttrib = 0;
+    if q(dpy, EGL_DEVICE_EXT as EglInt, &mut dev) == 0 || dev == 0 {
+        return false;
+    }
+    let ext = qs(dev as *mut c_void, EGL_EXTENSIONS);
+    !ext.is_null()
+        && CStr::from_ptr(ext)
+            .to_string_lossy()
+            .contains("EGL_MESA_device_software")
 }
 
 /// Mesa llvmpipe's rasterizer thread count, set before the driver loads
@@ -145,7 +271,7 @@ fn display() -> Result<EglDisplay, MjError> {
 /// with the workers for the same cores (measurements in docs/images.md).
 pub const LP_NUM_THREADS: &str = "0";
 
-fn display_and_platform() -> Result<(EglDisplay, &'static str), MjError> {
+fn display_and_platform() -> Result<&'static Display, MjError> {
     let d = DISPLAY.get_or_init(|| {
         if std::env::var_os("LP_NUM_THREADS").is_none() {
             // Read by Mesa when eglInitialize creates the llvmpipe screen,
@@ -163,12 +289,13 @@ fn display_and_platform() -> Result<(EglDisplay, &'static str), MjError> {
             };
             let mut dpy: EglDisplay = std::ptr::null_mut();
             let mut platform = "default display";
+            let device = software_device(&client);
             let f = eglGetProcAddress(c"eglGetPlatformDisplayEXT".as_ptr());
             if !f.is_null() {
                 let f: GetPlatformDisplayExt = std::mem::transmute(f);
                 // Prefer Mesa's software device (deterministic pixels on any
                 // host), else the surfaceless platform.
-                if let Some(dev) = software_device(&client) {
+                if let Some(dev) = device {
                     dpy = f(EGL_PLATFORM_DEVICE_EXT, dev, std::ptr::null());
                     platform = "software device";
                 }
@@ -191,11 +318,11 @@ fn display_and_platform() -> Result<(EglDisplay, &'static str), MjError> {
             if eglInitialize(dpy, &mut major, &mut minor) == 0 {
                 return Err(egl_message("eglInitialize"));
             }
-            Ok(Display(dpy, platform))
+            Ok(Display(dpy, platform, device))
         }
     });
     match d {
-        Ok(d) => Ok((d.0, d.1)),
+        Ok(d) => Ok(d),
         Err(e) => Err(MjError::Render(e.clone())),
     }
 }
@@ -203,7 +330,7 @@ fn display_and_platform() -> Result<(EglDisplay, &'static str), MjError> {
 /// EGL vendor and platform (e.g. "Mesa Project, software device"), for logs
 /// and `d3il bench render`.
 pub fn egl_vendor() -> Result<String, MjError> {
-    let (dpy, platform) = display_and_platform()?;
+    let &Display(dpy, platform, _) = display_and_platform()?;
     // SAFETY: initialised display; the string is static.
     let v = unsafe { eglQueryString(dpy, EGL_VENDOR) };
     let vendor = if v.is_null() {
@@ -223,7 +350,8 @@ pub struct Renderer {
     /// fields, identical in both; a smaller buffer gives the same pixels in
     /// the bottom-left viewport and makes multisample resolves much cheaper.
     own: std::ptr::NonNull<ffi::mjModel>,
-    dpy: EglDisplay,
+    /// This renderer's display (given back after the context is gone).
+    lease: Lease,
     surface: EglSurface,
     ctx: EglContext,
     con: Box<ffi::mjrContext>,
@@ -242,7 +370,8 @@ impl Renderer {
     /// `model`, for frames of `width` × `height` pixels.
     pub fn new(model: Arc<Model>, width: usize, height: usize) -> Result<Renderer, MjError> {
         install_handlers();
-        let dpy = display()?;
+        let lease = Lease::acquire()?;
+        let dpy = lease.dpy;
         // SAFETY: valid display; attribute lists are EGL_NONE-terminated; every
         // returned handle is checked; the MuJoCo structs are boxed (stable
         // addresses) and initialised with their default functions before use.
@@ -317,7 +446,7 @@ impl Renderer {
             let mut r = Renderer {
                 model,
                 own,
-                dpy,
+                lease,
                 surface,
                 ctx,
                 con: Box::default(),
@@ -356,6 +485,13 @@ impl Renderer {
 
     pub fn model(&self) -> &Arc<Model> {
         &self.model
+    }
+
+    /// Which of the process's EGL displays (each one llvmpipe screen) this
+    /// renderer draws on: renderers that exist at the same time get
+    /// different ones while Mesa can make them (see [`Lease`]).
+    pub fn display_slot(&self) -> usize {
+        self.lease.slot
     }
 
     pub fn width(&self) -> usize {
@@ -418,7 +554,7 @@ impl Renderer {
             &mut *self.cam as *mut _,
         );
         let (scn, con) = (&mut *self.scn as *mut _, &mut *self.con as *mut _);
-        let dpy = self.dpy;
+        let dpy = self.lease.dpy;
         let (surface, ctx) = (self.surface, self.ctx);
         // SAFETY: all pointers are valid and owned by `self`/`data`; the
         // buffer size was checked; the context is made current first (cheap
@@ -518,17 +654,17 @@ impl Drop for Renderer {
         // SAFETY: we own these objects; MuJoCo's free functions need the
         // context current.
         unsafe {
-            eglMakeCurrent(self.dpy, self.surface, self.surface, self.ctx);
+            eglMakeCurrent(self.lease.dpy, self.surface, self.surface, self.ctx);
             ffi::mjr_freeContext(&mut *self.con);
             ffi::mjv_freeScene(&mut *self.scn);
             eglMakeCurrent(
-                self.dpy,
+                self.lease.dpy,
                 std::ptr::null_mut(),
                 std::ptr::null_mut(),
                 std::ptr::null_mut(),
             );
-            eglDestroyContext(self.dpy, self.ctx);
-            eglDestroySurface(self.dpy, self.surface);
+            eglDestroyContext(self.lease.dpy, self.ctx);
+            eglDestroySurface(self.lease.dpy, self.surface);
             ffi::mj_deleteModel(self.own.as_ptr());
         }
     }
