@@ -20,6 +20,7 @@
 )]
 mod bindings;
 mod render;
+mod view;
 
 pub use render::{egl_vendor, Renderer};
 

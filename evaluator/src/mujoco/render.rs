@@ -6,6 +6,7 @@
 //! neither `Send` nor `Sync`. The evaluator keeps one per worker thread and all
 //! rollouts on that thread share it.
 
+use super::view::{cull_outside_frustum, Frustum, PlaneLists};
 use super::{ffi, guarded, install_handlers, Data, MjError, Model};
 use std::ffi::{c_char, c_void, CStr};
 use std::marker::PhantomData;
@@ -359,6 +360,8 @@ pub struct Renderer {
     opt: Box<ffi::mjvOption>,
     cam: Box<ffi::mjvCamera>,
     pert: Box<ffi::mjvPerturb>,
+    /// Per camera, the ground plane's grid cut to the cells in view.
+    planes: Option<PlaneLists>,
     width: usize,
     height: usize,
     // The GL context is current on the creating thread only.
@@ -454,6 +457,7 @@ impl Renderer {
                 opt: Box::default(),
                 cam: Box::default(),
                 pert: Box::default(),
+                planes: None,
                 width,
                 height,
                 _not_send: PhantomData,
@@ -479,6 +483,7 @@ impl Renderer {
                 )));
             }
             ffi::mjr_setBuffer(ffi::mjtFramebuffer__mjFB_OFFSCREEN as i32, con);
+            r.planes = Some(PlaneLists::new(m, &r.con));
             Ok(r)
         }
     }
@@ -554,6 +559,8 @@ impl Renderer {
             &mut *self.cam as *mut _,
         );
         let (scn, con) = (&mut *self.scn as *mut _, &mut *self.con as *mut _);
+        let planes = self.planes.as_mut().map(|p| p as *mut PlaneLists);
+        let aspect = viewport.width as f32 / viewport.height as f32;
         let dpy = self.lease.dpy;
         let (surface, ctx) = (self.surface, self.ctx);
         // SAFETY: all pointers are valid and owned by `self`/`data`; the
@@ -565,88 +572,21 @@ impl Renderer {
             }
             guarded(|| {
                 ffi::mjv_updateScene(m, d, opt, pert, cam, ffi::mjtCatBit__mjCAT_ALL as i32, scn);
-                cull_outside_frustum(&mut *scn, viewport.width as f32 / viewport.height as f32);
+                if let Some(view) = Frustum::of(&(*scn).camera[0], aspect) {
+                    cull_outside_frustum(&mut *scn, &view);
+                    if let Some(p) = planes {
+                        (*p).select(camera, &*scn, &view, &mut *con);
+                    }
+                }
                 ffi::mjr_setBuffer(ffi::mjtFramebuffer__mjFB_OFFSCREEN as i32, con);
                 ffi::mjr_render(viewport, scn, con);
+                if let Some(p) = planes {
+                    (*p).restore(&mut *con);
+                }
                 ffi::mjr_readPixels(rgb.as_mut_ptr(), std::ptr::null_mut(), viewport, con);
             })
         }
     }
-}
-
-/// Drops from the scene every model geom whose bounding sphere lies entirely
-/// outside the camera's view frustum, before `mjr_render` draws it. Such a
-/// geom covers no pixel (no shadows or reflections are drawn), so the frame
-/// is identical; llvmpipe would otherwise run every triangle of it through
-/// vertex processing and clipping (a capsule is 2688 triangles at MuJoCo's
-/// default quality). Planes and decorative geoms are always kept. The side
-/// planes are widened by 10% and the far plane is not used, so the test only
-/// ever keeps too much.
-fn cull_outside_frustum(scn: &mut ffi::mjvScene, aspect: f32) {
-    let c = scn.camera[0];
-    let f = c.forward;
-    let u = c.up;
-    let right = [
-        f[1] * u[2] - f[2] * u[1],
-        f[2] * u[0] - f[0] * u[2],
-        f[0] * u[1] - f[1] * u[0],
-    ];
-    let near = c.frustum_near;
-    if near.is_nan() || near <= 0.0 || aspect.is_nan() || aspect <= 0.0 {
-        return;
-    }
-    let half_w = 0.55 * aspect * (c.frustum_top - c.frustum_bottom);
-    let half_h = 0.55 * (c.frustum_top - c.frustum_bottom);
-    let mid_y = 0.5 * (c.frustum_top + c.frustum_bottom);
-    let (l, r) = (c.frustum_center - half_w, c.frustum_center + half_w);
-    let (b, t) = (mid_y - half_h, mid_y + half_h);
-    // Outward normals (x, y, z in the camera frame, z forward) of the four
-    // side planes through the eye.
-    let planes = [
-        [near, 0.0, -r],
-        [-near, 0.0, l],
-        [0.0, near, -t],
-        [0.0, -near, b],
-    ]
-    .map(|n| {
-        let len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
-        [n[0] / len, n[1] / len, n[2] / len]
-    });
-    let n = scn.ngeom.max(0) as usize;
-    if n == 0 || scn.geoms.is_null() {
-        return;
-    }
-    // SAFETY: mjv_updateScene filled `ngeom` entries of `geoms`.
-    let geoms = unsafe { std::slice::from_raw_parts_mut(scn.geoms, n) };
-    let mut kept = 0;
-    for i in 0..n {
-        let g = geoms[i];
-        let cullable = g.objtype == ffi::mjtObj__mjOBJ_GEOM as i32
-            && g.type_ != ffi::mjtGeom__mjGEOM_PLANE as i32
-            && g.modelrbound > 0.0;
-        let outside = cullable && {
-            let d = [
-                g.pos[0] - c.pos[0],
-                g.pos[1] - c.pos[1],
-                g.pos[2] - c.pos[2],
-            ];
-            let p = [
-                d[0] * right[0] + d[1] * right[1] + d[2] * right[2],
-                d[0] * u[0] + d[1] * u[1] + d[2] * u[2],
-                d[0] * f[0] + d[1] * f[1] + d[2] * f[2],
-            ];
-            let rad = g.modelrbound;
-            p[2] < near - rad
-                || planes
-                    .iter()
-                    .any(|n| n[0] * p[0] + n[1] * p[1] + n[2] * p[2] > rad)
-        };
-        if !outside {
-            geoms[kept] = g;
-            kept += 1;
-        }
-    }
-    scn.ngeom = kept as i32;
 }
 
 impl Drop for Renderer {
@@ -655,6 +595,9 @@ impl Drop for Renderer {
         // context current.
         unsafe {
             eglMakeCurrent(self.lease.dpy, self.surface, self.surface, self.ctx);
+            if let Some(p) = &mut self.planes {
+                p.free();
+            }
             ffi::mjr_freeContext(&mut *self.con);
             ffi::mjv_freeScene(&mut *self.scn);
             eglMakeCurrent(
