@@ -13,6 +13,8 @@ committed files byte for byte. The fixtures are:
   aligning_mlp.onnx         BC-MLP-sized MLP (20 -> 6x128 -> 3), random weights (benchmarks)
   aligning_mlp_batch1.onnx  the same MLP exported with a fixed batch dimension of 1
   aligning_image.onnx       image-policy shape fixture: `images` [B,1,2,3,96,96] -> [B,3]
+  aligning_image_k2_h4.onnx image policy with history 2 and chunks of 4 executed whole:
+                            the engine skips the frames the policy never sees
   aligning_resnet18.onnx    the paper's image architecture with random weights (benchmarks):
                             a ResNet-18 encoder per camera on the 96x96 BGR images, the two
                             512-d features concatenated with the low-dim `obs` [B,1,3], an MLP
@@ -210,6 +212,19 @@ def image_graph():
     return m
 
 
+def chunked_image_graph(history, horizon):
+    """Mean over every pixel of the window (all k frames, both cameras) -> a chunk of
+    `horizon` different actions (shape fixture for skipped frames)."""
+    g = Graph()
+    pooled = g.op("ReduceMean", ["images"], axes=[1, 2, 3, 4, 5], keepdims=0)  # [B]
+    col = g.op("Unsqueeze", [pooled, g.const([1, 2], np.int64)])  # [B,1,1]
+    w = np.array([[0.001 * (h + 1) * (a + 1) for a in range(3)] for h in range(horizon)], np.float32)
+    g.op_to("Mul", [col, g.const(w[None])], "actions")  # [B,H,3]
+    inputs = [helper.make_tensor_value_info("images", TensorProto.FLOAT, ["B", history, 2, 3, 96, 96])]
+    outputs = [helper.make_tensor_value_info("actions", TensorProto.FLOAT, ["B", horizon, 3])]
+    return g.model(inputs, outputs, "aligning_image_chunked")
+
+
 def wrong_obs_dim_graph():
     """Avoiding-shaped policy whose `obs` has last dimension 3 instead of 4."""
     g = Graph()
@@ -403,6 +418,10 @@ def main():
          "the same MLP with a fixed batch dimension of 1 (evaluator runs rows one by one)")
     save("aligning_image", image_graph(), manifest("aligning", obs_type="image"),
          "image policy shape fixture: images [B,1,2,3,96,96] -> actions [B,3]")
+    save("aligning_image_k2_h4", chunked_image_graph(2, 4),
+         manifest("aligning", history=2, horizon=4, execute=4, obs_type="image"),
+         "image policy, history 2, chunks of 4 executed whole: the mean pixel of both frames "
+         "and cameras -> 4 different actions; 2 of every 4 frames leave the window unseen")
     save("aligning_resnet18", resnet18_image_graph(), manifest("aligning", obs_type="image"),
          "the paper's image architecture, random weights (benchmarks): ResNet-18 per camera on "
          "images [B,1,2,3,96,96] + obs [B,1,3] -> MLP 256x2 -> actions [B,3]")

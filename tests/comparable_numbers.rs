@@ -326,7 +326,7 @@ fn an_unstable_rollout_fails_alone_and_the_evaluation_completes() {
         seed: 0,
         max_live: 6,
         bootstrap_resamples: 100,
-        step_cap: None,
+        ..EvalOptions::default()
     };
     let (r, _) = evaluate(&task, &mut policy, &info, &opts, &mut |_, _| {}).unwrap();
     assert_eq!(r.rollouts.len(), 6);

@@ -41,7 +41,7 @@ fn run(job: &Job) -> d3il_protocol::EvalResult {
         seed: job.seed,
         max_live: 5, // fewer slots than rollouts: exercises slot reuse
         bootstrap_resamples: 100,
-        step_cap: None,
+        ..EvalOptions::default()
     };
     evaluate(&task, policy.as_mut(), &info, &opts, &mut |_, _| {})
         .unwrap()
@@ -353,7 +353,7 @@ fn run_recorded(job: &Job) -> (d3il_protocol::EvalResult, Vec<(u64, u64, Vec<f32
         seed: job.seed,
         max_live: 5,
         bootstrap_resamples: 100,
-        step_cap: None,
+        ..EvalOptions::default()
     };
     let r = evaluate(&task, &mut rec, &info, &opts, &mut |_, _| {})
         .unwrap()

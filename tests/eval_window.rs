@@ -104,7 +104,7 @@ fn run(mode: WindowMode, max_live: usize) -> Recorder {
         seed: 0,
         max_live,
         bootstrap_resamples: 10,
-        step_cap: None,
+        ..EvalOptions::default()
     };
     let (r, _) = evaluate(&task, &mut p, &info, &opts, &mut |_, _| {}).unwrap();
     assert_eq!(r.rollouts.len(), 6);

@@ -71,6 +71,12 @@ pub struct EvalOptions {
     /// Dry runs only: end every rollout after this many env steps
     /// ([`d3il_protocol::Job::dry_run_steps`]).
     pub step_cap: Option<usize>,
+    /// Image tasks: render the cameras at every env step, also the frames
+    /// the policy will never see (by default those are skipped: the ones
+    /// that leave the observation window before the next query when a
+    /// policy executes more actions per query than its history holds). The
+    /// results are the same either way; this is for checking that.
+    pub render_every_frame: bool,
 }
 
 impl Default for EvalOptions {
@@ -81,6 +87,7 @@ impl Default for EvalOptions {
             max_live: 96,
             bootstrap_resamples: 1000,
             step_cap: None,
+            render_every_frame: false,
         }
     }
 }
@@ -106,6 +113,9 @@ pub struct Timing {
     pub render_cpu_s: f64,
     /// Time spent stepping envs, summed over threads (CPU seconds, rendering included).
     pub step_cpu_s: f64,
+    /// Image tasks: image observations rendered in env steps (each both
+    /// cameras; resets not counted).
+    pub frames_rendered: usize,
 }
 
 struct Slot {
@@ -360,7 +370,7 @@ fn run_rollouts(
             .filter(|s| s.rollout.is_some())
             .map(|s| {
                 let started = Instant::now();
-                let r = step_slot(s, record_paths);
+                let r = step_slot(s, record_paths, opts.render_every_frame);
                 s.step_cpu_s += started.elapsed().as_secs_f64();
                 r
             })
@@ -441,6 +451,7 @@ fn run_rollouts(
     timing.total_s = t0.elapsed().as_secs_f64();
     timing.step_cpu_s = slots.iter().map(|s| s.step_cpu_s).sum();
     timing.render_cpu_s = slots.iter().map(|s| s.env.render_seconds()).sum();
+    timing.frames_rendered = slots.iter().map(|s| s.env.frames_rendered()).sum();
     Ok(Run {
         manifest,
         contexts: ctx_range,
@@ -455,9 +466,17 @@ fn run_rollouts(
 /// MuJoCo warning (instability, buffer overflow) ends the rollout as a
 /// failure (`slot.failure`) instead of failing the evaluation; an invalid
 /// action from the policy still fails it.
-fn step_slot(s: &mut Slot, record_paths: bool) -> Result<bool, EvalError> {
+fn step_slot(s: &mut Slot, record_paths: bool, every_frame: bool) -> Result<bool, EvalError> {
     let (id, ctx, _) = s.rollout.expect("filtered to live slots");
     let action = s.queue.pop_front().unwrap_or_default();
+    // The frame this step renders is pushed now; the next query comes after
+    // the `queue.len()` actions still queued, each pushing one more frame,
+    // and reads the k newest: this one only if fewer than k are queued.
+    if let Some(images) = &s.images {
+        if !every_frame && s.queue.len() >= images.capacity() {
+            s.env.skip_next_frame();
+        }
+    }
     let step = s.env.steps();
     let out = match s.env.step(&action) {
         Ok(out) => out,

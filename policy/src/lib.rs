@@ -306,6 +306,11 @@ impl HistoryBuffer {
         }
     }
 
+    /// The window's length k: a query reads the k newest entries.
+    pub fn capacity(&self) -> usize {
+        self.k
+    }
+
     /// Entries in the window now (k once full; fewer at episode start when growing).
     pub fn len(&self) -> usize {
         self.window.len()

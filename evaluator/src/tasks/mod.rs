@@ -294,6 +294,10 @@ pub struct Env {
     /// Seconds this env spent rendering its cameras in `step` (benchmarks
     /// compare it with the step's physics; reset renders are not counted).
     render_seconds: f64,
+    /// Image observations rendered in `step` (both cameras each).
+    rendered: usize,
+    /// Set by [`Env::skip_next_frame`] for the next `step` only.
+    skip_next_frame: bool,
 }
 
 impl Env {
@@ -308,6 +312,8 @@ impl Env {
             cameras,
             last_images: Vec::new(),
             render_seconds: 0.0,
+            rendered: 0,
+            skip_next_frame: false,
             sim,
             logic: task.def.new_logic(&task.model)?,
             def: task.def.clone(),
@@ -341,6 +347,19 @@ impl Env {
     /// env was made.
     pub fn render_seconds(&self) -> f64 {
         self.render_seconds
+    }
+
+    /// Image observations rendered in `step` since this env was made.
+    pub fn frames_rendered(&self) -> usize {
+        self.rendered
+    }
+
+    /// The next `step` does not render its image observation: the caller
+    /// knows the policy will never see it (it leaves the observation window
+    /// before the next query). That step's [`Env::policy_images`] are zeros.
+    /// Applies to the next step only.
+    pub fn skip_next_frame(&mut self) {
+        self.skip_next_frame = true;
     }
 
     /// The policy input: concat(previous command, last observation), float32.
@@ -420,9 +439,14 @@ impl Env {
         let obs = self.logic.observe(&self.sim);
         let mut images = Vec::new();
         if let Some(cams) = self.cameras {
-            let t = std::time::Instant::now();
-            crate::camera::capture(&mut self.sim.data, &cams, &mut images)?;
-            self.render_seconds += t.elapsed().as_secs_f64();
+            if std::mem::take(&mut self.skip_next_frame) {
+                images.resize(crate::camera::OBS_LEN, 0.0);
+            } else {
+                let t = std::time::Instant::now();
+                crate::camera::capture(&mut self.sim.data, &cams, &mut images)?;
+                self.render_seconds += t.elapsed().as_secs_f64();
+                self.rendered += 1;
+            }
         }
         let early = self.logic.pre_physics_done(&self.sim);
         let done = early || self.step_counter + 1 >= self.max_steps;
