@@ -70,7 +70,7 @@ fn fields(method: &str, url: &str) -> Vec<(&'static str, String)> {
     ]
 }
 
-/// "N waiting, M running" from the admin page.
+/// "N jobs waiting" from the admin page's queue line.
 fn queue_line(server: &Server, admin: &str) -> String {
     let (s, page) = server.client(Some(admin)).get_text("/admin").unwrap();
     assert_eq!(s, 200);
@@ -117,7 +117,7 @@ fn a_conforming_endpoint_is_queued_and_non_conforming_ones_are_refused() {
     let token = create_token(&db, "dry-run-tester");
     let admin = create_admin_token(&db, "operator");
     let server = Server::start(&db, &["--workers", "0", "--allow-private-endpoints"]);
-    assert_eq!(queue_line(&server, &admin), "0 waiting");
+    assert_eq!(queue_line(&server, &admin), "0 job(s) waiting");
 
     // Conforming: accepted after its dry run and queued.
     let ok = policy_server("ok");
@@ -132,7 +132,7 @@ fn a_conforming_endpoint_is_queued_and_non_conforming_ones_are_refused() {
         .expect("the submission exists");
     assert_eq!(v["status"], "queued", "{v}");
     assert_eq!(v["policy"]["endpoint_url"], ok.url.as_str(), "{v}");
-    assert_eq!(queue_line(&server, &admin), "1 waiting");
+    assert_eq!(queue_line(&server, &admin), "1 job(s) waiting");
     drop(ok);
 
     // Wrong action shapes: named with what was expected.
@@ -180,7 +180,7 @@ fn a_conforming_endpoint_is_queued_and_non_conforming_ones_are_refused() {
     );
 
     // Only the conforming submission was queued.
-    assert_eq!(queue_line(&server, &admin), "1 waiting");
+    assert_eq!(queue_line(&server, &admin), "1 job(s) waiting");
     server.kill();
 }
 
@@ -210,6 +210,6 @@ fn loopback_endpoints_are_refused_without_the_explicit_setting() {
     }
     let (s, _) = server.get_text("/methods/Remote-Loopback");
     assert_eq!(s, 404);
-    assert_eq!(queue_line(&server, &admin), "0 waiting");
+    assert_eq!(queue_line(&server, &admin), "0 job(s) waiting");
     server.kill();
 }

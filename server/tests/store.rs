@@ -667,7 +667,22 @@ async fn heartbeats_keep_a_shards_lease(b: Backend) {
     assert_eq!((j.rollouts_done, j.rollouts_total), (1, 2));
 }
 
+/// The home page counts submissions, the admin page job rows: a sharded
+/// evaluation with one shard running is one running submission.
+async fn queue_counts_submissions_once_and_jobs_per_shard(b: Backend) {
+    let db = TestDb::new(b);
+    let store = db.open().await;
+    assert_eq!(store.submission_counts().await.unwrap(), (0, 0));
+    submit_sharded(&store, "Sharded", TaskId::Aligning, 0, 3).await;
+    let c = store.claim_job("w0", 60).await.unwrap().unwrap();
+    submit(&store, "Single", TaskId::Aligning, 0).await;
+    assert_eq!(store.submission_counts().await.unwrap(), (1, 1));
+    assert_eq!(store.queue_counts().await.unwrap(), (3, 1));
+    assert_eq!(c.job.shard().map(|s| s.count), Some(3));
+}
+
 common::on_both_backends!(
+    queue_counts_submissions_once_and_jobs_per_shard,
     concurrent_pools_never_take_a_shard_twice,
     a_failed_shard_ends_its_siblings,
     heartbeats_keep_a_shards_lease

@@ -583,6 +583,25 @@ impl Store {
         .await)?)
     }
 
+    /// Submissions waiting (every job row queued) and running (a row leased,
+    /// or some shards done while others wait): what the home page shows. A
+    /// sharded evaluation counts once, however many rows it has.
+    pub async fn submission_counts(&self) -> Result<(i64, i64), StoreError> {
+        Ok(on_db!(&self.db, pool => sqlx::query_as(
+            "SELECT CAST(COALESCE(SUM(CASE WHEN n_queued = n THEN 1 ELSE 0 END), 0) AS BIGINT), \
+             CAST(COALESCE(SUM(CASE WHEN n_leased > 0 OR (n_queued > 0 AND n_queued < n) \
+             THEN 1 ELSE 0 END), 0) AS BIGINT) \
+             FROM (SELECT COUNT(*) AS n, \
+             SUM(CASE WHEN state = 'queued' THEN 1 ELSE 0 END) AS n_queued, \
+             SUM(CASE WHEN state = 'leased' THEN 1 ELSE 0 END) AS n_leased \
+             FROM jobs GROUP BY submission_id) AS per_submission",
+        )
+        .fetch_one(pool)
+        .await)?)
+    }
+
+    /// Job rows waiting and running, each shard counting once: the admin
+    /// page, next to the worker slots that run them.
     pub async fn queue_counts(&self) -> Result<(i64, i64), StoreError> {
         Ok(on_db!(&self.db, pool => sqlx::query_as(
             "SELECT CAST(COALESCE(SUM(CASE WHEN state = 'queued' THEN 1 ELSE 0 END), 0) AS BIGINT), \

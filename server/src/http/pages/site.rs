@@ -229,7 +229,7 @@ pub(super) async fn home(
         .into_iter()
         .map(SubmissionLine::from)
         .collect();
-    let (queued, running) = state.store.queue_counts().await?;
+    let (queued, running) = state.store.submission_counts().await?;
     render(&HomePage {
         obs: obs.as_str(),
         tabs,
