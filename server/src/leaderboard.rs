@@ -84,6 +84,22 @@ pub fn task_for_title(title: &str) -> Option<TaskId> {
     None
 }
 
+/// The anchor of a task title's section on its task board (`Stacking-2 (T5)`
+/// → `stacking-2-t5`): the main table's cells link to `/tasks/<slug>#<anchor>`.
+pub fn section_anchor(title: &str) -> String {
+    title
+        .to_ascii_lowercase()
+        .split(|c: char| !c.is_ascii_alphanumeric())
+        .filter(|w| !w.is_empty())
+        .collect::<Vec<_>>()
+        .join("-")
+}
+
+/// The link to a task title's section on its task board.
+pub fn section_url(task: TaskId, title: &str, obs: impl std::fmt::Display) -> String {
+    format!("/tasks/{}?obs={obs}#{}", task.slug(), section_anchor(title))
+}
+
 /// `paper` or `quick`, as stored and as the CSV prints it.
 pub fn protocol_str(p: ProtocolKind) -> &'static str {
     match p {

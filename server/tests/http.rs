@@ -311,6 +311,42 @@ async fn rate_limit_answers_429_with_retry_after() {
     );
 }
 
+/// Every cell and header of the main table links to its task title's own
+/// section of the task board (Stacking-1/2/3 to theirs), on both tabs.
+#[tokio::test]
+async fn main_table_links_land_on_the_sections_they_name() {
+    let app = spawn_app().await;
+    let mut checked = std::collections::BTreeSet::new();
+    for obs in ["state", "image"] {
+        let (s, home) = app.get_text(&format!("/?obs={obs}")).await;
+        assert_eq!(s, 200);
+        let links: std::collections::BTreeSet<&str> = home
+            .split("href=\"")
+            .skip(1)
+            .filter_map(|h| h.split('"').next())
+            .filter(|h| h.starts_with("/tasks/") && h.contains('#'))
+            .collect();
+        for link in links {
+            let (page, anchor) = link.split_once('#').unwrap();
+            let (s, board) = app.get_text(page).await;
+            assert_eq!(s, 200, "{page}");
+            assert!(
+                board.contains(&format!(
+                    "<section class=\"board-section\" id=\"{anchor}\">"
+                )),
+                "{link}: no such section on the board"
+            );
+            checked.insert(link.to_string());
+        }
+    }
+    for level in 1..=3 {
+        for obs in ["state", "image"] {
+            let link = format!("/tasks/stacking?obs={obs}#stacking-{level}-t5");
+            assert!(checked.contains(&link), "{link} not linked: {checked:?}");
+        }
+    }
+}
+
 #[tokio::test]
 async fn paper_rows_are_on_the_pages_csv_and_api() {
     let app = spawn_app().await;

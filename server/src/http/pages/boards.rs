@@ -117,6 +117,8 @@ struct Group {
 
 struct Section {
     title: String,
+    /// `id` of the section, linked from the main table's cells.
+    anchor: String,
     groups: Vec<Group>,
     svg: String,
 }
@@ -214,7 +216,12 @@ pub(super) async fn leaderboard(
                 }
             })
             .collect();
-        sections.push(Section { title, groups, svg });
+        sections.push(Section {
+            anchor: crate::leaderboard::section_anchor(&title),
+            title,
+            groups,
+            svg,
+        });
     }
     let headers = SORT_KEYS
         .iter()
@@ -412,7 +419,7 @@ pub(super) async fn method_page(
         .map(|r| MethodResult {
             task_url: r
                 .task
-                .map(|t| format!("/tasks/{}?obs={}", t.slug(), r.obs))
+                .map(|t| crate::leaderboard::section_url(t, &r.task_title, r.obs))
                 .unwrap_or_default(),
             task: r.task_title.clone(),
             obs: r.obs.to_string(),

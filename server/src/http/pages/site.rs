@@ -102,7 +102,7 @@ fn main_blocks(model: &d3il_tables::TableModel, obs: ObsType) -> Vec<MainBlock> 
                 .groups
                 .iter()
                 .map(|g| match task_for_title(&g.task) {
-                    Some(t) => format!("/tasks/{}?obs={obs}", t.slug()),
+                    Some(t) => crate::leaderboard::section_url(t, &g.task, obs),
                     None => String::new(),
                 })
                 .collect();
