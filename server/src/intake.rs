@@ -561,7 +561,7 @@ pub async fn accept(
     let mut created = None;
     // No failed submission's file release may run between placing the file
     // and recording the submission that refers to it.
-    let files = store.lock_policy_files().await;
+    let files = store.lock_policy_files().await?;
     let policy = match &mut v.policy {
         ValidPolicy::Onnx(file) => {
             if let Some(cap) = state.cfg.max_disk_bytes_per_submitter {

@@ -519,7 +519,7 @@ async fn releasing_a_file_waits_for_an_upload_being_recorded(b: Backend) {
     let sha = "ab".repeat(32);
     let tmp = store.policies_dir().join("upload.onnx.tmp1-0");
     std::fs::write(&tmp, b"model").unwrap();
-    let files = store.lock_policy_files().await;
+    let files = store.lock_policy_files().await.unwrap();
     let (path, _) = store.commit_onnx(&tmp, &sha).await.unwrap();
     let path_s = path.to_string_lossy().into_owned();
     let release = tokio::spawn({
@@ -567,6 +567,30 @@ async fn releasing_a_file_waits_for_an_upload_being_recorded(b: Backend) {
         "a live submission's file was released"
     );
     assert!(path.exists());
+}
+
+/// Front ends on one PostgreSQL database share the policy directory: a
+/// release on one waits while another places a file and records its
+/// submission (an advisory lock every front end takes), and the lock goes
+/// with the guard.
+#[tokio::test]
+async fn a_release_on_another_front_end_waits_for_an_upload_being_recorded() {
+    let db = TestDb::new(Backend::Postgres);
+    let (one, two) = (db.open().await, db.open().await);
+    let path = one.policies_dir().join(format!("{}.onnx", "cd".repeat(32)));
+    std::fs::write(&path, b"model").unwrap();
+    let files = one.lock_policy_files().await.unwrap();
+    let release = tokio::spawn({
+        let p = path.to_string_lossy().into_owned();
+        async move { two.release_policy_file(&p).await.unwrap() }
+    });
+    tokio::time::sleep(std::time::Duration::from_millis(300)).await;
+    assert!(!release.is_finished(), "the other front end did not wait");
+    assert!(path.exists());
+    drop(files);
+    // No submission uses the file: once the lock is gone it is deleted.
+    assert!(release.await.unwrap());
+    assert!(!path.exists());
 }
 
 /// Two pools (two store handles with their own connections, as two hosts

@@ -11,6 +11,18 @@ use std::path::{Path, PathBuf};
 /// such file found at start is debris of an interrupted upload.
 pub const TMP_MARKER: &str = ".tmp";
 
+/// PostgreSQL advisory lock key of the shared policy directory (any fixed
+/// number; "d3il" in ASCII).
+const POLICY_FILES_LOCK: i64 = 0x6433_696c;
+
+/// What [`Store::lock_policy_files`] holds: this process's lock and, on
+/// PostgreSQL, the transaction holding the advisory lock every front end
+/// takes (fields drop in order: the shared lock goes first).
+pub struct PolicyFilesGuard<'a> {
+    _shared: Option<sqlx::Transaction<'static, sqlx::Postgres>>,
+    _local: tokio::sync::MutexGuard<'a, ()>,
+}
+
 impl Store {
     /// The directory of uploaded policies.
     pub fn policies_dir(&self) -> PathBuf {
@@ -50,7 +62,7 @@ impl Store {
         if !Path::new(path).starts_with(self.policies_dir()) {
             return Ok(false);
         }
-        let _files = self.files.lock().await;
+        let _files = self.lock_policy_files().await?;
         let live: i64 = on_db!(&self.db, pool => sqlx::query_scalar(
             "SELECT COUNT(*) FROM submissions WHERE onnx_path = $1 AND status != 'failed'",
         )
@@ -68,9 +80,28 @@ impl Store {
     }
 
     /// Holds off [`Store::release_policy_file`] while a policy file is placed
-    /// and its submission recorded (release nothing while holding it).
-    pub async fn lock_policy_files(&self) -> tokio::sync::MutexGuard<'_, ()> {
-        self.files.lock().await
+    /// and its submission recorded (release nothing while holding it). On
+    /// PostgreSQL the policy directory is shared by every front end, so the
+    /// guard also holds a transaction-scoped advisory lock, taken by all of
+    /// them; it is released when the guard's transaction ends (dropped,
+    /// rolled back).
+    pub async fn lock_policy_files(&self) -> Result<PolicyFilesGuard<'_>, StoreError> {
+        let local = self.files.lock().await;
+        let shared = match &self.db {
+            super::Db::Postgres(pool) => {
+                let mut tx = pool.begin().await?;
+                sqlx::query("SELECT pg_advisory_xact_lock($1)")
+                    .bind(POLICY_FILES_LOCK)
+                    .execute(&mut *tx)
+                    .await?;
+                Some(tx)
+            }
+            _ => None,
+        };
+        Ok(PolicyFilesGuard {
+            _shared: shared,
+            _local: local,
+        })
     }
 
     /// Releases the policy file of submission `id` (after it failed).

@@ -51,7 +51,7 @@ mod submissions;
 mod tokens;
 pub mod types;
 
-pub use files::TMP_MARKER;
+pub use files::{PolicyFilesGuard, TMP_MARKER};
 pub use jobs::{ClaimedJob, JobRow};
 pub use methods::{MethodRow, NewMethod};
 pub use results::{ResultRow, RolloutRow, SeedSummary};
