@@ -263,6 +263,18 @@ fn render_bench(
         t.policy_s,
     );
 
+    // A policy that executes chunks of 4 actions with history 2: the frames
+    // it never sees are not rendered (docs/images.md).
+    let (mut chunked, info) = load_fixture(&task, "aligning_image_k2_h4", ObsType::Image)?;
+    let (rc, tc) = eval::evaluate(&task, &mut chunked, &info, &opts, &mut |_, _| {})?;
+    let steps_c: usize = rc.rollouts.iter().map(|x| x.steps).sum();
+    println!(
+        "chunked image policy (history 2, chunks of 4, aligning_image_k2_h4): {} of {steps_c} env steps rendered, \
+         {:.2} ms rendering per env step",
+        tc.frames_rendered,
+        1000.0 * tc.render_cpu_s / steps_c.max(1) as f64
+    );
+
     // The paper-sized image policy at the batch sizes the engine uses.
     let (resnet, _) = load_fixture(&task, "aligning_resnet18", ObsType::Image)?;
     let mut resnet = resnet;
