@@ -29,7 +29,8 @@ pub struct Progress {
 /// Past runs of the same task and protocol are the only basis: without them
 /// (and without progress to extrapolate from) there is no estimate, never a
 /// guess and never "0 s". A queued job waits for the jobs ahead of it (each
-/// at its own kind's mean, spread over the slots), then runs; a queued quick
+/// at its own kind's mean, spread over the slots: this front end's, or as
+/// many as jobs are running when worker hosts run more), then runs; a queued quick
 /// job has the pool's quick slot and waits only for quick jobs ahead of it.
 pub async fn progress(
     state: &AppState,
@@ -73,6 +74,11 @@ pub async fn progress(
                     .filter(|(_, p)| !quick_slot || p == protocol_str(ProtocolKind::Quick))
                     .map(|k| means.get(k).copied().unwrap_or(own))
                     .collect();
+                // While jobs wait, every slot that exists is busy: worker
+                // hosts (`d3il workers`) run as many jobs as there are
+                // leases, which may be more than this front end's own slots.
+                let (_, running) = state.store.queue_counts().await?;
+                let workers = workers.max(running as f64);
                 let slots = if quick_slot { workers + 1.0 } else { workers };
                 Some(waits.iter().sum::<f64>() / slots + own)
             }

@@ -7,6 +7,52 @@ use common::*;
 use d3il_protocol::*;
 use d3il_server::store::{NewMethod, NewPolicy, NewSubmission};
 
+/// The result a worker stores for an Aligning (state) evaluation.
+fn aligning_result(
+    protocol: ProtocolKind,
+    success: f64,
+    cond: f64,
+    initial_states: &str,
+) -> EvalResult {
+    let est = |v: f64| Estimate {
+        value: v,
+        ci_low: v - 0.05,
+        ci_high: v + 0.05,
+    };
+    EvalResult {
+        manifest: ProtocolManifest {
+            task: TaskId::Aligning,
+            task_version: "test".into(),
+            obs_type: ObsType::State,
+            protocol,
+            mjcf_sha256: "m".into(),
+            initial_states_sha256: "i".into(),
+            initial_states: initial_states.into(),
+            mujoco_version: "2.2.2".into(),
+            evaluator_version: "0".into(),
+            n_contexts: 1,
+            rollouts_per_context: 2,
+            max_steps: 10,
+            policy_sha256: "p".into(),
+            history: 1,
+            horizon: 1,
+            execute: 1,
+            seed: 0,
+        },
+        metrics: Metrics {
+            success_rate: est(success),
+            behaviour_entropy: est(0.5),
+            conditional_entropy: est(cond),
+            stacking: None,
+            stacking_levels: None,
+            inference_ms: 1.5,
+        },
+        per_context: vec![],
+        rollouts: vec![],
+        rollouts_ended_unstable: 0,
+    }
+}
+
 /// Stores a completed evaluation of `method` on Aligning (state) as the worker
 /// would, and returns the submission id.
 #[allow(clippy::too_many_arguments)]
@@ -50,43 +96,7 @@ async fn evaluated(
         .await
         .expect("submission");
     let job = store.job_for(id).await.expect("job");
-    let est = |v: f64| Estimate {
-        value: v,
-        ci_low: v - 0.05,
-        ci_high: v + 0.05,
-    };
-    let result = EvalResult {
-        manifest: ProtocolManifest {
-            task: TaskId::Aligning,
-            task_version: "test".into(),
-            obs_type: ObsType::State,
-            protocol,
-            mjcf_sha256: "m".into(),
-            initial_states_sha256: "i".into(),
-            initial_states: initial_states.into(),
-            mujoco_version: "2.2.2".into(),
-            evaluator_version: "0".into(),
-            n_contexts: 1,
-            rollouts_per_context: 2,
-            max_steps: 10,
-            policy_sha256: "p".into(),
-            history: 1,
-            horizon: 1,
-            execute: 1,
-            seed: 0,
-        },
-        metrics: Metrics {
-            success_rate: est(success),
-            behaviour_entropy: est(0.5),
-            conditional_entropy: est(cond),
-            stacking: None,
-            stacking_levels: None,
-            inference_ms: 1.5,
-        },
-        per_context: vec![],
-        rollouts: vec![],
-        rollouts_ended_unstable: 0,
-    };
+    let result = aligning_result(protocol, success, cond, initial_states);
     store
         .complete_job(job.id, id, &result, &[])
         .await
@@ -370,4 +380,84 @@ async fn a_queued_job_shows_its_place_and_no_made_up_estimate() {
     let (_, v) = app.get_json(&format!("/api/v1/submissions/{first}")).await;
     assert_eq!(v["queue_position"], 0);
     assert!(v["eta_seconds"].is_null());
+}
+
+/// Worker hosts (`d3il workers`) run more jobs than this front end's own
+/// slots: a queued job's wait spreads the jobs ahead of it over as many
+/// slots as jobs are running.
+#[tokio::test]
+async fn the_wait_estimate_counts_the_jobs_worker_hosts_run() {
+    let app = spawn_app().await; // no local workers: one slot assumed
+    let store = &app.state.store;
+    let submit = |seed: i64| async move {
+        let m = store
+            .ensure_method(
+                &NewMethod {
+                    name: "Waiting".into(),
+                    ..Default::default()
+                },
+                None,
+            )
+            .await
+            .unwrap();
+        store
+            .create_submission(
+                &NewSubmission {
+                    method_id: m.id,
+                    submitter_id: None,
+                    task: TaskId::Aligning,
+                    obs_type: ObsType::State,
+                    training_seed: seed,
+                    data_fraction: 1.0,
+                    protocol: ProtocolKind::Paper,
+                    policy: NewPolicy::Remote {
+                        url: "ws://127.0.0.1:1/".into(),
+                    },
+                    manifest_json: "{}".into(),
+                },
+                3,
+            )
+            .await
+            .unwrap()
+    };
+    // History: one run, claimed and finished at once.
+    let first = submit(0).await;
+    let c = store.claim_job("host-a-slot0", 60).await.unwrap().unwrap();
+    let done = aligning_result(ProtocolKind::Paper, 0.5, 0.3, "i");
+    store
+        .complete_job(c.job.id, first, &done, &[])
+        .await
+        .unwrap();
+    let mean = store.mean_job_seconds_by_kind().await.unwrap()[0]
+        .2
+        .max(1.0);
+    let mut ids = vec![];
+    for seed in 1..=6 {
+        ids.push(submit(seed).await);
+    }
+    let eta = |id: i64| {
+        let app = &app;
+        async move {
+            let (_, v) = app.get_json(&format!("/api/v1/submissions/{id}")).await;
+            v["eta_seconds"].as_i64()
+        }
+    };
+    // Nothing running: the last waits for 5 runs on one slot, then runs.
+    assert_eq!(eta(ids[5]).await, Some((6.0 * mean).round() as i64));
+    // Two hosts take two jobs each: 4 running, 1 queued ahead of the last.
+    for slot in [
+        "host-a-slot0",
+        "host-a-slot1",
+        "host-b-slot0",
+        "host-b-slot1",
+    ] {
+        store.claim_job(slot, 60).await.unwrap().unwrap();
+    }
+    let four_slots = (mean / 4.0 + mean).round() as i64;
+    assert_eq!(eta(ids[5]).await, Some(four_slots));
+    assert_ne!(
+        four_slots,
+        (2.0 * mean).round() as i64,
+        "one slot would say"
+    );
 }
