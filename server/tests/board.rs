@@ -5,7 +5,6 @@
 mod common;
 use common::*;
 use d3il_protocol::*;
-use d3il_server::store::{NewMethod, NewPolicy, NewSubmission};
 
 /// The result a worker stores for an Aligning (state) evaluation.
 fn aligning_result(
@@ -66,35 +65,7 @@ async fn evaluated(
     initial_states: &str,
 ) -> i64 {
     let store = &app.state.store;
-    let m = store
-        .ensure_method(
-            &NewMethod {
-                name: method.into(),
-                ..Default::default()
-            },
-            None,
-        )
-        .await
-        .expect("method");
-    let id = store
-        .create_submission(
-            &NewSubmission {
-                method_id: m.id,
-                submitter_id: None,
-                task: TaskId::Aligning,
-                obs_type: ObsType::State,
-                training_seed,
-                data_fraction: 1.0,
-                protocol,
-                policy: NewPolicy::Remote {
-                    url: "ws://127.0.0.1:1/".into(),
-                },
-                manifest_json: "{}".into(),
-            },
-            3,
-        )
-        .await
-        .expect("submission");
+    let id = queued_submission(store, method, TaskId::Aligning, protocol, training_seed).await;
     let job = store.job_for(id).await.expect("job");
     let result = aligning_result(protocol, success, cond, initial_states);
     store
@@ -389,36 +360,14 @@ async fn a_queued_job_shows_its_place_and_no_made_up_estimate() {
 async fn the_wait_estimate_counts_the_jobs_worker_hosts_run() {
     let app = spawn_app().await; // no local workers: one slot assumed
     let store = &app.state.store;
-    let submit = |seed: i64| async move {
-        let m = store
-            .ensure_method(
-                &NewMethod {
-                    name: "Waiting".into(),
-                    ..Default::default()
-                },
-                None,
-            )
-            .await
-            .unwrap();
-        store
-            .create_submission(
-                &NewSubmission {
-                    method_id: m.id,
-                    submitter_id: None,
-                    task: TaskId::Aligning,
-                    obs_type: ObsType::State,
-                    training_seed: seed,
-                    data_fraction: 1.0,
-                    protocol: ProtocolKind::Paper,
-                    policy: NewPolicy::Remote {
-                        url: "ws://127.0.0.1:1/".into(),
-                    },
-                    manifest_json: "{}".into(),
-                },
-                3,
-            )
-            .await
-            .unwrap()
+    let submit = |seed| {
+        queued_submission(
+            store,
+            "Waiting",
+            TaskId::Aligning,
+            ProtocolKind::Paper,
+            seed,
+        )
     };
     // History: one run, claimed and finished at once.
     let first = submit(0).await;

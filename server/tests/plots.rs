@@ -10,7 +10,6 @@ mod svg_geometry;
 
 use common::*;
 use d3il_protocol::*;
-use d3il_server::store::{NewMethod, NewPolicy, NewSubmission};
 use d3il_tables::plot::{hex, method_colour};
 use d3il_tables::{render_figure, FigureKind, SourceFilter};
 use std::collections::BTreeMap;
@@ -26,35 +25,7 @@ async fn evaluated(
     rollouts: Vec<RolloutRecord>,
 ) -> i64 {
     let store = &app.state.store;
-    let m = store
-        .ensure_method(
-            &NewMethod {
-                name: method.into(),
-                ..Default::default()
-            },
-            None,
-        )
-        .await
-        .expect("method");
-    let id = store
-        .create_submission(
-            &NewSubmission {
-                method_id: m.id,
-                submitter_id: None,
-                task,
-                obs_type: ObsType::State,
-                training_seed,
-                data_fraction: 1.0,
-                protocol: ProtocolKind::Paper,
-                policy: NewPolicy::Remote {
-                    url: "ws://127.0.0.1:1/".into(),
-                },
-                manifest_json: "{}".into(),
-            },
-            3,
-        )
-        .await
-        .expect("submission");
+    let id = queued_submission(store, method, task, ProtocolKind::Paper, training_seed).await;
     let job = store.job_for(id).await.expect("job");
     let est = |v: f64| Estimate {
         value: v,

@@ -238,3 +238,44 @@ macro_rules! on_both_backends {
 }
 #[allow(unused_imports)]
 pub(crate) use on_both_backends;
+
+/// A queued state-observation submission of `method` with a remote policy,
+/// as the intake stores it (the method is made if needed); returns its id.
+pub async fn queued_submission(
+    store: &d3il_server::store::Store,
+    method: &str,
+    task: d3il_protocol::TaskId,
+    protocol: d3il_protocol::ProtocolKind,
+    training_seed: i64,
+) -> i64 {
+    use d3il_server::store::{NewMethod, NewPolicy, NewSubmission};
+    let m = store
+        .ensure_method(
+            &NewMethod {
+                name: method.into(),
+                ..Default::default()
+            },
+            None,
+        )
+        .await
+        .expect("method");
+    store
+        .create_submission(
+            &NewSubmission {
+                method_id: m.id,
+                submitter_id: None,
+                task,
+                obs_type: d3il_protocol::ObsType::State,
+                training_seed,
+                data_fraction: 1.0,
+                protocol,
+                policy: NewPolicy::Remote {
+                    url: "ws://127.0.0.1:1/".into(),
+                },
+                manifest_json: "{}".into(),
+            },
+            3,
+        )
+        .await
+        .expect("submission")
+}
