@@ -263,7 +263,7 @@ fn chromium_renders_the_home_page_main_table_at_1400_and_760_px() {
         for task in ["Avoiding (T1)", "Aligning (T2)", "Pushing (T3)"] {
             assert!(first.contains(task), "{task} column");
         }
-        assert!(first.contains("<a href=\"/tasks/avoiding?obs=state\">"));
+        assert!(first.contains("<a href=\"/tasks/avoiding?obs=state#avoiding-t1\">"));
         assert_eq!(first.matches("<tr class=\"reported\">").count(), 11);
         assert_eq!(first.matches(">Success</th>").count(), 3);
         assert_eq!(first.matches(">Entropy</th>").count(), 3);
