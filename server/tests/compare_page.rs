@@ -201,7 +201,7 @@ async fn home_page_shows_evaluated_rows_next_to_reported_ones_but_not_quick_runs
     let alpha = &table[table.find(">Alpha</a>").expect("evaluated row")..];
     assert!(alpha[..400].contains("evaluated here"), "{}", &alpha[..400]);
     assert!(table.contains("Methods not in the paper"));
-    assert!(table.contains("<a href=\"/tasks/pushing?obs=state\">1.000</a>"));
+    assert!(table.contains("<a href=\"/tasks/pushing?obs=state#pushing-t3\">1.000</a>"));
     assert!(
         !table.contains("QuickOnly"),
         "quick runs are not in the paper's table"
@@ -209,7 +209,9 @@ async fn home_page_shows_evaluated_rows_next_to_reported_ones_but_not_quick_runs
     assert!(page.contains("Rows marked “evaluated here”"));
     // 1.000 beats every history-free reported Pushing success (VAE-ACT's 0.951): bold.
     assert!(
-        table.contains("<td class=\"num best\"><a href=\"/tasks/pushing?obs=state\">1.000</a>"),
+        table.contains(
+            "<td class=\"num best\"><a href=\"/tasks/pushing?obs=state#pushing-t3\">1.000</a>"
+        ),
         "{table}"
     );
 
