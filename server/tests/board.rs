@@ -65,7 +65,7 @@ async fn evaluated(
     initial_states: &str,
 ) -> i64 {
     let store = &app.state.store;
-    let id = queued_submission(store, method, TaskId::Aligning, protocol, training_seed).await;
+    let id = queued_submission(store, method, TaskId::Aligning, protocol, training_seed, 1).await;
     let job = store.job_for(id).await.expect("job");
     let result = aligning_result(protocol, success, cond, initial_states);
     store
@@ -367,6 +367,7 @@ async fn the_wait_estimate_counts_the_jobs_worker_hosts_run() {
             TaskId::Aligning,
             ProtocolKind::Paper,
             seed,
+            1,
         )
     };
     // History: one run, claimed and finished at once.

@@ -25,7 +25,7 @@ async fn evaluated(
     rollouts: Vec<RolloutRecord>,
 ) -> i64 {
     let store = &app.state.store;
-    let id = queued_submission(store, method, task, ProtocolKind::Paper, training_seed).await;
+    let id = queued_submission(store, method, task, ProtocolKind::Paper, training_seed, 1).await;
     let job = store.job_for(id).await.expect("job");
     let est = |v: f64| Estimate {
         value: v,

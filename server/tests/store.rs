@@ -73,36 +73,8 @@ async fn submit_sharded(
     seed: i64,
     shards: usize,
 ) -> (i64, i64) {
-    let m = store
-        .ensure_method(
-            &NewMethod {
-                name: method.into(),
-                ..Default::default()
-            },
-            None,
-        )
-        .await
-        .unwrap();
-    let id = store
-        .create_submission_sharded(
-            &NewSubmission {
-                method_id: m.id,
-                submitter_id: None,
-                task,
-                obs_type: ObsType::State,
-                training_seed: seed,
-                data_fraction: 1.0,
-                protocol: ProtocolKind::Paper,
-                policy: NewPolicy::Remote {
-                    url: "ws://127.0.0.1:1/".into(),
-                },
-                manifest_json: "{}".into(),
-            },
-            3,
-            shards,
-        )
-        .await
-        .unwrap();
+    let id =
+        common::queued_submission(store, method, task, ProtocolKind::Paper, seed, shards).await;
     let job = store.job_for(id).await.unwrap();
     (id, job.id)
 }

@@ -240,13 +240,15 @@ macro_rules! on_both_backends {
 pub(crate) use on_both_backends;
 
 /// A queued state-observation submission of `method` with a remote policy,
-/// as the intake stores it (the method is made if needed); returns its id.
+/// its job in `shards` rows, as the intake stores it (the method is made if
+/// needed); returns its id.
 pub async fn queued_submission(
     store: &d3il_server::store::Store,
     method: &str,
     task: d3il_protocol::TaskId,
     protocol: d3il_protocol::ProtocolKind,
     training_seed: i64,
+    shards: usize,
 ) -> i64 {
     use d3il_server::store::{NewMethod, NewPolicy, NewSubmission};
     let m = store
@@ -260,7 +262,7 @@ pub async fn queued_submission(
         .await
         .expect("method");
     store
-        .create_submission(
+        .create_submission_sharded(
             &NewSubmission {
                 method_id: m.id,
                 submitter_id: None,
@@ -275,6 +277,7 @@ pub async fn queued_submission(
                 manifest_json: "{}".into(),
             },
             3,
+            shards,
         )
         .await
         .expect("submission")
