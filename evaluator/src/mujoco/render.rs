@@ -21,7 +21,7 @@ type EglInt = i32;
 
 #[link(name = "EGL")]
 extern "C" {
-    fn eglGetProcAddress(name: *const c_char) -> *mut c_void;
+    pub(super) fn eglGetProcAddress(name: *const c_char) -> *mut c_void;
     fn eglGetDisplay(native: *mut c_void) -> EglDisplay;
     fn eglInitialize(dpy: EglDisplay, major: *mut EglInt, minor: *mut EglInt) -> EglBoolean;
     fn eglQueryString(dpy: EglDisplay, name: EglInt) -> *const c_char;

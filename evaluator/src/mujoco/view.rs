@@ -4,6 +4,7 @@
 //! Both only ever keep too much, so frames are identical (docs/images.md).
 
 use super::ffi;
+use super::render::eglGetProcAddress;
 use std::ffi::c_void;
 
 /// A camera's view volume: the four side planes through the eye, each
@@ -132,10 +133,6 @@ struct Gl {
 const GL_COMPILE: u32 = 0x1300;
 const GL_QUADS: u32 = 0x0007;
 
-extern "C" {
-    fn eglGetProcAddress(name: *const std::ffi::c_char) -> *mut c_void;
-}
-
 static GL: std::sync::OnceLock<Option<Gl>> = std::sync::OnceLock::new();
 
 fn gl() -> Option<&'static Gl> {
@@ -168,14 +165,15 @@ fn gl() -> Option<&'static Gl> {
     .as_ref()
 }
 
-/// One infinite, untextured model plane: MuJoCo draws it as one display
-/// list of mjMAXPLANEGRID² quads spanning 2.1 · zfar around its origin
-/// (about 21 m per cell in our scenes), most of them far outside any view.
-struct GridPlane {
-    /// Ordinal among the model's planes (`mjvGeom::dataid`).
-    ordinal: usize,
-    /// Grid lines, the same numbers MuJoCo's own list uses.
-    lines: Vec<f64>,
+/// The grid lines of an infinite plane dimension without a material in
+/// MuJoCo 2.2 (its `makePlane`): mjMAXPLANEGRID cells spanning 2.1 · zfar
+/// and a little more around the plane's origin (about 21 m per cell in our
+/// scenes), the same numbers MuJoCo's own display list uses.
+fn infinite_grid_lines(zfar: f64) -> Vec<f64> {
+    let n = ffi::mjMAXPLANEGRID as usize;
+    let sx = 2.1 * zfar / (n - 2) as f64;
+    let d = (2.1 * zfar + 2.0 * sx) / n as f64;
+    (0..=n).map(|x| d * x as f64 - d * (n / 2) as f64).collect()
 }
 
 /// Cells of a plane's grid to draw: (column, first row, last row).
@@ -189,7 +187,12 @@ type Cells = Vec<(u16, u16, u16)>;
 /// vertices per frame. `mjr_render` is pointed at a camera's copy for its
 /// frame.
 pub(super) struct PlaneLists {
-    planes: Vec<GridPlane>,
+    /// Ordinals among the model's planes (`mjvGeom::dataid`) of the
+    /// infinite, untextured ones: MuJoCo draws each as one display list of
+    /// mjMAXPLANEGRID² quads, most of them far outside any view.
+    planes: Vec<usize>,
+    /// Their grid lines (the same for all of them).
+    lines: Vec<f64>,
     /// MuJoCo's lists (`basePlane`, `rangePlane` entries).
     base: u32,
     range: usize,
@@ -208,23 +211,15 @@ impl PlaneLists {
         let types = std::slice::from_raw_parts(m.geom_type, ngeom);
         let matids = std::slice::from_raw_parts(m.geom_matid, ngeom);
         let sizes = std::slice::from_raw_parts(m.geom_size, 3 * ngeom);
-        let n = ffi::mjMAXPLANEGRID as usize;
-        // MuJoCo 2.2's grid for an infinite dimension without a material.
-        let zfar = m.vis.map.zfar as f64 * m.stat.extent;
-        let sx = 2.1 * zfar / (n - 2) as f64;
-        let d = (2.1 * zfar + 2.0 * sx) / n as f64;
-        let lines: Vec<f64> = (0..=n).map(|x| d * x as f64 - d * (n / 2) as f64).collect();
         let planes = (0..ngeom)
             .filter(|&i| types[i] == ffi::mjtGeom__mjGEOM_PLANE as i32)
             .enumerate()
             .filter(|&(_, i)| matids[i] < 0 && sizes[3 * i] <= 0.0 && sizes[3 * i + 1] <= 0.0)
-            .map(|(ordinal, _)| GridPlane {
-                ordinal,
-                lines: lines.clone(),
-            })
+            .map(|(ordinal, _)| ordinal)
             .collect();
         PlaneLists {
             planes,
+            lines: infinite_grid_lines(m.vis.map.zfar as f64 * m.stat.extent),
             base: con.basePlane,
             range: con.rangePlane.max(0) as usize,
             cameras: Vec::new(),
@@ -272,19 +267,19 @@ impl PlaneLists {
         } else {
             std::slice::from_raw_parts(scn.geoms, n)
         };
-        for (p, cells_now) in self.planes.iter().zip(recorded.iter_mut()) {
+        let l = &self.lines;
+        for (&ordinal, cells_now) in self.planes.iter().zip(recorded.iter_mut()) {
             let Some(g) = geoms.iter().find(|g| {
-                g.type_ == ffi::mjtGeom__mjGEOM_PLANE as i32 && g.dataid == p.ordinal as i32
+                g.type_ == ffi::mjtGeom__mjGEOM_PLANE as i32 && g.dataid == ordinal as i32
             }) else {
                 continue;
             };
-            let cells = visible_cells(&p.lines, g, view);
+            let cells = visible_cells(l, g, view);
             if cells_now.as_ref() != Some(&cells) {
                 // The same calls as MuJoCo's list, for these cells only.
-                (gl.new_list)(*base + p.ordinal as u32 + 1, GL_COMPILE);
+                (gl.new_list)(*base + ordinal as u32 + 1, GL_COMPILE);
                 (gl.begin)(GL_QUADS);
                 (gl.normal3d)(0.0, 0.0, 1.0);
-                let l = &p.lines;
                 for &(x, y0, y1) in &cells {
                     let x = x as usize;
                     for y in y0 as usize..=y1 as usize {
@@ -380,7 +375,7 @@ fn clip(poly: &[[f64; 2]], a: f64, b: f64, c: f64) -> Vec<[f64; 2]> {
 
 #[cfg(test)]
 mod tests {
-    use super::{clip, ffi, visible_cells, Frustum};
+    use super::{clip, ffi, infinite_grid_lines, visible_cells, Frustum};
 
     fn camera(pos: [f32; 3], forward: [f32; 3], up: [f32; 3]) -> Frustum {
         let near = 0.01f32;
@@ -401,8 +396,8 @@ mod tests {
     /// A ground plane at the origin with MuJoCo's grid of 200 × 200 cells of
     /// 21 m (zfar 1000 × extent 2).
     fn ground() -> (Vec<f64>, ffi::mjvGeom) {
-        let d = (2.1 * 2000.0 + 2.0 * 2.1 * 2000.0 / 198.0) / 200.0;
-        let lines = (0..=200).map(|x| d * x as f64 - d * 100.0).collect();
+        let lines = infinite_grid_lines(2000.0);
+        assert_eq!((lines.len(), lines[100]), (201, 0.0));
         // SAFETY: mjvGeom is plain old data; all-zero is a valid value.
         let mut g: ffi::mjvGeom = unsafe { std::mem::zeroed() };
         g.type_ = ffi::mjtGeom__mjGEOM_PLANE as i32;
