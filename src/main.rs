@@ -51,6 +51,9 @@ enum Command {
 }
 
 fn main() -> anyhow::Result<()> {
+    // Before any thread exists: setting the environment later would race
+    // with other threads reading it.
+    d3il_evaluator::mujoco::set_llvmpipe_defaults();
     let cli = Cli::parse();
     match cli.command {
         Command::Bench(a) => cmd::bench::run(a),

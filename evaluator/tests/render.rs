@@ -169,3 +169,34 @@ fn the_render_context_holds_no_shadow_map() {
     let r = d3il_evaluator::mujoco::Renderer::new(t.model.clone(), SIZE, SIZE).unwrap();
     assert_eq!(r.shadow_map_size(), 0);
 }
+
+/// Names of this process's threads (Linux).
+fn thread_names() -> Vec<String> {
+    std::fs::read_dir("/proc/self/task")
+        .unwrap()
+        .filter_map(|t| std::fs::read_to_string(t.ok()?.path().join("comm")).ok())
+        .map(|n| n.trim().to_string())
+        .collect()
+}
+
+#[test]
+fn rendering_starts_no_rasterizer_threads() {
+    // docs/images.md: LP_NUM_THREADS=0 unless the user set it, so a context
+    // brings no pool of rasterizer threads of its own ("llvmpipe-N").
+    if let Some(v) = std::env::var_os("LP_NUM_THREADS") {
+        assert_eq!(
+            v, "0",
+            "this test checks the default; run it without LP_NUM_THREADS in the environment"
+        );
+    }
+    let (t, mut env) = image_env(TaskId::Aligning, 0);
+    let mut r = d3il_evaluator::mujoco::Renderer::new(t.model.clone(), SIZE, SIZE).unwrap();
+    let mut rgb = vec![0u8; SIZE * SIZE * 3];
+    r.render_raw(&mut env.sim.data, 0, &mut rgb).unwrap();
+    let names = thread_names();
+    assert!(
+        !names.iter().any(|n| n.starts_with("llvmpipe-")),
+        "llvmpipe started rasterizer threads: {names:?}"
+    );
+    assert_eq!(std::env::var("LP_NUM_THREADS").as_deref(), Ok("0"));
+}

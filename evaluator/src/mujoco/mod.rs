@@ -22,7 +22,7 @@ mod bindings;
 mod render;
 mod view;
 
-pub use render::{egl_vendor, Renderer};
+pub use render::{egl_vendor, set_llvmpipe_defaults, Renderer};
 
 use std::ffi::{CStr, CString};
 use std::ptr::NonNull;

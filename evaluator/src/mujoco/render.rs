@@ -272,13 +272,21 @@ unsafe fn is_software(dpy: EglDisplay) -> bool {
 /// with the workers for the same cores (measurements in docs/images.md).
 pub const LP_NUM_THREADS: &str = "0";
 
+/// Sets [`LP_NUM_THREADS`] in the process environment unless the user set
+/// it. Mesa reads it when `eglInitialize` creates an llvmpipe screen.
+/// Changing the environment while other threads may read it is a data race
+/// in libc, so a program calls this first thing in `main`, before it starts
+/// any thread; the first renderer calls it again (a no-op then) for
+/// programs that did not, such as test harnesses.
+pub fn set_llvmpipe_defaults() {
+    if std::env::var_os("LP_NUM_THREADS").is_none() {
+        std::env::set_var("LP_NUM_THREADS", LP_NUM_THREADS);
+    }
+}
+
 fn display_and_platform() -> Result<&'static Display, MjError> {
     let d = DISPLAY.get_or_init(|| {
-        if std::env::var_os("LP_NUM_THREADS").is_none() {
-            // Read by Mesa when eglInitialize creates the llvmpipe screen,
-            // below; set once, before any EGL call of this process.
-            std::env::set_var("LP_NUM_THREADS", LP_NUM_THREADS);
-        }
+        set_llvmpipe_defaults();
         // SAFETY: EGL entry points with valid arguments; the returned pointers
         // are checked before use.
         unsafe {
