@@ -1,7 +1,8 @@
 //! In-memory cache of the expensive read path of finished submissions
 //! (issue 17): a stored result never changes, so its results document (up to
 //! a few hundred kB with 480 rollouts and their paths) is rendered once and
-//! served from memory afterwards; the ETag layer in `app.rs` answers
+//! served from memory afterwards, as is the status document of a completed
+//! submission, which embeds it; the ETag layer in `app.rs` answers
 //! revalidations with 304. The submission page is not cached: it lists the
 //! row's other training seeds, which change. Bounded: the oldest entry goes
 //! when the cache is full.
@@ -14,6 +15,9 @@ use std::sync::{Arc, Mutex};
 pub enum Rendered {
     /// `GET /api/v1/submissions/{id}/results` (JSON).
     Results,
+    /// `GET /api/v1/submissions/{id}` (JSON) of a completed submission: it
+    /// embeds the results document, so polling it rebuilt that each time.
+    Submission,
 }
 
 type Key = (Rendered, i64);

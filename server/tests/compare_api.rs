@@ -171,3 +171,36 @@ async fn results_of_a_finished_submission_are_served_from_memory() {
     assert_eq!(again, first, "served from memory");
     assert_eq!(app.state.finished.len(), 1);
 }
+
+/// The status document of a submission embeds its results: once completed
+/// it is rendered once too, while a queued one is built afresh on every poll.
+#[tokio::test]
+async fn status_of_a_completed_submission_is_served_from_memory() {
+    let app = spawn_app().await;
+    let a = submit(&app, "A", "pushing").await;
+    let path = format!("/api/v1/submissions/{a}");
+    let (s, queued) = app.get_text(&path).await;
+    assert_eq!(s, 200, "{queued}");
+    let v: Value = serde_json::from_str(&queued).unwrap();
+    assert_eq!(v["status"], "queued", "{v}");
+    assert_eq!(
+        app.state.finished.len(),
+        0,
+        "a queued submission is not cached"
+    );
+    assert_eq!(complete(&app, &result(|_| 12, 0)).await, a);
+    let (s, first) = app.get_text(&path).await;
+    assert_eq!(s, 200, "{first}");
+    let v: Value = serde_json::from_str(&first).unwrap();
+    assert_eq!(v["status"], "completed", "{v}");
+    assert_eq!(v["result"]["metrics"]["success_rate"]["value"], 0.75, "{v}");
+    sqlx::query("UPDATE results SET success_rate = 0.5 WHERE submission_id = ?")
+        .bind(a)
+        .execute(app.state.store.sqlite_pool().expect("a SQLite store"))
+        .await
+        .unwrap();
+    let (s, again) = app.get_text(&path).await;
+    assert_eq!(s, 200);
+    assert_eq!(again, first, "served from memory");
+    assert_eq!(app.state.finished.len(), 1);
+}

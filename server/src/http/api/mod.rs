@@ -14,6 +14,7 @@ use crate::intake;
 use crate::leaderboard::{board_for, View};
 use crate::schema;
 use crate::state::AppState;
+use crate::store::SubmissionStatus;
 use crate::views::{
     results_view, submission_view, LeaderboardLink, LeaderboardList, LeaderboardView, MethodList,
     ResultsView, SubmissionView, WhoAmI,
@@ -120,8 +121,30 @@ async fn create_submission(
 async fn get_submission(
     State(state): State<AppState>,
     Param(id): Param<i64>,
-) -> Result<Json<SubmissionView>, AppError> {
-    Ok(Json(submission_view(&state, id).await?))
+) -> Result<Response, AppError> {
+    use crate::cache::Rendered;
+    // A completed submission never changes (its progress, attempts and
+    // embedded results are final): render it once, as its results.
+    if let Some(body) = state.finished.get(Rendered::Submission, id) {
+        return Ok(json_body(body));
+    }
+    let view = submission_view(&state, id).await?;
+    let body = serde_json::to_string(&view)
+        .map_err(|e| AppError::Internal(format!("submission encoding: {e}")))?;
+    Ok(json_body(if view.status == SubmissionStatus::Completed {
+        state.finished.put(Rendered::Submission, id, body)
+    } else {
+        body.into()
+    }))
+}
+
+/// A JSON document rendered ahead (see [`crate::cache`]).
+fn json_body(body: std::sync::Arc<str>) -> Response {
+    (
+        [(header::CONTENT_TYPE, "application/json")],
+        body.to_string(),
+    )
+        .into_response()
 }
 
 #[utoipa::path(get, path = "/submissions/{id}/results", tag = "submissions",
@@ -135,17 +158,9 @@ async fn get_results(
     Param(id): Param<i64>,
 ) -> Result<axum::response::Response, AppError> {
     use crate::cache::Rendered;
-    use axum::response::IntoResponse;
-    let json = |body: std::sync::Arc<str>| {
-        (
-            [(axum::http::header::CONTENT_TYPE, "application/json")],
-            body.to_string(),
-        )
-            .into_response()
-    };
     // A stored result never changes: render it once.
     if let Some(body) = state.finished.get(Rendered::Results, id) {
-        return Ok(json(body));
+        return Ok(json_body(body));
     }
     let s = state.store.submission(id).await?;
     let r = state.store.result_for(id).await?.ok_or_else(|| {
@@ -157,7 +172,7 @@ async fn get_results(
     let view = results_view(&state, r).await?;
     let body = serde_json::to_string(&view)
         .map_err(|e| AppError::Internal(format!("results encoding: {e}")))?;
-    Ok(json(state.finished.put(Rendered::Results, id, body)))
+    Ok(json_body(state.finished.put(Rendered::Results, id, body)))
 }
 
 #[derive(Debug, Deserialize, Default, IntoParams)]
