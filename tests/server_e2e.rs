@@ -55,6 +55,11 @@ fn onnx_submission_is_evaluated_and_published() {
         "d3il submit failed:\n{stdout}\n{}",
         String::from_utf8_lossy(&out.stderr)
     );
+    let progress = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        progress.contains("completed ") && !progress.contains(" 0/0"),
+        "--wait's progress lines: {progress}"
+    );
     let json_start = stdout.find('{').expect("the final submission JSON");
     let done: serde_json::Value = serde_json::from_str(&stdout[json_start..]).expect("JSON");
     assert_eq!(done["status"], "completed", "{done}");

@@ -133,12 +133,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     }
     let mut last = String::new();
     let done = client.wait(id, Duration::from_secs(a.timeout), |v| {
-        let line = format!(
-            "{} {}/{}",
-            v["status"].as_str().unwrap_or("?"),
-            v["progress"]["rollouts_done"],
-            v["progress"]["rollouts_total"]
-        );
+        let line = progress_line(v);
         if line != last {
             eprintln!("{line}");
             last = line;
@@ -158,6 +153,23 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// One line of `--wait`'s progress from the server's submission document:
+/// the status, then the rollouts done of the total once the worker has said
+/// how many there are (until then the total is 0, and "0/0" would read as an
+/// empty evaluation), or the queue position while queued.
+fn progress_line(v: &serde_json::Value) -> String {
+    let status = v["status"].as_str().unwrap_or("?");
+    let p = &v["progress"];
+    match (p["rollouts_done"].as_i64(), p["rollouts_total"].as_i64()) {
+        (Some(done), Some(total)) if total > 0 => format!("{status} {done}/{total}"),
+        _ => match v["queue_position"].as_i64() {
+            Some(n) => format!("{status}, {n} ahead in the queue"),
+            None if status == "running" => "running, starting".to_string(),
+            None => status.to_string(),
+        },
+    }
+}
+
 /// The evaluation result inside the server's submission document
 /// (`result`: metrics, protocol manifest, per-state and per-rollout records).
 pub fn result_of(doc: &serde_json::Value) -> anyhow::Result<d3il_protocol::EvalResult> {
@@ -172,4 +184,39 @@ pub fn result_of(doc: &serde_json::Value) -> anyhow::Result<d3il_protocol::EvalR
     serde_json::from_value(v).context(
         "the server's result document is not what this client expects; use --json to see it",
     )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::progress_line;
+    use serde_json::json;
+
+    #[test]
+    fn progress_lines_never_show_an_empty_total() {
+        let doc = |status: &str, done: i64, total: i64, pos: Option<i64>| {
+            json!({"status": status, "progress": {"rollouts_done": done, "rollouts_total": total},
+                   "queue_position": pos})
+        };
+        assert_eq!(
+            progress_line(&doc("queued", 0, 0, Some(2))),
+            "queued, 2 ahead in the queue"
+        );
+        assert_eq!(
+            progress_line(&doc("queued", 0, 0, Some(0))),
+            "queued, 0 ahead in the queue"
+        );
+        assert_eq!(
+            progress_line(&doc("running", 0, 0, None)),
+            "running, starting"
+        );
+        assert_eq!(
+            progress_line(&doc("running", 0, 480, None)),
+            "running 0/480"
+        );
+        assert_eq!(
+            progress_line(&doc("completed", 6, 6, None)),
+            "completed 6/6"
+        );
+        assert_eq!(progress_line(&doc("failed", 0, 0, None)), "failed");
+    }
 }
