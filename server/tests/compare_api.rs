@@ -161,15 +161,7 @@ async fn results_of_a_finished_submission_are_served_from_memory() {
     assert_eq!(s, 200, "{first}");
     let v: Value = serde_json::from_str(&first).unwrap();
     assert_eq!(v["metrics"]["success_rate"]["value"], 0.75, "{v}");
-    sqlx::query("UPDATE results SET success_rate = 0.5 WHERE submission_id = ?")
-        .bind(a)
-        .execute(app.state.store.sqlite_pool().expect("a SQLite store"))
-        .await
-        .unwrap();
-    let (s, again) = app.get_text(&path).await;
-    assert_eq!(s, 200);
-    assert_eq!(again, first, "served from memory");
-    assert_eq!(app.state.finished.len(), 1);
+    assert_served_from_memory(&app, a, &path, &first).await;
 }
 
 /// The status document of a submission embeds its results: once completed
@@ -194,12 +186,18 @@ async fn status_of_a_completed_submission_is_served_from_memory() {
     let v: Value = serde_json::from_str(&first).unwrap();
     assert_eq!(v["status"], "completed", "{v}");
     assert_eq!(v["result"]["metrics"]["success_rate"]["value"], 0.75, "{v}");
+    assert_served_from_memory(&app, a, &path, &first).await;
+}
+
+/// Changes submission `id`'s stored result behind the server's back; `path`
+/// must still answer `first`, from the one cached document.
+async fn assert_served_from_memory(app: &TestApp, id: i64, path: &str, first: &str) {
     sqlx::query("UPDATE results SET success_rate = 0.5 WHERE submission_id = ?")
-        .bind(a)
+        .bind(id)
         .execute(app.state.store.sqlite_pool().expect("a SQLite store"))
         .await
         .unwrap();
-    let (s, again) = app.get_text(&path).await;
+    let (s, again) = app.get_text(path).await;
     assert_eq!(s, 200);
     assert_eq!(again, first, "served from memory");
     assert_eq!(app.state.finished.len(), 1);
