@@ -24,6 +24,7 @@ extern "C" {
     pub(super) fn eglGetProcAddress(name: *const c_char) -> *mut c_void;
     fn eglGetDisplay(native: *mut c_void) -> EglDisplay;
     fn eglInitialize(dpy: EglDisplay, major: *mut EglInt, minor: *mut EglInt) -> EglBoolean;
+    fn eglTerminate(dpy: EglDisplay) -> EglBoolean;
     fn eglQueryString(dpy: EglDisplay, name: EglInt) -> *const c_char;
     fn eglChooseConfig(
         dpy: EglDisplay,
@@ -149,12 +150,20 @@ static DISPLAY: std::sync::OnceLock<Result<Display, String>> = std::sync::OnceLo
 /// screen, and a screen rasterizes one context's frame at a time (its
 /// rasterizer sits behind one mutex), so renderers on different worker
 /// threads that shared a display would take turns (measured in
-/// docs/images.md). Entry k: the display and how many renderers use it.
-struct Pool(Vec<(EglDisplay, usize)>);
+/// docs/images.md). `displays[slot]`: the display and how many renderers
+/// use it; `next`: the [`other_display`] candidate to try when all are in
+/// use (candidates that are not the software device are skipped for good).
+struct Pool {
+    displays: Vec<(EglDisplay, usize)>,
+    next: usize,
+}
 // SAFETY: as for Display.
 unsafe impl Send for Pool {}
 
-static POOL: std::sync::Mutex<Pool> = std::sync::Mutex::new(Pool(Vec::new()));
+static POOL: std::sync::Mutex<Pool> = std::sync::Mutex::new(Pool {
+    displays: Vec::new(),
+    next: 1,
+});
 
 /// A renderer's display: a free one of the pool, a new one when Mesa can
 /// make another, else the least used.
@@ -167,27 +176,34 @@ impl Lease {
     fn acquire() -> Result<Lease, MjError> {
         let base = display_and_platform()?;
         let mut pool = POOL.lock().unwrap_or_else(|e| e.into_inner());
-        if pool.0.is_empty() {
-            pool.0.push((base.0, 0));
+        if pool.displays.is_empty() {
+            pool.displays.push((base.0, 0));
         }
-        let free = pool.0.iter().position(|&(_, users)| users == 0);
+        let free = pool.displays.iter().position(|&(_, users)| users == 0);
         let slot = match free {
             Some(k) => k,
             None => {
-                let k = pool.0.len();
-                // SAFETY: EGL calls with valid, EGL_NONE-terminated attribute lists.
-                match base.2.and_then(|dev| unsafe { other_display(dev, k) }) {
+                let mut made = None;
+                while made.is_none() && pool.next <= LAST_OTHER_DISPLAY {
+                    let k = pool.next;
+                    pool.next += 1;
+                    // SAFETY: EGL calls with valid, EGL_NONE-terminated attribute lists.
+                    made = base.2.and_then(|dev| unsafe { other_display(dev, k) });
+                }
+                match made {
                     Some(dpy) => {
-                        pool.0.push((dpy, 0));
-                        k
+                        pool.displays.push((dpy, 0));
+                        pool.displays.len() - 1
                     }
-                    None => (0..k).min_by_key(|&i| pool.0[i].1).unwrap_or(0),
+                    None => (0..pool.displays.len())
+                        .min_by_key(|&i| pool.displays[i].1)
+                        .unwrap_or(0),
                 }
             }
         };
-        pool.0[slot].1 += 1;
+        pool.displays[slot].1 += 1;
         Ok(Lease {
-            dpy: pool.0[slot].0,
+            dpy: pool.displays[slot].0,
             slot,
         })
     }
@@ -196,7 +212,7 @@ impl Lease {
 impl Drop for Lease {
     fn drop(&mut self) {
         let mut pool = POOL.lock().unwrap_or_else(|e| e.into_inner());
-        pool.0[self.slot].1 -= 1;
+        pool.displays[self.slot].1 -= 1;
     }
 }
 
@@ -206,7 +222,8 @@ impl Drop for Lease {
 /// parameters (its `_eglFindDisplay`), so k = 1 is the device platform with
 /// an empty list and k = 2, 3 the surfaceless platform without and with one,
 /// each kept only if its device is the software one. Mesa accepts no other
-/// display attributes on these platforms, so there are at most four.
+/// display attributes on these platforms, so there are at most four. A
+/// display that is not the software device is terminated again.
 ///
 /// # Safety
 /// EGL must be loaded (it is linked).
@@ -231,12 +248,21 @@ unsafe fn other_display(dev: EglDevice, k: usize) -> Option<EglDisplay> {
         ),
         _ => return None,
     };
+    debug_assert!(k <= LAST_OTHER_DISPLAY);
     let (mut major, mut minor) = (0, 0);
     if dpy.is_null() || eglInitialize(dpy, &mut major, &mut minor) == 0 {
         return None;
     }
-    (k == 1 || is_software(dpy)).then_some(dpy)
+    if k == 1 || is_software(dpy) {
+        Some(dpy)
+    } else {
+        eglTerminate(dpy);
+        None
+    }
 }
+
+/// The last candidate [`other_display`] knows.
+const LAST_OTHER_DISPLAY: usize = 3;
 
 type QueryDisplayAttribExt =
     unsafe extern "C" fn(dpy: EglDisplay, attribute: EglInt, value: *mut EglAttrib) -> EglBoolean;
