@@ -240,24 +240,24 @@ fn render_bench(
     );
     // Per camera: they see different amounts of geometry (docs/images.md:
     // the front view draws the whole arm in both transparent passes).
-    let mut r =
-        d3il_evaluator::mujoco::Renderer::new(task.model.clone(), camera::SIZE, camera::SIZE)?;
-    let mut raw = vec![0u8; camera::SIZE * camera::SIZE * 3];
-    let per_camera = cams
-        .iter()
-        .zip(camera::CAMERAS)
-        .map(|(&cam, name)| {
-            let t = Instant::now();
-            for _ in 0..reps {
-                r.render_raw(&mut env.sim.data, cam, &mut raw)?;
-            }
-            Ok(format!(
-                "{name} {:.2} ms",
-                t.elapsed().as_secs_f64() * 1000.0 / reps as f64
-            ))
-        })
-        .collect::<anyhow::Result<Vec<_>>>()?;
-    drop(r);
+    // Timed on the thread's renderer that `capture` used above.
+    let model = env.sim.data.model().clone();
+    let per_camera = camera::with_renderer(&model, camera::SIZE, camera::SIZE, |r| {
+        let mut raw = vec![0u8; camera::SIZE * camera::SIZE * 3];
+        cams.iter()
+            .zip(camera::CAMERAS)
+            .map(|(&cam, name)| {
+                let t = Instant::now();
+                for _ in 0..reps {
+                    r.render_raw(&mut env.sim.data, cam, &mut raw)?;
+                }
+                Ok(format!(
+                    "{name} {:.2} ms",
+                    t.elapsed().as_secs_f64() * 1000.0 / reps as f64
+                ))
+            })
+            .collect::<Result<Vec<_>, _>>()
+    })?;
     println!("  per camera: {}", per_camera.join(", "));
 
     // An image-based Aligning evaluation through the engine (lockstep,

@@ -6,6 +6,7 @@ pub mod compare;
 pub mod openapi;
 
 use crate::auth::Authed;
+use crate::cache::Rendered;
 use crate::error::AppError;
 use crate::error::ErrorBody;
 use crate::http::csv::{board_csv, csv_response};
@@ -122,7 +123,6 @@ async fn get_submission(
     State(state): State<AppState>,
     Param(id): Param<i64>,
 ) -> Result<Response, AppError> {
-    use crate::cache::Rendered;
     // A completed submission never changes (its progress, attempts and
     // embedded results are final): render it once, as its results.
     if let Some(body) = state.finished.get(Rendered::Submission, id) {
@@ -156,8 +156,7 @@ fn json_body(body: std::sync::Arc<str>) -> Response {
 async fn get_results(
     State(state): State<AppState>,
     Param(id): Param<i64>,
-) -> Result<axum::response::Response, AppError> {
-    use crate::cache::Rendered;
+) -> Result<Response, AppError> {
     // A stored result never changes: render it once.
     if let Some(body) = state.finished.get(Rendered::Results, id) {
         return Ok(json_body(body));
