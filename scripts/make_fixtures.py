@@ -256,6 +256,19 @@ def nan_graph():
     return g.model(inputs, outputs, "nan_output")
 
 
+def random_op_graph():
+    """Avoiding shapes; draws its own noise with a RandomNormalLike operator
+    (what torch.randn in forward exports to) instead of taking the `noise` input."""
+    g = Graph()
+    flat = g.op("Flatten", ["obs"], axis=1)
+    two = g.op("Slice", [flat, g.const([0], np.int64), g.const([2], np.int64), g.const([1], np.int64)])
+    jitter = g.op("Mul", [g.op("RandomNormalLike", [two]), g.const(0.001)])
+    g.op_to("Add", [two, jitter], "actions")
+    inputs = [helper.make_tensor_value_info("obs", TensorProto.FLOAT, ["B", 1, 4])]
+    outputs = [helper.make_tensor_value_info("actions", TensorProto.FLOAT, ["B", 2])]
+    return g.model(inputs, outputs, "random_op")
+
+
 def endless_graph(n=4096, repeats=64):
     """A chain of input-dependent n x n MatMuls: ~64 x 1.4e11 flop per query, so a
     query never finishes in useful time; the file itself stays tiny (the big
@@ -437,6 +450,8 @@ def main():
     save("hostile_wrong_obs_dim", wrong_obs_dim_graph(), av, "obs last dimension 3, Avoiding needs 4")
     save("hostile_wrong_act_dim", wrong_act_dim_graph(), av, "3 actions per row, Avoiding needs 2")
     save("hostile_nan", nan_graph(), av, "every action is NaN")
+    save("hostile_random_op", random_op_graph(), av,
+         "draws noise with an in-graph RandomNormalLike instead of the noise input (not reproducible)")
     save("hostile_endless", endless_graph(), av, "64 chained 4096x4096 MatMuls per query: never finishes in time")
     save("hostile_tile_bomb", tile_bomb_graph(), av, "one Tile node asking for a 2^20 x 2^20 float32 tensor (4 TiB) per query")
 

@@ -165,6 +165,52 @@ fn image_policy_shape_is_accepted_and_runs() {
     assert!(e.to_string().contains("input `images`"), "{e}");
 }
 
+/// The paper-sized image network gives a row the same actions alone as in a
+/// batch split across threads (agent_fixtures.rs has the same check for every
+/// state method family): one-row calls are padded to two rows, since tract's
+/// one-row convolution and matrix kernels round differently.
+#[test]
+fn an_image_rows_actions_do_not_depend_on_its_company() {
+    let (bytes, man) = fixture("aligning_resnet18");
+    let mut sp = spec(TaskId::Aligning);
+    sp.obs_dim = 3; // the image variant's low-dimensional input (docs/images.md)
+    let mut p = OnnxPolicy::load(&bytes, &man, &sp, 0).unwrap();
+    let image = |r: usize| -> Vec<f32> {
+        (0..IMAGE_LEN)
+            .map(|i| (((i + r * 977) as f32 * 0.0137).sin() + 1.0) / 2.0)
+            .collect()
+    };
+    let run = |p: &mut OnnxPolicy, b: usize| -> Vec<f32> {
+        let ids: Vec<u64> = (0..b as u64).collect();
+        let steps = vec![0u64; b];
+        let images: Vec<f32> = (0..b).flat_map(|r| image(b - 1 - r)).collect();
+        let obs: Vec<f32> = (0..b * 3)
+            .map(|i| 0.1 * ((b * 3 - 1 - i) % 3) as f32)
+            .collect();
+        let q = Query {
+            rollout_ids: &ids,
+            steps: &steps,
+            obs: &obs,
+            images: Some(&images),
+            window: None,
+            prev_actions: None,
+        };
+        p.infer(&q).unwrap().chunk(b - 1).to_vec()
+    };
+    p.set_threads(1);
+    let alone = run(&mut p, 1);
+    for (threads, b) in [(1, 1), (1, 2), (2, 3), (2, 5)] {
+        p.set_threads(threads);
+        let got = run(&mut p, b);
+        assert!(
+            got.iter()
+                .zip(&alone)
+                .all(|(x, y)| x.to_bits() == y.to_bits()),
+            "last row of {b} on {threads} threads: {got:?}, alone {alone:?}"
+        );
+    }
+}
+
 #[test]
 fn manifest_and_task_mismatches_are_explained() {
     let (bytes, mut man) = fixture("avoiding_path");
@@ -233,6 +279,17 @@ fn wrong_dimensions_name_what_was_expected() {
     let e = hostile("hostile_wrong_act_dim").to_string();
     assert!(
         e.contains("has last dimension 3 but task avoiding expects 2 (xy delta"),
+        "{e}"
+    );
+}
+
+#[test]
+fn random_operators_in_the_graph_are_refused() {
+    let e = hostile("hostile_random_op").to_string();
+    assert!(
+        e.contains("is a RandomNormalLike operator")
+            && e.contains("not be reproducible")
+            && e.contains("`noise` input"),
         "{e}"
     );
 }

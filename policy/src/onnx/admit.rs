@@ -181,6 +181,18 @@ fn check_tensor(t: &pb::TensorProto, what: &str, total: &mut u64) -> Result<(), 
     Ok(())
 }
 
+/// ONNX operators that draw random numbers inside the graph (`torch.randn` and
+/// friends in `forward` export to them). Refused: all randomness comes from the
+/// `noise` input, which makes evaluations reproducible bit for bit.
+const RANDOM_OPS: [&str; 6] = [
+    "RandomNormal",
+    "RandomNormalLike",
+    "RandomUniform",
+    "RandomUniformLike",
+    "Multinomial",
+    "Bernoulli",
+];
+
 fn check_graph(g: &pb::GraphProto, total: &mut u64, depth: usize) -> Result<(), PolicyError> {
     if depth > 8 {
         return Err(PolicyError::Unsupported(
@@ -196,6 +208,19 @@ fn check_graph(g: &pb::GraphProto, total: &mut u64, depth: usize) -> Result<(), 
         check_tensor(t, "initializer", total)?;
     }
     for n in &g.node {
+        if RANDOM_OPS.contains(&n.op_type.as_str())
+            && (n.domain.is_empty() || n.domain == "ai.onnx")
+        {
+            let name = if n.name.is_empty() {
+                "(unnamed)"
+            } else {
+                &n.name
+            };
+            return Err(PolicyError::Unsupported(format!(
+                "node `{name}` is a {} operator: it draws from the runtime's own random generator, so the evaluation would not be reproducible; take the random numbers from the `noise` input instead (the evaluator fills it, seeded per rollout and step; docs/export.md shows how to turn it into uniform or categorical samples)",
+                n.op_type
+            )));
+        }
         for a in &n.attribute {
             if let Some(t) = &a.t {
                 check_tensor(t, "constant", total)?;

@@ -35,8 +35,16 @@ pub(super) struct Model {
 
 /// Batch sizes plans are made for: a call with b rows runs on the plan of the
 /// smallest bucket ≥ b, padded by repeating its last row.
+///
+/// There is no bucket of one row: tract runs a one-row plan through other
+/// kernels (matrix–vector products) whose rounding differs from its plans of
+/// two or more rows, which agree with each other bit for bit. A row that ran
+/// alone (the only rollout querying at that step, or the last row of a call
+/// split across threads, which depends on the host's core count) would get
+/// other actions than in company, so a single row runs padded to two and a
+/// row's actions depend only on its inputs (`tests/agent_fixtures.rs`).
 pub(super) fn bucket(b: usize) -> usize {
-    const SMALL: [usize; 11] = [1, 2, 3, 4, 6, 8, 12, 16, 24, 32, 48];
+    const SMALL: [usize; 10] = [2, 3, 4, 6, 8, 12, 16, 24, 32, 48];
     if let Some(&s) = SMALL.iter().find(|&&s| s >= b) {
         return s;
     }
@@ -278,6 +286,7 @@ mod tests {
         for b in 1..=5000 {
             let s = bucket(b);
             assert!(s >= b && (s as f64) <= (b as f64) * 1.5 + 1.0, "{b} -> {s}");
+            assert!(s >= 2, "{b} -> {s}: no one-row plans");
         }
         assert_eq!(bucket(48), 48);
         assert_eq!(bucket(96), 96);
