@@ -171,5 +171,12 @@ fn eval_and_submit_find_the_manifest_next_to_the_onnx_file_the_same_way() {
         String::from_utf8_lossy(&eval.stderr)
     );
     assert!(String::from_utf8_lossy(&eval.stdout).contains("task avoiding, state observations"));
+    // A deterministic policy: the one initial state is simulated once, and eval says so.
+    let stderr = String::from_utf8_lossy(&eval.stderr);
+    assert!(
+        stderr.contains("each initial state was simulated once")
+            && stderr.contains("(1 of 8 rollouts simulated, same results)"),
+        "{stderr}"
+    );
     std::fs::remove_dir_all(&dir).unwrap();
 }

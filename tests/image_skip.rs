@@ -26,6 +26,8 @@ fn frames_the_policy_never_sees_are_not_rendered_and_change_nothing() {
             bootstrap_resamples: 10,
             step_cap: Some(40),
             render_every_frame: every_frame,
+            // Count the frames of every rollout, not of one per initial state.
+            simulate_every_rollout: true,
             ..EvalOptions::default()
         };
         evaluate(&task, &mut policy, &info, &opts, &mut |_, _| {}).unwrap()

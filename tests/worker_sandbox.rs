@@ -213,7 +213,9 @@ fn the_memory_limit_flag_reaches_the_worker_and_names_itself() {
                 "--sandbox",
             ])
             .arg("--policy")
-            .arg(format!("{fixtures}/avoiding_path.onnx"))
+            // A policy with noise: all 8 rollouts are simulated (a
+            // deterministic one would be simulated once and fit in 100 MiB).
+            .arg(format!("{fixtures}/avoiding_noise.onnx"))
             .args(extra)
             .env("RUST_BACKTRACE", "0")
             .output()

@@ -77,6 +77,13 @@ pub struct EvalOptions {
     /// policy executes more actions per query than its history holds). The
     /// results are the same either way; this is for checking that.
     pub render_every_frame: bool,
+    /// Simulate every rollout even when the policy is deterministic
+    /// ([`Policy::deterministic`]). By default the rollouts of one initial
+    /// state of a deterministic policy are one computation, simulated once and
+    /// recorded for each rollout index: the results are the same bit for bit
+    /// (`tests/identical_rollouts.rs`). For checking that, and for benchmarks
+    /// of the full protocol.
+    pub simulate_every_rollout: bool,
 }
 
 impl Default for EvalOptions {
@@ -88,6 +95,7 @@ impl Default for EvalOptions {
             bootstrap_resamples: 1000,
             step_cap: None,
             render_every_frame: false,
+            simulate_every_rollout: false,
         }
     }
 }
@@ -116,6 +124,11 @@ pub struct Timing {
     /// Image tasks: image observations rendered in env steps (each both
     /// cameras; resets not counted).
     pub frames_rendered: usize,
+    /// Rollouts recorded (the protocol's, or the shard's).
+    pub rollouts: usize,
+    /// Rollouts actually simulated: fewer than recorded when a deterministic
+    /// policy's rollouts of one initial state were simulated once.
+    pub rollouts_simulated: usize,
 }
 
 struct Slot {
@@ -223,6 +236,16 @@ fn run_rollouts(
     // get the ids, hence the policy noise, they have in the whole evaluation.
     let first_id = ctx_range.start * per_ctx;
     let total = ctx_range.len() * per_ctx;
+    // A deterministic policy's rollouts of one initial state are the same
+    // computation (the reset, the physics and each row's actions are
+    // functions of their inputs alone): simulate rollout 0 of each state and
+    // record it under every rollout index.
+    let sim_per_ctx = if policy.deterministic() && !opts.simulate_every_rollout {
+        1
+    } else {
+        per_ctx
+    };
+    let sim_total = ctx_range.len() * sim_per_ctx;
     let shape = policy.shape();
     let spec = task.spec();
     if shape.obs_type != task.obs_type {
@@ -241,7 +264,7 @@ fn run_rollouts(
     // A graph that cannot run is refused here, with tract's reason, not at rollout 0.
     policy.self_test()?;
     let record_paths = task.def.id() == TaskId::Avoiding;
-    let live = total.min(opts.max_live.max(1));
+    let live = sim_total.min(opts.max_live.max(1));
     let mut slots = Vec::with_capacity(live);
     let window_mode = policy.window();
     let prev_cap = if policy.takes_prev_actions() {
@@ -274,13 +297,13 @@ fn run_rollouts(
 
     // Starts the next pending rollout in `slot`; returns its id.
     let start = |slot: &mut Slot, next: &mut usize| -> Result<Option<u64>, EvalError> {
-        if *next >= total {
+        if *next >= sim_total {
             slot.rollout = None;
             return Ok(None);
         }
-        let id = first_id + *next;
+        let (ctx, r) = (ctx_range.start + *next / sim_per_ctx, *next % sim_per_ctx);
+        let id = ctx * per_ctx + r;
         *next += 1;
-        let (ctx, r) = (id / per_ctx, id % per_ctx);
         slot.env.reset(&contexts[ctx])?;
         slot.history.reset();
         slot.history.push(&slot.env.policy_obs())?;
@@ -406,8 +429,7 @@ fn run_rollouts(
             } else {
                 slot.env.behaviour_key()
             };
-            keys[id - first_id] = Some(key);
-            records[id - first_id] = Some(RolloutRecord {
+            let record = RolloutRecord {
                 context_index: ctx,
                 rollout_index: r,
                 success,
@@ -415,8 +437,19 @@ fn run_rollouts(
                 steps: slot.env.steps(),
                 path: record_paths.then(|| std::mem::take(&mut slot.path)),
                 failure,
-            });
-            done_count += 1;
+            };
+            // Simulated once for the whole initial state: the same record
+            // under each rollout index.
+            let copies = if sim_per_ctx == per_ctx { 1 } else { per_ctx };
+            for k in 0..copies {
+                let i = id + k - first_id;
+                keys[i] = Some(key.clone());
+                records[i] = Some(RolloutRecord {
+                    rollout_index: r + k,
+                    ..record.clone()
+                });
+            }
+            done_count += copies;
             if let Some(nid) = start(slot, &mut next)? {
                 new_ids.push(nid);
             }
@@ -452,6 +485,8 @@ fn run_rollouts(
     timing.step_cpu_s = slots.iter().map(|s| s.step_cpu_s).sum();
     timing.render_cpu_s = slots.iter().map(|s| s.env.render_seconds()).sum();
     timing.frames_rendered = slots.iter().map(|s| s.env.frames_rendered()).sum();
+    timing.rollouts = total;
+    timing.rollouts_simulated = sim_total;
     Ok(Run {
         manifest,
         contexts: ctx_range,

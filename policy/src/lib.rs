@@ -207,6 +207,16 @@ pub trait Policy: Send {
     fn self_test(&mut self) -> Result<(), PolicyError> {
         Ok(())
     }
+
+    /// Whether a row's actions are a function of the row's own inputs alone
+    /// (observation window, images, previous actions), bit for bit, whatever
+    /// else is in the batch and whatever the rollout id and step. The engine
+    /// then simulates the rollouts of one initial state once. Default: no
+    /// (remote and scripted policies may draw random numbers or keep state
+    /// per rollout).
+    fn deterministic(&self) -> bool {
+        false
+    }
 }
 
 impl<P: Policy + ?Sized> Policy for Box<P> {
@@ -224,6 +234,9 @@ impl<P: Policy + ?Sized> Policy for Box<P> {
     }
     fn takes_prev_actions(&self) -> bool {
         (**self).takes_prev_actions()
+    }
+    fn deterministic(&self) -> bool {
+        (**self).deterministic()
     }
     fn self_test(&mut self) -> Result<(), PolicyError> {
         (**self).self_test()

@@ -118,6 +118,13 @@ pub fn print_timing(t: &eval::Timing) {
         "time {:.1}s: stepping {:.1}s, policy {:.2}s over {} batched calls",
         t.total_s, t.physics_s, t.policy_s, t.policy_calls
     );
+    if t.rollouts_simulated < t.rollouts {
+        eprintln!(
+            "deterministic policy (no `noise` input): each initial state was simulated once \
+             and recorded for each of its rollouts ({} of {} rollouts simulated, same results)",
+            t.rollouts_simulated, t.rollouts
+        );
+    }
 }
 
 /// The policy manifest of an ONNX file: `manifest` when given, else the

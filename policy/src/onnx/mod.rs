@@ -241,4 +241,11 @@ impl Policy for OnnxPolicy {
     fn self_test(&mut self) -> Result<(), PolicyError> {
         self.test_inference()
     }
+
+    /// Without a `noise` input the graph has no randomness (admission refuses
+    /// random operators), and a row's actions do not depend on the rest of
+    /// the batch ([`load::bucket`]).
+    fn deterministic(&self) -> bool {
+        !self.has(Feed::Noise)
+    }
 }

@@ -1,0 +1,97 @@
+//! A deterministic policy (an ONNX graph without a `noise` input) gives the
+//! same rollout every time it starts from the same initial state, so the
+//! engine simulates each initial state once and records it under every
+//! rollout index. These tests run each protocol both ways and compare every
+//! rollout record and metric: state policies on a contact task (Aligning:
+//! the box is pushed, where a last-bit difference grows) and on Avoiding
+//! (paths recorded), and an image policy. A policy with a `noise` input is
+//! simulated rollout by rollout.
+
+use d3il_evaluator::eval::{evaluate, sha256_hex, EvalOptions, PolicyInfo, Timing};
+use d3il_evaluator::tasks::LoadedTask;
+use d3il_policy::{OnnxPolicy, Policy};
+use d3il_protocol::{EvalResult, ObsType, ProtocolKind, TaskId};
+use d3il_test_support::{fixture_manifest, fixtures_dir};
+
+fn evaluate_fixture(
+    task: TaskId,
+    obs_type: ObsType,
+    name: &str,
+    every_rollout: bool,
+) -> (EvalResult, Timing) {
+    let task = LoadedTask::load_obs(task, obs_type).unwrap();
+    let bytes = std::fs::read(fixtures_dir().join(format!("{name}.onnx"))).unwrap();
+    let mut policy = OnnxPolicy::load(&bytes, &fixture_manifest(name), &task.spec(), 0).unwrap();
+    let info = PolicyInfo {
+        sha256: sha256_hex(&bytes),
+        obs_type,
+    };
+    let opts = EvalOptions {
+        protocol: ProtocolKind::Quick,
+        bootstrap_resamples: 200,
+        max_live: 4, // fewer slots than rollouts: slots are reused
+        simulate_every_rollout: every_rollout,
+        ..EvalOptions::default()
+    };
+    evaluate(&task, &mut policy, &info, &opts, &mut |_, _| {}).unwrap()
+}
+
+/// Everything but the measured inference time.
+fn comparable(r: &EvalResult) -> serde_json::Value {
+    let mut v = serde_json::to_value(r).unwrap();
+    v["metrics"]["inference_ms"] = serde_json::Value::Null;
+    v
+}
+
+fn same_both_ways(task: TaskId, obs_type: ObsType, name: &str) -> EvalResult {
+    let (all, t_all) = evaluate_fixture(task, obs_type, name, true);
+    let (once, t_once) = evaluate_fixture(task, obs_type, name, false);
+    let n = all.rollouts.len();
+    let states = all.manifest.n_contexts;
+    assert!(
+        all.manifest.rollouts_per_context > 1,
+        "{name}: nothing to share"
+    );
+    assert_eq!(t_all.rollouts_simulated, n, "{name}");
+    assert_eq!(
+        t_once.rollouts_simulated, states,
+        "{name}: one per initial state"
+    );
+    assert_eq!(
+        comparable(&all),
+        comparable(&once),
+        "{name}: simulating each initial state once changed the result"
+    );
+    all
+}
+
+#[test]
+fn a_deterministic_state_policy_is_simulated_once_per_initial_state_with_the_same_results() {
+    let aligning = same_both_ways(TaskId::Aligning, ObsType::State, "aligning_mlp");
+    // The random-weight MLP drives the robot differently from each state.
+    let steps: Vec<usize> = aligning.rollouts.iter().map(|r| r.steps).collect();
+    assert!(steps.iter().all(|&s| s > 0));
+    let avoiding = same_both_ways(TaskId::Avoiding, ObsType::State, "avoiding_path");
+    assert!(avoiding.rollouts.iter().all(|r| r.path.is_some()));
+    assert_eq!(avoiding.metrics.conditional_entropy.value, 0.0);
+}
+
+#[test]
+fn a_deterministic_image_policy_is_simulated_once_per_initial_state_with_the_same_results() {
+    same_both_ways(TaskId::Aligning, ObsType::Image, "aligning_image_k2_h4");
+}
+
+#[test]
+fn a_policy_with_noise_is_simulated_rollout_by_rollout() {
+    let (bytes, manifest) = (
+        std::fs::read(fixtures_dir().join("avoiding_noise.onnx")).unwrap(),
+        fixture_manifest("avoiding_noise"),
+    );
+    let task = LoadedTask::load(TaskId::Avoiding).unwrap();
+    let policy = OnnxPolicy::load(&bytes, &manifest, &task.spec(), 0).unwrap();
+    assert!(!policy.deterministic());
+    let (r, t) = evaluate_fixture(TaskId::Avoiding, ObsType::State, "avoiding_noise", false);
+    assert_eq!(t.rollouts_simulated, r.rollouts.len());
+    // Its rollouts of the one initial state differ.
+    assert!(r.metrics.conditional_entropy.value > 0.0, "{:?}", r.metrics);
+}
