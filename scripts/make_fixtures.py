@@ -180,8 +180,10 @@ def avoiding_graph(noise, history=1, horizon=1):
     return g.model(inputs, outputs, "avoiding_noise" if noise else "avoiding_path")
 
 
-def mlp_graph(batch="B", obs_dim=20, hidden=128, layers=6, act_dim=3, seed=0):
-    """BC-MLP size from the paper: 6 hidden layers of 128 (ReLU)."""
+def mlp_graph(batch="B", obs_dim=20, hidden=128, layers=6, act_dim=3, seed=0, noise=False):
+    """BC-MLP size from the paper: 6 hidden layers of 128 (ReLU). With `noise`,
+    the actions get 1e-4 times the evaluator's noise added, which makes the policy
+    stochastic (every rollout is simulated) at the same cost."""
     rng = np.random.default_rng(seed)
     g = Graph()
     h = g.op("Flatten", ["obs"], axis=1)
@@ -191,10 +193,16 @@ def mlp_graph(batch="B", obs_dim=20, hidden=128, layers=6, act_dim=3, seed=0):
         b = np.zeros(dims[i + 1], np.float32)
         if i == len(dims) - 2:
             w *= 0.01  # keep benchmark actions small (centimetre-scale deltas)
-            g.op_to("Gemm", [h, g.const(w), g.const(b)], "actions")
+            if noise:
+                mean = g.op("Gemm", [h, g.const(w), g.const(b)])
+                g.op_to("Add", [mean, g.op("Mul", ["noise", g.const(1e-4)])], "actions")
+            else:
+                g.op_to("Gemm", [h, g.const(w), g.const(b)], "actions")
         else:
             h = g.op("Relu", [g.op("Gemm", [h, g.const(w), g.const(b)])])
     inputs = [helper.make_tensor_value_info("obs", TensorProto.FLOAT, [batch, 1, obs_dim])]
+    if noise:
+        inputs.append(helper.make_tensor_value_info("noise", TensorProto.FLOAT, [batch, act_dim]))
     outputs = [helper.make_tensor_value_info("actions", TensorProto.FLOAT, [batch, act_dim])]
     return g.model(inputs, outputs, "aligning_mlp")
 
@@ -427,6 +435,8 @@ def main():
          "avoiding_path with history 5 (uses the newest) and a chunk of 3 identical actions, execute 1")
     save("aligning_mlp", mlp_graph(), manifest("aligning"),
          "BC-MLP size (20 -> 6x128 ReLU -> 3), random weights, for benchmarks")
+    save("aligning_mlp_noise", mlp_graph(noise=True), manifest("aligning"),
+         "aligning_mlp plus 1e-4 x the noise input: stochastic, so every rollout is simulated (bench scale)")
     save("aligning_mlp_batch1", mlp_graph(batch=1), manifest("aligning"),
          "the same MLP with a fixed batch dimension of 1 (evaluator runs rows one by one)")
     save("aligning_image", image_graph(), manifest("aligning", obs_type="image"),

@@ -178,5 +178,32 @@ fn eval_and_submit_find_the_manifest_next_to_the_onnx_file_the_same_way() {
             && stderr.contains("(1 of 8 rollouts simulated, same results)"),
         "{stderr}"
     );
+    // --every-rollout simulates all 8 and gets the same records and metrics.
+    let run_json = |extra: &[&str], out: &str| {
+        let o = Command::new(EXE)
+            .args([
+                "eval",
+                "--task",
+                "avoiding",
+                "--protocol",
+                "quick",
+                "--policy",
+            ])
+            .arg(&onnx)
+            .args(extra)
+            .arg("--json")
+            .arg(dir.join(out))
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let mut v: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(dir.join(out)).unwrap()).unwrap();
+        v["metrics"]["inference_ms"] = serde_json::Value::Null;
+        (v, String::from_utf8_lossy(&o.stderr).into_owned())
+    };
+    let (once, _) = run_json(&[], "once.json");
+    let (every, stderr) = run_json(&["--every-rollout"], "every.json");
+    assert!(!stderr.contains("simulated once"), "{stderr}");
+    assert_eq!(once, every);
     std::fs::remove_dir_all(&dir).unwrap();
 }

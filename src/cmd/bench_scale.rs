@@ -1,4 +1,5 @@
-//! `d3il bench scale`: one evaluation (the Aligning BC-MLP fixture, paper
+//! `d3il bench scale`: one evaluation (the Aligning BC-MLP fixture with a
+//! noise input, so all rollouts are simulated as for a stochastic policy; paper
 //! protocol by default) split into shards on a PostgreSQL queue, run by 1 and
 //! then by N local worker hosts (`d3il workers`, each pinned to its own core
 //! with `taskset`, so a host stands for a one-core machine). Prints both wall
@@ -17,7 +18,9 @@ use std::path::Path;
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
-const FIXTURE: &str = "fixtures/aligning_mlp";
+/// Stochastic (it takes `noise`): a deterministic policy would be simulated
+/// once per initial state, an eighth of the work this bench is about.
+const FIXTURE: &str = "fixtures/aligning_mlp_noise";
 
 pub fn run(protocol: ProtocolKind, hosts: usize, shards: usize) -> anyhow::Result<()> {
     let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
@@ -42,7 +45,7 @@ pub fn run(protocol: ProtocolKind, hosts: usize, shards: usize) -> anyhow::Resul
 
 fn bench(dir: &Path, protocol: ProtocolKind, hosts: usize, shards: usize) -> anyhow::Result<()> {
     eprintln!(
-        "Aligning BC-MLP fixture, {protocol:?} protocol, {shards} shards, worker hosts pinned to one core each"
+        "Aligning BC-MLP fixture with noise, {protocol:?} protocol, {shards} shards, worker hosts pinned to one core each"
     );
     let one = timed_run(&dir.join("one"), protocol, 1, shards)?;
     println!("1 host:  {one:.1} s");

@@ -38,6 +38,11 @@ pub struct Args {
     /// Run the evaluation in a sandboxed `d3il worker` process.
     #[arg(long)]
     pub sandbox: bool,
+    /// Simulate every rollout also for a deterministic policy (no `noise`
+    /// input), which is otherwise simulated once per initial state with the
+    /// same results; for checking that (in process, not with --sandbox).
+    #[arg(long, conflicts_with = "sandbox")]
+    pub every_rollout: bool,
     /// Observation type of a remote endpoint (`state` or `image`); an ONNX
     /// policy's manifest says it itself.
     #[arg(long, default_value = "state")]
@@ -106,6 +111,7 @@ pub fn load_in_process(
         protocol: job.protocol,
         seed: job.seed,
         max_live: args.max_live,
+        simulate_every_rollout: args.every_rollout,
         ..EvalOptions::default()
     };
     Ok((task, policy, info, opts))
