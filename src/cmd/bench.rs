@@ -356,6 +356,12 @@ fn render_bench(
         "ResNet-sized policy at batch 480: {:.2} ms per env step",
         1000.0 * at_480 / 480.0
     );
+    let (contexts, per) = eval::protocol_size(&task, ProtocolKind::Paper, n_set);
+    println!(
+        "a deterministic image policy (no `noise` input) is simulated once per initial state: \
+         {contexts} of the paper protocol's {} rollouts, so 1/{per} of these physics, rendering and policy costs",
+        contexts * per
+    );
     println!(
         "ratio rendering/physics time: {:.3}",
         t.render_cpu_s / physics
