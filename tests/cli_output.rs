@@ -7,6 +7,20 @@ use std::process::Command;
 
 const EXE: &str = env!("CARGO_BIN_EXE_d3il");
 
+/// `d3il eval --task TASK --protocol quick --policy POLICY EXTRA...`, run to the end.
+fn eval_quick(
+    task: &str,
+    policy: impl AsRef<std::ffi::OsStr>,
+    extra: &[&str],
+) -> std::process::Output {
+    Command::new(EXE)
+        .args(["eval", "--task", task, "--protocol", "quick", "--policy"])
+        .arg(policy)
+        .args(extra)
+        .output()
+        .unwrap()
+}
+
 fn fixture(name: &str) -> std::path::PathBuf {
     std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
         .join("assets/fixtures")
@@ -18,20 +32,11 @@ fn eval_prints_observation_type_lowercase_protocol_and_behaviour_histogram() {
     let dir = std::env::temp_dir().join(format!("d3il-cli-output-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let json = dir.join("r.json");
-    let out = Command::new(EXE)
-        .args([
-            "eval",
-            "--task",
-            "aligning",
-            "--protocol",
-            "quick",
-            "--policy",
-            "scripted:aligning:both",
-            "--json",
-        ])
-        .arg(&json)
-        .output()
-        .unwrap();
+    let out = eval_quick(
+        "aligning",
+        "scripted:aligning:both",
+        &["--json", json.to_str().unwrap()],
+    );
     let stdout = String::from_utf8_lossy(&out.stdout);
     assert!(
         out.status.success(),
@@ -83,18 +88,7 @@ fn eval_prints_observation_type_lowercase_protocol_and_behaviour_histogram() {
 
 #[test]
 fn a_scripted_name_of_another_task_is_refused_with_the_tasks_own_names() {
-    let out = Command::new(EXE)
-        .args([
-            "eval",
-            "--task",
-            "avoiding",
-            "--protocol",
-            "quick",
-            "--policy",
-            "scripted:aligning:both",
-        ])
-        .output()
-        .unwrap();
+    let out = eval_quick("avoiding", "scripted:aligning:both", &[]);
     assert!(!out.status.success());
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(
@@ -116,18 +110,7 @@ fn eval_and_submit_find_the_manifest_next_to_the_onnx_file_the_same_way() {
         "reading the policy manifest {} (put it next to the .onnx file with the same name, or pass --manifest",
         dir.join("policy.json").display()
     );
-    let eval = Command::new(EXE)
-        .args([
-            "eval",
-            "--task",
-            "avoiding",
-            "--protocol",
-            "quick",
-            "--policy",
-        ])
-        .arg(&onnx)
-        .output()
-        .unwrap();
+    let eval = eval_quick("avoiding", &onnx, &[]);
     assert!(!eval.status.success());
     assert!(String::from_utf8_lossy(&eval.stderr).contains(&expect));
     let submit = Command::new(EXE)
@@ -153,18 +136,7 @@ fn eval_and_submit_find_the_manifest_next_to_the_onnx_file_the_same_way() {
     assert!(stderr.contains(&expect), "{stderr}");
     // With the manifest next to the file, eval runs.
     std::fs::copy(fixture("avoiding_path.json"), dir.join("policy.json")).unwrap();
-    let eval = Command::new(EXE)
-        .args([
-            "eval",
-            "--task",
-            "avoiding",
-            "--protocol",
-            "quick",
-            "--policy",
-        ])
-        .arg(&onnx)
-        .output()
-        .unwrap();
+    let eval = eval_quick("avoiding", &onnx, &[]);
     assert!(
         eval.status.success(),
         "{}",
@@ -180,24 +152,15 @@ fn eval_and_submit_find_the_manifest_next_to_the_onnx_file_the_same_way() {
     );
     // --every-rollout simulates all 8 and gets the same records and metrics.
     let run_json = |extra: &[&str], out: &str| {
-        let o = Command::new(EXE)
-            .args([
-                "eval",
-                "--task",
-                "avoiding",
-                "--protocol",
-                "quick",
-                "--policy",
-            ])
-            .arg(&onnx)
-            .args(extra)
-            .arg("--json")
-            .arg(dir.join(out))
-            .output()
-            .unwrap();
+        let path = dir.join(out);
+        let o = eval_quick(
+            "avoiding",
+            &onnx,
+            &[extra, &["--json", path.to_str().unwrap()]].concat(),
+        );
         assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
         let mut v: serde_json::Value =
-            serde_json::from_slice(&std::fs::read(dir.join(out)).unwrap()).unwrap();
+            serde_json::from_slice(&std::fs::read(&path).unwrap()).unwrap();
         v["metrics"]["inference_ms"] = serde_json::Value::Null;
         (v, String::from_utf8_lossy(&o.stderr).into_owned())
     };
