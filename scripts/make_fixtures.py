@@ -277,6 +277,19 @@ def random_op_graph():
     return g.model(inputs, outputs, "random_op")
 
 
+def mixes_rows_graph():
+    """Avoiding shapes; subtracts the batch mean from each row (batch statistics, as
+    a BatchNorm exported in training mode does), so a row's actions depend on the
+    other rows of the batch."""
+    g = Graph()
+    flat = g.op("Flatten", ["obs"], axis=1)
+    two = g.op("Slice", [flat, g.const([0], np.int64), g.const([2], np.int64), g.const([1], np.int64)])
+    g.op_to("Sub", [two, g.op("ReduceMean", [two], axes=[0], keepdims=1)], "actions")
+    inputs = [helper.make_tensor_value_info("obs", TensorProto.FLOAT, ["B", 1, 4])]
+    outputs = [helper.make_tensor_value_info("actions", TensorProto.FLOAT, ["B", 2])]
+    return g.model(inputs, outputs, "mixes_rows")
+
+
 def endless_graph(n=4096, repeats=64):
     """A chain of input-dependent n x n MatMuls: ~64 x 1.4e11 flop per query, so a
     query never finishes in useful time; the file itself stays tiny (the big
@@ -460,6 +473,8 @@ def main():
     save("hostile_wrong_obs_dim", wrong_obs_dim_graph(), av, "obs last dimension 3, Avoiding needs 4")
     save("hostile_wrong_act_dim", wrong_act_dim_graph(), av, "3 actions per row, Avoiding needs 2")
     save("hostile_nan", nan_graph(), av, "every action is NaN")
+    save("hostile_mixes_rows", mixes_rows_graph(), av,
+         "subtracts the batch mean from each row: a row's actions depend on the other rows")
     save("hostile_random_op", random_op_graph(), av,
          "draws noise with an in-graph RandomNormalLike instead of the noise input (not reproducible)")
     save("hostile_endless", endless_graph(), av, "64 chained 4096x4096 MatMuls per query: never finishes in time")

@@ -226,3 +226,19 @@ fn wrong_shapes_are_refused_at_load_time() {
         "input `obs` has last dimension 3 but task avoiding expects 4 (previous command xy + observation xy)"
     );
 }
+
+#[test]
+fn irreproducible_graphs_are_refused_with_the_fix() {
+    // Its own random generator: results would differ run to run.
+    let m = expect("hostile_random_op", limits(), ErrorKind::BadModel);
+    assert!(
+        m.contains("is a RandomNormalLike operator") && m.contains("`noise` input"),
+        "{m}"
+    );
+    // Batch statistics: a row's actions would depend on its company.
+    let m = expect("hostile_mixes_rows", limits(), ErrorKind::BadModel);
+    assert!(
+        m.contains("the graph mixes the rows of the batch") && m.contains("model.eval()"),
+        "{m}"
+    );
+}

@@ -284,6 +284,20 @@ fn wrong_dimensions_name_what_was_expected() {
 }
 
 #[test]
+fn a_graph_that_mixes_the_rows_of_the_batch_is_refused() {
+    let (bytes, man) = fixture("hostile_mixes_rows");
+    // It loads; the test inference every admission and evaluation runs finds it.
+    let p = OnnxPolicy::load(&bytes, &man, &spec(TaskId::Avoiding), 0).unwrap();
+    let e = p.test_inference().unwrap_err();
+    assert_eq!(e.kind(), ErrorKind::BadModel, "{e}");
+    let m = e.to_string();
+    assert!(
+        m.contains("the graph mixes the rows of the batch") && m.contains("model.eval()"),
+        "{m}"
+    );
+}
+
+#[test]
 fn random_operators_in_the_graph_are_refused() {
     let e = hostile("hostile_random_op").to_string();
     assert!(

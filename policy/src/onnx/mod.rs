@@ -134,6 +134,10 @@ impl OnnxPolicy {
     /// Runs every window length in use at batch [`ADMISSION_BATCH`] on zero
     /// observations, so a graph that loads but cannot run (e.g. one optimised
     /// into shapes that only hold at batch 1) is refused with tract's reason.
+    /// Then runs the full window again with the second row's inputs changed:
+    /// a graph whose first row then gets other actions mixes the rows of the
+    /// batch, and is refused (its results would depend on which rollouts share
+    /// a call, and a deterministic one is simulated once per initial state).
     pub fn test_inference(&self) -> Result<(), PolicyError> {
         let s = self.shape;
         let windows: Vec<usize> = if self.sig.grow {
@@ -144,10 +148,16 @@ impl OnnxPolicy {
         let b = ADMISSION_BATCH;
         let ids: Vec<u64> = (0..b as u64).collect();
         let steps = vec![0u64; b];
-        for w in windows {
-            let obs = vec![0.0f32; b * w * s.obs_dim];
-            let images = vec![0.0f32; b * w * crate::IMAGE_LEN];
-            let prev = vec![0.0f32; b * (w - 1) * s.act_dim];
+        // Row 0 is all zeros; row 1 is zeros, or `other` in the second run.
+        let run = |w: usize, other: f32| -> Result<Vec<f32>, PolicyError> {
+            let rows = |len: usize| -> Vec<f32> {
+                let mut v = vec![0.0f32; b * len];
+                v[len..].fill(other);
+                v
+            };
+            let obs = rows(w * s.obs_dim);
+            let images = rows(w * crate::IMAGE_LEN);
+            let prev = rows((w - 1) * s.act_dim);
             let q = Query {
                 rollout_ids: &ids,
                 steps: &steps,
@@ -164,6 +174,24 @@ impl OnnxPolicy {
                 )),
                 other => other,
             })?;
+            Ok(out)
+        };
+        let mut zeros = Vec::new();
+        for &w in &windows {
+            zeros = run(w, 0.0)?;
+        }
+        if self.sig.fixed_batch.is_none() {
+            let changed = run(s.history, 0.5)?;
+            let row = s.horizon * s.act_dim;
+            let same = zeros[..row]
+                .iter()
+                .zip(&changed[..row])
+                .all(|(a, b)| a.to_bits() == b.to_bits());
+            if !same {
+                return Err(PolicyError::Unsupported(
+                    "the actions of one row of a test batch changed when only the other row's inputs changed: the graph mixes the rows of the batch (batch statistics, e.g. a BatchNorm exported in training mode: export after model.eval(); or a reduction over the batch axis). The evaluator runs many rollouts in one call, so each row's actions must depend on that row's inputs alone".into(),
+                ));
+            }
         }
         Ok(())
     }
