@@ -24,9 +24,10 @@ pub struct Progress {
     pub eta_seconds: Option<i64>,
 }
 
-/// Estimated seconds until the result of a job of `task` and `protocol`.
+/// Estimated seconds until the result of a job of `task`, `obs_type` and
+/// `protocol`.
 ///
-/// Past runs of the same task and protocol are the only basis: without them
+/// Past runs of the same task, observation type and protocol are the only basis: without them
 /// (and without progress to extrapolate from) there is no estimate, never a
 /// guess and never "0 s". A queued job waits for the jobs ahead of it (each
 /// at its own kind's mean, spread over the slots: this front end's, or as
@@ -36,6 +37,7 @@ pub async fn progress(
     state: &AppState,
     job: &JobRow,
     task: TaskId,
+    obs_type: ObsType,
     protocol: ProtocolKind,
 ) -> Result<Progress, AppError> {
     // A finished job has no position and no estimate: no queries.
@@ -47,21 +49,26 @@ pub async fn progress(
             eta_seconds: None,
         });
     }
-    // (task, protocol) of the queued jobs ahead; their count is the position.
+    // (task, observation type, protocol) of the queued jobs ahead; their
+    // count is the position.
     let ahead = match job.state {
         JobState::Queued => Some(state.store.queued_ahead(job.id).await?),
         _ => None,
     };
     let pos = ahead.as_ref().map(|a| a.len() as i64);
-    let means: HashMap<(String, String), f64> = state
+    let means: HashMap<(String, String, String), f64> = state
         .store
         .mean_job_seconds_by_kind()
         .await?
         .into_iter()
-        .map(|(t, p, m)| ((t, p), m.max(1.0)))
+        .map(|(t, o, p, m)| ((t, o, p), m.max(1.0)))
         .collect();
     let own = means
-        .get(&(task.slug().to_string(), protocol_str(protocol).to_string()))
+        .get(&(
+            task.slug().to_string(),
+            obs_type.as_str().to_string(),
+            protocol_str(protocol).to_string(),
+        ))
         .copied();
     let workers = state.cfg.workers.max(1) as f64;
     let eta = match (job.state, &ahead) {
@@ -71,7 +78,7 @@ pub async fn progress(
                 let quick_slot = state.cfg.workers > 0 && protocol == ProtocolKind::Quick;
                 let waits: Vec<f64> = ahead
                     .iter()
-                    .filter(|(_, p)| !quick_slot || p == protocol_str(ProtocolKind::Quick))
+                    .filter(|(_, _, p)| !quick_slot || p == protocol_str(ProtocolKind::Quick))
                     .map(|k| means.get(k).copied().unwrap_or(own))
                     .collect();
                 // While jobs wait, every slot that exists is busy: worker
@@ -239,7 +246,7 @@ pub struct RolloutView {
 pub async fn submission_view(state: &AppState, id: i64) -> Result<SubmissionView, AppError> {
     let s = state.store.submission(id).await?;
     let job = state.store.job_for(id).await?;
-    let p = progress(state, &job, s.task, s.protocol).await?;
+    let p = progress(state, &job, s.task, s.obs_type, s.protocol).await?;
     let result = match state.store.result_for(id).await? {
         Some(r) => Some(results_view(state, r).await?),
         None => None,

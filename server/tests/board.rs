@@ -379,7 +379,7 @@ async fn the_wait_estimate_counts_the_jobs_worker_hosts_run() {
         .await
         .unwrap();
     let mean = store.mean_job_seconds_by_kind().await.unwrap()[0]
-        .2
+        .3
         .max(1.0);
     let mut ids = vec![];
     for seed in 1..=6 {

@@ -1,6 +1,6 @@
 //! Issue 18: a quick smoke test has its own worker slot and never waits
-//! behind a paper run; ETAs come from past runs of the same task and
-//! protocol, or say there is no estimate (never "0 s"). Real server on
+//! behind a paper run; ETAs come from past runs of the same task,
+//! observation type and protocol, or say there is no estimate (never "0 s"). Real server on
 //! 127.0.0.1 port 0, real SQLite, real worker processes (shell fixtures
 //! speaking the worker's JSON lines).
 
@@ -70,12 +70,17 @@ fn result_line() -> String {
 }
 
 async fn submit(app: &TestApp, method: &str, task: &str, protocol: &str) -> i64 {
-    let m = manifest(task);
+    submit_obs(app, method, task, "state", protocol).await
+}
+
+async fn submit_obs(app: &TestApp, method: &str, task: &str, obs: &str, protocol: &str) -> i64 {
+    let m = manifest(task).replace(r#""obs_type": "state""#, &format!(r#""obs_type": "{obs}""#));
     let r = app
         .submit(
             &[
                 ("method", method),
                 ("task", task),
+                ("obs_type", obs),
                 ("training_seed", "0"),
                 ("protocol", protocol),
                 ("manifest", m.as_str()),
@@ -83,8 +88,10 @@ async fn submit(app: &TestApp, method: &str, task: &str, protocol: &str) -> i64 
             Some(fake_onnx()),
         )
         .await;
-    assert_eq!(r.status(), 201);
-    r.json::<Value>().await.unwrap()["id"].as_i64().unwrap()
+    let status = r.status();
+    let v = r.json::<Value>().await.unwrap();
+    assert_eq!(status, 201, "{v}");
+    v["id"].as_i64().unwrap()
 }
 
 async fn status(app: &TestApp, id: i64) -> Value {
@@ -176,7 +183,12 @@ async fn etas_come_from_past_runs_of_the_same_task_and_protocol(b: Backend) {
     let means = store.mean_job_seconds_by_kind().await.unwrap();
     assert_eq!(
         means,
-        vec![("pushing".to_string(), "paper".to_string(), 0.0)],
+        vec![(
+            "pushing".to_string(),
+            "state".to_string(),
+            "paper".to_string(),
+            0.0
+        )],
         "{means:?}"
     );
     // Two queued Pushing paper jobs: 1 s each at the kind's mean; the second
@@ -194,7 +206,33 @@ async fn etas_come_from_past_runs_of_the_same_task_and_protocol(b: Backend) {
     assert_eq!(status(&app, other).await["eta_seconds"], Value::Null);
 }
 
+/// An image evaluation renders two cameras at every step: a state run's time
+/// is no estimate for it, nor the reverse.
+async fn etas_keep_state_and_image_runs_apart(b: Backend) {
+    let app = spawn_app_with(Options {
+        backend: b,
+        ..Default::default()
+    })
+    .await; // no worker slots: jobs stay queued
+    let store = &app.state.store;
+    let first = submit(&app, "First", "aligning", "quick").await;
+    let c = store.claim_job("test", 60).await.unwrap().unwrap();
+    assert_eq!(c.submission.id, first);
+    let WorkerMessage::Result(r) = serde_json::from_str(&result_line()).unwrap() else {
+        panic!("a result line")
+    };
+    store.complete_job(c.job.id, first, &r, &[]).await.unwrap();
+    let image = submit_obs(&app, "Image", "aligning", "image", "quick").await;
+    assert_eq!(status(&app, image).await["eta_seconds"], Value::Null);
+    // A state run of the same kind has its estimate: 1 s for the image job
+    // ahead of it (no history of its own: counted at this job's mean), 1 s
+    // for itself.
+    let state = submit(&app, "State", "aligning", "quick").await;
+    assert_eq!(status(&app, state).await["eta_seconds"], 2);
+}
+
 common::on_both_backends!(
     a_quick_job_runs_on_its_own_slot_while_paper_runs_hold_every_other_slot,
-    etas_come_from_past_runs_of_the_same_task_and_protocol
+    etas_come_from_past_runs_of_the_same_task_and_protocol,
+    etas_keep_state_and_image_runs_apart
 );

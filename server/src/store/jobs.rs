@@ -540,29 +540,37 @@ impl Store {
     }
 
     /// Mean wall time, in seconds, of the last 20 completed submissions of
-    /// each (task slug, protocol) pair, from the first shard's start to the
-    /// last shard's finish: the basis of ETAs (a Stacking paper run and an
-    /// Aligning smoke test take very different times).
-    pub async fn mean_job_seconds_by_kind(&self) -> Result<Vec<(String, String, f64)>, StoreError> {
+    /// each (task slug, observation type, protocol), from the first shard's
+    /// start to the last shard's finish: the basis of ETAs (a Stacking paper
+    /// run and an Aligning smoke test take very different times, and an image
+    /// evaluation renders two cameras at every step).
+    pub async fn mean_job_seconds_by_kind(
+        &self,
+    ) -> Result<Vec<(String, String, String, f64)>, StoreError> {
         Ok(on_db!(&self.db, pool => sqlx::query_as(
-            "SELECT task, protocol, AVG(d) FROM (SELECT s.task AS task, s.protocol AS protocol, \
+            "SELECT task, obs_type, protocol, AVG(d) FROM (SELECT s.task AS task, \
+             s.obs_type AS obs_type, s.protocol AS protocol, \
              CAST(MAX(j.finished_at) - MIN(j.started_at) AS DOUBLE PRECISION) AS d, \
-             ROW_NUMBER() OVER (PARTITION BY s.task, s.protocol ORDER BY MAX(j.finished_at) DESC) AS n \
+             ROW_NUMBER() OVER (PARTITION BY s.task, s.obs_type, s.protocol \
+             ORDER BY MAX(j.finished_at) DESC) AS n \
              FROM jobs j JOIN submissions s ON s.id = j.submission_id \
              WHERE s.status = 'completed' AND j.started_at IS NOT NULL AND j.finished_at IS NOT NULL \
-             GROUP BY s.id, s.task, s.protocol) AS recent \
-             WHERE n <= 20 GROUP BY task, protocol",
+             GROUP BY s.id, s.task, s.obs_type, s.protocol) AS recent \
+             WHERE n <= 20 GROUP BY task, obs_type, protocol",
         )
         .fetch_all(pool)
         .await)?)
     }
 
-    /// (task slug, protocol) of the submissions with queued work ahead of
+    /// (task slug, observation type, protocol) of the submissions with queued work ahead of
     /// job `job_id` (one entry per submission, however many shards), oldest
     /// first.
-    pub async fn queued_ahead(&self, job_id: i64) -> Result<Vec<(String, String)>, StoreError> {
+    pub async fn queued_ahead(
+        &self,
+        job_id: i64,
+    ) -> Result<Vec<(String, String, String)>, StoreError> {
         Ok(on_db!(&self.db, pool => sqlx::query_as(
-            "SELECT s.task, s.protocol FROM submissions s WHERE s.id IN \
+            "SELECT s.task, s.obs_type, s.protocol FROM submissions s WHERE s.id IN \
              (SELECT submission_id FROM jobs WHERE state = 'queued' AND id < $1) ORDER BY s.id",
         )
         .bind(job_id)
