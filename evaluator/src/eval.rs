@@ -439,16 +439,18 @@ fn run_rollouts(
                 failure,
             };
             // Simulated once for the whole initial state: the same record
-            // under each rollout index.
-            let copies = if sim_per_ctx == per_ctx { 1 } else { per_ctx };
-            for k in 0..copies {
-                let i = id + k - first_id;
-                keys[i] = Some(key.clone());
-                records[i] = Some(RolloutRecord {
+            // also under the state's other rollout indices.
+            let copies = per_ctx / sim_per_ctx;
+            let i = id - first_id;
+            for k in 1..copies {
+                keys[i + k] = Some(key.clone());
+                records[i + k] = Some(RolloutRecord {
                     rollout_index: r + k,
                     ..record.clone()
                 });
             }
+            keys[i] = Some(key);
+            records[i] = Some(record);
             done_count += copies;
             if let Some(nid) = start(slot, &mut next)? {
                 new_ids.push(nid);

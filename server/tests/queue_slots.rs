@@ -94,6 +94,18 @@ async fn submit_obs(app: &TestApp, method: &str, task: &str, obs: &str, protocol
     v["id"].as_i64().unwrap()
 }
 
+/// Claims the next queued job, which must be submission `id`'s, and
+/// completes it at once with [`result_line`]'s result.
+async fn complete_next(app: &TestApp, id: i64) {
+    let store = &app.state.store;
+    let c = store.claim_job("test", 60).await.unwrap().unwrap();
+    assert_eq!(c.submission.id, id);
+    let WorkerMessage::Result(r) = serde_json::from_str(&result_line()).unwrap() else {
+        panic!("a result line")
+    };
+    store.complete_job(c.job.id, id, &r, &[]).await.unwrap();
+}
+
 async fn status(app: &TestApp, id: i64) -> Value {
     app.get_json(&format!("/api/v1/submissions/{id}")).await.1
 }
@@ -174,12 +186,7 @@ async fn etas_come_from_past_runs_of_the_same_task_and_protocol(b: Backend) {
     let means = store.mean_job_seconds_by_kind().await.unwrap();
     assert!(means.is_empty(), "a failed job is no basis: {means:?}");
     let second = submit(&app, "Second", "pushing", "paper").await;
-    let c = store.claim_job("test", 60).await.unwrap().unwrap();
-    assert_eq!(c.submission.id, second);
-    let WorkerMessage::Result(r) = serde_json::from_str(&result_line()).unwrap() else {
-        panic!("a result line")
-    };
-    store.complete_job(c.job.id, second, &r, &[]).await.unwrap();
+    complete_next(&app, second).await;
     let means = store.mean_job_seconds_by_kind().await.unwrap();
     assert_eq!(
         means,
@@ -214,14 +221,8 @@ async fn etas_keep_state_and_image_runs_apart(b: Backend) {
         ..Default::default()
     })
     .await; // no worker slots: jobs stay queued
-    let store = &app.state.store;
     let first = submit(&app, "First", "aligning", "quick").await;
-    let c = store.claim_job("test", 60).await.unwrap().unwrap();
-    assert_eq!(c.submission.id, first);
-    let WorkerMessage::Result(r) = serde_json::from_str(&result_line()).unwrap() else {
-        panic!("a result line")
-    };
-    store.complete_job(c.job.id, first, &r, &[]).await.unwrap();
+    complete_next(&app, first).await;
     let image = submit_obs(&app, "Image", "aligning", "image", "quick").await;
     assert_eq!(status(&app, image).await["eta_seconds"], Value::Null);
     // A state run of the same kind has its estimate: 1 s for the image job

@@ -110,15 +110,20 @@ fn human_bytes(b: u64) -> String {
     }
 }
 
+/// A tensor's or node's name in a message (ONNX names are optional).
+fn shown_name(name: &str) -> &str {
+    if name.is_empty() {
+        "(unnamed)"
+    } else {
+        name
+    }
+}
+
 /// Refuses tensors whose declared size does not match the data they carry, or
 /// that live in external files, before tract allocates anything: a hostile file
 /// could otherwise declare tens of GiB in a few bytes.
 fn check_tensor(t: &pb::TensorProto, what: &str, total: &mut u64) -> Result<(), PolicyError> {
-    let name = if t.name.is_empty() {
-        "(unnamed)"
-    } else {
-        &t.name
-    };
+    let name = shown_name(&t.name);
     if t.data_location == Some(pb::tensor_proto::DataLocation::External as i32)
         || !t.external_data.is_empty()
     {
@@ -211,11 +216,7 @@ fn check_graph(g: &pb::GraphProto, total: &mut u64, depth: usize) -> Result<(), 
         if RANDOM_OPS.contains(&n.op_type.as_str())
             && (n.domain.is_empty() || n.domain == "ai.onnx")
         {
-            let name = if n.name.is_empty() {
-                "(unnamed)"
-            } else {
-                &n.name
-            };
+            let name = shown_name(&n.name);
             return Err(PolicyError::Unsupported(format!(
                 "node `{name}` is a {} operator: it draws from the runtime's own random generator, so the evaluation would not be reproducible; take the random numbers from the `noise` input instead (the evaluator fills it, seeded per rollout and step; docs/export.md shows how to turn it into uniform or categorical samples)",
                 n.op_type
