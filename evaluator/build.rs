@@ -28,10 +28,12 @@ fn main() {
     regenerate();
 }
 
-/// The Panda hand and finger meshes that `./dev` converts from the
-/// `example-robot-data` package into assets/meshes/ (scripts/panda_meshes.py)
-/// are compiled into the binary when present, so that sandboxed workers need
-/// no file access for them; without them the scenes keep primitive shapes.
+/// The Panda meshes that `./dev` converts from the `example-robot-data`
+/// package into assets/meshes/ (scripts/panda_meshes.py) are compiled into the
+/// binary, every `panda_*.obj` there as (file name, contents), so that
+/// sandboxed workers need no file access for them; the scene checks that the
+/// ones it needs are present (`RobotLook::meshes_available`), else it keeps
+/// primitive shapes.
 fn embed_panda_meshes() {
     let manifest = std::env::var("CARGO_MANIFEST_DIR").expect("set by cargo");
     let dir = Path::new(&manifest).join("../assets/meshes");
@@ -44,23 +46,29 @@ fn embed_panda_meshes() {
             Path::new(&manifest).join("../assets").display()
         );
     }
-    let hand = dir.join("panda_hand.obj");
-    let finger = dir.join("panda_finger.obj");
-    let code = if hand.is_file() && finger.is_file() {
-        println!("cargo:rerun-if-changed={}", hand.display());
-        println!("cargo:rerun-if-changed={}", finger.display());
-        let abs = |p: &Path| p.canonicalize().expect("exists").display().to_string();
-        format!(
-            "/// (hand OBJ, finger OBJ) converted from example-robot-data at set-up time.\n\
-             pub const PANDA_MESHES: Option<(&str, &str)> = Some((include_str!({:?}), include_str!({:?})));\n",
-            abs(&hand),
-            abs(&finger)
-        )
-    } else {
-        "/// Not converted at build time (./dev installs example-robot-data and converts them).\n\
-         pub const PANDA_MESHES: Option<(&str, &str)> = None;\n"
-            .to_string()
-    };
+    let mut files: Vec<_> = std::fs::read_dir(&dir)
+        .into_iter()
+        .flatten()
+        .flatten()
+        .map(|e| e.path())
+        .filter(|p| {
+            let name = p.file_name().and_then(|n| n.to_str()).unwrap_or("");
+            p.is_file() && name.starts_with("panda_") && name.ends_with(".obj")
+        })
+        .collect();
+    files.sort();
+    let mut code = String::from(
+        "/// (file name, OBJ) of the Panda meshes converted from example-robot-data at\n\
+         /// set-up time (none when ./dev has not converted them).\n\
+         pub const PANDA_MESHES: &[(&str, &str)] = &[\n",
+    );
+    for p in &files {
+        println!("cargo:rerun-if-changed={}", p.display());
+        let abs = p.canonicalize().expect("exists").display().to_string();
+        let name = p.file_name().expect("a file").to_string_lossy().to_string();
+        code.push_str(&format!("    ({name:?}, include_str!({abs:?})),\n"));
+    }
+    code.push_str("];\n");
     let out = Path::new(&std::env::var("OUT_DIR").expect("set by cargo")).join("panda_meshes.rs");
     std::fs::write(out, code).expect("writing OUT_DIR/panda_meshes.rs");
 }

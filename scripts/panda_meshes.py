@@ -1,22 +1,35 @@
 #!/usr/bin/env python3
-"""Convert the Panda hand and finger visual meshes of the `example-robot-data`
-package (PyPI, panda_description: Apache-2.0, from franka_description) from
-Collada to OBJ, which MuJoCo 2.2 loads, for the renderer's visual-only geoms.
+"""Convert the Panda's visual meshes (links 0-7, hand, finger) of the
+`example-robot-data` package (PyPI, panda_description: Apache-2.0, from
+franka_description) from Collada to OBJ, which MuJoCo 2.2 loads, for the
+renderer's visual-only geoms.
 
 Usage:  python3 scripts/panda_meshes.py [outdir]      (default: assets/meshes)
 
 The package is a dependency installed by ./dev; nothing from it is committed.
 Only the geometry is kept (triangles, all <node> transforms applied, in metres):
-the original D3IL scene draws these meshes with MuJoCo's default grey, not
-with the Collada materials (docs/original-d3il.md §01.2.5). Exits with status 2 and a message
-naming the package when it is not installed.
+the original D3IL scene draws these meshes in plain colours (white at alpha 0.1
+for the links, MuJoCo's default grey for the hand and fingers), not with the
+Collada materials (docs/original-d3il.md §01.2.5, §01.6).
+
+The full meshes have 12 000-22 000 triangles per link, which at 96x96 pixels
+are mostly far smaller than a pixel (the front view drew 92 ms per frame with
+them). Meshes above BUDGET triangles are therefore reduced to BUDGET by
+quadric edge collapse (the `fast-simplification` package, pinned by ./dev, so
+every machine gets the same vertices); docs/images.md gives the measured
+difference to frames drawn with the full meshes, which are written too, to
+outdir/full/, for the test that keeps that difference small
+(evaluator/tests/panda_meshes.rs).
+
+Exits with status 2 and a message naming the package when one is not installed.
 """
 
 import os
 import sys
 import xml.etree.ElementTree as ET
 
-PARTS = ["hand", "finger"]
+PARTS = [f"link{i}" for i in range(8)] + ["hand", "finger"]
+BUDGET = 1000
 NS = "{http://www.collada.org/2005/11/COLLADASchema}"
 
 
@@ -96,6 +109,37 @@ def read_collada(path):
     return verts, faces
 
 
+def weld(verts, faces):
+    """Merge vertices at the same position (to 1e-6 m; Collada repeats them per
+    face) and drop faces that become degenerate, so edges can be collapsed."""
+    index, out, welded = {}, [], []
+    for v in verts:
+        key = tuple(round(c * 1e6) for c in v)
+        if key not in index:
+            index[key] = len(out)
+            out.append(v)
+        welded.append(index[key])
+    tris = [(welded[a], welded[b], welded[c]) for a, b, c in faces]
+    return out, [t for t in tris if len(set(t)) == 3]
+
+
+def reduce(verts, faces, budget):
+    """The mesh with at most `budget` triangles (unchanged when it has fewer)."""
+    if len(faces) <= budget:
+        return verts, faces
+    try:
+        import numpy as np
+        import fast_simplification
+    except ImportError:
+        print("fast-simplification is not installed: pip install fast-simplification==0.2.0 "
+              "(./dev does)", file=sys.stderr)
+        sys.exit(2)
+    verts, faces = weld(verts, faces)
+    v, f = fast_simplification.simplify(np.array(verts, dtype=np.float64),
+                                        np.array(faces, dtype=np.int32), target_count=budget)
+    return [tuple(float(c) for c in p) for p in v], [tuple(int(i) for i in t) for t in f]
+
+
 def write_obj(path, verts, faces, source):
     # Drop vertices no face uses and renumber (MuJoCo counts every vertex).
     used = sorted({i for f in faces for i in f})
@@ -115,14 +159,18 @@ def main():
         print("example-robot-data is not installed: pip install example-robot-data "
               "(./dev does); the renderer keeps the primitive hand and fingers", file=sys.stderr)
         sys.exit(2)
-    os.makedirs(out, exist_ok=True)
+    full = os.path.join(out, "full")
+    os.makedirs(full, exist_ok=True)
     for part in PARTS:
         verts, faces = read_collada(os.path.join(src, part + ".dae"))
         lo = [min(v[k] for v in verts) for k in range(3)]
         hi = [max(v[k] for v in verts) for k in range(3)]
+        source = f"example-robot-data panda_description/meshes/visual/{part}.dae"
+        write_obj(os.path.join(full, f"panda_{part}.obj"), verts, faces, source)
+        rv, rf = reduce(verts, faces, BUDGET)
         path = os.path.join(out, f"panda_{part}.obj")
-        write_obj(path, verts, faces, f"example-robot-data panda_description/meshes/visual/{part}.dae")
-        print(f"{path}: {len(faces)} triangles, bounds x [{lo[0]:.4f}, {hi[0]:.4f}] "
+        write_obj(path, rv, rf, f"{source}, reduced to {len(rf)} triangles")
+        print(f"{path}: {len(rf)} of {len(faces)} triangles, bounds x [{lo[0]:.4f}, {hi[0]:.4f}] "
               f"y [{lo[1]:.4f}, {hi[1]:.4f}] z [{lo[2]:.4f}, {hi[2]:.4f}]")
 
 

@@ -26,7 +26,7 @@ fn golden_dir() -> PathBuf {
 }
 
 /// Renders `task` at `context` after `steps` zero-action steps (with the
-/// primitive hand and fingers unless `extra` says otherwise) and compares
+/// primitive robot unless `extra` says otherwise) and compares
 /// with the committed frame `name`.
 fn check_named(name: &str, task: &str, context: usize, steps: usize, extra: &[&str]) {
     let dir = std::env::temp_dir().join(format!("d3il-golden-{}", std::process::id()));
@@ -73,12 +73,13 @@ fn check(task: &str, context: usize, steps: usize, extra: &[&str]) {
     check_named(&name, task, context, steps, &args);
 }
 
-/// The Panda hand and finger meshes (example-robot-data, installed and
-/// converted by ./dev before the build) in the front view of Aligning: `d3il
-/// render` uses them by default, and the frame is the committed one (which
-/// shows the meshed hand; the primitive frame of the same state differs).
+/// The Panda meshes (links, hand and fingers; example-robot-data, installed
+/// and converted by ./dev before the build) in the front view of Aligning:
+/// `d3il render` uses them by default, and the frame is the committed one
+/// (which shows the meshed arm; the primitive frame of the same state
+/// differs).
 #[test]
-fn aligning_shows_the_meshed_hand_and_fingers() {
+fn aligning_shows_the_meshed_robot() {
     check_named("aligning_c0_s0_meshes.png", "aligning", 0, 0, &[]);
     let (_, _, meshed) = decode(&golden_dir().join("aligning_c0_s0_meshes.png"));
     let (_, _, boxes) = decode(&golden_dir().join("aligning_c0_s0.png"));
@@ -89,7 +90,7 @@ fn aligning_shows_the_meshed_hand_and_fingers() {
         .count();
     assert!(
         differing > 20,
-        "only {differing} pixels tell the meshed hand from the boxes"
+        "only {differing} pixels tell the meshed robot from the primitive one"
     );
 }
 

@@ -27,8 +27,8 @@ pub struct Args {
     /// Rollouts simulated at once in `eval` and `render`.
     #[arg(long, default_value_t = 96)]
     pub max_live: usize,
-    /// Hand and fingers in `render` (primitives: the scene the ratio goal is
-    /// set for; meshes: the Panda meshes image evaluations use when present).
+    /// Robot look in `render` (primitives: the scene the ratio goal is set
+    /// for; meshes: the Panda meshes image evaluations use when present).
     #[arg(long, value_enum, default_value_t = super::render::Look::Primitives)]
     pub look: super::render::Look,
     /// Worker hosts of `scale` (each pinned to a core of its own).
@@ -238,7 +238,7 @@ fn render_bench(
     let set = task.def.context_set()?;
     let cams = camera::camera_ids(&task.model)?;
     println!(
-        "aligning, cameras {} + {} at {}x{}, {look:?} hand and fingers, EGL: {}",
+        "aligning, cameras {} + {} at {}x{}, {look:?} robot, EGL: {}",
         camera::CAMERAS[0],
         camera::CAMERAS[1],
         camera::SIZE,

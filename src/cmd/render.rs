@@ -27,9 +27,10 @@ pub struct Args {
     /// Env steps with zero action before rendering (the robot settles).
     #[arg(long, default_value_t = 0)]
     pub steps: usize,
-    /// Hand and fingers: `meshes` (the Panda's, from example-robot-data, when
-    /// this build has them), `primitives` (boxes), or `best` (what image
-    /// evaluations use: meshes when available).
+    /// Robot: `meshes` (the Panda's links, hand and fingers, from
+    /// example-robot-data, when this build has them), `primitives` (capsules
+    /// and boxes), or `best` (what image evaluations use: meshes when
+    /// available).
     #[arg(long, value_enum, default_value_t = Look::Best)]
     pub look: Look,
 }
@@ -98,7 +99,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let png = camera::encode_png(&out, 2 * n, n).map_err(|e| anyhow::anyhow!(e))?;
     std::fs::write(&args.out, png).with_context(|| format!("writing {}", args.out.display()))?;
     eprintln!(
-        "wrote {} ({}x{}: {} | {}) for {} context {}, {} hand and fingers{}",
+        "wrote {} ({}x{}: {} | {}) for {} context {}, {} robot{}",
         args.out.display(),
         2 * n,
         n,

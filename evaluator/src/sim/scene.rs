@@ -14,27 +14,31 @@ const PANDA_GRIPPER_XML: &str = include_str!("../../../assets/mjcf/panda_gripper
 
 include!(concat!(env!("OUT_DIR"), "/panda_meshes.rs"));
 
-/// How the hand and fingers are drawn. Physics is the same either way: the
-/// collision boxes stay, and the meshes are visual-only geoms (no contacts)
-/// on bodies whose inertia is given explicitly (docs/original-d3il.md §01.2.3).
+/// How the robot is drawn. Physics is the same either way: the collision
+/// geoms stay, and the meshes are visual-only geoms (no contacts) on bodies
+/// whose inertia is given explicitly (docs/original-d3il.md §01.2.3).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum RobotLook {
-    /// Boxes inside the original's mesh bounds (docs/mjcf.md).
+    /// Capsules and boxes inside the original's mesh bounds (docs/mjcf.md).
     #[default]
     Primitives,
-    /// The Panda hand and finger visual meshes (franka_description, from the
+    /// The Panda's visual meshes (franka_description, from the
     /// `example-robot-data` package, converted by scripts/panda_meshes.py and
-    /// compiled in), drawn like the original's: the visual geom `:geom1` is the
-    /// mesh in MuJoCo's default grey; the collision box `:geom2` is moved to
-    /// geom group 3, which is not drawn (the original's `:geom2` is the same
-    /// mesh again, so it adds nothing to the picture).
+    /// compiled in), drawn like the original's (docs/original-d3il.md §01.2.5,
+    /// §01.6): each link's `:geom1` and a second visual geom (the original's
+    /// `:geom2` is the same mesh) are the link's mesh in white at alpha 0.1, so
+    /// the translucent links are drawn twice; the hand's and fingers' `:geom1`
+    /// are their meshes in MuJoCo's default grey. The primitive collision geoms
+    /// `:geom2` move to geom group 3, which is not drawn.
     Meshes,
 }
 
 impl RobotLook {
     /// Whether this build has the meshes (converted before it was compiled).
     pub fn meshes_available() -> bool {
-        PANDA_MESHES.is_some()
+        MESH_FILES
+            .iter()
+            .all(|f| PANDA_MESHES.iter().any(|(name, _)| name == f))
     }
 
     /// Meshes when this build has them, else primitives.
@@ -47,8 +51,32 @@ impl RobotLook {
     }
 }
 
-const HAND_MESH_FILE: &str = "panda_hand.obj";
-const FINGER_MESH_FILE: &str = "panda_finger.obj";
+/// The link bodies' geom name stems, link 0 to 7 (links 1-3 are named after
+/// their joints, docs/original-d3il.md §01.2.5), drawn with `panda_link<i>.obj`.
+const LINK_GEOMS: [&str; 8] = [
+    "panda_rb0_link0",
+    "panda_rb0_joint1",
+    "panda_rb0_joint2",
+    "panda_rb0_joint3",
+    "panda_rb0_link4",
+    "panda_rb0_link5",
+    "panda_rb0_link6",
+    "panda_rb0_link7",
+];
+
+/// Every mesh file the meshed look uses (scripts/panda_meshes.py writes them).
+const MESH_FILES: [&str; 10] = [
+    "panda_link0.obj",
+    "panda_link1.obj",
+    "panda_link2.obj",
+    "panda_link3.obj",
+    "panda_link4.obj",
+    "panda_link5.obj",
+    "panda_link6.obj",
+    "panda_link7.obj",
+    "panda_hand.obj",
+    "panda_finger.obj",
+];
 
 /// Replaces the element that starts with `start` (up to its `/>`) by
 /// `f(element)`; None when `start` does not occur exactly once.
@@ -61,38 +89,62 @@ fn replace_element(xml: &str, start: &str, f: impl Fn(&str) -> String) -> Option
     Some(format!("{}{}{}", &xml[..i], f(&xml[i..end]), &xml[end..]))
 }
 
-/// The robot MJCF with the hand and finger visual geoms as meshes (see
-/// [`RobotLook::Meshes`]); None if the file does not have the expected geoms.
-fn with_hand_meshes(robot_xml: &str) -> Option<String> {
+/// The robot MJCF with the visual geoms as meshes (see [`RobotLook::Meshes`]);
+/// None if the file does not have the expected geoms.
+fn with_meshes(robot_xml: &str) -> Option<String> {
     let hide = |e: &str| format!("{} group=\"3\"/>", e.trim_end_matches("/>").trim_end());
-    let mesh = |name: &str, mesh: &str, quat: &str| {
+    let mesh = |name: &str, mesh: &str, extra: &str| {
         format!(
-            r#"<geom name="{name}" type="mesh" mesh="{mesh}"{quat} contype="0" conaffinity="0" group="1"/>"#
+            r#"<geom name="{name}" type="mesh" mesh="{mesh}"{extra} contype="0" conaffinity="0""#
         )
     };
     let mut x = robot_xml.to_string();
-    x = replace_element(&x, r#"<geom name="panda_rb0_hand:geom1""#, |_| {
-        mesh("panda_rb0_hand:geom1", "panda_hand_visual", "")
-    })?;
-    x = replace_element(&x, r#"<geom name="panda_rb0_leftfinger:geom1""#, |_| {
-        mesh("panda_rb0_leftfinger:geom1", "panda_finger_visual", "")
-    })?;
-    // The right finger is the same mesh turned 180° about z (docs/original-d3il.md §01.2.5).
-    x = replace_element(&x, r#"<geom name="panda_rb0_rightfinger:geom1""#, |_| {
-        mesh(
-            "panda_rb0_rightfinger:geom1",
-            "panda_finger_visual",
-            r#" quat="0 0 0 1""#,
-        )
-    })?;
-    for g in ["hand", "leftfinger", "rightfinger"] {
-        x = replace_element(&x, &format!(r#"<geom name="panda_rb0_{g}:geom2""#), hide)?;
+    for (i, g) in LINK_GEOMS.iter().enumerate() {
+        // The visual geom (group 1) and the original's second drawing of the
+        // same mesh (its collision geom, group 0), both translucent white.
+        let link = format!("panda_link{i}");
+        x = replace_element(&x, &format!(r#"<geom name="{g}:geom1""#), |_| {
+            let white = r#" rgba="1 1 1 0.1""#;
+            format!(
+                "{} group=\"1\"/>{} group=\"0\"/>",
+                mesh(&format!("{g}:geom1"), &link, white),
+                mesh(&format!("{g}:geom2_drawn"), &link, white)
+            )
+        })?;
     }
-    let asset = format!(
-        r#"<asset><mesh name="panda_hand_visual" file="{HAND_MESH_FILE}"/><mesh name="panda_finger_visual" file="{FINGER_MESH_FILE}"/></asset>"#
-    );
+    let parts = [
+        ("panda_rb0_hand", "panda_hand", ""),
+        ("panda_rb0_leftfinger", "panda_finger", ""),
+        // The same mesh turned 180° about z (docs/original-d3il.md §01.2.5).
+        (
+            "panda_rb0_rightfinger",
+            "panda_finger",
+            r#" quat="0 0 0 1""#,
+        ),
+    ];
+    for (g, m, quat) in parts {
+        x = replace_element(&x, &format!(r#"<geom name="{g}:geom1""#), |_| {
+            format!("{} group=\"1\"/>", mesh(&format!("{g}:geom1"), m, quat))
+        })?;
+    }
+    for g in LINK_GEOMS.iter().chain(&[
+        "panda_rb0_hand",
+        "panda_rb0_leftfinger",
+        "panda_rb0_rightfinger",
+    ]) {
+        x = replace_element(&x, &format!(r#"<geom name="{g}:geom2""#), hide)?;
+    }
+    let asset: String = MESH_FILES
+        .iter()
+        .map(|f| {
+            format!(
+                r#"<mesh name="{}" file="{f}"/>"#,
+                f.trim_end_matches(".obj")
+            )
+        })
+        .collect();
     let body = x.find("<worldbody>")?;
-    x.insert_str(body, &format!("{asset}\n  "));
+    x.insert_str(body, &format!("<asset>{asset}</asset>\n  "));
     Some(x)
 }
 
@@ -158,10 +210,14 @@ pub struct SceneSpec {
     pub extra_bodies: String,
     /// Task XML objects as (file name, `<mujoco>` include contents), in order.
     pub includes: Vec<(String, String)>,
-    /// Hand and finger look (rendering only). [`RobotLook::Meshes`] in a build
-    /// without the meshes falls back to primitives; check
+    /// Robot look (rendering only). [`RobotLook::Meshes`] in a build without
+    /// the meshes falls back to primitives; check
     /// [`RobotLook::meshes_available`] first.
     pub look: RobotLook,
+    /// Mesh files (name, OBJ) that replace the compiled-in ones of the same
+    /// name in the meshed look; empty for every evaluation (a test compares
+    /// the compiled-in meshes with the full ones, docs/images.md).
+    pub meshes: Vec<(String, String)>,
 }
 
 /// The bp_cam body every task adds (docs/original-d3il.md §01.6).
@@ -175,6 +231,7 @@ impl SceneSpec {
             extra_bodies: BP_CAM.to_string(),
             includes: Vec::new(),
             look: RobotLook::Primitives,
+            meshes: Vec::new(),
         }
     }
 
@@ -241,17 +298,24 @@ impl SceneSpec {
             RobotVariant::Rod => PANDA_ROD_XML,
             RobotVariant::Gripper => PANDA_GRIPPER_XML,
         };
-        let meshed = match (self.look, PANDA_MESHES) {
-            (RobotLook::Meshes, Some((hand, finger))) => {
-                with_hand_meshes(robot_xml).map(|x| (x, hand, finger))
-            }
+        let meshed = match self.look {
+            RobotLook::Meshes if RobotLook::meshes_available() => with_meshes(robot_xml),
             _ => None,
         };
         match meshed {
-            Some((xml, hand, finger)) => {
+            Some(xml) => {
                 files.push((robot_file.to_string(), xml));
-                files.push((HAND_MESH_FILE.to_string(), hand.to_string()));
-                files.push((FINGER_MESH_FILE.to_string(), finger.to_string()));
+                for f in MESH_FILES {
+                    let obj = self
+                        .meshes
+                        .iter()
+                        .map(|(n, o)| (n.as_str(), o.as_str()))
+                        .chain(PANDA_MESHES.iter().copied())
+                        .find(|(n, _)| *n == f);
+                    if let Some((_, obj)) = obj {
+                        files.push((f.to_string(), obj.to_string()));
+                    }
+                }
             }
             None => files.push((robot_file.to_string(), robot_xml.to_string())),
         }

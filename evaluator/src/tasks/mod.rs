@@ -53,7 +53,7 @@ pub enum TaskError {
     SimulationWarning { step: usize, warnings: String },
     #[error("task {0} is not available in this build")]
     Unavailable(TaskId),
-    #[error("this build has no Panda hand and finger meshes: ./dev installs the example-robot-data package and converts them (scripts/panda_meshes.py) before building")]
+    #[error("this build has no Panda meshes: ./dev installs the example-robot-data and fast-simplification packages and converts them (scripts/panda_meshes.py) before building")]
     NoMeshes,
     #[error("task {0} has no image-observation variant (image tasks: aligning, sorting-4, sorting-6, stacking)")]
     NoImageVariant(TaskId),
@@ -211,7 +211,7 @@ impl LoadedTask {
     }
 
     /// Loads the task for policies with observation type `obs`.
-    /// Image variants get the Panda hand and finger meshes when this build
+    /// Image variants get the Panda meshes when this build
     /// has them ([`RobotLook::best`]); state variants keep primitives (the
     /// look changes no physics, see [`RobotLook`]).
     pub fn load_obs(id: TaskId, obs: ObsType) -> Result<LoadedTask, TaskError> {
@@ -222,7 +222,7 @@ impl LoadedTask {
         Self::load_look(id, obs, look)
     }
 
-    /// [`LoadedTask::load_obs`] with an explicit hand and finger look.
+    /// [`LoadedTask::load_obs`] with an explicit robot look.
     pub fn load_look(id: TaskId, obs: ObsType, look: RobotLook) -> Result<LoadedTask, TaskError> {
         if obs == ObsType::Image && !id.has_image_variant() {
             return Err(TaskError::NoImageVariant(id));
@@ -233,6 +233,16 @@ impl LoadedTask {
         let def = task_def(id)?;
         let mut scene = def.scene();
         scene.look = look;
+        Self::from_scene(def, scene, obs)
+    }
+
+    /// The task `def` in `scene`: its own ([`TaskDef::scene`]) with another
+    /// look or other meshes (a test draws the full meshes this way).
+    pub fn from_scene(
+        def: Arc<dyn TaskDef>,
+        scene: SceneSpec,
+        obs: ObsType,
+    ) -> Result<LoadedTask, TaskError> {
         let model = Arc::new(scene.compile()?);
         let ids = Arc::new(RobotIds::lookup(&model)?);
         Ok(LoadedTask {
