@@ -150,7 +150,8 @@ fn eval_and_submit_find_the_manifest_next_to_the_onnx_file_the_same_way() {
             && stderr.contains("(1 of 8 rollouts simulated, same results)"),
         "{stderr}"
     );
-    // --every-rollout simulates all 8 and gets the same records and metrics.
+    // --every-rollout simulates all 8 and gets the same records and metrics;
+    // only the manifest says how the rollouts were produced.
     let run_json = |extra: &[&str], out: &str| {
         let path = dir.join(out);
         let o = eval_quick(
@@ -164,9 +165,19 @@ fn eval_and_submit_find_the_manifest_next_to_the_onnx_file_the_same_way() {
         v["metrics"]["inference_ms"] = serde_json::Value::Null;
         (v, String::from_utf8_lossy(&o.stderr).into_owned())
     };
-    let (once, _) = run_json(&[], "once.json");
+    let (mut once, _) = run_json(&[], "once.json");
     let (every, stderr) = run_json(&["--every-rollout"], "every.json");
     assert!(!stderr.contains("simulated once"), "{stderr}");
+    assert_eq!(once["manifest"]["simulated_once"], true);
+    assert_eq!(
+        every["manifest"].get("simulated_once"),
+        None,
+        "written only when true"
+    );
+    once["manifest"]
+        .as_object_mut()
+        .unwrap()
+        .remove("simulated_once");
     assert_eq!(once, every);
     std::fs::remove_dir_all(&dir).unwrap();
 }

@@ -36,10 +36,15 @@ fn evaluate_fixture(
     evaluate(&task, &mut policy, &info, &opts, &mut |_, _| {}).unwrap()
 }
 
-/// Everything but the measured inference time.
+/// Everything but the measured inference time and the manifest's record of
+/// how the rollouts were produced.
 fn comparable(r: &EvalResult) -> serde_json::Value {
     let mut v = serde_json::to_value(r).unwrap();
     v["metrics"]["inference_ms"] = serde_json::Value::Null;
+    v["manifest"]
+        .as_object_mut()
+        .unwrap()
+        .remove("simulated_once");
     v
 }
 
@@ -53,6 +58,10 @@ fn same_both_ways(task: TaskId, obs_type: ObsType, name: &str) -> EvalResult {
         "{name}: nothing to share"
     );
     assert_eq!(t_all.rollouts_simulated, n, "{name}");
+    assert!(
+        !all.manifest.simulated_once && once.manifest.simulated_once,
+        "{name}"
+    );
     assert_eq!(
         t_once.rollouts_simulated, states,
         "{name}: one per initial state"
@@ -92,6 +101,7 @@ fn a_policy_with_noise_is_simulated_rollout_by_rollout() {
     assert!(!policy.deterministic());
     let (r, t) = evaluate_fixture(TaskId::Avoiding, ObsType::State, "avoiding_noise", false);
     assert_eq!(t.rollouts_simulated, r.rollouts.len());
+    assert!(!r.manifest.simulated_once);
     // Its rollouts of the one initial state differ.
     assert!(r.metrics.conditional_entropy.value > 0.0, "{:?}", r.metrics);
 }

@@ -328,6 +328,7 @@ fn two_finished_submissions(db: &std::path::Path) -> (i64, i64) {
                             url: "http://127.0.0.1:9/".into(),
                         },
                         manifest_json: r#"{"task": "pushing", "obs_type": "state", "history": 1, "horizon": 1, "execute": 1}"#.into(),
+                        simulated_once: None,
                     },
                     3,
                 )

@@ -330,7 +330,9 @@ fn failed_submissions_and_crash_debris_leave_no_files() {
 /// By default an uploaded model runs a few sandboxed steps of the quick
 /// protocol before it is queued: one that cannot run is refused at
 /// submission (400 naming the `onnx` field, the worker's reason, no file
-/// kept), one that runs is accepted.
+/// kept), one that runs is accepted, and the dry run tells whether its
+/// evaluation will simulate each initial state once (a deterministic graph)
+/// or every rollout (a graph with a `noise` input).
 #[test]
 fn an_upload_that_cannot_run_is_refused_at_submission() {
     let dir = TempDir::new("upload-dry-run");
@@ -370,5 +372,13 @@ fn an_upload_that_cannot_run_is_refused_at_submission() {
         .submit(&form("Runs"), Some(&fixtures.join("aligning_mlp.onnx")))
         .expect("a model that runs is accepted");
     assert_eq!(created["status"], "queued", "{created}");
+    assert_eq!(created["policy"]["simulated_once"], true, "{created}");
     assert_eq!(files_in(&policies).len(), 1);
+    let noise = std::fs::read_to_string(fixtures.join("aligning_mlp_noise.json")).unwrap();
+    let mut fields = form("Noisy");
+    fields[3].1 = noise;
+    let created = client
+        .submit(&fields, Some(&fixtures.join("aligning_mlp_noise.onnx")))
+        .expect("a model with a noise input that runs is accepted");
+    assert_eq!(created["policy"]["simulated_once"], false, "{created}");
 }

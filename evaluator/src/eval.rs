@@ -482,6 +482,7 @@ fn run_rollouts(
         horizon: shape.horizon,
         execute: shape.execute,
         seed: opts.seed,
+        simulated_once: sim_per_ctx < per_ctx,
     };
     timing.total_s = t0.elapsed().as_secs_f64();
     timing.step_cpu_s = slots.iter().map(|s| s.step_cpu_s).sum();

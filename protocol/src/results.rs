@@ -26,6 +26,17 @@ pub struct ProtocolManifest {
     pub horizon: usize,
     pub execute: usize,
     pub seed: u64,
+    /// The policy was deterministic (an ONNX graph without a `noise` input),
+    /// so each initial state's rollouts were simulated once and that rollout
+    /// recorded under every rollout index: the rollouts of one state are
+    /// identical by construction, with the same results as simulating each
+    /// (docs/submission.md). Written only when true.
+    #[serde(default, skip_serializing_if = "is_false")]
+    pub simulated_once: bool,
+}
+
+fn is_false(b: &bool) -> bool {
+    !*b
 }
 
 /// The initial-state sets that are the original D3IL test contexts (decoded

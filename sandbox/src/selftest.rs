@@ -284,6 +284,7 @@ fn fake_result(job: &Job) -> EvalResult {
             horizon: job.manifest.horizon,
             execute: job.manifest.execute,
             seed: job.seed,
+            simulated_once: false,
         },
         metrics: Metrics {
             success_rate: zero,

@@ -9,7 +9,7 @@ use crate::state::AppState;
 use crate::store::{NewMethod, NewPolicy, NewSubmission, SeedKey, Submitter};
 use axum::http::{header, HeaderMap};
 use d3il_protocol::{
-    ErrorKind, Job, Limits, ObsType, PolicyManifest, PolicySource, ProtocolKind, TaskId,
+    ErrorKind, Evaluated, Job, Limits, ObsType, PolicyManifest, PolicySource, ProtocolKind, TaskId,
 };
 use std::str::FromStr;
 use std::sync::Arc;
@@ -465,13 +465,15 @@ pub const DRY_RUN_MIN_STEPS: usize = 16;
 /// conformance dry-run); an uploaded model runs it with every rollout cut
 /// after a few steps, which loads it, feeds it real observations at batch
 /// ≥ 2 and checks its actions, so a graph that cannot run is refused here,
-/// never at rollout 0 of its evaluation.
+/// never at rollout 0 of its evaluation. Returns whether the evaluation
+/// simulates each initial state once (a deterministic policy: the result
+/// manifest's `simulated_once`), which queue estimates use.
 pub async fn dry_run(
     runner: Arc<dyn JobRunner>,
     state: &AppState,
     v: &ValidSubmission,
     policy: PolicySource,
-) -> Result<(), AppError> {
+) -> Result<bool, AppError> {
     let mut limits = state.cfg.limits.clone();
     limits.wall_seconds = limits.wall_seconds.min(120);
     let remote = matches!(policy, PolicySource::Remote { .. });
@@ -491,7 +493,8 @@ pub async fn dry_run(
         .await
         .map_err(|e| AppError::Internal(format!("dry-run panicked: {e}")))?;
     let e = match report.outcome {
-        Ok(_) => return Ok(()),
+        Ok(Evaluated::Result(r)) => return Ok(r.manifest.simulated_once),
+        Ok(Evaluated::Part(p)) => return Ok(p.manifest.simulated_once),
         Err(e) if e.kind == ErrorKind::Internal => return Err(AppError::Internal(e.message)),
         Err(e) => e,
     };
@@ -550,9 +553,10 @@ pub async fn accept(
             sha256: file.sha256.clone(),
         }),
     };
-    if let Some(policy) = dry {
-        dry_run(state.runner.clone(), state, &v, policy).await?;
-    }
+    let dry_once = match dry {
+        Some(policy) => Some(dry_run(state.runner.clone(), state, &v, policy).await?),
+        None => None,
+    };
     // Only an accepted submission creates its method (a refused dry-run
     // leaves nothing behind).
     let method = store.ensure_method(&v.method, Some(who.id)).await?;
@@ -608,6 +612,7 @@ pub async fn accept(
                 protocol: v.protocol,
                 policy,
                 manifest_json,
+                simulated_once: dry_once,
             },
             state.cfg.max_attempts,
             shards,

@@ -7,7 +7,9 @@ use crate::leaderboard::BoardRow;
 use crate::schema;
 use crate::state::AppState;
 use crate::store::MethodRow;
-use crate::store::{now, JobRow, JobState, PolicyKind, ResultRow, SubmissionStatus};
+use crate::store::{
+    now, JobKind, JobRow, JobState, PolicyKind, ResultRow, SubmissionRow, SubmissionStatus,
+};
 use d3il_protocol::{
     ContextResult, ObsType, ProtocolKind, SandboxMechanism, StackingLevel, TaskId,
 };
@@ -24,10 +26,10 @@ pub struct Progress {
     pub eta_seconds: Option<i64>,
 }
 
-/// Estimated seconds until the result of a job of `task`, `obs_type` and
-/// `protocol`.
+/// Estimated seconds until the result of submission `s`'s job.
 ///
-/// Past runs of the same task, observation type and protocol are the only basis: without them
+/// Past runs of the same [`JobKind`] (task, observation type, protocol, and
+/// whether each initial state is simulated once) are the only basis: without them
 /// (and without progress to extrapolate from) there is no estimate, never a
 /// guess and never "0 s". A queued job waits for the jobs ahead of it (each
 /// at its own kind's mean, spread over the slots: this front end's, or as
@@ -36,10 +38,9 @@ pub struct Progress {
 pub async fn progress(
     state: &AppState,
     job: &JobRow,
-    task: TaskId,
-    obs_type: ObsType,
-    protocol: ProtocolKind,
+    s: &SubmissionRow,
 ) -> Result<Progress, AppError> {
+    let protocol = s.protocol;
     // A finished job has no position and no estimate: no queries.
     if !matches!(job.state, JobState::Queued | JobState::Leased) {
         return Ok(Progress {
@@ -56,18 +57,19 @@ pub async fn progress(
         _ => None,
     };
     let pos = ahead.as_ref().map(|a| a.len() as i64);
-    let means: HashMap<(String, String, String), f64> = state
+    let means: HashMap<JobKind, f64> = state
         .store
         .mean_job_seconds_by_kind()
         .await?
         .into_iter()
-        .map(|(t, o, p, m)| ((t, o, p), m.max(1.0)))
+        .map(|(k, m)| (k, m.max(1.0)))
         .collect();
     let own = means
-        .get(&(
-            task.slug().to_string(),
-            obs_type.as_str().to_string(),
+        .get(&JobKind::new(
+            s.task.slug().to_string(),
+            s.obs_type.as_str().to_string(),
             protocol_str(protocol).to_string(),
+            s.simulated_once,
         ))
         .copied();
     let workers = state.cfg.workers.max(1) as f64;
@@ -78,7 +80,7 @@ pub async fn progress(
                 let quick_slot = state.cfg.workers > 0 && protocol == ProtocolKind::Quick;
                 let waits: Vec<f64> = ahead
                     .iter()
-                    .filter(|(_, _, p)| !quick_slot || p == protocol_str(ProtocolKind::Quick))
+                    .filter(|k| !quick_slot || k.protocol == protocol_str(ProtocolKind::Quick))
                     .map(|k| means.get(k).copied().unwrap_or(own))
                     .collect();
                 // While jobs wait, every slot that exists is busy: worker
@@ -160,6 +162,11 @@ pub struct PolicyView {
     pub sha256: Option<String>,
     pub bytes: Option<i64>,
     pub endpoint_url: Option<String>,
+    /// Whether the evaluation simulates each initial state's rollouts once
+    /// and records that rollout under every index (a deterministic policy: an
+    /// ONNX graph without a `noise` input; docs/submission.md). Known from the
+    /// dry run at submission or from the result; null when not known.
+    pub simulated_once: Option<bool>,
 }
 
 #[derive(Debug, Serialize, ToSchema)]
@@ -246,7 +253,7 @@ pub struct RolloutView {
 pub async fn submission_view(state: &AppState, id: i64) -> Result<SubmissionView, AppError> {
     let s = state.store.submission(id).await?;
     let job = state.store.job_for(id).await?;
-    let p = progress(state, &job, s.task, s.obs_type, s.protocol).await?;
+    let p = progress(state, &job, &s).await?;
     let result = match state.store.result_for(id).await? {
         Some(r) => Some(results_view(state, r).await?),
         None => None,
@@ -267,6 +274,7 @@ pub async fn submission_view(state: &AppState, id: i64) -> Result<SubmissionView
             sha256: s.onnx_sha256,
             bytes: s.onnx_bytes,
             endpoint_url: s.endpoint_url,
+            simulated_once: s.simulated_once,
         },
         manifest: s.manifest_json.0,
         error: s.error_kind.map(|kind| ErrorView {

@@ -37,6 +37,7 @@ fn aligning_result(
             horizon: 1,
             execute: 1,
             seed: 0,
+            simulated_once: false,
         },
         metrics: Metrics {
             success_rate: est(success),
@@ -379,7 +380,7 @@ async fn the_wait_estimate_counts_the_jobs_worker_hosts_run() {
         .await
         .unwrap();
     let mean = store.mean_job_seconds_by_kind().await.unwrap()[0]
-        .3
+        .1
         .max(1.0);
     let mut ids = vec![];
     for seed in 1..=6 {

@@ -51,6 +51,7 @@ async fn evaluated(
             horizon: 1,
             execute: 1,
             seed: 0,
+            simulated_once: false,
         },
         metrics: Metrics {
             success_rate: est(success),

@@ -43,6 +43,7 @@ fn result_line(task: TaskId) -> String {
             horizon: 1,
             execute: 1,
             seed: 0,
+            simulated_once: false,
         },
         metrics: Metrics {
             success_rate: est(0.5),
@@ -272,6 +273,7 @@ async fn stacking_levels_are_stored_and_shown_each_with_its_own_numbers(b: Backe
             horizon: 1,
             execute: 1,
             seed: 0,
+            simulated_once: false,
         },
         metrics: ev.metrics.clone(),
         per_context: ev.per_context.clone(),

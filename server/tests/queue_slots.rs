@@ -21,6 +21,11 @@ fn script(dir: &Path, name: &str, body: &str) -> PathBuf {
 
 /// A small quick-protocol Aligning result as the worker prints it.
 fn result_line() -> String {
+    result_line_once(false)
+}
+
+/// [`result_line`] of a deterministic policy (`simulated_once`) or not.
+fn result_line_once(once: bool) -> String {
     let outcomes: Vec<d3il_metrics::Outcome> = (0..6)
         .map(|i| d3il_metrics::Outcome::new(i / 3, i % 2 == 0, Some("0")))
         .collect();
@@ -50,6 +55,7 @@ fn result_line() -> String {
             horizon: 1,
             execute: 1,
             seed: 0,
+            simulated_once: once,
         },
         metrics: ev.metrics,
         per_context: ev.per_context,
@@ -74,7 +80,25 @@ async fn submit(app: &TestApp, method: &str, task: &str, protocol: &str) -> i64 
 }
 
 async fn submit_obs(app: &TestApp, method: &str, task: &str, obs: &str, protocol: &str) -> i64 {
-    let m = manifest(task).replace(r#""obs_type": "state""#, &format!(r#""obs_type": "{obs}""#));
+    submit_full(app, method, task, obs, protocol, 1).await
+}
+
+/// A state Aligning quick submission whose manifest declares `history`.
+async fn submit_history(app: &TestApp, method: &str, history: usize) -> i64 {
+    submit_full(app, method, "aligning", "state", "quick", history).await
+}
+
+async fn submit_full(
+    app: &TestApp,
+    method: &str,
+    task: &str,
+    obs: &str,
+    protocol: &str,
+    history: usize,
+) -> i64 {
+    let m = manifest(task)
+        .replace(r#""obs_type": "state""#, &format!(r#""obs_type": "{obs}""#))
+        .replace(r#""history": 1"#, &format!(r#""history": {history}"#));
     let r = app
         .submit(
             &[
@@ -97,10 +121,15 @@ async fn submit_obs(app: &TestApp, method: &str, task: &str, obs: &str, protocol
 /// Claims the next queued job, which must be submission `id`'s, and
 /// completes it at once with [`result_line`]'s result.
 async fn complete_next(app: &TestApp, id: i64) {
+    complete_next_once(app, id, false).await
+}
+
+/// [`complete_next`] with [`result_line_once`]'s result.
+async fn complete_next_once(app: &TestApp, id: i64, once: bool) {
     let store = &app.state.store;
     let c = store.claim_job("test", 60).await.unwrap().unwrap();
     assert_eq!(c.submission.id, id);
-    let WorkerMessage::Result(r) = serde_json::from_str(&result_line()).unwrap() else {
+    let WorkerMessage::Result(r) = serde_json::from_str(&result_line_once(once)).unwrap() else {
         panic!("a result line")
     };
     store.complete_job(c.job.id, id, &r, &[]).await.unwrap();
@@ -191,9 +220,12 @@ async fn etas_come_from_past_runs_of_the_same_task_and_protocol(b: Backend) {
     assert_eq!(
         means,
         vec![(
-            "pushing".to_string(),
-            "state".to_string(),
-            "paper".to_string(),
+            d3il_server::store::JobKind::new(
+                "pushing".to_string(),
+                "state".to_string(),
+                "paper".to_string(),
+                None
+            ),
             0.0
         )],
         "{means:?}"
@@ -232,8 +264,55 @@ async fn etas_keep_state_and_image_runs_apart(b: Backend) {
     assert_eq!(status(&app, state).await["eta_seconds"], 2);
 }
 
+/// A deterministic policy's evaluation simulates each initial state once
+/// and takes a fraction of the time: its runs are no estimate for other runs,
+/// nor the reverse. The dry run at submission (here a script answering as a
+/// deterministic policy when the manifest declares history 2) tells a queued
+/// submission's kind.
+async fn etas_keep_once_simulated_runs_apart(b: Backend) {
+    let dir = tempfile::tempdir().unwrap();
+    let once = dir.path().join("once.jsonl");
+    let plain = dir.path().join("plain.jsonl");
+    std::fs::write(&once, result_line_once(true) + "\n").unwrap();
+    std::fs::write(&plain, result_line_once(false) + "\n").unwrap();
+    let worker = script(
+        dir.path(),
+        "worker.sh",
+        &format!(
+            "job=$(cat)\necho '{{\"type\":\"sandbox\",\"mechanisms\":[]}}'\n\
+             case \"$job\" in *'\"history\":2,'*) cat '{}' ;; *) cat '{}' ;; esac",
+            once.display(),
+            plain.display()
+        ),
+    );
+    let app = spawn_app_with(Options {
+        backend: b,
+        worker_exe: Some(worker),
+        dry_run_uploads: true,
+        ..Default::default()
+    })
+    .await; // no worker slots: jobs stay queued
+    let kind = |v: Value| v["policy"]["simulated_once"].clone();
+    let first = submit_history(&app, "OnceFirst", 2).await;
+    assert_eq!(kind(status(&app, first).await), Value::Bool(true));
+    let stochastic = submit_history(&app, "Stochastic", 1).await;
+    assert_eq!(kind(status(&app, stochastic).await), Value::Bool(false));
+    complete_next_once(&app, first, true).await;
+    // Only a once-simulated run has finished: no basis for a stochastic one.
+    assert_eq!(status(&app, stochastic).await["eta_seconds"], Value::Null);
+    // A second deterministic submission has its estimate: 1 s for the
+    // stochastic job ahead (no history of its own: counted at this job's
+    // mean) and 1 s for itself.
+    let second = submit_history(&app, "OnceSecond", 2).await;
+    assert_eq!(status(&app, second).await["eta_seconds"], 2);
+    // The result says so too, and keeps the kind.
+    complete_next_once(&app, stochastic, false).await;
+    assert_eq!(kind(status(&app, stochastic).await), Value::Bool(false));
+}
+
 common::on_both_backends!(
     a_quick_job_runs_on_its_own_slot_while_paper_runs_hold_every_other_slot,
     etas_come_from_past_runs_of_the_same_task_and_protocol,
-    etas_keep_state_and_image_runs_apart
+    etas_keep_state_and_image_runs_apart,
+    etas_keep_once_simulated_runs_apart
 );

@@ -168,6 +168,7 @@ async fn queue(store: &Store, protocol: ProtocolKind, shards: usize) -> anyhow::
                     path,
                 },
                 manifest_json: manifest,
+                simulated_once: None,
             },
             1,
             shards,

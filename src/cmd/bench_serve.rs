@@ -158,6 +158,7 @@ async fn seed_database(state: &d3il_server::app::AppState) -> anyhow::Result<Str
                     url: "wss://policy.example.org/".into(),
                 },
                 manifest_json: serde_json::to_string(&manifest)?,
+                simulated_once: None,
             },
             1,
         )
@@ -217,6 +218,7 @@ fn result_480() -> anyhow::Result<EvalResult> {
             horizon: 1,
             execute: 1,
             seed: 0,
+            simulated_once: false,
         },
         metrics: ev.metrics,
         per_context: ev.per_context,

@@ -234,6 +234,7 @@ mod tests {
                 horizon: 1,
                 execute: 1,
                 seed: 0,
+                simulated_once: false,
             },
             metrics: ev.metrics.clone(),
             per_context: ev.per_context,
@@ -270,6 +271,7 @@ mod tests {
                             url: "ws://127.0.0.1:1/".into(),
                         },
                         manifest_json: "{}".into(),
+                        simulated_once: None,
                     },
                     3,
                 )

@@ -183,6 +183,7 @@ pub fn pushing_result(
             horizon: 1,
             execute: 1,
             seed: 0,
+            simulated_once: false,
         },
         metrics: ev.metrics,
         per_context: ev.per_context,

@@ -59,9 +59,11 @@ macro_rules! insert_result {
             .await?;
         }
         sqlx::query(
-            "UPDATE submissions SET status = 'completed', error_kind = NULL, error_message = NULL, updated_at = $1 WHERE id = $2",
+            "UPDATE submissions SET status = 'completed', error_kind = NULL, error_message = NULL, updated_at = $1, \
+             simulated_once = $2 WHERE id = $3",
         )
         .bind(t)
+        .bind(result.manifest.simulated_once)
         .bind(submission_id)
         .execute($tx)
         .await?;
@@ -183,6 +185,33 @@ impl JobRow {
 pub struct ClaimedJob {
     pub job: JobRow,
     pub submission: SubmissionRow,
+}
+
+/// What an evaluation's duration depends on, for queue estimates: task slug,
+/// observation type, protocol, and whether each initial state's rollouts are
+/// simulated once (a deterministic policy; unknown counts as not).
+#[derive(Debug, Clone, PartialEq, Eq, Hash)]
+pub struct JobKind {
+    pub task: String,
+    pub obs_type: String,
+    pub protocol: String,
+    pub simulated_once: bool,
+}
+
+impl JobKind {
+    pub fn new(
+        task: String,
+        obs_type: String,
+        protocol: String,
+        simulated_once: Option<bool>,
+    ) -> Self {
+        JobKind {
+            task,
+            obs_type,
+            protocol,
+            simulated_once: simulated_once.unwrap_or(false),
+        }
+    }
 }
 
 impl Store {
@@ -540,42 +569,47 @@ impl Store {
     }
 
     /// Mean wall time, in seconds, of the last 20 completed submissions of
-    /// each (task slug, observation type, protocol), from the first shard's
-    /// start to the last shard's finish: the basis of ETAs (a Stacking paper
-    /// run and an Aligning smoke test take very different times, and an image
-    /// evaluation renders two cameras at every step).
-    pub async fn mean_job_seconds_by_kind(
-        &self,
-    ) -> Result<Vec<(String, String, String, f64)>, StoreError> {
-        Ok(on_db!(&self.db, pool => sqlx::query_as(
-            "SELECT task, obs_type, protocol, AVG(d) FROM (SELECT s.task AS task, \
-             s.obs_type AS obs_type, s.protocol AS protocol, \
+    /// each [`JobKind`], from the first shard's start to the last shard's
+    /// finish: the basis of ETAs (a Stacking paper run and an Aligning smoke
+    /// test take very different times, an image evaluation renders two
+    /// cameras at every step, and a deterministic policy's evaluation
+    /// simulates one rollout per initial state).
+    pub async fn mean_job_seconds_by_kind(&self) -> Result<Vec<(JobKind, f64)>, StoreError> {
+        let rows: Vec<(String, String, String, bool, f64)> = on_db!(&self.db, pool => sqlx::query_as(
+            "SELECT task, obs_type, protocol, once, AVG(d) FROM (SELECT s.task AS task, \
+             s.obs_type AS obs_type, s.protocol AS protocol, COALESCE(s.simulated_once, FALSE) AS once, \
              CAST(MAX(j.finished_at) - MIN(j.started_at) AS DOUBLE PRECISION) AS d, \
-             ROW_NUMBER() OVER (PARTITION BY s.task, s.obs_type, s.protocol \
+             ROW_NUMBER() OVER (PARTITION BY s.task, s.obs_type, s.protocol, COALESCE(s.simulated_once, FALSE) \
              ORDER BY MAX(j.finished_at) DESC) AS n \
              FROM jobs j JOIN submissions s ON s.id = j.submission_id \
              WHERE s.status = 'completed' AND j.started_at IS NOT NULL AND j.finished_at IS NOT NULL \
-             GROUP BY s.id, s.task, s.obs_type, s.protocol) AS recent \
-             WHERE n <= 20 GROUP BY task, obs_type, protocol",
+             GROUP BY s.id, s.task, s.obs_type, s.protocol, s.simulated_once) AS recent \
+             WHERE n <= 20 GROUP BY task, obs_type, protocol, once",
         )
         .fetch_all(pool)
-        .await)?)
+        .await)?;
+        Ok(rows
+            .into_iter()
+            .map(|(task, obs_type, protocol, once, d)| {
+                (JobKind::new(task, obs_type, protocol, Some(once)), d)
+            })
+            .collect())
     }
 
-    /// (task slug, observation type, protocol) of the submissions with queued work ahead of
-    /// job `job_id` (one entry per submission, however many shards), oldest
-    /// first.
-    pub async fn queued_ahead(
-        &self,
-        job_id: i64,
-    ) -> Result<Vec<(String, String, String)>, StoreError> {
-        Ok(on_db!(&self.db, pool => sqlx::query_as(
-            "SELECT s.task, s.obs_type, s.protocol FROM submissions s WHERE s.id IN \
+    /// The kinds of the submissions with queued work ahead of job `job_id`
+    /// (one entry per submission, however many shards), oldest first.
+    pub async fn queued_ahead(&self, job_id: i64) -> Result<Vec<JobKind>, StoreError> {
+        let rows: Vec<(String, String, String, Option<bool>)> = on_db!(&self.db, pool => sqlx::query_as(
+            "SELECT s.task, s.obs_type, s.protocol, s.simulated_once FROM submissions s WHERE s.id IN \
              (SELECT submission_id FROM jobs WHERE state = 'queued' AND id < $1) ORDER BY s.id",
         )
         .bind(job_id)
         .fetch_all(pool)
-        .await)?)
+        .await)?;
+        Ok(rows
+            .into_iter()
+            .map(|(task, obs_type, protocol, once)| JobKind::new(task, obs_type, protocol, once))
+            .collect())
     }
 
     /// The sandbox report of the most recently finished job that has one:

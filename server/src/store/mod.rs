@@ -52,7 +52,7 @@ mod tokens;
 pub mod types;
 
 pub use files::{PolicyFilesGuard, TMP_MARKER};
-pub use jobs::{ClaimedJob, JobRow};
+pub use jobs::{ClaimedJob, JobKind, JobRow};
 pub use methods::{MethodRow, NewMethod};
 pub use results::{ResultRow, RolloutRow, SeedSummary};
 pub use submissions::{NewPolicy, NewSubmission, SeedKey, SubmissionFilter, SubmissionRow};

@@ -57,6 +57,10 @@ pub struct SubmissionRow {
     pub error_message: Option<String>,
     pub created_at: i64,
     pub updated_at: i64,
+    /// Whether each initial state's rollouts are simulated once (see
+    /// [`NewSubmission::simulated_once`]; the result sets it too).
+    #[serde(skip)]
+    pub simulated_once: Option<bool>,
 }
 
 /// What a new submission needs; validated by the HTTP layer before it gets here.
@@ -71,6 +75,9 @@ pub struct NewSubmission {
     pub protocol: ProtocolKind,
     pub policy: NewPolicy,
     pub manifest_json: String,
+    /// Whether the dry run simulated each initial state once (the manifest's
+    /// `simulated_once`); None when there was none.
+    pub simulated_once: Option<bool>,
 }
 
 /// Which submissions a list shows (every field optional; all must match).
@@ -123,8 +130,8 @@ pub enum NewPolicy {
 
 const SUBMISSION_SELECT: &str = "SELECT s.id, s.method_id, m.name AS method, sub.name AS submitter, s.task, s.obs_type, \
      s.training_seed, s.data_fraction, s.protocol, s.policy_kind, s.onnx_sha256, s.onnx_bytes, s.onnx_path, \
-     s.endpoint_url, s.manifest_json, s.status, s.error_kind, s.error_message, s.created_at, s.updated_at \
-     FROM submissions s JOIN methods m ON m.id = s.method_id LEFT JOIN submitters sub ON sub.id = s.submitter_id";
+     s.endpoint_url, s.manifest_json, s.status, s.error_kind, s.error_message, s.created_at, s.updated_at, \
+     s.simulated_once FROM submissions s JOIN methods m ON m.id = s.method_id LEFT JOIN submitters sub ON sub.id = s.submitter_id";
 
 impl Store {
     /// The submission that already holds this seed, if any (checked before an
@@ -194,8 +201,8 @@ impl Store {
         let t = now();
         let id: i64 = sqlx::query_scalar(
             "INSERT INTO submissions (method_id, submitter_id, task, obs_type, training_seed, data_fraction, protocol, \
-             policy_kind, onnx_sha256, onnx_bytes, onnx_path, endpoint_url, manifest_json, status, created_at, updated_at) \
-             VALUES ($1, $2, $3, $4, $5, $6, $7, $8, $9, $10, $11, $12, $13, $14, $15, $16) RETURNING id",
+             policy_kind, onnx_sha256, onnx_bytes, onnx_path, endpoint_url, manifest_json, status, created_at, updated_at, \
+             simulated_once) VALUES ($1, $2, $3, $4, $5, $6, $7, $8, $9, $10, $11, $12, $13, $14, $15, $16, $17) RETURNING id",
         )
         .bind(s.method_id)
         .bind(s.submitter_id)
@@ -213,6 +220,7 @@ impl Store {
         .bind(SubmissionStatus::Queued)
         .bind(t)
         .bind(t)
+        .bind(s.simulated_once)
         .fetch_one(&mut *tx)
         .await
         .map_err(|e| match &e {

@@ -89,6 +89,9 @@ pub struct Options {
     pub connections: Option<d3il_server::config::ConnectionLimits>,
     /// SQLite (default) or a fresh database on the test PostgreSQL.
     pub backend: Backend,
+    /// Run each upload through the worker before queueing it (the server's
+    /// default; off here, where the worker is /bin/false or a test script).
+    pub dry_run_uploads: bool,
 }
 
 impl Default for Options {
@@ -101,6 +104,7 @@ impl Default for Options {
             db: None,
             connections: None,
             backend: Backend::Sqlite,
+            dry_run_uploads: false,
         }
     }
 }
@@ -127,8 +131,9 @@ pub async fn spawn_app_with(o: Options) -> TestApp {
     cfg.max_upload_bytes = o.max_upload;
     cfg.lease_seconds = 3;
     // The worker here is /bin/false or a test script, not `d3il worker`:
-    // uploads are judged by their evaluation (root tests cover the dry run).
-    cfg.dry_run_uploads = false;
+    // uploads are judged by their evaluation (root tests cover the dry run
+    // with the real worker) unless a test asks for it.
+    cfg.dry_run_uploads = o.dry_run_uploads;
     if let Some(c) = o.connections.clone() {
         cfg.connections = c;
     }
@@ -239,6 +244,32 @@ macro_rules! on_both_backends {
 #[allow(unused_imports)]
 pub(crate) use on_both_backends;
 
+/// A queued paper-protocol submission ([`queued_submission`], one job row);
+/// returns (submission, job id).
+pub async fn submit(
+    store: &d3il_server::store::Store,
+    method: &str,
+    task: d3il_protocol::TaskId,
+    seed: i64,
+) -> (i64, i64) {
+    submit_sharded(store, method, task, seed, 1).await
+}
+
+/// A paper-protocol submission whose job is split into `shards` rows;
+/// returns (submission, first shard's job id).
+pub async fn submit_sharded(
+    store: &d3il_server::store::Store,
+    method: &str,
+    task: d3il_protocol::TaskId,
+    seed: i64,
+    shards: usize,
+) -> (i64, i64) {
+    let protocol = d3il_protocol::ProtocolKind::Paper;
+    let id = queued_submission(store, method, task, protocol, seed, shards).await;
+    let job = store.job_for(id).await.unwrap();
+    (id, job.id)
+}
+
 /// A queued state-observation submission of `method` with a remote policy,
 /// its job in `shards` rows, as the intake stores it (the method is made if
 /// needed); returns its id.
@@ -275,6 +306,7 @@ pub async fn queued_submission(
                     url: "ws://127.0.0.1:1/".into(),
                 },
                 manifest_json: "{}".into(),
+                simulated_once: None,
             },
             3,
             shards,

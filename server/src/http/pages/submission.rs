@@ -80,7 +80,7 @@ pub(super) async fn submission_page(
     let store = &state.store;
     let s = store.submission(id).await?;
     let job = store.job_for(id).await?;
-    let p = progress(&state, &job, s.task, s.obs_type, s.protocol).await?;
+    let p = progress(&state, &job, &s).await?;
     let result = store.result_for(id).await?;
     let mut metrics = vec![];
     let mut contexts = vec![];
