@@ -5,6 +5,7 @@ franka_description) from Collada to OBJ, which MuJoCo 2.2 loads, for the
 renderer's visual-only geoms.
 
 Usage:  python3 scripts/panda_meshes.py [outdir]      (default: assets/meshes)
+        python3 scripts/panda_meshes.py --requirements   (the pinned packages, for pip)
 
 The package is a dependency installed by ./dev; nothing from it is committed.
 Only the geometry is kept (triangles, all <node> transforms applied, in metres):
@@ -15,13 +16,14 @@ Collada materials (docs/original-d3il.md §01.2.5, §01.6).
 The full meshes have 12 000-22 000 triangles per link, which at 96x96 pixels
 are mostly far smaller than a pixel (the front view drew 92 ms per frame with
 them). Meshes above BUDGET triangles are therefore reduced to BUDGET by
-quadric edge collapse (the `fast-simplification` package, pinned by ./dev, so
-every machine gets the same vertices); docs/images.md gives the measured
+quadric edge collapse (the `fast-simplification` package, pinned in
+REQUIREMENTS, so every machine gets the same vertices); docs/images.md gives the measured
 difference to frames drawn with the full meshes, which are written too, to
 outdir/full/, for the test that keeps that difference small
 (evaluator/tests/panda_meshes.rs).
 
-Exits with status 2 and a message naming the package when one is not installed.
+Exits with status 2 and a message naming the packages when the pinned versions
+are not installed.
 """
 
 import os
@@ -30,6 +32,28 @@ import xml.etree.ElementTree as ET
 
 PARTS = [f"link{i}" for i in range(8)] + ["hand", "finger"]
 BUDGET = 1000
+# The packages the meshes come from, pinned: the committed meshed frames
+# (tests/render_golden.rs) depend on the exact vertices. ./dev installs these.
+REQUIREMENTS = {"example-robot-data": "6.0.0", "fast-simplification": "0.2.0"}
+
+
+def check_requirements():
+    """Exit 2 naming what to install unless the pinned versions are installed."""
+    from importlib import metadata
+    wrong = []
+    for name, version in REQUIREMENTS.items():
+        try:
+            have = metadata.version(name)
+        except metadata.PackageNotFoundError:
+            have = None
+        if have != version:
+            wrong.append(f"{name}=={version} (installed: {have or 'none'})")
+    if wrong:
+        print("the Panda meshes need " + ", ".join(wrong) + ": pip install "
+              + " ".join(f"{n}=={v}" for n, v in REQUIREMENTS.items())
+              + " (./dev does); without them the renderer keeps the primitive robot",
+              file=sys.stderr)
+        sys.exit(2)
 NS = "{http://www.collada.org/2005/11/COLLADASchema}"
 
 
@@ -127,13 +151,8 @@ def reduce(verts, faces, budget):
     """The mesh with at most `budget` triangles (unchanged when it has fewer)."""
     if len(faces) <= budget:
         return verts, faces
-    try:
-        import numpy as np
-        import fast_simplification
-    except ImportError:
-        print("fast-simplification is not installed: pip install fast-simplification==0.2.0 "
-              "(./dev does)", file=sys.stderr)
-        sys.exit(2)
+    import numpy as np
+    import fast_simplification
     verts, faces = weld(verts, faces)
     v, f = fast_simplification.simplify(np.array(verts, dtype=np.float64),
                                         np.array(faces, dtype=np.int32), target_count=budget)
@@ -153,11 +172,14 @@ def write_obj(path, verts, faces, source):
 
 
 def main():
+    if sys.argv[1:] == ["--requirements"]:
+        print(" ".join(f"{n}=={v}" for n, v in REQUIREMENTS.items()))
+        return
     out = sys.argv[1] if len(sys.argv) > 1 else os.path.join(os.path.dirname(__file__), "..", "assets", "meshes")
+    check_requirements()
     src = package_dir()
     if src is None:
-        print("example-robot-data is not installed: pip install example-robot-data "
-              "(./dev does); the renderer keeps the primitive hand and fingers", file=sys.stderr)
+        print("example-robot-data has no panda_description/meshes/visual", file=sys.stderr)
         sys.exit(2)
     full = os.path.join(out, "full")
     os.makedirs(full, exist_ok=True)
