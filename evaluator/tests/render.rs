@@ -200,3 +200,65 @@ fn rendering_starts_no_rasterizer_threads() {
     );
     assert_eq!(std::env::var("LP_NUM_THREADS").as_deref(), Ok("0"));
 }
+
+/// Geoms that the table top hides from a camera (the lab frame's feet under
+/// the table) are left out of the frame: the frames are the same as with
+/// them, over states of every image task in both looks, and the in-hand
+/// camera, which sees nothing else of them, leaves them out.
+#[test]
+fn geoms_hidden_under_the_table_are_left_out_with_the_same_frames() {
+    use d3il_evaluator::mujoco::Renderer;
+    use d3il_evaluator::sim::scene::RobotLook;
+    for task in [
+        TaskId::Aligning,
+        TaskId::Sorting4,
+        TaskId::Sorting6,
+        TaskId::Stacking,
+    ] {
+        for look in [RobotLook::Primitives, RobotLook::best()] {
+            // The state variant: its environment renders nothing itself.
+            let t = LoadedTask::load_look(task, ObsType::State, look).unwrap();
+            let set = t.def.context_set().unwrap();
+            let cams = camera::camera_ids(&t.model).unwrap();
+            let mut culled = Renderer::new(t.model.clone(), SIZE, SIZE).unwrap();
+            let mut all = Renderer::new(t.model.clone(), SIZE, SIZE).unwrap();
+            all.keep_hidden_geoms(true);
+            let mut hidden_in_hand = 0;
+            for context in 0..3 {
+                let mut env = t.env().unwrap();
+                env.reset(set.get(context).unwrap()).unwrap();
+                for step in 0..40 {
+                    if step % 10 == 0 {
+                        for (k, &cam) in cams.iter().enumerate() {
+                            let mut a = vec![0u8; SIZE * SIZE * 3];
+                            let mut b = vec![0u8; SIZE * SIZE * 3];
+                            culled.render_raw(&mut env.sim.data, cam, &mut a).unwrap();
+                            all.render_raw(&mut env.sim.data, cam, &mut b).unwrap();
+                            assert_eq!(all.hidden_geoms(), 0);
+                            assert!(
+                                a == b,
+                                "{task} {look:?} context {context} step {step}: {} differs \
+                                 without the {} hidden geoms",
+                                CAMERAS[k],
+                                culled.hidden_geoms()
+                            );
+                            if k == 1 {
+                                hidden_in_hand += culled.hidden_geoms();
+                            }
+                        }
+                    }
+                    let act: Vec<f32> = (0..t.def.act_dim())
+                        .map(|i| 0.004 * ((step as f32) * 0.1 + i as f32).sin())
+                        .collect();
+                    if env.step(&act).unwrap().done {
+                        break;
+                    }
+                }
+            }
+            assert!(
+                hidden_in_hand > 0,
+                "{task} {look:?}: the in-hand camera left nothing out"
+            );
+        }
+    }
+}

@@ -6,7 +6,7 @@
 //! neither `Send` nor `Sync`. The evaluator keeps one per worker thread and all
 //! rollouts on that thread share it.
 
-use super::view::{cull_outside_frustum, Frustum, PlaneLists};
+use super::view::{cull_outside_frustum, cull_under_slabs, Frustum, PlaneLists};
 use super::{ffi, guarded, install_handlers, Data, MjError, Model};
 use std::ffi::{c_char, c_void, CStr};
 use std::marker::PhantomData;
@@ -396,6 +396,10 @@ pub struct Renderer {
     pert: Box<ffi::mjvPerturb>,
     /// Per camera, the ground plane's grid cut to the cells in view.
     planes: Option<PlaneLists>,
+    /// Geoms of the last frame left out as hidden under the table top.
+    hidden: usize,
+    /// Draw those too (tests compare the frames both ways).
+    keep_hidden: bool,
     width: usize,
     height: usize,
     // The GL context is current on the creating thread only.
@@ -494,6 +498,8 @@ impl Renderer {
                 planes: None,
                 width,
                 height,
+                hidden: 0,
+                keep_hidden: false,
                 _not_send: PhantomData,
             };
             ffi::mjv_defaultOption(&mut *r.opt);
@@ -547,6 +553,18 @@ impl Renderer {
         self.height
     }
 
+    /// How many geoms the last frame left out because the table top hides
+    /// them from the camera (the frame is the same without them).
+    pub fn hidden_geoms(&self) -> usize {
+        self.hidden
+    }
+
+    /// Draws the geoms the table top hides too (`true`), as MuJoCo would;
+    /// for tests that compare the frames both ways. Default `false`.
+    pub fn keep_hidden_geoms(&mut self, keep: bool) {
+        self.keep_hidden = keep;
+    }
+
     /// Renders fixed camera `camera` (a camera id of the model) from the
     /// current derived quantities of `data` (no `mj_forward`, like the
     /// reference) into `rgb`: width × height × 3 bytes, rows bottom-up, as
@@ -594,6 +612,8 @@ impl Renderer {
         );
         let (scn, con) = (&mut *self.scn as *mut _, &mut *self.con as *mut _);
         let planes = self.planes.as_mut().map(|p| p as *mut PlaneLists);
+        let hidden = &mut self.hidden as *mut usize;
+        let keep_hidden = self.keep_hidden;
         let aspect = viewport.width as f32 / viewport.height as f32;
         let dpy = self.lease.dpy;
         let (surface, ctx) = (self.surface, self.ctx);
@@ -606,8 +626,12 @@ impl Renderer {
             }
             guarded(|| {
                 ffi::mjv_updateScene(m, d, opt, pert, cam, ffi::mjtCatBit__mjCAT_ALL as i32, scn);
+                *hidden = 0;
                 if let Some(view) = Frustum::of(&(*scn).camera[0], aspect) {
                     cull_outside_frustum(&mut *scn, &view);
+                    if !keep_hidden {
+                        *hidden = cull_under_slabs(&mut *scn);
+                    }
                     if let Some(p) = planes {
                         (*p).select(camera, &*scn, &view, &mut *con);
                     }

@@ -1,7 +1,8 @@
 //! What a camera can see, for leaving out of a frame what covers no pixel:
-//! model geoms entirely outside the view ([`cull_outside_frustum`]) and the
-//! cells of an infinite ground plane's grid outside it ([`PlaneLists`]).
-//! Both only ever keep too much, so frames are identical (docs/images.md).
+//! model geoms entirely outside the view ([`cull_outside_frustum`]), model
+//! geoms entirely hidden under the table top ([`cull_under_slabs`]) and the
+//! cells of an infinite ground plane's grid outside the view ([`PlaneLists`]).
+//! All only ever keep too much, so frames are identical (docs/images.md).
 
 use super::ffi;
 use super::render::eglGetProcAddress;
@@ -115,6 +116,99 @@ pub(super) fn cull_outside_frustum(scn: &mut ffi::mjvScene, view: &Frustum) {
         }
     }
     scn.ngeom = kept as i32;
+}
+
+/// How far inside a slab's top face, and below it, a hidden geom must stay
+/// (metres): far more than llvmpipe's vertex snapping (1/256 pixel) or
+/// float rounding can move an edge, so a geom counted as hidden is hidden at
+/// every sample.
+const SLAB_MARGIN: f64 = 0.005;
+
+/// The top face of an opaque slab: a static, opaque, axis-aligned box geom of
+/// the scene (the table), shrunk by [`SLAB_MARGIN`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct TopFace {
+    z: f64,
+    x: [f64; 2],
+    y: [f64; 2],
+}
+
+impl TopFace {
+    fn of(g: &ffi::mjvGeom) -> Option<TopFace> {
+        let axis_aligned = g
+            .mat
+            .iter()
+            .enumerate()
+            .all(|(k, v)| (*v as f64 - if k % 4 == 0 { 1.0 } else { 0.0 }).abs() < 1e-6);
+        let slab = g.objtype == ffi::mjtObj__mjOBJ_GEOM as i32
+            && g.type_ == ffi::mjtGeom__mjGEOM_BOX as i32
+            && g.category == ffi::mjtCatBit__mjCAT_STATIC as i32
+            && g.rgba[3] >= 1.0
+            && g.transparent == 0
+            && axis_aligned;
+        let [p, s] = [g.pos, g.size].map(|v| v.map(f64::from));
+        (slab && s[0] > SLAB_MARGIN && s[1] > SLAB_MARGIN).then(|| TopFace {
+            z: p[2] + s[2],
+            x: [p[0] - s[0] + SLAB_MARGIN, p[0] + s[0] - SLAB_MARGIN],
+            y: [p[1] - s[1] + SLAB_MARGIN, p[1] + s[1] - SLAB_MARGIN],
+        })
+    }
+
+    /// Whether every line of sight from `eye` to the sphere crosses this face
+    /// first: the eye is above it, the sphere below it, and the face's
+    /// (convex) rectangle holds the shadow that the sphere's bounding cube
+    /// casts on its plane from the eye (the cube is convex too, so its 8
+    /// corners decide).
+    fn hides(&self, eye: [f64; 3], centre: [f64; 3], radius: f64) -> bool {
+        if eye[2] <= self.z + SLAB_MARGIN || centre[2] + radius >= self.z - SLAB_MARGIN {
+            return false;
+        }
+        (0..8).all(|k| {
+            let c = [0, 1, 2].map(|a| centre[a] + if k >> a & 1 == 1 { radius } else { -radius });
+            let t = (self.z - eye[2]) / (c[2] - eye[2]);
+            let (x, y) = (eye[0] + t * (c[0] - eye[0]), eye[1] + t * (c[1] - eye[1]));
+            (self.x[0]..=self.x[1]).contains(&x) && (self.y[0]..=self.y[1]).contains(&y)
+        })
+    }
+}
+
+/// Drops from the scene every model geom that the top face of an opaque slab
+/// (the table) hides from the camera: the face is drawn opaque in front of
+/// every sample such a geom covers, so the frame is identical, and llvmpipe
+/// does not rasterize it (the lab frame's four feet under the table are
+/// cylinders of 2688 triangles each, most of the in-hand camera's work).
+/// Returns how many geoms were left out.
+pub(super) fn cull_under_slabs(scn: &mut ffi::mjvScene) -> usize {
+    let n = scn.ngeom.max(0) as usize;
+    if n == 0 || scn.geoms.is_null() {
+        return 0;
+    }
+    // SAFETY: mjv_updateScene filled `ngeom` entries of `geoms`.
+    let geoms = unsafe { std::slice::from_raw_parts_mut(scn.geoms, n) };
+    let faces: Vec<TopFace> = geoms.iter().filter_map(TopFace::of).collect();
+    // Both eyes (they coincide without stereo).
+    let eyes = scn.camera.map(|c| c.pos.map(f64::from));
+    if faces.is_empty() {
+        return 0;
+    }
+    let mut kept = 0;
+    for i in 0..n {
+        let g = geoms[i];
+        let cullable = g.objtype == ffi::mjtObj__mjOBJ_GEOM as i32
+            && g.type_ != ffi::mjtGeom__mjGEOM_PLANE as i32
+            && g.modelrbound > 0.0;
+        let (centre, radius) = (g.pos.map(f64::from), g.modelrbound as f64);
+        let hidden = cullable
+            && faces
+                .iter()
+                .any(|f| eyes.iter().all(|e| f.hides(*e, centre, radius)));
+        if !hidden {
+            geoms[kept] = g;
+            kept += 1;
+        }
+    }
+    scn.ngeom = kept as i32;
+    n - kept
 }
 
 /// The OpenGL 1.x calls for recording display lists, from EGL.
@@ -375,7 +469,7 @@ fn clip(poly: &[[f64; 2]], a: f64, b: f64, c: f64) -> Vec<[f64; 2]> {
 
 #[cfg(test)]
 mod tests {
-    use super::{clip, ffi, infinite_grid_lines, visible_cells, Frustum};
+    use super::{clip, ffi, infinite_grid_lines, visible_cells, Frustum, TopFace};
 
     fn camera(pos: [f32; 3], forward: [f32; 3], up: [f32; 3]) -> Frustum {
         let near = 0.01f32;
@@ -444,5 +538,52 @@ mod tests {
         assert!(clip(&square, 1.0, 0.0, 1.0).is_empty());
         // x + y ≤ 1: a triangle
         assert_eq!(clip(&square, 1.0, 1.0, -1.0).len(), 3);
+    }
+
+    fn table() -> ffi::mjvGeom {
+        // SAFETY: mjvGeom is plain old data; all-zero is a valid value.
+        let mut g: ffi::mjvGeom = unsafe { std::mem::zeroed() };
+        g.objtype = ffi::mjtObj__mjOBJ_GEOM as i32;
+        g.type_ = ffi::mjtGeom__mjGEOM_BOX as i32;
+        g.category = ffi::mjtCatBit__mjCAT_STATIC as i32;
+        g.rgba = [0.8, 0.655, 0.45, 1.0];
+        g.mat = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0];
+        g.pos = [0.5, 0.0, -0.02];
+        g.size = [0.5, 0.8, 0.02];
+        g
+    }
+
+    #[test]
+    fn a_table_top_hides_what_is_under_it_from_above_only() {
+        let top = TopFace::of(&table()).unwrap();
+        assert_eq!(top.z, 0.0);
+        let eye = [0.5, 0.0, 1.0];
+        // A foot under the middle of the table.
+        assert!(top.hides(eye, [0.5, 0.0, -0.5], 0.05));
+        // Touching the top face, or poking through it: not hidden.
+        assert!(!top.hides(eye, [0.5, 0.0, -0.05], 0.05));
+        // Under the table but seen past its edge from a low, far eye.
+        assert!(!top.hides([3.0, 0.0, 0.05], [0.95, 0.0, -0.5], 0.05));
+        // Beside the table.
+        assert!(!top.hides(eye, [1.2, 0.0, -0.5], 0.05));
+        // From below the table top nothing is hidden.
+        assert!(!top.hides([0.5, 0.0, -0.1], [0.5, 0.0, -0.5], 0.05));
+    }
+
+    #[test]
+    fn only_opaque_static_axis_aligned_boxes_are_slabs() {
+        assert!(TopFace::of(&table()).is_some());
+        let mut g = table();
+        g.rgba[3] = 0.5;
+        assert!(TopFace::of(&g).is_none(), "translucent");
+        let mut g = table();
+        g.category = ffi::mjtCatBit__mjCAT_DYNAMIC as i32;
+        assert!(TopFace::of(&g).is_none(), "moving");
+        let mut g = table();
+        g.mat = [0.0, -1.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0];
+        assert!(TopFace::of(&g).is_none(), "turned");
+        let mut g = table();
+        g.type_ = ffi::mjtGeom__mjGEOM_CYLINDER as i32;
+        assert!(TopFace::of(&g).is_none(), "not a box");
     }
 }
