@@ -98,24 +98,40 @@ impl Frustum {
 /// vertex processing and clipping (a capsule is 2688 triangles at MuJoCo's
 /// default quality). Planes and decorative geoms are always kept.
 pub(super) fn cull_outside_frustum(scn: &mut ffi::mjvScene, view: &Frustum) {
+    drop_model_geoms(scn, |g| view.excludes_sphere(g.pos, g.modelrbound));
+}
+
+/// The scene's geoms (as mjv_updateScene filled them).
+fn scene_geoms(scn: &mut ffi::mjvScene) -> &mut [ffi::mjvGeom] {
     let n = scn.ngeom.max(0) as usize;
     if n == 0 || scn.geoms.is_null() {
-        return;
+        return &mut [];
     }
     // SAFETY: mjv_updateScene filled `ngeom` entries of `geoms`.
-    let geoms = unsafe { std::slice::from_raw_parts_mut(scn.geoms, n) };
+    unsafe { std::slice::from_raw_parts_mut(scn.geoms, n) }
+}
+
+/// Removes from the scene the model geoms (not planes, with a bounding
+/// sphere; decorative geoms are always kept) for which `drop` holds, keeping
+/// the others in order; returns how many were removed.
+fn drop_model_geoms(scn: &mut ffi::mjvScene, mut drop: impl FnMut(&ffi::mjvGeom) -> bool) -> usize {
+    let geoms = scene_geoms(scn);
+    let n = geoms.len();
     let mut kept = 0;
     for i in 0..n {
         let g = geoms[i];
         let cullable = g.objtype == ffi::mjtObj__mjOBJ_GEOM as i32
             && g.type_ != ffi::mjtGeom__mjGEOM_PLANE as i32
             && g.modelrbound > 0.0;
-        if !(cullable && view.excludes_sphere(g.pos, g.modelrbound)) {
+        if !(cullable && drop(&g)) {
             geoms[kept] = g;
             kept += 1;
         }
     }
-    scn.ngeom = kept as i32;
+    if n > 0 {
+        scn.ngeom = kept as i32;
+    }
+    n - kept
 }
 
 /// How far inside a slab's top face, and below it, a hidden geom must stay
@@ -179,36 +195,18 @@ impl TopFace {
 /// cylinders of 2688 triangles each, most of the in-hand camera's work).
 /// Returns how many geoms were left out.
 pub(super) fn cull_under_slabs(scn: &mut ffi::mjvScene) -> usize {
-    let n = scn.ngeom.max(0) as usize;
-    if n == 0 || scn.geoms.is_null() {
-        return 0;
-    }
-    // SAFETY: mjv_updateScene filled `ngeom` entries of `geoms`.
-    let geoms = unsafe { std::slice::from_raw_parts_mut(scn.geoms, n) };
-    let faces: Vec<TopFace> = geoms.iter().filter_map(TopFace::of).collect();
-    // Both eyes (they coincide without stereo).
-    let eyes = scn.camera.map(|c| c.pos.map(f64::from));
+    let faces: Vec<TopFace> = scene_geoms(scn).iter().filter_map(TopFace::of).collect();
     if faces.is_empty() {
         return 0;
     }
-    let mut kept = 0;
-    for i in 0..n {
-        let g = geoms[i];
-        let cullable = g.objtype == ffi::mjtObj__mjOBJ_GEOM as i32
-            && g.type_ != ffi::mjtGeom__mjGEOM_PLANE as i32
-            && g.modelrbound > 0.0;
+    // Both eyes (they coincide without stereo).
+    let eyes = scn.camera.map(|c| c.pos.map(f64::from));
+    drop_model_geoms(scn, |g| {
         let (centre, radius) = (g.pos.map(f64::from), g.modelrbound as f64);
-        let hidden = cullable
-            && faces
-                .iter()
-                .any(|f| eyes.iter().all(|e| f.hides(*e, centre, radius)));
-        if !hidden {
-            geoms[kept] = g;
-            kept += 1;
-        }
-    }
-    scn.ngeom = kept as i32;
-    n - kept
+        faces
+            .iter()
+            .any(|f| eyes.iter().all(|e| f.hides(*e, centre, radius)))
+    })
 }
 
 /// The OpenGL 1.x calls for recording display lists, from EGL.
