@@ -6,6 +6,7 @@ renderer's visual-only geoms.
 
 Usage:  python3 scripts/panda_meshes.py [outdir]      (default: assets/meshes)
         python3 scripts/panda_meshes.py --requirements   (the pinned packages, for pip)
+        python3 scripts/panda_meshes.py --check          (exit 2 unless they are installed)
 
 The package is a dependency installed by ./dev; nothing from it is committed.
 Only the geometry is kept (triangles, all <node> transforms applied, in metres):
@@ -37,6 +38,11 @@ BUDGET = 1000
 REQUIREMENTS = {"example-robot-data": "6.0.0", "fast-simplification": "0.2.0"}
 
 
+def pins():
+    """REQUIREMENTS as pip arguments."""
+    return " ".join(f"{n}=={v}" for n, v in REQUIREMENTS.items())
+
+
 def check_requirements():
     """Exit 2 naming what to install unless the pinned versions are installed."""
     from importlib import metadata
@@ -49,11 +55,12 @@ def check_requirements():
         if have != version:
             wrong.append(f"{name}=={version} (installed: {have or 'none'})")
     if wrong:
-        print("the Panda meshes need " + ", ".join(wrong) + ": pip install "
-              + " ".join(f"{n}=={v}" for n, v in REQUIREMENTS.items())
+        print("the Panda meshes need " + ", ".join(wrong) + ": pip install " + pins()
               + " (./dev does); without them the renderer keeps the primitive robot",
               file=sys.stderr)
         sys.exit(2)
+
+
 NS = "{http://www.collada.org/2005/11/COLLADASchema}"
 
 
@@ -173,7 +180,10 @@ def write_obj(path, verts, faces, source):
 
 def main():
     if sys.argv[1:] == ["--requirements"]:
-        print(" ".join(f"{n}=={v}" for n, v in REQUIREMENTS.items()))
+        print(pins())
+        return
+    if sys.argv[1:] == ["--check"]:
+        check_requirements()
         return
     out = sys.argv[1] if len(sys.argv) > 1 else os.path.join(os.path.dirname(__file__), "..", "assets", "meshes")
     check_requirements()

@@ -50,8 +50,7 @@ pub async fn progress(
             eta_seconds: None,
         });
     }
-    // (task, observation type, protocol) of the queued jobs ahead; their
-    // count is the position.
+    // The kinds of the queued jobs ahead; their count is the position.
     let ahead = match job.state {
         JobState::Queued => Some(state.store.queued_ahead(job.id).await?),
         _ => None,
