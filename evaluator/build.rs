@@ -32,7 +32,7 @@ fn main() {
 /// package into assets/meshes/ (scripts/panda_meshes.py) are compiled into the
 /// binary, every `panda_*.obj` there as (file name, contents), so that
 /// sandboxed workers need no file access for them; the scene checks that the
-/// ones it needs are present (`RobotLook::meshes_available`), else it keeps
+/// ones it needs are present (`scene::meshes_available`), else it keeps
 /// primitive shapes.
 fn embed_panda_meshes() {
     let manifest = std::env::var("CARGO_MANIFEST_DIR").expect("set by cargo");

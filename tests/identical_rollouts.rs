@@ -10,7 +10,7 @@
 use d3il_evaluator::eval::{evaluate, sha256_hex, EvalOptions, PolicyInfo, Timing};
 use d3il_evaluator::tasks::LoadedTask;
 use d3il_policy::{OnnxPolicy, Policy};
-use d3il_protocol::{EvalResult, ObsType, ProtocolKind, TaskId};
+use d3il_protocol::{EvalResult, ObsType, ProtocolKind, RobotLook, TaskId};
 use d3il_test_support::{fixture_manifest, fixtures_dir};
 
 fn evaluate_fixture(
@@ -80,6 +80,8 @@ fn a_deterministic_state_policy_is_simulated_once_per_initial_state_with_the_sam
     // The random-weight MLP drives the robot differently from each state.
     let steps: Vec<usize> = aligning.rollouts.iter().map(|r| r.steps).collect();
     assert!(steps.iter().all(|&s| s > 0));
+    // Nothing is drawn for a state policy: the manifest names no robot look.
+    assert_eq!(aligning.manifest.robot_look, None);
     let avoiding = same_both_ways(TaskId::Avoiding, ObsType::State, "avoiding_path");
     assert!(avoiding.rollouts.iter().all(|r| r.path.is_some()));
     assert_eq!(avoiding.metrics.conditional_entropy.value, 0.0);
@@ -87,7 +89,10 @@ fn a_deterministic_state_policy_is_simulated_once_per_initial_state_with_the_sam
 
 #[test]
 fn a_deterministic_image_policy_is_simulated_once_per_initial_state_with_the_same_results() {
-    same_both_ways(TaskId::Aligning, ObsType::Image, "aligning_image_k2_h4");
+    let r = same_both_ways(TaskId::Aligning, ObsType::Image, "aligning_image_k2_h4");
+    // The set-up converts the Panda meshes, so image evaluations draw them,
+    // and the manifest says so.
+    assert_eq!(r.manifest.robot_look, Some(RobotLook::Meshes));
 }
 
 #[test]

@@ -119,6 +119,10 @@ fn image_onnx_policy_runs_through_sandboxed_eval_quick() {
     let r: Value = serde_json::from_slice(&std::fs::read(&json).unwrap()).unwrap();
     let m = &r["manifest"];
     assert_eq!(m["obs_type"], "image");
+    assert_eq!(
+        m["robot_look"], "meshes",
+        "the set-up converts the Panda meshes"
+    );
     assert_eq!(m["task"], "aligning");
     assert_eq!(m["max_steps"], 400);
     let rollouts = r["rollouts"].as_array().unwrap();

@@ -223,6 +223,17 @@ fn merge_refuses_parts_that_do_not_make_one_evaluation() {
     let e = merge(&["part1.json", &set, "part3.json"]);
     assert!(e.contains("different initial-state sets"), "{e}");
 
+    // A part from a host without the Panda meshes draws another scene.
+    let look = edited(dir, "part2.json", "other-look.json", |v| {
+        v["manifest"]["robot_look"] = "primitives".into();
+        v["manifest"]["mjcf_sha256"] = "11".repeat(32).into();
+    });
+    let e = merge(&["part1.json", &look, "part3.json"]);
+    assert!(
+        e.contains("different robot looks") && e.contains("robot_look") && e.contains("./dev"),
+        "{e}"
+    );
+
     let seed = edited(dir, "part2.json", "other-seed.json", |v| {
         v["manifest"]["seed"] = 8.into();
     });

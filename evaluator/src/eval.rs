@@ -469,6 +469,7 @@ fn run_rollouts(
         task_version: task.def.version().into(),
         obs_type: info.obs_type,
         protocol: opts.protocol,
+        robot_look: (task.obs_type == ObsType::Image).then_some(task.look),
         mjcf_sha256: task.mjcf_sha256.clone(),
         initial_states_sha256: set.sha256.clone(),
         initial_states: set.name.clone(),

@@ -6,7 +6,7 @@
 //! difference. The meshes come from example-robot-data, which ./dev installs
 //! and converts before the build (docs/images.md).
 
-use d3il_evaluator::sim::scene::RobotLook;
+use d3il_evaluator::sim::scene::{meshes_available, RobotLook};
 use d3il_evaluator::tasks::{task_def, Env, LoadedTask};
 use d3il_protocol::{ObsType, TaskId};
 use std::path::Path;
@@ -22,7 +22,7 @@ fn env(task: TaskId, look: RobotLook) -> (LoadedTask, Env) {
 #[test]
 fn this_build_has_the_meshes() {
     assert!(
-        RobotLook::meshes_available(),
+        meshes_available(),
         "assets/meshes/panda_*.obj were missing when the evaluator was built: \
          run ./dev test (it installs example-robot-data and runs scripts/panda_meshes.py)"
     );

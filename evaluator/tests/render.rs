@@ -208,14 +208,14 @@ fn rendering_starts_no_rasterizer_threads() {
 #[test]
 fn geoms_hidden_under_the_table_are_left_out_with_the_same_frames() {
     use d3il_evaluator::mujoco::Renderer;
-    use d3il_evaluator::sim::scene::RobotLook;
+    use d3il_evaluator::sim::scene::{best_look, RobotLook};
     for task in [
         TaskId::Aligning,
         TaskId::Sorting4,
         TaskId::Sorting6,
         TaskId::Stacking,
     ] {
-        for look in [RobotLook::Primitives, RobotLook::best()] {
+        for look in [RobotLook::Primitives, best_look()] {
             // The state variant: its environment renders nothing itself.
             let t = LoadedTask::load_look(task, ObsType::State, look).unwrap();
             let set = t.def.context_set().unwrap();

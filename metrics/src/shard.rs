@@ -59,6 +59,9 @@ fn field_kind(field: &str) -> &'static str {
     match field {
         "policy_sha256" | "history" | "horizon" | "execute" | "obs_type" => "policies",
         "initial_states" | "initial_states_sha256" => "initial-state sets",
+        "robot_look" => {
+            "robot looks (only some hosts have the converted Panda meshes; ./dev installs them)"
+        }
         "task" | "task_version" | "mjcf_sha256" => "tasks",
         "evaluator_version" | "mujoco_version" => "evaluator builds",
         _ => "protocols",
@@ -127,9 +130,17 @@ pub fn merge(parts: Vec<(String, EvalPart)>) -> Result<EvalResult, MergeError> {
             why: e.to_string(),
         })?;
         if let (Some(a), Some(b)) = (first_manifest.as_object(), m.as_object()) {
-            // Policy first: the likeliest mistake and the most useful message.
+            // Policy first: the likeliest mistake and the most useful message;
+            // then the robot look, which also changes the scene's hash.
             let mut fields: Vec<&String> = a.keys().chain(b.keys()).collect();
-            fields.sort_by_key(|f| (field_kind(f) != "policies", f.as_str()));
+            fields.sort_by_key(|f| {
+                let rank = match field_kind(f) {
+                    "policies" => 0,
+                    _ if f.as_str() == "robot_look" => 1,
+                    _ => 2,
+                };
+                (rank, f.as_str())
+            });
             fields.dedup();
             for f in fields {
                 let (va, vb) = (a.get(f), b.get(f));

@@ -1,6 +1,6 @@
 //! Results of one evaluation, and aggregated table cells.
 
-use crate::task::{ObsType, ProtocolKind, TaskId};
+use crate::task::{robot_look_note, ObsType, ProtocolKind, RobotLook, RobotLookNote, TaskId};
 use serde::{Deserialize, Serialize};
 
 /// Everything needed to know exactly what was measured.
@@ -10,6 +10,11 @@ pub struct ProtocolManifest {
     pub task_version: String,
     pub obs_type: ObsType,
     pub protocol: ProtocolKind,
+    /// Image results: how the cameras drew the robot. None for state results
+    /// (nothing is drawn) and for image results stored before the look was
+    /// recorded.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub robot_look: Option<RobotLook>,
     pub mjcf_sha256: String,
     pub initial_states_sha256: String,
     /// File name of the initial-state set (e.g. `pushing-v2.json`); empty in
@@ -105,6 +110,11 @@ impl ProtocolManifest {
 
     pub fn initial_states_origin(&self) -> InitialStatesOrigin {
         InitialStatesOrigin::of(&self.initial_states_name())
+    }
+
+    /// How the robot was drawn, when not as the original draws it.
+    pub fn robot_look_note(&self) -> Option<RobotLookNote> {
+        robot_look_note(self.obs_type, self.robot_look)
     }
 }
 

@@ -186,6 +186,83 @@ impl fmt::Display for ObsType {
     }
 }
 
+/// How an image evaluation drew the robot (docs/images.md, "How close our
+/// pixels are to the original's"). Physics is the same either way; only the
+/// pixels an image policy sees differ, so image results drawn with different
+/// looks are kept apart.
+#[derive(
+    Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Default, Serialize, Deserialize,
+)]
+#[serde(rename_all = "lowercase")]
+pub enum RobotLook {
+    /// Capsules and boxes inside the original's mesh bounds (docs/mjcf.md):
+    /// what a build without the converted Panda meshes draws.
+    #[default]
+    Primitives,
+    /// The Panda's visual meshes, drawn like the original's: the links white
+    /// at alpha 0.1, twice; the hand and fingers opaque grey.
+    Meshes,
+}
+
+impl RobotLook {
+    pub fn as_str(self) -> &'static str {
+        match self {
+            RobotLook::Primitives => "primitives",
+            RobotLook::Meshes => "meshes",
+        }
+    }
+}
+
+impl fmt::Display for RobotLook {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.as_str())
+    }
+}
+
+impl FromStr for RobotLook {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        match s {
+            "primitives" => Ok(RobotLook::Primitives),
+            "meshes" => Ok(RobotLook::Meshes),
+            other => Err(format!(
+                "unknown robot look `{other}`; expected `primitives` or `meshes`"
+            )),
+        }
+    }
+}
+
+/// What pages say about a result whose frames were not drawn as the
+/// original draws them ([`robot_look_note`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
+pub struct RobotLookNote {
+    /// A few words, for a badge.
+    pub badge: &'static str,
+    /// The sentence a heading or a submission page shows.
+    pub text: &'static str,
+}
+
+/// How an evaluated result's robot was drawn, when that is not as the
+/// original draws it: None for state results (nothing is drawn) and for image
+/// results drawn with the Panda meshes. Image results with another look, or
+/// with none recorded, saw other pixels than the original's and are ranked
+/// apart.
+pub fn robot_look_note(obs: ObsType, look: Option<RobotLook>) -> Option<RobotLookNote> {
+    match (obs, look) {
+        (ObsType::State, _) | (ObsType::Image, Some(RobotLook::Meshes)) => None,
+        (ObsType::Image, Some(RobotLook::Primitives)) => Some(RobotLookNote {
+            badge: "primitive robot",
+            text:
+                "robot drawn with primitive shapes (capsules and boxes), not the Panda's meshes: \
+                   the evaluating host had no converted meshes",
+        }),
+        (ObsType::Image, None) => Some(RobotLookNote {
+            badge: "robot look not recorded",
+            text: "robot look not recorded (evaluated before results recorded it)",
+        }),
+    }
+}
+
 /// Dimensions a policy must match for a task (docs/original-d3il.md §10, docs/original-d3il.md §11: the policy input
 /// prepends the previous command to the environment observation).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]

@@ -271,6 +271,7 @@ fn fake_result(job: &Job) -> EvalResult {
             task_version: "selftest".into(),
             obs_type: job.manifest.obs_type,
             protocol: job.protocol,
+            robot_look: None,
             mjcf_sha256: String::new(),
             initial_states_sha256: String::new(),
             initial_states: String::new(),

@@ -6,7 +6,10 @@
 
 use crate::schema;
 use d3il_metrics::{aggregate_seeds, MetricsError};
-use d3il_protocol::{ObsType, ProtocolKind, ResultCell, Source, StackingLevel, Stat, TaskId};
+use d3il_protocol::{
+    robot_look_note, ObsType, ProtocolKind, ResultCell, RobotLook, RobotLookNote, Source,
+    StackingLevel, Stat, TaskId,
+};
 use d3il_tables::board::{FractionSeries, ParetoPoint};
 use d3il_tables::plot::Est;
 use std::collections::{BTreeMap, BTreeSet, HashMap};
@@ -51,9 +54,23 @@ pub struct BoardRow {
     pub initial_states: Option<String>,
     /// Evaluated rows: "the original D3IL test contexts" or "our sample".
     pub initial_states_label: Option<String>,
+    /// Evaluated image rows: how the robot was drawn (null for state rows,
+    /// reported rows and image results stored before it was recorded); rows
+    /// drawn differently are never merged.
+    #[schema(value_type = Option<schema::RobotLook>)]
+    pub robot_look: Option<RobotLook>,
 }
 
 impl BoardRow {
+    /// How an evaluated row's robot was drawn, when not as the original
+    /// draws it (reported rows: None).
+    pub fn robot_look_note(&self) -> Option<RobotLookNote> {
+        match self.source {
+            Source::Reported => None,
+            Source::Evaluated => robot_look_note(self.obs, self.robot_look),
+        }
+    }
+
     pub fn to_cell(&self) -> ResultCell {
         ResultCell {
             table: self.paper_table.clone(),
@@ -131,6 +148,8 @@ pub struct EvaluatedSeed {
     pub inference_ms: f64,
     /// The initial-state set the result used (e.g. `pushing-v2.json`).
     pub initial_states: String,
+    /// Image results: how the robot was drawn (None before it was recorded).
+    pub robot_look: Option<RobotLook>,
 }
 
 impl EvaluatedSeed {
@@ -176,7 +195,15 @@ impl EvaluatedSeed {
 /// order of first appearance, aggregating each metric over the seeds with
 /// [`aggregate_seeds`] (mean and sample std; one seed has std 0).
 pub fn evaluated_rows(seeds: &[EvaluatedSeed]) -> Result<Vec<BoardRow>, MetricsError> {
-    type Key = (i64, String, &'static str, u64, &'static str, String);
+    type Key = (
+        i64,
+        String,
+        &'static str,
+        u64,
+        &'static str,
+        String,
+        Option<RobotLook>,
+    );
     struct Group<'a> {
         first: &'a EvaluatedSeed,
         title: String,
@@ -198,6 +225,7 @@ pub fn evaluated_rows(seeds: &[EvaluatedSeed]) -> Result<Vec<BoardRow>, MetricsE
                 s.data_fraction.to_bits(),
                 protocol_str(s.protocol),
                 s.initial_states.clone(),
+                s.robot_look,
             );
             let i = *index.entry(key).or_insert_with(|| {
                 groups.push(Group {
@@ -255,6 +283,7 @@ pub fn evaluated_rows(seeds: &[EvaluatedSeed]) -> Result<Vec<BoardRow>, MetricsE
                         .label()
                         .to_string(),
                 ),
+                robot_look: f.robot_look,
             })
         })
         .collect()
@@ -348,8 +377,10 @@ pub fn by_title(rows: Vec<BoardRow>) -> Vec<(String, Vec<BoardRow>)> {
 /// different initial-state sets and quick smoke tests are not comparable.
 #[derive(Debug, Clone, PartialEq, Eq, PartialOrd, Ord)]
 pub enum RankGroup {
-    /// Evaluated here with the full (paper) protocol on one initial-state set.
-    Evaluated(String),
+    /// Evaluated here with the full (paper) protocol on one initial-state set
+    /// and, for image rows, with the robot drawn one way (None: as the
+    /// original draws it).
+    Evaluated(String, Option<RobotLookNote>),
     /// Reported in the D3IL paper.
     Reported,
     /// Quick-protocol smoke tests: below the board, unranked, off the Pareto front.
@@ -361,9 +392,10 @@ impl RankGroup {
         match (r.source, r.protocol) {
             (Source::Reported, _) => RankGroup::Reported,
             (Source::Evaluated, Some(ProtocolKind::Quick)) => RankGroup::Smoke,
-            (Source::Evaluated, _) => {
-                RankGroup::Evaluated(r.initial_states.clone().unwrap_or_default())
-            }
+            (Source::Evaluated, _) => RankGroup::Evaluated(
+                r.initial_states.clone().unwrap_or_default(),
+                r.robot_look_note(),
+            ),
         }
     }
 
@@ -374,7 +406,10 @@ impl RankGroup {
 
     pub fn heading(&self) -> String {
         match self {
-            RankGroup::Evaluated(set) => format!("Evaluated here (initial states {set})"),
+            RankGroup::Evaluated(set, None) => format!("Evaluated here (initial states {set})"),
+            RankGroup::Evaluated(set, Some(look)) => {
+                format!("Evaluated here (initial states {set}; {})", look.text)
+            }
             RankGroup::Reported => "Reported in the D3IL paper".into(),
             RankGroup::Smoke => "Smoke tests (quick protocol, not ranked)".into(),
         }
@@ -382,7 +417,7 @@ impl RankGroup {
 }
 
 /// Splits rows into their [`RankGroup`]s: evaluated (one group per
-/// initial-state set), then reported, then smoke tests; row order is kept
+/// initial-state set and robot look), then reported, then smoke tests; row order is kept
 /// within a group.
 pub fn rank_groups(rows: Vec<BoardRow>) -> Vec<(RankGroup, Vec<BoardRow>)> {
     let mut groups: BTreeMap<RankGroup, Vec<BoardRow>> = BTreeMap::new();
@@ -530,6 +565,7 @@ mod tests {
             stacking_levels: None,
             inference_ms: 2.0,
             initial_states: "pushing-v2.json".into(),
+            robot_look: None,
         }
     }
 
@@ -570,8 +606,8 @@ mod tests {
         assert_eq!(
             groups,
             vec![
-                RankGroup::Evaluated("pushing-v1.json".into()),
-                RankGroup::Evaluated("pushing-v2.json".into()),
+                RankGroup::Evaluated("pushing-v1.json".into(), None),
+                RankGroup::Evaluated("pushing-v2.json".into(), None),
                 RankGroup::Reported,
                 RankGroup::Smoke
             ]
@@ -580,6 +616,52 @@ mod tests {
         let points = pareto_points(&rows);
         assert_eq!(points.len(), 3);
         assert!(points.iter().all(|p| p.success.mean < 1.0));
+    }
+
+    #[test]
+    fn image_rows_drawn_differently_are_neither_merged_nor_ranked_together() {
+        let image = |id, training_seed, look| EvaluatedSeed {
+            obs: ObsType::Image,
+            robot_look: look,
+            ..seed(id, training_seed, 0.5)
+        };
+        let rows = evaluated_rows(&[
+            image(1, 0, Some(RobotLook::Meshes)),
+            image(2, 1, Some(RobotLook::Primitives)),
+            image(3, 1, Some(RobotLook::Meshes)),
+            image(4, 2, None),
+        ])
+        .unwrap();
+        let looks: Vec<(Option<RobotLook>, usize)> =
+            rows.iter().map(|r| (r.robot_look, r.n_seeds)).collect();
+        assert_eq!(
+            looks,
+            vec![
+                (Some(RobotLook::Meshes), 2),
+                (Some(RobotLook::Primitives), 1),
+                (None, 1)
+            ]
+        );
+        let groups = rank_groups(rows);
+        assert_eq!(groups.len(), 3, "{groups:?}");
+        // Drawn as the original: the plain heading, first.
+        assert_eq!(
+            groups[0].0.heading(),
+            "Evaluated here (initial states pushing-v2.json)"
+        );
+        assert_eq!(groups[0].1[0].robot_look, Some(RobotLook::Meshes));
+        let headings: Vec<String> = groups[1..].iter().map(|g| g.0.heading()).collect();
+        assert!(
+            headings.iter().any(|h| h.contains("primitive shapes")),
+            "{headings:?}"
+        );
+        assert!(
+            headings.iter().any(|h| h.contains("not recorded")),
+            "{headings:?}"
+        );
+        // State rows draw nothing: no note whatever the manifest says.
+        let state = evaluated_rows(&[seed(5, 0, 0.5)]).unwrap();
+        assert_eq!(state[0].robot_look_note(), None);
     }
 
     #[test]

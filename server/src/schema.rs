@@ -51,6 +51,16 @@ slug_schema!(
 );
 
 slug_schema!(
+    /// `meshes` or `primitives`.
+    RobotLook = "RobotLook",
+    "How an image evaluation drew the robot: the Panda's meshes (as the original) or primitive shapes",
+    [d3il_protocol::RobotLook::Meshes, d3il_protocol::RobotLook::Primitives]
+        .iter()
+        .map(|l| l.as_str().into())
+        .collect()
+);
+
+slug_schema!(
     /// `paper` or `quick`.
     Protocol = "Protocol",
     "The evaluation protocol: the paper's, or a quick smoke run",

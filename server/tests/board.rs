@@ -24,6 +24,7 @@ fn aligning_result(
             task_version: "test".into(),
             obs_type: ObsType::State,
             protocol,
+            robot_look: None,
             mjcf_sha256: "m".into(),
             initial_states_sha256: "i".into(),
             initial_states: initial_states.into(),
@@ -175,6 +176,105 @@ async fn quick_runs_evaluated_and_reported_rows_and_other_sets_are_ranked_apart(
         .await;
     assert_eq!(s, 200);
     assert!(svg.contains("Mine") && !svg.contains("Smoke"));
+}
+
+/// Stores a completed image evaluation of `method` on Aligning whose manifest
+/// records `look`, and returns the submission id.
+async fn evaluated_image(app: &TestApp, method: &str, seed: i64, look: Option<RobotLook>) -> i64 {
+    let store = &app.state.store;
+    let (task, obs, protocol) = (TaskId::Aligning, ObsType::Image, ProtocolKind::Paper);
+    let id = queued_submission_of(store, method, task, obs, protocol, seed, 1).await;
+    let job = store.job_for(id).await.expect("job");
+    let mut result = aligning_result(protocol, 0.5 + 0.1 * seed as f64, 0.2, "aligning-v2.json");
+    result.manifest.obs_type = obs;
+    result.manifest.robot_look = look;
+    store
+        .complete_job(job.id, id, &result, &[])
+        .await
+        .expect("complete");
+    id
+}
+
+#[tokio::test]
+async fn image_rows_say_how_the_robot_was_drawn_and_are_ranked_apart() {
+    let app = spawn_app().await;
+    let meshed = evaluated_image(&app, "Meshed", 0, Some(RobotLook::Meshes)).await;
+    evaluated_image(&app, "Meshed", 1, Some(RobotLook::Meshes)).await;
+    // One method's seed drawn with primitives is not averaged with its others.
+    let prim = evaluated_image(&app, "Meshed", 2, Some(RobotLook::Primitives)).await;
+    let old = evaluated_image(&app, "Old", 0, None).await;
+
+    let (s, page) = app.get_text("/tasks/aligning?obs=image").await;
+    assert_eq!(s, 200);
+    let t: Vec<String> = tables(&page)
+        .into_iter()
+        .filter(|(g, _)| g == "evaluated")
+        .map(|(_, html)| html)
+        .collect();
+    assert_eq!(t.len(), 3, "one ranked table per robot look: {page}");
+    // Drawn as the original: first, with the plain heading and no badge.
+    assert!(page.contains("Evaluated here (initial states aligning-v2.json)</"));
+    assert!(t[0].contains(">Meshed</a>") && !t[0].contains("badge-look"));
+    assert!(
+        t[0].contains("<td class=\"num\">2</td>"),
+        "two seeds: {}",
+        t[0]
+    );
+    let with = |needle: &str| t.iter().find(|h| h.contains(needle)).expect(needle);
+    assert!(with(">primitive robot</span>").contains(">Meshed</a>"));
+    assert!(with(">robot look not recorded</span>").contains(">Old</a>"));
+    assert!(page.contains("initial states aligning-v2.json; robot drawn with primitive shapes"));
+    assert!(page.contains("initial states aligning-v2.json; robot look not recorded"));
+
+    // The API and the CSV name the look of every evaluated image row.
+    let (s, api) = app
+        .get_json("/api/v1/leaderboards/aligning?obs=image")
+        .await;
+    assert_eq!(s, 200);
+    let looks: Vec<&str> = api["rows"]
+        .as_array()
+        .expect("rows")
+        .iter()
+        .filter(|r| r["source"] == "evaluated")
+        .map(|r| r["robot_look"].as_str().unwrap_or("unrecorded"))
+        .collect();
+    assert_eq!(looks, ["meshes", "primitives", "unrecorded"]);
+    let (_, csv) = app
+        .get_text("/api/v1/leaderboards/aligning/csv?obs=image")
+        .await;
+    assert!(csv
+        .lines()
+        .next()
+        .unwrap()
+        .ends_with(",initial_states,robot_look"));
+    assert!(csv.contains(",aligning-v2.json,primitives\n"), "{csv}");
+
+    // Each submission page says how its frames were drawn.
+    for (id, says) in [
+        (meshed, "robot drawn with the Panda"),
+        (prim, "robot drawn with primitive shapes"),
+        (old, "robot look not recorded"),
+    ] {
+        let (s, p) = app.get_text(&format!("/submissions/{id}")).await;
+        assert_eq!(s, 200);
+        assert!(
+            p.contains("<p id=\"robot-look\">Image observations: ") && p.contains(says),
+            "{p}"
+        );
+    }
+    // State results draw nothing: no such line.
+    let state = evaluated(
+        &app,
+        "State",
+        ProtocolKind::Paper,
+        0,
+        0.9,
+        0.1,
+        "aligning-v2.json",
+    )
+    .await;
+    let (_, p) = app.get_text(&format!("/submissions/{state}")).await;
+    assert!(!p.contains("robot-look"));
 }
 
 #[tokio::test]

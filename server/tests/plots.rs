@@ -38,6 +38,7 @@ async fn evaluated(
             task_version: "test".into(),
             obs_type: ObsType::State,
             protocol: ProtocolKind::Paper,
+            robot_look: None,
             mjcf_sha256: "m".into(),
             initial_states_sha256: "i".into(),
             initial_states: format!("{}-v1.json", task.slug()),

@@ -42,6 +42,7 @@ fn result_line_once(once: bool) -> String {
             task_version: "fixture".into(),
             obs_type: ObsType::State,
             protocol: ProtocolKind::Quick,
+            robot_look: None,
             mjcf_sha256: "a".repeat(64),
             initial_states: "test-v1.json".into(),
             initial_states_sha256: "b".repeat(64),

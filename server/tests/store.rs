@@ -2,7 +2,7 @@
 //! PostgreSQL database (a throw-away cluster, `d3il_test_support::pg`).
 
 mod common;
-use common::{submit, Backend, TestDb};
+use common::{queued_submission_of, submit, Backend, TestDb};
 
 use d3il_protocol::*;
 use d3il_server::on_db;
@@ -14,6 +14,7 @@ fn eval_result(task: TaskId, success: f64, cond: f64, paths: bool) -> EvalResult
         task_version: "test".into(),
         obs_type: ObsType::State,
         protocol: ProtocolKind::Paper,
+        robot_look: None,
         mjcf_sha256: "m".into(),
         initial_states: "test-v1.json".into(),
         initial_states_sha256: "i".into(),
@@ -106,6 +107,32 @@ async fn evaluated_rows_aggregate_over_seeds_with_sample_std(b: Backend) {
     // sample std of {0.6, 0.8} = 0.1414...
     assert!((c.success_rate.std - 0.02f64.sqrt()).abs() < 1e-12);
     assert!((c.entropy.mean - 0.3).abs() < 1e-12);
+}
+
+async fn image_rows_keep_the_robot_look_their_manifests_record(b: Backend) {
+    let db = TestDb::new(b);
+    let store = db.open().await;
+    let looks = [Some(RobotLook::Meshes), Some(RobotLook::Primitives), None];
+    for (seed, look) in looks.into_iter().enumerate() {
+        let (task, obs, protocol) = (TaskId::Aligning, ObsType::Image, ProtocolKind::Paper);
+        let id = queued_submission_of(&store, "Look", task, obs, protocol, seed as i64, 1).await;
+        let job = store.job_for(id).await.unwrap();
+        let mut r = eval_result(task, 0.5, 0.2, false);
+        r.manifest.obs_type = obs;
+        r.manifest.robot_look = look;
+        store.complete_job(job.id, id, &r, &[]).await.unwrap();
+    }
+    // Read back from the manifests by each backend's JSON function; seeds
+    // drawn differently stay in rows of their own.
+    let rows: Vec<(Option<RobotLook>, usize)> = store
+        .board_rows()
+        .await
+        .unwrap()
+        .into_iter()
+        .filter(|r| r.method == "Look")
+        .map(|r| (r.robot_look, r.n_seeds))
+        .collect();
+    assert_eq!(rows, looks.map(|l| (l, 1)));
 }
 
 async fn duplicate_seed_is_refused_and_stacking_expands(b: Backend) {
@@ -552,6 +579,7 @@ async fn a_release_on_another_front_end_waits_for_an_upload_being_recorded() {
 common::on_both_backends!(
     paper_rows_load_once_and_match_the_embedded_cells,
     evaluated_rows_aggregate_over_seeds_with_sample_std,
+    image_rows_keep_the_robot_look_their_manifests_record,
     duplicate_seed_is_refused_and_stacking_expands,
     stacking_results_stored_before_the_levels_share_one_entropy,
     avoiding_paths_come_back_with_behaviours,

@@ -205,6 +205,7 @@ fn result_480() -> anyhow::Result<EvalResult> {
             task_version: "v1".into(),
             obs_type: ObsType::State,
             protocol: ProtocolKind::Paper,
+            robot_look: None,
             mjcf_sha256: "bench".into(),
             initial_states_sha256: "bench".into(),
             initial_states: "pushing-v2.json".into(),

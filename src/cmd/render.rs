@@ -4,7 +4,7 @@
 
 use anyhow::Context;
 use d3il_evaluator::camera;
-use d3il_evaluator::sim::scene::RobotLook;
+use d3il_evaluator::sim::scene::{best_look, RobotLook};
 use d3il_evaluator::tasks::LoadedTask;
 use d3il_protocol::{ObsType, TaskId};
 use std::path::PathBuf;
@@ -46,7 +46,7 @@ pub enum Look {
 impl Look {
     pub fn robot_look(self) -> RobotLook {
         match self {
-            Look::Best => RobotLook::best(),
+            Look::Best => best_look(),
             Look::Primitives => RobotLook::Primitives,
             Look::Meshes => RobotLook::Meshes,
         }

@@ -221,6 +221,7 @@ mod tests {
                 task_version: "test".into(),
                 obs_type: ObsType::State,
                 protocol: ProtocolKind::Paper,
+                robot_look: None,
                 mjcf_sha256: "m".into(),
                 initial_states_sha256: "i".into(),
                 initial_states: "stacking-v2.json".into(),

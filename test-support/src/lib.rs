@@ -170,6 +170,7 @@ pub fn pushing_result(
             task_version: "v1".into(),
             obs_type: ObsType::State,
             protocol,
+            robot_look: None,
             mjcf_sha256: "m".into(),
             initial_states_sha256: PUSHING_V2_SHA256.into(),
             initial_states: "pushing-v2.json".into(),

@@ -14,40 +14,34 @@ const PANDA_GRIPPER_XML: &str = include_str!("../../../assets/mjcf/panda_gripper
 
 include!(concat!(env!("OUT_DIR"), "/panda_meshes.rs"));
 
-/// How the robot is drawn. Physics is the same either way: the collision
-/// geoms stay, and the meshes are visual-only geoms (no contacts) on bodies
-/// whose inertia is given explicitly (docs/original-d3il.md §01.2.3).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
-pub enum RobotLook {
-    /// Capsules and boxes inside the original's mesh bounds (docs/mjcf.md).
-    #[default]
-    Primitives,
-    /// The Panda's visual meshes (franka_description, from the
-    /// `example-robot-data` package, converted by scripts/panda_meshes.py and
-    /// compiled in), drawn like the original's (docs/original-d3il.md §01.2.5,
-    /// §01.6): each link's `:geom1` and a second visual geom (the original's
-    /// `:geom2` is the same mesh) are the link's mesh in white at alpha 0.1, so
-    /// the translucent links are drawn twice; the hand's and fingers' `:geom1`
-    /// are their meshes in MuJoCo's default grey. The primitive collision geoms
-    /// `:geom2` move to geom group 3, which is not drawn.
-    Meshes,
+/// How the robot is drawn ([`RobotLook`], recorded in image results'
+/// manifests). Physics is the same either way: the collision geoms stay, and
+/// the meshes are visual-only geoms (no contacts) on bodies whose inertia is
+/// given explicitly (docs/original-d3il.md §01.2.3).
+///
+/// [`RobotLook::Meshes`] is the Panda's visual meshes (franka_description,
+/// from the `example-robot-data` package, converted by scripts/panda_meshes.py
+/// and compiled in), drawn like the original's (docs/original-d3il.md §01.2.5,
+/// §01.6): each link's `:geom1` and a second visual geom (the original's
+/// `:geom2` is the same mesh) are the link's mesh in white at alpha 0.1, so
+/// the translucent links are drawn twice; the hand's and fingers' `:geom1` are
+/// their meshes in MuJoCo's default grey. The primitive collision geoms
+/// `:geom2` move to geom group 3, which is not drawn.
+pub use d3il_protocol::RobotLook;
+
+/// Whether this build has the meshes (converted before it was compiled).
+pub fn meshes_available() -> bool {
+    MESH_FILES
+        .iter()
+        .all(|f| PANDA_MESHES.iter().any(|(name, _)| name == f))
 }
 
-impl RobotLook {
-    /// Whether this build has the meshes (converted before it was compiled).
-    pub fn meshes_available() -> bool {
-        MESH_FILES
-            .iter()
-            .all(|f| PANDA_MESHES.iter().any(|(name, _)| name == f))
-    }
-
-    /// Meshes when this build has them, else primitives.
-    pub fn best() -> RobotLook {
-        if Self::meshes_available() {
-            RobotLook::Meshes
-        } else {
-            RobotLook::Primitives
-        }
+/// Meshes when this build has them, else primitives.
+pub fn best_look() -> RobotLook {
+    if meshes_available() {
+        RobotLook::Meshes
+    } else {
+        RobotLook::Primitives
     }
 }
 
@@ -212,7 +206,7 @@ pub struct SceneSpec {
     pub includes: Vec<(String, String)>,
     /// Robot look (rendering only). [`RobotLook::Meshes`] in a build without
     /// the meshes falls back to primitives; check
-    /// [`RobotLook::meshes_available`] first.
+    /// [`meshes_available`] first.
     pub look: RobotLook,
     /// Mesh files (name, OBJ) that replace the compiled-in ones of the same
     /// name in the meshed look; empty for every evaluation (a test compares
@@ -232,6 +226,15 @@ impl SceneSpec {
             includes: Vec::new(),
             look: RobotLook::Primitives,
             meshes: Vec::new(),
+        }
+    }
+
+    /// The look this scene draws: [`SceneSpec::look`], except that meshes
+    /// in a build without them are primitives.
+    pub fn drawn_look(&self) -> RobotLook {
+        match self.look {
+            RobotLook::Meshes if meshes_available() => RobotLook::Meshes,
+            _ => RobotLook::Primitives,
         }
     }
 
@@ -298,9 +301,9 @@ impl SceneSpec {
             RobotVariant::Rod => PANDA_ROD_XML,
             RobotVariant::Gripper => PANDA_GRIPPER_XML,
         };
-        let meshed = match self.look {
-            RobotLook::Meshes if RobotLook::meshes_available() => with_meshes(robot_xml),
-            _ => None,
+        let meshed = match self.drawn_look() {
+            RobotLook::Meshes => with_meshes(robot_xml),
+            RobotLook::Primitives => None,
         };
         match meshed {
             Some(xml) => {

@@ -16,7 +16,7 @@ pub mod stacking;
 
 use crate::mujoco::{Data, MjError, Model, ObjKind};
 use crate::robot::control::FingerCommand;
-use crate::sim::scene::{RobotLook, SceneSpec};
+use crate::sim::scene::{best_look, meshes_available, RobotLook, SceneSpec};
 use crate::sim::{RobotIds, Sim};
 use d3il_protocol::{ObsType, TaskId, TaskSpec};
 use serde_json::Value;
@@ -203,6 +203,8 @@ pub struct LoadedTask {
     pub mjcf_sha256: String,
     /// State or image observations (image: rollouts render both cameras).
     pub obs_type: ObsType,
+    /// How the robot is drawn ([`SceneSpec::drawn_look`]).
+    pub look: RobotLook,
 }
 
 impl LoadedTask {
@@ -212,11 +214,11 @@ impl LoadedTask {
 
     /// Loads the task for policies with observation type `obs`.
     /// Image variants get the Panda meshes when this build
-    /// has them ([`RobotLook::best`]); state variants keep primitives (the
+    /// has them ([`best_look`]); state variants keep primitives (the
     /// look changes no physics, see [`RobotLook`]).
     pub fn load_obs(id: TaskId, obs: ObsType) -> Result<LoadedTask, TaskError> {
         let look = match obs {
-            ObsType::Image => RobotLook::best(),
+            ObsType::Image => best_look(),
             ObsType::State => RobotLook::Primitives,
         };
         Self::load_look(id, obs, look)
@@ -227,7 +229,7 @@ impl LoadedTask {
         if obs == ObsType::Image && !id.has_image_variant() {
             return Err(TaskError::NoImageVariant(id));
         }
-        if look == RobotLook::Meshes && !RobotLook::meshes_available() {
+        if look == RobotLook::Meshes && !meshes_available() {
             return Err(TaskError::NoMeshes);
         }
         let def = task_def(id)?;
@@ -247,6 +249,7 @@ impl LoadedTask {
         let ids = Arc::new(RobotIds::lookup(&model)?);
         Ok(LoadedTask {
             obs_type: obs,
+            look: scene.drawn_look(),
             mjcf_sha256: scene.sha256(),
             def,
             model,

@@ -29,7 +29,7 @@ fn num(v: f64) -> String {
     }
 }
 
-const HEADER: [&str; 15] = [
+const HEADER: [&str; 17] = [
     "task",
     "obs_type",
     "method",
@@ -45,6 +45,10 @@ const HEADER: [&str; 15] = [
     "behaviour_entropy_std",
     "n_seeds",
     "inference_ms",
+    // Evaluated rows: rows on different sets, or image rows drawn with
+    // different robot looks, are different rows.
+    "initial_states",
+    "robot_look",
 ];
 
 /// CSV of leaderboard rows (one header line, one line per row), written by
@@ -72,6 +76,8 @@ pub fn board_csv(rows: &[BoardRow]) -> Result<String, AppError> {
                 r.behaviour_entropy.map(|s| num(s.std)).unwrap_or_default(),
                 r.n_seeds.to_string(),
                 r.inference_ms.map(num).unwrap_or_default(),
+                r.initial_states.clone().unwrap_or_default(),
+                r.robot_look.map(|l| l.as_str()).unwrap_or("").to_string(),
             ]
         }),
     )

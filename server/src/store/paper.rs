@@ -135,6 +135,7 @@ impl Store {
                     submission_ids: vec![],
                     initial_states: None,
                     initial_states_label: None,
+                    robot_look: None,
                 }
             })
             .collect())

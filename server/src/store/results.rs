@@ -8,8 +8,8 @@ use super::types::{Stored, SubmissionStatus};
 use super::{Store, StoreError};
 use crate::leaderboard::{evaluated_rows, protocol_str, BoardRow, EvaluatedSeed};
 use d3il_protocol::{
-    ContextResult, ObsType, ProtocolKind, ProtocolManifest, ResultCell, RolloutFailure, Source,
-    StackingLevel, TaskId,
+    ContextResult, ObsType, ProtocolKind, ProtocolManifest, ResultCell, RobotLook, RolloutFailure,
+    Source, StackingLevel, TaskId,
 };
 use sqlx::FromRow;
 
@@ -95,6 +95,9 @@ struct SeedDbRow {
     inference_ms: f64,
     /// The manifest's `initial_states` (NULL or empty before sets were named).
     initial_states: Option<String>,
+    /// The manifest's `robot_look` (NULL for state results and before it was
+    /// recorded).
+    robot_look: Option<Stored<RobotLook>>,
 }
 
 impl SeedDbRow {
@@ -118,6 +121,7 @@ impl SeedDbRow {
                 self.task,
                 self.initial_states.as_deref().unwrap_or(""),
             ),
+            robot_look: self.robot_look.map(|l| l.0),
         }
     }
 }
@@ -146,16 +150,19 @@ impl Store {
     }
 
     async fn evaluated_rows(&self) -> Result<Vec<BoardRow>, StoreError> {
-        // The manifest's `initial_states`, read by each backend's JSON function.
-        let initial_states = if self.is_postgres() {
-            "CAST(r.manifest_json AS JSONB) ->> 'initial_states'"
-        } else {
-            "json_extract(r.manifest_json, '$.initial_states')"
+        // Fields of the manifest, read by each backend's JSON function.
+        let manifest = |field: &str| {
+            if self.is_postgres() {
+                format!("CAST(r.manifest_json AS JSONB) ->> '{field}'")
+            } else {
+                format!("json_extract(r.manifest_json, '$.{field}')")
+            }
         };
+        let (initial_states, robot_look) = (manifest("initial_states"), manifest("robot_look"));
         let sql = format!(
             "SELECT s.id AS submission_id, m.name AS method, m.id AS method_id, s.task, s.obs_type, s.training_seed, \
              s.data_fraction, s.protocol, r.success_rate, r.behaviour_entropy, r.conditional_entropy, r.stacking_json, \
-             r.stacking_levels_json, r.inference_ms, {initial_states} AS initial_states \
+             r.stacking_levels_json, r.inference_ms, {initial_states} AS initial_states, {robot_look} AS robot_look \
              FROM submissions s JOIN results r ON r.submission_id = s.id \
              JOIN methods m ON m.id = s.method_id WHERE s.status = $1 ORDER BY s.id"
         );

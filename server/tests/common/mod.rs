@@ -281,6 +281,20 @@ pub async fn queued_submission(
     training_seed: i64,
     shards: usize,
 ) -> i64 {
+    let obs = d3il_protocol::ObsType::State;
+    queued_submission_of(store, method, task, obs, protocol, training_seed, shards).await
+}
+
+/// [`queued_submission`] for policies observing `obs`.
+pub async fn queued_submission_of(
+    store: &d3il_server::store::Store,
+    method: &str,
+    task: d3il_protocol::TaskId,
+    obs: d3il_protocol::ObsType,
+    protocol: d3il_protocol::ProtocolKind,
+    training_seed: i64,
+    shards: usize,
+) -> i64 {
     use d3il_server::store::{NewMethod, NewPolicy, NewSubmission};
     let m = store
         .ensure_method(
@@ -298,7 +312,7 @@ pub async fn queued_submission(
                 method_id: m.id,
                 submitter_id: None,
                 task,
-                obs_type: d3il_protocol::ObsType::State,
+                obs_type: obs,
                 training_seed,
                 data_fraction: 1.0,
                 protocol,

@@ -37,6 +37,10 @@ pub struct RowView {
     pub submissions: Vec<i64>,
     /// Evaluated rows: "the original D3IL test contexts" or "our sample".
     pub initial_states: String,
+    /// Evaluated image rows whose robot was not drawn as the original's: a
+    /// badge and its explanation (empty otherwise).
+    pub look_badge: &'static str,
+    pub look_note: &'static str,
 }
 
 fn row_view(rank: Option<usize>, r: &BoardRow) -> RowView {
@@ -58,6 +62,8 @@ fn row_view(rank: Option<usize>, r: &BoardRow) -> RowView {
         bold_entropy: r.bold_entropy.unwrap_or(false),
         submissions: r.submission_ids.clone(),
         initial_states: r.initial_states_label.clone().unwrap_or_default(),
+        look_badge: r.robot_look_note().map_or("", |n| n.badge),
+        look_note: r.robot_look_note().map_or("", |n| n.text),
     }
 }
 
@@ -204,7 +210,7 @@ pub(super) async fn leaderboard(
                 Group {
                     heading: g.heading(),
                     kind: match g {
-                        RankGroup::Evaluated(_) => "evaluated",
+                        RankGroup::Evaluated(..) => "evaluated",
                         RankGroup::Reported => "reported",
                         RankGroup::Smoke => "smoke",
                     },

@@ -13,6 +13,7 @@ use askama::Template;
 use axum::extract::State;
 use axum::http::header;
 use axum::response::{Html, IntoResponse, Response};
+use d3il_protocol::ObsType;
 use d3il_protocol::TaskId;
 use d3il_tables::{board as figures, render_avoiding_paths};
 
@@ -61,6 +62,8 @@ struct SubmissionPage {
     protocol_name: &'static str,
     /// The initial-state set and where it comes from, once there is a result.
     initial_states: Option<String>,
+    /// Image results: how the robot was drawn.
+    robot_look: Option<String>,
     /// (rollouts ended unstable, rollouts), once there is a result.
     unstable: Option<(i64, usize)>,
     /// More than half of the rollouts ended with an unstable simulation.
@@ -86,6 +89,7 @@ pub(super) async fn submission_page(
     let mut contexts = vec![];
     let mut protocol_manifest = String::new();
     let mut initial_states = None;
+    let mut robot_look = None;
     let mut unstable = None;
     let mut paths_svg = None;
     let mut behaviours_svg = None;
@@ -185,6 +189,13 @@ pub(super) async fn submission_page(
                 m.initial_states_sha256
             )
         });
+        robot_look = r
+            .manifest()
+            .filter(|m| m.obs_type == ObsType::Image)
+            .map(|m| match m.robot_look_note() {
+                Some(note) => note.text.to_string(),
+                None => "robot drawn with the Panda's meshes, as the original draws it".into(),
+            });
         let rollouts = store.rollouts_for(id).await?;
         unstable = Some((r.rollouts_ended_unstable, rollouts.len()));
         let counts = behaviour_counts(s.task, rollouts.iter().map(|r| (r.success, &r.behaviour.0)));
@@ -253,6 +264,7 @@ pub(super) async fn submission_page(
         policy,
         protocol_name: protocol_str(s.protocol),
         initial_states,
+        robot_look,
         mostly_unstable: unstable.is_some_and(|(n, total)| 2 * n > total as i64),
         unstable,
         sorting: matches!(
