@@ -236,9 +236,9 @@ impl FromStr for RobotLook {
 /// original draws them ([`robot_look_note`]).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
 pub struct RobotLookNote {
-    /// A few words, for a badge.
+    /// A few words, for a badge and the heading of the rows ranked together.
     pub badge: &'static str,
-    /// The sentence a heading or a submission page shows.
+    /// The explanation: the badge's tooltip, the submission page's line.
     pub text: &'static str,
 }
 

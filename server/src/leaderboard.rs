@@ -408,7 +408,7 @@ impl RankGroup {
         match self {
             RankGroup::Evaluated(set, None) => format!("Evaluated here (initial states {set})"),
             RankGroup::Evaluated(set, Some(look)) => {
-                format!("Evaluated here (initial states {set}; {})", look.text)
+                format!("Evaluated here (initial states {set}; {})", look.badge)
             }
             RankGroup::Reported => "Reported in the D3IL paper".into(),
             RankGroup::Smoke => "Smoke tests (quick protocol, not ranked)".into(),
@@ -652,7 +652,7 @@ mod tests {
         assert_eq!(groups[0].1[0].robot_look, Some(RobotLook::Meshes));
         let headings: Vec<String> = groups[1..].iter().map(|g| g.0.heading()).collect();
         assert!(
-            headings.iter().any(|h| h.contains("primitive shapes")),
+            headings.iter().any(|h| h.contains("primitive robot")),
             "{headings:?}"
         );
         assert!(

@@ -223,7 +223,7 @@ async fn image_rows_say_how_the_robot_was_drawn_and_are_ranked_apart() {
     let with = |needle: &str| t.iter().find(|h| h.contains(needle)).expect(needle);
     assert!(with(">primitive robot</span>").contains(">Meshed</a>"));
     assert!(with(">robot look not recorded</span>").contains(">Old</a>"));
-    assert!(page.contains("initial states aligning-v2.json; robot drawn with primitive shapes"));
+    assert!(page.contains("initial states aligning-v2.json; primitive robot)"));
     assert!(page.contains("initial states aligning-v2.json; robot look not recorded"));
 
     // The API and the CSV name the look of every evaluated image row.
