@@ -196,6 +196,40 @@ fn compare_pairs_two_policies_and_refuses_different_tasks() {
         stdout.contains(&format!("{expected:+.3}")),
         "{expected} {stdout}"
     );
+    assert!(!stdout.contains("note:"), "nothing else differs: {stdout}");
+
+    // Paired anyway, but said: results that observe differently, or image
+    // results whose frames drew the robot differently.
+    let edited = |from: &std::path::Path, name: &str, obs: &str, look: Option<&str>| {
+        let mut v: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(from).unwrap()).unwrap();
+        v["manifest"]["obs_type"] = obs.into();
+        if let Some(look) = look {
+            v["manifest"]["robot_look"] = look.into();
+        }
+        let p = dir.join(name);
+        std::fs::write(&p, v.to_string()).unwrap();
+        p
+    };
+    let a_meshes = edited(&a, "a-meshes.json", "image", Some("meshes"));
+    let b_prims = edited(&b, "b-primitives.json", "image", Some("primitives"));
+    let (ok, stdout, stderr) = d3il(&[
+        "compare",
+        a_meshes.to_str().unwrap(),
+        b_prims.to_str().unwrap(),
+    ]);
+    assert!(ok, "{stderr}");
+    assert!(
+        stdout.contains("note: A's camera frames drew the robot with the Panda's meshes and B's with primitive shapes"),
+        "{stdout}"
+    );
+    let (ok, stdout, stderr) = d3il(&["compare", a.to_str().unwrap(), b_prims.to_str().unwrap()]);
+    assert!(ok, "{stderr}");
+    assert!(
+        stdout.contains("note: A observes the state and B the camera images"),
+        "{stdout}"
+    );
+
     let c = run("scripted:avoiding:all-paths", "avoiding", "c.json");
     let (ok, _, stderr) = d3il(&["compare", a.to_str().unwrap(), c.to_str().unwrap()]);
     assert!(!ok);

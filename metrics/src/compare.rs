@@ -19,7 +19,9 @@
 //!   power at level α = 1 − confidence.
 
 use crate::{bias_corrected_interval, Bootstrap, EmptyContexts, EntropyConvention, MetricsError};
-use d3il_protocol::{Comparison, ContextResult, EvalResult, PairedDifference, ProtocolManifest};
+use d3il_protocol::{
+    Comparison, ContextResult, EvalResult, ObsType, PairedDifference, ProtocolManifest, RobotLook,
+};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
@@ -221,7 +223,41 @@ pub fn compare_parts(
         confidence: cfg.confidence,
         success_rate,
         conditional_entropy,
+        caveats: caveats(ma, mb),
     })
+}
+
+/// What differs between two results that [`compare_parts`] pairs anyway: the
+/// environment and its initial states are the same, but the difference then
+/// also measures these.
+fn caveats(a: &ProtocolManifest, b: &ProtocolManifest) -> Vec<String> {
+    let mut out = vec![];
+    if a.obs_type != b.obs_type {
+        out.push(format!(
+            "A observes the {} and B the {}: the difference is between the two observation set-ups as well as the policies",
+            observes(a.obs_type),
+            observes(b.obs_type)
+        ));
+    } else if a.obs_type == ObsType::Image && a.robot_look != b.robot_look {
+        let drawn = |l: Option<RobotLook>| match l {
+            Some(RobotLook::Meshes) => "with the Panda's meshes",
+            Some(RobotLook::Primitives) => "with primitive shapes",
+            None => "in a way not recorded",
+        };
+        out.push(format!(
+            "A's camera frames drew the robot {} and B's {}: the difference includes how the robot was drawn",
+            drawn(a.robot_look),
+            drawn(b.robot_look)
+        ));
+    }
+    out
+}
+
+fn observes(obs: ObsType) -> &'static str {
+    match obs {
+        ObsType::State => "state",
+        ObsType::Image => "camera images",
+    }
 }
 
 /// Quantile of the standard normal distribution (P. J. Acklam's rational

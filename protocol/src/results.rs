@@ -257,6 +257,11 @@ pub struct Comparison {
     /// Stacking: Stacking-3's.
     pub success_rate: PairedDifference,
     pub conditional_entropy: PairedDifference,
+    /// What else differs between A and B, so that the difference is not the
+    /// policies' alone: how they observe, how image frames drew the robot.
+    /// Empty (and not written) when nothing does.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub caveats: Vec<String>,
 }
 
 /// Mean and standard deviation over training seeds.

@@ -177,6 +177,30 @@ async fn compare_page_shows_paired_differences_contexts_and_behaviours() {
     let (s, page) = app.get_text(&format!("/compare?a={a}&b={other}")).await;
     assert_eq!(s, 400);
     assert!(page.contains("they differ in task"), "{page}");
+
+    // Paired, with a note: B observes camera images (drawn with primitives).
+    let (_, page) = app.get_text(&format!("/compare?a={a}&b={b}")).await;
+    assert!(
+        !page.contains("class=\"note caveat\""),
+        "nothing else differs"
+    );
+    let image = submit(&app, "Epsilon", "pushing", "paper").await;
+    let mut r = result(ProtocolKind::Paper, |_| 8, 0);
+    r.manifest.obs_type = ObsType::Image;
+    r.manifest.robot_look = Some(RobotLook::Primitives);
+    assert_eq!(complete(&app, &r).await, image);
+    let (s, page) = app.get_text(&format!("/compare?a={a}&b={image}")).await;
+    assert_eq!(s, 200, "{page}");
+    assert!(
+        page.contains(
+            "<p class=\"note caveat\">Note: A observes the state and B the camera images"
+        ),
+        "{page}"
+    );
+    let (_, api) = app
+        .get_json(&format!("/api/v1/compare?a={a}&b={image}"))
+        .await;
+    assert_eq!(api["caveats"].as_array().map(Vec::len), Some(1), "{api}");
 }
 
 #[tokio::test]

@@ -75,6 +75,9 @@ pub fn render(c: &Comparison) -> String {
     };
     s += &row("success rate", &c.success_rate);
     s += &row("conditional entropy", &c.conditional_entropy);
+    for caveat in &c.caveats {
+        s += &format!("note: {caveat}\n");
+    }
     s += &format!(
         "p: randomisation test paired by initial state ({} permutations); min. det.: the difference detected with 80 % power at the 5 % level at this size\n",
         c.resamples

@@ -62,6 +62,8 @@ struct Shown {
     resamples: usize,
     contexts: Vec<ContextPair>,
     behaviours: Vec<BehaviourPair>,
+    /// What else differs between A and B ([`Comparison::caveats`]).
+    caveats: Vec<String>,
 }
 
 #[derive(Template)]
@@ -247,6 +249,7 @@ async fn build(state: &AppState, a: i64, b: i64) -> Result<Shown, AppError> {
         resamples: c.resamples,
         contexts,
         behaviours,
+        caveats: c.caveats.clone(),
         a: side(&fa, svgs.next().flatten()),
         b: side(&fb, svgs.next().flatten()),
     })
