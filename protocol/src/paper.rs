@@ -102,6 +102,7 @@ impl PaperResults {
                 bold_success: Some(r.success_rate.bold),
                 bold_entropy: Some(r.entropy.bold),
                 initial_states: None,
+                robot_look: None,
             })
             .collect()
     }

@@ -308,6 +308,11 @@ pub struct ResultCell {
     /// ([`InitialStatesOrigin::label`]); rows on different sets are separate.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub initial_states: Option<String>,
+    /// Evaluated image rows whose robot was not drawn as the original draws
+    /// it: the look's badge ([`RobotLookNote::badge`], e.g. `primitive
+    /// robot`); rows drawn differently are separate.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub robot_look: Option<String>,
 }
 
 #[cfg(test)]

@@ -86,6 +86,7 @@ impl BoardRow {
             bold_success: self.bold_success,
             bold_entropy: self.bold_entropy,
             initial_states: self.initial_states_label.clone(),
+            robot_look: self.robot_look_note().map(|n| n.badge.to_string()),
         }
     }
 }

@@ -133,6 +133,21 @@ async fn image_rows_keep_the_robot_look_their_manifests_record(b: Backend) {
         .map(|r| (r.robot_look, r.n_seeds))
         .collect();
     assert_eq!(rows, looks.map(|l| (l, 1)));
+    // `d3il tables` keeps them apart too, labelled as on the board.
+    let cells: Vec<Option<String>> = store
+        .result_cells()
+        .await
+        .unwrap()
+        .into_iter()
+        .filter(|c| c.method == "Look")
+        .map(|c| c.robot_look)
+        .collect();
+    let badges = [
+        None,
+        Some("primitive robot"),
+        Some("robot look not recorded"),
+    ];
+    assert_eq!(cells, badges.map(|b| b.map(str::to_string)));
 }
 
 async fn duplicate_seed_is_refused_and_stacking_expands(b: Backend) {

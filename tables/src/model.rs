@@ -113,6 +113,9 @@ pub struct Row {
     /// Evaluated rows: which initial states they used ("the original D3IL
     /// test contexts" or "our sample").
     pub initial_states: Option<String>,
+    /// Evaluated image rows not drawn as the original draws them: the robot
+    /// look's badge (`primitive robot`, `robot look not recorded`).
+    pub robot_look: Option<String>,
     pub info: MethodInfo,
     /// One of the paper's eleven baselines.
     pub in_paper: bool,
@@ -152,6 +155,9 @@ impl Row {
         }
         if let Some(s) = &self.initial_states {
             a.push(s.clone());
+        }
+        if let Some(l) = &self.robot_look {
+            a.push(l.clone());
         }
         a
     }
@@ -207,7 +213,14 @@ impl TableModel {
 
 /// (method, source, control, initial-state set label): evaluated rows on
 /// different initial-state sets are separate rows, never merged.
-type RowKey = (String, Source, Option<String>, Option<String>);
+/// (method, source, control, initial states, robot look): one table row.
+type RowKey = (
+    String,
+    Source,
+    Option<String>,
+    Option<String>,
+    Option<String>,
+);
 
 /// Task order: by the paper's task number (T1..T7), then by title
 /// (`Sorting-2` < `Sorting-4` < `Sorting-6`, `Stacking-1` < ...).
@@ -315,6 +328,7 @@ pub fn build_table(
             c.source,
             c.control.clone(),
             c.initial_states.clone(),
+            c.robot_look.clone(),
         );
         let frac = per_fraction.then(|| fraction_key(c.data_fraction));
         if index.insert((row, c.task.clone(), frac), c).is_some() {
@@ -355,7 +369,7 @@ pub fn build_table(
     // name; a method's evaluated row follows its reported row.
     let row_keys: BTreeSet<RowKey> = index.keys().map(|(r, _, _)| r.clone()).collect();
     let mut row_keys: Vec<RowKey> = row_keys.into_iter().collect();
-    row_keys.sort_by_key(|(method, source, control, states)| {
+    row_keys.sort_by_key(|(method, source, control, states, look)| {
         let paper_pos = PAPER_METHOD_ORDER.iter().position(|m| m == method);
         (
             paper_pos.is_none(),
@@ -365,13 +379,14 @@ pub fn build_table(
             control.clone(),
             *source,
             states.clone(),
+            look.clone(),
         )
     });
 
     let mut blocks = Vec::new();
     for groups in blocks_groups {
         let mut rows = Vec::new();
-        for (method, src, control, states) in &row_keys {
+        for (method, src, control, states, look) in &row_keys {
             let in_paper = PAPER_METHOD_ORDER.contains(&method.as_str());
             let info = if in_paper {
                 paper_info.get(method).copied()
@@ -384,7 +399,13 @@ pub fn build_table(
                 history: 1,
                 action_chunking: false,
             });
-            let key: RowKey = (method.clone(), *src, control.clone(), states.clone());
+            let key: RowKey = (
+                method.clone(),
+                *src,
+                control.clone(),
+                states.clone(),
+                look.clone(),
+            );
             let values: Vec<Vec<Option<Value>>> = groups
                 .iter()
                 .map(|g| {
@@ -402,6 +423,7 @@ pub fn build_table(
                     source: *src,
                     control: control.clone(),
                     initial_states: states.clone(),
+                    robot_look: look.clone(),
                     info,
                     in_paper,
                     values,

@@ -26,6 +26,7 @@ fn evaluated(method: &str, task: &str, success: f64, entropy: f64, n_seeds: usiz
         bold_success: None,
         bold_entropy: None,
         initial_states: None,
+        robot_look: None,
     }
 }
 
@@ -349,4 +350,37 @@ fn rows_on_different_initial_state_sets_are_separate_and_labelled() {
         .unwrap_or_else(|| panic!("{tex}"));
     assert!(original.contains("0.800"), "{original}");
     assert!(sample.contains("0.600"), "{sample}");
+}
+
+/// One method's image results drawn with the Panda meshes and with primitive
+/// shapes: two rows, the second saying how its robot was drawn, never merged
+/// (and no duplicate-cell error).
+#[test]
+fn image_rows_drawn_differently_are_separate_and_labelled() {
+    let drawn = |look: Option<&str>, success: f64| ResultCell {
+        obs: ObsType::Image,
+        initial_states: Some("the original D3IL test contexts".into()),
+        robot_look: look.map(str::to_string),
+        ..evaluated("Looker", "Aligning (T2)", success, 0.5, 1)
+    };
+    let cells = vec![drawn(None, 0.8), drawn(Some("primitive robot"), 0.6)];
+    let tex = render_table_with(
+        &cells,
+        TableKind::Main,
+        ObsType::Image,
+        Format::Latex,
+        SourceFilter::Evaluated,
+        &methods(),
+    )
+    .unwrap();
+    let meshed = tex
+        .lines()
+        .find(|l| l.starts_with("Looker (the original D3IL test contexts) & "))
+        .unwrap_or_else(|| panic!("{tex}"));
+    let primitive = tex
+        .lines()
+        .find(|l| l.starts_with("Looker (the original D3IL test contexts, primitive robot) & "))
+        .unwrap_or_else(|| panic!("{tex}"));
+    assert!(meshed.contains("0.800"), "{meshed}");
+    assert!(primitive.contains("0.600"), "{primitive}");
 }

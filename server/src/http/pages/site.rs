@@ -122,6 +122,9 @@ fn main_blocks(model: &d3il_tables::TableModel, obs: ObsType) -> Vec<MainBlock> 
                 if let Some(s) = &r.initial_states {
                     note.push(format!("initial states: {s}"));
                 }
+                if let Some(l) = &r.robot_look {
+                    note.push(l.clone());
+                }
                 let cells = r
                     .values
                     .iter()
