@@ -291,6 +291,9 @@ pub fn metrics_table(result: &EvalResult) -> String {
         d3il_server::leaderboard::protocol_str(man.protocol),
         man.seed
     );
+    if let Some(note) = man.robot_look_note() {
+        let _ = writeln!(out, "note: {}", note.text);
+    }
     let _ = writeln!(out, "{:<28} {:>8} {:>20}", "metric", "value", "95% CI");
     let line = |out: &mut String, name: &str, e: d3il_protocol::Estimate| {
         let _ = writeln!(
@@ -370,4 +373,33 @@ pub fn metrics_table(result: &EvalResult) -> String {
         }
     }
     out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::metrics_table;
+    use d3il_protocol::{ObsType, ProtocolKind, RobotLook};
+    use d3il_test_support::{pushing_result, SynthRollout};
+
+    #[test]
+    fn the_table_says_when_image_frames_were_not_drawn_as_the_original() {
+        let mut r = pushing_result(ProtocolKind::Quick, |_, r| SynthRollout {
+            success: r == 0,
+            label: 0,
+            unstable: false,
+        });
+        assert!(!metrics_table(&r).contains("note:"), "state: nothing drawn");
+        r.manifest.obs_type = ObsType::Image;
+        r.manifest.robot_look = Some(RobotLook::Meshes);
+        assert!(
+            !metrics_table(&r).contains("note:"),
+            "drawn as the original"
+        );
+        r.manifest.robot_look = Some(RobotLook::Primitives);
+        let table = metrics_table(&r);
+        assert!(
+            table.contains("\nnote: robot drawn with primitive shapes"),
+            "{table}"
+        );
+    }
 }

@@ -13,8 +13,7 @@ use askama::Template;
 use axum::extract::State;
 use axum::http::header;
 use axum::response::{Html, IntoResponse, Response};
-use d3il_protocol::ObsType;
-use d3il_protocol::TaskId;
+use d3il_protocol::{ObsType, TaskId};
 use d3il_tables::{board as figures, render_avoiding_paths};
 
 struct ContextLine {
