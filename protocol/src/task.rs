@@ -205,6 +205,8 @@ pub enum RobotLook {
 }
 
 impl RobotLook {
+    pub const ALL: [RobotLook; 2] = [RobotLook::Meshes, RobotLook::Primitives];
+
     pub fn as_str(self) -> &'static str {
         match self {
             RobotLook::Primitives => "primitives",
@@ -222,13 +224,10 @@ impl fmt::Display for RobotLook {
 impl FromStr for RobotLook {
     type Err = String;
     fn from_str(s: &str) -> Result<Self, Self::Err> {
-        match s {
-            "primitives" => Ok(RobotLook::Primitives),
-            "meshes" => Ok(RobotLook::Meshes),
-            other => Err(format!(
-                "unknown robot look `{other}`; expected `primitives` or `meshes`"
-            )),
-        }
+        RobotLook::ALL
+            .into_iter()
+            .find(|l| l.as_str() == s)
+            .ok_or_else(|| format!("unknown robot look `{s}`; expected `meshes` or `primitives`"))
     }
 }
 
@@ -335,5 +334,24 @@ impl std::str::FromStr for ProtocolKind {
                 "unknown protocol `{o}`; expected `paper` or `quick`"
             )),
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::RobotLook;
+
+    #[test]
+    fn robot_looks_parse_from_the_names_serde_writes() {
+        for look in RobotLook::ALL {
+            let json = serde_json::to_value(look).unwrap();
+            assert_eq!(json, look.as_str());
+            assert_eq!(look.as_str().parse::<RobotLook>(), Ok(look));
+        }
+        let e = "capsules".parse::<RobotLook>().unwrap_err();
+        assert!(
+            e.contains("`capsules`") && e.contains("`meshes` or `primitives`"),
+            "{e}"
+        );
     }
 }

@@ -54,7 +54,7 @@ slug_schema!(
     /// `meshes` or `primitives`.
     RobotLook = "RobotLook",
     "How an image evaluation drew the robot: the Panda's meshes (as the original) or primitive shapes",
-    [d3il_protocol::RobotLook::Meshes, d3il_protocol::RobotLook::Primitives]
+    d3il_protocol::RobotLook::ALL
         .iter()
         .map(|l| l.as_str().into())
         .collect()

@@ -211,9 +211,9 @@ impl TableModel {
     }
 }
 
-/// (method, source, control, initial-state set label): evaluated rows on
-/// different initial-state sets are separate rows, never merged.
-/// (method, source, control, initial states, robot look): one table row.
+/// (method, source, control, initial-state set label, robot-look badge): one
+/// table row; evaluated rows on different initial-state sets, or image rows
+/// drawn with different robot looks, are separate rows, never merged.
 type RowKey = (
     String,
     Source,

@@ -44,6 +44,7 @@ pub struct RowView {
 }
 
 fn row_view(rank: Option<usize>, r: &BoardRow) -> RowView {
+    let look = r.robot_look_note();
     RowView {
         rank: rank.map(|n| n.to_string()).unwrap_or_default(),
         method: r.method.clone(),
@@ -62,8 +63,8 @@ fn row_view(rank: Option<usize>, r: &BoardRow) -> RowView {
         bold_entropy: r.bold_entropy.unwrap_or(false),
         submissions: r.submission_ids.clone(),
         initial_states: r.initial_states_label.clone().unwrap_or_default(),
-        look_badge: r.robot_look_note().map_or("", |n| n.badge),
-        look_note: r.robot_look_note().map_or("", |n| n.text),
+        look_badge: look.map_or("", |n| n.badge),
+        look_note: look.map_or("", |n| n.text),
     }
 }
 
