@@ -8,10 +8,12 @@ pub mod behaviour;
 pub mod job;
 pub mod paper;
 pub mod results;
+pub mod rollout;
 pub mod shard;
 pub mod task;
 
 pub use behaviour::{behaviour_name, sorting_order};
 pub use job::*;
 pub use results::*;
+pub use rollout::{Ending, Landmark, LandmarkKind, RolloutTrace};
 pub use task::*;

@@ -184,6 +184,24 @@ pub struct RolloutRecord {
     /// became unstable); absent for a rollout that ran its course.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub failure: Option<RolloutFailure>,
+    /// How the rollout ended; absent in results stored before it was recorded.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub ending: Option<crate::rollout::Ending>,
+    /// What it did, for replays, videos and pictures
+    /// ([`crate::rollout::RolloutTrace`]). Absent in results stored before
+    /// traces existed, and in the copies of a rollout simulated once per
+    /// initial state (`manifest.simulated_once`): those share the trace of
+    /// their state's rollout 0 ([`EvalResult::trace_of`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub trace: Option<Box<crate::rollout::RolloutTrace>>,
+}
+
+impl RolloutRecord {
+    /// The rollout's number in the protocol: initial state × rollouts per
+    /// state + index within the state.
+    pub fn number(&self, rollouts_per_context: usize) -> usize {
+        self.context_index * rollouts_per_context + self.rollout_index
+    }
 }
 
 /// A rollout ended by the evaluator rather than by the task.
@@ -221,6 +239,30 @@ impl EvalResult {
     /// numbers say more about the simulator than about the policy.
     pub fn mostly_unstable(&self) -> bool {
         2 * self.rollouts_ended_unstable > self.rollouts.len()
+    }
+
+    /// The record of rollout `number` ([`RolloutRecord::number`]).
+    pub fn rollout(&self, number: usize) -> Option<&RolloutRecord> {
+        let per = self.manifest.rollouts_per_context;
+        self.rollouts.iter().find(|r| r.number(per) == number)
+    }
+
+    /// The trace of `record`: its own, or, for a copy of a rollout simulated
+    /// once per initial state, the one of its state's rollout 0.
+    pub fn trace_of<'a>(
+        &'a self,
+        record: &'a RolloutRecord,
+    ) -> Option<&'a crate::rollout::RolloutTrace> {
+        if let Some(t) = &record.trace {
+            return Some(t);
+        }
+        if !self.manifest.simulated_once {
+            return None;
+        }
+        self.rollouts
+            .iter()
+            .find(|r| r.context_index == record.context_index && r.rollout_index == 0)
+            .and_then(|r| r.trace.as_deref())
     }
 }
 

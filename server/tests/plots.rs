@@ -176,6 +176,8 @@ async fn behaviour_bars_name_sorting_orders_and_print_integer_counts() {
             steps: 10,
             path: None,
             failure: None,
+            ending: None,
+            trace: None,
         })
         .collect();
     let id = evaluated(&app, "Mine", TaskId::Sorting2, 0, 10.0 / 12.0, rollouts).await;

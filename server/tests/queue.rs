@@ -69,6 +69,8 @@ fn result_line(task: TaskId) -> String {
                 steps: 40,
                 path: None,
                 failure: None,
+                ending: None,
+                trace: None,
             })
             .collect(),
         rollouts_ended_unstable: 0,
@@ -290,6 +292,8 @@ async fn stacking_levels_are_stored_and_shown_each_with_its_own_numbers(b: Backe
                 steps: 1000,
                 path: None,
                 failure: None,
+                ending: None,
+                trace: None,
             })
             .collect(),
         rollouts_ended_unstable: 0,

@@ -69,6 +69,8 @@ fn result_line_once(once: bool) -> String {
                 steps: 40,
                 path: None,
                 failure: None,
+                ending: None,
+                trace: None,
             })
             .collect(),
         rollouts_ended_unstable: 0,

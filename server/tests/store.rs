@@ -44,6 +44,8 @@ fn eval_result(task: TaskId, success: f64, cond: f64, paths: bool) -> EvalResult
             steps: 5,
             path: paths.then(|| vec![[0.5, -0.3], [0.52, -0.1 + i as f32 * 0.01]]),
             failure: None,
+            ending: None,
+            trace: None,
         })
         .collect();
     EvalResult {
@@ -264,6 +266,8 @@ fn stacking_result(rollouts: &[(&str, bool)]) -> EvalResult {
             steps: 10,
             path: None,
             failure: None,
+            ending: None,
+            trace: None,
         })
         .collect();
     r

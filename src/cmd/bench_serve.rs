@@ -190,6 +190,8 @@ fn result_480() -> anyhow::Result<EvalResult> {
                 steps: 400,
                 path: None,
                 failure: None,
+                ending: None,
+                trace: None,
             });
         }
     }

@@ -154,6 +154,8 @@ pub fn pushing_result(
                     message: "Nan, Inf or huge value in QACC at DOF 0".into(),
                     step: 17,
                 }),
+                ending: None,
+                trace: None,
             });
         }
     }
