@@ -3,15 +3,13 @@
 //! observation window, one batched policy call, scatter the actions, step all
 //! rollouts in parallel (rayon), retire finished ones and start pending ones.
 
-use crate::scripted::ScriptedPolicy;
 use crate::shard::{EvalPart, Shard};
 use crate::tasks::{Env, LoadedTask, TaskError};
-use d3il_policy::{
-    validate_actions, HistoryBuffer, OnnxPolicy, Policy, PolicyError, Query, RemotePolicy,
-};
+use d3il_policy::{validate_actions, HistoryBuffer, Policy, PolicyError, Query};
+use d3il_protocol::rollout::TraceBuilder;
 use d3il_protocol::{
-    ErrorKind, EvalResult, Evaluated, FailureReason, Job, ObsType, PolicySource, ProtocolKind,
-    ProtocolManifest, RolloutFailure, RolloutRecord, TaskId, WorkerError,
+    Ending, ErrorKind, EvalResult, FailureReason, ObsType, ProtocolKind, ProtocolManifest,
+    RolloutFailure, RolloutRecord, TaskId,
 };
 use rayon::prelude::*;
 use serde_json::Value;
@@ -147,6 +145,8 @@ struct Slot {
     step_cpu_s: f64,
     /// Set when the simulation became unstable: the rollout ends as a failure.
     failure: Option<RolloutFailure>,
+    /// What the rollout did, for replays ([`crate::trace`]).
+    trace: Option<TraceBuilder>,
 }
 
 /// Runs `policy` on `task` under the protocol and computes the D3IL metrics.
@@ -286,6 +286,7 @@ fn run_rollouts(
             path: Vec::new(),
             step_cpu_s: 0.0,
             failure: None,
+            trace: None,
         });
     }
     let mut next = 0usize;
@@ -312,6 +313,7 @@ fn run_rollouts(
         slot.executed.clear();
         slot.path.clear();
         slot.failure = None;
+        slot.trace = Some(crate::trace::begin(task, &slot.env));
         if record_paths {
             let p = slot.env.sim.tcp_pos();
             slot.path.push([p[0] as f32, p[1] as f32]);
@@ -429,23 +431,38 @@ fn run_rollouts(
             } else {
                 slot.env.behaviour_key()
             };
+            let steps = slot.env.steps();
+            let done = slot.env.is_done();
             let record = RolloutRecord {
                 context_index: ctx,
                 rollout_index: r,
                 success,
                 behaviour,
-                steps: slot.env.steps(),
+                steps,
                 path: record_paths.then(|| std::mem::take(&mut slot.path)),
                 failure,
+                ending: Some(Ending::classify(
+                    unstable,
+                    done,
+                    success,
+                    steps,
+                    spec.max_steps,
+                )),
+                trace: slot
+                    .trace
+                    .take()
+                    .map(|t| Box::new(crate::trace::finish(t, &slot.env))),
             };
             // Simulated once for the whole initial state: the same record
-            // also under the state's other rollout indices.
+            // also under the state's other rollout indices, which share its
+            // trace (EvalResult::trace_of).
             let copies = per_ctx / sim_per_ctx;
             let i = id - first_id;
             for k in 1..copies {
                 keys[i + k] = Some(key.clone());
                 records[i + k] = Some(RolloutRecord {
                     rollout_index: r + k,
+                    trace: None,
                     ..record.clone()
                 });
             }
@@ -517,7 +534,13 @@ fn step_slot(s: &mut Slot, record_paths: bool, every_frame: bool) -> Result<bool
         }
     }
     let step = s.env.steps();
-    let out = match s.env.step(&action) {
+    let stepped = s.env.step(&action);
+    if let (Ok(_) | Err(TaskError::SimulationWarning { .. }), Some(trace)) =
+        (&stepped, s.trace.as_mut())
+    {
+        crate::trace::record_step(trace, &s.env, &action);
+    }
+    let out = match stepped {
         Ok(out) => out,
         Err(TaskError::SimulationWarning { step, warnings }) => {
             s.failure = Some(RolloutFailure {
@@ -571,124 +594,3 @@ fn push_images(slot: &mut Slot) -> Result<(), EvalError> {
 
 /// The one sha256 helper of the crate (also used for the context sets).
 pub use crate::tasks::contexts::sha256_hex;
-
-/// Builds the policy a job names. ONNX bytes are checked against the job's sha256.
-pub fn load_policy(
-    job: &Job,
-    task: &LoadedTask,
-) -> Result<(Box<dyn Policy>, PolicyInfo), EvalError> {
-    let spec = task.spec();
-    if job.manifest.task != job.task {
-        return Err(EvalError::Setup(format!(
-            "the manifest says task `{}` but the job is for `{}`; submit the policy for the task it was trained on",
-            job.manifest.task, job.task
-        )));
-    }
-    if job.manifest.obs_type != task.obs_type {
-        return Err(EvalError::Setup(format!(
-            "the manifest says observation type `{}` but the task was loaded for `{}`",
-            job.manifest.obs_type, task.obs_type
-        )));
-    }
-    match &job.policy {
-        PolicySource::Onnx { path, sha256 } => {
-            let bytes = std::fs::read(path).map_err(|e| {
-                EvalError::Setup(format!("cannot read the ONNX file `{path}`: {e}"))
-            })?;
-            let got = sha256_hex(&bytes);
-            if !sha256.is_empty() && &got != sha256 {
-                return Err(EvalError::Setup(format!(
-                    "the ONNX file's sha256 is {got}, but the job expects {sha256}"
-                )));
-            }
-            let p = OnnxPolicy::load(&bytes, &job.manifest, &spec, job.seed)?;
-            Ok((
-                Box::new(p),
-                PolicyInfo {
-                    sha256: got,
-                    obs_type: job.manifest.obs_type,
-                },
-            ))
-        }
-        PolicySource::Remote { url } => {
-            let p =
-                RemotePolicy::connect(url, &spec, job.manifest.obs_type, job.seed, &job.limits)?;
-            Ok((
-                Box::new(p),
-                PolicyInfo {
-                    sha256: sha256_hex(url.as_bytes()),
-                    obs_type: job.manifest.obs_type,
-                },
-            ))
-        }
-        PolicySource::Scripted { name } => {
-            let p = ScriptedPolicy::from_name(name, spec)
-                .map_err(|e| EvalError::Setup(e.to_string()))?;
-            Ok((
-                Box::new(p),
-                PolicyInfo {
-                    sha256: sha256_hex(name.as_bytes()),
-                    obs_type: ObsType::State,
-                },
-            ))
-        }
-    }
-}
-
-/// Everything a worker does for one job (called by `d3il worker` after it has
-/// confined itself): load the task and the policy, evaluate, report.
-pub fn run_job(
-    job: &Job,
-    on_progress: &mut dyn FnMut(usize, usize),
-) -> Result<EvalResult, WorkerError> {
-    match run_job_or_shard(job, on_progress)? {
-        Evaluated::Result(r) => Ok(*r),
-        Evaluated::Part(_) => Err(WorkerError {
-            kind: ErrorKind::BadJob,
-            message: "this job is one shard of an evaluation; its part is not a result".into(),
-        }),
-    }
-}
-
-/// [`run_job`] for any job: a job with [`Job::shard`] runs only that shard
-/// ([`evaluate_shard`]) and gives its part.
-pub fn run_job_or_shard(
-    job: &Job,
-    on_progress: &mut dyn FnMut(usize, usize),
-) -> Result<Evaluated, WorkerError> {
-    let to_worker = |e: EvalError| WorkerError {
-        kind: e.kind(),
-        message: e.to_string(),
-    };
-    let task = LoadedTask::load_obs(job.task, job.manifest.obs_type).map_err(|e| WorkerError {
-        kind: match e {
-            TaskError::Unavailable(_) | TaskError::NoImageVariant(_) => ErrorKind::BadJob,
-            _ => ErrorKind::Internal,
-        },
-        message: e.to_string(),
-    })?;
-    let (mut policy, info) = load_policy(job, &task).map_err(to_worker)?;
-    // "Loaded, 0 done": the supervisor then attributes a limit hit in the first
-    // query to running the rollouts, not to loading the policy.
-    if let Ok(set) = task.def.context_set() {
-        let (n_ctx, per_ctx) = protocol_size(&task, job.protocol, set.len());
-        let n = match job.shard.map(|s| s.contexts(n_ctx)) {
-            Some(Ok(range)) => range.len(),
-            _ => n_ctx,
-        };
-        on_progress(0, n * per_ctx);
-    }
-    let opts = EvalOptions {
-        protocol: job.protocol,
-        seed: job.seed,
-        step_cap: job.dry_run_steps,
-        ..EvalOptions::default()
-    };
-    match job.shard {
-        Some(shard) => evaluate_shard(&task, policy.as_mut(), &info, &opts, shard, on_progress)
-            .map(|(p, _)| Evaluated::Part(Box::new(p))),
-        None => evaluate(&task, policy.as_mut(), &info, &opts, on_progress)
-            .map(|(r, _)| Evaluated::Result(Box::new(r))),
-    }
-    .map_err(to_worker)
-}

@@ -9,6 +9,8 @@
 pub mod camera;
 #[cfg(feature = "engine")]
 pub mod eval;
+#[cfg(feature = "engine")]
+pub mod job;
 #[allow(unsafe_code)]
 pub mod mujoco;
 pub mod robot;
@@ -18,3 +20,5 @@ pub mod scripted;
 pub use d3il_metrics::shard;
 pub mod sim;
 pub mod tasks;
+pub mod trace;
+pub mod video;

@@ -253,17 +253,28 @@ impl EvalResult {
         &'a self,
         record: &'a RolloutRecord,
     ) -> Option<&'a crate::rollout::RolloutTrace> {
-        if let Some(t) = &record.trace {
-            return Some(t);
-        }
-        if !self.manifest.simulated_once {
-            return None;
-        }
-        self.rollouts
-            .iter()
-            .find(|r| r.context_index == record.context_index && r.rollout_index == 0)
-            .and_then(|r| r.trace.as_deref())
+        trace_of(&self.manifest, &self.rollouts, record)
     }
+}
+
+/// The trace of `record` among `rollouts` (a result's, a part's or any
+/// subset holding the state's rollout 0): its own, or, for a copy of a
+/// rollout simulated once per initial state, the one of its state's rollout 0.
+pub fn trace_of<'a>(
+    manifest: &ProtocolManifest,
+    rollouts: &'a [RolloutRecord],
+    record: &'a RolloutRecord,
+) -> Option<&'a crate::rollout::RolloutTrace> {
+    if let Some(t) = &record.trace {
+        return Some(t);
+    }
+    if !manifest.simulated_once {
+        return None;
+    }
+    rollouts
+        .iter()
+        .find(|r| r.context_index == record.context_index && r.rollout_index == 0)
+        .and_then(|r| r.trace.as_deref())
 }
 
 /// One metric of a paired comparison of two results (A − B).

@@ -312,11 +312,19 @@ impl RolloutTrace {
                 row: self.act_dim,
             });
         }
-        let actions = flat.chunks_exact(self.act_dim).map(<[f32]>::to_vec).collect();
+        let actions = flat
+            .chunks_exact(self.act_dim)
+            .map(<[f32]>::to_vec)
+            .collect();
         let objects = self
             .objects
             .iter()
-            .map(|o| Ok((o.name.clone(), rows("objects.xy", unpack_f32("objects.xy", &o.xy)?)?)))
+            .map(|o| {
+                Ok((
+                    o.name.clone(),
+                    rows("objects.xy", unpack_f32("objects.xy", &o.xy)?)?,
+                ))
+            })
             .collect::<Result<_, PackError>>()?;
         Ok(UnpackedTrace {
             act_dim: self.act_dim,
@@ -466,6 +474,9 @@ mod tests {
             assert_eq!(json, format!("\"{}\"", e.name()));
             assert_eq!(e.name().parse::<Ending>().unwrap(), e);
         }
-        assert!("crashed".parse::<Ending>().unwrap_err().contains("time_limit"));
+        assert!("crashed"
+            .parse::<Ending>()
+            .unwrap_err()
+            .contains("time_limit"));
     }
 }

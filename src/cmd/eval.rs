@@ -106,7 +106,7 @@ pub fn load_in_process(
     EvalOptions,
 )> {
     let task = LoadedTask::load_obs(job.task, job.manifest.obs_type)?;
-    let (policy, info) = eval::load_policy(job, &task)?;
+    let (policy, info) = d3il_evaluator::job::load_policy(job, &task)?;
     let opts = EvalOptions {
         protocol: job.protocol,
         seed: job.seed,

@@ -1,21 +1,182 @@
-//! `d3il replay`: replay an episode open-loop from policy-level actions and
-//! print what our simulator does, as JSON (docs/tasks.md).
+//! `d3il replay`: replay an episode open-loop and print what our simulator
+//! does. Two inputs:
+//!
+//! * `--result out.json --rollout N`: a stored rollout of an evaluation
+//!   (`d3il eval --json`, a shard's part, or the server's replay document:
+//!   any JSON object with `manifest` and `rollouts`), replayed from its
+//!   trace and checked bit for bit against the record; `--video f.mp4`
+//!   writes its video (docs/tasks.md "Replaying a rollout");
+//! * `--task T --input ep.json`: `{"context": ..., "actions": [...]}`,
+//!   printing observations, TCP and object paths, success and behaviour as
+//!   JSON (docs/tasks.md).
 
 use anyhow::{bail, Context};
 use d3il_evaluator::tasks::LoadedTask;
-use d3il_protocol::TaskId;
+use d3il_evaluator::trace::{load_task, replay as replay_trace, ReplayCheck};
+use d3il_evaluator::video::{render_video, VideoOptions};
+use d3il_protocol::{trace_of, ProtocolManifest, RolloutRecord, TaskId};
 use serde::Deserialize;
 use serde_json::{json, Value};
 use std::collections::BTreeMap;
+use std::path::PathBuf;
 
 #[derive(clap::Args)]
 pub struct Args {
-    /// Task to replay in (avoiding, aligning, pushing, ...).
-    #[arg(long)]
-    pub task: TaskId,
+    /// Task to replay in (avoiding, aligning, pushing, ...), with --input.
+    #[arg(long, requires = "input", conflicts_with = "result")]
+    pub task: Option<TaskId>,
     /// JSON file `{"context": {...}, "actions": [[...], ...]}`; `-` reads stdin.
+    #[arg(long, requires = "task")]
+    pub input: Option<String>,
+    /// A result with rollout traces (`d3il eval --json out.json`, a shard's
+    /// part, or any JSON object with `manifest` and `rollouts`); `-` reads stdin.
+    #[arg(long, requires = "rollout")]
+    pub result: Option<String>,
+    /// The rollout to replay: initial state × rollouts per state + index
+    /// (the `number` the server's pages and API use).
+    #[arg(long, requires = "result")]
+    pub rollout: Option<usize>,
+    /// With --result: also write the rollout's video (MP4, H.264) here.
+    #[arg(long, requires = "result")]
+    pub video: Option<PathBuf>,
+    /// Side of each camera's picture in the video, pixels.
+    #[arg(long, default_value_t = 320)]
+    pub video_size: usize,
+    /// With --result: print the replay's check as JSON instead of text.
     #[arg(long)]
-    pub input: String,
+    pub json: bool,
+}
+
+fn read(path: &str) -> anyhow::Result<String> {
+    if path == "-" {
+        std::io::read_to_string(std::io::stdin()).context("reading stdin")
+    } else {
+        std::fs::read_to_string(path).with_context(|| format!("reading {path}"))
+    }
+}
+
+pub fn run(args: Args) -> anyhow::Result<()> {
+    match (&args.task, &args.input, &args.result, args.rollout) {
+        (Some(task), Some(input), None, _) => {
+            let out = replay(*task, &read(input)?)?;
+            println!("{}", serde_json::to_string(&out)?);
+            Ok(())
+        }
+        (None, None, Some(result), Some(n)) => {
+            replay_record(&read(result)?, n, args.video.as_deref(), args.video_size, args.json)
+        }
+        _ => bail!(
+            "give either --result out.json --rollout N (a stored rollout) or --task T --input ep.json (actions)"
+        ),
+    }
+}
+
+/// What `--result` reads: the manifest and the rollouts of any result-like
+/// document (other fields are ignored).
+#[derive(Deserialize)]
+struct ReplayDoc {
+    manifest: ProtocolManifest,
+    rollouts: Vec<RolloutRecord>,
+}
+
+/// Replays rollout `number` of the result document `text`, prints the check,
+/// writes the video when asked; an error when it does not replay bit for bit.
+pub fn replay_record(
+    text: &str,
+    number: usize,
+    video: Option<&std::path::Path>,
+    video_size: usize,
+    as_json: bool,
+) -> anyhow::Result<()> {
+    let doc: ReplayDoc = serde_json::from_str(text).context(
+        "the result must be a JSON object with `manifest` and `rollouts` as `d3il eval --json` writes it",
+    )?;
+    let per = doc.manifest.rollouts_per_context;
+    let record = doc
+        .rollouts
+        .iter()
+        .find(|r| r.number(per) == number)
+        .with_context(|| {
+            let numbers: Vec<usize> = doc.rollouts.iter().map(|r| r.number(per)).collect();
+            format!(
+                "the result has no rollout {number}; it has {}",
+                summarize(&numbers)
+            )
+        })?;
+    let trace = trace_of(&doc.manifest, &doc.rollouts, record).with_context(|| {
+        format!(
+            "rollout {number} has no trace: the result was made before rollouts were recorded for replay (evaluate it again to replay it)"
+        )
+    })?;
+    let task = load_task(&doc.manifest)?;
+    let (check, written) = match video {
+        Some(path) => {
+            let opts = VideoOptions {
+                size: video_size,
+                ..VideoOptions::default()
+            };
+            let (check, report) = render_video(&task, &doc.manifest, record, trace, path, &opts)?;
+            (check, report.map(|r| (path, r)))
+        }
+        None => (
+            replay_trace(&task, &doc.manifest, record, trace, &mut |_| Ok(()))?,
+            None,
+        ),
+    };
+    if as_json {
+        println!("{}", serde_json::to_string_pretty(&check)?);
+    } else {
+        print!("{}", describe(&check));
+    }
+    if let Some((path, r)) = written {
+        eprintln!(
+            "wrote {} ({} frames, {}x{}, {:.2} s at 200/7 fps (real time), {} bytes, rendered in {:.1} s)",
+            path.display(),
+            r.frames,
+            r.width,
+            r.height,
+            r.seconds,
+            r.bytes,
+            r.render_seconds
+        );
+    }
+    if !check.replays() {
+        bail!(
+            "rollout {number} does not replay bit for bit: {}",
+            check.differences.join("; ")
+        );
+    }
+    Ok(())
+}
+
+/// "0-15" style list of rollout numbers.
+fn summarize(numbers: &[usize]) -> String {
+    match (numbers.first(), numbers.last()) {
+        (Some(a), Some(b)) if numbers.len() == b - a + 1 => format!("rollouts {a} to {b}"),
+        _ => format!("rollouts {numbers:?}"),
+    }
+}
+
+fn describe(c: &ReplayCheck) -> String {
+    let mut s = format!(
+        "{} rollout {} (initial state {}, rollout {}): {} steps, success {}, behaviour {}, {}\n",
+        c.task.title(),
+        c.number,
+        c.context_index,
+        c.rollout_index,
+        c.steps,
+        c.success,
+        c.behaviour,
+        c.ending.describe()
+    );
+    if c.replays() {
+        s.push_str("replays bit for bit: every step's physics state, the outcome and the final object poses equal the record's\n");
+    } else {
+        for d in &c.differences {
+            s.push_str(&format!("differs: {d}\n"));
+        }
+    }
+    s
 }
 
 #[derive(Deserialize)]
@@ -24,17 +185,6 @@ struct ReplayInput {
     #[serde(default)]
     context: Value,
     actions: Vec<Vec<f32>>,
-}
-
-pub fn run(args: Args) -> anyhow::Result<()> {
-    let text = if args.input == "-" {
-        std::io::read_to_string(std::io::stdin()).context("reading stdin")?
-    } else {
-        std::fs::read_to_string(&args.input).with_context(|| format!("reading {}", args.input))?
-    };
-    let out = replay(args.task, &text)?;
-    println!("{}", serde_json::to_string(&out)?);
-    Ok(())
 }
 
 /// Replays `input_json` and returns the output document.

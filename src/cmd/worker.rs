@@ -60,7 +60,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             })
         }
         None => d3il_sandbox::worker_main(&opts, |job, progress| {
-            d3il_evaluator::eval::run_job_or_shard(job, progress)
+            d3il_evaluator::job::run_job_or_shard(job, progress)
         }),
     };
     std::process::exit(code);

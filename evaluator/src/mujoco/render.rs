@@ -410,6 +410,17 @@ impl Renderer {
     /// Creates an EGL context on this thread and MuJoCo's render context for
     /// `model`, for frames of `width` × `height` pixels.
     pub fn new(model: Arc<Model>, width: usize, height: usize) -> Result<Renderer, MjError> {
+        Self::with_samples(model, width, height, None)
+    }
+
+    /// [`Renderer::new`] with `samples` multisamples per pixel instead of the
+    /// model's `offsamples` (videos: pictures for people, not for policies).
+    pub fn with_samples(
+        model: Arc<Model>,
+        width: usize,
+        height: usize,
+        samples: Option<usize>,
+    ) -> Result<Renderer, MjError> {
         install_handlers();
         let lease = Lease::acquire()?;
         let dpy = lease.dpy;
@@ -480,6 +491,9 @@ impl Renderer {
                     })?;
             (*own.as_ptr()).vis.global.offwidth = width as i32;
             (*own.as_ptr()).vis.global.offheight = height as i32;
+            if let Some(n) = samples {
+                (*own.as_ptr()).vis.quality.offsamples = n as i32;
+            }
             // Shadows are off (below), so the 8192² shadow map of docs/original-d3il.md §01.1.2
             // (visual/quality shadowsize) would only hold ~256 MiB of memory per
             // GL context; same pixels without it (deviation noted in docs/images.md).

@@ -10,6 +10,7 @@ pub mod command;
 pub mod contexts;
 pub mod geometry;
 pub mod inserting;
+pub mod landmarks;
 pub mod pushing;
 pub mod sorting;
 pub mod stacking;
@@ -205,6 +206,8 @@ pub struct LoadedTask {
     pub obs_type: ObsType,
     /// How the robot is drawn ([`SceneSpec::drawn_look`]).
     pub look: RobotLook,
+    /// The scene's table, targets and obstacles seen from above.
+    pub landmarks: Arc<Vec<d3il_protocol::Landmark>>,
 }
 
 impl LoadedTask {
@@ -248,6 +251,7 @@ impl LoadedTask {
         let model = Arc::new(scene.compile()?);
         let ids = Arc::new(RobotIds::lookup(&model)?);
         Ok(LoadedTask {
+            landmarks: Arc::new(landmarks::scene_landmarks(&scene)),
             obs_type: obs,
             look: scene.drawn_look(),
             mjcf_sha256: scene.sha256(),
@@ -499,6 +503,11 @@ impl Env {
     }
     pub fn objects(&self) -> Vec<(String, [f64; 3])> {
         self.logic.objects(&self.sim)
+    }
+    /// A digest of the physics state (positions and velocities, bit for
+    /// bit): a rollout's trace holds one per step, and a replay compares them.
+    pub fn state_digest(&self) -> u32 {
+        d3il_protocol::rollout::state_digest([self.sim.data.qpos(), self.sim.data.qvel()])
     }
     pub fn stacking_levels(&self) -> Option<[bool; 3]> {
         self.logic.stacking_levels()

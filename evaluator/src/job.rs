@@ -1,0 +1,131 @@
+//! What a worker does with one job: build the policy it names, then
+//! evaluate it ([`crate::eval`]) or one shard of it.
+
+use crate::eval::{
+    evaluate, evaluate_shard, protocol_size, sha256_hex, EvalError, EvalOptions, PolicyInfo,
+};
+use crate::scripted::ScriptedPolicy;
+use crate::tasks::{LoadedTask, TaskError};
+use d3il_policy::{OnnxPolicy, Policy, RemotePolicy};
+use d3il_protocol::{ErrorKind, EvalResult, Evaluated, Job, ObsType, PolicySource, WorkerError};
+
+/// Builds the policy a job names. ONNX bytes are checked against the job's sha256.
+pub fn load_policy(
+    job: &Job,
+    task: &LoadedTask,
+) -> Result<(Box<dyn Policy>, PolicyInfo), EvalError> {
+    let spec = task.spec();
+    if job.manifest.task != job.task {
+        return Err(EvalError::Setup(format!(
+            "the manifest says task `{}` but the job is for `{}`; submit the policy for the task it was trained on",
+            job.manifest.task, job.task
+        )));
+    }
+    if job.manifest.obs_type != task.obs_type {
+        return Err(EvalError::Setup(format!(
+            "the manifest says observation type `{}` but the task was loaded for `{}`",
+            job.manifest.obs_type, task.obs_type
+        )));
+    }
+    match &job.policy {
+        PolicySource::Onnx { path, sha256 } => {
+            let bytes = std::fs::read(path).map_err(|e| {
+                EvalError::Setup(format!("cannot read the ONNX file `{path}`: {e}"))
+            })?;
+            let got = sha256_hex(&bytes);
+            if !sha256.is_empty() && &got != sha256 {
+                return Err(EvalError::Setup(format!(
+                    "the ONNX file's sha256 is {got}, but the job expects {sha256}"
+                )));
+            }
+            let p = OnnxPolicy::load(&bytes, &job.manifest, &spec, job.seed)?;
+            Ok((
+                Box::new(p),
+                PolicyInfo {
+                    sha256: got,
+                    obs_type: job.manifest.obs_type,
+                },
+            ))
+        }
+        PolicySource::Remote { url } => {
+            let p =
+                RemotePolicy::connect(url, &spec, job.manifest.obs_type, job.seed, &job.limits)?;
+            Ok((
+                Box::new(p),
+                PolicyInfo {
+                    sha256: sha256_hex(url.as_bytes()),
+                    obs_type: job.manifest.obs_type,
+                },
+            ))
+        }
+        PolicySource::Scripted { name } => {
+            let p = ScriptedPolicy::from_name(name, spec)
+                .map_err(|e| EvalError::Setup(e.to_string()))?;
+            Ok((
+                Box::new(p),
+                PolicyInfo {
+                    sha256: sha256_hex(name.as_bytes()),
+                    obs_type: ObsType::State,
+                },
+            ))
+        }
+    }
+}
+
+/// Everything a worker does for one job (called by `d3il worker` after it has
+/// confined itself): load the task and the policy, evaluate, report.
+pub fn run_job(
+    job: &Job,
+    on_progress: &mut dyn FnMut(usize, usize),
+) -> Result<EvalResult, WorkerError> {
+    match run_job_or_shard(job, on_progress)? {
+        Evaluated::Result(r) => Ok(*r),
+        Evaluated::Part(_) => Err(WorkerError {
+            kind: ErrorKind::BadJob,
+            message: "this job is one shard of an evaluation; its part is not a result".into(),
+        }),
+    }
+}
+
+/// [`run_job`] for any job: a job with [`Job::shard`] runs only that shard
+/// ([`evaluate_shard`]) and gives its part.
+pub fn run_job_or_shard(
+    job: &Job,
+    on_progress: &mut dyn FnMut(usize, usize),
+) -> Result<Evaluated, WorkerError> {
+    let to_worker = |e: EvalError| WorkerError {
+        kind: e.kind(),
+        message: e.to_string(),
+    };
+    let task = LoadedTask::load_obs(job.task, job.manifest.obs_type).map_err(|e| WorkerError {
+        kind: match e {
+            TaskError::Unavailable(_) | TaskError::NoImageVariant(_) => ErrorKind::BadJob,
+            _ => ErrorKind::Internal,
+        },
+        message: e.to_string(),
+    })?;
+    let (mut policy, info) = load_policy(job, &task).map_err(to_worker)?;
+    // "Loaded, 0 done": the supervisor then attributes a limit hit in the first
+    // query to running the rollouts, not to loading the policy.
+    if let Ok(set) = task.def.context_set() {
+        let (n_ctx, per_ctx) = protocol_size(&task, job.protocol, set.len());
+        let n = match job.shard.map(|s| s.contexts(n_ctx)) {
+            Some(Ok(range)) => range.len(),
+            _ => n_ctx,
+        };
+        on_progress(0, n * per_ctx);
+    }
+    let opts = EvalOptions {
+        protocol: job.protocol,
+        seed: job.seed,
+        step_cap: job.dry_run_steps,
+        ..EvalOptions::default()
+    };
+    match job.shard {
+        Some(shard) => evaluate_shard(&task, policy.as_mut(), &info, &opts, shard, on_progress)
+            .map(|(p, _)| Evaluated::Part(Box::new(p))),
+        None => evaluate(&task, policy.as_mut(), &info, &opts, on_progress)
+            .map(|(r, _)| Evaluated::Result(Box::new(r))),
+    }
+    .map_err(to_worker)
+}
