@@ -22,6 +22,7 @@ mod model;
 mod numfmt;
 mod panels;
 pub mod plot;
+pub mod rollouts;
 
 use d3il_protocol::{ObsType, ResultCell, Source};
 use std::collections::BTreeMap;
@@ -270,6 +271,11 @@ pub enum TablesError {
         figure: &'static str,
         hint: &'static str,
     },
+    #[error(
+        "the trace of {rollout} cannot be drawn: {reason}; \
+         the stored result is corrupt: re-evaluate that submission"
+    )]
+    BadTrace { rollout: String, reason: String },
     #[error("could not draw the figure: {0}")]
     Plot(String),
     #[error("could not write the CSV: {0}")]
