@@ -45,7 +45,8 @@ macro_rules! insert_result {
         for r in &result.rollouts {
             sqlx::query(
                 "INSERT INTO rollouts (submission_id, context_index, rollout_index, success, behaviour_json, steps, path_json, \
-                 failure_json) VALUES ($1, $2, $3, $4, $5, $6, $7, $8) ON CONFLICT(submission_id, context_index, rollout_index) DO NOTHING",
+                 failure_json, ending, trace_json) VALUES ($1, $2, $3, $4, $5, $6, $7, $8, $9, $10) \
+                 ON CONFLICT(submission_id, context_index, rollout_index) DO NOTHING",
             )
             .bind(submission_id)
             .bind(r.context_index as i64)
@@ -55,6 +56,10 @@ macro_rules! insert_result {
             .bind(r.steps as i64)
             .bind(r.path.as_ref().map(to_json))
             .bind(r.failure.as_ref().map(to_json))
+            .bind(r.ending.map(|e| e.name()))
+            // Copies of a rollout simulated once carry no trace of their
+            // own (`EvalResult::trace_of`): NULL, resolved when read.
+            .bind(r.trace.as_ref().map(to_json))
             .execute($tx)
             .await?;
         }

@@ -8,8 +8,8 @@ use super::types::{Stored, SubmissionStatus};
 use super::{Store, StoreError};
 use crate::leaderboard::{evaluated_rows, protocol_str, BoardRow, EvaluatedSeed};
 use d3il_protocol::{
-    ContextResult, ObsType, ProtocolKind, ProtocolManifest, ResultCell, RobotLook, RolloutFailure,
-    Source, StackingLevel, TaskId,
+    ContextResult, Ending, ObsType, ProtocolKind, ProtocolManifest, ResultCell, RobotLook,
+    RolloutFailure, RolloutTrace, Source, StackingLevel, TaskId,
 };
 use sqlx::FromRow;
 
@@ -58,6 +58,18 @@ pub struct RolloutRow {
     /// Why the rollout was ended as a failure (`sim_unstable`), if it was.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub failure: Option<Json<RolloutFailure>>,
+    /// How it ended; None for results stored before endings were recorded.
+    #[serde(skip)]
+    pub ending: Option<Stored<Ending>>,
+    /// The row holds a trace of its own (`trace_json`; a copy of a rollout
+    /// simulated once has none: see `crate::rollouts::trace_holder`).
+    pub has_trace: bool,
+}
+
+impl RolloutRow {
+    pub fn ending(&self) -> Option<Ending> {
+        self.ending.map(|e| e.0)
+    }
 }
 
 /// An end-effector path in the table plane.
@@ -205,12 +217,52 @@ impl Store {
     pub async fn rollouts_for(&self, submission_id: i64) -> Result<Vec<RolloutRow>, StoreError> {
         Ok(on_db!(&self.db, pool => sqlx::query_as(
             "SELECT context_index, rollout_index, success, behaviour_json AS behaviour, steps, path_json, \
-             failure_json AS failure FROM rollouts \
+             failure_json AS failure, ending, trace_json IS NOT NULL AS has_trace FROM rollouts \
              WHERE submission_id = $1 ORDER BY context_index, rollout_index",
         )
         .bind(submission_id)
         .fetch_all(pool)
         .await)?)
+    }
+
+    /// The trace stored on one rollout row (None: the row has none, or
+    /// there is no such row). Which row holds a rollout's trace is
+    /// `crate::rollouts::trace_holder`'s to say.
+    pub async fn rollout_trace(
+        &self,
+        submission_id: i64,
+        context_index: i64,
+        rollout_index: i64,
+    ) -> Result<Option<RolloutTrace>, StoreError> {
+        let row: Option<(Option<Json<RolloutTrace>>,)> = on_db!(&self.db, pool => sqlx::query_as(
+            "SELECT trace_json FROM rollouts WHERE submission_id = $1 AND context_index = $2 AND rollout_index = $3",
+        )
+        .bind(submission_id)
+        .bind(context_index)
+        .bind(rollout_index)
+        .fetch_optional(pool)
+        .await)?;
+        Ok(row.and_then(|(t,)| t).map(|t| t.0))
+    }
+
+    /// Every trace stored for a submission (with `first_only`, those of each
+    /// initial state's rollout 0), by (initial state, rollout index), in that
+    /// order (the copies of a rollout simulated once have none).
+    pub async fn rollout_traces(
+        &self,
+        submission_id: i64,
+        first_only: bool,
+    ) -> Result<Vec<(i64, i64, RolloutTrace)>, StoreError> {
+        let rows: Vec<(i64, i64, Json<RolloutTrace>)> = on_db!(&self.db, pool => sqlx::query_as(
+            "SELECT context_index, rollout_index, trace_json FROM rollouts \
+             WHERE submission_id = $1 AND trace_json IS NOT NULL AND ($2 = FALSE OR rollout_index = 0) \
+             ORDER BY context_index, rollout_index",
+        )
+        .bind(submission_id)
+        .bind(first_only)
+        .fetch_all(pool)
+        .await)?;
+        Ok(rows.into_iter().map(|(c, r, t)| (c, r, t.0)).collect())
     }
 
     /// Every training seed of the leaderboard row `s` belongs to (same method,
