@@ -217,7 +217,7 @@ fn unpack_bytes(field: &'static str, text: &str, width: usize) -> Result<Vec<u8>
             source: std::io::Error::other("unpacks to more than 64 MiB"),
         });
     }
-    if out.len() % width != 0 {
+    if !out.len().is_multiple_of(width) {
         return Err(PackError::Length {
             field,
             bytes: out.len(),
@@ -258,7 +258,7 @@ fn rows<T: Copy, const N: usize>(
     field: &'static str,
     values: Vec<T>,
 ) -> Result<Vec<[T; N]>, PackError> {
-    if values.len() % N != 0 {
+    if !values.len().is_multiple_of(N) {
         return Err(PackError::Rows {
             field,
             values: values.len(),
@@ -305,7 +305,7 @@ impl RolloutTrace {
             return Err(PackError::Format { found: self.format });
         }
         let flat = unpack_f32("actions", &self.actions)?;
-        if self.act_dim == 0 || flat.len() % self.act_dim != 0 {
+        if self.act_dim == 0 || !flat.len().is_multiple_of(self.act_dim) {
             return Err(PackError::Rows {
                 field: "actions",
                 values: flat.len(),
