@@ -351,6 +351,7 @@ pub async fn prepare(
     )
     .await?;
     let sandbox = Arc::new(SandboxStatus::new(runner.clone(), cfg.assets_dir.clone()));
+    let videos = crate::videos::Videos::new(cfg.videos.clone(), store.data_dir(), &cfg.assets_dir)?;
     let state = AppState {
         sandbox,
         store,
@@ -366,6 +367,7 @@ pub async fn prepare(
         signal,
         runner,
         finished: Arc::new(crate::cache::FinishedCache::new(FINISHED_CACHE_ENTRIES)),
+        videos: Arc::new(videos),
     };
     Ok((listener, Running { addr, state }))
 }

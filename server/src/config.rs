@@ -48,6 +48,43 @@ pub struct ServerConfig {
     pub worker: WorkerProcess,
     /// Connection hygiene (issue 17).
     pub connections: ConnectionLimits,
+    /// Rollout videos, rendered on demand by `d3il replay` (issue 31).
+    pub videos: VideoConfig,
+}
+
+/// How rollout videos are made: the `d3il` binary replays the stored record
+/// (`d3il replay --result DOC --rollout N --video OUT`) in a process of its
+/// own, never the server itself, in a pool apart from the evaluation workers
+/// so that viewers never take an evaluation's slot.
+#[derive(Debug, Clone)]
+pub struct VideoConfig {
+    /// The executable (default: the worker executable, i.e. this `d3il`).
+    pub exe: PathBuf,
+    /// Arguments before `--result …` (default `replay`).
+    pub args: Vec<String>,
+    /// Renders running at once (default 1).
+    pub renders: usize,
+    /// Distinct videos that may wait for a render slot; past it a request is
+    /// answered 503 with `Retry-After`.
+    pub max_waiting: usize,
+    /// A render taking longer is stopped and reported.
+    pub timeout: Duration,
+    /// Where rendered videos are kept (default: `videos/` in the store's
+    /// data directory, next to the policies).
+    pub dir: Option<PathBuf>,
+}
+
+impl VideoConfig {
+    pub fn new(exe: PathBuf) -> Self {
+        VideoConfig {
+            exe,
+            args: vec!["replay".into()],
+            renders: 1,
+            max_waiting: 16,
+            timeout: Duration::from_secs(600),
+            dir: None,
+        }
+    }
 }
 
 /// How long a connection may take and how many may be open.
@@ -98,6 +135,7 @@ impl ServerConfig {
             shards: 1,
             dry_run_uploads: true,
             lease_seconds: 30,
+            videos: VideoConfig::new(worker_exe.clone()),
             worker: WorkerProcess {
                 exe: worker_exe,
                 args: vec!["worker".into()],

@@ -35,12 +35,20 @@ pub enum AppError {
     #[error("rate limit exceeded; retry in {retry_after} s")]
     RateLimited { retry_after: u64 },
     /// The database stayed locked by another writer past the busy timeout
-    /// (and the store's retries): try again shortly.
-    #[error("the database is busy; retry in {retry_after} s")]
-    Busy { retry_after: u64 },
+    /// (and the store's retries), or too many videos wait to be rendered:
+    /// try again shortly. `reason` says which.
+    #[error("{reason}; retry in {retry_after} s")]
+    Busy {
+        retry_after: u64,
+        reason: &'static str,
+    },
     /// The remote endpoint failed its conformance dry-run.
     #[error("{message}")]
     EndpointRejected { kind: String, message: String },
+    /// A stored rollout could not be made into what was asked (its video):
+    /// the replay's own words.
+    #[error("{0}")]
+    NotRendered(String),
     /// Something broke on our side; the detail is logged only.
     #[error("internal error")]
     Internal(String),
@@ -66,6 +74,7 @@ impl AppError {
             AppError::RateLimited { .. } => StatusCode::TOO_MANY_REQUESTS,
             AppError::Busy { .. } => StatusCode::SERVICE_UNAVAILABLE,
             AppError::EndpointRejected { .. } => StatusCode::UNPROCESSABLE_ENTITY,
+            AppError::NotRendered(_) => StatusCode::UNPROCESSABLE_ENTITY,
             AppError::Internal(_) => StatusCode::INTERNAL_SERVER_ERROR,
         }
     }
@@ -82,6 +91,7 @@ impl AppError {
             AppError::RateLimited { .. } => "rate_limited",
             AppError::Busy { .. } => "busy",
             AppError::EndpointRejected { .. } => "endpoint_rejected",
+            AppError::NotRendered(_) => "not_rendered",
             AppError::Internal(_) => "internal",
         }
     }
@@ -112,7 +122,7 @@ impl AppError {
 
     fn headers(&self, resp: &mut Response) {
         match self {
-            AppError::RateLimited { retry_after } | AppError::Busy { retry_after } => {
+            AppError::RateLimited { retry_after } | AppError::Busy { retry_after, .. } => {
                 if let Ok(v) = HeaderValue::from_str(&retry_after.to_string()) {
                     resp.headers_mut().insert(header::RETRY_AFTER, v);
                 }
@@ -146,7 +156,7 @@ pub struct ErrorDetail {
 }
 
 /// Every value of [`AppError::code`].
-pub const ERROR_CODES: [&str; 11] = [
+pub const ERROR_CODES: [&str; 12] = [
     "invalid_field",
     "unauthorized",
     "forbidden",
@@ -157,6 +167,7 @@ pub const ERROR_CODES: [&str; 11] = [
     "rate_limited",
     "busy",
     "endpoint_rejected",
+    "not_rendered",
     "internal",
 ];
 
@@ -175,7 +186,10 @@ impl From<StoreError> for AppError {
                 field: Some("training_seed".into()),
                 message,
             },
-            e if e.is_busy() => AppError::Busy { retry_after: 2 },
+            e if e.is_busy() => AppError::Busy {
+                retry_after: 2,
+                reason: "the database is busy",
+            },
             other => AppError::Internal(other.to_string()),
         }
     }
@@ -257,11 +271,15 @@ mod tests {
             },
             AppError::PayloadTooLarge(String::new()),
             AppError::RateLimited { retry_after: 1 },
-            AppError::Busy { retry_after: 1 },
+            AppError::Busy {
+                retry_after: 1,
+                reason: "busy",
+            },
             AppError::EndpointRejected {
                 kind: String::new(),
                 message: String::new(),
             },
+            AppError::NotRendered(String::new()),
             AppError::Internal(String::new()),
         ];
         let codes: Vec<&str> = all.iter().map(AppError::code).collect();

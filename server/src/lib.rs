@@ -14,7 +14,9 @@
 //!
 //! [`app`] wires it together (router, `serve`); [`cli`] and [`client`] are what
 //! the `d3il` binary calls. [`cache`] keeps finished submissions' results
-//! documents in memory.
+//! documents in memory. [`rollouts`] shows what a policy did (the failure
+//! browser's filters, one rollout's record and trace, the pictures drawn
+//! from traces) and [`videos`] renders rollout videos through `d3il replay`.
 
 #![forbid(unsafe_code)]
 
@@ -31,9 +33,11 @@ pub mod intake;
 pub mod leaderboard;
 pub mod queue;
 pub mod ratelimit;
+pub mod rollouts;
 pub mod runner;
 pub mod sandbox_status;
 pub mod schema;
 pub mod state;
 pub mod store;
+pub mod videos;
 pub mod views;

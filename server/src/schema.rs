@@ -88,3 +88,33 @@ pub struct Stat {
     pub mean: f64,
     pub std: f64,
 }
+
+slug_schema!(
+    /// How a rollout ended (`d3il_protocol::Ending`).
+    Ending = "Ending",
+    "How a rollout ended: task_success (the task ended it, succeeded), task_ended (ended by the task without success), time_limit (ran to the step limit), sim_unstable (the simulation became unstable), step_cap (dry runs only)",
+    d3il_protocol::Ending::ALL
+        .iter()
+        .map(|e| e.name().into())
+        .collect()
+);
+
+/// Bytes of a file (a video), as OpenAPI writes binary content.
+pub struct Binary;
+
+impl PartialSchema for Binary {
+    fn schema() -> RefOr<Schema> {
+        ObjectBuilder::new()
+            .schema_type(Type::String)
+            .format(Some(utoipa::openapi::SchemaFormat::KnownFormat(
+                utoipa::openapi::KnownFormat::Binary,
+            )))
+            .into()
+    }
+}
+
+impl ToSchema for Binary {
+    fn name() -> Cow<'static, str> {
+        Cow::Borrowed("Binary")
+    }
+}

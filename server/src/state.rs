@@ -23,4 +23,6 @@ pub struct AppState {
     pub sandbox: Arc<SandboxStatus>,
     /// Rendered results documents of finished submissions.
     pub finished: Arc<crate::cache::FinishedCache>,
+    /// Rollout videos: the render pool and its cache.
+    pub videos: Arc<crate::videos::Videos>,
 }

@@ -246,6 +246,12 @@ pub struct RolloutView {
     #[serde(skip_serializing_if = "Option::is_none")]
     #[schema(value_type = Option<Object>)]
     pub failure: Option<d3il_protocol::RolloutFailure>,
+    /// How it ended; absent for results stored before endings were
+    /// recorded. Traces are not listed here: see
+    /// `/api/v1/submissions/{id}/rollouts/{n}`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    #[schema(value_type = Option<schema::Ending>)]
+    pub ending: Option<d3il_protocol::Ending>,
 }
 
 /// The submission as the API (and the page's JSON download) shows it.
@@ -341,6 +347,7 @@ pub async fn results_view(state: &AppState, r: ResultRow) -> Result<ResultsView,
                 steps: x.steps,
                 path: x.path_json.map(|j| j.0),
                 failure: x.failure.map(|j| j.0),
+                ending: x.ending.map(|e| e.0),
             })
             .collect(),
         sandbox: job.sandbox_json.map(|j| j.0),

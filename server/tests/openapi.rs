@@ -26,11 +26,24 @@ fn the_document_names_every_route_and_its_schemas() {
             "/submissions",
             "/submissions/{id}",
             "/submissions/{id}/results",
+            "/submissions/{id}/rollouts",
+            "/submissions/{id}/rollouts/{n}",
+            "/submissions/{id}/rollouts/{n}/paths.svg",
+            "/submissions/{id}/rollouts/{n}/video",
             "/whoami",
         ]
     );
     let schemas = &doc["components"]["schemas"];
-    for name in ["Error", "SubmissionView", "ResultsView", "BoardRow", "Task"] {
+    for name in [
+        "Error",
+        "SubmissionView",
+        "ResultsView",
+        "BoardRow",
+        "Task",
+        "RolloutList",
+        "RolloutDetail",
+        "Ending",
+    ] {
         assert!(schemas.get(name).is_some(), "schema {name} missing");
     }
     // The task enum is the protocol's list.

@@ -70,6 +70,34 @@ impl<S: Send + Sync, T: PathValue> FromRequestParts<S> for Param<T> {
     }
 }
 
+/// `{id}/…/{n}`: a submission and one of its rollouts by number, parsed
+/// like [`Param`] (a segment that names nothing is a 404).
+pub struct RolloutParam(pub i64, pub usize);
+
+impl<S: Send + Sync> FromRequestParts<S> for RolloutParam {
+    type Rejection = ParamRejection;
+
+    async fn from_request_parts(parts: &mut Parts, state: &S) -> Result<Self, ParamRejection> {
+        let api = parts
+            .extensions
+            .get::<axum::extract::OriginalUri>()
+            .map_or(parts.uri.path(), |u| u.0.path())
+            .starts_with("/api/");
+        let reject = |error| ParamRejection { error, api };
+        let axum::extract::Path((id, n)) =
+            axum::extract::Path::<(String, String)>::from_request_parts(parts, state)
+                .await
+                .map_err(|e| reject(AppError::NotFound(e.body_text())))?;
+        let id = i64::from_segment(&id).map_err(reject)?;
+        let n = n.parse::<usize>().map_err(|_| {
+            reject(AppError::NotFound(format!(
+                "no rollout `{n}`: rollouts are numbered from 0"
+            )))
+        })?;
+        Ok(RolloutParam(id, n))
+    }
+}
+
 /// `?obs=state|image` (state when absent or empty).
 pub fn obs_query(obs: Option<&str>) -> Result<ObsType, AppError> {
     match obs {

@@ -1,12 +1,14 @@
 //! The HTTP layer: the JSON API under `/api/v1`, the HTML pages and the SVG
 //! plot endpoints. The three never import each other; what they share is in
-//! [`extract`] (path and query parsing) and [`csv`] (the leaderboard export),
+//! [`extract`] (path and query parsing), [`csv`] (the leaderboard export)
+//! and [`media`] (serving rollout videos with byte ranges),
 //! and below them in [`crate::leaderboard`], [`crate::views`] and
 //! [`crate::auth`].
 
 pub mod api;
 pub mod csv;
 pub mod extract;
+pub mod media;
 pub mod pages;
 pub mod plots;
 

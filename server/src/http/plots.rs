@@ -2,10 +2,11 @@
 //! figures themselves are drawn by the `tables` crate.
 
 use crate::error::AppError;
-use crate::http::extract::{obs_query, Param};
+use crate::http::extract::{obs_query, Param, RolloutParam};
 use crate::leaderboard::{
     behaviour_counts, board_for, fraction_rows, fraction_series, pareto_points,
 };
+use crate::rollouts::Rollouts;
 use crate::state::AppState;
 use axum::extract::{Query, State};
 use axum::http::header;
@@ -21,7 +22,20 @@ pub fn router() -> Router<AppState> {
         .route("/plots/tasks/{task}/pareto.svg", get(pareto))
         .route("/plots/tasks/{task}/data-fraction.svg", get(data_fraction))
         .route("/plots/submissions/{id}/paths.svg", get(paths))
+        .route("/plots/submissions/{id}/starts.svg", get(starts))
         .route("/plots/submissions/{id}/behaviours.svg", get(behaviours))
+        .route(
+            "/plots/submissions/{id}/rollouts/{n}/paths.svg",
+            get(rollout_paths),
+        )
+        .route(
+            "/plots/submissions/{id}/rollouts/{n}/steps.svg",
+            get(rollout_steps),
+        )
+}
+
+fn svg_text(body: String) -> Response {
+    ([(header::CONTENT_TYPE, "image/svg+xml")], body).into_response()
 }
 
 #[derive(Debug, Deserialize, Default)]
@@ -71,14 +85,48 @@ async fn data_fraction(
     ))
 }
 
-/// Avoiding end-effector paths; 404 when the submission recorded none.
+/// Every rollout's TCP path by behaviour, from the rollouts' traces; for a
+/// result stored before traces, the Avoiding end-effector paths it recorded,
+/// or the "no traces" picture. 404 until there is a result.
 async fn paths(State(state): State<AppState>, Param(id): Param<i64>) -> Result<Response, AppError> {
-    state.store.submission(id).await?;
-    let paths = state.store.avoiding_paths(id).await?;
-    svg(render_avoiding_paths(
-        &paths,
-        &format!("Submission {id}: end-effector paths"),
-    ))
+    let r = Rollouts::load(&state, id).await?;
+    if !r.any_trace() {
+        let paths = state.store.avoiding_paths(id).await?;
+        if !paths.is_empty() {
+            return svg(render_avoiding_paths(
+                &paths,
+                &format!("Submission {id}: end-effector paths"),
+            ));
+        }
+    }
+    Ok(svg_text(r.overlay_svg(&state).await?))
+}
+
+/// The initial states by success rate and dominant behaviour.
+async fn starts(
+    State(state): State<AppState>,
+    Param(id): Param<i64>,
+) -> Result<Response, AppError> {
+    let r = Rollouts::load(&state, id).await?;
+    Ok(svg_text(r.start_map_svg(&state).await?))
+}
+
+/// One rollout seen from above.
+async fn rollout_paths(
+    State(state): State<AppState>,
+    RolloutParam(id, n): RolloutParam,
+) -> Result<Response, AppError> {
+    let r = Rollouts::load(&state, id).await?;
+    Ok(svg_text(r.top_down_svg(&state, n).await?))
+}
+
+/// One rollout's signals step by step.
+async fn rollout_steps(
+    State(state): State<AppState>,
+    RolloutParam(id, n): RolloutParam,
+) -> Result<Response, AppError> {
+    let r = Rollouts::load(&state, id).await?;
+    Ok(svg_text(r.step_plots_svg(&state, n).await?))
 }
 
 async fn behaviours(

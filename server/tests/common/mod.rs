@@ -92,6 +92,10 @@ pub struct Options {
     /// Run each upload through the worker before queueing it (the server's
     /// default; off here, where the worker is /bin/false or a test script).
     pub dry_run_uploads: bool,
+    /// What renders rollout videos (instead of `d3il replay`: a test
+    /// script taking the same arguments), and how many at once.
+    pub video_exe: Option<PathBuf>,
+    pub video_renders: usize,
 }
 
 impl Default for Options {
@@ -105,6 +109,8 @@ impl Default for Options {
             connections: None,
             backend: Backend::Sqlite,
             dry_run_uploads: false,
+            video_exe: None,
+            video_renders: 1,
         }
     }
 }
@@ -138,6 +144,11 @@ pub async fn spawn_app_with(o: Options) -> TestApp {
         cfg.connections = c;
     }
     cfg.worker.args = vec![];
+    if let Some(exe) = o.video_exe.clone() {
+        cfg.videos.exe = exe;
+        cfg.videos.args = vec![];
+    }
+    cfg.videos.renders = o.video_renders;
     cfg.worker.wall_clock = std::time::Duration::from_secs(60);
     // The production runner: the sandbox supervisor.
     let runner: Arc<dyn JobRunner> = d3il_server::runner::production_runner(&cfg.worker);
@@ -327,4 +338,27 @@ pub async fn queued_submission_of(
         )
         .await
         .expect("submission")
+}
+
+/// A completed submission of `method` on `result`'s task and protocol, as
+/// a worker leaves it (the store's claim and completion); returns its id.
+/// Call while no other job is queued.
+pub async fn finished_submission(
+    store: &d3il_server::store::Store,
+    method: &str,
+    result: &d3il_protocol::EvalResult,
+) -> i64 {
+    let m = &result.manifest;
+    let id = queued_submission_of(store, method, m.task, m.obs_type, m.protocol, 0, 1).await;
+    let c = store
+        .claim_job("test", 60)
+        .await
+        .expect("claim")
+        .expect("a queued job");
+    assert_eq!(c.submission.id, id, "the job of the new submission");
+    store
+        .complete_job(c.job.id, id, result, &[])
+        .await
+        .expect("complete");
+    id
 }

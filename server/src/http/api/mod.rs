@@ -4,6 +4,7 @@
 
 pub mod compare;
 pub mod openapi;
+pub mod rollouts;
 
 use crate::auth::Authed;
 use crate::cache::Rendered;
@@ -40,6 +41,16 @@ pub fn router(max_upload: usize) -> Router<AppState> {
         )
         .route("/submissions/{id}", get(get_submission))
         .route("/submissions/{id}/results", get(get_results))
+        .route("/submissions/{id}/rollouts", get(rollouts::list_rollouts))
+        .route("/submissions/{id}/rollouts/{n}", get(rollouts::get_rollout))
+        .route(
+            "/submissions/{id}/rollouts/{n}/video",
+            get(rollouts::get_video),
+        )
+        .route(
+            "/submissions/{id}/rollouts/{n}/paths.svg",
+            get(rollouts::get_paths_svg),
+        )
         .route("/leaderboards", get(list_leaderboards))
         .route("/leaderboards/{task}", get(get_leaderboard))
         .route("/leaderboards/{task}/csv", get(get_leaderboard_csv))

@@ -31,6 +31,10 @@ use utoipa::{Modify, OpenApi};
         super::list_methods,
         super::whoami,
         super::compare::compare,
+        super::rollouts::list_rollouts,
+        super::rollouts::get_rollout,
+        super::rollouts::get_video,
+        super::rollouts::get_paths_svg,
     ),
     components(schemas(
         ErrorBody,
@@ -46,11 +50,16 @@ use utoipa::{Modify, OpenApi};
         schema::Task,
         schema::Obs,
         schema::Protocol,
+        schema::Ending,
+        crate::rollouts::RolloutList,
+        crate::rollouts::RolloutItem,
+        crate::rollouts::RolloutDetail,
     )),
     modifiers(&BearerToken),
     tags(
         (name = "submissions", description = "Submitting policies and following their evaluation"),
         (name = "leaderboards", description = "Reported and evaluated results"),
+        (name = "rollouts", description = "What a policy did: rollouts by outcome and behaviour, records with their traces, videos and pictures"),
     )
 )]
 struct ApiDoc;

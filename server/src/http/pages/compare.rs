@@ -10,6 +10,7 @@ use super::render;
 use crate::comparison::{finished, paired, Finished};
 use crate::error::{AppError, PageError};
 use crate::leaderboard::{behaviour_counts, protocol_str};
+use crate::rollouts::Rollouts;
 use crate::state::AppState;
 use askama::Template;
 use axum::extract::{RawQuery, State};
@@ -54,9 +55,32 @@ struct BehaviourPair {
     b: usize,
 }
 
+/// One side of the rollout shown side by side.
+struct RolloutSide {
+    outcome: &'static str,
+    behaviour: String,
+    ending: String,
+    page: String,
+    /// The video's URL when a trace is stored.
+    video: Option<String>,
+    note: String,
+}
+
+/// The same rollout (same initial state and index) of A and of B.
+struct RolloutPair {
+    n: usize,
+    /// The largest rollout number.
+    last: usize,
+    /// Why this rollout was picked (when it was not asked for).
+    why: String,
+    a: RolloutSide,
+    b: RolloutSide,
+}
+
 struct Shown {
     a: Side,
     b: Side,
+    pair: Option<RolloutPair>,
     setting: String,
     diffs: Vec<DiffLine>,
     resamples: usize,
@@ -173,7 +197,57 @@ fn side(f: &Finished, svg: Option<String>) -> Side {
     }
 }
 
-async fn build(state: &AppState, a: i64, b: i64) -> Result<Shown, AppError> {
+fn rollout_side(r: &Rollouts, n: usize) -> Result<RolloutSide, AppError> {
+    let item = r.item(r.row(n)?);
+    Ok(RolloutSide {
+        outcome: if item.success { "success" } else { "failure" },
+        behaviour: item.behaviour_label.clone(),
+        ending: item.ending_text.clone(),
+        page: item.links.page.clone(),
+        video: item
+            .has_trace
+            .then(|| format!("/submissions/{}/rollouts/{n}/video", r.submission.id)),
+        note: r.no_trace_note(),
+    })
+}
+
+/// Rollout `asked` (`?n=`) of A and B side by side, or by default the
+/// first where A and B differ in success.
+fn rollout_pair(a: &Rollouts, b: &Rollouts, asked: Option<&str>) -> Result<RolloutPair, AppError> {
+    let last = a.rows.len().min(b.rows.len()).saturating_sub(1);
+    let success = |r: &Rollouts, n: usize| r.row(n).ok().map(|x| x.success);
+    let (n, why) = match asked {
+        Some(v) => (
+            v.trim()
+                .parse::<usize>()
+                .ok()
+                .filter(|n| *n <= last)
+                .ok_or_else(|| {
+                    AppError::invalid(
+                        "n",
+                        format!("`n` must be a rollout number from 0 to {last}, got `{v}`"),
+                    )
+                })?,
+            String::new(),
+        ),
+        None => match (0..=last).find(|n| success(a, *n) != success(b, *n)) {
+            Some(n) => (
+                n,
+                "the first rollout where A and B differ in success".into(),
+            ),
+            None => (0, "A and B agree in success on every rollout".into()),
+        },
+    };
+    Ok(RolloutPair {
+        n,
+        last,
+        why,
+        a: rollout_side(a, n)?,
+        b: rollout_side(b, n)?,
+    })
+}
+
+async fn build(state: &AppState, a: i64, b: i64, n: Option<&str>) -> Result<Shown, AppError> {
     let fa = finished(state, "a", a).await?;
     let fb = finished(state, "b", b).await?;
     let c: Comparison = paired(&fa, &fb)?;
@@ -199,25 +273,32 @@ async fn build(state: &AppState, a: i64, b: i64) -> Result<Shown, AppError> {
         .collect();
     let mut counts: Vec<Vec<(String, usize)>> = vec![];
     let mut svgs = vec![];
+    let mut both = vec![];
     for (f, who) in [(&fa, "A"), (&fb, "B")] {
         let rollouts = state.store.rollouts_for(f.submission.id).await?;
-        let n = behaviour_counts(
+        let found = behaviour_counts(
             f.submission.task,
             rollouts.iter().map(|r| (r.success, &r.behaviour.0)),
         );
-        svgs.push(if n.is_empty() {
+        svgs.push(if found.is_empty() {
             None
         } else {
             Some(
                 figures::behaviour_bars_svg(
                     &format!("{who}: behaviours of successful rollouts"),
-                    &n,
+                    &found,
                 )
                 .map_err(|e| AppError::Internal(e.to_string()))?,
             )
         });
-        counts.push(n);
+        counts.push(found);
+        both.push(Rollouts::from_parts(
+            f.submission.clone(),
+            f.result.clone(),
+            rollouts,
+        )?);
     }
+    let pair = rollout_pair(&both[0], &both[1], n)?;
     let mut labels: Vec<String> = counts.iter().flatten().map(|(l, _)| l.clone()).collect();
     labels.sort();
     labels.dedup();
@@ -250,6 +331,7 @@ async fn build(state: &AppState, a: i64, b: i64) -> Result<Shown, AppError> {
         contexts,
         behaviours,
         caveats: c.caveats.clone(),
+        pair: Some(pair),
         a: side(&fa, svgs.next().flatten()),
         b: side(&fb, svgs.next().flatten()),
     })
@@ -272,7 +354,13 @@ pub(super) async fn compare_page(
     };
     let outcome = match requested(&pairs) {
         Ok(None) => Ok(None),
-        Ok(Some((a, b))) => build(&state, a, b).await.map(|s| Some((a, b, s))),
+        Ok(Some((a, b))) => {
+            let n = pairs
+                .iter()
+                .find(|(k, v)| k == "n" && !v.trim().is_empty())
+                .map(|(_, v)| v.as_str());
+            build(&state, a, b, n).await.map(|s| Some((a, b, s)))
+        }
         Err(e) => Err(e),
     };
     let (status, page) = match outcome {

@@ -6,6 +6,7 @@ mod boards;
 mod compare;
 mod format;
 mod lists;
+mod rollouts;
 mod site;
 mod submission;
 
@@ -34,6 +35,14 @@ pub fn router(max_upload: usize) -> Router<AppState> {
         .route("/submissions", get(submissions_page))
         .route("/submissions/{id}", get(submission_page))
         .route("/submissions/{id}/json", get(submission_download))
+        .route(
+            "/submissions/{id}/rollouts/{n}",
+            get(rollouts::rollout_page),
+        )
+        .route(
+            "/submissions/{id}/rollouts/{n}/video",
+            get(rollouts::rollout_video),
+        )
         .route(
             "/submit",
             get(submit_form)

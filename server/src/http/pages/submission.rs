@@ -3,16 +3,18 @@
 
 use super::format::{fmt_duration, fmt_num, fmt_time};
 use super::render;
+use super::rollouts::{browser as rollout_browser, Browser};
 use crate::error::{AppError, PageError};
 use crate::http::extract::Param;
 use crate::leaderboard::{behaviour_counts, protocol_str};
+use crate::rollouts::{RolloutQuery, Rollouts};
 use crate::state::AppState;
 use crate::store::{PolicyKind, SubmissionRow, SubmissionStatus};
 use crate::views::{progress, submission_view};
 use askama::Template;
-use axum::extract::State;
-use axum::http::header;
-use axum::response::{Html, IntoResponse, Response};
+use axum::extract::{Query, State};
+use axum::http::{header, StatusCode};
+use axum::response::{IntoResponse, Response};
 use d3il_protocol::{ObsType, TaskId};
 use d3il_tables::{board as figures, render_avoiding_paths};
 
@@ -54,7 +56,12 @@ struct SubmissionPage {
     protocol_manifest: String,
     sandbox: String,
     paths_svg: Option<String>,
+    /// Every rollout's path (from traces), and the initial-state map.
+    overlay_svg: Option<String>,
+    starts_svg: Option<String>,
     behaviours_svg: Option<String>,
+    /// The failure browser, once there is a result.
+    browser: Option<Browser>,
     created: String,
     policy: String,
     /// `paper` or `quick`.
@@ -78,7 +85,8 @@ fn pretty<T: serde::Serialize>(v: &T) -> String {
 pub(super) async fn submission_page(
     State(state): State<AppState>,
     Param(id): Param<i64>,
-) -> Result<Html<String>, PageError> {
+    Query(q): Query<RolloutQuery>,
+) -> Result<Response, PageError> {
     let store = &state.store;
     let s = store.submission(id).await?;
     let job = store.job_for(id).await?;
@@ -91,7 +99,11 @@ pub(super) async fn submission_page(
     let mut robot_look = None;
     let mut unstable = None;
     let mut paths_svg = None;
+    let mut overlay_svg = None;
+    let mut starts_svg = None;
     let mut behaviours_svg = None;
+    let mut browser = None;
+    let mut bad_query = false;
     if let Some(r) = &result {
         let ci = |lo: f64, hi: f64| format!("[{}, {}]", fmt_num(lo), fmt_num(hi));
         metrics = vec![
@@ -204,13 +216,22 @@ pub(super) async fn submission_page(
                     .map_err(|e| AppError::Internal(e.to_string()))?,
             );
         }
-        let paths = store.avoiding_paths(id).await?;
-        if !paths.is_empty() {
-            paths_svg = Some(
-                render_avoiding_paths(&paths, "End-effector paths by behaviour")
-                    .map_err(|e| AppError::Internal(e.to_string()))?,
-            );
+        let shown = Rollouts::from_parts(s.clone(), r.clone(), rollouts)?;
+        if shown.any_trace() {
+            overlay_svg = Some(shown.overlay_svg(&state).await?);
+            starts_svg = Some(shown.start_map_svg(&state).await?);
+        } else {
+            let paths = store.avoiding_paths(id).await?;
+            if !paths.is_empty() {
+                paths_svg = Some(
+                    render_avoiding_paths(&paths, "End-effector paths by behaviour")
+                        .map_err(|e| AppError::Internal(e.to_string()))?,
+                );
+            }
         }
+        let (b, bad) = rollout_browser(&shown, &q)?;
+        browser = Some(b);
+        bad_query = bad;
     }
     // The training seeds of the same leaderboard row (one query).
     let seed_lines: Vec<SeedLine> = store
@@ -236,7 +257,7 @@ pub(super) async fn submission_page(
             s.endpoint_url.as_deref().unwrap_or("?")
         ),
     };
-    render(&SubmissionPage {
+    let page = render(&SubmissionPage {
         live: matches!(
             s.status,
             SubmissionStatus::Queued | SubmissionStatus::Running
@@ -258,7 +279,10 @@ pub(super) async fn submission_page(
         protocol_manifest,
         sandbox: job.sandbox_json.as_ref().map(pretty).unwrap_or_default(),
         paths_svg,
+        overlay_svg,
+        starts_svg,
         behaviours_svg,
+        browser,
         created: fmt_time(s.created_at),
         policy,
         protocol_name: protocol_str(s.protocol),
@@ -271,7 +295,13 @@ pub(super) async fn submission_page(
             TaskId::Sorting2 | TaskId::Sorting4 | TaskId::Sorting6
         ),
         s,
-    })
+    })?;
+    let status = if bad_query {
+        StatusCode::BAD_REQUEST
+    } else {
+        StatusCode::OK
+    };
+    Ok((status, page).into_response())
 }
 
 pub(super) async fn submission_download(
