@@ -64,9 +64,20 @@ use utoipa::{Modify, OpenApi};
 )]
 struct ApiDoc;
 
+/// The versions of the Python client (`d3il-client`, clients/python) this API
+/// accepts, as a PEP 440 specifier: the client's major version is the API's
+/// (`info.version`). Published as `info.x-d3il-client-versions`, so an older
+/// or newer client says what to install instead of failing on a changed field.
+pub const CLIENT_VERSIONS: &str = ">=1.0,<2";
+
 /// The document served at `/api/v1/openapi.json`.
 pub fn document() -> utoipa::openapi::OpenApi {
-    ApiDoc::openapi()
+    let mut doc = ApiDoc::openapi();
+    doc.info
+        .extensions
+        .get_or_insert_with(Default::default)
+        .insert("x-d3il-client-versions".into(), CLIENT_VERSIONS.into());
+    doc
 }
 
 struct BearerToken;
