@@ -39,7 +39,7 @@ fn id(field: &str, v: Option<&str>) -> Result<i64, AppError> {
     summary = "Paired comparison of two evaluated submissions (A − B)",
     params(CompareQuery),
     responses(
-        (status = 200, description = "Differences in success rate and conditional entropy with paired bootstrap intervals, p-values and minimum detectable differences", body = Object),
+        (status = 200, description = "Differences in success rate and conditional entropy with paired bootstrap intervals, p-values and minimum detectable differences", body = super::openapi::ComparisonSchema),
         (status = 400, description = "Missing or malformed ids, a submission that has not finished, or results that cannot be paired (different task, protocol or initial states)", body = ErrorBody),
         (status = 404, description = "No such submission or no result yet", body = ErrorBody)))]
 pub async fn compare(

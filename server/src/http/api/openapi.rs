@@ -146,3 +146,48 @@ pub struct NewSubmissionForm {
     /// ws(s)/http(s) URL of a remote policy (instead of `onnx`).
     endpoint_url: Option<String>,
 }
+
+// A schema only, of `d3il_protocol::Comparison` as serde writes it, so that
+// clients can check the comparison as they check every other answer.
+/// A paired comparison A − B of two results on the same task, protocol and
+/// initial states (as `d3il compare --json` prints it).
+#[derive(utoipa::ToSchema)]
+#[schema(as = Comparison)]
+#[allow(dead_code)] // a schema only: the handler returns d3il_protocol::Comparison
+pub struct ComparisonSchema {
+    #[schema(value_type = schema::Task)]
+    task: String,
+    #[schema(value_type = schema::Protocol)]
+    protocol: String,
+    /// The shared initial-state set's file name.
+    initial_states: String,
+    initial_states_sha256: String,
+    n_contexts: u64,
+    rollouts_per_context: u64,
+    /// Resamples of the bootstrap and of the randomisation test.
+    resamples: u64,
+    confidence: f64,
+    /// Stacking: Stacking-3's.
+    success_rate: PairedDifferenceSchema,
+    conditional_entropy: PairedDifferenceSchema,
+    /// What else differs between A and B, so that the difference is not the
+    /// policies' alone; absent when nothing does.
+    caveats: Option<Vec<String>>,
+}
+
+/// One metric of a paired comparison.
+#[derive(utoipa::ToSchema)]
+#[schema(as = PairedDifference)]
+#[allow(dead_code)] // a schema only
+pub struct PairedDifferenceSchema {
+    /// The metric of A, the mean over the shared initial states.
+    a: f64,
+    /// The metric of B.
+    b: f64,
+    /// A − B with its paired bootstrap interval over initial states.
+    difference: crate::views::EstimateView,
+    /// Two-sided p-value of "no difference" (randomisation test paired by initial state).
+    p_value: f64,
+    /// The smallest true |A − B| detected with 80 % power at the 5 % level.
+    min_detectable: f64,
+}
