@@ -222,6 +222,9 @@ impl Videos {
             .arg("--video")
             .arg(&video)
             .env("D3IL_ASSETS", &self.assets_dir)
+            // Its message is for viewers: no backtrace after it.
+            .env("RUST_BACKTRACE", "0")
+            .env("RUST_LIB_BACKTRACE", "0")
             .current_dir(tmp)
             .stdin(std::process::Stdio::null())
             .stdout(std::process::Stdio::null())
@@ -264,7 +267,12 @@ impl Videos {
 fn replay_message(stderr: &[u8], status: std::process::ExitStatus) -> String {
     let text = String::from_utf8_lossy(stderr);
     let text = text.trim();
-    let text = text.strip_prefix("Error: ").unwrap_or(text).trim();
+    let text = text.strip_prefix("Error: ").unwrap_or(text);
+    let text = text
+        .split("\nStack backtrace:")
+        .next()
+        .unwrap_or(text)
+        .trim();
     if text.is_empty() {
         return format!("the replay ended with {status} and gave no reason");
     }
@@ -291,6 +299,10 @@ mod tests {
             "step 17 differs"
         );
         assert!(replay_message(b"  ", ok).contains("gave no reason"));
+        assert_eq!(
+            replay_message(b"Error: no\n\nStack backtrace:\n   0: main\n", ok),
+            "no"
+        );
         let long = format!("{}the end", "x".repeat(5000));
         let m = replay_message(long.as_bytes(), ok);
         assert!(m.ends_with("the end") && m.chars().count() <= MAX_MESSAGE + 1);
