@@ -18,6 +18,11 @@ pub enum Rendered {
     /// `GET /api/v1/submissions/{id}` (JSON) of a completed submission: it
     /// embeds the results document, so polling it rebuilt that each time.
     Submission,
+    /// Every rollout's path from the traces (SVG; the submission page and
+    /// `/plots/submissions/{id}/paths.svg`): it reads every trace.
+    Overlay,
+    /// The initial-state map (SVG).
+    StartMap,
 }
 
 type Key = (Rendered, i64);

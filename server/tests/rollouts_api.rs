@@ -375,7 +375,8 @@ async fn the_failure_browser_filters_with_a_plain_form() {
         "href=\"/submissions/{id}?context=3&amp;outcome=failure#rollouts\""
     )));
     // Pictures of every rollout and of the initial states.
-    assert!(page.contains("id=\"overlay-plot\"") && page.contains("id=\"starts-plot\""));
+    assert!(page.contains("id=\"paths-plot\"") && page.contains("id=\"starts-plot\""));
+    assert!(page.contains("Every rollout's TCP path"), "the overlay, not the Avoiding figure");
 
     let (s, page) = app
         .get_text(&format!("/submissions/{id}?outcome=unstable"))

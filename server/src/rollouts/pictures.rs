@@ -4,6 +4,7 @@
 //! submission without traces gets the tables' "no data" picture saying why.
 
 use super::{Rollouts, NOT_RECORDED_SHORT};
+use crate::cache::Rendered;
 use crate::error::AppError;
 use crate::state::AppState;
 use d3il_protocol::{Estimate, EvalResult, Metrics, RolloutRecord, RolloutTrace};
@@ -61,7 +62,19 @@ impl Rollouts {
 
     /// Every simulated rollout's TCP path, by behaviour (the copies of a
     /// rollout simulated once are drawn once: they are the same path).
+    /// Drawn once per result: a stored result never changes.
     pub async fn overlay_svg(&self, state: &AppState) -> Result<String, AppError> {
+        if let Some(svg) = state.finished.get(Rendered::Overlay, self.id()) {
+            return Ok(svg.to_string());
+        }
+        let svg = self.draw_overlay(state).await?;
+        Ok(state
+            .finished
+            .put(Rendered::Overlay, self.id(), svg)
+            .to_string())
+    }
+
+    async fn draw_overlay(&self, state: &AppState) -> Result<String, AppError> {
         let title = format!("Submission {}: every rollout's path", self.id());
         if !self.any_trace() {
             return Ok(draw::no_data_svg(&title, NOT_RECORDED_SHORT));
@@ -81,8 +94,20 @@ impl Rollouts {
         drawn(&title, draw::overlay_svg(self.submission.task, &pairs))
     }
 
-    /// The initial states by success rate and dominant behaviour.
+    /// The initial states by success rate and dominant behaviour (drawn
+    /// once per result).
     pub async fn start_map_svg(&self, state: &AppState) -> Result<String, AppError> {
+        if let Some(svg) = state.finished.get(Rendered::StartMap, self.id()) {
+            return Ok(svg.to_string());
+        }
+        let svg = self.draw_start_map(state).await?;
+        Ok(state
+            .finished
+            .put(Rendered::StartMap, self.id(), svg)
+            .to_string())
+    }
+
+    async fn draw_start_map(&self, state: &AppState) -> Result<String, AppError> {
         let title = format!("Submission {}: initial states", self.id());
         if !self.any_trace() {
             return Ok(draw::no_data_svg(&title, NOT_RECORDED_SHORT));
