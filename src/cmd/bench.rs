@@ -13,12 +13,12 @@ use std::time::Instant;
 
 #[derive(clap::Args)]
 pub struct Args {
-    /// Which benchmark: `physics`, `eval`, `render`, `agents`, `serve` or `scale`.
+    /// Which benchmark: `physics`, `eval`, `render`, `agents`, `serve`, `scale` or `video`.
     pub which: String,
     /// Env steps to run (physics, render).
     #[arg(long, default_value_t = 3000)]
     pub steps: usize,
-    /// Protocol of `eval` and `scale` (paper: Aligning's 60 x 8 = 480 rollouts).
+    /// Protocol of `eval`, `scale` and `video` (paper: Aligning's 60 x 8 = 480 rollouts).
     #[arg(long, default_value = "paper")]
     pub protocol: ProtocolKind,
     /// Protocol of the image evaluation in `render` (quick: 3 initial states x 2 rollouts).
@@ -47,8 +47,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         "agents" => agents_bench(args.max_live),
         "serve" => super::bench_serve::run(),
         "scale" => super::bench_scale::run(args.protocol, args.hosts, args.shards),
+        "video" => super::bench_video::run(args.protocol),
         other => {
-            bail!("unknown benchmark `{other}`; available: physics, eval, render, agents, serve, scale")
+            bail!("unknown benchmark `{other}`; available: physics, eval, render, agents, serve, scale, video")
         }
     }
 }
@@ -85,7 +86,7 @@ impl Policy for RowByRow {
     }
 }
 
-fn load_fixture(
+pub(super) fn load_fixture(
     task: &LoadedTask,
     name: &str,
     obs_type: ObsType,

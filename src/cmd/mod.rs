@@ -1,6 +1,7 @@
 pub mod bench;
 pub mod bench_scale;
 pub mod bench_serve;
+pub mod bench_video;
 pub mod compare;
 pub mod contexts;
 pub mod db;
