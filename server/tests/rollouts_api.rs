@@ -414,7 +414,7 @@ async fn the_failure_browser_filters_with_a_plain_form() {
     assert_eq!(s, 200);
     assert!(page.contains("the simulation became unstable"));
     assert!(page.contains("id=\"failure\"") && page.contains("at step 17"));
-    assert!(page.contains(&format!("<video controls preload=\"metadata\"")));
+    assert!(page.contains("<video controls preload=\"metadata\""));
     assert!(page.contains(&format!("src=\"/submissions/{id}/rollouts/66/video\"")));
     assert!(page.contains(&format!("href=\"/api/v1/submissions/{id}/rollouts/66\"")));
     assert!(

@@ -38,7 +38,7 @@ pub fn actions(c: usize, i: usize, steps: usize) -> Vec<Vec<f32>> {
 /// == 0; (4, 2) becomes unstable; behaviour i % 2.
 pub fn outcome(c: usize, i: usize) -> SynthRollout {
     SynthRollout {
-        success: (c + i) % 3 != 0,
+        success: !(c + i).is_multiple_of(3),
         label: i % 2,
         unstable: c == 4 && i == 2,
     }
