@@ -3,7 +3,8 @@
 
 use super::*;
 use crate::compare::{compare_states, ContextSummary};
-use rand::Rng;
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
 
 /// One kind of initial state: success probability and the behaviour
 /// distribution of its successes.
