@@ -177,8 +177,9 @@ pub struct RolloutItem {
     /// The index within the initial state.
     pub rollout: usize,
     pub success: bool,
-    /// The behaviour code (the reference's encoding, per task).
-    #[schema(value_type = Object)]
+    /// The behaviour code (the reference's encoding, per task): an integer,
+    /// a list of numbers (Avoiding) or a string, so any JSON value.
+    #[schema(value_type = Value)]
     pub behaviour: Value,
     /// The behaviour's name (`d3il_protocol::behaviour_name`).
     pub behaviour_label: String,

@@ -234,8 +234,9 @@ pub struct RolloutView {
     pub context_index: i64,
     pub rollout_index: i64,
     pub success: bool,
-    /// The behaviour code (the reference's encoding, per task).
-    #[schema(value_type = Object)]
+    /// The behaviour code (the reference's encoding, per task): an integer,
+    /// a list of numbers (Avoiding) or a string, so any JSON value.
+    #[schema(value_type = Value)]
     pub behaviour: Value,
     pub steps: i64,
     /// End-effector xy path (Avoiding only).
