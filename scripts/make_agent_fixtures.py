@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Build the agent fixtures in assets/fixtures/agents/ the way researchers make them.
 
-Usage:  pip install torch onnx onnxruntime ; python3 scripts/make_agent_fixtures.py [outdir]
+Usage:  pip install "./clients/python[export,serve]" ; python3 scripts/make_agent_fixtures.py [outdir]
 
 Each fixture is OUR OWN small PyTorch module with the structure of one D3IL method
 family (the reference agents' classes are not copied; sizes are tiny so the files
@@ -20,7 +20,7 @@ For every fixture the script writes
 
 The recipes (Φ(noise) for uniforms, inverse-CDF categorical sampling, IBC's
 hand-written gradient, DDPM timesteps, BESO's action context) live in
-clients/python/d3il_export.py and are documented in docs/export.md.
+d3il_client.export (clients/python) and are documented in docs/export.md.
 """
 
 import json
@@ -33,7 +33,7 @@ import torch
 from torch import nn
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "clients", "python"))
-import d3il_export as rx  # noqa: E402
+from d3il_client import export as rx  # noqa: E402
 
 OBS = 20  # Aligning policy observation (docs/submission.md)
 ACT = 3

@@ -1,5 +1,5 @@
 //! A reference-style agent object (its own deques, `reset()`, `predict(obs)`)
-//! served unchanged by clients/python/d3il_agent_server.py and evaluated with
+//! served unchanged by d3il_client.serve (clients/python) and evaluated with
 //! `d3il eval`: one agent state per rollout, reset before its episode, one
 //! `predict` per env step with the newest observation.
 
@@ -10,7 +10,7 @@ const SERVER: &str = r#"
 import collections, json, sys
 import numpy as np
 sys.path.insert(0, sys.argv[1])
-from d3il_agent_server import agent_server
+from d3il_client.serve import agent_server
 import asyncio
 
 LOG = open(sys.argv[2], "w")

@@ -11,7 +11,7 @@ const SERVER: &str = r#"
 import asyncio, sys
 import numpy as np
 sys.path.insert(0, sys.argv[1])
-from d3il_policy_server import PolicyServer
+from d3il_client.serve import PolicyServer
 
 def policy(obs, req):
     b = obs.shape[0]

@@ -1,12 +1,12 @@
 //! The endpoint conformance dry-run of the submit path (issue 7): a remote
 //! endpoint is evaluated briefly (quick protocol, real sandboxed `d3il worker`)
 //! before it is queued. Real WebSocket policy servers on 127.0.0.1 (the
-//! reference Python server, clients/python/testing_server.py) and the real
+//! reference Python server, `python -m d3il_client.serve.testing`) and the real
 //! `d3il serve`. The server is started with --allow-private-endpoints (loopback
 //! is refused otherwise, last test) and no worker slots, so an accepted
 //! submission stays visibly queued.
 //!
-//! Needs python3 with numpy, websockets and msgpack (clients/python/requirements.txt).
+//! Needs python3 with numpy, websockets and msgpack (the `serve` extra of clients/python).
 
 mod server_support;
 use d3il_server::client::ClientError;
@@ -29,11 +29,10 @@ impl Drop for PolicyServer {
 }
 
 fn policy_server(mode: &str) -> PolicyServer {
-    let script =
-        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("clients/python/testing_server.py");
+    let clients = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("clients/python");
     let mut child = Command::new("python3")
-        .arg(script)
-        .args(["--mode", mode])
+        .args(["-m", "d3il_client.serve.testing", "--mode", mode])
+        .env("PYTHONPATH", clients)
         .stdin(Stdio::null())
         .stdout(Stdio::piped())
         .stderr(Stdio::inherit())

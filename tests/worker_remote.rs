@@ -1,11 +1,11 @@
 //! Hostile remote endpoints through the real `d3il worker`: a server that hangs,
 //! sends oversized frames, sends garbage, disconnects mid-episode or answers
-//! with the wrong batch size (clients/python/testing_server.py, started here on
+//! with the wrong batch size (`python -m d3il_client.serve.testing`, started here on
 //! 127.0.0.1). Each ends with its typed outcome and nothing left behind; the
 //! endpoint checks refuse private addresses unless the job allows them (issue 6).
 //!
 //! Needs python3 with numpy, websockets and msgpack
-//! (clients/python/requirements.txt).
+//! (the `serve` extra of clients/python).
 
 mod worker_common;
 
@@ -34,12 +34,12 @@ impl Drop for Server {
     }
 }
 
-/// Modes that testing_server.py lacks, as subclasses defined here.
+/// Modes that d3il_client.serve.testing lacks, as subclasses defined here.
 const EXTRA_MODES: &str = r#"
 import asyncio, sys
 import numpy as np
 sys.path.insert(0, sys.argv[1])
-from testing_server import MisbehavingServer
+from d3il_client.serve.testing import MisbehavingServer
 
 class WrongBatch(MisbehavingServer):
     def policy(self, obs, req):
@@ -56,8 +56,8 @@ fn start(mode: &str) -> Server {
     if mode == "wrong-batch" {
         cmd.args(["-c", EXTRA_MODES]).arg(clients_dir());
     } else {
-        cmd.arg(clients_dir().join("testing_server.py"))
-            .args(["--mode", mode]);
+        cmd.args(["-m", "d3il_client.serve.testing", "--mode", mode])
+            .env("PYTHONPATH", clients_dir());
     }
     let mut child = cmd
         .stdin(Stdio::null())

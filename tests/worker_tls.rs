@@ -1,11 +1,11 @@
 //! wss:// endpoints through the real sandboxed `d3il worker` and `d3il eval`:
-//! the reference Python server (clients/python/d3il_policy_server.py) serves
+//! the reference Python server (`python -m d3il_client.serve`, clients/python) serves
 //! TLS on 127.0.0.1 with a certificate from a CA generated here (rcgen). The
 //! extra CA reaches the worker in the job (Limits::extra_ca_pem), filled by the
 //! parent from $D3IL_EXTRA_CA_FILE; the worker itself reads no CA file.
 //!
 //! Needs python3 with numpy, websockets and msgpack
-//! (clients/python/requirements.txt).
+//! (the `serve` extra of clients/python).
 
 mod worker_common;
 
@@ -32,10 +32,10 @@ impl Drop for Server {
 }
 
 fn start(tls: Option<&Pki>) -> Server {
-    let script =
-        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("clients/python/d3il_policy_server.py");
+    let clients = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("clients/python");
     let mut cmd = Command::new("python3");
-    cmd.arg(script).args(["--demo", "avoiding", "--port", "0"]);
+    cmd.args(["-m", "d3il_client.serve", "--demo", "avoiding", "--port", "0"])
+        .env("PYTHONPATH", clients);
     if let Some(p) = tls {
         cmd.arg("--certfile")
             .arg(&p.cert)

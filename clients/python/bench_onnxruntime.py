@@ -35,9 +35,7 @@ class Fixtures:
         if name not in self.loaded:
             with open(os.path.join(self.d, name + ".json")) as m:
                 k = json.load(m)["history"]
-            sess = ort.InferenceSession(
-                os.path.join(self.d, name + ".onnx"), providers=["CPUExecutionProvider"]
-            )
+            sess = ort.InferenceSession(os.path.join(self.d, name + ".onnx"), providers=["CPUExecutionProvider"])
             feed = {}
             for i in sess.get_inputs():
                 shape = [self.batch] + [k if not isinstance(s, int) else s for s in i.shape[1:]]

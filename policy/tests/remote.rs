@@ -1,6 +1,6 @@
 //! The remote client against the reference Python server (clients/python),
 //! started as a real process on 127.0.0.1. Needs python3 with numpy, websockets
-//! and msgpack (clients/python/requirements.txt).
+//! and msgpack (the `serve` extra of clients/python).
 
 mod common;
 
@@ -23,10 +23,11 @@ impl Drop for Server {
     }
 }
 
-fn start(script: &str, args: &[&str]) -> Server {
+/// Runs `python3 -m MODULE ARGS` of the d3il_client package in clients/python.
+fn start(module: &str, args: &[&str]) -> Server {
     let dir = repo().join("clients/python");
     let mut child = Command::new("python3")
-        .arg(dir.join(script))
+        .args(["-m", module])
         .args(args)
         .current_dir(&dir)
         .stdout(Stdio::piped())
@@ -42,7 +43,7 @@ fn start(script: &str, args: &[&str]) -> Server {
         .trim()
         .strip_prefix("listening on ")
         .unwrap_or_else(|| {
-            panic!("unexpected server output {line:?} (pip install -r clients/python/requirements.txt)")
+            panic!("unexpected server output {line:?} (pip install './clients/python[serve]')")
         })
         .to_string();
     Server {
@@ -52,7 +53,7 @@ fn start(script: &str, args: &[&str]) -> Server {
 }
 
 fn testing(mode: &str) -> Server {
-    start("testing_server.py", &["--mode", mode])
+    start("d3il_client.serve.testing", &["--mode", mode])
 }
 
 fn limits() -> Limits {
@@ -89,7 +90,7 @@ fn query(p: &mut RemotePolicy) -> Result<d3il_policy::ActionChunks, PolicyError>
 #[test]
 fn reference_server_serves_the_demo_policy() {
     let s = start(
-        "d3il_policy_server.py",
+        "d3il_client.serve",
         &["--demo", "avoiding", "--port", "0"],
     );
     let mut p = connect(&s).unwrap();
@@ -114,7 +115,7 @@ fn reference_server_serves_the_demo_policy() {
 #[test]
 fn chunks_history_and_resets_reach_the_server() {
     let s = start(
-        "testing_server.py",
+        "d3il_client.serve.testing",
         &[
             "--mode",
             "ok",

@@ -1,7 +1,7 @@
 //! wss:// endpoints: the remote client against the reference Python server
-//! serving TLS (clients/python/d3il_policy_server.py --certfile/--keyfile) on
+//! serving TLS (`python -m d3il_client.serve --certfile/--keyfile`, clients/python) on
 //! 127.0.0.1, with a CA and certificates generated here by rcgen. Needs python3
-//! with numpy, websockets and msgpack (clients/python/requirements.txt).
+//! with numpy, websockets and msgpack (the `serve` extra of clients/python).
 
 mod common;
 
@@ -37,7 +37,8 @@ impl Drop for Server {
 fn start(tls: Option<&Pki>) -> Server {
     let dir = repo().join("clients/python");
     let mut cmd = Command::new("python3");
-    cmd.arg(dir.join("d3il_policy_server.py"))
+    cmd.args(["-m", "d3il_client.serve"])
+        .env("PYTHONPATH", &dir)
         .args(["--demo", "avoiding", "--port", "0"]);
     if let Some(p) = tls {
         cmd.arg("--certfile")
@@ -58,7 +59,7 @@ fn start(tls: Option<&Pki>) -> Server {
         .trim()
         .strip_prefix("listening on ")
         .unwrap_or_else(|| {
-            panic!("unexpected server output {line:?} (pip install -r clients/python/requirements.txt)")
+            panic!("unexpected server output {line:?} (pip install './clients/python[serve]')")
         })
         .to_string();
     Server { child, addr }

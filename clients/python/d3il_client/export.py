@@ -11,7 +11,9 @@ randomness all comes from the evaluator's `noise` input (standard normal samples
 * BESO: Karras sigmas, a DDIM-style sampler and the action context (the agent's
   own previous actions, the evaluator's ``prev_actions`` input).
 
-Requires torch only to build and export; nothing here is needed at evaluation.
+Requires torch only to build and export (the ``export`` extra:
+``pip install 'd3il-client[export]'``); nothing here is needed at evaluation.
+``scripts/make_agent_fixtures.py`` builds the agent fixtures with these blocks.
 """
 
 import math
@@ -29,7 +31,8 @@ def uniform_from_noise(n):
 
 def categorical_inverse_cdf(probs, u):
     """One-hot sample of a categorical distribution `probs` [B, n] from uniforms
-    `u` [B]: the first bin whose cumulative probability reaches u."""
+    `u` [B]: the first bin whose cumulative probability reaches u.
+    """
     n = probs.shape[-1]
     cdf = probs.cumsum(-1)
     idx = (cdf < u.unsqueeze(-1)).to(torch.int64).sum(-1).clamp(max=n - 1)
@@ -44,7 +47,8 @@ def onehot_argmin(e):
 
 class EnergyMlp(nn.Module):
     """IBC's energy E(o, a) = w3 · relu(W2 relu(W1 [o; a] + b1) + b2) + b3 with its
-    gradient with respect to a written out by hand (the exporters trace no autograd)."""
+    gradient with respect to a written out by hand (the exporters trace no autograd).
+    """
 
     def __init__(self, obs_dim, act_dim, hidden):
         super().__init__()
@@ -96,7 +100,8 @@ class SinusoidalEmbedding(nn.Module):
 
 class DdpmSchedule(nn.Module):
     """Linear-beta DDPM ancestral sampler over N steps. `noise` [B, N, *x] holds x_T
-    in slice 0 and the noise of step t in slice N - t."""
+    in slice 0 and the noise of step t in slice N - t.
+    """
 
     def __init__(self, n, beta_1=1e-4, beta_n=0.02):
         super().__init__()
@@ -126,7 +131,8 @@ class DdpmSchedule(nn.Module):
 class KarrasSampler(nn.Module):
     """BESO's sampling: Karras et al. noise levels, preconditioned denoiser, DDIM-style
     deterministic steps. The action context (previous actions, [B, T-1, act]) is
-    prepended to the noisy current action, as BESO's `predict` does."""
+    prepended to the noisy current action, as BESO's `predict` does.
+    """
 
     def __init__(self, steps, sigma_min, sigma_max, sigma_data, rho=7.0):
         super().__init__()
@@ -145,7 +151,7 @@ class KarrasSampler(nn.Module):
 
     def sample(self, model, context, noise):
         x = torch.cat([context, noise * self.sigmas[0]], dim=1)
-        for s, s_next in zip(self.sigmas[:-1], self.sigmas[1:]):
+        for s, s_next in zip(self.sigmas[:-1], self.sigmas[1:], strict=True):
             d = self.denoise(model, x, s)
             x = d + (s_next / s) * (x - d)
         return x

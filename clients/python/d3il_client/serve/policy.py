@@ -1,10 +1,9 @@
-#!/usr/bin/env python3
 """Reference server for D3IL leaderboard remote policies (docs/remote-protocol.md).
 
 Serve any Python callable to the evaluator over a WebSocket with msgpack frames:
 
     import numpy as np
-    from d3il_policy_server import serve
+    from d3il_client.serve import serve
 
     def policy(obs, request):
         # obs: float32 [B, k, obs_dim] (oldest first); request.rollout_ids, .steps,
@@ -16,80 +15,94 @@ Serve any Python callable to the evaluator over a WebSocket with msgpack frames:
 The callable returns float32 actions [B, H, act_dim] (or [B, act_dim] when H = 1).
 An optional `reset(rollout_ids)` callable is told when episodes start.
 
-Command line: `python d3il_policy_server.py --demo zeros --port 8765` serves a
+Command line: `python -m d3il_client.serve --demo zeros --port 8765` serves a
 built-in demo policy (see --help); add `--certfile cert.pem --keyfile key.pem`
-to serve TLS (wss://). Requirements: numpy, websockets, msgpack.
+to serve TLS (wss://). Requirements: the `serve` extra (numpy, websockets, msgpack).
 """
 
-import argparse
+from __future__ import annotations
+
 import asyncio
 import dataclasses
 import ssl as ssl_module
 import sys
 import traceback
-from typing import Any, Callable, Optional
+from typing import IO, Any, Callable, Dict, Optional
 
 import msgpack
 import numpy as np
 from websockets.asyncio.server import serve as ws_serve
 from websockets.exceptions import ConnectionClosed
 
+#: The remote protocol's version this server speaks (docs/remote-protocol.md).
 PROTOCOL_VERSION = 1
 
+#: A policy: float32 observations [B, k, obs_dim] and the request -> actions [B, H, act_dim].
+Policy = Callable[[np.ndarray, "Request"], Any]
 
-def pack_array(a: np.ndarray) -> dict:
+
+def pack_array(a: np.ndarray) -> Dict[str, Any]:
     """openpi-style array: {"__ndarray__": True, "data", "dtype", "shape"}."""
     a = np.ascontiguousarray(a)
     return {"__ndarray__": True, "data": a.tobytes(), "dtype": a.dtype.str, "shape": list(a.shape)}
 
 
-def _key(d: dict, k: str):
+def _key(d: Dict[Any, Any], k: str) -> Any:
     # Accept str and bytes keys (openpi's packer writes bytes keys).
     if k in d:
         return d[k]
     return d.get(k.encode())
 
 
-def unpack_array(d: dict) -> np.ndarray:
+def unpack_array(d: Dict[Any, Any]) -> np.ndarray:
+    """The numpy array of an openpi-style packed array (str or bytes keys)."""
     if not isinstance(d, dict) or not _key(d, "__ndarray__"):
         raise ValueError("expected an {__ndarray__, data, dtype, shape} array")
     dtype = _key(d, "dtype")
     if isinstance(dtype, bytes):
         dtype = dtype.decode()
-    return np.frombuffer(_key(d, "data"), dtype=np.dtype(dtype)).reshape(_key(d, "shape"))
+    shape = tuple(int(n) for n in _key(d, "shape"))
+    return np.frombuffer(_key(d, "data"), dtype=np.dtype(dtype)).reshape(shape)
 
 
-def packb(msg: dict) -> bytes:
-    return msgpack.packb(msg, use_bin_type=True)
+def packb(msg: Dict[str, Any]) -> bytes:
+    """A message as one msgpack frame."""
+    out: bytes = msgpack.packb(msg, use_bin_type=True)
+    return out
 
 
-def unpackb(data: bytes) -> dict:
-    return msgpack.unpackb(data, raw=False, strict_map_key=False)
+def unpackb(data: bytes) -> Dict[Any, Any]:
+    """One msgpack frame as a message."""
+    out: Dict[Any, Any] = msgpack.unpackb(data, raw=False, strict_map_key=False)
+    return out
 
 
 @dataclasses.dataclass
 class Request:
+    """What the evaluator asks for in one `infer`, next to the observations."""
+
     rollout_ids: np.ndarray  # uint64 [B]
     steps: np.ndarray  # uint64 [B]
-    spec: dict  # the task spec the evaluator sent (task, obs_dim, act_dim, seed, ...)
+    spec: Dict[str, Any]  # the task spec the evaluator sent (task, obs_dim, act_dim, seed, ...)
     images: Optional[np.ndarray] = None  # float32 [B, k, 2, 3, 96, 96] for image policies
 
 
 class PolicyServer:
     """Serves one callable; one evaluator connection at a time is typical, but
-    each connection gets its own spec."""
+    each connection gets its own spec.
+    """
 
     def __init__(
         self,
-        policy: Callable[[np.ndarray, Request], Any],
+        policy: Policy,
         *,
         history: int = 1,
         horizon: int = 1,
         execute: int = 1,
         reset: Optional[Callable[[np.ndarray], None]] = None,
         max_frame_bytes: int = 64 << 20,
-        log=sys.stderr,
-    ):
+        log: IO[str] = sys.stderr,
+    ) -> None:
         if not (1 <= execute <= horizon) or history < 1:
             raise ValueError("need history >= 1 and 1 <= execute <= horizon")
         self.policy = policy
@@ -98,7 +111,8 @@ class PolicyServer:
         self.max_frame_bytes = max_frame_bytes
         self.log = log
 
-    def hello(self) -> dict:
+    def hello(self) -> Dict[str, Any]:
+        """The first message of a connection: protocol version and k/H/E."""
         return {
             "type": "hello",
             "protocol": PROTOCOL_VERSION,
@@ -107,7 +121,7 @@ class PolicyServer:
             "execute": self.execute,
         }
 
-    async def handle(self, msg: dict, state: dict) -> dict:
+    async def handle(self, msg: Dict[Any, Any], state: Dict[str, Any]) -> Dict[str, Any]:
         """Answer one decoded request; raising turns into an `error` message."""
         kind = _key(msg, "type")
         if kind == "spec":
@@ -138,12 +152,13 @@ class PolicyServer:
             return {"type": "actions", "id": _key(msg, "id"), "actions": pack_array(actions)}
         raise ValueError(f"unknown message type {kind!r}")
 
-    async def reply(self, ws, request_type, reply: dict):
+    async def reply(self, ws: Any, request_type: Any, reply: Dict[str, Any]) -> None:
         """Send one reply (a hook so test servers can misbehave)."""
         await ws.send(packb(reply))
 
-    async def connection(self, ws):
-        state: dict = {}
+    async def connection(self, ws: Any) -> None:
+        """Serve one evaluator connection until it closes."""
+        state: Dict[str, Any] = {}
         try:
             await self.reply(ws, "hello", self.hello())
             async for frame in ws:
@@ -167,10 +182,11 @@ class PolicyServer:
         host: str,
         port: int,
         ready: Optional[Callable[[int], None]] = None,
-        ssl: Optional["ssl_module.SSLContext"] = None,
-    ):
+        ssl: Optional[ssl_module.SSLContext] = None,
+    ) -> None:
         """Serve until cancelled; with `ssl` (a server-side SSLContext) the
-        endpoint is wss:// instead of ws://."""
+        endpoint is wss:// instead of ws://.
+        """
         async with ws_serve(self.connection, host, port, max_size=self.max_frame_bytes, ssl=ssl) as server:
             bound = server.sockets[0].getsockname()[1]
             if ready is not None:
@@ -178,7 +194,7 @@ class PolicyServer:
             await server.serve_forever()
 
 
-def tls_context(certfile: str, keyfile: Optional[str] = None) -> "ssl_module.SSLContext":
+def tls_context(certfile: str, keyfile: Optional[str] = None) -> ssl_module.SSLContext:
     """A server-side TLS context from a PEM certificate chain (leaf first) and its key."""
     ctx = ssl_module.SSLContext(ssl_module.PROTOCOL_TLS_SERVER)
     ctx.minimum_version = ssl_module.TLSVersion.TLSv1_2
@@ -186,15 +202,23 @@ def tls_context(certfile: str, keyfile: Optional[str] = None) -> "ssl_module.SSL
     return ctx
 
 
-def serve(policy, host="0.0.0.0", port=8765, certfile=None, keyfile=None, **kwargs):
+def serve(
+    policy: Policy,
+    host: str = "0.0.0.0",
+    port: int = 8765,
+    certfile: Optional[str] = None,
+    keyfile: Optional[str] = None,
+    **kwargs: Any,
+) -> None:
     """Blocking: serve `policy` until interrupted. Prints the bound port.
 
     With `certfile` (PEM chain, leaf first) and `keyfile` the server speaks TLS,
-    i.e. submit it as wss://host:port/."""
+    i.e. submit it as wss://host:port/.
+    """
     server = PolicyServer(policy, **kwargs)
     ctx = tls_context(certfile, keyfile) if certfile else None
 
-    def ready(p):
+    def ready(p: int) -> None:
         print(f"listening on {host}:{p}", flush=True)
 
     asyncio.run(server.run(host, port, ready, ssl=ctx))
@@ -203,46 +227,20 @@ def serve(policy, host="0.0.0.0", port=8765, certfile=None, keyfile=None, **kwar
 # ---- demo policies -------------------------------------------------------------
 
 
-def zeros_policy(obs, req):
+def zeros_policy(obs: np.ndarray, req: Request) -> np.ndarray:
+    """Zero actions, whatever the observation."""
     return np.zeros((obs.shape[0], 1, req.spec["act_dim"]), np.float32)
 
 
-def avoiding_policy(obs, req):
+def avoiding_policy(obs: np.ndarray, req: Request) -> np.ndarray:
     """Avoiding steering of assets/fixtures/avoiding_path.onnx in numpy: desired x
-    towards 0.57 / 0.50 / 0.575 by desired y, |dx| <= 0.008, dy = 0.008."""
+    towards 0.57 / 0.50 / 0.575 by desired y, |dx| <= 0.008, dy = 0.008.
+    """
     x, y = obs[:, -1, 0], obs[:, -1, 1]
     tx = np.where(y < -0.04, 0.57, np.where(y < 0.16, 0.50, 0.575))
     dx = np.clip(tx - x, -0.008, 0.008)
     return np.stack([dx, np.full_like(dx, 0.008)], axis=1).astype(np.float32)
 
 
-DEMOS = {"zeros": zeros_policy, "avoiding": avoiding_policy}
-
-
-def main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--demo", choices=sorted(DEMOS), default="zeros", help="built-in policy to serve")
-    ap.add_argument("--host", default="127.0.0.1")
-    ap.add_argument("--port", type=int, default=8765, help="0 picks a free port (printed)")
-    ap.add_argument("--history", type=int, default=1)
-    ap.add_argument("--horizon", type=int, default=1)
-    ap.add_argument("--execute", type=int, default=1)
-    ap.add_argument("--certfile", help="PEM certificate chain (leaf first): serve TLS (wss://)")
-    ap.add_argument("--keyfile", help="PEM private key of --certfile (if not in the same file)")
-    a = ap.parse_args(argv)
-    if a.keyfile and not a.certfile:
-        ap.error("--keyfile needs --certfile")
-    serve(
-        DEMOS[a.demo],
-        host=a.host,
-        port=a.port,
-        certfile=a.certfile,
-        keyfile=a.keyfile,
-        history=a.history,
-        horizon=a.horizon,
-        execute=a.execute,
-    )
-
-
-if __name__ == "__main__":
-    main()
+#: The built-in demo policies of `python -m d3il_client.serve --demo NAME`.
+DEMOS: Dict[str, Policy] = {"zeros": zeros_policy, "avoiding": avoiding_policy}

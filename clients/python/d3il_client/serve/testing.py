@@ -1,8 +1,7 @@
-#!/usr/bin/env python3
-"""A deliberately misbehaving variant of the reference server, used by the Rust
-tests of the evaluator's remote client (policy/tests/remote.rs).
+"""A deliberately misbehaving variant of the reference server, for testing clients
+of the remote protocol (the evaluator's: policy/tests/remote.rs, tests/worker_remote.rs).
 
-    python testing_server.py --mode MODE [--horizon H]
+    python -m d3il_client.serve.testing --mode MODE [--horizon H]
 
 Serves the `avoiding` demo policy on 127.0.0.1 (free port, printed as
 `listening on 127.0.0.1:PORT`), except that on the first `infer` (or at the
@@ -29,26 +28,30 @@ stage named by the mode) it:
                 a close handshake (a crash or network loss mid-episode)
 """
 
+from __future__ import annotations
+
 import argparse
 import asyncio
-import sys
+from typing import Any, AsyncIterator, Dict, List
 
 import numpy as np
 
-from d3il_policy_server import PolicyServer, avoiding_policy, pack_array, packb
+from .policy import PolicyServer, Request, avoiding_policy, packb
 
 
 class MisbehavingServer(PolicyServer):
-    def __init__(self, mode, **kw):
+    """The reference server with the misbehaviour `mode` (the list above)."""
+
+    def __init__(self, mode: str, **kw: Any) -> None:
         super().__init__(self.policy, reset=self.on_reset, **kw)
         self.mode = mode
-        self.resets = []
+        self.resets: List[List[int]] = []
         self.infers = 0
 
-    def on_reset(self, ids):
+    def on_reset(self, ids: np.ndarray) -> None:
         self.resets.append(ids.tolist())
 
-    def policy(self, obs, req):
+    def policy(self, obs: np.ndarray, req: Request) -> np.ndarray:
         if self.mode == "nan":
             return np.full((obs.shape[0], self.horizon, req.spec["act_dim"]), np.nan, np.float32)
         if self.mode == "wrong-shape":
@@ -57,19 +60,19 @@ class MisbehavingServer(PolicyServer):
             return np.zeros((obs.shape[0], 1 << 19), np.float32)  # 2 MiB per row
         if self.mode == "noisy":
             out = np.empty((obs.shape[0], self.horizon, req.spec["act_dim"]), np.float32)
-            for i, (r, s) in enumerate(zip(req.rollout_ids, req.steps)):
+            for i, (r, s) in enumerate(zip(req.rollout_ids, req.steps, strict=True)):
                 rng = np.random.default_rng([int(req.spec["seed"]), int(r), int(s)])
                 out[i] = rng.standard_normal(out[i].shape)
             return out
         a = avoiding_policy(obs, req)
         if self.mode == "inf-later":
-            for i, (r, s) in enumerate(zip(req.rollout_ids, req.steps)):
+            for i, (r, s) in enumerate(zip(req.rollout_ids, req.steps, strict=True)):
                 if int(r) == 3 and int(s) >= 5:
                     a[i, 1] = np.inf
         # A chunk of H copies of the action.
         return np.repeat(a[:, None, :], self.horizon, axis=1)
 
-    def hello(self):
+    def hello(self) -> Dict[str, Any]:
         h = super().hello()
         if self.mode == "bad-version":
             h["protocol"] = 99
@@ -77,7 +80,7 @@ class MisbehavingServer(PolicyServer):
             del h["history"]
         return h
 
-    async def handle(self, msg, state):
+    async def handle(self, msg: Dict[Any, Any], state: Dict[str, Any]) -> Dict[str, Any]:
         if msg.get("type") == "infer" and msg.get("obs") is not None and self.mode == "ok":
             # Let the test see that resets arrived: answer an infer for rollout id
             # 999 with an error listing them.
@@ -85,7 +88,7 @@ class MisbehavingServer(PolicyServer):
                 raise ValueError(f"resets seen: {self.resets}")
         return await super().handle(msg, state)
 
-    async def reply(self, ws, request_type, reply):
+    async def reply(self, ws: Any, request_type: Any, reply: Dict[str, Any]) -> None:
         if request_type == "infer":
             m = self.mode
             self.infers += 1
@@ -98,7 +101,7 @@ class MisbehavingServer(PolicyServer):
                 # A valid reply, dribbled out one byte per WebSocket fragment.
                 data = packb(reply)
 
-                async def frags():
+                async def frags() -> AsyncIterator[bytes]:
                     for i in range(len(data)):
                         await asyncio.sleep(0.05)
                         yield data[i : i + 1]
@@ -121,7 +124,8 @@ class MisbehavingServer(PolicyServer):
         await super().reply(ws, request_type, reply)
 
 
-def main():
+def main() -> None:
+    """Serve the misbehaving server on 127.0.0.1, a free port (printed)."""
     ap = argparse.ArgumentParser()
     ap.add_argument("--mode", default="ok")
     ap.add_argument("--history", type=int, default=1)
@@ -130,7 +134,7 @@ def main():
     a = ap.parse_args()
     server = MisbehavingServer(a.mode, history=a.history, horizon=a.horizon, execute=a.execute)
 
-    def ready(port):
+    def ready(port: int) -> None:
         print(f"listening on 127.0.0.1:{port}", flush=True)
 
     try:
@@ -140,4 +144,4 @@ def main():
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    main()

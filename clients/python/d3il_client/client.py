@@ -1,0 +1,723 @@
+"""The API client: :class:`Client`."""
+
+from __future__ import annotations
+
+import os
+import re
+import secrets
+import time
+from pathlib import Path
+from typing import (
+    TYPE_CHECKING,
+    Any,
+    Callable,
+    Dict,
+    Iterator,
+    List,
+    Mapping,
+    Optional,
+    Sequence,
+    Tuple,
+    Union,
+)
+
+import requests
+
+from . import errors
+from ._version import API_VERSION, __version__
+from .manifest import (
+    OBS_TYPES,
+    PROTOCOLS,
+    TASKS,
+    ManifestArg,
+    PathLike,
+    check_choice,
+    check_policy_file,
+    load_manifest,
+)
+from .models import (
+    Comparison,
+    Leaderboard,
+    LeaderboardLink,
+    Method,
+    Results,
+    RolloutItem,
+    RolloutPage,
+    Submission,
+    SubmissionSummary,
+    from_json,
+    rollout_items_frame,
+)
+
+if TYPE_CHECKING:
+    import pandas as pd
+
+#: Where ``Client()`` connects without a ``server`` argument (or ``$D3IL_SERVER``).
+DEFAULT_SERVER = "http://127.0.0.1:8080"
+
+SubmissionRef = Union[int, Submission, SubmissionSummary]
+
+#: The figures :meth:`Client.plot` saves: kind -> (what it needs, path under /plots).
+PLOTS: Dict[str, Tuple[str, str]] = {
+    "pareto": ("task", "/plots/tasks/{task}/pareto.svg"),
+    "data-fraction": ("task", "/plots/tasks/{task}/data-fraction.svg"),
+    "paths": ("submission", "/plots/submissions/{submission}/paths.svg"),
+    "starts": ("submission", "/plots/submissions/{submission}/starts.svg"),
+    "behaviours": ("submission", "/plots/submissions/{submission}/behaviours.svg"),
+    "rollout-paths": ("rollout", "/plots/submissions/{submission}/rollouts/{rollout}/paths.svg"),
+    "rollout-steps": ("rollout", "/plots/submissions/{submission}/rollouts/{rollout}/steps.svg"),
+}
+
+
+def _id(s: SubmissionRef) -> int:
+    return s if isinstance(s, int) else s.id
+
+
+def version_matches(version: str, spec: str) -> bool:
+    """Whether ``version`` satisfies the PEP 440 specifier ``spec`` (e.g. ``>=1.0,<2``).
+
+    Handles the operators ``==``, ``!=``, ``>=``, ``<=``, ``>``, ``<``, ``~=`` on
+    release numbers (``1``, ``1.2``, ``1.2.3``; ``==1.*`` too), which is what the
+    server publishes; pre-release and local parts of ``version`` are ignored.
+    """
+
+    def release(v: str) -> Tuple[int, ...]:
+        m = re.match(r"\d+(\.\d+)*", v.strip())
+        if not m:
+            raise ValueError(f"not a version: {v!r}")
+        return tuple(int(p) for p in m.group(0).split("."))
+
+    def pad(a: Tuple[int, ...], n: int) -> Tuple[int, ...]:
+        return a + (0,) * (n - len(a))
+
+    mine = release(version)
+    for clause in filter(None, (c.strip() for c in spec.split(","))):
+        m = re.match(r"(~=|==|!=|>=|<=|>|<)\s*(.+)", clause)
+        if not m:
+            raise ValueError(f"not a version specifier: {clause!r}")
+        op, v = m.groups()
+        if v.endswith(".*") and op in ("==", "!="):
+            prefix = release(v[:-2])
+            same = mine[: len(prefix)] == prefix
+            if same != (op == "=="):
+                return False
+            continue
+        other = release(v)
+        n = max(len(mine), len(other))
+        a, b = pad(mine, n), pad(other, n)
+        ok = {
+            "==": a == b,
+            "!=": a != b,
+            ">=": a >= b,
+            "<=": a <= b,
+            ">": a > b,
+            "<": a < b,
+            "~=": a >= b and mine[: len(other) - 1] == other[:-1],
+        }[op]
+        if not ok:
+            return False
+    return True
+
+
+class _MultipartUpload:
+    """A multipart/form-data body that reads the file as it is sent (never whole in memory).
+
+    ``requests`` streams a body that has ``read``/``__iter__``; ``__len__`` gives
+    it the Content-Length, so the server can refuse an oversized upload at once.
+    """
+
+    CHUNK = 1 << 16
+
+    def __init__(
+        self,
+        fields: Sequence[Tuple[str, str]],
+        file_field: Optional[str],
+        path: Optional[Path],
+        on_bytes: Optional[Callable[[int], None]] = None,
+    ) -> None:
+        self.boundary = "d3il-client-" + secrets.token_hex(16)
+        head = b"".join(
+            f'--{self.boundary}\r\nContent-Disposition: form-data; name="{k}"\r\n\r\n'.encode() + v.encode() + b"\r\n"
+            for k, v in fields
+        )
+        self._parts: List[Union[bytes, Path]] = [head]
+        size = len(head)
+        if file_field is not None and path is not None:
+            name = path.name.replace('"', "%22").replace("\r", "").replace("\n", "")
+            file_head = (
+                f'--{self.boundary}\r\nContent-Disposition: form-data; name="{file_field}"; '
+                f'filename="{name}"\r\nContent-Type: application/octet-stream\r\n\r\n'
+            ).encode()
+            self._parts += [file_head, path, b"\r\n"]
+            size += len(file_head) + path.stat().st_size + 2
+        tail = f"--{self.boundary}--\r\n".encode()
+        self._parts.append(tail)
+        self._len = size + len(tail)
+        self._on_bytes = on_bytes
+        self._chunks = self._generate()
+        self._buffer = b""
+
+    @property
+    def content_type(self) -> str:
+        return f"multipart/form-data; boundary={self.boundary}"
+
+    def __len__(self) -> int:
+        return self._len
+
+    def _generate(self) -> Iterator[bytes]:
+        for part in self._parts:
+            if isinstance(part, bytes):
+                yield part
+                continue
+            with open(part, "rb") as f:
+                while True:
+                    block = f.read(self.CHUNK)
+                    if not block:
+                        break
+                    if self._on_bytes is not None:
+                        self._on_bytes(len(block))
+                    yield block
+
+    def __iter__(self) -> Iterator[bytes]:
+        if self._buffer:
+            yield self._buffer
+            self._buffer = b""
+        yield from self._chunks
+
+    def read(self, n: int = -1) -> bytes:
+        """Up to ``n`` bytes of the body (all the rest with ``n < 0``)."""
+        while n < 0 or len(self._buffer) < n:
+            block = next(self._chunks, None)
+            if block is None:
+                break
+            self._buffer += block
+        if n < 0:
+            out, self._buffer = self._buffer, b""
+        else:
+            out, self._buffer = self._buffer[:n], self._buffer[n:]
+        return out
+
+
+def _format_seconds(s: float) -> str:
+    s = int(round(s))
+    if s < 60:
+        return f"{s}s"
+    if s < 3600:
+        return f"{s // 60}m{s % 60:02d}s"
+    return f"{s // 3600}h{(s % 3600) // 60:02d}m"
+
+
+def progress_line(sub: Submission) -> str:
+    """One line of progress, as ``d3il submit --wait`` prints it.
+
+    The status, then rollouts done of the total once the worker has said how
+    many there are (until then the total is 0), or the queue position while
+    queued; the server's ETA when it gives one.
+    """
+    p = sub.progress
+    if p.rollouts_total > 0:
+        line = f"{sub.status} {p.rollouts_done}/{p.rollouts_total}"
+    elif sub.queue_position is not None:
+        line = f"{sub.status}, {sub.queue_position} ahead in the queue"
+    elif sub.status == "running":
+        line = "running, starting"
+    else:
+        line = sub.status
+    if sub.eta_seconds is not None and not sub.done:
+        line += f", about {_format_seconds(sub.eta_seconds)} left"
+    return line
+
+
+class Client:
+    """A client of one D3IL leaderboard server's API (``/api/v1``, docs/api.md).
+
+    ``server`` is the server's root URL (default ``$D3IL_SERVER``, else
+    ``http://127.0.0.1:8080``); ``token`` an API token from ``d3il token create``
+    (default ``$D3IL_TOKEN``), needed only to submit. Reading needs no token.
+
+    Before its first request the client reads the server's OpenAPI document and
+    raises :class:`~d3il_client.errors.IncompatibleServer` when the server
+    speaks another API version or does not accept this client's version (it
+    says which versions to install). Every error answer of the server raises a
+    :class:`~d3il_client.errors.ServerError` carrying the server's message.
+    """
+
+    def __init__(
+        self,
+        server: Optional[str] = None,
+        token: Optional[str] = None,
+        *,
+        timeout: float = 60.0,
+        check_version: bool = True,
+        session: Optional[requests.Session] = None,
+    ) -> None:
+        self.server = (server or os.environ.get("D3IL_SERVER") or DEFAULT_SERVER).rstrip("/")
+        if not re.match(r"https?://", self.server):
+            raise ValueError(f"server must be an http:// or https:// URL, got {self.server!r}")
+        self.token = token if token is not None else os.environ.get("D3IL_TOKEN")
+        self.timeout = timeout
+        self._session = session or requests.Session()
+        self._session.headers["User-Agent"] = f"d3il-client/{__version__}"
+        self._check_version = check_version
+        self._openapi: Optional[Dict[str, Any]] = None
+
+    def __repr__(self) -> str:
+        return f"Client({self.server!r})"
+
+    # ---- plumbing -------------------------------------------------------------
+
+    def _url(self, path: str) -> str:
+        return self.server + (path if path.startswith("/") else "/" + path)
+
+    def _send(self, method: str, path: str, *, auth: bool = False, retries: int = 5, **kw: Any) -> requests.Response:
+        if self._check_version:
+            self.check_server()
+        headers = dict(kw.pop("headers", None) or {})
+        if auth:
+            if not self.token:
+                raise errors.AuthenticationError(
+                    401,
+                    "no token: give Client(server, token) or set D3IL_TOKEN "
+                    "(mint one with `d3il token create --name <you>` on the server)",
+                )
+            headers["Authorization"] = f"Bearer {self.token}"
+        url = self._url(path)
+        for attempt in range(retries + 1):
+            resp = self._session.request(method, url, headers=headers, timeout=self.timeout, **kw)
+            if resp.status_code < 400:
+                return resp
+            retry_after = _retry_after(resp)
+            # Reads may wait out a rate limit; a submission is never sent twice.
+            if resp.status_code == 429 and method == "GET" and attempt < retries:
+                time.sleep(min(retry_after or 5.0, 60.0))
+                continue
+            raise _error(resp, retry_after)
+        raise AssertionError("unreachable")
+
+    def _get_json(self, path: str, params: Optional[Mapping[str, Any]] = None) -> Any:
+        resp = self._send("GET", path, params=_clean(params))
+        return _json(resp)
+
+    def openapi(self) -> Dict[str, Any]:
+        """The server's OpenAPI document (``/api/v1/openapi.json``), read once."""
+        if self._openapi is None:
+            url = self._url("/api/v1/openapi.json")
+            try:
+                resp = self._session.get(url, timeout=self.timeout)
+            except requests.ConnectionError as e:
+                raise errors.D3ILError(f"cannot reach the D3IL leaderboard at {self.server}: {e}") from e
+            if resp.status_code == 404:
+                raise errors.IncompatibleServer(
+                    f"{self.server} has no /api/v1/openapi.json: is it a D3IL leaderboard (d3il serve)?"
+                )
+            if resp.status_code >= 400:
+                raise _error(resp, _retry_after(resp))
+            doc = _json(resp)
+            if not isinstance(doc, dict):
+                raise errors.IncompatibleServer(f"{url} is not an OpenAPI document")
+            self._openapi = doc
+        return self._openapi
+
+    def check_server(self) -> Tuple[str, Optional[str]]:
+        """Check that the server accepts this client; return its API version and accepted client versions.
+
+        Raises :class:`~d3il_client.errors.IncompatibleServer` with what to
+        install when the server's ``info.version`` is not :data:`API_VERSION` or
+        its ``info.x-d3il-client-versions`` excludes this client's version.
+        """
+        info = self.openapi().get("info") or {}
+        api = str(info.get("version"))
+        accepted = info.get("x-d3il-client-versions")
+        ok = api == API_VERSION
+        if ok and isinstance(accepted, str) and accepted.strip():
+            ok = version_matches(__version__, accepted)
+        if not ok:
+            install = f"pip install 'd3il-client{accepted}'" if accepted else f"a d3il-client {api}.x"
+            raise errors.IncompatibleServer(
+                f"this d3il-client {__version__} speaks API version {API_VERSION}, but the server at "
+                f"{self.server} speaks API version {api} and accepts d3il-client {accepted or 'of that version'}: "
+                f"install {install}"
+            )
+        # Checked once: later requests skip it.
+        self._check_version = False
+        return api, accepted if isinstance(accepted, str) else None
+
+    # ---- submitting -----------------------------------------------------------
+
+    def whoami(self) -> str:
+        """The submitter the token belongs to (checks the token)."""
+        return str(_json(self._send("GET", "/api/v1/whoami", auth=True))["submitter"])
+
+    def submit(
+        self,
+        *,
+        method: str,
+        task: str,
+        training_seed: int,
+        onnx: Optional[PathLike] = None,
+        manifest: Optional[ManifestArg] = None,
+        endpoint: Optional[str] = None,
+        obs_type: str = "state",
+        data_fraction: float = 1.0,
+        protocol: str = "paper",
+        history: Optional[int] = None,
+        backbone: Optional[str] = None,
+        prediction: Optional[str] = None,
+        diversity: Optional[str] = None,
+        code_url: Optional[str] = None,
+        paper_url: Optional[str] = None,
+        description: Optional[str] = None,
+        progress: bool = False,
+    ) -> Submission:
+        """Submit a policy: an ONNX file (``onnx=``) or a remote endpoint (``endpoint=``).
+
+        The arguments are ``d3il submit``'s flags. An ONNX file's manifest is
+        ``manifest`` (a path, or the manifest as a dict) or else the ``.json``
+        next to the file. Before anything is sent, the manifest is checked as the
+        server checks it, against ``task`` and ``obs_type`` too, and the file
+        must exist and not be empty (:class:`~d3il_client.errors.ManifestError`).
+        The file is streamed, never read whole into memory; ``progress=True``
+        shows an upload bar.
+
+        ``history``, ``backbone``, ``prediction``, ``diversity``, ``code_url``,
+        ``paper_url`` and ``description`` describe the method (its page, its
+        group in the paper's tables). Returns the queued
+        :class:`~d3il_client.models.Submission`; follow it with :meth:`wait`.
+        """
+        if not method or len(method) > 64:
+            raise errors.ManifestError("method must be 1-64 characters", "method")
+        check_choice("task", task, TASKS)
+        check_choice("obs_type", obs_type, OBS_TYPES)
+        check_choice("protocol", protocol, PROTOCOLS)
+        if isinstance(training_seed, bool) or not isinstance(training_seed, int) or training_seed < 0:
+            raise errors.ManifestError("training_seed must be a whole number >= 0", "training_seed")
+        if not 0.0 < float(data_fraction) <= 1.0:
+            raise errors.ManifestError(f"data_fraction {data_fraction} must be in (0, 1]", "data_fraction")
+        if (onnx is None) == (endpoint is None):
+            raise errors.ManifestError(
+                "give onnx=FILE (its manifest next to it as FILE.json, or manifest=) or endpoint=URL, not both"
+            )
+        fields: List[Tuple[str, str]] = [
+            ("method", method),
+            ("task", task),
+            ("obs_type", obs_type),
+            ("training_seed", str(training_seed)),
+            ("data_fraction", repr(float(data_fraction))),
+            ("protocol", protocol),
+        ]
+        for key, value in (
+            ("history", None if history is None else str(history)),
+            ("backbone", backbone),
+            ("prediction", prediction),
+            ("diversity", diversity),
+            ("code_url", code_url),
+            ("paper_url", paper_url),
+            ("description", description),
+        ):
+            if value is not None:
+                fields.append((key, value))
+        path: Optional[Path] = None
+        if onnx is not None:
+            size = check_policy_file(onnx)
+            parsed, text = load_manifest(onnx, manifest)
+            if parsed["task"] != task:
+                raise errors.ManifestError(
+                    f"the manifest is for task {parsed['task']} but the submission is for {task}", "task"
+                )
+            if parsed.get("obs_type", "state") != obs_type:
+                raise errors.ManifestError(
+                    f"the manifest's obs_type is {parsed.get('obs_type', 'state')} but the submission's is {obs_type}",
+                    "obs_type",
+                )
+            fields.append(("manifest", text))
+            path = Path(onnx)
+        else:
+            assert endpoint is not None
+            if not re.match(r"(wss?|https?)://", endpoint):
+                raise errors.ManifestError(
+                    f"endpoint must be a ws://, wss://, http:// or https:// URL, got {endpoint!r}", "endpoint_url"
+                )
+            fields.append(("endpoint_url", endpoint))
+            if manifest is not None:
+                fields.append(("manifest", load_manifest(None, manifest)[1]))
+        bar: Any = None
+        if progress and path is not None:
+            from tqdm.auto import tqdm
+
+            bar = tqdm(total=size, unit="B", unit_scale=True, desc=f"uploading {path.name}", leave=False)
+        body = _MultipartUpload(fields, "onnx" if path else None, path, bar.update if bar else None)
+        try:
+            resp = self._send(
+                "POST",
+                "/api/v1/submissions",
+                auth=True,
+                data=body,
+                headers={"Content-Type": body.content_type},
+                retries=0,
+            )
+        finally:
+            if bar is not None:
+                bar.close()
+        return from_json(Submission, _json(resp))
+
+    # ---- following ------------------------------------------------------------
+
+    def submission(self, submission: SubmissionRef) -> Submission:
+        """A submission and how its evaluation stands."""
+        return from_json(Submission, self._get_json(f"/api/v1/submissions/{_id(submission)}"))
+
+    def submissions(
+        self,
+        *,
+        task: Optional[str] = None,
+        method: Optional[str] = None,
+        status: Optional[str] = None,
+        submitter: Optional[str] = None,
+    ) -> List[SubmissionSummary]:
+        """Submissions, newest first (at most 500), filtered by exact task, method, status, submitter."""
+        doc = self._get_json(
+            "/api/v1/submissions", {"task": task, "method": method, "status": status, "submitter": submitter}
+        )
+        return [from_json(SubmissionSummary, s) for s in doc["submissions"]]
+
+    def wait(
+        self,
+        submission: SubmissionRef,
+        *,
+        timeout: float = 7200.0,
+        poll: float = 2.0,
+        progress: bool = True,
+        on_update: Optional[Callable[[Submission], None]] = None,
+    ) -> Submission:
+        """Wait until the evaluation finished and return the completed submission.
+
+        Shows a tqdm progress bar of rollouts done (``progress=False``: none)
+        with the queue position or the server's estimate of the time left;
+        ``on_update`` is called with every new state seen. Raises
+        :class:`~d3il_client.errors.EvaluationFailed` (with the server's error
+        kind and message) when the evaluation failed, and
+        :class:`~d3il_client.errors.WaitTimeout` after ``timeout`` seconds.
+        """
+        sid = _id(submission)
+        deadline = time.monotonic() + timeout
+        bar: Any = None
+        if progress:
+            from tqdm.auto import tqdm
+
+            bar = tqdm(total=0, unit="rollout", desc=f"submission {sid}", leave=True)
+        try:
+            while True:
+                sub = self.submission(sid)
+                if on_update is not None:
+                    on_update(sub)
+                if bar is not None:
+                    _update_bar(bar, sub)
+                if sub.status == "failed":
+                    raise errors.EvaluationFailed(sub)
+                if sub.status == "completed":
+                    return sub
+                if time.monotonic() >= deadline:
+                    raise errors.WaitTimeout(
+                        f"submission {sid} is still {progress_line(sub)} after {timeout:.0f} s; "
+                        f"wait again or see {self.server}{sub.url}"
+                    )
+                time.sleep(max(0.05, min(poll, deadline - time.monotonic())))
+        finally:
+            if bar is not None:
+                bar.close()
+
+    # ---- results --------------------------------------------------------------
+
+    def results(self, submission: SubmissionRef) -> Results:
+        """The results of a completed evaluation (metrics, per initial state, per rollout).
+
+        Raises :class:`~d3il_client.errors.NotFound` until the evaluation completed.
+        """
+        return from_json(Results, self._get_json(f"/api/v1/submissions/{_id(submission)}/results"))
+
+    def rollouts_page(
+        self,
+        submission: SubmissionRef,
+        *,
+        outcome: Optional[str] = None,
+        behaviour: Optional[str] = None,
+        context: Optional[int] = None,
+        page: int = 1,
+        per_page: int = 500,
+    ) -> RolloutPage:
+        """One page of a submission's rollouts, filtered (docs/api.md, ``/rollouts``).
+
+        ``outcome`` is ``success``, ``failure``, ``unstable`` or ``time_limit``;
+        ``behaviour`` a behaviour name (``1-2-3``, ``RB``); ``context`` an
+        initial state's index.
+        """
+        doc = self._get_json(
+            f"/api/v1/submissions/{_id(submission)}/rollouts",
+            {"outcome": outcome, "behaviour": behaviour, "context": context, "page": page, "per_page": per_page},
+        )
+        return from_json(RolloutPage, doc)
+
+    def rollouts(
+        self,
+        submission: SubmissionRef,
+        *,
+        outcome: Optional[str] = None,
+        behaviour: Optional[str] = None,
+        context: Optional[int] = None,
+    ) -> List[RolloutItem]:
+        """Every rollout matching the filters (all pages of :meth:`rollouts_page`)."""
+        items: List[RolloutItem] = []
+        page = 1
+        while True:
+            p = self.rollouts_page(submission, outcome=outcome, behaviour=behaviour, context=context, page=page)
+            items.extend(p.items)
+            if page >= p.pages:
+                return items
+            page += 1
+
+    def rollouts_frame(
+        self,
+        submission: SubmissionRef,
+        *,
+        outcome: Optional[str] = None,
+        behaviour: Optional[str] = None,
+        context: Optional[int] = None,
+    ) -> pd.DataFrame:
+        """The rollouts as a DataFrame, one row per rollout.
+
+        Columns: ``number``, ``context``, ``rollout``, ``success``,
+        ``behaviour``, ``behaviour_label``, ``steps``, ``ending``,
+        ``ending_text``, ``failure_reason``, ``failure_message``,
+        ``failure_step``, ``has_trace``, ``record`` and ``video`` (links).
+        """
+        try:
+            items = self.rollouts(submission, outcome=outcome, behaviour=behaviour, context=context)
+        except errors.NotFound as e:
+            # A server from before the rollouts endpoint: the results document's
+            # rollouts (without names or links), unfiltered.
+            if "no such API endpoint" not in e.message or any(v is not None for v in (outcome, behaviour, context)):
+                raise
+            return self.results(submission).rollouts_frame()
+        return rollout_items_frame(items)
+
+    def rollout_record(self, submission: SubmissionRef, number: int, path: Optional[PathLike] = None) -> Any:
+        """One rollout's record with its trace; saved to ``path`` it replays with ``d3il replay --result``."""
+        resp = self._send("GET", f"/api/v1/submissions/{_id(submission)}/rollouts/{number}")
+        if path is not None:
+            Path(path).write_bytes(resp.content)
+        return _json(resp)
+
+    def download_video(self, submission: SubmissionRef, number: int, path: PathLike) -> Path:
+        """Save rollout ``number``'s video (MP4, both cameras) to ``path``; the server renders it on demand."""
+        return self._download(f"/api/v1/submissions/{_id(submission)}/rollouts/{number}/video", path)
+
+    # ---- comparing and leaderboards -------------------------------------------
+
+    def compare(self, a: SubmissionRef, b: SubmissionRef) -> Comparison:
+        """The paired comparison A − B of two completed submissions on the same task, protocol and initial states."""
+        return from_json(Comparison, self._get_json("/api/v1/compare", {"a": _id(a), "b": _id(b)}))
+
+    def leaderboards(self) -> List[LeaderboardLink]:
+        """Every leaderboard (task × observation type)."""
+        return [from_json(LeaderboardLink, x) for x in self._get_json("/api/v1/leaderboards")["leaderboards"]]
+
+    def leaderboard(self, task: str, obs: str = "state", *, view: str = "main") -> Leaderboard:
+        """A task's leaderboard: reported and evaluated rows (``view="data-fraction"``: every data fraction).
+
+        ``.frame()`` gives it as a DataFrame.
+        """
+        check_choice("obs", obs, OBS_TYPES)
+        return from_json(Leaderboard, self._get_json(f"/api/v1/leaderboards/{task}", {"obs": obs, "view": view}))
+
+    def methods(self) -> List[Method]:
+        """Every method with its properties."""
+        return [from_json(Method, m) for m in self._get_json("/api/v1/methods")["methods"]]
+
+    def download_csv(self, task: str, path: PathLike, obs: str = "state", *, view: str = "main") -> Path:
+        """Save a task's leaderboard as CSV (the server's columns) to ``path``; returns the path."""
+        check_choice("obs", obs, OBS_TYPES)
+        return self._download(f"/api/v1/leaderboards/{task}/csv", path, {"obs": obs, "view": view})
+
+    def plot(
+        self,
+        kind: str,
+        path: PathLike,
+        *,
+        task: Optional[str] = None,
+        submission: Optional[SubmissionRef] = None,
+        rollout: Optional[int] = None,
+        obs: str = "state",
+    ) -> Path:
+        """Save one of the server's figures (SVG) to ``path``; returns the path.
+
+        ``kind`` is ``pareto`` or ``data-fraction`` (give ``task`` and
+        ``obs``), ``paths``, ``starts`` or ``behaviours`` (give
+        ``submission``), ``rollout-paths`` or ``rollout-steps`` (give
+        ``submission`` and ``rollout``).
+        """
+        if kind not in PLOTS:
+            raise ValueError(f"plot kind {kind!r} is not one of {', '.join(PLOTS)}")
+        needs, template = PLOTS[kind]
+        params: Optional[Dict[str, Any]] = None
+        if needs == "task":
+            if task is None:
+                raise ValueError(f"the {kind} plot needs task=")
+            check_choice("obs", obs, OBS_TYPES)
+            url = template.format(task=task)
+            params = {"obs": obs}
+        else:
+            if submission is None or (needs == "rollout" and rollout is None):
+                raise ValueError(f"the {kind} plot needs submission=" + (" and rollout=" if needs == "rollout" else ""))
+            url = template.format(submission=_id(submission), rollout=rollout)
+        return self._download(url, path, params)
+
+    def _download(self, url: str, path: PathLike, params: Optional[Mapping[str, Any]] = None) -> Path:
+        resp = self._send("GET", url, params=_clean(params), stream=True)
+        out = Path(path)
+        with open(out, "wb") as f:
+            for block in resp.iter_content(1 << 16):
+                f.write(block)
+        return out
+
+
+def _clean(params: Optional[Mapping[str, Any]]) -> Optional[Dict[str, Any]]:
+    return None if params is None else {k: v for k, v in params.items() if v is not None}
+
+
+def _retry_after(resp: requests.Response) -> Optional[float]:
+    try:
+        return float(resp.headers["Retry-After"])
+    except (KeyError, ValueError):
+        return None
+
+
+def _json(resp: requests.Response) -> Any:
+    try:
+        return resp.json()
+    except ValueError as e:
+        raise errors.ServerError(
+            resp.status_code, f"the server's answer is not JSON: {resp.text[:200]!r}", url=resp.url
+        ) from e
+
+
+def _error(resp: requests.Response, retry_after: Optional[float]) -> errors.ServerError:
+    try:
+        body: Any = resp.json()
+    except ValueError:
+        body = resp.text
+    return errors.error_for(resp.status_code, body, resp.url, retry_after)
+
+
+def _update_bar(bar: Any, sub: Submission) -> None:
+    p = sub.progress
+    if p.rollouts_total > 0 and bar.total != p.rollouts_total:
+        bar.total = p.rollouts_total
+    if p.rollouts_done != bar.n:
+        bar.n = p.rollouts_done
+    status = sub.status
+    if sub.queue_position is not None and p.rollouts_total == 0:
+        status += f", {sub.queue_position} ahead"
+    bar.set_description(f"submission {sub.id} {status}", refresh=False)
+    eta = f"server ETA {_format_seconds(sub.eta_seconds)}" if sub.eta_seconds is not None else ""
+    bar.set_postfix_str(eta, refresh=False)
+    bar.refresh()

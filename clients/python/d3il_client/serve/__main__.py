@@ -1,0 +1,106 @@
+"""``python -m d3il_client.serve``: serve an agent, a policy callable or a demo policy.
+
+    python -m d3il_client.serve --agent my_module:make_agent --checkpoint ckpt.pth --port 8765
+    python -m d3il_client.serve --policy my_module:policy --history 5 --port 8765
+    python -m d3il_client.serve --demo avoiding --port 0
+
+``--agent MODULE:NAME`` names a class or function (MODULE importable from the
+current directory or ``sys.path``); it is called once, with the checkpoint path
+when ``--checkpoint`` is given, and must return an object with the reference
+agents' ``reset()`` and ``predict(obs)``: it is deep-copied for every rollout
+(``d3il_client.serve.serve_agent``). ``--policy MODULE:NAME`` names a batched
+callable ``policy(obs, request)`` served with ``--history/--horizon/--execute``.
+Prints ``listening on HOST:PORT`` once it accepts connections; submit it as
+``ws://HOST:PORT/`` (``wss://`` with ``--certfile``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+from typing import Any, List, Optional
+
+from .agent import AgentAdapter
+from .policy import DEMOS, serve
+
+
+def load_object(spec: str) -> Any:
+    """The object ``MODULE:NAME`` names (``NAME`` may be dotted: ``module:Class.factory``)."""
+    module_name, sep, attr = spec.partition(":")
+    if not sep or not module_name or not attr:
+        raise SystemExit(f"error: {spec!r} is not MODULE:NAME (e.g. my_agents:make_agent)")
+    if "" not in sys.path:
+        sys.path.insert(0, "")  # the current directory, as `python -m` sees it
+    try:
+        obj: Any = importlib.import_module(module_name)
+    except ImportError as e:
+        raise SystemExit(f"error: cannot import {module_name}: {e}") from e
+    for part in attr.split("."):
+        try:
+            obj = getattr(obj, part)
+        except AttributeError as e:
+            raise SystemExit(f"error: {module_name} has no {attr}") from e
+    return obj
+
+
+def main(argv: Optional[List[str]] = None) -> None:
+    """Parse ``argv`` and serve until interrupted."""
+    ap = argparse.ArgumentParser(
+        prog="python -m d3il_client.serve", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    what = ap.add_mutually_exclusive_group()
+    what.add_argument("--agent", metavar="MODULE:NAME", help="class or factory of a reference-style agent")
+    what.add_argument("--policy", metavar="MODULE:NAME", help="batched callable policy(obs, request)")
+    what.add_argument("--demo", choices=sorted(DEMOS), help="built-in policy to serve (default zeros)")
+    ap.add_argument("--checkpoint", help="with --agent: passed to MODULE:NAME as its one argument")
+    ap.add_argument("--host", default="127.0.0.1")
+    ap.add_argument("--port", type=int, default=8765, help="0 picks a free port (printed)")
+    ap.add_argument("--history", type=int, default=1, help="observations per query (not with --agent)")
+    ap.add_argument("--horizon", type=int, default=1, help="actions returned per query (not with --agent)")
+    ap.add_argument("--execute", type=int, default=1, help="actions executed per query (not with --agent)")
+    ap.add_argument("--certfile", help="PEM certificate chain (leaf first): serve TLS (wss://)")
+    ap.add_argument("--keyfile", help="PEM private key of --certfile (if not in the same file)")
+    a = ap.parse_args(argv)
+    if a.keyfile and not a.certfile:
+        ap.error("--keyfile needs --certfile")
+    if a.checkpoint and not a.agent:
+        ap.error("--checkpoint goes with --agent")
+    if a.agent:
+        if (a.history, a.horizon, a.execute) != (1, 1, 1):
+            ap.error("an agent is served with history = horizon = execute = 1 (it keeps its own window)")
+        make = load_object(a.agent)
+        agent = make(a.checkpoint) if a.checkpoint is not None else make()
+        if not (hasattr(agent, "reset") and hasattr(agent, "predict")):
+            ap.error(f"{a.agent} returned {type(agent).__name__}, which has no reset() and predict(obs)")
+        adapter = AgentAdapter(agent)
+        serve(
+            adapter,
+            host=a.host,
+            port=a.port,
+            certfile=a.certfile,
+            keyfile=a.keyfile,
+            history=1,
+            horizon=1,
+            execute=1,
+            reset=adapter.reset,
+        )
+        return
+    policy = load_object(a.policy) if a.policy else DEMOS[a.demo or "zeros"]
+    serve(
+        policy,
+        host=a.host,
+        port=a.port,
+        certfile=a.certfile,
+        keyfile=a.keyfile,
+        history=a.history,
+        horizon=a.horizon,
+        execute=a.execute,
+    )
+
+
+if __name__ == "__main__":
+    try:
+        main()
+    except KeyboardInterrupt:
+        pass
