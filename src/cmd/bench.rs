@@ -526,7 +526,7 @@ fn agents_bench(batch: usize) -> anyhow::Result<()> {
             .and_then(|_| ort_out.read_line(&mut line).map(|_| ()))
             .ok();
         line.trim().parse::<f64>().ok().context(
-            "the onnxruntime benchmark stopped (pip install -r clients/python/requirements.txt)",
+            "the onnxruntime benchmark stopped (pip install './clients/python[serve]')",
         )
     };
     let mut names: Vec<String> = std::fs::read_dir(&dir)?
