@@ -19,6 +19,7 @@
     unsafe_op_in_unsafe_fn
 )]
 mod bindings;
+mod egl;
 mod render;
 mod view;
 

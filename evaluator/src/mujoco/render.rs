@@ -6,6 +6,7 @@
 //! neither `Send` nor `Sync`. The evaluator keeps one per worker thread and all
 //! rollouts on that thread share it.
 
+use super::egl::eglGetProcAddress;
 use super::view::{cull_outside_frustum, cull_under_slabs, Frustum, PlaneLists};
 use super::{ffi, guarded, install_handlers, Data, MjError, Model};
 use std::ffi::{c_char, c_void, CStr};
@@ -21,7 +22,6 @@ type EglInt = i32;
 
 #[link(name = "EGL")]
 extern "C" {
-    pub(super) fn eglGetProcAddress(name: *const c_char) -> *mut c_void;
     fn eglGetDisplay(native: *mut c_void) -> EglDisplay;
     fn eglInitialize(dpy: EglDisplay, major: *mut EglInt, minor: *mut EglInt) -> EglBoolean;
     fn eglTerminate(dpy: EglDisplay) -> EglBoolean;

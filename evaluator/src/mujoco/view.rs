@@ -4,8 +4,8 @@
 //! cells of an infinite ground plane's grid outside the view ([`PlaneLists`]).
 //! All only ever keep too much, so frames are identical (docs/images.md).
 
+use super::egl::eglGetProcAddress;
 use super::ffi;
-use super::render::eglGetProcAddress;
 use std::ffi::c_void;
 
 /// A camera's view volume: the four side planes through the eye, each
