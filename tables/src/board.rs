@@ -229,7 +229,7 @@ pub fn behaviour_bars_svg(title: &str, counts: &[(String, usize)]) -> Result<Str
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::figures::pareto_front;
+    use crate::panels::pareto_front;
 
     fn p(e: f64, s: f64) -> ParetoPoint {
         ParetoPoint {

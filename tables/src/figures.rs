@@ -249,30 +249,6 @@ fn datasize(model: &TableModel) -> Result<String, TablesError> {
     Ok(ov.splice(buf))
 }
 
-/// Points not dominated in (entropy, success): no other point is at least as
-/// good in both and better in one. Sorted by entropy. Points without a finite
-/// entropy and success rate are never on the front (nor drawn).
-pub(crate) fn pareto_front(points: &[(f64, f64)]) -> Vec<(f64, f64)> {
-    let finite: Vec<(f64, f64)> = points
-        .iter()
-        .copied()
-        .filter(|(e, s)| e.is_finite() && s.is_finite())
-        .collect();
-    let points = &finite;
-    let mut front: Vec<(f64, f64)> = points
-        .iter()
-        .copied()
-        .filter(|&(e, s)| {
-            !points
-                .iter()
-                .any(|&(e2, s2)| e2 >= e && s2 >= s && (e2 > e || s2 > s))
-        })
-        .collect();
-    front.sort_by(|a, b| a.0.total_cmp(&b.0).then(b.1.total_cmp(&a.1)));
-    front.dedup();
-    front
-}
-
 fn pareto(model: &TableModel) -> Result<String, TablesError> {
     let rows = unique_rows(model);
     let mut legend_rows = entries(&rows, model.annotate_source(), false);
@@ -479,19 +455,6 @@ fn tick(v: &f64) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn pareto_front_keeps_only_undominated_points() {
-        let pts = [
-            (0.1, 0.9),
-            (0.5, 0.5),
-            (0.4, 0.4),
-            (0.9, 0.1),
-            (0.5, 0.5),
-            (0.2, 0.2),
-        ];
-        assert_eq!(pareto_front(&pts), vec![(0.1, 0.9), (0.5, 0.5), (0.9, 0.1)]);
-    }
 
     #[test]
     fn hues_are_distinct() {

@@ -3,7 +3,6 @@
 //! success-vs-entropy plane with its Pareto front, and one metric against the
 //! fraction of training data. Styles come from [`crate::plot`].
 
-use crate::figures::pareto_front;
 use crate::plot::{
     area_rect, draw_labels, fit_unit_axis, method_colour, pe, place_labels, Est, Overlay, Shape,
 };
@@ -217,4 +216,46 @@ pub fn fraction_panel<DB: DrawingBackend>(
         }
     }
     Ok(())
+}
+
+/// Points not dominated in (entropy, success): no other point is at least as
+/// good in both and better in one. Sorted by entropy. Points without a finite
+/// entropy and success rate are never on the front (nor drawn).
+pub(crate) fn pareto_front(points: &[(f64, f64)]) -> Vec<(f64, f64)> {
+    let finite: Vec<(f64, f64)> = points
+        .iter()
+        .copied()
+        .filter(|(e, s)| e.is_finite() && s.is_finite())
+        .collect();
+    let points = &finite;
+    let mut front: Vec<(f64, f64)> = points
+        .iter()
+        .copied()
+        .filter(|&(e, s)| {
+            !points
+                .iter()
+                .any(|&(e2, s2)| e2 >= e && s2 >= s && (e2 > e || s2 > s))
+        })
+        .collect();
+    front.sort_by(|a, b| a.0.total_cmp(&b.0).then(b.1.total_cmp(&a.1)));
+    front.dedup();
+    front
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn pareto_front_keeps_only_undominated_points() {
+        let pts = [
+            (0.1, 0.9),
+            (0.5, 0.5),
+            (0.4, 0.4),
+            (0.9, 0.1),
+            (0.5, 0.5),
+            (0.2, 0.2),
+        ];
+        assert_eq!(pareto_front(&pts), vec![(0.1, 0.9), (0.5, 0.5), (0.9, 0.1)]);
+    }
 }
