@@ -283,7 +283,10 @@ class Client:
             headers["Authorization"] = f"Bearer {self.token}"
         url = self._url(path)
         for attempt in range(retries + 1):
-            resp = self._session.request(method, url, headers=headers, timeout=self.timeout, **kw)
+            try:
+                resp = self._session.request(method, url, headers=headers, timeout=self.timeout, **kw)
+            except (requests.ConnectionError, requests.Timeout) as e:
+                raise errors.ConnectionFailed(f"{method} {url}: {e}") from e
             if resp.status_code < 400:
                 return resp
             retry_after = _retry_after(resp)
@@ -304,8 +307,8 @@ class Client:
             url = self._url("/api/v1/openapi.json")
             try:
                 resp = self._session.get(url, timeout=self.timeout)
-            except requests.ConnectionError as e:
-                raise errors.D3ILError(f"cannot reach the D3IL leaderboard at {self.server}: {e}") from e
+            except (requests.ConnectionError, requests.Timeout) as e:
+                raise errors.ConnectionFailed(f"cannot reach the D3IL leaderboard at {self.server}: {e}") from e
             if resp.status_code == 404:
                 raise errors.IncompatibleServer(
                     f"{self.server} has no /api/v1/openapi.json: is it a D3IL leaderboard (d3il serve)?"
@@ -493,7 +496,9 @@ class Client:
 
         Shows a tqdm progress bar of rollouts done (``progress=False``: none)
         with the queue position or the server's estimate of the time left;
-        ``on_update`` is called with every new state seen. Raises
+        ``on_update`` is called with every new state seen. The server being
+        unreachable for a while (a restart: accepted jobs survive it) is waited
+        out until ``timeout``. Raises
         :class:`~d3il_client.errors.EvaluationFailed` (with the server's error
         kind and message) when the evaluation failed, and
         :class:`~d3il_client.errors.WaitTimeout` after ``timeout`` seconds.
@@ -507,7 +512,13 @@ class Client:
             bar = tqdm(total=0, unit="rollout", desc=f"submission {sid}", leave=True)
         try:
             while True:
-                sub = self.submission(sid)
+                try:
+                    sub = self.submission(sid)
+                except errors.ConnectionFailed:
+                    if time.monotonic() >= deadline:
+                        raise
+                    time.sleep(max(0.05, min(poll, deadline - time.monotonic())))
+                    continue
                 if on_update is not None:
                     on_update(sub)
                 if bar is not None:

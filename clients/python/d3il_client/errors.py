@@ -23,6 +23,10 @@ class ManifestError(D3ILError, ValueError):
         self.field = field
 
 
+class ConnectionFailed(D3ILError):
+    """The server could not be reached (refused, reset, timed out)."""
+
+
 class IncompatibleServer(D3ILError):
     """The server speaks another API version, or does not accept this client's version."""
 

@@ -237,6 +237,16 @@ def test_a_server_that_does_not_accept_this_client_says_what_to_install(
     assert Client(server.base, check_version=False).leaderboards()
 
 
+def test_an_unreachable_server_is_a_clear_error() -> None:
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    with pytest.raises(errors.ConnectionFailed, match=f"cannot reach the D3IL leaderboard at http://127.0.0.1:{port}"):
+        Client(f"http://127.0.0.1:{port}").leaderboards()
+
+
 def test_version_specifiers() -> None:
     assert version_matches("1.0.0", ">=1.0,<2")
     assert version_matches("1.4.2", ">=1.0,<2")
