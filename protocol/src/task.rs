@@ -324,6 +324,16 @@ pub enum ProtocolKind {
     Quick,
 }
 
+impl ProtocolKind {
+    /// The name serde, the CLI (`--protocol`) and the store use.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            ProtocolKind::Paper => "paper",
+            ProtocolKind::Quick => "quick",
+        }
+    }
+}
+
 impl std::str::FromStr for ProtocolKind {
     type Err = String;
     fn from_str(s: &str) -> Result<Self, Self::Err> {

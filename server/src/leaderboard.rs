@@ -120,10 +120,7 @@ pub fn section_url(task: TaskId, title: &str, obs: impl std::fmt::Display) -> St
 
 /// `paper` or `quick`, as stored and as the CSV prints it.
 pub fn protocol_str(p: ProtocolKind) -> &'static str {
-    match p {
-        ProtocolKind::Paper => "paper",
-        ProtocolKind::Quick => "quick",
-    }
+    p.as_str()
 }
 
 // ------------------------------------------------------------ seed grouping
@@ -527,23 +524,8 @@ pub fn fraction_series(rows: &[BoardRow]) -> Vec<FractionSeries> {
         .collect()
 }
 
-/// Successful-rollout counts per behaviour, named for the task
-/// ([`d3il_protocol::behaviour_name`]), most frequent first, from
-/// (success, behaviour) pairs.
-pub fn behaviour_counts<'a>(
-    task: TaskId,
-    rollouts: impl IntoIterator<Item = (bool, &'a serde_json::Value)>,
-) -> Vec<(String, usize)> {
-    let mut counts: BTreeMap<String, usize> = BTreeMap::new();
-    for (_, b) in rollouts.into_iter().filter(|(success, _)| *success) {
-        *counts
-            .entry(d3il_tables::board::behaviour_label(task, b))
-            .or_default() += 1;
-    }
-    let mut v: Vec<_> = counts.into_iter().collect();
-    v.sort_by(|a, b| b.1.cmp(&a.1).then(a.0.cmp(&b.0)));
-    v
-}
+/// Successful-rollout counts per behaviour (the same as `d3il eval`'s table).
+pub use d3il_tables::summary::behaviour_counts;
 
 #[cfg(test)]
 mod tests {

@@ -55,7 +55,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
 pub fn render(c: &Comparison) -> String {
     let mut s = format!(
         "paired comparison A − B: task {}, {} protocol, {} initial states × {} rollouts\ninitial states: {} (sha256 {})\n",
-        c.task, d3il_server::leaderboard::protocol_str(c.protocol), c.n_contexts, c.rollouts_per_context, c.initial_states, c.initial_states_sha256
+        c.task, c.protocol.as_str(), c.n_contexts, c.rollouts_per_context, c.initial_states, c.initial_states_sha256
     );
     s += &format!(
         "{:<22} {:>7} {:>7} {:>8} {:>21} {:>8} {:>9}\n",

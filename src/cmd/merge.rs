@@ -76,7 +76,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         parts.push((path.display().to_string(), part));
     }
     let result = shard::merge(parts)?;
-    print!("{}", super::eval::metrics_table(&result));
+    print!("{}", d3il_tables::summary::metrics_table(&result));
     if let Some(path) = &args.json {
         std::fs::write(path, serde_json::to_vec_pretty(&result)?)
             .with_context(|| format!("writing {}", path.display()))?;

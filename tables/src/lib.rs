@@ -23,6 +23,7 @@ mod numfmt;
 mod panels;
 pub mod plot;
 pub mod rollouts;
+pub mod summary;
 
 use d3il_protocol::{ObsType, ResultCell, Source};
 use std::collections::BTreeMap;
