@@ -3,6 +3,7 @@
 
 use anyhow::{bail, Context};
 use d3il_evaluator::eval::{self, EvalOptions, PolicyInfo};
+use d3il_evaluator::shard::Shard;
 use d3il_evaluator::tasks::LoadedTask;
 use d3il_protocol::{Job, ObsType, PolicyManifest, PolicySource, ProtocolKind, TaskId};
 use std::io::Write;
@@ -249,7 +250,7 @@ pub fn sandboxed(
 pub fn run(args: Args) -> anyhow::Result<()> {
     let job = build_job(&args)?;
     if let Some(shard) = args.shard {
-        return super::merge::run_shard(&args, &job, shard);
+        return run_shard(&args, &job, shard);
     }
     let mut on_progress = progress_printer();
     let result = if args.sandbox {
@@ -269,5 +270,49 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             .with_context(|| format!("writing {}", path.display()))?;
         eprintln!("wrote {}", path.display());
     }
+    Ok(())
+}
+
+/// `d3il eval --shard K/N`: evaluates one shard and writes its part file.
+pub fn run_shard(args: &Args, job: &Job, shard: Shard) -> anyhow::Result<()> {
+    let Some(path) = &args.json else {
+        bail!("--shard {shard} needs --json FILE: the part file `d3il merge` joins with the other shards");
+    };
+    let mut on_progress = progress_printer();
+    let part = if args.sandbox {
+        // The worker runs the shard (`Job::shard`) and answers with its part.
+        let job = Job {
+            shard: Some(shard),
+            ..job.clone()
+        };
+        match sandboxed(&job, &mut on_progress)? {
+            d3il_sandbox::Outcome::Part(p) => *p,
+            _ => bail!("the worker answered shard {shard} with a whole result"),
+        }
+    } else {
+        let (task, mut policy, info, opts) = load_in_process(args, job)?;
+        let (part, t) = eval::evaluate_shard(
+            &task,
+            policy.as_mut(),
+            &info,
+            &opts,
+            shard,
+            &mut on_progress,
+        )?;
+        print_timing(&t);
+        part
+    };
+    println!(
+        "task {} shard {shard}: initial states {}..{} of {}, {} rollouts (merge all {} parts with `d3il merge`)",
+        part.manifest.task,
+        part.contexts[0],
+        part.contexts[1],
+        part.manifest.n_contexts,
+        part.rollouts.len(),
+        shard.count
+    );
+    std::fs::write(path, serde_json::to_vec_pretty(&part)?)
+        .with_context(|| format!("writing {}", path.display()))?;
+    eprintln!("wrote {}", path.display());
     Ok(())
 }
