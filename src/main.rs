@@ -30,12 +30,17 @@ enum Command {
     Contexts(cmd::contexts::Args),
     /// Evaluate a policy (ONNX file, ws:// or wss:// endpoint, or scripted) on a task and print the D3IL metrics.
     Eval(cmd::eval::Args),
+    /// How closely this simulator follows the original D3IL one: the fidelity report (Markdown or JSON).
+    Fidelity(cmd::fidelity::Args),
     /// Merge the part files of a sharded `d3il eval --shard K/N` into one result (docs/cluster.md).
     Merge(cmd::merge::Args),
     /// Render what an image policy sees (both 96x96 cameras) to a PNG.
     Render(cmd::render::Args),
     /// Replay an episode open-loop from policy-level actions and print JSON.
     Replay(cmd::replay::Args),
+    /// The drift canary: re-run the committed canary set, print what still
+    /// matches and this build's physics fingerprint; fail on drift.
+    Verify(cmd::verify::Args),
     /// Regenerate the paper's result tables (LaTeX/Markdown/CSV) and figures (SVG) from the database.
     Tables(cmd::tables::Args),
     /// Run the leaderboard web service (pages, plots, JSON API, worker pool).
@@ -62,7 +67,9 @@ fn main() -> anyhow::Result<()> {
         Command::Merge(a) => cmd::merge::run(a),
         Command::Render(a) => cmd::render::run(a),
         Command::Replay(a) => cmd::replay::run(a),
+        Command::Verify(a) => cmd::verify::run(a),
         Command::Eval(a) => cmd::eval::run(a),
+        Command::Fidelity(a) => cmd::fidelity::run(a),
         Command::Tables(a) => cmd::tables::run(a),
         Command::Serve(a) => cmd::serve::run(a),
         Command::Token(a) => cmd::token::run(a),

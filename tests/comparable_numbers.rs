@@ -230,6 +230,21 @@ fn compare_pairs_two_policies_and_refuses_different_tasks() {
         "{stdout}"
     );
 
+    // Results of builds with different physics fingerprints are paired
+    // only with that said (issue 32).
+    let mut other: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&b).unwrap()).unwrap();
+    other["manifest"]["build"]["physics_fingerprint"] = "0123456789abcdef".into();
+    let b_other = dir.join("b-other-build.json");
+    std::fs::write(&b_other, other.to_string()).unwrap();
+    let (ok, stdout, stderr) = d3il(&["compare", a.to_str().unwrap(), b_other.to_str().unwrap()]);
+    assert!(ok, "{stderr}");
+    assert!(
+        stdout.contains("note: A and B were made by builds that may simulate differently")
+            && stdout.contains("B: physics fingerprint 0123456789abcdef"),
+        "{stdout}"
+    );
+
     let c = run("scripted:avoiding:all-paths", "avoiding", "c.json");
     let (ok, _, stderr) = d3il(&["compare", a.to_str().unwrap(), c.to_str().unwrap()]);
     assert!(!ok);

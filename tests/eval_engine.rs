@@ -31,6 +31,7 @@ fn onnx_job(name: &str, seed: u64) -> Job {
         assets_dir: concat!(env!("CARGO_MANIFEST_DIR"), "/assets").into(),
         dry_run_steps: None,
         shard: None,
+        build: None,
     }
 }
 
@@ -128,6 +129,7 @@ fn scripted_job(task: TaskId, name: &str) -> Job {
         assets_dir: concat!(env!("CARGO_MANIFEST_DIR"), "/assets").into(),
         dry_run_steps: None,
         shard: None,
+        build: None,
     }
 }
 
@@ -427,6 +429,7 @@ fn a_dry_run_cuts_every_rollout_after_its_step_budget() {
     let job = Job {
         dry_run_steps: Some(7),
         shard: None,
+        build: None,
         ..scripted_job(TaskId::Aligning, "aligning:both")
     };
     let r = run_job(&job, &mut |_, _| {}).unwrap();

@@ -82,6 +82,9 @@ pub struct EvalOptions {
     /// (`tests/identical_rollouts.rs`). For checking that, and for benchmarks
     /// of the full protocol.
     pub simulate_every_rollout: bool,
+    /// The build identity the manifest records (the evaluator cannot know
+    /// its own git commit or fingerprint; the binary tells it).
+    pub build: Option<d3il_protocol::BuildIdentity>,
 }
 
 impl Default for EvalOptions {
@@ -94,6 +97,7 @@ impl Default for EvalOptions {
             step_cap: None,
             render_every_frame: false,
             simulate_every_rollout: false,
+            build: None,
         }
     }
 }
@@ -501,6 +505,7 @@ fn run_rollouts(
         execute: shape.execute,
         seed: opts.seed,
         simulated_once: sim_per_ctx < per_ctx,
+        build: opts.build.clone(),
     };
     timing.total_s = t0.elapsed().as_secs_f64();
     timing.step_cpu_s = slots.iter().map(|s| s.step_cpu_s).sum();

@@ -119,6 +119,7 @@ pub fn run_job_or_shard(
         protocol: job.protocol,
         seed: job.seed,
         step_cap: job.dry_run_steps,
+        build: job.build.clone(),
         ..EvalOptions::default()
     };
     match job.shard {

@@ -8,11 +8,16 @@
 
 pub mod camera;
 #[cfg(feature = "engine")]
+pub mod canary;
+#[cfg(feature = "engine")]
 pub mod eval;
+#[cfg(feature = "engine")]
+pub mod fidelity;
 #[cfg(feature = "engine")]
 pub mod job;
 #[allow(unsafe_code)]
 pub mod mujoco;
+pub mod open_loop;
 pub mod robot;
 #[cfg(feature = "engine")]
 pub mod scripted;

@@ -250,6 +250,20 @@ fn caveats(a: &ProtocolManifest, b: &ProtocolManifest) -> Vec<String> {
             drawn(b.robot_look)
         ));
     }
+    if a.physics_fingerprint() != b.physics_fingerprint() {
+        let fp = |m: &ProtocolManifest| {
+            m.physics_fingerprint()
+                .map(|f| format!("physics fingerprint {f}"))
+                .unwrap_or_else(|| {
+                    "no physics fingerprint (made before builds were identified)".into()
+                })
+        };
+        out.push(format!(
+            "A and B were made by builds that may simulate differently (A: {}; B: {}): the difference includes the simulators'",
+            fp(a),
+            fp(b)
+        ));
+    }
     out
 }
 
@@ -312,5 +326,44 @@ pub fn normal_quantile(p: f64) -> f64 {
         let q = (-2.0 * (1.0 - p).ln()).sqrt();
         -(((((C[0] * q + C[1]) * q + C[2]) * q + C[3]) * q + C[4]) * q + C[5])
             / ((((D[0] * q + D[1]) * q + D[2]) * q + D[3]) * q + 1.0)
+    }
+}
+
+/// Wilson score interval of `successes` out of `n` at two-sided level
+/// `1 - alpha` (0.05: 95 %), the interval of a success rate measured on
+/// independent rollouts without per-state structure (the fidelity report
+/// uses it for results recorded in the original simulator). `(0, 1)` for
+/// `n = 0`.
+pub fn wilson_interval(successes: usize, n: usize, alpha: f64) -> (f64, f64) {
+    if n == 0 {
+        return (0.0, 1.0);
+    }
+    let z = normal_quantile(1.0 - alpha / 2.0);
+    let (k, n) = (successes as f64, n as f64);
+    let p = k / n;
+    let z2 = z * z;
+    let centre = (p + z2 / (2.0 * n)) / (1.0 + z2 / n);
+    let half = z / (1.0 + z2 / n) * (p * (1.0 - p) / n + z2 / (4.0 * n * n)).sqrt();
+    ((centre - half).max(0.0), (centre + half).min(1.0))
+}
+
+#[cfg(test)]
+mod wilson_tests {
+    #[test]
+    fn wilson_matches_published_values() {
+        // 30/60 and 19/30 (the reference closed-loop README's intervals).
+        let (lo, hi) = super::wilson_interval(30, 60, 0.05);
+        assert!(
+            (lo - 0.3773).abs() < 1e-3 && (hi - 0.6227).abs() < 1e-3,
+            "{lo} {hi}"
+        );
+        let (lo, hi) = super::wilson_interval(19, 30, 0.05);
+        assert!(
+            (lo - 0.4551).abs() < 1e-3 && (hi - 0.7813).abs() < 1e-3,
+            "{lo} {hi}"
+        );
+        assert_eq!(super::wilson_interval(0, 0, 0.05), (0.0, 1.0));
+        let (lo, _) = super::wilson_interval(0, 10, 0.05);
+        assert_eq!(lo, 0.0);
     }
 }

@@ -30,7 +30,9 @@ pub(crate) use bootstrap::bias_corrected_interval;
 pub use bootstrap::{bootstrap, bootstrap_all, Bootstrap, Statistic};
 #[cfg(test)]
 use bootstrap::{Compact, Tally};
-pub use compare::{compare, compare_parts, compare_states, normal_quantile, ContextSummary};
+pub use compare::{
+    compare, compare_parts, compare_states, normal_quantile, wilson_interval, ContextSummary,
+};
 pub use d3il_protocol::StackingLevel;
 use d3il_protocol::{ContextResult, Metrics, Stat, TaskId};
 use std::collections::BTreeMap;

@@ -285,6 +285,10 @@ pub struct Job {
     /// paper-protocol job into shards that any worker host runs.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub shard: Option<crate::shard::Shard>,
+    /// The build identity the result's manifest records (the server and
+    /// `d3il eval` know the fingerprint; a sandboxed worker cannot compute it).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub build: Option<crate::results::BuildIdentity>,
 }
 
 /// What a worker's evaluation produced: a whole result, or the part of one

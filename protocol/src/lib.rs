@@ -5,6 +5,7 @@
 
 pub mod address;
 pub mod behaviour;
+pub mod fidelity;
 pub mod job;
 pub mod paper;
 pub mod results;

@@ -38,6 +38,24 @@ pub struct ProtocolManifest {
     /// (docs/submission.md). Written only when true.
     #[serde(default, skip_serializing_if = "is_false")]
     pub simulated_once: bool,
+    /// The build that made the result (CHANGELOG.md); absent in results made
+    /// before builds were identified (evaluator 0.1.0).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub build: Option<BuildIdentity>,
+}
+
+/// Which build made a result, beyond `evaluator_version`, `mujoco_version`
+/// and `mjcf_sha256`.
+#[derive(Debug, Clone, PartialEq, Eq, Hash, Default, Serialize, Deserialize)]
+pub struct BuildIdentity {
+    /// The git commit the binary was built from (`unknown` outside a checkout).
+    pub git_commit: String,
+    /// The physics fingerprint: the hash of the drift canary's outcomes as
+    /// this build computes them (`d3il verify`). Results whose fingerprints
+    /// differ are never averaged or ranked together. None when it was not
+    /// computed for this result.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub physics_fingerprint: Option<String>,
 }
 
 fn is_false(b: &bool) -> bool {
@@ -115,6 +133,13 @@ impl ProtocolManifest {
     /// How the robot was drawn, when not as the original draws it.
     pub fn robot_look_note(&self) -> Option<RobotLookNote> {
         robot_look_note(self.obs_type, self.robot_look)
+    }
+
+    /// The physics fingerprint of the build that made the result, if recorded.
+    pub fn physics_fingerprint(&self) -> Option<&str> {
+        self.build
+            .as_ref()
+            .and_then(|b| b.physics_fingerprint.as_deref())
     }
 }
 

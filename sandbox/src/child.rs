@@ -235,6 +235,7 @@ pub fn check_sandbox_with(
         assets_dir: assets_dir.display().to_string(),
         dry_run_steps: None,
         shard: None,
+        build: None,
     };
     let mut mechanisms = confine::confine(&job, None)?;
     mechanisms.extend(crate::selftest::probes(assets_dir));

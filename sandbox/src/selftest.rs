@@ -286,6 +286,7 @@ fn fake_result(job: &Job) -> EvalResult {
             execute: job.manifest.execute,
             seed: job.seed,
             simulated_once: false,
+            build: None,
         },
         metrics: Metrics {
             success_rate: zero,

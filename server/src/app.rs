@@ -232,6 +232,8 @@ pub async fn run_workers(
     }
     let store = Store::connect(&cfg.db, cfg.policy_store.as_deref()).await?;
     let runner = crate::runner::SharedSlots::wrap(runner, cfg.workers + 1);
+    let canary = Arc::new(crate::canary::Canary::new(cfg.canary.clone()));
+    canary.start();
     start_pool(
         store.clone(),
         runner,
@@ -240,6 +242,7 @@ pub async fn run_workers(
             lease_seconds: cfg.lease_seconds,
             assets_dir: cfg.assets_dir.clone(),
             limits: cfg.limits.clone(),
+            canary: canary.clone(),
         },
         QueueSignal::default(),
     )
@@ -338,6 +341,8 @@ pub async fn prepare(
         })?;
     let addr = listener.local_addr()?;
     let signal = QueueSignal::default();
+    let canary = Arc::new(crate::canary::Canary::new(cfg.canary.clone()));
+    canary.start();
     start_pool(
         store.clone(),
         runner.clone(),
@@ -346,12 +351,18 @@ pub async fn prepare(
             lease_seconds: cfg.lease_seconds,
             assets_dir: cfg.assets_dir.clone(),
             limits: cfg.limits.clone(),
+            canary: canary.clone(),
         },
         signal.clone(),
     )
     .await?;
     let sandbox = Arc::new(SandboxStatus::new(runner.clone(), cfg.assets_dir.clone()));
     let videos = crate::videos::Videos::new(cfg.videos.clone(), store.data_dir(), &cfg.assets_dir)?;
+    let fidelity = Arc::new(crate::fidelity::FidelityReports::new(
+        cfg.fidelity.clone(),
+        store.data_dir(),
+    ));
+    fidelity.start();
     let state = AppState {
         sandbox,
         store,
@@ -368,6 +379,8 @@ pub async fn prepare(
         runner,
         finished: Arc::new(crate::cache::FinishedCache::new(FINISHED_CACHE_ENTRIES)),
         videos: Arc::new(videos),
+        fidelity,
+        canary,
     };
     Ok((listener, Running { addr, state }))
 }

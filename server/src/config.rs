@@ -50,6 +50,10 @@ pub struct ServerConfig {
     pub connections: ConnectionLimits,
     /// Rollout videos, rendered on demand by `d3il replay` (issue 31).
     pub videos: VideoConfig,
+    /// The fidelity report of `/fidelity`, made by `d3il fidelity` (issue 32).
+    pub fidelity: crate::fidelity::FidelityConfig,
+    /// The drift canary run at start (`d3il verify`, issue 32).
+    pub canary: crate::canary::CanaryConfig,
 }
 
 /// How rollout videos are made: the `d3il` binary replays the stored record
@@ -136,6 +140,8 @@ impl ServerConfig {
             dry_run_uploads: true,
             lease_seconds: 30,
             videos: VideoConfig::new(worker_exe.clone()),
+            fidelity: crate::fidelity::FidelityConfig::new(worker_exe.clone()),
+            canary: crate::canary::CanaryConfig::new(worker_exe.clone()),
             worker: WorkerProcess {
                 exe: worker_exe,
                 args: vec!["worker".into()],

@@ -488,6 +488,7 @@ pub async fn dry_run(
         assets_dir: state.cfg.assets_dir.to_string_lossy().into_owned(),
         dry_run_steps: (!remote).then(|| (2 * v.manifest.execute).max(DRY_RUN_MIN_STEPS)),
         shard: None,
+        build: None,
     };
     let report = tokio::task::spawn_blocking(move || runner.run(&job, &mut |_, _| {}))
         .await

@@ -59,6 +59,36 @@ pub struct BoardRow {
     /// drawn differently are never merged.
     #[schema(value_type = Option<schema::RobotLook>)]
     pub robot_look: Option<RobotLook>,
+    /// Evaluated rows: the physics fingerprint of the build that made them
+    /// (null before builds were identified); rows of different fingerprints
+    /// are never merged or ranked together.
+    pub physics_fingerprint: Option<String>,
+}
+
+/// The physics fingerprint of this server's build, once its drift canary
+/// has run (`crate::canary`): rows made by other builds say so.
+static CURRENT_FINGERPRINT: std::sync::OnceLock<String> = std::sync::OnceLock::new();
+
+pub fn set_current_fingerprint(fp: &str) {
+    let _ = CURRENT_FINGERPRINT.set(fp.to_string());
+}
+
+pub fn current_fingerprint() -> Option<&'static str> {
+    CURRENT_FINGERPRINT.get().map(String::as_str)
+}
+
+/// Why an evaluated row made with `fingerprint` is not this build's (None:
+/// it is, or neither is known).
+pub fn other_build_note(fingerprint: Option<&str>) -> Option<String> {
+    match (fingerprint, current_fingerprint()) {
+        (Some(f), Some(cur)) if f == cur => None,
+        (Some(f), Some(cur)) => Some(format!(
+            "other build: physics fingerprint {f}, this build's is {cur}"
+        )),
+        (Some(f), None) => Some(format!("physics fingerprint {f}")),
+        (None, Some(_)) => Some("other build: made before builds were identified".into()),
+        (None, None) => None,
+    }
 }
 
 impl BoardRow {
@@ -68,6 +98,14 @@ impl BoardRow {
         match self.source {
             Source::Reported => None,
             Source::Evaluated => robot_look_note(self.obs, self.robot_look),
+        }
+    }
+
+    /// Evaluated rows of another build than this server's: why.
+    pub fn build_note(&self) -> Option<String> {
+        match self.source {
+            Source::Reported => None,
+            Source::Evaluated => other_build_note(self.physics_fingerprint.as_deref()),
         }
     }
 
@@ -85,7 +123,12 @@ impl BoardRow {
             n_seeds: self.n_seeds,
             bold_success: self.bold_success,
             bold_entropy: self.bold_entropy,
-            initial_states: self.initial_states_label.clone(),
+            // Rows of another build are kept apart in the tables too, with
+            // the reason in the row's annotation.
+            initial_states: match (self.initial_states_label.clone(), self.build_note()) {
+                (Some(l), Some(b)) => Some(format!("{l}; {b}")),
+                (l, b) => l.or(b),
+            },
             robot_look: self.robot_look_note().map(|n| n.badge.to_string()),
         }
     }
@@ -148,6 +191,8 @@ pub struct EvaluatedSeed {
     pub initial_states: String,
     /// Image results: how the robot was drawn (None before it was recorded).
     pub robot_look: Option<RobotLook>,
+    /// The build's physics fingerprint (None before builds were identified).
+    pub physics_fingerprint: Option<String>,
 }
 
 impl EvaluatedSeed {
@@ -201,6 +246,7 @@ pub fn evaluated_rows(seeds: &[EvaluatedSeed]) -> Result<Vec<BoardRow>, MetricsE
         &'static str,
         String,
         Option<RobotLook>,
+        Option<String>,
     );
     struct Group<'a> {
         first: &'a EvaluatedSeed,
@@ -224,6 +270,7 @@ pub fn evaluated_rows(seeds: &[EvaluatedSeed]) -> Result<Vec<BoardRow>, MetricsE
                 protocol_str(s.protocol),
                 s.initial_states.clone(),
                 s.robot_look,
+                s.physics_fingerprint.clone(),
             );
             let i = *index.entry(key).or_insert_with(|| {
                 groups.push(Group {
@@ -282,6 +329,7 @@ pub fn evaluated_rows(seeds: &[EvaluatedSeed]) -> Result<Vec<BoardRow>, MetricsE
                         .to_string(),
                 ),
                 robot_look: f.robot_look,
+                physics_fingerprint: f.physics_fingerprint.clone(),
             })
         })
         .collect()
@@ -378,7 +426,7 @@ pub enum RankGroup {
     /// Evaluated here with the full (paper) protocol on one initial-state set
     /// and, for image rows, with the robot drawn one way (None: as the
     /// original draws it).
-    Evaluated(String, Option<RobotLookNote>),
+    Evaluated(String, Option<RobotLookNote>, Option<String>),
     /// Reported in the D3IL paper.
     Reported,
     /// Quick-protocol smoke tests: below the board, unranked, off the Pareto front.
@@ -393,6 +441,7 @@ impl RankGroup {
             (Source::Evaluated, _) => RankGroup::Evaluated(
                 r.initial_states.clone().unwrap_or_default(),
                 r.robot_look_note(),
+                r.physics_fingerprint.clone(),
             ),
         }
     }
@@ -404,9 +453,11 @@ impl RankGroup {
 
     pub fn heading(&self) -> String {
         match self {
-            RankGroup::Evaluated(set, None) => format!("Evaluated here (initial states {set})"),
-            RankGroup::Evaluated(set, Some(look)) => {
-                format!("Evaluated here (initial states {set}; {})", look.badge)
+            RankGroup::Evaluated(set, look, fingerprint) => {
+                let mut notes = vec![format!("initial states {set}")];
+                notes.extend(look.as_ref().map(|l| l.badge.to_string()));
+                notes.extend(other_build_note(fingerprint.as_deref()));
+                format!("Evaluated here ({})", notes.join("; "))
             }
             RankGroup::Reported => "Reported in the D3IL paper".into(),
             RankGroup::Smoke => "Smoke tests (quick protocol, not ranked)".into(),
@@ -549,6 +600,7 @@ mod tests {
             inference_ms: 2.0,
             initial_states: "pushing-v2.json".into(),
             robot_look: None,
+            physics_fingerprint: None,
         }
     }
 
@@ -589,8 +641,8 @@ mod tests {
         assert_eq!(
             groups,
             vec![
-                RankGroup::Evaluated("pushing-v1.json".into(), None),
-                RankGroup::Evaluated("pushing-v2.json".into(), None),
+                RankGroup::Evaluated("pushing-v1.json".into(), None, None),
+                RankGroup::Evaluated("pushing-v2.json".into(), None, None),
                 RankGroup::Reported,
                 RankGroup::Smoke
             ]
@@ -606,6 +658,7 @@ mod tests {
         let image = |id, training_seed, look| EvaluatedSeed {
             obs: ObsType::Image,
             robot_look: look,
+            physics_fingerprint: None,
             ..seed(id, training_seed, 0.5)
         };
         let rows = evaluated_rows(&[

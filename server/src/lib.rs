@@ -23,11 +23,13 @@
 pub mod app;
 pub mod auth;
 pub mod cache;
+pub mod canary;
 pub mod cli;
 pub mod client;
 pub mod comparison;
 pub mod config;
 pub mod error;
+pub mod fidelity;
 pub mod http;
 pub mod intake;
 pub mod leaderboard;

@@ -53,6 +53,8 @@ pub struct PoolConfig {
     pub lease_seconds: i64,
     pub assets_dir: PathBuf,
     pub limits: Limits,
+    /// The build identity results record; the pool waits for its canary.
+    pub canary: Arc<crate::canary::Canary>,
 }
 
 /// Failures worth another attempt: the process died or our side broke, or the
@@ -70,6 +72,7 @@ pub fn job_from_claim(
     c: &ClaimedJob,
     assets_dir: &std::path::Path,
     limits: &Limits,
+    build: d3il_protocol::BuildIdentity,
 ) -> Result<Job, String> {
     let s = &c.submission;
     let manifest: PolicyManifest = serde_json::from_value(s.manifest_json.0.clone())
@@ -105,6 +108,7 @@ pub fn job_from_claim(
         assets_dir: assets_dir.to_string_lossy().into_owned(),
         dry_run_steps: None,
         shard: c.job.shard(),
+        build: Some(build),
     })
 }
 
@@ -182,6 +186,9 @@ async fn slot_loop(
     owner: String,
     only: Option<ProtocolKind>,
 ) {
+    // Every result records the build's physics fingerprint: none is
+    // evaluated before the drift canary has run.
+    cfg.canary.ready().await;
     loop {
         let notified = signal.0.notified();
         match store.claim_job_of(&owner, cfg.lease_seconds, only).await {
@@ -213,7 +220,7 @@ async fn run_claimed(
     let job_id = c.job.id;
     let submission_id = c.submission.id;
     let shard = c.job.shard();
-    let job = match job_from_claim(&c, &cfg.assets_dir, &cfg.limits) {
+    let job = match job_from_claim(&c, &cfg.assets_dir, &cfg.limits, cfg.canary.build()) {
         Ok(j) => j,
         Err(message) => {
             let err = WorkerError {

@@ -25,4 +25,8 @@ pub struct AppState {
     pub finished: Arc<crate::cache::FinishedCache>,
     /// Rollout videos: the render pool and its cache.
     pub videos: Arc<crate::videos::Videos>,
+    /// The fidelity report (`/fidelity`), computed in the background.
+    pub fidelity: Arc<crate::fidelity::FidelityReports>,
+    /// The drift canary's outcome and this build's identity.
+    pub canary: Arc<crate::canary::Canary>,
 }

@@ -39,6 +39,7 @@ fn aligning_result(
             execute: 1,
             seed: 0,
             simulated_once: false,
+            build: None,
         },
         metrics: Metrics {
             success_rate: est(success),

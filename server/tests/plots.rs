@@ -53,6 +53,7 @@ async fn evaluated(
             execute: 1,
             seed: 0,
             simulated_once: false,
+            build: None,
         },
         metrics: Metrics {
             success_rate: est(success),

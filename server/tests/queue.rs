@@ -45,6 +45,7 @@ fn result_line(task: TaskId) -> String {
             execute: 1,
             seed: 0,
             simulated_once: false,
+            build: None,
         },
         metrics: Metrics {
             success_rate: est(0.5),
@@ -278,6 +279,7 @@ async fn stacking_levels_are_stored_and_shown_each_with_its_own_numbers(b: Backe
             execute: 1,
             seed: 0,
             simulated_once: false,
+            build: None,
         },
         metrics: ev.metrics.clone(),
         per_context: ev.per_context.clone(),

@@ -57,6 +57,7 @@ fn result_line_once(once: bool) -> String {
             execute: 1,
             seed: 0,
             simulated_once: once,
+            build: None,
         },
         metrics: ev.metrics,
         per_context: ev.per_context,

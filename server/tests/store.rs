@@ -29,6 +29,7 @@ fn eval_result(task: TaskId, success: f64, cond: f64, paths: bool) -> EvalResult
         execute: 1,
         seed: 0,
         simulated_once: false,
+        build: None,
     };
     let est = |v| Estimate {
         value: v,

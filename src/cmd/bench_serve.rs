@@ -222,6 +222,7 @@ fn result_480() -> anyhow::Result<EvalResult> {
             execute: 1,
             seed: 0,
             simulated_once: false,
+            build: None,
         },
         metrics: ev.metrics,
         per_context: ev.per_context,

@@ -113,6 +113,7 @@ pub fn load_in_process(
         seed: job.seed,
         max_live: args.max_live,
         simulate_every_rollout: args.every_rollout,
+        build: job.build.clone(),
         ..EvalOptions::default()
     };
     Ok((task, policy, info, opts))
@@ -216,6 +217,7 @@ pub fn build_job(args: &Args) -> anyhow::Result<Job> {
         assets_dir: crate::cmd::assets_dir().to_string_lossy().into_owned(),
         dry_run_steps: None,
         shard: None,
+        build: Some(super::verify::this_build()?),
     })
 }
 

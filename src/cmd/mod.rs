@@ -6,6 +6,7 @@ pub mod compare;
 pub mod contexts;
 pub mod db;
 pub mod eval;
+pub mod fidelity;
 pub mod limits;
 pub mod merge;
 pub mod render;
@@ -14,6 +15,7 @@ pub mod serve;
 pub mod submit;
 pub mod tables;
 pub mod token;
+pub mod verify;
 pub mod worker;
 pub mod workers;
 

@@ -11,13 +11,13 @@
 //!   JSON (docs/tasks.md).
 
 use anyhow::{bail, Context};
+use d3il_evaluator::open_loop::{replay_actions, OpenLoopOptions};
 use d3il_evaluator::tasks::LoadedTask;
 use d3il_evaluator::trace::{load_task, replay as replay_trace, ReplayCheck};
 use d3il_evaluator::video::{render_video, VideoOptions};
 use d3il_protocol::{trace_of, ProtocolManifest, RolloutRecord, TaskId};
 use serde::Deserialize;
 use serde_json::{json, Value};
-use std::collections::BTreeMap;
 use std::path::PathBuf;
 
 #[derive(clap::Args)]
@@ -203,41 +203,26 @@ pub fn replay(task: TaskId, input_json: &str) -> anyhow::Result<Value> {
             );
         }
     }
-    let mut env = loaded.env()?;
-    let first = env.reset(&input.context).context("field `context`")?;
-    let mut observations = vec![first];
-    let mut tcp = vec![env.sim.tcp_pos()];
-    let mut joints = vec![env.sim.joint_pos()];
-    let mut fingers = vec![env.sim.finger_pos()];
-    let mut objects: BTreeMap<String, Vec<[f64; 3]>> = BTreeMap::new();
-    let record = |env: &d3il_evaluator::tasks::Env,
-                  objects: &mut BTreeMap<String, Vec<[f64; 3]>>| {
-        for (name, p) in env.objects() {
-            objects.entry(name).or_default().push(p);
-        }
-    };
-    record(&env, &mut objects);
-    for (i, a) in input.actions.iter().enumerate() {
-        let out = env.step(a).with_context(|| format!("actions[{i}]"))?;
-        observations.push(out.obs);
-        tcp.push(env.sim.tcp_pos());
-        joints.push(env.sim.joint_pos());
-        fingers.push(env.sim.finger_pos());
-        record(&env, &mut objects);
-        if out.done {
-            break;
-        }
-    }
+    let run = replay_actions(
+        &loaded,
+        &input.context,
+        &input.actions,
+        OpenLoopOptions::default(),
+    )
+    .map_err(|e| match e.index {
+        Some(i) => anyhow::Error::new(e.source).context(format!("actions[{i}]")),
+        None => anyhow::Error::new(e.source).context("field `context`"),
+    })?;
     Ok(json!({
         "task": task,
-        "observations": observations,
-        "tcp": tcp,
-        "joints": joints,
-        "fingers": fingers,
-        "objects": objects,
-        "success": env.success(),
-        "behaviour": env.behaviour(),
-        "steps": env.steps(),
-        "done": env.is_done(),
+        "observations": run.observations,
+        "tcp": run.tcp,
+        "joints": run.joints,
+        "fingers": run.fingers,
+        "objects": run.objects,
+        "success": run.success,
+        "behaviour": run.behaviour,
+        "steps": run.steps,
+        "done": run.done,
     }))
 }

@@ -62,9 +62,33 @@ pub struct Args {
     pub max_connections_per_client: usize,
     #[command(flatten)]
     pub limits: super::limits::LimitArgs,
+    /// The fidelity report of /fidelity, computed at start in the background
+    /// by `d3il fidelity` (one thread, lowest priority, cached per build):
+    /// `full` (paper protocol for the closed-loop policies), `quick` or `off`.
+    #[arg(long, value_enum, default_value_t = FidelityArg::Full)]
+    pub fidelity: FidelityArg,
+    /// Niceness of the fidelity computation (0: run at normal priority).
+    #[arg(long, default_value_t = 19, hide = true)]
+    pub fidelity_nice: i32,
+    /// Do not run the drift canary (`d3il verify`) at start: results then
+    /// record no physics fingerprint and are kept apart from those that do.
+    #[arg(long)]
+    pub no_verify: bool,
+    /// Rollout videos rendered at once (each a `d3il replay --video`
+    /// process, apart from the evaluation workers).
+    #[arg(long, default_value_t = 1)]
+    pub video_renders: usize,
     /// Worker executable (default: this binary, run as `d3il worker`).
     #[arg(long, hide = true)]
     pub worker_exe: Option<PathBuf>,
+}
+
+/// `d3il serve --fidelity`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum FidelityArg {
+    Full,
+    Quick,
+    Off,
 }
 
 /// The configuration `serve` and `workers` share: database and policy
@@ -133,6 +157,15 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         max_connections: args.max_connections,
         max_connections_per_client: args.max_connections_per_client,
     };
+    cfg.fidelity.mode = match args.fidelity {
+        FidelityArg::Full => Some(d3il_protocol::fidelity::FidelityMode::Full),
+        FidelityArg::Quick => Some(d3il_protocol::fidelity::FidelityMode::Quick),
+        FidelityArg::Off => None,
+    };
+    cfg.fidelity.nice = args.fidelity_nice;
+    cfg.canary.run = !args.no_verify;
+    cfg.canary.git_commit = super::verify::GIT_COMMIT.to_string();
+    cfg.videos.renders = args.video_renders.max(1);
     d3il_server::cli::serve_blocking(cfg).context("d3il serve failed")?;
     Ok(())
 }

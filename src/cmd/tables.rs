@@ -236,6 +236,7 @@ mod tests {
                 execute: 1,
                 seed: 0,
                 simulated_once: false,
+                build: None,
             },
             metrics: ev.metrics.clone(),
             per_context: ev.per_context,

@@ -13,6 +13,8 @@
 pub use d3il_pgtemp as pg;
 pub use d3il_pgtemp::free_port;
 
+pub mod layout;
+
 use d3il_protocol::{
     EvalResult, FailureReason, Job, Limits, ObsType, PolicyManifest, PolicySource, ProtocolKind,
     ProtocolManifest, RolloutFailure, RolloutRecord, TaskId,
@@ -97,6 +99,7 @@ pub fn avoiding_job(policy: PolicySource, limits: Limits) -> Job {
         assets_dir: assets_dir().display().to_string(),
         dry_run_steps: None,
         shard: None,
+        build: None,
     }
 }
 
@@ -187,6 +190,7 @@ pub fn pushing_result(
             execute: 1,
             seed: 0,
             simulated_once: false,
+            build: None,
         },
         metrics: ev.metrics,
         per_context: ev.per_context,

@@ -144,10 +144,25 @@ impl Default for CartesianTracker {
 /// Plain joint PD: τ = K_P (q_d − q) + K_D (q̇_d − q̇) (docs/original-d3il.md §01.3.4 step 5, §01.3.6).
 pub fn joint_pd(q_d: &[f64; 7], qdot_d: &[f64; 7], q: &[f64; 7], qdot: &[f64; 7]) -> [f64; 7] {
     let mut tau = [0.0; 7];
+    let scale = drift_test_kp_scale();
     for i in 0..7 {
-        tau[i] = KP[i] * (q_d[i] - q[i]) + KD[i] * (qdot_d[i] - qdot[i]);
+        tau[i] = KP[i] * scale * (q_d[i] - q[i]) + KD[i] * (qdot_d[i] - qdot[i]);
     }
     tau
+}
+
+/// A deliberate drift, for the test that the drift canary (`d3il verify`)
+/// catches a changed controller: `D3IL_DRIFT_TEST_KP_SCALE` scales the joint
+/// P gains. Unset, as always outside that test, the scale is 1.0 and the
+/// torques are bit for bit those of `KP` (x × 1.0 = x exactly).
+fn drift_test_kp_scale() -> f64 {
+    static SCALE: std::sync::OnceLock<f64> = std::sync::OnceLock::new();
+    *SCALE.get_or_init(|| {
+        std::env::var("D3IL_DRIFT_TEST_KP_SCALE")
+            .ok()
+            .and_then(|v| v.parse().ok())
+            .unwrap_or(1.0)
+    })
 }
 
 /// Finger command: per-finger target width w and the grasp flag g (docs/original-d3il.md §01.3.7).

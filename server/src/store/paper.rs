@@ -136,6 +136,7 @@ impl Store {
                     initial_states: None,
                     initial_states_label: None,
                     robot_look: None,
+                    physics_fingerprint: None,
                 }
             })
             .collect())

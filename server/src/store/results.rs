@@ -110,6 +110,8 @@ struct SeedDbRow {
     /// The manifest's `robot_look` (NULL for state results and before it was
     /// recorded).
     robot_look: Option<Stored<RobotLook>>,
+    /// The manifest's `build.physics_fingerprint` (NULL before builds were identified).
+    physics_fingerprint: Option<String>,
 }
 
 impl SeedDbRow {
@@ -134,6 +136,7 @@ impl SeedDbRow {
                 self.initial_states.as_deref().unwrap_or(""),
             ),
             robot_look: self.robot_look.map(|l| l.0),
+            physics_fingerprint: self.physics_fingerprint,
         }
     }
 }
@@ -171,10 +174,16 @@ impl Store {
             }
         };
         let (initial_states, robot_look) = (manifest("initial_states"), manifest("robot_look"));
+        let fingerprint = if self.is_postgres() {
+            "CAST(r.manifest_json AS JSONB) -> 'build' ->> 'physics_fingerprint'".to_string()
+        } else {
+            "json_extract(r.manifest_json, '$.build.physics_fingerprint')".to_string()
+        };
         let sql = format!(
             "SELECT s.id AS submission_id, m.name AS method, m.id AS method_id, s.task, s.obs_type, s.training_seed, \
              s.data_fraction, s.protocol, r.success_rate, r.behaviour_entropy, r.conditional_entropy, r.stacking_json, \
-             r.stacking_levels_json, r.inference_ms, {initial_states} AS initial_states, {robot_look} AS robot_look \
+             r.stacking_levels_json, r.inference_ms, {initial_states} AS initial_states, {robot_look} AS robot_look, \
+             {fingerprint} AS physics_fingerprint \
              FROM submissions s JOIN results r ON r.submission_id = s.id \
              JOIN methods m ON m.id = s.method_id WHERE s.status = $1 ORDER BY s.id"
         );

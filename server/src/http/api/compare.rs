@@ -4,6 +4,7 @@
 
 use crate::comparison::{finished, paired};
 use crate::error::{AppError, ErrorBody};
+use crate::schema;
 use crate::state::AppState;
 use axum::extract::{Query, State};
 use axum::Json;
@@ -39,7 +40,7 @@ fn id(field: &str, v: Option<&str>) -> Result<i64, AppError> {
     summary = "Paired comparison of two evaluated submissions (A − B)",
     params(CompareQuery),
     responses(
-        (status = 200, description = "Differences in success rate and conditional entropy with paired bootstrap intervals, p-values and minimum detectable differences", body = super::openapi::ComparisonSchema),
+        (status = 200, description = "Differences in success rate and conditional entropy with paired bootstrap intervals, p-values and minimum detectable differences", body = ComparisonSchema),
         (status = 400, description = "Missing or malformed ids, a submission that has not finished, or results that cannot be paired (different task, protocol or initial states)", body = ErrorBody),
         (status = 404, description = "No such submission or no result yet", body = ErrorBody)))]
 pub async fn compare(
@@ -51,4 +52,49 @@ pub async fn compare(
     let pa = finished(&state, "a", a).await?;
     let pb = finished(&state, "b", b).await?;
     paired(&pa, &pb).map(Json)
+}
+
+// A schema only, of `d3il_protocol::Comparison` as serde writes it, so that
+// clients can check the comparison as they check every other answer.
+/// A paired comparison A − B of two results on the same task, protocol and
+/// initial states (as `d3il compare --json` prints it).
+#[derive(utoipa::ToSchema)]
+#[schema(as = Comparison)]
+#[allow(dead_code)] // a schema only: the handler returns d3il_protocol::Comparison
+pub struct ComparisonSchema {
+    #[schema(value_type = schema::Task)]
+    task: String,
+    #[schema(value_type = schema::Protocol)]
+    protocol: String,
+    /// The shared initial-state set's file name.
+    initial_states: String,
+    initial_states_sha256: String,
+    n_contexts: u64,
+    rollouts_per_context: u64,
+    /// Resamples of the bootstrap and of the randomisation test.
+    resamples: u64,
+    confidence: f64,
+    /// Stacking: Stacking-3's.
+    success_rate: PairedDifferenceSchema,
+    conditional_entropy: PairedDifferenceSchema,
+    /// What else differs between A and B, so that the difference is not the
+    /// policies' alone; absent when nothing does.
+    caveats: Option<Vec<String>>,
+}
+
+/// One metric of a paired comparison.
+#[derive(utoipa::ToSchema)]
+#[schema(as = PairedDifference)]
+#[allow(dead_code)] // a schema only
+pub struct PairedDifferenceSchema {
+    /// The metric of A, the mean over the shared initial states.
+    a: f64,
+    /// The metric of B.
+    b: f64,
+    /// A − B with its paired bootstrap interval over initial states.
+    difference: crate::views::EstimateView,
+    /// Two-sided p-value of "no difference" (randomisation test paired by initial state).
+    p_value: f64,
+    /// The smallest true |A − B| detected with 80 % power at the 5 % level.
+    min_detectable: f64,
 }

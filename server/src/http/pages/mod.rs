@@ -4,6 +4,7 @@
 
 mod boards;
 mod compare;
+mod fidelity;
 mod format;
 mod lists;
 mod rollouts;
@@ -49,6 +50,8 @@ pub fn router(max_upload: usize) -> Router<AppState> {
                 .post(submit_post)
                 .layer(DefaultBodyLimit::max(max_upload + (1 << 20))),
         )
+        .route("/fidelity", get(fidelity::fidelity_page))
+        .route("/fidelity/json", get(fidelity::fidelity_json))
         .route("/docs/api", get(api_docs))
         .route("/admin", get(admin_page))
         .route("/static/style.css", get(stylesheet))

@@ -75,6 +75,9 @@ struct HomePage {
     latest: Vec<SubmissionLine>,
     queued: i64,
     running: i64,
+    /// The drift canary's outcome on this server (`d3il verify`).
+    canary: String,
+    build: String,
 }
 
 #[derive(Debug, serde::Deserialize, Default)]
@@ -243,6 +246,12 @@ pub(super) async fn home(
         latest,
         queued,
         running,
+        canary: state.canary.state().summary(),
+        build: format!(
+            "evaluator {} (commit {})",
+            env!("CARGO_PKG_VERSION"),
+            state.canary.build().git_commit
+        ),
     })
 }
 

@@ -1,0 +1,129 @@
+//! Issue 32: results from builds whose physics fingerprints differ are never
+//! averaged or ranked together: the board keeps them in tables of their
+//! own, headed with the fingerprint, the API names each row's fingerprint
+//! and `d3il tables`' cells keep them apart with the reason.
+
+mod common;
+use common::*;
+use d3il_protocol::*;
+
+fn result(success: f64, fingerprint: Option<&str>) -> EvalResult {
+    let est = |v: f64| Estimate {
+        value: v,
+        ci_low: v - 0.05,
+        ci_high: v + 0.05,
+    };
+    EvalResult {
+        manifest: ProtocolManifest {
+            task: TaskId::Aligning,
+            task_version: "test".into(),
+            obs_type: ObsType::State,
+            protocol: ProtocolKind::Paper,
+            robot_look: None,
+            mjcf_sha256: "m".into(),
+            initial_states_sha256: "i".into(),
+            initial_states: "aligning-v2.json".into(),
+            mujoco_version: "2.2.2".into(),
+            evaluator_version: "0.2.0".into(),
+            n_contexts: 1,
+            rollouts_per_context: 2,
+            max_steps: 10,
+            policy_sha256: "p".into(),
+            history: 1,
+            horizon: 1,
+            execute: 1,
+            seed: 0,
+            simulated_once: false,
+            build: fingerprint.map(|f| BuildIdentity {
+                git_commit: "c".repeat(40),
+                physics_fingerprint: Some(f.into()),
+            }),
+        },
+        metrics: Metrics {
+            success_rate: est(success),
+            behaviour_entropy: est(0.5),
+            conditional_entropy: est(0.2),
+            stacking: None,
+            stacking_levels: None,
+            inference_ms: 1.5,
+        },
+        per_context: vec![],
+        rollouts: vec![],
+        rollouts_ended_unstable: 0,
+    }
+}
+
+async fn evaluated(app: &TestApp, seed: i64, success: f64, fingerprint: Option<&str>) {
+    let store = &app.state.store;
+    let id = queued_submission(
+        store,
+        "Mine",
+        TaskId::Aligning,
+        ProtocolKind::Paper,
+        seed,
+        1,
+    )
+    .await;
+    let job = store.job_for(id).await.expect("job");
+    store
+        .complete_job(job.id, id, &result(success, fingerprint), &[])
+        .await
+        .expect("complete");
+}
+
+#[tokio::test]
+async fn results_of_different_fingerprints_are_never_ranked_together() {
+    let app = spawn_app().await;
+    // Two seeds of one method by one build, one seed by another build and
+    // one made before builds were identified.
+    evaluated(&app, 0, 0.9, Some("aaaaaaaaaaaaaaaa")).await;
+    evaluated(&app, 1, 0.7, Some("aaaaaaaaaaaaaaaa")).await;
+    evaluated(&app, 2, 0.1, Some("bbbbbbbbbbbbbbbb")).await;
+    evaluated(&app, 3, 0.5, None).await;
+
+    let (s, board) = app.get_json("/api/v1/leaderboards/aligning").await;
+    assert_eq!(s, 200, "{board}");
+    let rows: Vec<&serde_json::Value> = board["rows"]
+        .as_array()
+        .expect("rows")
+        .iter()
+        .filter(|r| r["method"] == "Mine")
+        .collect();
+    let mut seen: Vec<(Option<String>, u64, f64)> = rows
+        .iter()
+        .map(|r| {
+            (
+                r["physics_fingerprint"].as_str().map(str::to_string),
+                r["n_seeds"].as_u64().unwrap(),
+                r["success"]["mean"].as_f64().unwrap(),
+            )
+        })
+        .collect();
+    seen.sort_by(|a, b| a.0.cmp(&b.0));
+    assert_eq!(seen.len(), 3, "{rows:?}");
+    assert_eq!(seen[0], (None, 1, 0.5));
+    assert_eq!(seen[1].0.as_deref(), Some("aaaaaaaaaaaaaaaa"));
+    assert_eq!(seen[1].1, 2, "the same build's seeds are averaged");
+    assert!((seen[1].2 - 0.8).abs() < 1e-12);
+    assert_eq!(seen[2], (Some("bbbbbbbbbbbbbbbb".into()), 1, 0.1));
+
+    // The page ranks each build in a table of its own, each from 1, and says why.
+    let (s, page) = app.get_text("/tasks/aligning").await;
+    assert_eq!(s, 200);
+    let evaluated_tables = page.matches("data-group=\"evaluated\"").count();
+    assert_eq!(evaluated_tables, 3, "one table per fingerprint");
+    assert!(
+        page.contains("physics fingerprint aaaaaaaaaaaaaaaa"),
+        "headings name the build"
+    );
+    assert!(page.contains("physics fingerprint bbbbbbbbbbbbbbbb"));
+
+    // d3il tables keeps the cells apart, with the reason in the row's label.
+    let cells = app.state.store.result_cells().await.expect("cells");
+    let mine: Vec<&ResultCell> = cells.iter().filter(|c| c.method == "Mine").collect();
+    assert_eq!(mine.len(), 3);
+    assert!(mine.iter().any(|c| c
+        .initial_states
+        .as_deref()
+        .is_some_and(|l| l.contains("physics fingerprint bbbbbbbbbbbbbbbb"))));
+}
