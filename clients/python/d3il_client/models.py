@@ -10,6 +10,7 @@ as ``raw``. Tables come as pandas DataFrames from the ``*_frame`` methods.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import sys
 import typing
 from typing import TYPE_CHECKING, Any, ClassVar, Dict, List, Optional, Tuple, Type, TypeVar, Union
@@ -41,6 +42,12 @@ def _convert(tp: Any, value: Any) -> Any:
     return value
 
 
+@functools.cache
+def _hints(cls: type) -> Dict[str, Any]:
+    # Evaluated once per model: results documents hold hundreds of rollouts.
+    return typing.get_type_hints(cls, vars(sys.modules[cls.__module__]))
+
+
 def from_json(cls: Type[T], data: Any) -> T:
     """Build the model ``cls`` from the server's JSON object ``data``.
 
@@ -49,7 +56,7 @@ def from_json(cls: Type[T], data: Any) -> T:
     """
     if not isinstance(data, dict):
         raise ValueError(f"expected a JSON object for {cls.__name__}, got {type(data).__name__}")
-    hints = typing.get_type_hints(cls, vars(sys.modules[cls.__module__]))
+    hints = _hints(typing.cast(type, cls))
     kwargs: Dict[str, Any] = {}
     for f in dataclasses.fields(cls):  # type: ignore[arg-type]
         if f.name == "raw":
