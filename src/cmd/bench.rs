@@ -1,9 +1,10 @@
 //! `d3il bench <which>`: benchmarks that print rates and the ratio the issue
 //! tracks on their last line. Speed goals live here, never in tests.
 
+use super::fixtures::load_fixture;
 use anyhow::{bail, Context};
 use d3il_evaluator::camera;
-use d3il_evaluator::eval::{self, EvalOptions, PolicyInfo};
+use d3il_evaluator::eval::{self, EvalOptions};
 use d3il_evaluator::tasks::avoiding::AvoidingScript;
 use d3il_evaluator::tasks::LoadedTask;
 use d3il_policy::{ActionChunks, OnnxPolicy, Policy, PolicyError, PolicyShape, Query};
@@ -84,24 +85,6 @@ impl Policy for RowByRow {
         }
         Ok(out)
     }
-}
-
-pub(super) fn load_fixture(
-    task: &LoadedTask,
-    name: &str,
-    obs_type: ObsType,
-) -> anyhow::Result<(OnnxPolicy, PolicyInfo)> {
-    let dir = super::assets_dir().join("fixtures");
-    let onnx = dir.join(format!("{name}.onnx"));
-    let bytes = std::fs::read(&onnx).with_context(|| format!("reading {}", onnx.display()))?;
-    let manifest: PolicyManifest =
-        serde_json::from_slice(&std::fs::read(dir.join(format!("{name}.json")))?)?;
-    let policy = OnnxPolicy::load(&bytes, &manifest, &task.spec(), 0)?;
-    let info = PolicyInfo {
-        sha256: eval::sha256_hex(&bytes),
-        obs_type,
-    };
-    Ok((policy, info))
 }
 
 /// The full Aligning protocol with a BC-MLP-sized ONNX policy (20 -> 6 x 128

@@ -14,7 +14,7 @@ const MIB: f64 = (1 << 20) as f64;
 
 pub fn run(protocol: ProtocolKind) -> anyhow::Result<()> {
     let task = LoadedTask::load(TaskId::Aligning)?;
-    let (mut policy, info) = super::bench::load_fixture(&task, "aligning_mlp", ObsType::State)?;
+    let (mut policy, info) = super::fixtures::load_fixture(&task, "aligning_mlp", ObsType::State)?;
     let opts = EvalOptions {
         protocol,
         ..EvalOptions::default()

@@ -7,6 +7,7 @@ pub mod contexts;
 pub mod db;
 pub mod eval;
 pub mod fidelity;
+pub mod fixtures;
 pub mod limits;
 pub mod merge;
 pub mod render;
