@@ -10,8 +10,9 @@
 //! slightly, so that nothing makes our frames drift further away.
 //!
 //! TARGET (issue 32, item 5): front ≤ 0.5/255. Not reached: the gap is the
-//! robot's pixels; docs/images.md "How close our pixels are to the
-//! original's" says what is known about it.
+//! robot's pixels, mostly the link and hand meshes reduced to 1 000
+//! triangles (with the full meshes: 0.36-0.40/255, at several times the
+//! rendering cost); docs/images.md "Against the original's frames".
 
 use d3il_evaluator::fidelity::frames::section;
 use std::path::Path;
