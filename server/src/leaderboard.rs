@@ -1,8 +1,8 @@
 //! What the leaderboards show, as pure functions (no HTTP, no SQL): board rows
 //! and their views, seed grouping and aggregation (with the metrics crate's
-//! one [`aggregate_seeds`]), sorting, Pareto points, data-fraction series and
-//! behaviour counts. The store feeds it typed records; the API, the pages and
-//! the plots all read the rows it builds.
+//! one [`aggregate_seeds`]), ranking, sorting and behaviour counts (what the
+//! figures are drawn from is in `board_figures`). The store feeds it typed
+//! records; the API, the pages and the plots all read the rows it builds.
 
 use crate::schema;
 use d3il_metrics::{aggregate_seeds, MetricsError};
@@ -10,8 +10,6 @@ use d3il_protocol::{
     robot_look_note, ObsType, ProtocolKind, ResultCell, RobotLook, RobotLookNote, Source,
     StackingLevel, Stat, TaskId,
 };
-use d3il_tables::board::{FractionSeries, ParetoPoint};
-use d3il_tables::plot::Est;
 use std::collections::{BTreeMap, BTreeSet, HashMap};
 
 /// One leaderboard row: a method on a task (paper title), observation type and
@@ -517,64 +515,6 @@ pub fn sort_rows(rows: &mut [BoardRow], key: &str, desc: bool) {
     }
 }
 
-// ------------------------------------------------------------ figure input
-
-/// Success vs conditional entropy of each row that belongs on the board's
-/// Pareto front: quick-protocol smoke tests are left off.
-pub fn pareto_points(rows: &[BoardRow]) -> Vec<ParetoPoint> {
-    rows.iter()
-        .filter(|r| RankGroup::of(r) != RankGroup::Smoke)
-        .map(|r| ParetoPoint {
-            label: r.method.clone(),
-            method: r.method.clone(),
-            entropy: Est::new(r.entropy.mean, r.entropy.std, r.n_seeds),
-            success: Est::new(r.success.mean, r.success.std, r.n_seeds),
-            evaluated: r.source == Source::Evaluated,
-        })
-        .collect()
-}
-
-/// One line per method (and task title, where a task has several) through
-/// its values at each data fraction.
-pub fn fraction_series(rows: &[BoardRow]) -> Vec<FractionSeries> {
-    type Points = Vec<(f64, Est, Est)>;
-    let mut by: BTreeMap<(String, String), (String, bool, Points)> = BTreeMap::new();
-    for r in rows {
-        let label = match (r.source, r.protocol) {
-            (Source::Reported, _) => r.method.clone(),
-            // Quick smoke runs get their own line: never mixed with paper-protocol points.
-            (Source::Evaluated, Some(ProtocolKind::Quick)) => {
-                format!("{} (evaluated, quick)", r.method)
-            }
-            (Source::Evaluated, _) => format!("{} (evaluated)", r.method),
-        };
-        by.entry((r.task_title.clone(), label))
-            .or_insert_with(|| (r.method.clone(), r.source == Source::Evaluated, Vec::new()))
-            .2
-            .push((
-                r.data_fraction,
-                Est::new(r.success.mean, r.success.std, r.n_seeds),
-                Est::new(r.entropy.mean, r.entropy.std, r.n_seeds),
-            ));
-    }
-    let multi_title = by.keys().map(|k| &k.0).collect::<BTreeSet<_>>().len() > 1;
-    by.into_iter()
-        .map(|((title, label), (method, evaluated, mut points))| {
-            points.sort_by(|a, b| a.0.total_cmp(&b.0));
-            FractionSeries {
-                label: if multi_title {
-                    format!("{label} [{title}]")
-                } else {
-                    label
-                },
-                method,
-                evaluated,
-                points,
-            }
-        })
-        .collect()
-}
-
 /// Successful-rollout counts per behaviour (the same as `d3il eval`'s table).
 pub use d3il_tables::summary::behaviour_counts;
 
@@ -648,7 +588,7 @@ mod tests {
             ]
         );
         // The quick run (success 1.0) is off the Pareto front.
-        let points = pareto_points(&rows);
+        let points = crate::board_figures::pareto_points(&rows);
         assert_eq!(points.len(), 3);
         assert!(points.iter().all(|p| p.success.mean < 1.0));
     }

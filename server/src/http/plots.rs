@@ -1,11 +1,10 @@
 //! SVG endpoints for the figures (the pages also embed them inline). The
 //! figures themselves are drawn by the `tables` crate.
 
+use crate::board_figures::{fraction_series, pareto_points};
 use crate::error::AppError;
 use crate::http::extract::{obs_query, Param, RolloutParam};
-use crate::leaderboard::{
-    behaviour_counts, board_for, fraction_rows, fraction_series, pareto_points,
-};
+use crate::leaderboard::{behaviour_counts, board_for, fraction_rows};
 use crate::rollouts::Rollouts;
 use crate::state::AppState;
 use axum::extract::{Query, State};

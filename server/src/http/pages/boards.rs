@@ -3,12 +3,13 @@
 
 use super::format::{fmt_opt_ms, fmt_stat, fmt_stat_n, fmt_time, method_url};
 use super::render;
+use crate::board_figures::{fraction_series, pareto_points};
 use crate::error::{AppError, PageError};
 use crate::http::csv::{board_csv, csv_response};
 use crate::http::extract::{obs_query, Param};
 use crate::leaderboard::{
-    board_for, by_title, fraction_rows, fraction_series, pareto_points, protocol_str, rank_groups,
-    sort_rows, BoardRow, RankGroup, SORT_KEYS,
+    board_for, by_title, fraction_rows, protocol_str, rank_groups, sort_rows, BoardRow, RankGroup,
+    SORT_KEYS,
 };
 use crate::state::AppState;
 use crate::store::MethodRow;
