@@ -4,8 +4,12 @@
 //! front ends (`http::api`, `http::pages`, `http::plots`) must not reference
 //! each other; `leaderboard` stays free of HTTP and SQL; `error` references
 //! nothing but the store's error. Also: no file under `server/` is over 700
-//! lines.
+//! lines. References are read by the workspace's checker
+//! (`d3il_test_support::layout`, whose own tests and the workspace-wide rules
+//! are in test-support/tests/layout.rs); a file's inline test module is not
+//! part of the graph.
 
+use d3il_test_support::layout::{module_of, referenced_paths};
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
 
@@ -54,64 +58,17 @@ fn node_of_path(path: &[&str]) -> Option<String> {
     Some(first.to_string())
 }
 
-fn ident(s: &str) -> &str {
-    let end = s
-        .find(|c: char| !(c.is_alphanumeric() || c == '_'))
-        .unwrap_or(s.len());
-    &s[..end]
-}
-
-/// Every module named after `crate::` in `text` (comments skipped).
-fn references(text: &str) -> BTreeSet<String> {
-    let code: String = text
-        .lines()
-        .map(|l| match l.find("//") {
-            Some(i) => &l[..i],
-            None => l,
+/// Every module named after `crate::` (or `self::`/`super::`) in `text`,
+/// read by the workspace's layout checker (comments and the trailing inline
+/// test module skipped), as graph nodes.
+fn references(text: &str, here: &[String]) -> BTreeSet<String> {
+    referenced_paths(text, here)
+        .iter()
+        .filter_map(|p| {
+            let p: Vec<&str> = p.iter().map(String::as_str).collect();
+            node_of_path(&p)
         })
-        .collect::<Vec<_>>()
-        .join("\n");
-    let mut out = BTreeSet::new();
-    let mut rest = code.as_str();
-    while let Some(i) = rest.find("crate::") {
-        // `d3il_crate::` or similar would not be ours.
-        let preceded = rest[..i]
-            .chars()
-            .last()
-            .is_some_and(|c| c.is_alphanumeric() || c == '_');
-        rest = &rest[i + "crate::".len()..];
-        if preceded {
-            continue;
-        }
-        if let Some(group) = rest.strip_prefix('{') {
-            // `crate::{a::x, b, c::{y, z}}`: the first segment of each item.
-            let mut depth = 0;
-            let mut item_start = true;
-            for (k, c) in group.char_indices() {
-                match c {
-                    '{' => depth += 1,
-                    '}' if depth == 0 => break,
-                    '}' => depth -= 1,
-                    ',' if depth == 0 => item_start = true,
-                    c if item_start && !c.is_whitespace() => {
-                        item_start = false;
-                        let tail = &group[k..];
-                        let a = ident(tail);
-                        let b = tail[a.len()..].strip_prefix("::").map(ident);
-                        let path: Vec<&str> = std::iter::once(a).chain(b).collect();
-                        out.extend(node_of_path(&path));
-                    }
-                    _ => {}
-                }
-            }
-        } else {
-            let a = ident(rest);
-            let b = rest[a.len()..].strip_prefix("::").map(ident);
-            let path: Vec<&str> = std::iter::once(a).chain(b).collect();
-            out.extend(node_of_path(&path));
-        }
-    }
-    out
+        .collect()
 }
 
 fn graph() -> BTreeMap<String, BTreeSet<String>> {
@@ -126,7 +83,7 @@ fn graph() -> BTreeMap<String, BTreeSet<String>> {
             continue;
         }
         let text = std::fs::read_to_string(&f).unwrap();
-        let refs = references(&text);
+        let refs = references(&text, &module_of(&rel));
         let e = g.entry(node.clone()).or_default();
         for r in refs {
             // A module's own files, and `http` (only mod declarations and
@@ -181,7 +138,9 @@ fn find_cycle(g: &BTreeMap<String, BTreeSet<String>>) -> Option<Vec<String>> {
 fn the_parser_reads_use_lines_and_inline_paths() {
     let refs = references(
         "use crate::store::{Store, X};\nuse crate::{auth::Authed, http::extract::Param};\n\
-         fn f() { crate::leaderboard::board_for(); } // crate::app is a comment\nuse d3il_crate::x;",
+         fn f() { crate::leaderboard::board_for(); } // crate::app is a comment\nuse d3il_crate::x;\n\
+         #[cfg(test)]\nmod tests {\n    use crate::views::X;\n}\n",
+        &[],
     );
     let want: BTreeSet<String> = ["store", "auth", "http::extract", "leaderboard"]
         .into_iter()

@@ -1,0 +1,162 @@
+//! The layout rules hold in every crate of the workspace: no hand-written
+//! Rust file is over 700 lines (generated files are exempt by name, in
+//! `d3il_test_support::layout::GENERATED`), and no crate's modules refer to
+//! each other in a cycle. The checker itself is tested on synthetic input
+//! first, so that a rule that silently stopped looking would fail here.
+//! (server/tests/layout.rs adds the server's own rules: front ends apart,
+//! lower layers low.)
+
+use d3il_test_support::layout::{
+    crate_graph, cycles, graph_of, long_files, referenced_paths, rust_files, workspace_crates,
+    GENERATED, MAX_LINES,
+};
+use d3il_test_support::{repo_dir, TempDir};
+use std::collections::BTreeSet;
+
+fn m(path: &str) -> Vec<String> {
+    path.split("::").map(String::from).collect()
+}
+
+#[test]
+fn the_checker_reads_every_kind_of_module_path() {
+    let text = "use crate::store::{Store, jobs::{Job, Queue}};\n\
+        use super::merge::run_shard as shard;\nuse super::super::top;\n\
+        use self::child::X;\nfn f() { crate::leaderboard::board_for(); } // crate::app is a comment\n\
+        use d3il_crate::x; macro_rules! m { () => { $crate::y::z } }\n\
+        #[cfg(test)]\nmod tests {\n    use crate::only_in_tests;\n}\n";
+    let got = referenced_paths(text, &m("cmd::eval"));
+    let want: BTreeSet<Vec<String>> = [
+        "store::Store",
+        "store::jobs::Job",
+        "store::jobs::Queue",
+        "cmd::merge::run_shard",
+        "top",
+        "cmd::eval::child::X",
+        "leaderboard::board_for",
+    ]
+    .into_iter()
+    .map(m)
+    .collect();
+    assert_eq!(got, want);
+}
+
+#[test]
+fn the_checker_finds_a_new_cycle_and_ignores_parents_and_children() {
+    let files = |eval: &str| {
+        vec![
+            (
+                m("cmd"),
+                "pub mod eval; pub mod merge; use self::eval::run;".to_string(),
+            ),
+            (m("cmd::eval"), eval.to_string()),
+            (m("cmd::merge"), "use super::eval::run_shard;".to_string()),
+            (m("cmd::shard"), "use super::Args;".to_string()),
+        ]
+    };
+    let acyclic = graph_of(&files("use super::shard::Args; use crate::cmd::Cli;"));
+    assert_eq!(cycles(&acyclic), Vec::<Vec<String>>::new(), "{acyclic:?}");
+    let cyclic = graph_of(&files("use super::merge::merge_parts;"));
+    assert_eq!(
+        cycles(&cyclic),
+        vec![vec![
+            "cmd::eval".to_string(),
+            "cmd::merge".into(),
+            "cmd::eval".into()
+        ]]
+    );
+    // A longer cycle through three modules is found too.
+    let three = graph_of(&[
+        (m("a"), "use crate::b::x;".into()),
+        (m("b"), "use crate::c::y;".into()),
+        (m("c"), "fn f() { crate::a::z(); }".into()),
+    ]);
+    assert_eq!(cycles(&three), vec![m("a::b::c::a")]);
+}
+
+#[test]
+fn the_checker_refuses_a_701_line_file_and_reads_the_real_crates() {
+    let dir = TempDir::new("layout");
+    let src = dir.path().join("src");
+    std::fs::create_dir_all(src.join("a")).unwrap();
+    std::fs::write(src.join("lib.rs"), "pub mod a;\n").unwrap();
+    std::fs::write(src.join("a/mod.rs"), "pub mod b;\nuse crate::c::X;\n").unwrap();
+    std::fs::write(src.join("a/b.rs"), "use super::super::c::Y;\n").unwrap();
+    std::fs::write(
+        src.join("c.rs"),
+        "pub use crate::a::b::Z;\n".repeat(MAX_LINES),
+    )
+    .unwrap();
+    std::fs::write(src.join("d.rs"), "//\n".repeat(MAX_LINES + 1)).unwrap();
+    let files = rust_files(dir.path());
+    let long = long_files(dir.path(), &files, MAX_LINES, &[]);
+    assert_eq!(long, vec![("src/d.rs".to_string(), MAX_LINES + 1)]);
+    assert!(long_files(dir.path(), &files, MAX_LINES, &["src/d.rs"]).is_empty());
+    assert_eq!(
+        cycles(&crate_graph(&src)),
+        vec![vec!["a::b".to_string(), "c".into(), "a::b".into()]]
+    );
+
+    let crates = workspace_crates(&repo_dir());
+    for name in [
+        "evaluator",
+        "server",
+        "tables",
+        "metrics",
+        "policy",
+        "protocol",
+    ] {
+        assert!(
+            crates.iter().any(|c| c.ends_with(name)),
+            "{name} in {crates:?}"
+        );
+    }
+    let g = crate_graph(&repo_dir().join("evaluator/src"));
+    assert!(g["mujoco::view"].contains("mujoco"), "{g:?}");
+}
+
+#[test]
+fn no_hand_written_file_is_over_700_lines() {
+    let root = repo_dir();
+    let mut long = vec![];
+    for dir in workspace_crates(&root) {
+        let files: Vec<_> = ["src", "tests", "benches", "examples", "build.rs"]
+            .iter()
+            .flat_map(|d| {
+                rust_files(&dir.join(d))
+                    .into_iter()
+                    .chain(Some(dir.join(d)).filter(|p| p.is_file()))
+            })
+            .collect();
+        long.extend(long_files(&root, &files, MAX_LINES, GENERATED));
+    }
+    assert!(
+        long.is_empty(),
+        "files over {MAX_LINES} lines (split each by job; a generated file goes into \
+         layout::GENERATED): {long:?}"
+    );
+}
+
+#[test]
+fn no_crate_has_a_module_cycle() {
+    let root = repo_dir();
+    let mut found = vec![];
+    for dir in workspace_crates(&root) {
+        let g = crate_graph(&dir.join("src"));
+        for c in cycles(&g) {
+            found.push(format!(
+                "{}: {}",
+                if dir == root {
+                    "d3il".into()
+                } else {
+                    dir.file_name().unwrap().to_string_lossy()
+                },
+                c.join(" -> ")
+            ));
+        }
+    }
+    assert!(
+        found.is_empty(),
+        "module cycles (move what both sides need into a module below them):\n{}",
+        found.join("\n")
+    );
+}
