@@ -15,7 +15,6 @@ pub use d3il_pgtemp::free_port;
 
 pub mod layout;
 
-
 use d3il_protocol::{
     EvalResult, FailureReason, Job, Limits, ObsType, PolicyManifest, PolicySource, ProtocolKind,
     ProtocolManifest, RolloutFailure, RolloutRecord, TaskId,
