@@ -227,26 +227,3 @@ fn reference_rollout_replays() {
     // Loose: the box ends within a few centimetres of the reference's box.
     assert!(box_dev < 0.05, "final box xy deviation {box_dev}");
 }
-
-/// Success rate of each script over the whole fixed set (slow: 120 rollouts;
-/// `cargo test --test aligning -- --ignored`). The rates are reported in
-/// docs/tasks.md; the floor guards against regressions of the scripts.
-#[test]
-#[ignore]
-fn script_success_rates_over_the_fixed_set() {
-    let task = LoadedTask::load(TaskId::Aligning).unwrap();
-    let n = task.def.context_set().unwrap().len();
-    let mut low = Vec::new();
-    for style in [AligningStyle::Inside, AligningStyle::Outside] {
-        let (ok, mislabelled, report) = success_count(&task, style, n);
-        eprintln!(
-            "aligning {style:?}: {ok}/{n} successes with the right label; other label: {mislabelled:?}\n{report:#?}"
-        );
-        // Rare: the hand tilts under load and puts the TCP just past the
-        // 0.051 border; more than a few would be a script bug.
-        if ok * 4 < n || mislabelled.len() > 3 {
-            low.push(format!("{style:?}: {ok}/{n}, mislabelled {mislabelled:?}"));
-        }
-    }
-    assert!(low.is_empty(), "below a quarter: {low:?}");
-}

@@ -262,20 +262,3 @@ fn reference_rollout_replays() {
         assert_eq!(env.behaviour(), r["mode"]);
     }
 }
-
-/// Success rate of each order's script over the fixed set (slow: 240
-/// rollouts; `cargo test --test pushing -- --ignored`). The rates are reported
-/// in docs/tasks.md; the floor guards against regressions of the scripts.
-#[test]
-#[ignore]
-fn script_success_rates_over_the_fixed_set() {
-    for mode in 0..4u8 {
-        let (ok, report) = order_successes(mode, 0..60);
-        let first30 = report[..30]
-            .iter()
-            .filter(|l| l.contains(&format!("key Some(\"{mode}\")")))
-            .count();
-        eprintln!("pushing mode {mode}: {ok}/60 labelled successes ({first30}/30 on the paper's first 30)");
-        assert!(ok * 2 >= 60, "mode {mode}: {ok}/60\n{report:#?}");
-    }
-}

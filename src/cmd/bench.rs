@@ -14,7 +14,7 @@ use std::time::Instant;
 
 #[derive(clap::Args)]
 pub struct Args {
-    /// Which benchmark: `physics`, `eval`, `render`, `agents`, `serve`, `scale` or `video`.
+    /// Which benchmark: `physics`, `eval`, `render`, `agents`, `serve`, `scale`, `video` or `scripts`.
     pub which: String,
     /// Env steps to run (physics, render).
     #[arg(long, default_value_t = 3000)]
@@ -49,8 +49,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         "serve" => super::bench_serve::run(),
         "scale" => super::bench_scale::run(args.protocol, args.hosts, args.shards),
         "video" => super::bench_video::run(args.protocol),
+        "scripts" => super::bench_scripts::run(false),
         other => {
-            bail!("unknown benchmark `{other}`; available: physics, eval, render, agents, serve, scale, video")
+            bail!("unknown benchmark `{other}`; available: physics, eval, render, agents, serve, scale, video, scripts")
         }
     }
 }

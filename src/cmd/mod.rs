@@ -1,5 +1,6 @@
 pub mod bench;
 pub mod bench_scale;
+pub mod bench_scripts;
 pub mod bench_serve;
 pub mod bench_video;
 pub mod compare;
