@@ -26,13 +26,31 @@ impl Server {
     }
 
     /// [`Server::start`] on any `--db` (a SQLite path or a PostgreSQL URL).
+    /// Test servers skip the background work of a real start unless asked:
+    /// the drift canary (`--no-verify`; [`Server::start_with_canary`] runs
+    /// it) and the fidelity report (`--fidelity off` unless EXTRA sets it).
     pub fn start_on(db: &std::ffi::OsStr, extra: &[&str]) -> Server {
+        let mut args = vec!["--no-verify"];
+        args.extend_from_slice(extra);
+        Server::spawn(db, &args)
+    }
+
+    /// [`Server::start`] with the drift canary run at start, as `d3il serve` does.
+    pub fn start_with_canary(db: &Path, extra: &[&str]) -> Server {
+        Server::spawn(db.as_os_str(), extra)
+    }
+
+    fn spawn(db: &std::ffi::OsStr, extra: &[&str]) -> Server {
+        let mut args: Vec<&str> = extra.to_vec();
+        if !extra.contains(&"--fidelity") {
+            args.extend(["--fidelity", "off"]);
+        }
         let mut child = Command::new(EXE)
             .arg("serve")
             .arg("--db")
             .arg(db)
             .args(["--bind", "127.0.0.1:0"])
-            .args(extra)
+            .args(&args)
             .stdout(Stdio::piped())
             .stderr(Stdio::inherit())
             .spawn()

@@ -79,7 +79,20 @@ def run_server(tmp: Path, *extra: str) -> Iterator[Server]:
     ).stdout.strip()
     assert token.startswith("d3il_"), token
     proc = subprocess.Popen(
-        [exe, "serve", "--db", db, "--bind", "127.0.0.1:0", "--workers", "1", *extra],
+        [
+            exe,
+            "serve",
+            "--db",
+            db,
+            "--bind",
+            "127.0.0.1:0",
+            "--workers",
+            "1",
+            "--no-verify",
+            "--fidelity",
+            "off",
+            *extra,
+        ],
         stdout=subprocess.PIPE,
         stderr=sys.stderr,
         text=True,
