@@ -16,6 +16,11 @@ use std::time::Instant;
 pub struct Args {
     /// Which benchmark: `physics`, `eval`, `render`, `agents`, `serve`, `scale`, `video` or `scripts`.
     pub which: String,
+    /// A short run that only shows the bench still works (seconds, not
+    /// minutes; its numbers mean little). `tests/bench_smoke.rs` runs every
+    /// bench this way.
+    #[arg(long)]
+    pub smoke: bool,
     /// Env steps to run (physics, render).
     #[arg(long, default_value_t = 3000)]
     pub steps: usize,
@@ -40,21 +45,42 @@ pub struct Args {
     pub shards: usize,
 }
 
-pub fn run(args: Args) -> anyhow::Result<()> {
+pub fn run(mut args: Args) -> anyhow::Result<()> {
+    if args.smoke {
+        // Every bench's smallest honest run: the quick protocol, few steps.
+        args.steps = args.steps.min(200);
+        args.protocol = ProtocolKind::Quick;
+        args.render_protocol = ProtocolKind::Quick;
+        args.shards = args.hosts;
+    }
     match args.which.as_str() {
         "physics" => physics(args.steps),
         "eval" => eval_bench(args.protocol, args.max_live),
-        "render" => render_bench(args.steps, args.render_protocol, args.max_live, args.look),
-        "agents" => agents_bench(args.max_live),
-        "serve" => super::bench_serve::run(),
+        "render" => render_bench(
+            args.steps,
+            args.render_protocol,
+            args.max_live,
+            args.look,
+            args.smoke,
+        ),
+        "agents" => agents_bench(args.max_live, args.smoke),
+        "serve" => super::bench_serve::run(args.smoke),
         "scale" => super::bench_scale::run(args.protocol, args.hosts, args.shards),
         "video" => super::bench_video::run(args.protocol),
-        "scripts" => super::bench_scripts::run(false),
+        "scripts" => super::bench_scripts::run(args.smoke),
         other => {
-            bail!("unknown benchmark `{other}`; available: physics, eval, render, agents, serve, scale, video, scripts")
+            bail!(
+                "unknown benchmark `{other}`; available: {}",
+                BENCHES.join(", ")
+            )
         }
     }
 }
+
+/// Every bench `d3il bench` runs.
+pub const BENCHES: [&str; 8] = [
+    "physics", "eval", "render", "agents", "serve", "scale", "video", "scripts",
+];
 
 /// Runs a policy one row at a time: the "unbatched" evaluation, with a model
 /// exported for a fixed batch of 1.
@@ -217,6 +243,7 @@ fn render_bench(
     protocol: ProtocolKind,
     max_live: usize,
     look: super::render::Look,
+    smoke: bool,
 ) -> anyhow::Result<()> {
     let look = look.robot_look();
     let task = LoadedTask::load_look(TaskId::Aligning, ObsType::Image, look)?;
@@ -326,7 +353,12 @@ fn render_bench(
         batches.push((format!("{p:?}").to_lowercase(), n, n.min(max_live)));
     }
     batches.push(("(480)".into(), 480, 480));
-    let mut at_480 = 0.0;
+    if smoke {
+        // The quick protocol's batch only: the ResNet at batch 480 alone
+        // takes most of a minute in a debug build.
+        batches.truncate(1);
+    }
+    let mut at_480 = f64::NAN;
     for (label, rollouts, batch) in batches {
         let call_s = time_image_policy(&mut resnet, &frame, batch)?;
         if batch == 480 {
@@ -338,10 +370,12 @@ fn render_bench(
             1000.0 * call_s
         );
     }
-    println!(
-        "ResNet-sized policy at batch 480: {:.2} ms per env step",
-        1000.0 * at_480 / 480.0
-    );
+    if !smoke {
+        println!(
+            "ResNet-sized policy at batch 480: {:.2} ms per env step",
+            1000.0 * at_480 / 480.0
+        );
+    }
     let (contexts, per) = eval::protocol_size(&task, ProtocolKind::Paper, n_set);
     println!(
         "a deterministic image policy (no `noise` input) is simulated once per initial state: \
@@ -475,7 +509,12 @@ fn physics(env_steps: usize) -> anyhow::Result<()> {
 /// rounds of [`AGENT_ROUND_S`] each per fixture, and each side's median round
 /// counts, so that both see the same load on a shared machine. Last line: the
 /// ratio of our total time to onnxruntime's.
-fn agents_bench(batch: usize) -> anyhow::Result<()> {
+fn agents_bench(batch: usize, smoke: bool) -> anyhow::Result<()> {
+    let (rounds, round_s) = if smoke {
+        (1, 0.05)
+    } else {
+        (AGENT_ROUNDS, AGENT_ROUND_S)
+    };
     use std::io::{BufRead, Write};
     let dir = super::assets_dir().join("fixtures").join("agents");
     let task = LoadedTask::load(TaskId::Aligning)?;
@@ -505,13 +544,14 @@ fn agents_bench(batch: usize) -> anyhow::Result<()> {
     // One onnxruntime timing of `name`; its error output when it fails.
     let mut time_ort = |name: &str| -> anyhow::Result<f64> {
         let mut line = String::new();
-        writeln!(ort_in, "{name} {AGENT_ROUND_S}")
+        writeln!(ort_in, "{name} {round_s}")
             .and_then(|_| ort_in.flush())
             .and_then(|_| ort_out.read_line(&mut line).map(|_| ()))
             .ok();
-        line.trim().parse::<f64>().ok().context(
-            "the onnxruntime benchmark stopped (pip install './clients/python[serve]')",
-        )
+        line.trim()
+            .parse::<f64>()
+            .ok()
+            .context("the onnxruntime benchmark stopped (pip install './clients/python[serve]')")
     };
     let mut names: Vec<String> = std::fs::read_dir(&dir)?
         .filter_map(|e| e.ok()?.file_name().into_string().ok())
@@ -543,7 +583,7 @@ fn agents_bench(batch: usize) -> anyhow::Result<()> {
         }
         policy.infer(&q)?; // plans for this batch are made here
         let (mut ours, mut theirs) = (vec![], vec![]);
-        for _ in 0..AGENT_ROUNDS {
+        for _ in 0..rounds {
             theirs.push(match time_ort(name) {
                 Ok(ms) => ms,
                 Err(e) => {
@@ -556,7 +596,7 @@ fn agents_bench(batch: usize) -> anyhow::Result<()> {
                 }
             });
             let (mut n, t0) = (0usize, Instant::now());
-            while n < 3 || t0.elapsed().as_secs_f64() < AGENT_ROUND_S {
+            while n < 3 || t0.elapsed().as_secs_f64() < round_s {
                 policy.infer(&q)?;
                 n += 1;
             }

@@ -1,0 +1,62 @@
+//! Benches do not rot: every `d3il bench` runs its `--smoke` mode through the
+//! real binary and must end the way a full run ends (its ratio, or for
+//! `scripts` its verdict line), so a bench broken by a later change fails
+//! here instead of for the next person who runs it. The numbers of a smoke
+//! run mean nothing and are not checked. The benches run one after another
+//! (several measure latency or pin cores), about two minutes in all.
+//!
+//! Needs what the full benches need: ffmpeg (video), PostgreSQL and taskset
+//! (scale), onnxruntime in python3 (agents); `./dev test` installs them.
+
+use std::process::Command;
+
+const BENCHES: [&str; 8] = [
+    "physics", "eval", "render", "agents", "serve", "scale", "video", "scripts",
+];
+
+fn d3il() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_d3il"))
+}
+
+#[test]
+fn every_bench_names_itself_and_runs_its_smoke_mode_to_the_end() {
+    // The list above is the binary's: a bench added there without a smoke
+    // run here fails this first.
+    let out = d3il().args(["bench", "no-such-bench"]).output().unwrap();
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    let listed = err
+        .split("available: ")
+        .nth(1)
+        .unwrap_or_else(|| panic!("no list of benches in: {err}"))
+        .lines()
+        .next()
+        .unwrap_or("");
+    assert_eq!(listed, BENCHES.join(", "), "{err}");
+
+    let mut failed = Vec::new();
+    for bench in BENCHES {
+        let t = std::time::Instant::now();
+        let out = d3il().args(["bench", bench, "--smoke"]).output().unwrap();
+        let stdout = String::from_utf8_lossy(&out.stdout);
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        let last = stdout.lines().last().unwrap_or("").to_string();
+        eprintln!(
+            "d3il bench {bench} --smoke: {:.1} s, last line {last:?}",
+            t.elapsed().as_secs_f64()
+        );
+        let ends_right = if bench == "scripts" {
+            last.contains("expectations not checked")
+                && stdout.lines().filter(|l| l.contains(" expected ")).count() >= 10
+        } else {
+            last.contains("ratio")
+        };
+        if !out.status.success() || !ends_right {
+            failed.push(format!(
+                "d3il bench {bench} --smoke ({}):\n{stdout}\n{stderr}",
+                out.status
+            ));
+        }
+    }
+    assert!(failed.is_empty(), "{}", failed.join("\n\n"));
+}
