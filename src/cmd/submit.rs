@@ -148,7 +148,10 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         done["error"]
     );
     if !a.json {
-        print!("{}", d3il_tables::summary::metrics_table(&result_of(&done)?));
+        print!(
+            "{}",
+            d3il_tables::summary::metrics_table(&result_of(&done)?)
+        );
     }
     Ok(())
 }
