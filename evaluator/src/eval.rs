@@ -2,16 +2,20 @@
 //! rollouts of an evaluation advance together — gather every live rollout's
 //! observation window, one batched policy call, scatter the actions, step all
 //! rollouts in parallel (rayon), retire finished ones and start pending ones.
+//! Each of those phases is a method of `lockstep::Lockstep`; `run_rollouts`
+//! strings them together.
+
+mod lockstep;
 
 use crate::shard::{EvalPart, Shard};
 use crate::tasks::{Env, LoadedTask, TaskError};
-use d3il_policy::{validate_actions, HistoryBuffer, Policy, PolicyError, Query};
+use d3il_policy::{HistoryBuffer, Policy, PolicyError};
 use d3il_protocol::rollout::TraceBuilder;
 use d3il_protocol::{
-    Ending, ErrorKind, EvalResult, FailureReason, ObsType, ProtocolKind, ProtocolManifest,
-    RolloutFailure, RolloutRecord, TaskId,
+    ErrorKind, EvalResult, FailureReason, ObsType, ProtocolKind, ProtocolManifest, RolloutFailure,
+    RolloutRecord,
 };
-use rayon::prelude::*;
+use lockstep::{infer, Lockstep, Plan};
 use serde_json::Value;
 use std::collections::VecDeque;
 use std::time::Instant;
@@ -236,9 +240,6 @@ fn run_rollouts(
             .map_err(|e| EvalError::Setup(e.to_string()))?,
         None => 0..n_ctx,
     };
-    // Rollout ids are global (context * per_ctx + index): a shard's rollouts
-    // get the ids, hence the policy noise, they have in the whole evaluation.
-    let first_id = ctx_range.start * per_ctx;
     let total = ctx_range.len() * per_ctx;
     // A deterministic policy's rollouts of one initial state are the same
     // computation (the reset, the physics and each row's actions are
@@ -258,7 +259,6 @@ fn run_rollouts(
             shape.obs_type, task.obs_type
         )));
     }
-    let image = task.obs_type == ObsType::Image;
     if shape.obs_dim != spec.obs_dim || shape.act_dim != spec.act_dim {
         return Err(EvalError::Setup(format!(
             "policy dimensions obs {} / act {} do not match task {} (obs {}, act {})",
@@ -267,224 +267,32 @@ fn run_rollouts(
     }
     // A graph that cannot run is refused here, with tract's reason, not at rollout 0.
     policy.self_test()?;
-    let record_paths = task.def.id() == TaskId::Avoiding;
     let live = sim_total.min(opts.max_live.max(1));
-    let mut slots = Vec::with_capacity(live);
-    let window_mode = policy.window();
-    let prev_cap = if policy.takes_prev_actions() {
-        shape.history - 1
-    } else {
-        0
+    let plan = Plan {
+        contexts: (0..n_ctx)
+            .map(|i| set.get(i).cloned().unwrap_or(Value::Null))
+            .collect(),
+        ctx_range: ctx_range.clone(),
+        per_ctx,
+        sim_per_ctx,
     };
-    for _ in 0..live {
-        slots.push(Slot {
-            env: task.env()?,
-            rollout: None,
-            history: HistoryBuffer::with_mode(shape.history, spec.obs_dim, window_mode),
-            images: image.then(|| {
-                HistoryBuffer::with_mode(shape.history, crate::camera::OBS_LEN, window_mode)
-            }),
-            queue: VecDeque::new(),
-            executed: VecDeque::new(),
-            prev_cap,
-            path: Vec::new(),
-            step_cpu_s: 0.0,
-            failure: None,
-            trace: None,
-        });
+    let mut lockstep = Lockstep::new(task, policy, opts, plan, live)?;
+    let started = lockstep.start_all()?;
+    policy.reset(&started)?;
+    while lockstep.live() {
+        for w in lockstep.windows() {
+            let rows = lockstep.gather(w)?;
+            let chunks = infer(policy, &lockstep.query(w), &shape, &mut timing)?;
+            lockstep.scatter(&rows, &chunks);
+        }
+        lockstep.step(&mut timing)?;
+        let started = lockstep.record()?;
+        if !started.is_empty() {
+            policy.reset(&started)?;
+        }
+        on_progress(lockstep.done, lockstep.total());
     }
-    let mut next = 0usize;
-    let mut records: Vec<Option<RolloutRecord>> = vec![None; total];
-    let mut keys: Vec<Option<Option<String>>> = vec![None; total];
-    let contexts: Vec<Value> = (0..n_ctx)
-        .map(|i| set.get(i).cloned().unwrap_or(Value::Null))
-        .collect();
-
-    // Starts the next pending rollout in `slot`; returns its id.
-    let start = |slot: &mut Slot, next: &mut usize| -> Result<Option<u64>, EvalError> {
-        if *next >= sim_total {
-            slot.rollout = None;
-            return Ok(None);
-        }
-        let (ctx, r) = (ctx_range.start + *next / sim_per_ctx, *next % sim_per_ctx);
-        let id = ctx * per_ctx + r;
-        *next += 1;
-        slot.env.reset(&contexts[ctx])?;
-        slot.history.reset();
-        slot.history.push(&slot.env.policy_obs())?;
-        push_images(slot)?;
-        slot.queue.clear();
-        slot.executed.clear();
-        slot.path.clear();
-        slot.failure = None;
-        slot.trace = Some(crate::trace::begin(task, &slot.env));
-        if record_paths {
-            let p = slot.env.sim.tcp_pos();
-            slot.path.push([p[0] as f32, p[1] as f32]);
-        }
-        slot.rollout = Some((id, ctx, r));
-        Ok(Some(id as u64))
-    };
-
-    let mut new_ids = Vec::new();
-    for slot in slots.iter_mut() {
-        if let Some(id) = start(slot, &mut next)? {
-            new_ids.push(id);
-        }
-    }
-    policy.reset(&new_ids)?;
-    let mut done_count = 0;
-    let mut ids = Vec::new();
-    let mut steps = Vec::new();
-    let mut obs = Vec::new();
-    let mut images = Vec::new();
-    let mut prev = Vec::new();
-
-    while slots.iter().any(|s| s.rollout.is_some()) {
-        // 1. One batched query for every live rollout whose action queue is
-        //    empty, one per window length when windows grow at episode start.
-        let mut windows: Vec<usize> = slots
-            .iter()
-            .filter(|s| s.rollout.is_some() && s.queue.is_empty())
-            .map(|s| s.history.len())
-            .collect();
-        windows.sort_unstable();
-        windows.dedup();
-        for w in windows {
-            ids.clear();
-            steps.clear();
-            obs.clear();
-            images.clear();
-            prev.clear();
-            let mut rows = Vec::new();
-            for (i, s) in slots.iter().enumerate() {
-                if let Some((id, ..)) = s.rollout {
-                    if s.queue.is_empty() && s.history.len() == w {
-                        ids.push(id as u64);
-                        steps.push(s.env.steps() as u64);
-                        s.history.write_window(&mut obs)?;
-                        if let Some(h) = &s.images {
-                            h.write_window(&mut images)?;
-                        }
-                        if prev_cap > 0 {
-                            write_prev_actions(s, w - 1, shape.act_dim, &mut prev);
-                        }
-                        rows.push(i);
-                    }
-                }
-            }
-            let mut query = Query::new(&ids, &steps, &obs);
-            query.window = Some(w);
-            if image {
-                query.images = Some(&images);
-            }
-            if prev_cap > 0 {
-                query.prev_actions = Some(&prev);
-            }
-            let tp = Instant::now();
-            let chunks = policy.infer(&query)?;
-            timing.policy_s += tp.elapsed().as_secs_f64();
-            timing.policy_calls += 1;
-            validate_actions(&query, &shape, &chunks)?;
-            for (row, &i) in rows.iter().enumerate() {
-                for h in 0..shape.execute.min(shape.horizon) {
-                    slots[i].queue.push_back(chunks.action(row, h).to_vec());
-                }
-            }
-        }
-        // 2. Step every live rollout in parallel.
-        let ts = Instant::now();
-        let results: Vec<Result<bool, EvalError>> = slots
-            .par_iter_mut()
-            .filter(|s| s.rollout.is_some())
-            .map(|s| {
-                let started = Instant::now();
-                let r = step_slot(s, record_paths, opts.render_every_frame);
-                s.step_cpu_s += started.elapsed().as_secs_f64();
-                r
-            })
-            .collect();
-        timing.physics_s += ts.elapsed().as_secs_f64();
-        for r in results {
-            r?;
-        }
-        // 3. Retire finished rollouts and start pending ones in their slots.
-        new_ids.clear();
-        for slot in slots.iter_mut() {
-            let Some((id, ctx, r)) = slot.rollout else {
-                continue;
-            };
-            let failure = slot.failure.take();
-            let capped = opts.step_cap.is_some_and(|c| slot.env.steps() >= c);
-            if !slot.env.is_done() && failure.is_none() && !capped {
-                continue;
-            }
-            let unstable = failure.is_some();
-            // An unstable rollout is a failure at every level, with no behaviour.
-            let success = !unstable && slot.env.success();
-            let behaviour = if unstable {
-                Value::Null
-            } else {
-                slot.env.behaviour()
-            };
-            let key = if unstable {
-                None
-            } else if task.def.id() == TaskId::Stacking {
-                // Stacking's levels need the registration order of every rollout.
-                behaviour.as_str().map(str::to_string)
-            } else {
-                slot.env.behaviour_key()
-            };
-            let steps = slot.env.steps();
-            let done = slot.env.is_done();
-            let record = RolloutRecord {
-                context_index: ctx,
-                rollout_index: r,
-                success,
-                behaviour,
-                steps,
-                path: record_paths.then(|| std::mem::take(&mut slot.path)),
-                failure,
-                ending: Some(Ending::classify(
-                    unstable,
-                    done,
-                    success,
-                    steps,
-                    spec.max_steps,
-                )),
-                trace: slot
-                    .trace
-                    .take()
-                    .map(|t| Box::new(crate::trace::finish(t, &slot.env))),
-            };
-            // Simulated once for the whole initial state: the same record
-            // also under the state's other rollout indices, which share its
-            // trace (EvalResult::trace_of).
-            let copies = per_ctx / sim_per_ctx;
-            let i = id - first_id;
-            for k in 1..copies {
-                keys[i + k] = Some(key.clone());
-                records[i + k] = Some(RolloutRecord {
-                    rollout_index: r + k,
-                    trace: None,
-                    ..record.clone()
-                });
-            }
-            keys[i] = Some(key);
-            records[i] = Some(record);
-            done_count += copies;
-            if let Some(nid) = start(slot, &mut next)? {
-                new_ids.push(nid);
-            }
-        }
-        if !new_ids.is_empty() {
-            policy.reset(&new_ids)?;
-        }
-        on_progress(done_count, total);
-    }
-
-    let behaviour_keys: Vec<Option<String>> = keys.into_iter().flatten().collect();
-    let rollouts: Vec<RolloutRecord> = records.into_iter().flatten().collect();
+    let (rollouts, behaviour_keys, slots) = lockstep.finish();
     let manifest = ProtocolManifest {
         task: task.def.id(),
         task_version: task.def.version().into(),
