@@ -5,13 +5,19 @@
 //! ([`crate::panels`], [`crate::plot`]): one colour per method everywhere,
 //! error bars (seed std) wherever a row has two or more seeds, legends beside
 //! the data, labels placed without collisions and axes fitted to the data.
-//! Points without a finite success rate and entropy are not drawn.
+//! Points without a finite success rate and entropy are not drawn; a figure
+//! without any row says "no results yet" ([`NO_RESULTS`]) instead of
+//! showing empty axes.
 
 use crate::panels::{fraction_panel, pareto_panel, shape, FractionLine, PlanePoint, FRONT};
 use crate::plot::{hex, legend, pe, text_width, with_legend, Est, LegendEntry, Overlay};
+use crate::rollouts::no_data_svg;
 use crate::TablesError;
 use d3il_protocol::TaskId;
 use plotters::prelude::*;
+
+/// What a leaderboard figure without a row says instead of empty axes.
+pub const NO_RESULTS: &str = "No results yet: this figure fills in as results arrive.";
 
 /// One method on the success-vs-entropy plane.
 #[derive(Debug, Clone)]
@@ -26,6 +32,9 @@ pub struct ParetoPoint {
 
 /// Success rate vs conditional behaviour entropy with the Pareto front.
 pub fn pareto_svg(title: &str, points: &[ParetoPoint]) -> Result<String, TablesError> {
+    if points.is_empty() {
+        return Ok(no_data_svg(title, NO_RESULTS));
+    }
     let mut entries: Vec<LegendEntry> = Vec::new();
     for p in points {
         let label = if p.evaluated {
@@ -96,6 +105,9 @@ pub struct FractionSeries {
 /// The paper's data-size figure: success (left) and entropy (right) vs the
 /// fraction of training data, one line per method, legend on the right.
 pub fn data_fraction_svg(title: &str, series: &[FractionSeries]) -> Result<String, TablesError> {
+    if series.is_empty() {
+        return Ok(no_data_svg(title, NO_RESULTS));
+    }
     let entries: Vec<LegendEntry> = series
         .iter()
         .map(|s| LegendEntry {
@@ -230,6 +242,18 @@ pub fn behaviour_bars_svg(title: &str, counts: &[(String, usize)]) -> Result<Str
 mod tests {
     use super::*;
     use crate::panels::pareto_front;
+
+    #[test]
+    fn figures_without_rows_say_no_results_yet_instead_of_empty_axes() {
+        for svg in [
+            pareto_svg("Pushing (state): success vs diversity", &[]).unwrap(),
+            data_fraction_svg("Pushing: performance vs training data", &[]).unwrap(),
+        ] {
+            assert!(svg.contains("no-data"), "{svg}");
+            assert!(svg.contains("No results yet"), "{svg}");
+            assert!(svg.contains("Pushing"), "the title stays: {svg}");
+        }
+    }
 
     fn p(e: f64, s: f64) -> ParetoPoint {
         ParetoPoint {

@@ -54,7 +54,7 @@ pub struct StartState {
     /// Successful rollouts of this initial state over all of its rollouts.
     pub success_rate: f64,
     /// The most frequent behaviour label among its successful rollouts
-    /// ([`crate::board::behaviour_label`]); `None` when none succeeded.
+    /// ([`d3il_protocol::behaviour_name`]); `None` when none succeeded.
     pub dominant_behaviour: Option<String>,
 }
 
@@ -77,7 +77,7 @@ pub fn start_states(task: TaskId, result: &EvalResult) -> Vec<StartState> {
         e.0 += 1;
         if r.success {
             e.1 += 1;
-            *e.2.entry(crate::board::behaviour_label(task, &r.behaviour))
+            *e.2.entry(d3il_protocol::behaviour_name(task, &r.behaviour))
                 .or_default() += 1;
         }
         if r.rollout_index == 0 {

@@ -48,7 +48,7 @@ pub(super) fn ending_text(task: TaskId, r: &RolloutRecord) -> String {
     if r.success {
         s.push_str(&format!(
             "; behaviour {}",
-            crate::board::behaviour_label(task, &r.behaviour)
+            d3il_protocol::behaviour_name(task, &r.behaviour)
         ));
     }
     if let Some(f) = &r.failure {
@@ -334,7 +334,7 @@ pub fn top_down_svg(
 
 /// Every rollout's TCP path of one submission overlaid (the paper's figure
 /// of Avoiding's diverse solutions, for every task), coloured by behaviour
-/// (legend of behaviour labels via [`crate::board::behaviour_label`], most
+/// (legend of behaviour labels via [`d3il_protocol::behaviour_name`], most
 /// frequent first, colours as in the paper figures; failed rollouts thin
 /// grey, drawn underneath), landmarks and table drawn once from the first
 /// trace. Robot at the bottom: world x up, world y to the left. Paths are
@@ -356,7 +356,7 @@ pub fn overlay_svg(
     for (r, trace) in rollouts {
         let t = unpack(trace, &rollout_name(r))?;
         let (p, _) = finite_prefix(&t.tcp);
-        let label = crate::board::behaviour_label(task, &r.behaviour);
+        let label = d3il_protocol::behaviour_name(task, &r.behaviour);
         paths.push((r, label, p.iter().map(|q| [q[0], q[1]]).collect()));
     }
     let mut counts: BTreeMap<&str, usize> = BTreeMap::new();
