@@ -368,8 +368,12 @@ fn run_recorded(job: &Job) -> (d3il_protocol::EvalResult, Vec<(u64, u64, Vec<f32
 fn history_windows_pad_with_the_first_observation_and_end_with_the_newest() {
     // avoiding_k5_h3 acts on the newest of its 5 observations exactly as
     // avoiding_path acts on its one: same rollouts if the window is right.
-    let (r5, seen) = run_recorded(&onnx_job("avoiding_k5_h3", 0));
-    let r1 = run(&onnx_job("avoiding_path", 0));
+    let (mut r5, seen) = run_recorded(&onnx_job("avoiding_k5_h3", 0));
+    let mut r1 = run(&onnx_job("avoiding_path", 0));
+    // The recording wrapper is simulated rollout by rollout, the plain
+    // policy once per initial state: compare with the copies' shared traces.
+    r5.resolve_traces();
+    r1.resolve_traces();
     assert_eq!(r5.rollouts, r1.rollouts);
     let obs_dim = 4;
     let frame = |w: &[f32], j: usize| w[j * obs_dim..(j + 1) * obs_dim].to_vec();

@@ -272,6 +272,20 @@ impl EvalResult {
         self.rollouts.iter().find(|r| r.number(per) == number)
     }
 
+    /// Gives every copy of a rollout simulated once per initial state its
+    /// state's trace ([`EvalResult::trace_of`]), so that the result reads as
+    /// if every rollout had been simulated (tests compare both ways).
+    pub fn resolve_traces(&mut self) {
+        let traces: Vec<Option<Box<crate::rollout::RolloutTrace>>> = self
+            .rollouts
+            .iter()
+            .map(|r| self.trace_of(r).cloned().map(Box::new))
+            .collect();
+        for (r, t) in self.rollouts.iter_mut().zip(traces) {
+            r.trace = t;
+        }
+    }
+
     /// The trace of `record`: its own, or, for a copy of a rollout simulated
     /// once per initial state, the one of its state's rollout 0.
     pub fn trace_of<'a>(
