@@ -58,12 +58,15 @@ pub fn section(dir: &Path) -> Result<EpisodesSection, FidelityError> {
     })
 }
 
+/// An object's name, the reference's path of it and ours.
+type PairedPath<'a> = (&'a str, Vec<Vec<f64>>, &'a Vec<[f64; 3]>);
+
 /// Object paths of a run under the reference's names (`push_box (red)` is
 /// our `push_box`): only the objects both record.
 fn paired_objects<'a>(
     reference: &BTreeMap<String, Vec<Vec<f64>>>,
     run: &'a OpenLoopRun,
-) -> Vec<(&'a str, Vec<Vec<f64>>, &'a Vec<[f64; 3]>)> {
+) -> Vec<PairedPath<'a>> {
     reference
         .iter()
         .filter_map(|(k, path)| {

@@ -106,7 +106,7 @@ pub fn section(dir: &Path) -> Result<FramesSection, FidelityError> {
             parse_name(&name).map(|(t, c, k)| (t, c, k, e.path()))
         })
         .collect();
-    files.sort_by(|a, b| (a.0.to_string(), a.1, a.2).cmp(&(b.0.to_string(), b.1, b.2)));
+    files.sort_by_key(|a| (a.0.to_string(), a.1, a.2));
     if files.is_empty() {
         return Err(FidelityError::data(
             dir,
