@@ -45,6 +45,9 @@ fn the_python_client_suite_passes_against_this_build() {
     // Say what ran, so a suite that collected nothing does not pass unseen.
     let summary = stdout.lines().last().unwrap_or_default();
     assert!(summary.contains(" passed"), "pytest's summary: {summary}");
-    assert!(!summary.contains("skipped"), "pytest skipped tests: {summary}");
+    assert!(
+        !summary.contains("skipped"),
+        "pytest skipped tests: {summary}"
+    );
     println!("pytest: {summary}");
 }

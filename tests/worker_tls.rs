@@ -34,8 +34,15 @@ impl Drop for Server {
 fn start(tls: Option<&Pki>) -> Server {
     let clients = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("clients/python");
     let mut cmd = Command::new("python3");
-    cmd.args(["-m", "d3il_client.serve", "--demo", "avoiding", "--port", "0"])
-        .env("PYTHONPATH", clients);
+    cmd.args([
+        "-m",
+        "d3il_client.serve",
+        "--demo",
+        "avoiding",
+        "--port",
+        "0",
+    ])
+    .env("PYTHONPATH", clients);
     if let Some(p) = tls {
         cmd.arg("--certfile")
             .arg(&p.cert)

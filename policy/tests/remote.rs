@@ -89,10 +89,7 @@ fn query(p: &mut RemotePolicy) -> Result<d3il_policy::ActionChunks, PolicyError>
 
 #[test]
 fn reference_server_serves_the_demo_policy() {
-    let s = start(
-        "d3il_client.serve",
-        &["--demo", "avoiding", "--port", "0"],
-    );
+    let s = start("d3il_client.serve", &["--demo", "avoiding", "--port", "0"]);
     let mut p = connect(&s).unwrap();
     let sh = p.shape();
     assert_eq!(

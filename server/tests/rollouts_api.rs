@@ -376,7 +376,10 @@ async fn the_failure_browser_filters_with_a_plain_form() {
     )));
     // Pictures of every rollout and of the initial states.
     assert!(page.contains("id=\"paths-plot\"") && page.contains("id=\"starts-plot\""));
-    assert!(page.contains("Every rollout's TCP path"), "the overlay, not the Avoiding figure");
+    assert!(
+        page.contains("Every rollout's TCP path"),
+        "the overlay, not the Avoiding figure"
+    );
 
     let (s, page) = app
         .get_text(&format!("/submissions/{id}?outcome=unstable"))

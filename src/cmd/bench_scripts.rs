@@ -203,7 +203,7 @@ fn run_expert(task: &LoadedTask, ex: &Expert, runs: &[(u64, Value)]) -> anyhow::
                         hits += usize::from(match ex.measure {
                             Measure::Success => env.success(),
                             Measure::SuccessAs(k) => env.success() && key.as_deref() == Some(k),
-                            Measure::Behaviour(k) => env.behaviour() == Value::from(k),
+                            Measure::Behaviour(k) => env.behaviour() == k,
                             Measure::Stacking1 => env.stacking_levels().is_some_and(|l| l[0]),
                         });
                     }
