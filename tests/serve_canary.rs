@@ -47,7 +47,9 @@ fn serve_runs_the_canary_and_stamps_every_result_with_the_build() {
         "{stdout}\n{}",
         String::from_utf8_lossy(&out.stderr)
     );
-    let done: serde_json::Value = serde_json::from_str(&stdout).expect("json");
+    // `submission N accepted: URL`, then the server's document.
+    let doc = &stdout[stdout.find('{').expect("a JSON document")..];
+    let done: serde_json::Value = serde_json::from_str(doc).expect("json");
     let build = &done["result"]["protocol_manifest"]["build"];
     let fingerprint = build["physics_fingerprint"]
         .as_str()
