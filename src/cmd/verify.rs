@@ -155,7 +155,14 @@ fn cache_dir() -> PathBuf {
         .map(PathBuf::from)
         .or_else(|| std::env::var_os("HOME").map(|h| PathBuf::from(h).join(".cache")))
         .unwrap_or_else(std::env::temp_dir);
-    base.join("d3il")
+    let dir = base.join("d3il");
+    // A home without a writable cache (some CI users) falls back to the
+    // temporary directory, so the canary still runs once per binary.
+    if std::fs::create_dir_all(&dir).is_ok() {
+        dir
+    } else {
+        std::env::temp_dir().join("d3il-cache")
+    }
 }
 
 /// A cache file of this binary (keyed by the binary's sha256): `<what>-<sha>.<ext>`.
