@@ -362,6 +362,18 @@ pub struct WhoAmI {
     pub submitter: String,
 }
 
+/// The build this server runs: what its results record (issue 32).
+#[derive(Debug, Serialize, ToSchema)]
+pub struct BuildView {
+    /// The evaluator's version (CHANGELOG.md has the versioning rule).
+    pub evaluator_version: String,
+    /// The git commit the binary was built from (`unknown` outside a checkout).
+    pub git_commit: String,
+    /// The drift canary's outcome (`d3il verify` run at start); its
+    /// fingerprint is what this server's results record.
+    pub canary: crate::canary::CanaryState,
+}
+
 /// Every method and its properties.
 #[derive(Debug, Serialize, ToSchema)]
 pub struct MethodList {

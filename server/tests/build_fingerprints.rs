@@ -107,6 +107,12 @@ async fn results_of_different_fingerprints_are_never_ranked_together() {
     assert!((seen[1].2 - 0.8).abs() < 1e-12);
     assert_eq!(seen[2], (Some("bbbbbbbbbbbbbbbb".into()), 1, 0.1));
 
+    // The API says which build this server is (its canary is off in tests).
+    let (s, build) = app.get_json("/api/v1/build").await;
+    assert_eq!(s, 200, "{build}");
+    assert_eq!(build["evaluator_version"], env!("CARGO_PKG_VERSION"));
+    assert_eq!(build["canary"]["state"], "off");
+
     // The page ranks each build in a table of its own, each from 1, and says why.
     let (s, page) = app.get_text("/tasks/aligning").await;
     assert_eq!(s, 200);

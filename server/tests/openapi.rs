@@ -18,6 +18,7 @@ fn the_document_names_every_route_and_its_schemas() {
     assert_eq!(
         paths,
         [
+            "/build",
             "/compare",
             "/leaderboards",
             "/leaderboards/{task}",

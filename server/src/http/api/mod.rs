@@ -57,6 +57,7 @@ pub fn router(max_upload: usize) -> Router<AppState> {
         .route("/methods", get(list_methods))
         .route("/compare", get(compare::compare))
         .route("/whoami", get(whoami))
+        .route("/build", get(get_build))
         .route("/openapi.json", get(openapi))
         .fallback(api_not_found)
         .method_not_allowed_fallback(api_method_not_allowed)
@@ -74,6 +75,17 @@ async fn api_method_not_allowed(
 
 async fn api_not_found() -> AppError {
     AppError::NotFound("no such API endpoint; see /api/v1/openapi.json".into())
+}
+
+#[utoipa::path(get, path = "/build", tag = "leaderboards",
+    summary = "The build this server runs and its drift canary",
+    responses((status = 200, description = "Version, commit and the canary's outcome", body = crate::views::BuildView)))]
+async fn get_build(State(state): State<AppState>) -> Json<crate::views::BuildView> {
+    Json(crate::views::BuildView {
+        evaluator_version: env!("CARGO_PKG_VERSION").into(),
+        git_commit: state.canary.build().git_commit,
+        canary: state.canary.state(),
+    })
 }
 
 #[utoipa::path(get, path = "/whoami", tag = "submissions",
