@@ -6,55 +6,6 @@ mod common;
 use common::*;
 use d3il_protocol::*;
 
-/// The result a worker stores for an Aligning (state) evaluation.
-fn aligning_result(
-    protocol: ProtocolKind,
-    success: f64,
-    cond: f64,
-    initial_states: &str,
-) -> EvalResult {
-    let est = |v: f64| Estimate {
-        value: v,
-        ci_low: v - 0.05,
-        ci_high: v + 0.05,
-    };
-    EvalResult {
-        manifest: ProtocolManifest {
-            task: TaskId::Aligning,
-            task_version: "test".into(),
-            obs_type: ObsType::State,
-            protocol,
-            robot_look: None,
-            mjcf_sha256: "m".into(),
-            initial_states_sha256: "i".into(),
-            initial_states: initial_states.into(),
-            mujoco_version: "2.2.2".into(),
-            evaluator_version: "0".into(),
-            n_contexts: 1,
-            rollouts_per_context: 2,
-            max_steps: 10,
-            policy_sha256: "p".into(),
-            history: 1,
-            horizon: 1,
-            execute: 1,
-            seed: 0,
-            simulated_once: false,
-            build: None,
-        },
-        metrics: Metrics {
-            success_rate: est(success),
-            behaviour_entropy: est(0.5),
-            conditional_entropy: est(cond),
-            stacking: None,
-            stacking_levels: None,
-            inference_ms: 1.5,
-        },
-        per_context: vec![],
-        rollouts: vec![],
-        rollouts_ended_unstable: 0,
-    }
-}
-
 /// Stores a completed evaluation of `method` on Aligning (state) as the worker
 /// would, and returns the submission id.
 #[allow(clippy::too_many_arguments)]

@@ -7,50 +7,16 @@ mod common;
 use common::*;
 use d3il_protocol::*;
 
+/// An Aligning result made by a build with `fingerprint` (None: before
+/// builds were identified).
 fn result(success: f64, fingerprint: Option<&str>) -> EvalResult {
-    let est = |v: f64| Estimate {
-        value: v,
-        ci_low: v - 0.05,
-        ci_high: v + 0.05,
-    };
-    EvalResult {
-        manifest: ProtocolManifest {
-            task: TaskId::Aligning,
-            task_version: "test".into(),
-            obs_type: ObsType::State,
-            protocol: ProtocolKind::Paper,
-            robot_look: None,
-            mjcf_sha256: "m".into(),
-            initial_states_sha256: "i".into(),
-            initial_states: "aligning-v2.json".into(),
-            mujoco_version: "2.2.2".into(),
-            evaluator_version: "0.2.0".into(),
-            n_contexts: 1,
-            rollouts_per_context: 2,
-            max_steps: 10,
-            policy_sha256: "p".into(),
-            history: 1,
-            horizon: 1,
-            execute: 1,
-            seed: 0,
-            simulated_once: false,
-            build: fingerprint.map(|f| BuildIdentity {
-                git_commit: "c".repeat(40),
-                physics_fingerprint: Some(f.into()),
-            }),
-        },
-        metrics: Metrics {
-            success_rate: est(success),
-            behaviour_entropy: est(0.5),
-            conditional_entropy: est(0.2),
-            stacking: None,
-            stacking_levels: None,
-            inference_ms: 1.5,
-        },
-        per_context: vec![],
-        rollouts: vec![],
-        rollouts_ended_unstable: 0,
-    }
+    let mut r = aligning_result(ProtocolKind::Paper, success, 0.2, "aligning-v2.json");
+    r.manifest.evaluator_version = "0.2.0".into();
+    r.manifest.build = fingerprint.map(|f| BuildIdentity {
+        git_commit: "c".repeat(40),
+        physics_fingerprint: Some(f.into()),
+    });
+    r
 }
 
 async fn evaluated(app: &TestApp, seed: i64, success: f64, fingerprint: Option<&str>) {
