@@ -34,6 +34,25 @@ fn d3il(args: &[&str], dir: &Path) -> Output {
         .unwrap()
 }
 
+/// `d3il eval --task TASK --protocol quick --policy POLICY EXTRA --json OUT` in `dir`, run to the end.
+fn eval_quick(dir: &Path, task: &str, policy: &str, extra: &[&str], out: &str) {
+    let mut args = vec![
+        "eval",
+        "--task",
+        task,
+        "--protocol",
+        "quick",
+        "--policy",
+        policy,
+    ];
+    args.extend_from_slice(extra);
+    args.extend(["--json", out]);
+    ok(
+        d3il(&args, dir),
+        &format!("eval {policy} {}", extra.join(" ")),
+    );
+}
+
 fn ok(out: Output, what: &str) -> String {
     assert!(
         out.status.success(),
@@ -164,23 +183,7 @@ fn scripted_rollouts_of_every_task_replay_bit_for_bit() {
     ];
     for (task, policy) in scripts {
         let dir = scratch(&format!("scripted-{task}"));
-        ok(
-            d3il(
-                &[
-                    "eval",
-                    "--task",
-                    task,
-                    "--protocol",
-                    "quick",
-                    "--policy",
-                    policy,
-                    "--json",
-                    "r.json",
-                ],
-                &dir,
-            ),
-            &format!("eval {policy}"),
-        );
+        eval_quick(&dir, task, policy, &[], "r.json");
         // Sorting-6, Stacking and Inserting run 1000-2000 steps: their
         // first and last rollouts.
         let long = ["sorting-6", "stacking", "inserting"].contains(&task);
@@ -199,10 +202,7 @@ fn onnx_state_and_image_rollouts_replay_bit_for_bit() {
         ("aligning", "aligning_image.onnx"),
     ] {
         let dir = scratch(policy);
-        let mut args = vec!["eval", "--task", task, "--protocol", "quick"];
-        let path = fixture(policy);
-        args.extend(["--policy", &path, "--json", "r.json"]);
-        ok(d3il(&args, &dir), &format!("eval {policy}"));
+        eval_quick(&dir, task, &fixture(policy), &[], "r.json");
         let doc = every_rollout_replays(&dir, "r.json");
         // The last rollout with a trace of its own (a deterministic
         // policy's copies share their state's).
@@ -222,23 +222,7 @@ fn onnx_state_and_image_rollouts_replay_bit_for_bit() {
 fn copies_of_a_rollout_simulated_once_replay_from_the_shared_trace() {
     let dir = scratch("once");
     let path = fixture("aligning_mlp.onnx");
-    ok(
-        d3il(
-            &[
-                "eval",
-                "--task",
-                "aligning",
-                "--protocol",
-                "quick",
-                "--policy",
-                &path,
-                "--json",
-                "r.json",
-            ],
-            &dir,
-        ),
-        "eval",
-    );
+    eval_quick(&dir, "aligning", &path, &[], "r.json");
     let doc = every_rollout_replays(&dir, "r.json");
     assert_eq!(doc["manifest"]["simulated_once"], true);
     let rollouts = doc["rollouts"].as_array().unwrap();
@@ -256,25 +240,7 @@ fn rollouts_of_a_sharded_run_replay_from_the_parts_and_the_merged_result() {
     for k in 1..=2 {
         let shard = format!("{k}/2");
         let file = format!("part{k}.json");
-        ok(
-            d3il(
-                &[
-                    "eval",
-                    "--task",
-                    "aligning",
-                    "--protocol",
-                    "quick",
-                    "--policy",
-                    &path,
-                    "--shard",
-                    &shard,
-                    "--json",
-                    &file,
-                ],
-                &dir,
-            ),
-            "shard",
-        );
+        eval_quick(&dir, "aligning", &path, &["--shard", &shard], &file);
     }
     ok(
         d3il(
@@ -291,23 +257,7 @@ fn rollouts_of_a_sharded_run_replay_from_the_parts_and_the_merged_result() {
 #[test]
 fn records_that_cannot_replay_say_why() {
     let dir = scratch("bad");
-    ok(
-        d3il(
-            &[
-                "eval",
-                "--task",
-                "aligning",
-                "--protocol",
-                "quick",
-                "--policy",
-                "scripted:aligning:both",
-                "--json",
-                "r.json",
-            ],
-            &dir,
-        ),
-        "eval",
-    );
+    eval_quick(&dir, "aligning", "scripted:aligning:both", &[], "r.json");
     let doc = read_json(&dir.join("r.json"));
     let refused = |edit: &dyn Fn(&mut Value), n: &str, expect: &str| {
         let mut d = doc.clone();
@@ -362,23 +312,7 @@ fn records_that_cannot_replay_say_why() {
 #[test]
 fn a_video_is_written_only_for_a_record_that_replays() {
     let dir = scratch("video");
-    ok(
-        d3il(
-            &[
-                "eval",
-                "--task",
-                "pushing",
-                "--protocol",
-                "quick",
-                "--policy",
-                "scripted:pushing:all-modes",
-                "--json",
-                "r.json",
-            ],
-            &dir,
-        ),
-        "eval",
-    );
+    eval_quick(&dir, "pushing", "scripted:pushing:all-modes", &[], "r.json");
     ok(
         d3il(
             &[
