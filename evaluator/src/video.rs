@@ -1,7 +1,8 @@
 //! Videos of rollouts, made by replaying their traces ([`crate::trace`]):
 //! the front camera and the in-hand camera side by side, one frame per
 //! environment state (after the reset, then after every step) at the
-//! environment's own rate (one step = 35 ms: 200/7 frames per second, real
+//! environment's own rate (one step = the task's substeps of 1 ms: 35 ms,
+//! 200/7 frames per second, for most tasks, 30 ms for Stacking; real
 //! time), with the step counter and how the rollout ended written on it.
 //!
 //! Encoding: Debian's `ffmpeg` as a subprocess (libx264, H.264 in MP4 with
@@ -21,12 +22,16 @@ use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 
-/// Frames per second: one frame per 35 ms environment step.
-pub const FPS_NUM: u32 = 200;
-pub const FPS_DEN: u32 = 7;
+/// The model's timestep (assets/mjcf/base.xml: 0.001 s); an environment
+/// step is `n_substeps` of them.
+const TIMESTEP_MS: usize = 1;
 
-/// Seconds of one environment step (the frame interval).
-pub const STEP_SECONDS: f64 = FPS_DEN as f64 / FPS_NUM as f64;
+/// Frames per second as ffmpeg's rational `num/den`, and seconds per frame:
+/// one frame per environment step of `task` (real time).
+fn frame_rate(task: &LoadedTask) -> (usize, usize, f64) {
+    let step_ms = task.def.n_substeps() * TIMESTEP_MS;
+    (1000, step_ms, step_ms as f64 / 1000.0)
+}
 
 /// The font of the overlay (Debian's fonts-dejavu-core).
 const FONT: &str = "/usr/share/fonts/truetype/dejavu/DejaVuSans.ttf";
@@ -100,6 +105,7 @@ fn overlay_filter(texts: &[(PathBuf, &str)]) -> String {
 
 fn spawn_encoder(
     opts: &VideoOptions,
+    (fps_num, fps_den): (usize, usize),
     width: usize,
     height: usize,
     filter: &str,
@@ -109,7 +115,7 @@ fn spawn_encoder(
         .args(["-hide_banner", "-loglevel", "error", "-y"])
         .args(["-f", "rawvideo", "-pix_fmt", "rgb24"])
         .args(["-s", &format!("{width}x{height}")])
-        .args(["-framerate", &format!("{FPS_NUM}/{FPS_DEN}")])
+        .args(["-framerate", &format!("{fps_num}/{fps_den}")])
         .args(["-i", "-", "-vf", filter])
         .args(["-c:v", "libx264", "-preset", "veryfast", "-crf", "23"])
         .args(["-pix_fmt", "yuv420p", "-movflags", "+faststart", "-f", "mp4"])
@@ -178,7 +184,8 @@ pub fn render_video(
             .map(|(f, _, p)| (f.clone(), *p))
             .collect::<Vec<_>>(),
     );
-    let spawned = spawn_encoder(opts, width, height, &filter, &tmp);
+    let (fps_num, fps_den, step_seconds) = frame_rate(task);
+    let spawned = spawn_encoder(opts, (fps_num, fps_den), width, height, &filter, &tmp);
     let remove_texts = || {
         for (file, ..) in &texts {
             let _ = std::fs::remove_file(file);
@@ -251,7 +258,7 @@ pub fn render_video(
             frames,
             width,
             height,
-            seconds: frames as f64 * STEP_SECONDS,
+            seconds: frames as f64 * step_seconds,
             bytes,
             render_seconds: t0.elapsed().as_secs_f64(),
         }),

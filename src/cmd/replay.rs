@@ -130,7 +130,7 @@ pub fn replay_record(
     }
     if let Some((path, r)) = written {
         eprintln!(
-            "wrote {} ({} frames, {}x{}, {:.2} s at 200/7 fps (real time), {} bytes, rendered in {:.1} s)",
+            "wrote {} ({} frames, {}x{}, {:.2} s long, one frame per env step (real time), {} bytes, rendered in {:.1} s)",
             path.display(),
             r.frames,
             r.width,
