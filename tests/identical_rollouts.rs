@@ -42,18 +42,6 @@ fn comparable(r: &EvalResult) -> serde_json::Value {
     // A once-simulated state's copies share its trace.
     let mut r = r.clone();
     r.resolve_traces();
-    if r.manifest.obs_type == ObsType::Image {
-        // KNOWN DIFFERENCE, found when traces made it visible (session
-        // note of 2026-11-26): an image policy's first action of an initial
-        // state differs by about 1 % between the two ways (Aligning k2/h4,
-        // state 2: 8.45e-4 vs 8.38e-4), so its first image observation
-        // differs: the frames depend on what was rendered before on the
-        // thread or in the batch. The outcomes (success, behaviour, steps)
-        // agree, as this test checked before traces; the traces do not.
-        for x in &mut r.rollouts {
-            x.trace = None;
-        }
-    }
     let mut v = serde_json::to_value(&r).unwrap();
     v["metrics"]["inference_ms"] = serde_json::Value::Null;
     v["manifest"]

@@ -28,6 +28,9 @@ pub struct Entry {
     pub policy: &'static str,
     /// Steps after which every rollout is stopped.
     pub step_cap: usize,
+    /// Rollouts simulated at once (`None`: the engine's default, more than
+    /// the quick protocol has); fewer than the rollouts makes slots be reused.
+    pub max_live: Option<usize>,
 }
 
 const fn entry(task: TaskId, obs: ObsType, policy: &'static str, step_cap: usize) -> Entry {
@@ -36,12 +39,15 @@ const fn entry(task: TaskId, obs: ObsType, policy: &'static str, step_cap: usize
         obs,
         policy,
         step_cap,
+        max_live: None,
     }
 }
 
 /// The canary: every task's scripted expert, the ONNX state fixtures of
-/// Avoiding and Aligning (one with a `noise` input) and the image fixture.
-pub const ENTRIES: [Entry; 12] = [
+/// Avoiding and Aligning (one with a `noise` input) and two image fixtures,
+/// one with a history of two frames run in one slot, so that each initial
+/// state's first window is built in a slot another rollout used before.
+pub const ENTRIES: [Entry; 13] = [
     entry(
         TaskId::Avoiding,
         ObsType::State,
@@ -57,6 +63,10 @@ pub const ENTRIES: [Entry; 12] = [
     ),
     entry(TaskId::Aligning, ObsType::State, "aligning_mlp_noise", 120),
     entry(TaskId::Aligning, ObsType::Image, "aligning_image", 25),
+    Entry {
+        max_live: Some(1),
+        ..entry(TaskId::Aligning, ObsType::Image, "aligning_image_k2_h4", 25)
+    },
     entry(
         TaskId::Pushing,
         ObsType::State,
@@ -194,6 +204,7 @@ pub fn run_entry(e: &Entry, assets: &Path) -> Result<EntryOutcome, CanaryError> 
         protocol: ProtocolKind::Quick,
         step_cap: Some(e.step_cap),
         bootstrap_resamples: 10,
+        max_live: e.max_live.unwrap_or(EvalOptions::default().max_live),
         ..EvalOptions::default()
     };
     let (result, _) = evaluate(&task, policy.as_mut(), &info, &opts, &mut |_, _| {})

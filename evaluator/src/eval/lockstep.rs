@@ -151,6 +151,13 @@ impl<'a> Lockstep<'a> {
         self.next += 1;
         slot.env.reset(&plan.contexts[ctx])?;
         slot.history.reset();
+        if let Some(images) = slot.images.as_mut() {
+            // A reused slot still holds its previous rollout's frames: left
+            // there, they filled the new episode's first window instead of
+            // its own first frame (results then depended on which slot and
+            // in which order rollouts ran).
+            images.reset();
+        }
         slot.history.push(&slot.env.policy_obs())?;
         push_images(slot)?;
         slot.queue.clear();
