@@ -6,12 +6,13 @@
 //! (several measure latency or pin cores), about two minutes in all.
 //!
 //! Needs what the full benches need: ffmpeg (video), PostgreSQL and taskset
-//! (scale), onnxruntime in python3 (agents); `./dev test` installs them.
+//! (scale, chaos), onnxruntime in python3 (agents), websockets and msgpack
+//! in python3 (chaos's remote endpoint); `./dev test` installs them.
 
 use std::process::Command;
 
-const BENCHES: [&str; 8] = [
-    "physics", "eval", "render", "agents", "serve", "scale", "video", "scripts",
+const BENCHES: [&str; 9] = [
+    "physics", "eval", "render", "agents", "serve", "scale", "video", "scripts", "chaos",
 ];
 
 fn d3il() -> Command {

@@ -10,13 +10,16 @@
 //! start.
 //!
 //! Used by the store tests (through `d3il-test-support`) and by
-//! `d3il bench scale`, which needs a PostgreSQL queue and has none given.
+//! `d3il bench scale` and `d3il bench chaos`, which need a PostgreSQL queue
+//! and have none given; the chaos bench kills the server ([`PgCluster::kill`])
+//! and starts it again on the same data directory and port
+//! ([`PgCluster::restart`]).
 
 use std::net::TcpListener;
 use std::os::unix::process::CommandExt;
 use std::path::{Path, PathBuf};
 use std::process::Command;
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::atomic::{AtomicU32, AtomicU64, Ordering};
 use std::sync::OnceLock;
 use std::time::{Duration, Instant};
 
@@ -26,6 +29,10 @@ pub struct PgCluster {
     bin: PathBuf,
     /// Owner of the files (`nobody` when the tests run as root).
     ids: Option<(u32, u32)>,
+    /// The cluster's directory (data directory `data`, log `server.log`).
+    dir: PathBuf,
+    /// Process id of the running postmaster (0 while none runs).
+    pid: AtomicU32,
 }
 
 const PREFIX: &str = "d3il-pg-";
@@ -107,6 +114,8 @@ impl PgCluster {
             port: free_port(),
             bin,
             ids,
+            dir: dir.clone(),
+            pid: AtomicU32::new(0),
         };
         let out = cluster
             .command("initdb")
@@ -130,11 +139,22 @@ impl PgCluster {
             String::from_utf8_lossy(&out.stdout),
             String::from_utf8_lossy(&out.stderr)
         );
-        let mut server = cluster.command("postgres");
+        cluster
+            .spawn_server()
+            .unwrap_or_else(|e| panic!("start postgres: {e}"));
+        cluster
+            .wait_ready(Duration::from_secs(60))
+            .unwrap_or_else(|e| panic!("{e}"));
+        cluster
+    }
+
+    /// Starts the postmaster on the cluster's data directory and port.
+    fn spawn_server(&self) -> std::io::Result<()> {
+        let mut server = self.command("postgres");
         server
             .arg("-D")
-            .arg(&data)
-            .args(["-p", &cluster.port.to_string()])
+            .arg(self.dir.join("data"))
+            .args(["-p", &self.port.to_string()])
             .args([
                 "-c",
                 "listen_addresses=127.0.0.1",
@@ -150,9 +170,14 @@ impl PgCluster {
                 "full_page_writes=off",
             ])
             .args(["-c", "max_connections=300"])
-            .current_dir(&dir)
+            .current_dir(&self.dir)
             .stdout(std::process::Stdio::null())
-            .stderr(std::fs::File::create(dir.join("server.log")).expect("server log"));
+            .stderr(
+                std::fs::OpenOptions::new()
+                    .create(true)
+                    .append(true)
+                    .open(self.dir.join("server.log"))?,
+            );
         // SAFETY: prctl is async-signal-safe; it only sets this child's
         // parent-death signal.
         unsafe {
@@ -162,52 +187,114 @@ impl PgCluster {
             });
         }
         // The parent-death signal follows the spawning *thread*: spawn from
-        // one that lives as long as the process.
+        // one that lives as long as the server (it waits for it).
         let (tx, rx) = std::sync::mpsc::channel();
-        std::thread::spawn(move || {
-            let child = server.spawn();
-            let ok = child.is_ok();
-            let _ = tx.send(child.map(|_| ()));
-            if ok {
-                loop {
-                    std::thread::park();
-                }
+        std::thread::spawn(move || match server.spawn() {
+            Ok(mut child) => {
+                let _ = tx.send(Ok(child.id()));
+                let _ = child.wait();
+            }
+            Err(e) => {
+                let _ = tx.send(Err(e));
             }
         });
-        rx.recv()
-            .expect("postgres spawner thread")
-            .expect("start postgres");
-        let deadline = Instant::now() + Duration::from_secs(60);
+        let pid = rx.recv().map_err(std::io::Error::other)??;
+        self.pid.store(pid, Ordering::SeqCst);
+        Ok(())
+    }
+
+    /// Waits until the server accepts connections.
+    fn wait_ready(&self, timeout: Duration) -> Result<(), String> {
+        let deadline = Instant::now() + timeout;
         loop {
-            let ready = cluster
+            let ready = self
                 .command("pg_isready")
-                .args([
-                    "-h",
-                    "127.0.0.1",
-                    "-p",
-                    &cluster.port.to_string(),
-                    "-U",
-                    USER,
-                ])
+                .args(["-h", "127.0.0.1", "-p", &self.port.to_string(), "-U", USER])
                 .output()
                 .map(|o| o.status.success())
                 .unwrap_or(false);
             if ready {
-                return cluster;
+                return Ok(());
             }
-            assert!(
-                Instant::now() < deadline,
-                "PostgreSQL did not start within 60 s; see {}",
-                dir.join("server.log").display()
-            );
+            let pid = self.pid.load(Ordering::SeqCst);
+            if pid == 0 || !Path::new(&format!("/proc/{pid}")).exists() {
+                return Err(format!(
+                    "PostgreSQL exited while starting; see {}",
+                    self.dir.join("server.log").display()
+                ));
+            }
+            if Instant::now() >= deadline {
+                return Err(format!(
+                    "PostgreSQL did not start within {timeout:?}; see {}",
+                    self.dir.join("server.log").display()
+                ));
+            }
             std::thread::sleep(Duration::from_millis(100));
         }
+    }
+
+    /// SIGKILL to the postmaster and every process it started, at once: the
+    /// database machine crashing, as far as its processes go. Open
+    /// connections break; what was committed is in the data directory.
+    pub fn kill(&self) {
+        let pid = self.pid.swap(0, Ordering::SeqCst);
+        if pid == 0 {
+            return;
+        }
+        let pid = pid as i32;
+        // Stopped first, so that it starts no backend between the listing of
+        // its children and their end.
+        // SAFETY: kill has no memory-safety preconditions.
+        unsafe { libc::kill(pid, libc::SIGSTOP) };
+        for child in children(pid as u32) {
+            // SAFETY: as above.
+            unsafe { libc::kill(child as i32, libc::SIGKILL) };
+        }
+        // SAFETY: as above.
+        unsafe { libc::kill(pid, libc::SIGKILL) };
+    }
+
+    /// Starts the server again on the same data directory and port after
+    /// [`PgCluster::kill`] (PostgreSQL runs its crash recovery) and waits
+    /// until it accepts connections. Retries while the killed processes
+    /// still hold the old shared memory.
+    pub fn restart(&self) -> Result<(), String> {
+        let deadline = Instant::now() + Duration::from_secs(60);
+        loop {
+            self.spawn_server()
+                .map_err(|e| format!("start postgres: {e}"))?;
+            match self.wait_ready(Duration::from_secs(30)) {
+                Ok(()) => return Ok(()),
+                Err(e) if Instant::now() >= deadline => return Err(e),
+                Err(_) => std::thread::sleep(Duration::from_millis(300)),
+            }
+        }
+    }
+
+    /// Process id of the running postmaster, if one runs.
+    pub fn pid(&self) -> Option<u32> {
+        Some(self.pid.load(Ordering::SeqCst)).filter(|&p| p != 0)
     }
 
     /// A URL for database `name` of this cluster.
     pub fn url(&self, name: &str) -> String {
         format!("postgres://{USER}@127.0.0.1:{}/{name}", self.port)
     }
+}
+
+/// Child processes of `pid` (every thread's children).
+fn children(pid: u32) -> Vec<u32> {
+    let mut out = vec![];
+    for t in std::fs::read_dir(format!("/proc/{pid}/task"))
+        .into_iter()
+        .flatten()
+        .flatten()
+    {
+        if let Ok(s) = std::fs::read_to_string(t.path().join("children")) {
+            out.extend(s.split_whitespace().filter_map(|p| p.parse::<u32>().ok()));
+        }
+    }
+    out
 }
 
 /// The process's test cluster, started on first use.

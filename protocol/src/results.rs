@@ -266,6 +266,61 @@ impl EvalResult {
         2 * self.rollouts_ended_unstable > self.rollouts.len()
     }
 
+    /// Where this result and `other` differ other than in what is measured
+    /// (`metrics.inference_ms`, the only timing a result holds); `None` when
+    /// they are the same evaluation bit for bit: protocol manifest, every
+    /// metric, per-initial-state results and every rollout record with its
+    /// trace. Compared as JSON (written round-trip exact), so that NaN
+    /// equals NaN. The message names the first differing part.
+    pub fn difference_except_timings(&self, other: &EvalResult) -> Option<String> {
+        let mut a = self.metrics.clone();
+        let mut b = other.metrics.clone();
+        a.inference_ms = 0.0;
+        b.inference_ms = 0.0;
+        let parts: [(&str, String, String); 4] = [
+            (
+                "protocol manifest",
+                json(&self.manifest),
+                json(&other.manifest),
+            ),
+            ("metrics", json(&a), json(&b)),
+            (
+                "per-initial-state results",
+                json(&self.per_context),
+                json(&other.per_context),
+            ),
+            (
+                "rollouts ended unstable",
+                self.rollouts_ended_unstable.to_string(),
+                other.rollouts_ended_unstable.to_string(),
+            ),
+        ];
+        for (what, x, y) in parts {
+            if x != y {
+                return Some(format!("{what}: {x} vs {y}"));
+            }
+        }
+        if self.rollouts.len() != other.rollouts.len() {
+            return Some(format!(
+                "{} rollouts vs {}",
+                self.rollouts.len(),
+                other.rollouts.len()
+            ));
+        }
+        for (x, y) in self.rollouts.iter().zip(&other.rollouts) {
+            if json(x) != json(y) {
+                return Some(format!(
+                    "rollout {} of initial state {}: {} vs {}",
+                    x.rollout_index,
+                    x.context_index,
+                    short(&json(x)),
+                    short(&json(y))
+                ));
+            }
+        }
+        None
+    }
+
     /// The record of rollout `number` ([`RolloutRecord::number`]).
     pub fn rollout(&self, number: usize) -> Option<&RolloutRecord> {
         let per = self.manifest.rollouts_per_context;
@@ -474,5 +529,18 @@ mod tests {
                 assert_eq!(a.to_bits(), b.to_bits(), "{b:e} came back as {a:e}");
             }
         }
+    }
+}
+
+/// JSON text of a part [`EvalResult::difference_except_timings`] compares.
+fn json<T: Serialize>(v: &T) -> String {
+    serde_json::to_string(v).unwrap_or_else(|e| format!("(not serialisable: {e})"))
+}
+
+/// The first 300 characters, for messages.
+fn short(s: &str) -> String {
+    match s.char_indices().nth(300) {
+        Some((i, _)) => format!("{}…", &s[..i]),
+        None => s.to_string(),
     }
 }

@@ -14,7 +14,7 @@ use std::time::Instant;
 
 #[derive(clap::Args)]
 pub struct Args {
-    /// Which benchmark: `physics`, `eval`, `render`, `agents`, `serve`, `scale`, `video` or `scripts`.
+    /// Which benchmark: `physics`, `eval`, `render`, `agents`, `serve`, `scale`, `video`, `scripts` or `chaos`.
     pub which: String,
     /// A short run that only shows the bench still works (seconds, not
     /// minutes; its numbers mean little). `tests/bench_smoke.rs` runs every
@@ -68,6 +68,7 @@ pub fn run(mut args: Args) -> anyhow::Result<()> {
         "scale" => super::bench_scale::run(args.protocol, args.hosts, args.shards),
         "video" => super::bench_video::run(args.protocol),
         "scripts" => super::bench_scripts::run(args.smoke),
+        "chaos" => super::bench_chaos::run(args.smoke),
         other => {
             bail!(
                 "unknown benchmark `{other}`; available: {}",
@@ -78,8 +79,8 @@ pub fn run(mut args: Args) -> anyhow::Result<()> {
 }
 
 /// Every bench `d3il bench` runs.
-pub const BENCHES: [&str; 8] = [
-    "physics", "eval", "render", "agents", "serve", "scale", "video", "scripts",
+pub const BENCHES: [&str; 9] = [
+    "physics", "eval", "render", "agents", "serve", "scale", "video", "scripts", "chaos",
 ];
 
 /// Runs a policy one row at a time: the "unbatched" evaluation, with a model

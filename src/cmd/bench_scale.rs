@@ -10,12 +10,12 @@
 //! `d3il worker` processes. The time runs from queueing the submission to its
 //! merged result.
 
+use super::bench_procs::{spawn_ready, Proc};
 use anyhow::{bail, ensure, Context};
 use d3il_protocol::{ObsType, ProtocolKind, TaskId};
 use d3il_server::store::{DbTarget, NewMethod, NewPolicy, NewSubmission, Store, SubmissionStatus};
-use std::io::{BufRead, BufReader};
 use std::path::Path;
-use std::process::{Child, Command, Stdio};
+use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 /// Stochastic (it takes `noise`): a deterministic policy would be simulated
@@ -58,39 +58,17 @@ fn bench(dir: &Path, protocol: ProtocolKind, hosts: usize, shards: usize) -> any
 }
 
 /// A `d3il workers` process pinned to one core (killed on drop).
-struct Host(Child);
-
-impl Drop for Host {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
-}
-
-fn start_host(url: &str, store: &Path, core: usize) -> anyhow::Result<Host> {
+fn start_host(url: &str, store: &Path, core: usize) -> anyhow::Result<Proc> {
     let exe = std::env::current_exe().context("finding the d3il executable")?;
-    let mut child = Command::new("taskset")
-        .args(["-c", &core.to_string()])
+    let mut cmd = Command::new("taskset");
+    cmd.args(["-c", &core.to_string()])
         .arg(exe)
         .args(["workers", "--db", url, "--policy-store"])
         .arg(store)
         .args(["--workers", "1"])
-        .stdout(Stdio::piped())
-        .stderr(Stdio::null())
-        .spawn()
-        .context("starting d3il workers")?;
-    let stdout = child.stdout.take().context("worker host stdout")?;
-    let host = Host(child);
-    let mut lines = BufReader::new(stdout).lines();
-    loop {
-        match lines.next() {
-            Some(Ok(l)) if l.starts_with("worker host ready") => break,
-            Some(Ok(_)) => {}
-            _ => bail!("d3il workers on core {core} exited before it was ready"),
-        }
-    }
-    std::thread::spawn(move || for _ in lines {});
-    Ok(host)
+        .stderr(Stdio::null());
+    let what = format!("d3il workers on core {core}");
+    Ok(spawn_ready(cmd, "worker host ready", &what)?.0)
 }
 
 /// Seconds from queueing the sharded submission to its merged result, with
@@ -111,7 +89,7 @@ fn timed_run(
         &DbTarget::Postgres(url.clone()),
         Some(&policies),
     ))?;
-    let running: Vec<Host> = (0..hosts)
+    let running: Vec<Proc> = (0..hosts)
         .map(|core| start_host(&url, &policies, core))
         .collect::<anyhow::Result<_>>()?;
     let t0 = Instant::now();

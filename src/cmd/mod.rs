@@ -1,4 +1,6 @@
 pub mod bench;
+pub mod bench_chaos;
+pub mod bench_procs;
 pub mod bench_scale;
 pub mod bench_scripts;
 pub mod bench_serve;

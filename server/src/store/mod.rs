@@ -55,6 +55,9 @@ pub use files::{PolicyFilesGuard, TMP_MARKER};
 pub use jobs::{ClaimedJob, JobKind, JobRow};
 pub use methods::{MethodRow, NewMethod};
 pub use results::{ResultRow, RolloutRow, SeedSummary};
+/// Re-exported so that callers reading the rows themselves (`d3il bench
+/// chaos` checks what a run left behind) need no own dependency.
+pub use sqlx;
 pub use submissions::{NewPolicy, NewSubmission, SeedKey, SubmissionFilter, SubmissionRow};
 pub use tokens::{token_hash, Revoked, Submitter, LAST_USED_RESOLUTION_S, TOKEN_PREFIX_LEN};
 pub use types::{JobState, PolicyKind, SubmissionStatus};

@@ -8,8 +8,9 @@ use super::types::{Stored, SubmissionStatus};
 use super::{Store, StoreError};
 use crate::leaderboard::{evaluated_rows, protocol_str, BoardRow, EvaluatedSeed};
 use d3il_protocol::{
-    ContextResult, Ending, ObsType, ProtocolKind, ProtocolManifest, ResultCell, RobotLook,
-    RolloutFailure, RolloutTrace, Source, StackingLevel, TaskId,
+    ContextResult, Ending, Estimate, EvalResult, Metrics, ObsType, ProtocolKind, ProtocolManifest,
+    ResultCell, RobotLook, RolloutFailure, RolloutRecord, RolloutTrace, Source, StackingLevel,
+    TaskId,
 };
 use sqlx::FromRow;
 
@@ -74,6 +75,36 @@ impl RolloutRow {
 
 /// An end-effector path in the table plane.
 type XyPath = Vec<[f32; 2]>;
+
+/// A rollout row with everything it stores, trace included.
+#[derive(FromRow)]
+struct StoredRollout {
+    context_index: i64,
+    rollout_index: i64,
+    success: bool,
+    behaviour_json: Json<serde_json::Value>,
+    steps: i64,
+    path_json: Option<Json<XyPath>>,
+    failure_json: Option<Json<RolloutFailure>>,
+    ending: Option<Stored<Ending>>,
+    trace_json: Option<Json<RolloutTrace>>,
+}
+
+impl From<StoredRollout> for RolloutRecord {
+    fn from(r: StoredRollout) -> RolloutRecord {
+        RolloutRecord {
+            context_index: r.context_index.max(0) as usize,
+            rollout_index: r.rollout_index.max(0) as usize,
+            success: r.success,
+            behaviour: r.behaviour_json.0,
+            steps: r.steps.max(0) as usize,
+            path: r.path_json.map(|p| p.0),
+            failure: r.failure_json.map(|f| f.0),
+            ending: r.ending.map(|e| e.0),
+            trace: r.trace_json.map(|t| Box::new(t.0)),
+        }
+    }
+}
 
 /// One training seed of a leaderboard row (the submission page's seed list).
 #[derive(Debug, Clone, FromRow)]
@@ -221,6 +252,55 @@ impl Store {
         .bind(submission_id)
         .fetch_optional(pool)
         .await)?)
+    }
+
+    /// The stored result of a submission as the worker (or the merge of its
+    /// shards) made it: metrics, per-initial-state results and every rollout
+    /// record with its trace, in rollout order. `None` until it is stored.
+    /// What `d3il bench chaos` compares with a plain `d3il eval`.
+    pub async fn eval_result(&self, submission_id: i64) -> Result<Option<EvalResult>, StoreError> {
+        let Some(r) = self.result_for(submission_id).await? else {
+            return Ok(None);
+        };
+        let manifest = r.manifest().ok_or_else(|| {
+            StoreError::Corrupt(format!(
+                "the protocol manifest stored with submission {submission_id}'s result does not parse"
+            ))
+        })?;
+        let rows: Vec<StoredRollout> = on_db!(&self.db, pool => sqlx::query_as(
+            "SELECT context_index, rollout_index, success, behaviour_json, steps, path_json, failure_json, ending, \
+             trace_json FROM rollouts WHERE submission_id = $1 ORDER BY context_index, rollout_index",
+        )
+        .bind(submission_id)
+        .fetch_all(pool)
+        .await)?;
+        let est = |value, ci_low, ci_high| Estimate {
+            value,
+            ci_low,
+            ci_high,
+        };
+        Ok(Some(EvalResult {
+            manifest,
+            metrics: Metrics {
+                success_rate: est(r.success_rate, r.success_ci_low, r.success_ci_high),
+                behaviour_entropy: est(
+                    r.behaviour_entropy,
+                    r.behaviour_ci_low,
+                    r.behaviour_ci_high,
+                ),
+                conditional_entropy: est(
+                    r.conditional_entropy,
+                    r.conditional_ci_low,
+                    r.conditional_ci_high,
+                ),
+                stacking: r.stacking_json.map(|j| j.0),
+                stacking_levels: r.stacking_levels_json.map(|j| j.0),
+                inference_ms: r.inference_ms,
+            },
+            per_context: r.per_context_json.0,
+            rollouts: rows.into_iter().map(RolloutRecord::from).collect(),
+            rollouts_ended_unstable: r.rollouts_ended_unstable.max(0) as usize,
+        }))
     }
 
     pub async fn rollouts_for(&self, submission_id: i64) -> Result<Vec<RolloutRow>, StoreError> {
