@@ -22,14 +22,10 @@ use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 
-/// The model's timestep (assets/mjcf/base.xml: 0.001 s); an environment
-/// step is `n_substeps` of them.
-const TIMESTEP_MS: usize = 1;
-
 /// Frames per second as ffmpeg's rational `num/den`, and seconds per frame:
 /// one frame per environment step of `task` (real time).
 fn frame_rate(task: &LoadedTask) -> (usize, usize, f64) {
-    let step_ms = task.def.n_substeps() * TIMESTEP_MS;
+    let step_ms = task.def.id().step_ms();
     (1000, step_ms, step_ms as f64 / 1000.0)
 }
 

@@ -2,6 +2,10 @@ use serde::{Deserialize, Serialize};
 use std::fmt;
 use std::str::FromStr;
 
+/// The simulation's timestep in milliseconds (assets/mjcf/base.xml:
+/// `timestep="0.001"`).
+pub const TIMESTEP_MS: usize = 1;
+
 /// The D3IL task variants the leaderboard evaluates.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
@@ -57,6 +61,26 @@ impl TaskId {
             TaskId::Stacking => "Stacking (T5)",
             TaskId::Inserting => "Inserting (T6)",
         }
+    }
+
+    /// Physics steps of one environment step: 35, Stacking 30
+    /// (docs/original-d3il.md §11.2.4).
+    pub fn substeps(self) -> usize {
+        match self {
+            TaskId::Stacking => 30,
+            _ => 35,
+        }
+    }
+
+    /// Milliseconds one environment step lasts: [`TaskId::substeps`] of the
+    /// model's 1 ms timestep ([`TIMESTEP_MS`]).
+    pub fn step_ms(self) -> usize {
+        self.substeps() * TIMESTEP_MS
+    }
+
+    /// Seconds one environment step lasts (0.035; Stacking 0.030).
+    pub fn step_seconds(self) -> f64 {
+        self.step_ms() as f64 / 1000.0
     }
 
     /// Number of behaviours |B| (log base of the entropies).

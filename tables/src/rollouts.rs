@@ -41,9 +41,6 @@ pub use start_map::start_map_svg;
 pub use steps::step_plots_svg;
 pub use top_down::{overlay_svg, top_down_svg};
 
-/// Seconds one environment step lasts (35 ms).
-pub const STEP_SECONDS: f64 = 0.035;
-
 /// One initial state of an evaluation, for [`start_map_svg`].
 #[derive(Debug, Clone, PartialEq)]
 pub struct StartState {

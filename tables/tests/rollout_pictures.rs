@@ -21,8 +21,7 @@ use d3il_protocol::{
 };
 use d3il_tables::board::behaviour_label;
 use d3il_tables::rollouts::{
-    no_data_svg, overlay_svg, start_map_svg, start_states, step_plots_svg, top_down_svg,
-    StartState, STEP_SECONDS,
+    no_data_svg, overlay_svg, start_map_svg, start_states, step_plots_svg, top_down_svg, StartState,
 };
 use roxmltree::{Document, Node};
 use serde_json::json;
@@ -540,7 +539,7 @@ fn step_plots_have_a_panel_per_action_the_speed_and_the_distances() {
     let a1 = &series(&doc, "action-1")[0].1;
     assert_eq!(a1.len(), steps);
     for (i, &(s, v)) in a1.iter().enumerate() {
-        assert!((s - i as f64 * STEP_SECONDS).abs() < 1e-3);
+        assert!((s - i as f64 * 0.035).abs() < 1e-3);
         assert!(
             (v - f64::from(action(i, 1))).abs() < tol(0.02),
             "step {i}: {v}"
@@ -549,7 +548,7 @@ fn step_plots_have_a_panel_per_action_the_speed_and_the_distances() {
     // The TCP covers (0.24, 0.36) m in 60 steps of 35 ms.
     let speed = &series(&doc, "speed")[0].1;
     assert_eq!(speed.len(), steps);
-    let expected = 0.24f64.hypot(0.36) / steps as f64 / STEP_SECONDS;
+    let expected = 0.24f64.hypot(0.36) / steps as f64 / 0.035;
     for &(_, v) in speed {
         assert!(
             (v - expected).abs() < expected * 0.01,
@@ -570,6 +569,13 @@ fn step_plots_have_a_panel_per_action_the_speed_and_the_distances() {
         assert!((v - want).abs() < 1e-3, "state {i}: {v} vs {want}");
     }
     assert!(texts(&doc).contains("time since reset (s)"));
+    // Stacking's steps last 30 ms (30 substeps of 1 ms), the others' 35 ms.
+    let svg = step_plots_svg(TaskId::Stacking, &r, &t).expect("drawn");
+    let doc = Document::parse(&svg).unwrap();
+    let a1 = &series(&doc, "action-1")[0].1;
+    for (i, &(s, _)) in a1.iter().enumerate() {
+        assert!((s - i as f64 * 0.030).abs() < 1e-3, "step {i}: {s} s");
+    }
 
     // Nothing to move: no distance panel.
     let bare = trace(30, 2, false);

@@ -237,9 +237,6 @@ impl TaskDef for Aligning {
             .push(("target_box.xml".into(), TARGET_BOX_XML.into()));
         s
     }
-    fn n_substeps(&self) -> usize {
-        35
-    }
     fn init_qpos(&self) -> [f64; 7] {
         init_qpos::ALIGNING
     }

@@ -52,9 +52,6 @@ impl TaskDef for Avoiding {
         s.primitives.push(fl);
         s
     }
-    fn n_substeps(&self) -> usize {
-        35
-    }
     fn init_qpos(&self) -> [f64; 7] {
         init_qpos::AVOIDING
     }

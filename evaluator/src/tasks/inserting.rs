@@ -125,9 +125,6 @@ impl TaskDef for Inserting {
         }
         s
     }
-    fn n_substeps(&self) -> usize {
-        35
-    }
     /// Same TCP target and start as Avoiding/Pushing (docs/original-d3il.md §01.4.5).
     fn init_qpos(&self) -> [f64; 7] {
         init_qpos::AVOIDING

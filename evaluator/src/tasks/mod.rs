@@ -78,7 +78,11 @@ pub trait TaskDef: Send + Sync {
     /// Version of our implementation of the task (scene + logic + contexts).
     fn version(&self) -> &'static str;
     fn scene(&self) -> SceneSpec;
-    fn n_substeps(&self) -> usize;
+    /// Physics steps per environment step ([`TaskId::substeps`], the one
+    /// statement of them).
+    fn n_substeps(&self) -> usize {
+        self.id().substeps()
+    }
     fn init_qpos(&self) -> [f64; 7];
     /// Episode limit of the state variant (`TaskId::paper_protocol`, the one
     /// statement of the protocol's constants).

@@ -67,9 +67,6 @@ impl TaskDef for Pushing {
         }
         s
     }
-    fn n_substeps(&self) -> usize {
-        35
-    }
     fn init_qpos(&self) -> [f64; 7] {
         init_qpos::AVOIDING
     }

@@ -421,9 +421,6 @@ impl TaskDef for Sorting {
             .push(("sorting_platform.xml".into(), PLATFORM_XML.into()));
         s
     }
-    fn n_substeps(&self) -> usize {
-        35
-    }
     fn init_qpos(&self) -> [f64; 7] {
         init_qpos::SORTING
     }

@@ -116,10 +116,6 @@ impl TaskDef for Stacking {
         s.primitives.push(t);
         s
     }
-    /// docs/original-d3il.md §11.2.4: 30 substeps (Sorting and Inserting use 35).
-    fn n_substeps(&self) -> usize {
-        30
-    }
     /// `init_qpos::STACKING` at full precision: the table in docs/original-d3il.md §01.4.5 rounds
     /// the three near-zero joints to 4 digits, which shows up as 5e-13 rad in the
     /// float32 commands; these are the reference rollouts' `reset.init_qpos`.

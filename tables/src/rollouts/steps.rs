@@ -6,7 +6,7 @@ use super::draw::{
     MAX_POINTS, TITLE_H, X_LABEL_AREA,
 };
 use super::top_down::{ending_text, seconds};
-use super::{finite_prefix, is_target, rollout_name, unpack, STEP_SECONDS};
+use super::{finite_prefix, is_target, rollout_name, unpack};
 use crate::plot::{hex, legend, legend_size, pe, text_width, LegendEntry, Overlay};
 use crate::TablesError;
 use d3il_protocol::{LandmarkKind, RolloutRecord, RolloutTrace, TaskId};
@@ -94,7 +94,7 @@ pub fn step_plots_svg(
             "This rollout has no steps to plot.",
         ));
     }
-    let dt = STEP_SECONDS;
+    let dt = task.step_seconds();
     let duration = steps as f64 * dt;
     let line = sequential(0.8);
     let mut panels: Vec<Panel> = (0..t.act_dim)

@@ -6,7 +6,7 @@ use super::draw::{
     Frame, Layer, CAPTION_ROW, COLOUR_BAR_H, GREY, MAX_POINTS, TITLE_H,
 };
 use super::scene::{self, world, View, ORIENTATION};
-use super::{finite_prefix, is_target, rollout_name, unpack, STEP_SECONDS};
+use super::{finite_prefix, is_target, rollout_name, unpack};
 use crate::plot::{
     draw_labels, hex, legend, legend_size, pe, place_labels, text_width, LegendEntry, Overlay,
     Shape,
@@ -204,7 +204,7 @@ pub fn top_down_svg(
         &trace.landmarks,
         !targets.is_empty(),
     ));
-    let duration = steps as f64 * STEP_SECONDS;
+    let duration = steps as f64 * task.step_seconds();
     let bar_labels = [
         (0.0, seconds(0.0)),
         (0.5, seconds(duration / 2.0)),
@@ -220,7 +220,7 @@ pub fn top_down_svg(
         format!(
             "{} steps ({}); {}.",
             record.steps,
-            seconds(record.steps as f64 * STEP_SECONDS),
+            seconds(record.steps as f64 * task.step_seconds()),
             ending_text(task, record)
         ),
         format!("{ORIENTATION} Paths are coloured by the time since the reset, light to dark."),

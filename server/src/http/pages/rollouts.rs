@@ -207,10 +207,7 @@ pub(super) async fn rollout_page(
         success: item.success,
         behaviour: item.behaviour_label.clone(),
         steps: item.steps,
-        seconds: format!(
-            "{:.2}",
-            item.steps as f64 * d3il_tables::rollouts::STEP_SECONDS
-        ),
+        seconds: format!("{:.2}", item.steps as f64 * s.task.step_seconds()),
         ending: item.ending_text.clone(),
         failure: item.failure.as_ref().map(|f| (f.step, f.message.clone())),
         prev: n.checked_sub(1),
