@@ -12,11 +12,11 @@
 
 use anyhow::{bail, Context};
 use d3il_evaluator::open_loop::{replay_actions, OpenLoopOptions};
+use d3il_evaluator::replay_input::{Episode, ReplayDoc};
 use d3il_evaluator::tasks::LoadedTask;
 use d3il_evaluator::trace::{load_task, replay as replay_trace, ReplayCheck};
 use d3il_evaluator::video::{render_video, VideoOptions};
-use d3il_protocol::{trace_of, ProtocolManifest, RolloutRecord, TaskId};
-use serde::Deserialize;
+use d3il_protocol::TaskId;
 use serde_json::{json, Value};
 use std::path::PathBuf;
 
@@ -71,14 +71,6 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     }
 }
 
-/// What `--result` reads: the manifest and the rollouts of any result-like
-/// document (other fields are ignored).
-#[derive(Deserialize)]
-struct ReplayDoc {
-    manifest: ProtocolManifest,
-    rollouts: Vec<RolloutRecord>,
-}
-
 /// Replays rollout `number` of the result document `text`, prints the check,
 /// writes the video when asked; an error when it does not replay bit for bit.
 pub fn replay_record(
@@ -88,26 +80,8 @@ pub fn replay_record(
     video_size: usize,
     as_json: bool,
 ) -> anyhow::Result<()> {
-    let doc: ReplayDoc = serde_json::from_str(text).context(
-        "the result must be a JSON object with `manifest` and `rollouts` as `d3il eval --json` writes it",
-    )?;
-    let per = doc.manifest.rollouts_per_context;
-    let record = doc
-        .rollouts
-        .iter()
-        .find(|r| r.number(per) == number)
-        .with_context(|| {
-            let numbers: Vec<usize> = doc.rollouts.iter().map(|r| r.number(per)).collect();
-            format!(
-                "the result has no rollout {number}; it has {}",
-                summarize(&numbers)
-            )
-        })?;
-    let trace = trace_of(&doc.manifest, &doc.rollouts, record).with_context(|| {
-        format!(
-            "rollout {number} has no trace: the result was made before rollouts were recorded for replay (evaluate it again to replay it)"
-        )
-    })?;
+    let doc = ReplayDoc::parse(text)?;
+    let (record, trace) = doc.rollout(number)?;
     let task = load_task(&doc.manifest)?;
     let (check, written) = match video {
         Some(path) => {
@@ -149,14 +123,6 @@ pub fn replay_record(
     Ok(())
 }
 
-/// "0-15" style list of rollout numbers.
-fn summarize(numbers: &[usize]) -> String {
-    match (numbers.first(), numbers.last()) {
-        (Some(a), Some(b)) if numbers.len() == b - a + 1 => format!("rollouts {a} to {b}"),
-        _ => format!("rollouts {numbers:?}"),
-    }
-}
-
 fn describe(c: &ReplayCheck) -> String {
     let mut s = format!(
         "{} rollout {} (initial state {}, rollout {}): {} steps, success {}, behaviour {}, {}\n",
@@ -179,30 +145,10 @@ fn describe(c: &ReplayCheck) -> String {
     s
 }
 
-#[derive(Deserialize)]
-#[serde(deny_unknown_fields)]
-struct ReplayInput {
-    #[serde(default)]
-    context: Value,
-    actions: Vec<Vec<f32>>,
-}
-
 /// Replays `input_json` and returns the output document.
 pub fn replay(task: TaskId, input_json: &str) -> anyhow::Result<Value> {
-    let input: ReplayInput = serde_json::from_str(input_json).context(
-        "the input must be a JSON object {\"context\": ..., \"actions\": [[...], ...]} with numeric action rows",
-    )?;
     let loaded = LoadedTask::load(task)?;
-    let act_dim = loaded.def.act_dim();
-    for (i, a) in input.actions.iter().enumerate() {
-        if a.len() != act_dim {
-            bail!(
-                "actions[{i}] has {} values but task {task} expects {act_dim} ({})",
-                a.len(),
-                loaded.def.act_meaning()
-            );
-        }
-    }
+    let input = Episode::parse(input_json, &loaded)?;
     let run = replay_actions(
         &loaded,
         &input.context,
