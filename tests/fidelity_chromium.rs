@@ -7,9 +7,8 @@
 //! and the navigation links to it. A restart of the same build shows the
 //! cached report at once.
 
-mod rollouts_support;
 mod server_support;
-use rollouts_support::{chromium, dump_dom};
+use d3il_test_support::chromium::{chromium, dump_dom};
 use server_support::*;
 use std::time::Duration;
 

@@ -6,40 +6,17 @@
 mod server_support;
 use d3il_protocol::paper::PAPER_METHOD_ORDER;
 use d3il_tables::plot::method_colour;
+use d3il_test_support::chromium::{chromium, HEADLESS};
 use server_support::*;
 use std::path::Path;
 use std::process::Command;
-
-fn chromium() -> String {
-    for c in ["chromium", "chromium-browser", "google-chrome"] {
-        if Command::new(c)
-            .arg("--version")
-            .output()
-            .is_ok_and(|o| o.status.success())
-        {
-            return c.to_string();
-        }
-    }
-    panic!(
-        "headless Chromium is required for this test: apt-get install -y chromium chromium-driver"
-    );
-}
 
 /// Screenshot of `url` in a `w`×`h` window: (width, height, RGBA pixels).
 fn screenshot(url: &str, (w, h): (u32, u32), dir: &Path, name: &str) -> (usize, usize, Vec<u8>) {
     let out = dir.join(format!("{name}.png"));
     let run = Command::new(chromium())
-        .args([
-            "--headless",
-            "--no-sandbox",
-            "--disable-gpu",
-            "--hide-scrollbars",
-            "--disable-quic",
-            "--no-first-run",
-            "--disable-background-networking",
-            "--disable-component-update",
-            "--disable-sync",
-        ])
+        .args(HEADLESS)
+        .arg("--hide-scrollbars")
         .arg(format!(
             "--user-data-dir={}",
             dir.join(format!("profile-{name}")).display()

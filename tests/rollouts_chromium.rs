@@ -7,6 +7,7 @@
 mod rollouts_support;
 mod server_support;
 
+use d3il_test_support::chromium::{chromium, dump_dom, serve_forever};
 use rollouts_support::*;
 use server_support::{Server, TempDir};
 

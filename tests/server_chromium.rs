@@ -4,54 +4,8 @@
 //! Pareto plot.
 
 mod server_support;
+use d3il_test_support::chromium::{chromium, dump_dom, dump_dom_at, serve_forever};
 use server_support::*;
-use std::process::Command;
-
-fn chromium() -> String {
-    for c in ["chromium", "chromium-browser", "google-chrome"] {
-        if Command::new(c)
-            .arg("--version")
-            .output()
-            .is_ok_and(|o| o.status.success())
-        {
-            return c.to_string();
-        }
-    }
-    panic!(
-        "headless Chromium is required for this test: apt-get install -y chromium chromium-driver"
-    );
-}
-
-fn dump_dom(browser: &str, url: &str, profile: &std::path::Path) -> String {
-    dump_dom_at(browser, url, profile, 1400)
-}
-
-/// The DOM Chromium built for `url` in a window `width` px wide.
-fn dump_dom_at(browser: &str, url: &str, profile: &std::path::Path, width: u32) -> String {
-    let out = Command::new(browser)
-        .arg(format!("--window-size={width},1000"))
-        .args([
-            "--headless",
-            "--no-sandbox",
-            "--disable-gpu",
-            "--disable-quic",
-            "--no-first-run",
-            "--disable-background-networking",
-            "--disable-component-update",
-            "--disable-sync",
-        ])
-        .arg(format!("--user-data-dir={}", profile.display()))
-        .arg("--dump-dom")
-        .arg(url)
-        .output()
-        .expect("run chromium");
-    assert!(
-        out.status.success(),
-        "chromium failed: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    String::from_utf8(out.stdout).expect("utf8 DOM")
-}
 
 #[test]
 fn chromium_renders_the_leaderboard_table_and_plot() {
@@ -63,6 +17,7 @@ fn chromium_renders_the_leaderboard_table_and_plot() {
         &browser,
         &format!("{}/tasks/aligning?sort=success&dir=desc", server.base),
         &dir.path().join("profile"),
+        &[],
     );
 
     // The browser parsed a leaderboard table with the paper's rows.
@@ -113,28 +68,6 @@ fn chromium_renders_the_leaderboard_table_and_plot() {
     server.kill();
 }
 
-/// Serves `html` (every request gets it) on 127.0.0.1 port 0 from a thread;
-/// returns the URL.
-fn serve_once_forever(html: String) -> String {
-    use std::io::{Read, Write};
-    let listener = std::net::TcpListener::bind("127.0.0.1:0").expect("bind 127.0.0.1");
-    let addr = listener.local_addr().expect("addr");
-    std::thread::spawn(move || {
-        for stream in listener.incoming() {
-            let Ok(mut s) = stream else { continue };
-            let mut buf = [0u8; 8192];
-            let _ = s.read(&mut buf);
-            let _ = write!(
-                s,
-                "HTTP/1.1 200 OK\r\nContent-Type: text/html; charset=utf-8\r\nContent-Length: {}\r\nConnection: close\r\n\r\n{}",
-                html.len(),
-                html
-            );
-        }
-    });
-    format!("http://{addr}/")
-}
-
 /// The page's horizontal extent as Chromium lays it out at `width` px:
 /// (document scroll width, viewport client width). The page is fetched from
 /// the real server and served with a `<base>` pointing back at it (so its
@@ -161,32 +94,14 @@ fn layout_widths(
             1,
         )
         .replacen("</body>", &format!("{script}</body>"), 1);
-    let url = serve_once_forever(html);
-    let out = Command::new(browser)
-        .args([
-            "--headless",
-            "--no-sandbox",
-            "--disable-gpu",
-            "--disable-quic",
-            "--no-first-run",
-            "--disable-background-networking",
-            "--disable-component-update",
-            "--disable-sync",
-            "--hide-scrollbars",
-            "--virtual-time-budget=5000",
-        ])
-        .arg(format!("--window-size={width},1000"))
-        .arg(format!("--user-data-dir={}", profile.display()))
-        .arg("--dump-dom")
-        .arg(&url)
-        .output()
-        .expect("run chromium");
-    assert!(
-        out.status.success(),
-        "chromium failed: {}",
-        String::from_utf8_lossy(&out.stderr)
+    let url = serve_forever(html);
+    let dom = dump_dom_at(
+        browser,
+        &url,
+        profile,
+        width,
+        &["--hide-scrollbars", "--virtual-time-budget=5000"],
     );
-    let dom = String::from_utf8(out.stdout).expect("utf8 DOM");
     let report = dom
         .split("<pre id=\"layout-report\">widths ")
         .nth(1)
@@ -248,7 +163,7 @@ fn chromium_renders_the_home_page_main_table_at_1400_and_760_px() {
     let server = Server::start(&db, &["--workers", "0"]);
     for width in [1400, 760] {
         let profile = dir.path().join(format!("profile-home-{width}"));
-        let dom = dump_dom_at(&browser, &format!("{}/", server.base), &profile, width);
+        let dom = dump_dom_at(&browser, &format!("{}/", server.base), &profile, width, &[]);
         let tables: Vec<&str> = dom
             .split("<table class=\"board main-table\"")
             .skip(1)
@@ -359,7 +274,13 @@ fn chromium_renders_the_compare_page_for_two_finished_submissions() {
     let path = format!("/compare?a={a}&b={b}");
     for width in [1400, 760] {
         let profile = dir.path().join(format!("profile-compare-{width}"));
-        let dom = dump_dom_at(&browser, &format!("{}{path}", server.base), &profile, width);
+        let dom = dump_dom_at(
+            &browser,
+            &format!("{}{path}", server.base),
+            &profile,
+            width,
+            &[],
+        );
         let diffs = &dom[dom.find("id=\"differences\"").expect("differences table")..];
         let diffs = &diffs[..diffs.find("</table>").expect("end")];
         // Alpha succeeds in 12 + c % 3, Beta in 6 + c % 3 of 16: A − B = 6/16.

@@ -13,6 +13,7 @@
 pub use d3il_pgtemp as pg;
 pub use d3il_pgtemp::free_port;
 
+pub mod chromium;
 pub mod layout;
 
 use d3il_protocol::{

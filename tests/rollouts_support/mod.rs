@@ -1,7 +1,7 @@
 //! Real results with rollout traces for the server's rollout views (issue
 //! 31): a `d3il eval --json` of a scripted expert, written into a SQLite
-//! store as a worker would leave it, and headless Chromium to look at the
-//! pages (the harness of tests/server_chromium.rs, shared here).
+//! store as a worker would leave it, and plain HTTP requests to the server
+//! (headless Chromium is d3il_test_support::chromium).
 #![allow(dead_code)]
 
 use d3il_protocol::rollout::{pack_f32, unpack_f32};
@@ -135,74 +135,6 @@ pub fn duration_seconds(mp4: &Path) -> f64 {
         .trim()
         .parse()
         .expect("a duration")
-}
-
-/// Headless Chromium (Debian's `chromium`).
-pub fn chromium() -> String {
-    for c in ["chromium", "chromium-browser", "google-chrome"] {
-        if Command::new(c)
-            .arg("--version")
-            .output()
-            .is_ok_and(|o| o.status.success())
-        {
-            return c.to_string();
-        }
-    }
-    panic!(
-        "headless Chromium is required for this test: apt-get install -y chromium chromium-driver"
-    );
-}
-
-/// The DOM Chromium built for `url` (a window 1400 px wide), after `extra`
-/// flags (e.g. a virtual-time budget).
-pub fn dump_dom(browser: &str, url: &str, profile: &Path, extra: &[&str]) -> String {
-    let out = Command::new(browser)
-        .args([
-            "--window-size=1400,1000",
-            "--headless",
-            "--no-sandbox",
-            "--disable-gpu",
-            "--disable-quic",
-            "--no-first-run",
-            "--disable-background-networking",
-            "--disable-component-update",
-            "--disable-sync",
-        ])
-        .args(extra)
-        .arg(format!("--user-data-dir={}", profile.display()))
-        .arg("--dump-dom")
-        .arg(url)
-        .output()
-        .expect("run chromium");
-    assert!(
-        out.status.success(),
-        "chromium failed: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    String::from_utf8(out.stdout).expect("utf8 DOM")
-}
-
-/// Serves `html` to every request on 127.0.0.1 port 0 from a thread (the
-/// site's pages run no script: a test wraps a page with a `<base>` pointing
-/// back at the server and its own script); returns the URL.
-pub fn serve_forever(html: String) -> String {
-    use std::io::{Read, Write};
-    let listener = std::net::TcpListener::bind("127.0.0.1:0").expect("bind 127.0.0.1");
-    let addr = listener.local_addr().expect("addr");
-    std::thread::spawn(move || {
-        for stream in listener.incoming() {
-            let Ok(mut s) = stream else { continue };
-            let mut buf = [0u8; 8192];
-            let _ = s.read(&mut buf);
-            let _ = write!(
-                s,
-                "HTTP/1.1 200 OK\r\nContent-Type: text/html; charset=utf-8\r\nContent-Length: {}\r\nConnection: close\r\n\r\n{}",
-                html.len(),
-                html
-            );
-        }
-    });
-    format!("http://{addr}/")
 }
 
 /// An HTTP answer: status, headers (names lowercase) and body.
