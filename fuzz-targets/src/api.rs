@@ -42,7 +42,13 @@ struct Server {
 fn server() -> &'static Server {
     static S: OnceLock<Server> = OnceLock::new();
     S.get_or_init(|| {
-        let dir = std::env::temp_dir().join(format!("d3il-fuzz-api-{}", std::process::id()));
+        // Named after the parent: afl's fork server starts a fresh child
+        // every so many runs, which starts over in the same directory.
+        let dir = std::env::temp_dir().join(format!(
+            "d3il-fuzz-api-{}-{}",
+            std::os::unix::process::parent_id(),
+            std::env::args().nth(1).unwrap_or_default()
+        ));
         let _ = std::fs::remove_dir_all(&dir);
         std::fs::create_dir_all(&dir).expect("scratch directory");
         let rt = tokio::runtime::Builder::new_current_thread()

@@ -19,7 +19,7 @@ mod replay;
 
 pub use api::{api_query, form, upload};
 pub use files::{contexts, manifest, merge};
-pub use onnx::{apply_worker_limits, onnx_admit};
+pub use onnx::{confine_like_worker, onnx_admit};
 pub use remote::{remote_frame, valid_replies};
 pub use replay::replay;
 

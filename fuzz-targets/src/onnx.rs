@@ -1,12 +1,12 @@
 //! ONNX admission: [`d3il_policy::onnx::admit`], what a worker runs on an
 //! uploaded model (parse, checks against the manifest and the task, graph
 //! analysis, the test inference at batch 2). In production it runs inside
-//! the worker's sandbox; [`apply_worker_limits`] gives the fuzzing process
-//! the same address-space limit (the other confinements are listed in
-//! docs/reliability.md).
+//! the worker's sandbox; the afl binary confines each fuzzing process the
+//! same way first ([`confine_like_worker`]; what still differs is listed in
+//! docs/reliability.md, "Fuzzing").
 
 use crate::assert_described;
-use d3il_protocol::{Limits, PolicyManifest};
+use d3il_protocol::{Job, Limits, PolicyManifest, PolicySource, ProtocolKind, SandboxMechanism};
 
 /// Manifests of the committed fixtures: the first byte of an input picks one.
 const MANIFESTS: &[&str] = &[
@@ -31,17 +31,31 @@ pub fn onnx_admit(data: &[u8]) {
     }
 }
 
-/// The worker's address-space limit ([`Limits::memory_bytes`], applied by
-/// `d3il_sandbox` with `setrlimit(RLIMIT_AS)`), for the fuzzing process.
-pub fn apply_worker_limits() -> std::io::Result<()> {
-    let bytes = Limits::default().memory_bytes as libc::rlim_t;
-    let lim = libc::rlimit {
-        rlim_cur: bytes,
-        rlim_max: bytes,
+/// Confines the calling process as `d3il worker` confines itself for an
+/// ONNX job ([`d3il_sandbox::confine`]: the worker's rlimits with the 4 GiB
+/// address space, an empty network namespace, no capabilities, landlock
+/// read-only to the assets, seccomp), with the default [`Limits`]. The
+/// process must be single-threaded; afl's fork server calls it once in each
+/// child, before the first run. Returns the mechanisms and whether each is
+/// in force here.
+pub fn confine_like_worker() -> Result<Vec<SandboxMechanism>, String> {
+    let manifest: PolicyManifest =
+        serde_json::from_str(MANIFESTS[0]).map_err(|e| format!("fixture manifest: {e}"))?;
+    let job = Job {
+        job_id: "fuzz".into(),
+        task: manifest.task,
+        protocol: ProtocolKind::Quick,
+        policy: PolicySource::Onnx {
+            path: "fuzz-input.onnx".into(),
+            sha256: String::new(),
+        },
+        manifest,
+        seed: 0,
+        limits: Limits::default(),
+        assets_dir: concat!(env!("CARGO_MANIFEST_DIR"), "/../assets").into(),
+        dry_run_steps: None,
+        shard: None,
+        build: None,
     };
-    // SAFETY: a plain syscall with a pointer to a local struct.
-    if unsafe { libc::setrlimit(libc::RLIMIT_AS, &lim) } != 0 {
-        return Err(std::io::Error::last_os_error());
-    }
-    Ok(())
+    d3il_sandbox::confine(&job, None).map_err(|e| e.to_string())
 }
