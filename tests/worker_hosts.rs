@@ -187,9 +187,15 @@ fn two_hosts_share_one_queue_run_each_shard_once_and_merge_bit_for_bit() {
     );
 
     for (seed, d) in done.iter().enumerate() {
-        assert_same_result(
-            d,
-            &plain_eval(c.dir.path(), &fixture("aligning_mlp.onnx"), seed as u32),
+        let plain = plain_eval(c.dir.path(), &fixture("aligning_mlp.onnx"), seed as u32);
+        assert_same_result(d, &plain);
+        // The hosts record the build that evaluated, with the drift
+        // canary's fingerprint, as `d3il eval` does (they recorded
+        // `unknown` and no fingerprint before `d3il bench chaos` compared
+        // whole manifests).
+        assert_eq!(
+            d["result"]["protocol_manifest"]["build"], plain["manifest"]["build"],
+            "{d}"
         );
     }
 }

@@ -22,6 +22,11 @@ pub struct Args {
     pub lease_seconds: i64,
     #[command(flatten)]
     pub limits: super::limits::LimitArgs,
+    /// Do not run the drift canary (`d3il verify`) at start: this host's
+    /// results then record no physics fingerprint and are kept apart from
+    /// those that do (as for `d3il serve --no-verify`).
+    #[arg(long)]
+    pub no_verify: bool,
     /// Worker executable (default: this binary, run as `d3il worker`).
     #[arg(long, hide = true)]
     pub worker_exe: Option<PathBuf>,
@@ -43,6 +48,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         "--lease-seconds must be at least 3"
     );
     cfg.lease_seconds = args.lease_seconds;
+    // The results are this host's: they record its build and the canary's
+    // physics fingerprint, as those of `d3il serve`'s own slots do.
+    cfg.canary.run = !args.no_verify;
+    cfg.canary.git_commit = super::verify::GIT_COMMIT.to_string();
     d3il_server::cli::workers_blocking(cfg).context("d3il workers failed")?;
     Ok(())
 }
