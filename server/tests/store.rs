@@ -596,6 +596,42 @@ async fn a_release_on_another_front_end_waits_for_an_upload_being_recorded() {
     assert!(!path.exists());
 }
 
+/// At start, a temporary upload whose writer (a process of this machine) has
+/// ended is removed at once, on PostgreSQL too, where the directory is shared
+/// and a temporary upload of unknown origin is debris only after an hour; one
+/// whose writer runs is kept there; a policy file no submission refers to is
+/// removed at once (files are placed and their submissions recorded under
+/// the lock the clean-up holds). A front end killed mid-upload left both
+/// behind for an hour before (found by `d3il bench chaos`).
+async fn a_killed_writers_debris_is_removed_at_start(b: Backend) {
+    let db = TestDb::new(b);
+    let store = db.open().await;
+    let live = store.new_upload_path();
+    std::fs::write(&live, b"being written").unwrap();
+    // The same name with the pid of a process that has ended.
+    let mut child = std::process::Command::new("true").spawn().unwrap();
+    let gone = child.id();
+    child.wait().unwrap();
+    let name = live
+        .file_name()
+        .unwrap()
+        .to_string_lossy()
+        .replace(&format!("-{}-", std::process::id()), &format!("-{gone}-"));
+    let abandoned = live.with_file_name(name);
+    assert_ne!(abandoned, live);
+    std::fs::write(&abandoned, b"half an upload").unwrap();
+    let orphan = store
+        .policies_dir()
+        .join(format!("{}.onnx", "e".repeat(64)));
+    std::fs::write(&orphan, b"nobody's file").unwrap();
+    store.clean_policy_files().await.unwrap();
+    assert!(!abandoned.exists(), "{}", abandoned.display());
+    assert!(!orphan.exists(), "{}", orphan.display());
+    // SQLite: the one server owns the directory, so at its start every
+    // temporary upload is debris.
+    assert_eq!(live.exists(), matches!(b, Backend::Postgres));
+}
+
 common::on_both_backends!(
     paper_rows_load_once_and_match_the_embedded_cells,
     evaluated_rows_aggregate_over_seeds_with_sample_std,
@@ -607,5 +643,6 @@ common::on_both_backends!(
     a_slot_that_lost_its_lease_cannot_requeue_or_fail_the_job,
     sibling_seeds_lists_the_rows_seeds_with_their_success,
     bad_stored_data_fails_to_decode_naming_the_column,
-    releasing_a_file_waits_for_an_upload_being_recorded
+    releasing_a_file_waits_for_an_upload_being_recorded,
+    a_killed_writers_debris_is_removed_at_start
 );

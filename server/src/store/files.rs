@@ -7,9 +7,58 @@
 use super::{io_err, Store, StoreError};
 use std::path::{Path, PathBuf};
 
-/// Temporary uploads carry this in their name (`….onnx.tmp<pid>-<n>`); any
-/// such file found at start is debris of an interrupted upload.
+/// Temporary uploads carry this in their name
+/// (`upload.onnx.tmp-<place>-<pid>-<n>`, see [`upload_place`]); any such
+/// file found at start is debris of an interrupted upload.
 pub const TMP_MARKER: &str = ".tmp";
+
+/// Where the pids in temporary upload names mean something: the kernel's
+/// boot and the pid namespace of this process (`<boot id, 8 hex>.<pid
+/// namespace inode>`). A front end that finds a temporary upload of its own
+/// place whose process is gone knows the upload was abandoned (the process
+/// was killed mid-upload), however recent it is; one of another place (a
+/// machine sharing the policy directory) it cannot judge but by its age.
+fn upload_place() -> &'static str {
+    static PLACE: std::sync::OnceLock<String> = std::sync::OnceLock::new();
+    PLACE.get_or_init(|| {
+        let boot = std::fs::read_to_string("/proc/sys/kernel/random/boot_id")
+            .map(|b| {
+                b.trim()
+                    .chars()
+                    .filter(char::is_ascii_hexdigit)
+                    .take(8)
+                    .collect::<String>()
+            })
+            .unwrap_or_default();
+        let ns = std::fs::read_link("/proc/self/ns/pid")
+            .map(|l| {
+                l.to_string_lossy()
+                    .chars()
+                    .filter(char::is_ascii_digit)
+                    .collect::<String>()
+            })
+            .unwrap_or_default();
+        format!(
+            "{}.{}",
+            if boot.is_empty() { "noboot" } else { &boot },
+            if ns.is_empty() { "0" } else { &ns }
+        )
+    })
+}
+
+/// A temporary upload of this place whose process no longer runs.
+fn abandoned_here(name: &str) -> bool {
+    let Some((_, rest)) = name.split_once(&format!("{TMP_MARKER}-")) else {
+        return false;
+    };
+    let parts: Vec<&str> = rest.split('-').collect();
+    match parts.as_slice() {
+        [place, pid, _n] if *place == upload_place() => pid
+            .parse::<u32>()
+            .is_ok_and(|pid| !Path::new(&format!("/proc/{pid}")).exists()),
+        _ => false,
+    }
+}
 
 /// PostgreSQL advisory lock key of the shared policy directory (any fixed
 /// number; "d3il" in ASCII).
@@ -30,12 +79,16 @@ impl Store {
     }
 
     /// A fresh temporary name in the policies directory for a streamed
-    /// upload (unique in this process; the pid keeps processes apart).
+    /// upload (unique in this process; the place and pid keep processes
+    /// apart and tell a later start whether its writer is gone).
     pub fn new_upload_path(&self) -> PathBuf {
         static UPLOADS: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
         let n = UPLOADS.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-        self.policies_dir()
-            .join(format!("upload.onnx{TMP_MARKER}{}-{n}", std::process::id()))
+        self.policies_dir().join(format!(
+            "upload.onnx{TMP_MARKER}-{}-{}-{n}",
+            upload_place(),
+            std::process::id()
+        ))
     }
 
     /// Moves a complete, synced temporary upload to `<sha256>.onnx`. Returns
@@ -136,8 +189,12 @@ impl Store {
     /// never deleted. Returns how many files
     /// were removed.
     /// On PostgreSQL the directory is shared with other front ends that may
-    /// be writing an upload right now, so only files untouched for an hour
-    /// count as debris there.
+    /// be writing an upload right now: a temporary upload counts as debris
+    /// when its writer is known to be gone (a process of this machine that
+    /// no longer runs, [`abandoned_here`]) or it is untouched for an hour.
+    /// A policy file no submission refers to is debris at once: files are
+    /// placed and their submissions recorded under the policy-files lock,
+    /// which this holds while it looks.
     pub async fn clean_policy_files(&self) -> Result<usize, StoreError> {
         let dir = self.policies_dir();
         let min_age = std::time::Duration::from_secs(if self.is_postgres() { 3600 } else { 0 });
@@ -151,7 +208,8 @@ impl Store {
         let mut removed = 0;
         let mut entries = tokio::fs::read_dir(&dir).await.map_err(io_err(&dir))?;
         while let Some(e) = entries.next_entry().await.map_err(io_err(&dir))? {
-            if e.file_name().to_string_lossy().contains(TMP_MARKER) && settled(&e).await {
+            let name = e.file_name().to_string_lossy().into_owned();
+            if name.contains(TMP_MARKER) && (abandoned_here(&name) || settled(&e).await) {
                 let p = e.path();
                 match tokio::fs::remove_file(&p).await {
                     Ok(()) => removed += 1,
@@ -160,7 +218,9 @@ impl Store {
             }
         }
         // Files no submission refers to (a crash between storing the file
-        // and recording its submission).
+        // and recording its submission). No upload is between the two while
+        // the lock is held.
+        let files = self.lock_policy_files().await?;
         let known: std::collections::HashSet<String> =
             on_db!(&self.db, pool => sqlx::query_scalar::<_, String>(
             "SELECT DISTINCT onnx_path FROM submissions WHERE onnx_path IS NOT NULL",
@@ -180,8 +240,7 @@ impl Store {
         while let Some(e) = entries.next_entry().await.map_err(io_err(&dir))? {
             let p = e.path();
             let orphan = p.extension().is_some_and(|x| x == "onnx")
-                && !known.contains(e.file_name().to_string_lossy().as_ref())
-                && settled(&e).await;
+                && !known.contains(e.file_name().to_string_lossy().as_ref());
             if orphan {
                 match tokio::fs::remove_file(&p).await {
                     Ok(()) => removed += 1,
@@ -189,6 +248,8 @@ impl Store {
                 }
             }
         }
+        // Releasing takes the lock itself.
+        drop(files);
         let failed: Vec<String> = on_db!(&self.db, pool => sqlx::query_scalar(
             "SELECT DISTINCT onnx_path FROM submissions WHERE status = 'failed' AND onnx_path IS NOT NULL",
         )
