@@ -103,6 +103,7 @@ impl PaperResults {
                 bold_entropy: Some(r.entropy.bold),
                 initial_states: None,
                 robot_look: None,
+                build: None,
             })
             .collect()
     }

@@ -460,6 +460,23 @@ pub struct ResultCell {
     /// robot`); rows drawn differently are separate.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub robot_look: Option<String>,
+    /// Evaluated rows made by another build than the one showing them: why
+    /// (the fingerprints); rows of different builds are separate.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub build: Option<String>,
+}
+
+/// JSON text of a part [`EvalResult::difference_except_timings`] compares.
+fn json<T: Serialize>(v: &T) -> String {
+    serde_json::to_string(v).unwrap_or_else(|e| format!("(not serialisable: {e})"))
+}
+
+/// The first 300 characters, for messages.
+fn short(s: &str) -> String {
+    match s.char_indices().nth(300) {
+        Some((i, _)) => format!("{}…", &s[..i]),
+        None => s.to_string(),
+    }
 }
 
 #[cfg(test)]
@@ -529,18 +546,5 @@ mod tests {
                 assert_eq!(a.to_bits(), b.to_bits(), "{b:e} came back as {a:e}");
             }
         }
-    }
-}
-
-/// JSON text of a part [`EvalResult::difference_except_timings`] compares.
-fn json<T: Serialize>(v: &T) -> String {
-    serde_json::to_string(v).unwrap_or_else(|e| format!("(not serialisable: {e})"))
-}
-
-/// The first 300 characters, for messages.
-fn short(s: &str) -> String {
-    match s.char_indices().nth(300) {
-        Some((i, _)) => format!("{}…", &s[..i]),
-        None => s.to_string(),
     }
 }

@@ -121,13 +121,11 @@ impl BoardRow {
             n_seeds: self.n_seeds,
             bold_success: self.bold_success,
             bold_entropy: self.bold_entropy,
+            initial_states: self.initial_states_label.clone(),
+            robot_look: self.robot_look_note().map(|n| n.badge.to_string()),
             // Rows of another build are kept apart in the tables too, with
             // the reason in the row's annotation.
-            initial_states: match (self.initial_states_label.clone(), self.build_note()) {
-                (Some(l), Some(b)) => Some(format!("{l}; {b}")),
-                (l, b) => l.or(b),
-            },
-            robot_look: self.robot_look_note().map(|n| n.badge.to_string()),
+            build: self.build_note(),
         }
     }
 }

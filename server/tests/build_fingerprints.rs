@@ -90,12 +90,24 @@ async fn results_of_different_fingerprints_are_never_ranked_together() {
     );
     assert!(page.contains("physics fingerprint bbbbbbbbbbbbbbbb"));
 
-    // d3il tables keeps the cells apart, with the reason in the row's label.
+    // d3il tables keeps the cells apart, with the reason in the row's
+    // annotation (tables/tests/evaluated.rs: separate rows).
     let cells = app.state.store.result_cells().await.expect("cells");
     let mine: Vec<&ResultCell> = cells.iter().filter(|c| c.method == "Mine").collect();
     assert_eq!(mine.len(), 3);
-    assert!(mine.iter().any(|c| c
-        .initial_states
-        .as_deref()
-        .is_some_and(|l| l.contains("physics fingerprint bbbbbbbbbbbbbbbb"))));
+    let builds: Vec<Option<&str>> = mine.iter().map(|c| c.build.as_deref()).collect();
+    assert!(
+        builds
+            .iter()
+            .any(|b| b.is_some_and(|l| l.contains("physics fingerprint bbbbbbbbbbbbbbbb"))),
+        "{builds:?}"
+    );
+    assert!(
+        mine.iter().all(|c| !c
+            .initial_states
+            .as_deref()
+            .unwrap_or("")
+            .contains("fingerprint")),
+        "the initial-states label says only which states"
+    );
 }

@@ -116,6 +116,9 @@ pub struct Row {
     /// Evaluated image rows not drawn as the original draws them: the robot
     /// look's badge (`primitive robot`, `robot look not recorded`).
     pub robot_look: Option<String>,
+    /// Evaluated rows of another build than the one making the table: why
+    /// (`other build: physics fingerprint …`).
+    pub build: Option<String>,
     pub info: MethodInfo,
     /// One of the paper's eleven baselines.
     pub in_paper: bool,
@@ -158,6 +161,9 @@ impl Row {
         }
         if let Some(l) = &self.robot_look {
             a.push(l.clone());
+        }
+        if let Some(b) = &self.build {
+            a.push(b.clone());
         }
         a
     }
@@ -211,16 +217,31 @@ impl TableModel {
     }
 }
 
-/// (method, source, control, initial-state set label, robot-look badge): one
-/// table row; evaluated rows on different initial-state sets, or image rows
-/// drawn with different robot looks, are separate rows, never merged.
-type RowKey = (
-    String,
-    Source,
-    Option<String>,
-    Option<String>,
-    Option<String>,
-);
+/// One table row: evaluated rows on different initial-state sets, image rows
+/// drawn with different robot looks, or rows of another build are separate
+/// rows, never merged.
+#[derive(Debug, Clone, PartialEq, Eq, PartialOrd, Ord)]
+struct RowKey {
+    method: String,
+    source: Source,
+    control: Option<String>,
+    initial_states: Option<String>,
+    robot_look: Option<String>,
+    build: Option<String>,
+}
+
+impl RowKey {
+    fn of(c: &ResultCell) -> RowKey {
+        RowKey {
+            method: c.method.clone(),
+            source: c.source,
+            control: c.control.clone(),
+            initial_states: c.initial_states.clone(),
+            robot_look: c.robot_look.clone(),
+            build: c.build.clone(),
+        }
+    }
+}
 
 /// Task order: by the paper's task number (T1..T7), then by title
 /// (`Sorting-2` < `Sorting-4` < `Sorting-6`, `Stacking-1` < ...).
@@ -323,13 +344,7 @@ pub fn build_table(
     let per_fraction = kind == TableKind::Datasize;
     let mut index: BTreeMap<(RowKey, String, Option<i64>), &ResultCell> = BTreeMap::new();
     for c in &selected {
-        let row: RowKey = (
-            c.method.clone(),
-            c.source,
-            c.control.clone(),
-            c.initial_states.clone(),
-            c.robot_look.clone(),
-        );
+        let row = RowKey::of(c);
         let frac = per_fraction.then(|| fraction_key(c.data_fraction));
         if index.insert((row, c.task.clone(), frac), c).is_some() {
             return Err(TablesError::DuplicateCell {
@@ -369,24 +384,26 @@ pub fn build_table(
     // name; a method's evaluated row follows its reported row.
     let row_keys: BTreeSet<RowKey> = index.keys().map(|(r, _, _)| r.clone()).collect();
     let mut row_keys: Vec<RowKey> = row_keys.into_iter().collect();
-    row_keys.sort_by_key(|(method, source, control, states, look)| {
-        let paper_pos = PAPER_METHOD_ORDER.iter().position(|m| m == method);
+    row_keys.sort_by_key(|k| {
+        let paper_pos = PAPER_METHOD_ORDER.iter().position(|m| *m == k.method);
         (
             paper_pos.is_none(),
             paper_pos.unwrap_or(0),
-            method.clone(),
-            control_rank(control.as_deref()),
-            control.clone(),
-            *source,
-            states.clone(),
-            look.clone(),
+            k.method.clone(),
+            control_rank(k.control.as_deref()),
+            k.control.clone(),
+            k.source,
+            k.initial_states.clone(),
+            k.robot_look.clone(),
+            k.build.clone(),
         )
     });
 
     let mut blocks = Vec::new();
     for groups in blocks_groups {
         let mut rows = Vec::new();
-        for (method, src, control, states, look) in &row_keys {
+        for key in &row_keys {
+            let method = &key.method;
             let in_paper = PAPER_METHOD_ORDER.contains(&method.as_str());
             let info = if in_paper {
                 paper_info.get(method).copied()
@@ -399,13 +416,6 @@ pub fn build_table(
                 history: 1,
                 action_chunking: false,
             });
-            let key: RowKey = (
-                method.clone(),
-                *src,
-                control.clone(),
-                states.clone(),
-                look.clone(),
-            );
             let values: Vec<Vec<Option<Value>>> = groups
                 .iter()
                 .map(|g| {
@@ -420,10 +430,11 @@ pub fn build_table(
             if values.iter().flatten().any(Option::is_some) {
                 rows.push(Row {
                     method: method.clone(),
-                    source: *src,
-                    control: control.clone(),
-                    initial_states: states.clone(),
-                    robot_look: look.clone(),
+                    source: key.source,
+                    control: key.control.clone(),
+                    initial_states: key.initial_states.clone(),
+                    robot_look: key.robot_look.clone(),
+                    build: key.build.clone(),
                     info,
                     in_paper,
                     values,

@@ -27,6 +27,7 @@ fn evaluated(method: &str, task: &str, success: f64, entropy: f64, n_seeds: usiz
         bold_entropy: None,
         initial_states: None,
         robot_look: None,
+        build: None,
     }
 }
 
@@ -383,4 +384,41 @@ fn image_rows_drawn_differently_are_separate_and_labelled() {
         .unwrap_or_else(|| panic!("{tex}"));
     assert!(meshed.contains("0.800"), "{meshed}");
     assert!(primitive.contains("0.600"), "{primitive}");
+}
+
+/// One method evaluated by this build and by another (a different physics
+/// fingerprint): two rows, the second saying why, never merged.
+#[test]
+fn rows_of_another_build_are_separate_and_labelled() {
+    let by = |build: Option<&str>, success: f64| ResultCell {
+        initial_states: Some("the original D3IL test contexts".into()),
+        build: build.map(str::to_string),
+        ..evaluated("Builder", "Pushing (T3)", success, 0.5, 1)
+    };
+    let other =
+        "other build: physics fingerprint 0123456789abcdef, this build's is fedcba9876543210";
+    let cells = vec![by(None, 0.8), by(Some(other), 0.6)];
+    let tex = render_table_with(
+        &cells,
+        TableKind::Main,
+        ObsType::State,
+        Format::Latex,
+        SourceFilter::Evaluated,
+        &methods(),
+    )
+    .unwrap();
+    let this = tex
+        .lines()
+        .find(|l| l.starts_with("Builder (the original D3IL test contexts) & "))
+        .unwrap_or_else(|| panic!("{tex}"));
+    let theirs = tex
+        .lines()
+        .find(|l| {
+            l.starts_with(&format!(
+                "Builder (the original D3IL test contexts, {other}) & "
+            ))
+        })
+        .unwrap_or_else(|| panic!("{tex}"));
+    assert!(this.contains("0.800"), "{this}");
+    assert!(theirs.contains("0.600"), "{theirs}");
 }
