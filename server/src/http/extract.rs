@@ -1,7 +1,9 @@
 //! The one way a URL names a task or a submission: `{task}` and `{id}` path
 //! segments are parsed here, and a segment that names nothing is a 404 in
 //! every part of the site (a JSON error under `/api/`, an HTML page elsewhere).
-//! The `?obs=` query is parsed here too.
+//! The `?obs=` query is parsed here too, and every query string is read
+//! with [`Query`], whose refusal is the same error as any other (JSON under
+//! `/api/`, an HTML page elsewhere), not axum's plain-text one.
 
 use crate::error::{AppError, PageError};
 use axum::extract::FromRequestParts;
@@ -55,12 +57,7 @@ impl<S: Send + Sync, T: PathValue> FromRequestParts<S> for Param<T> {
     type Rejection = ParamRejection;
 
     async fn from_request_parts(parts: &mut Parts, state: &S) -> Result<Self, ParamRejection> {
-        // Nested routers see the path below their prefix: ask for the original.
-        let api = parts
-            .extensions
-            .get::<axum::extract::OriginalUri>()
-            .map_or(parts.uri.path(), |u| u.0.path())
-            .starts_with("/api/");
+        let api = is_api(parts);
         let reject = |error| ParamRejection { error, api };
         let axum::extract::Path(segment) =
             axum::extract::Path::<String>::from_request_parts(parts, state)
@@ -78,11 +75,7 @@ impl<S: Send + Sync> FromRequestParts<S> for RolloutParam {
     type Rejection = ParamRejection;
 
     async fn from_request_parts(parts: &mut Parts, state: &S) -> Result<Self, ParamRejection> {
-        let api = parts
-            .extensions
-            .get::<axum::extract::OriginalUri>()
-            .map_or(parts.uri.path(), |u| u.0.path())
-            .starts_with("/api/");
+        let api = is_api(parts);
         let reject = |error| ParamRejection { error, api };
         let axum::extract::Path((id, n)) =
             axum::extract::Path::<(String, String)>::from_request_parts(parts, state)
@@ -95,6 +88,41 @@ impl<S: Send + Sync> FromRequestParts<S> for RolloutParam {
             )))
         })?;
         Ok(RolloutParam(id, n))
+    }
+}
+
+/// Whether the request is for the API (nested routers see the path below
+/// their prefix: ask for the original).
+fn is_api(parts: &Parts) -> bool {
+    parts
+        .extensions
+        .get::<axum::extract::OriginalUri>()
+        .map_or(parts.uri.path(), |u| u.0.path())
+        .starts_with("/api/")
+}
+
+/// A route's query string read into `T` (every field a string, so only a
+/// malformed or repeated parameter is refused here; the handler checks the
+/// values and names the field).
+pub struct Query<T>(pub T);
+
+impl<S: Send + Sync, T: serde::de::DeserializeOwned> FromRequestParts<S> for Query<T> {
+    type Rejection = ParamRejection;
+
+    async fn from_request_parts(parts: &mut Parts, state: &S) -> Result<Self, ParamRejection> {
+        match axum::extract::Query::<T>::from_request_parts(parts, state).await {
+            Ok(axum::extract::Query(q)) => Ok(Query(q)),
+            Err(e) => Err(ParamRejection {
+                error: AppError::Invalid {
+                    field: None,
+                    message: format!(
+                        "the query string cannot be read ({}); give each parameter at most once, as docs/api.md lists them",
+                        e.body_text()
+                    ),
+                },
+                api: is_api(parts),
+            }),
+        }
     }
 }
 

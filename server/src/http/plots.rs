@@ -3,11 +3,12 @@
 
 use crate::board_figures::{fraction_series, pareto_points};
 use crate::error::AppError;
+use crate::http::extract::Query;
 use crate::http::extract::{obs_query, Param, RolloutParam};
 use crate::leaderboard::{behaviour_counts, board_for, fraction_rows};
 use crate::rollouts::Rollouts;
 use crate::state::AppState;
-use axum::extract::{Query, State};
+use axum::extract::State;
 use axum::http::header;
 use axum::response::{IntoResponse, Response};
 use axum::routing::get;

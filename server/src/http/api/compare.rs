@@ -4,9 +4,10 @@
 
 use crate::comparison::{finished, paired};
 use crate::error::{AppError, ErrorBody};
+use crate::http::extract::Query;
 use crate::schema;
 use crate::state::AppState;
-use axum::extract::{Query, State};
+use axum::extract::State;
 use axum::Json;
 use d3il_protocol::Comparison;
 use serde::Deserialize;

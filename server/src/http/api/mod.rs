@@ -11,6 +11,7 @@ use crate::cache::Rendered;
 use crate::error::AppError;
 use crate::error::ErrorBody;
 use crate::http::csv::{board_csv, csv_response};
+use crate::http::extract::Query;
 use crate::http::extract::{obs_query, Param};
 use crate::intake;
 use crate::leaderboard::{board_for, View};
@@ -21,7 +22,7 @@ use crate::views::{
     results_view, submission_view, LeaderboardLink, LeaderboardList, LeaderboardView, MethodList,
     ResultsView, SubmissionView, WhoAmI,
 };
-use axum::extract::{DefaultBodyLimit, Multipart, Query, State};
+use axum::extract::{DefaultBodyLimit, Multipart, State};
 use axum::http::{header, HeaderMap, StatusCode};
 use axum::response::{IntoResponse, Response};
 use axum::routing::{get, post};

@@ -4,11 +4,12 @@
 //! top-down picture.
 
 use crate::error::{AppError, ErrorBody};
+use crate::http::extract::Query;
 use crate::http::extract::{Param, RolloutParam};
 use crate::http::media::serve_video;
 use crate::rollouts::{RolloutDetail, RolloutList, RolloutQuery, Rollouts};
 use crate::state::AppState;
-use axum::extract::{Query, State};
+use axum::extract::State;
 use axum::http::{header, HeaderMap};
 use axum::response::{IntoResponse, Response};
 use axum::Json;

@@ -6,6 +6,7 @@ use super::render;
 use crate::board_figures::{fraction_series, pareto_points};
 use crate::error::{AppError, PageError};
 use crate::http::csv::{board_csv, csv_response};
+use crate::http::extract::Query;
 use crate::http::extract::{obs_query, Param};
 use crate::leaderboard::{
     board_for, by_title, fraction_rows, protocol_str, rank_groups, sort_rows, BoardRow, RankGroup,
@@ -14,7 +15,7 @@ use crate::leaderboard::{
 use crate::state::AppState;
 use crate::store::MethodRow;
 use askama::Template;
-use axum::extract::{Path, Query, State};
+use axum::extract::{Path, State};
 use axum::response::{Html, Response};
 use d3il_protocol::{ObsType, ProtocolKind, Source, TaskId};
 use d3il_tables::board as figures;

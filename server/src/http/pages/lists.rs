@@ -4,10 +4,11 @@
 use super::format::{fmt_time, method_url};
 use super::render;
 use crate::error::PageError;
+use crate::http::extract::Query;
 use crate::state::AppState;
 use crate::views::SubmissionListQuery;
 use askama::Template;
-use axum::extract::{Query, State};
+use axum::extract::State;
 use axum::response::Html;
 use d3il_protocol::TaskId;
 
