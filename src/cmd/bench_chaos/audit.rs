@@ -38,6 +38,10 @@ pub struct Verdict {
     pub wrong: usize,
     /// Rows and files left behind.
     pub orphans: usize,
+    /// Submissions failed as `crashed` because the injector killed their
+    /// worker on every attempt (each kill counts as an attempt, as a crash
+    /// does): the faults' doing, reported but not a broken promise.
+    pub killed_by_faults: usize,
     /// p99 of submission-to-result of the completed good and remote ones, s.
     pub p99: f64,
     pub problems: Vec<String>,
@@ -127,7 +131,20 @@ fn check(run: &PhaseRun) -> Verdict {
                 "failed" => {
                     let kind = r.error_kind.clone().unwrap_or_default();
                     let message = r.error_message.clone().unwrap_or_default();
-                    if !ACTIONABLE.contains(&kind.as_str()) {
+                    let every_attempt_killed = kind == "crashed"
+                        && run.jobs.iter().any(|j| {
+                            j.submission_id == r.id
+                                && j.state == "failed"
+                                && run.outside_kills.get(&j.id).copied().unwrap_or(0)
+                                    >= j.attempts as usize
+                        });
+                    if every_attempt_killed {
+                        v.killed_by_faults += 1;
+                        v.problems.push(format!(
+                            "{what}: submission {} failed: the fault injector killed its worker on each of its attempts (not counted as broken)",
+                            r.id
+                        ));
+                    } else if !ACTIONABLE.contains(&kind.as_str()) {
                         v.problem(
                             |v| &mut v.unactionable,
                             format!("{what}: submission {} failed ({kind}): {message}", r.id),
@@ -145,6 +162,24 @@ fn check(run: &PhaseRun) -> Verdict {
                 ),
             }
         }
+    }
+    let acknowledged: Vec<i64> = run
+        .sent
+        .iter()
+        .filter_map(|s| match s.answer {
+            Answer::Accepted(id) => Some(id),
+            _ => None,
+        })
+        .collect();
+    for (id, _) in run
+        .seen
+        .iter()
+        .filter(|(id, s)| s.status == super::soak::VANISHED && !acknowledged.contains(id))
+    {
+        v.problem(
+            |v| &mut v.lost,
+            format!("{name}: submission {id} was in the database and is gone"),
+        );
     }
     let sent: std::collections::HashSet<&str> =
         run.sent.iter().map(|s| s.method.as_str()).collect();
@@ -433,8 +468,8 @@ pub fn table(runs: &[(&str, &PhaseRun, &Verdict)]) -> String {
             run.reruns, v.p99
         );
         out += &format!(
-            "{name}: lost {}, mismatched {}, failed without an actionable reason {}, wrong outcome {}, rows or files left behind {}\n",
-            v.lost, v.mismatched, v.unactionable, v.wrong, v.orphans
+            "{name}: lost {}, mismatched {}, failed without an actionable reason {}, wrong outcome {}, rows or files left behind {}; failed because every attempt's worker was killed by the injector {}\n",
+            v.lost, v.mismatched, v.unactionable, v.wrong, v.orphans, v.killed_by_faults
         );
     }
     out

@@ -5,6 +5,7 @@
 use super::exe;
 use crate::cmd::bench_procs::{children, spawn_ready, Proc};
 use anyhow::Context;
+use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::sync::Mutex;
@@ -96,6 +97,7 @@ impl Cluster {
     pub fn start(dir: &Path) -> anyhow::Result<Cluster> {
         std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
         let url = d3il_pgtemp::fresh_database();
+        durable_commits(&url)?;
         let store = dir.join("policy-store");
         let out = Command::new(exe()?)
             .args([
@@ -272,20 +274,38 @@ impl Cluster {
     /// Job ids each host's log says it started (a shard taken over or
     /// retried is started again), over every restart of every host.
     pub fn started_jobs(&self) -> Vec<i64> {
-        let mut ids = vec![];
-        for h in &self.hosts {
-            let text = std::fs::read_to_string(self.dir.join(format!("{}.log", h.name)))
-                .unwrap_or_default();
-            ids.extend(
-                text.lines()
-                    .filter(|l| l.contains(" started on "))
-                    .filter_map(|l| {
-                        let rest = &l[l.find("job ")? + 4..];
-                        rest.split_whitespace().next()?.parse::<i64>().ok()
-                    }),
-            );
+        self.host_log_lines()
+            .iter()
+            .filter(|l| l.contains(" started on "))
+            .filter_map(|l| job_id(l))
+            .collect()
+    }
+
+    /// Per job id, how many of its attempts ended with its worker killed
+    /// from outside (the injector's SIGKILL), from the hosts' logs.
+    pub fn outside_kills(&self) -> HashMap<i64, usize> {
+        let mut kills = HashMap::new();
+        for line in self.host_log_lines() {
+            if line.contains(" failed (Crashed: ") && line.contains("killed from outside") {
+                if let Some(id) = job_id(&line) {
+                    *kills.entry(id).or_default() += 1;
+                }
+            }
         }
-        ids
+        kills
+    }
+
+    fn host_log_lines(&self) -> Vec<String> {
+        self.hosts
+            .iter()
+            .flat_map(|h| {
+                std::fs::read_to_string(self.dir.join(format!("{}.log", h.name)))
+                    .unwrap_or_default()
+                    .lines()
+                    .map(str::to_string)
+                    .collect::<Vec<_>>()
+            })
+            .collect()
     }
 
     /// Whether every member still runs (none exited on its own).
@@ -297,6 +317,37 @@ impl Cluster {
             .map(|m| m.name.clone())
             .collect()
     }
+}
+
+/// PostgreSQL's default `synchronous_commit = on` for the run's database.
+/// The throw-away cluster turns it off for the tests' speed, and then a
+/// commit is acknowledged before its WAL leaves the server's memory: a
+/// killed server loses the last fraction of a second of commits, an
+/// accepted submission among them (the first full run of this bench saw one
+/// vanish). A service's database keeps the default; so does this bench.
+fn durable_commits(url: &str) -> anyhow::Result<()> {
+    use d3il_server::store::sqlx;
+    let name = url.rsplit('/').next().unwrap_or_default();
+    anyhow::ensure!(
+        !name.is_empty() && name.chars().all(|c| c.is_ascii_alphanumeric() || c == '_'),
+        "unexpected database name in {url}"
+    );
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()?;
+    rt.block_on(async {
+        let pool = sqlx::PgPool::connect(url).await?;
+        let sql = format!("ALTER DATABASE {name} SET synchronous_commit = on");
+        sqlx::query(sqlx::AssertSqlSafe(sql)).execute(&pool).await?;
+        pool.close().await;
+        anyhow::Ok(())
+    })
+}
+
+/// The job id of a pool log line (`… job 12 (submission 4, …) …`).
+fn job_id(line: &str) -> Option<i64> {
+    let rest = &line[line.find("job ")? + 4..];
+    rest.split_whitespace().next()?.parse().ok()
 }
 
 fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {

@@ -63,6 +63,8 @@ pub struct PhaseRun {
     pub policies_dir: PathBuf,
     /// Job ids started more than once (taken over or retried).
     pub reruns: usize,
+    /// Per job id, attempts that ended with the worker killed from outside.
+    pub outside_kills: HashMap<i64, usize>,
     /// The stored results of completed submissions.
     pub stored: HashMap<i64, EvalResult>,
     /// Members that had exited on their own by the end.
@@ -70,6 +72,8 @@ pub struct PhaseRun {
 }
 
 const TERMINAL: [&str; 2] = ["completed", "failed"];
+/// The status the watcher gives a row it saw before and no longer finds.
+pub const VANISHED: &str = "gone from the database";
 
 fn runtime() -> anyhow::Result<tokio::runtime::Runtime> {
     Ok(tokio::runtime::Builder::new_current_thread()
@@ -200,7 +204,7 @@ fn settle(
             let seen = lock(seen);
             let open = seen
                 .values()
-                .filter(|s| !TERMINAL.contains(&s.status.as_str()))
+                .filter(|s| !TERMINAL.contains(&s.status.as_str()) && s.status != VANISHED)
                 .count();
             (seen.keys().copied().collect(), open)
         };
@@ -243,7 +247,21 @@ fn watch(url: &str, seen: &Mutex<HashMap<i64, Seen>>, stop: &AtomicBool) {
                         .fetch_all(p)
                         .await;
                 let now = Instant::now();
-                for (id, status) in rows.into_iter().flatten() {
+                let Ok(rows) = rows else {
+                    tokio::time::sleep(Duration::from_millis(250)).await;
+                    continue;
+                };
+                // A row seen before and gone now was lost (a commit the
+                // database did not keep): it will not end.
+                {
+                    let ids: std::collections::HashSet<i64> = rows.iter().map(|r| r.0).collect();
+                    for (id, e) in lock(seen).iter_mut() {
+                        if !ids.contains(id) {
+                            e.status = VANISHED.to_string();
+                        }
+                    }
+                }
+                for (id, status) in rows {
                     let mut seen = lock(seen);
                     let e = seen.entry(id).or_insert(Seen {
                         status: String::new(),
@@ -366,6 +384,7 @@ fn snapshot(cluster: &Cluster, name: &'static str) -> anyhow::Result<PhaseRun> {
         files,
         policies_dir,
         reruns,
+        outside_kills: cluster.outside_kills(),
         stored,
         exited,
     })
