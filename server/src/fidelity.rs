@@ -70,8 +70,9 @@ fn now() -> i64 {
         .unwrap_or(0)
 }
 
-/// sha256 of a file (the executable): what the cache is keyed by.
-fn file_sha256(path: &Path) -> std::io::Result<String> {
+/// sha256 of a file, streamed: what the per-binary caches (fidelity reports
+/// here, `d3il verify`'s report and fingerprint) are keyed by.
+pub fn file_sha256(path: &Path) -> std::io::Result<String> {
     let mut f = std::fs::File::open(path)?;
     let mut h = Sha256::new();
     std::io::copy(&mut f, &mut h)?;

@@ -174,8 +174,7 @@ fn cache_path(what: &str, ext: &str) -> Option<PathBuf> {
     }
     static SHA: std::sync::OnceLock<Option<String>> = std::sync::OnceLock::new();
     let sha = SHA.get_or_init(|| {
-        let bytes = std::fs::read(std::env::current_exe().ok()?).ok()?;
-        Some(d3il_evaluator::eval::sha256_hex(&bytes))
+        d3il_server::fidelity::file_sha256(&std::env::current_exe().ok()?).ok()
     });
     let sha = sha.as_deref()?;
     Some(cache_dir().join(format!("{what}-{}.{ext}", &sha[..16])))
