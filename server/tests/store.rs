@@ -632,6 +632,39 @@ async fn a_killed_writers_debris_is_removed_at_start(b: Backend) {
     assert_eq!(live.exists(), matches!(b, Backend::Postgres));
 }
 
+/// The stored result reads back as the worker made it (Store::eval_result),
+/// equal to it but for nothing (difference_except_timings); a result that
+/// differs in its measured inference time only is the same evaluation, one
+/// that differs in a rollout is not, and the difference names the rollout.
+/// What `d3il bench chaos` compares with a plain `d3il eval`.
+async fn a_stored_result_reads_back_bit_for_bit(b: Backend) {
+    let db = TestDb::new(b);
+    let store = db.open().await;
+    let (sub, job) = submit(&store, "Stored", TaskId::Pushing, 0).await;
+    store.claim_job("w0", 60).await.unwrap().unwrap();
+    let r = d3il_test_support::pushing_result(ProtocolKind::Paper, |c, i| {
+        d3il_test_support::SynthRollout {
+            success: (c + i) % 3 != 0,
+            label: (c * 7 + i) % 4,
+            unstable: c == 2 && i == 5,
+        }
+    });
+    store.complete_job(job, sub, &r, &[]).await.unwrap();
+    let back = store.eval_result(sub).await.unwrap().expect("stored");
+    assert_eq!(back.difference_except_timings(&r), None);
+    assert_eq!(back, r);
+    let mut timed = r.clone();
+    timed.metrics.inference_ms += 1.5;
+    assert_eq!(back.difference_except_timings(&timed), None);
+    let mut other = r.clone();
+    other.rollouts[17].steps += 1;
+    let d = back
+        .difference_except_timings(&other)
+        .expect("a difference");
+    assert!(d.starts_with("rollout 1 of initial state 1:"), "{d}");
+    assert_eq!(store.eval_result(sub + 1000).await.unwrap(), None);
+}
+
 common::on_both_backends!(
     paper_rows_load_once_and_match_the_embedded_cells,
     evaluated_rows_aggregate_over_seeds_with_sample_std,
@@ -644,5 +677,6 @@ common::on_both_backends!(
     sibling_seeds_lists_the_rows_seeds_with_their_success,
     bad_stored_data_fails_to_decode_naming_the_column,
     releasing_a_file_waits_for_an_upload_being_recorded,
-    a_killed_writers_debris_is_removed_at_start
+    a_killed_writers_debris_is_removed_at_start,
+    a_stored_result_reads_back_bit_for_bit
 );
