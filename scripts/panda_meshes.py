@@ -14,12 +14,23 @@ the original D3IL scene draws these meshes in plain colours (white at alpha 0.1
 for the links, MuJoCo's default grey for the hand and fingers), not with the
 Collada materials (docs/original-d3il.md §01.2.5, §01.6).
 
+The original loads these meshes as STL files (docs/original-d3il.md §01.2.5),
+whose repeated vertices MuJoCo merges before computing smooth vertex normals;
+MuJoCo 2.2 gives every OBJ face vertices of its own instead, so an OBJ without
+normals is drawn flat-shaded (with the full meshes flat, the front camera was
+0.38/255 from the original's frames; with these normals 0.05/255). The
+converter therefore merges equal vertices as MuJoCo's STL loader does and
+writes each vertex's normal as MuJoCo computes it (mjCMesh::MakeNormal: the
+area-weighted face normals, without the faces more than about 37 degrees off
+their average), which MuJoCo then uses as given.
+
 The full meshes have 12 000-22 000 triangles per link, which at 96x96 pixels
 are mostly far smaller than a pixel (the front view drew 92 ms per frame with
 them). Meshes above BUDGET triangles are therefore reduced to BUDGET by
-quadric edge collapse (the `fast-simplification` package, pinned in
-REQUIREMENTS, so every machine gets the same vertices); docs/images.md gives the measured
-difference to frames drawn with the full meshes, which are written too, to
+quadric edge collapse with MeshLab's filter (the `pymeshlab` package, pinned in
+REQUIREMENTS with explicit parameters, so every machine gets the same
+vertices); docs/images.md gives the measured difference to the original's
+frames and to frames drawn with the full meshes, which are written too, to
 outdir/full/, for the test that keeps that difference small
 (evaluator/tests/panda_meshes.rs).
 
@@ -28,14 +39,21 @@ are not installed.
 """
 
 import os
+import struct
 import sys
 import xml.etree.ElementTree as ET
 
 PARTS = [f"link{i}" for i in range(8)] + ["hand", "finger"]
-BUDGET = 1000
+BUDGET = 2500
 # The packages the meshes come from, pinned: the committed meshed frames
 # (tests/render_golden.rs) depend on the exact vertices. ./dev installs these.
-REQUIREMENTS = {"example-robot-data": "6.0.0", "fast-simplification": "0.2.0"}
+REQUIREMENTS = {"example-robot-data": "6.0.0", "pymeshlab": "2025.7.post1"}
+# MeshLab's quadric edge collapse, every parameter given (its defaults), so a
+# change of defaults in another version cannot change the vertices silently.
+DECIMATION = dict(qualitythr=0.3, preserveboundary=False, boundaryweight=1.0,
+                  preservenormal=False, preservetopology=False, optimalplacement=True,
+                  planarquadric=False, planarweight=0.001, qualityweight=False,
+                  autoclean=True, selected=False)
 
 
 def pins():
@@ -154,28 +172,83 @@ def weld(verts, faces):
     return out, [t for t in tris if len(set(t)) == 3]
 
 
+def merge_equal(verts, faces):
+    """Vertices with equal float32 coordinates merged into one and faces that
+    become degenerate dropped, as MuJoCo's STL loader does (RemoveRepeated)."""
+    index, out, welded = {}, [], []
+    for v in verts:
+        key = tuple(struct.unpack("<3f", struct.pack("<3f", *v)))
+        if key not in index:
+            index[key] = len(out)
+            out.append(key)
+        welded.append(index[key])
+    tris = [(welded[a], welded[b], welded[c]) for a, b, c in faces]
+    return out, [t for t in tris if len(set(t)) == 3]
+
+
+def vertex_normals(verts, faces):
+    """MuJoCo's vertex normals for a mesh without any (mjCMesh::MakeNormal with
+    smoothnormal false): each vertex sums its faces' unit normals weighted by
+    their area, then the faces whose normal has a dot product below 0.8 with
+    that sum's direction are taken out again (sharp edges stay sharp), and
+    the result is normalised ((0, 0, 1) if nothing is left)."""
+    import numpy as np
+    v = np.array(verts, dtype=np.float64)
+    f = np.array(faces, dtype=np.int64)
+    cross = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+    area = np.linalg.norm(cross, axis=1)
+    unit = cross / np.where(area > 0, area, 1.0)[:, None]
+    weighted = unit * area[:, None]
+    total = np.zeros_like(v)
+    for j in range(3):
+        np.add.at(total, f[:, j], weighted)
+    removed = np.zeros_like(v)
+    for j in range(3):
+        at = total[f[:, j]]
+        length = np.linalg.norm(at, axis=1)
+        direction = at / np.where(length > 0, length, 1.0)[:, None]
+        far = (direction * unit).sum(axis=1) < 0.8
+        np.add.at(removed, f[far, j], weighted[far])
+    n = total - removed
+    length = np.linalg.norm(n, axis=1)
+    n = np.where(length[:, None] > 1e-15, n / np.where(length > 0, length, 1.0)[:, None],
+                 np.array([0.0, 0.0, 1.0]))
+    return [tuple(float(c) for c in row) for row in n]
+
+
 def reduce(verts, faces, budget):
     """The mesh with at most `budget` triangles (unchanged when it has fewer)."""
     if len(faces) <= budget:
         return verts, faces
     import numpy as np
-    import fast_simplification
+    import pymeshlab
     verts, faces = weld(verts, faces)
-    v, f = fast_simplification.simplify(np.array(verts, dtype=np.float64),
-                                        np.array(faces, dtype=np.int32), target_count=budget)
-    return [tuple(float(c) for c in p) for p in v], [tuple(int(i) for i in t) for t in f]
+    ms = pymeshlab.MeshSet()
+    ms.add_mesh(pymeshlab.Mesh(np.array(verts, dtype=np.float64), np.array(faces, dtype=np.int32)))
+    ms.meshing_decimation_quadric_edge_collapse(targetfacenum=budget, **DECIMATION)
+    m = ms.current_mesh()
+    return ([tuple(float(c) for c in p) for p in m.vertex_matrix()],
+            [tuple(int(i) for i in t) for t in m.face_matrix()])
 
 
 def write_obj(path, verts, faces, source):
+    """Vertices (equal ones merged) with MuJoCo's normals, and the faces."""
+    verts, faces = merge_equal(verts, faces)
     # Drop vertices no face uses and renumber (MuJoCo counts every vertex).
     used = sorted({i for f in faces for i in f})
     new = {old: k + 1 for k, old in enumerate(used)}
+    kept = [verts[i] for i in used]
+    normals = vertex_normals(kept, [tuple(new[i] - 1 for i in f) for f in faces])
     with open(path, "w") as f:
         f.write(f"# converted by scripts/panda_meshes.py from {source}\n")
-        for i in used:
-            f.write("v %.7g %.7g %.7g\n" % verts[i])
+        for p in kept:
+            f.write("v %.7g %.7g %.7g\n" % p)
+        for n in normals:
+            f.write("vn %.7g %.7g %.7g\n" % n)
         for a, b, c in faces:
-            f.write(f"f {new[a]} {new[b]} {new[c]}\n")
+            a, b, c = new[a], new[b], new[c]
+            f.write(f"f {a}//{a} {b}//{b} {c}//{c}\n")
+    return len(faces)
 
 
 def main():
@@ -201,8 +274,8 @@ def main():
         write_obj(os.path.join(full, f"panda_{part}.obj"), verts, faces, source)
         rv, rf = reduce(verts, faces, BUDGET)
         path = os.path.join(out, f"panda_{part}.obj")
-        write_obj(path, rv, rf, f"{source}, reduced to {len(rf)} triangles")
-        print(f"{path}: {len(rf)} of {len(faces)} triangles, bounds x [{lo[0]:.4f}, {hi[0]:.4f}] "
+        n = write_obj(path, rv, rf, f"{source}, reduced to {len(rf)} triangles")
+        print(f"{path}: {n} of {len(faces)} triangles, bounds x [{lo[0]:.4f}, {hi[0]:.4f}] "
               f"y [{lo[1]:.4f}, {hi[1]:.4f}] z [{lo[2]:.4f}, {hi[2]:.4f}]")
 
 

@@ -21,12 +21,12 @@ include!(concat!(env!("OUT_DIR"), "/panda_meshes.rs"));
 ///
 /// [`RobotLook::Meshes`] is the Panda's visual meshes (franka_description,
 /// from the `example-robot-data` package, converted by scripts/panda_meshes.py
-/// and compiled in), drawn like the original's (docs/original-d3il.md §01.2.5,
-/// §01.6): each link's `:geom1` and a second visual geom (the original's
-/// `:geom2` is the same mesh) are the link's mesh in white at alpha 0.1, so
-/// the translucent links are drawn twice; the hand's and fingers' `:geom1` are
-/// their meshes in MuJoCo's default grey. The primitive collision geoms
-/// `:geom2` move to geom group 3, which is not drawn.
+/// with MuJoCo's own vertex normals and compiled in), drawn like the
+/// original's (docs/original-d3il.md §01.2.5, §01.6): each link's `:geom1` is
+/// its mesh in white at alpha 0.19, the blend of the original's two drawings
+/// of it at alpha 0.1 (its `:geom1` and `:geom2`); the hand's and fingers'
+/// `:geom1` are their meshes in MuJoCo's default grey. The primitive collision
+/// geoms `:geom2` move to geom group 3, which is not drawn.
 pub use d3il_protocol::RobotLook;
 
 /// Whether this build has the meshes (converted before it was compiled).
@@ -94,15 +94,16 @@ fn with_meshes(robot_xml: &str) -> Option<String> {
     };
     let mut x = robot_xml.to_string();
     for (i, g) in LINK_GEOMS.iter().enumerate() {
-        // The visual geom (group 1) and the original's second drawing of the
-        // same mesh (its collision geom, group 0), both translucent white.
+        // The original draws the mesh twice in white at alpha 0.1 (its
+        // visual and its collision geom), one right after the other in each
+        // of MuJoCo's two transparent passes (same position and size, so
+        // adjacent in its depth order): two blends at 0.1 are one at
+        // 1 - 0.9² = 0.19, drawn once for half the cost (docs/images.md).
         let link = format!("panda_link{i}");
         x = replace_element(&x, &format!(r#"<geom name="{g}:geom1""#), |_| {
-            let white = r#" rgba="1 1 1 0.1""#;
             format!(
-                "{} group=\"1\"/>{} group=\"0\"/>",
-                mesh(&format!("{g}:geom1"), &link, white),
-                mesh(&format!("{g}:geom2_drawn"), &link, white)
+                "{} group=\"1\"/>",
+                mesh(&format!("{g}:geom1"), &link, r#" rgba="1 1 1 0.19""#)
             )
         })?;
     }

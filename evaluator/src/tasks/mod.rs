@@ -54,7 +54,7 @@ pub enum TaskError {
     SimulationWarning { step: usize, warnings: String },
     #[error("task {0} is not available in this build")]
     Unavailable(TaskId),
-    #[error("this build has no Panda meshes: ./dev installs the example-robot-data and fast-simplification packages and converts them (scripts/panda_meshes.py) before building")]
+    #[error("this build has no Panda meshes: ./dev installs the example-robot-data and pymeshlab packages and converts them (scripts/panda_meshes.py) before building")]
     NoMeshes,
     #[error("task {0} has no image-observation variant (image tasks: aligning, sorting-4, sorting-6, stacking)")]
     NoImageVariant(TaskId),
