@@ -59,7 +59,7 @@ impl Plan {
             }
         } else {
             Plan {
-                submissions: 140,
+                submissions: 160,
                 faults: 50,
                 quiet_submissions: 30,
                 submit_every: Duration::from_millis(2500),
@@ -130,7 +130,16 @@ fn bench(dir: &Path, plan: &Plan) -> anyhow::Result<()> {
     for problem in quiet_v.problems.iter().chain(&chaos_v.problems) {
         println!("problem: {problem}");
     }
-    println!("wall time {:.0} s", started.elapsed().as_secs_f64());
+    let accepted = chaos
+        .sent
+        .iter()
+        .filter(|s| matches!(s.answer, load::Answer::Accepted(_)))
+        .count();
+    println!(
+        "wall time {:.0} s; the soak's front ends accepted {accepted} of its {} submissions",
+        started.elapsed().as_secs_f64(),
+        chaos.sent.len()
+    );
     let (x, y) = (chaos_v.p99, quiet_v.p99);
     println!(
         "submissions {}, faults {}, lost {}, mismatched {}, p99 submission-to-result {x:.1} s against a quiet run {y:.1} s, ratio {:.2}",
