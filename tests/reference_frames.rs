@@ -4,13 +4,14 @@
 //! llvmpipe; README there) against the original's, through the fidelity
 //! report's own comparison (`d3il_evaluator::fidelity::frames`).
 //!
-//! Measured on 26 November, with the link and hand meshes reduced to 2 500
-//! triangles by MeshLab's quadric edge collapse and MuJoCo's own vertex
-//! normals (scripts/panda_meshes.py): front 0.319/255 on average (frames
-//! 0.286-0.362, 1.0-1.1 % of pixels more than 8/255 off, on the robot), in-hand
-//! 0.006/255 (at most 0.047). Issue 32's bounds (front mean ≤ 0.5/255, in-hand
-//! ≤ 0.1/255 per frame) are asserted, and so are floors a little above today's
-//! values, so that nothing makes our frames drift further away unnoticed.
+//! Measured on 26 November, with the link meshes reduced to 2 000 triangles
+//! and the hand to 3 000 by MeshLab's quadric edge collapse, with MuJoCo's own
+//! vertex normals (scripts/panda_meshes.py): front 0.352/255 on average
+//! (frames 0.320-0.394, 1.2-1.3 % of pixels more than 8/255 off, on the
+//! robot), in-hand 0.006/255 (at most 0.047). Issue 32's bounds (front mean
+//! ≤ 0.5/255, in-hand ≤ 0.1/255 per frame) are asserted, and so are floors a
+//! little above today's values, so that nothing makes our frames drift
+//! further away unnoticed.
 //! Before (1 000 triangles by fast-simplification, flat-shaded): front
 //! 0.980/255; docs/images.md "Against the original's frames".
 
@@ -18,9 +19,9 @@ use d3il_evaluator::fidelity::frames::section;
 use std::path::Path;
 
 /// Today's front-camera mean, rounded up (/255).
-const FRONT_MEAN_FLOOR: f64 = 0.33;
+const FRONT_MEAN_FLOOR: f64 = 0.36;
 /// Today's worst front frame, rounded up (/255).
-const FRONT_FRAME_FLOOR: f64 = 0.37;
+const FRONT_FRAME_FLOOR: f64 = 0.40;
 /// The issue's bound for the in-hand camera, every frame (/255).
 const INHAND_FRAME_BOUND: f64 = 0.1;
 /// The issue's bound for the front camera's mean (/255).

@@ -100,12 +100,12 @@ fn difference(a: &[u8], b: &[u8]) -> (f64, f64) {
     (mean, far as f64 / pixels as f64)
 }
 
-/// The links and the hand are compiled in reduced to 2 500 triangles each
-/// (scripts/panda_meshes.py, MeshLab's quadric edge collapse, MuJoCo's own
-/// vertex normals): the full meshes (12 000-22 000 triangles per link) cost
+/// The links are compiled in reduced to 2 000 triangles each and the hand to
+/// 3 000 (scripts/panda_meshes.py, MeshLab's quadric edge collapse, MuJoCo's
+/// own vertex normals): the full meshes (12 000-22 000 triangles per link) cost
 /// the front view about 9 times its rendering time. The frames stay those of
 /// the full meshes to within a mean of 0.45/255 and 1.5% of pixels differing
-/// by more than 8/255 (measured 0.25-0.29 and 0.9-1.0%; with the 1 000
+/// by more than 8/255 (measured 0.29-0.31 and 1.1%; with the 1 000
 /// fast-simplification triangles before, 0.78-0.90 and 3.6-4.3%), while the
 /// primitive capsules and boxes are much further from them (the test checks
 /// that it can tell).
