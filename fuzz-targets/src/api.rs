@@ -49,6 +49,7 @@ fn server() -> &'static Server {
             std::os::unix::process::parent_id(),
             std::env::args().nth(1).unwrap_or_default()
         ));
+        remove_stale_scratch();
         let _ = std::fs::remove_dir_all(&dir);
         std::fs::create_dir_all(&dir).expect("scratch directory");
         let rt = tokio::runtime::Builder::new_current_thread()
@@ -85,6 +86,26 @@ fn server() -> &'static Server {
         s.seed_result();
         s
     })
+}
+
+/// Scratch directories of earlier runs whose process is gone.
+fn remove_stale_scratch() {
+    for entry in std::fs::read_dir(std::env::temp_dir())
+        .into_iter()
+        .flatten()
+        .flatten()
+    {
+        let name = entry.file_name().to_string_lossy().into_owned();
+        let Some(pid) = name
+            .strip_prefix("d3il-fuzz-api-")
+            .and_then(|rest| rest.split('-').next())
+        else {
+            continue;
+        };
+        if !pid.is_empty() && !std::path::Path::new("/proc").join(pid).exists() {
+            let _ = std::fs::remove_dir_all(entry.path());
+        }
+    }
 }
 
 impl Server {
