@@ -6,6 +6,7 @@
 //! step limit, several seconds) in the real sandboxed `d3il worker`.
 
 mod server_support;
+use d3il_test_support::pg::children;
 use server_support::*;
 use std::path::PathBuf;
 use std::time::Duration;
@@ -14,19 +15,6 @@ fn fixture(name: &str) -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
         .join("assets/fixtures")
         .join(name)
-}
-
-/// Child processes of `pid` (the server's workers).
-fn children(pid: u32) -> Vec<u32> {
-    let mut out = vec![];
-    if let Ok(tasks) = std::fs::read_dir(format!("/proc/{pid}/task")) {
-        for t in tasks.flatten() {
-            if let Ok(s) = std::fs::read_to_string(t.path().join("children")) {
-                out.extend(s.split_whitespace().filter_map(|p| p.parse::<u32>().ok()));
-            }
-        }
-    }
-    out
 }
 
 /// True while `pid` exists and is not a zombie.

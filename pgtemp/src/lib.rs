@@ -282,8 +282,9 @@ impl PgCluster {
     }
 }
 
-/// Child processes of `pid` (every thread's children).
-fn children(pid: u32) -> Vec<u32> {
+/// Child processes of `pid` (every thread's children, from `/proc`); also
+/// what the benches and tests that kill a server's workers use.
+pub fn children(pid: u32) -> Vec<u32> {
     let mut out = vec![];
     for t in std::fs::read_dir(format!("/proc/{pid}/task"))
         .into_iter()

@@ -55,17 +55,4 @@ pub fn spawn_ready(mut cmd: Command, ready: &str, what: &str) -> anyhow::Result<
     Ok((proc, line))
 }
 
-/// Child processes of `pid` (the children of each of its threads).
-pub fn children(pid: u32) -> Vec<u32> {
-    let mut out = vec![];
-    for t in std::fs::read_dir(format!("/proc/{pid}/task"))
-        .into_iter()
-        .flatten()
-        .flatten()
-    {
-        if let Ok(s) = std::fs::read_to_string(t.path().join("children")) {
-            out.extend(s.split_whitespace().filter_map(|p| p.parse::<u32>().ok()));
-        }
-    }
-    out
-}
+pub use d3il_pgtemp::children;

@@ -7,7 +7,7 @@ use super::{Rollouts, NOT_RECORDED_SHORT};
 use crate::cache::Rendered;
 use crate::error::AppError;
 use crate::state::AppState;
-use d3il_protocol::{Estimate, EvalResult, Metrics, RolloutRecord, RolloutTrace};
+use d3il_protocol::{EvalResult, RolloutRecord, RolloutTrace};
 use d3il_tables::rollouts as draw;
 use d3il_tables::TablesError;
 
@@ -121,11 +121,6 @@ impl Rollouts {
     /// initial state's rollout 0 (what [`draw::start_states`] reads).
     async fn eval_result(&self, state: &AppState) -> Result<EvalResult, AppError> {
         let r = &self.result;
-        let est = |value, ci_low, ci_high| Estimate {
-            value,
-            ci_low,
-            ci_high,
-        };
         let mut firsts: std::collections::BTreeMap<i64, RolloutTrace> = state
             .store
             .rollout_traces(self.id(), true)
@@ -143,22 +138,7 @@ impl Rollouts {
         }
         Ok(EvalResult {
             manifest: self.manifest.clone(),
-            metrics: Metrics {
-                success_rate: est(r.success_rate, r.success_ci_low, r.success_ci_high),
-                behaviour_entropy: est(
-                    r.behaviour_entropy,
-                    r.behaviour_ci_low,
-                    r.behaviour_ci_high,
-                ),
-                conditional_entropy: est(
-                    r.conditional_entropy,
-                    r.conditional_ci_low,
-                    r.conditional_ci_high,
-                ),
-                stacking: r.stacking_json.as_ref().map(|j| j.0),
-                stacking_levels: r.stacking_levels_json.as_ref().map(|j| j.0),
-                inference_ms: r.inference_ms,
-            },
+            metrics: r.metrics(),
             per_context: r.per_context_json.0.clone(),
             rollouts,
             rollouts_ended_unstable: r.rollouts_ended_unstable as usize,

@@ -44,6 +44,31 @@ impl ResultRow {
     pub fn manifest(&self) -> Option<ProtocolManifest> {
         serde_json::from_value(self.manifest_json.0.clone()).ok()
     }
+
+    /// The metrics as the worker (or the merge of its shards) made them.
+    pub fn metrics(&self) -> Metrics {
+        let est = |value, ci_low, ci_high| Estimate {
+            value,
+            ci_low,
+            ci_high,
+        };
+        Metrics {
+            success_rate: est(self.success_rate, self.success_ci_low, self.success_ci_high),
+            behaviour_entropy: est(
+                self.behaviour_entropy,
+                self.behaviour_ci_low,
+                self.behaviour_ci_high,
+            ),
+            conditional_entropy: est(
+                self.conditional_entropy,
+                self.conditional_ci_low,
+                self.conditional_ci_high,
+            ),
+            stacking: self.stacking_json.as_ref().map(|j| j.0),
+            stacking_levels: self.stacking_levels_json.as_ref().map(|j| j.0),
+            inference_ms: self.inference_ms,
+        }
+    }
 }
 
 #[derive(Debug, Clone, FromRow, serde::Serialize)]
@@ -274,29 +299,9 @@ impl Store {
         .bind(submission_id)
         .fetch_all(pool)
         .await)?;
-        let est = |value, ci_low, ci_high| Estimate {
-            value,
-            ci_low,
-            ci_high,
-        };
         Ok(Some(EvalResult {
             manifest,
-            metrics: Metrics {
-                success_rate: est(r.success_rate, r.success_ci_low, r.success_ci_high),
-                behaviour_entropy: est(
-                    r.behaviour_entropy,
-                    r.behaviour_ci_low,
-                    r.behaviour_ci_high,
-                ),
-                conditional_entropy: est(
-                    r.conditional_entropy,
-                    r.conditional_ci_low,
-                    r.conditional_ci_high,
-                ),
-                stacking: r.stacking_json.map(|j| j.0),
-                stacking_levels: r.stacking_levels_json.map(|j| j.0),
-                inference_ms: r.inference_ms,
-            },
+            metrics: r.metrics(),
             per_context: r.per_context_json.0,
             rollouts: rows.into_iter().map(RolloutRecord::from).collect(),
             rollouts_ended_unstable: r.rollouts_ended_unstable.max(0) as usize,
