@@ -173,9 +173,8 @@ fn cache_path(what: &str, ext: &str) -> Option<PathBuf> {
         return None;
     }
     static SHA: std::sync::OnceLock<Option<String>> = std::sync::OnceLock::new();
-    let sha = SHA.get_or_init(|| {
-        d3il_server::fidelity::file_sha256(&std::env::current_exe().ok()?).ok()
-    });
+    let sha =
+        SHA.get_or_init(|| d3il_server::fidelity::file_sha256(&std::env::current_exe().ok()?).ok());
     let sha = sha.as_deref()?;
     Some(cache_dir().join(format!("{what}-{}.{ext}", &sha[..16])))
 }
