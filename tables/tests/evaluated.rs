@@ -332,23 +332,14 @@ fn rows_on_different_initial_state_sets_are_separate_and_labelled() {
         on("the original D3IL test contexts", 0.8),
         on("our sample", 0.6),
     ];
-    let tex = render_table_with(
+    let [original, sample] = evaluated_rows(
         &cells,
-        TableKind::Main,
         ObsType::State,
-        Format::Latex,
-        SourceFilter::Evaluated,
-        &methods(),
-    )
-    .unwrap();
-    let original = tex
-        .lines()
-        .find(|l| l.starts_with("Setter (the original D3IL test contexts) & "))
-        .unwrap_or_else(|| panic!("{tex}"));
-    let sample = tex
-        .lines()
-        .find(|l| l.starts_with("Setter (our sample) & "))
-        .unwrap_or_else(|| panic!("{tex}"));
+        [
+            "Setter (the original D3IL test contexts) & ",
+            "Setter (our sample) & ",
+        ],
+    );
     assert!(original.contains("0.800"), "{original}");
     assert!(sample.contains("0.600"), "{sample}");
 }
@@ -365,23 +356,14 @@ fn image_rows_drawn_differently_are_separate_and_labelled() {
         ..evaluated("Looker", "Aligning (T2)", success, 0.5, 1)
     };
     let cells = vec![drawn(None, 0.8), drawn(Some("primitive robot"), 0.6)];
-    let tex = render_table_with(
+    let [meshed, primitive] = evaluated_rows(
         &cells,
-        TableKind::Main,
         ObsType::Image,
-        Format::Latex,
-        SourceFilter::Evaluated,
-        &methods(),
-    )
-    .unwrap();
-    let meshed = tex
-        .lines()
-        .find(|l| l.starts_with("Looker (the original D3IL test contexts) & "))
-        .unwrap_or_else(|| panic!("{tex}"));
-    let primitive = tex
-        .lines()
-        .find(|l| l.starts_with("Looker (the original D3IL test contexts, primitive robot) & "))
-        .unwrap_or_else(|| panic!("{tex}"));
+        [
+            "Looker (the original D3IL test contexts) & ",
+            "Looker (the original D3IL test contexts, primitive robot) & ",
+        ],
+    );
     assert!(meshed.contains("0.800"), "{meshed}");
     assert!(primitive.contains("0.600"), "{primitive}");
 }
@@ -398,27 +380,35 @@ fn rows_of_another_build_are_separate_and_labelled() {
     let other =
         "other build: physics fingerprint 0123456789abcdef, this build's is fedcba9876543210";
     let cells = vec![by(None, 0.8), by(Some(other), 0.6)];
-    let tex = render_table_with(
+    let theirs_prefix = format!("Builder (the original D3IL test contexts, {other}) & ");
+    let [this, theirs] = evaluated_rows(
         &cells,
-        TableKind::Main,
         ObsType::State,
+        [
+            "Builder (the original D3IL test contexts) & ",
+            &theirs_prefix,
+        ],
+    );
+    assert!(this.contains("0.800"), "{this}");
+    assert!(theirs.contains("0.600"), "{theirs}");
+}
+
+/// The evaluated rows of `cells`' main LaTeX table whose lines start with
+/// each of `prefixes` (a method name and its annotations, then ` & `).
+fn evaluated_rows(cells: &[ResultCell], obs: ObsType, prefixes: [&str; 2]) -> [String; 2] {
+    let tex = render_table_with(
+        cells,
+        TableKind::Main,
+        obs,
         Format::Latex,
         SourceFilter::Evaluated,
         &methods(),
     )
     .unwrap();
-    let this = tex
-        .lines()
-        .find(|l| l.starts_with("Builder (the original D3IL test contexts) & "))
-        .unwrap_or_else(|| panic!("{tex}"));
-    let theirs = tex
-        .lines()
-        .find(|l| {
-            l.starts_with(&format!(
-                "Builder (the original D3IL test contexts, {other}) & "
-            ))
-        })
-        .unwrap_or_else(|| panic!("{tex}"));
-    assert!(this.contains("0.800"), "{this}");
-    assert!(theirs.contains("0.600"), "{theirs}");
+    prefixes.map(|p| {
+        tex.lines()
+            .find(|l| l.starts_with(p))
+            .unwrap_or_else(|| panic!("no row starting {p:?} in {tex}"))
+            .to_string()
+    })
 }
