@@ -34,26 +34,8 @@ async fn evaluated(
     };
     let result = EvalResult {
         manifest: ProtocolManifest {
-            task,
-            task_version: "test".into(),
-            obs_type: ObsType::State,
-            protocol: ProtocolKind::Paper,
-            robot_look: None,
-            mjcf_sha256: "m".into(),
-            initial_states_sha256: "i".into(),
-            initial_states: format!("{}-v1.json", task.slug()),
-            mujoco_version: "2.2.2".into(),
-            evaluator_version: "0".into(),
-            n_contexts: 1,
             rollouts_per_context: rollouts.len().max(1),
-            max_steps: 10,
-            policy_sha256: "p".into(),
-            history: 1,
-            horizon: 1,
-            execute: 1,
-            seed: 0,
-            simulated_once: false,
-            build: None,
+            ..d3il_test_support::test_manifest(task, ProtocolKind::Paper)
         },
         metrics: Metrics {
             success_rate: est(success),

@@ -10,26 +10,10 @@ use d3il_server::store::{JobState, NewMethod, NewPolicy, NewSubmission, StoreErr
 
 fn eval_result(task: TaskId, success: f64, cond: f64, paths: bool) -> EvalResult {
     let manifest = ProtocolManifest {
-        task,
-        task_version: "test".into(),
-        obs_type: ObsType::State,
-        protocol: ProtocolKind::Paper,
-        robot_look: None,
-        mjcf_sha256: "m".into(),
         initial_states: "test-v1.json".into(),
-        initial_states_sha256: "i".into(),
-        mujoco_version: "2.2.2".into(),
-        evaluator_version: "0".into(),
         n_contexts: 2,
         rollouts_per_context: 2,
-        max_steps: 10,
-        policy_sha256: "p".into(),
-        history: 1,
-        horizon: 1,
-        execute: 1,
-        seed: 0,
-        simulated_once: false,
-        build: None,
+        ..d3il_test_support::test_manifest(task, ProtocolKind::Paper)
     };
     let est = |v| Estimate {
         value: v,

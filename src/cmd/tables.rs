@@ -217,26 +217,11 @@ mod tests {
         let levels = ev.metrics.stacking_levels.unwrap();
         let result = EvalResult {
             manifest: ProtocolManifest {
-                task: TaskId::Stacking,
-                task_version: "test".into(),
-                obs_type: ObsType::State,
-                protocol: ProtocolKind::Paper,
-                robot_look: None,
-                mjcf_sha256: "m".into(),
-                initial_states_sha256: "i".into(),
                 initial_states: "stacking-v2.json".into(),
-                mujoco_version: "2.2.2".into(),
-                evaluator_version: "0".into(),
                 n_contexts: 2,
                 rollouts_per_context: 6,
                 max_steps: 1000,
-                policy_sha256: "p".into(),
-                history: 1,
-                horizon: 1,
-                execute: 1,
-                seed: 0,
-                simulated_once: false,
-                build: None,
+                ..d3il_test_support::test_manifest(TaskId::Stacking, ProtocolKind::Paper)
             },
             metrics: ev.metrics.clone(),
             per_context: ev.per_context,

@@ -172,31 +172,46 @@ pub fn pushing_result(
     .expect("metrics of a synthetic result");
     EvalResult {
         manifest: ProtocolManifest {
-            task: TaskId::Pushing,
             task_version: "v1".into(),
-            obs_type: ObsType::State,
-            protocol,
-            robot_look: None,
-            mjcf_sha256: "m".into(),
             initial_states_sha256: PUSHING_V2_SHA256.into(),
             initial_states: "pushing-v2.json".into(),
-            mujoco_version: "2.2.2".into(),
-            evaluator_version: "0".into(),
             n_contexts,
             rollouts_per_context: per,
             max_steps: 400,
-            policy_sha256: "p".into(),
-            history: 1,
-            horizon: 1,
-            execute: 1,
-            seed: 0,
-            simulated_once: false,
-            build: None,
+            ..test_manifest(TaskId::Pushing, protocol)
         },
         metrics: ev.metrics,
         per_context: ev.per_context,
         rollouts_ended_unstable: rollouts.iter().filter(|r| r.failure.is_some()).count(),
         rollouts,
+    }
+}
+
+/// The protocol manifest of a synthetic result: placeholder hashes and
+/// versions, one initial state of one rollout, k = H = E = 1, 10 steps.
+/// Tests set the fields they care about with struct update syntax.
+pub fn test_manifest(task: TaskId, protocol: ProtocolKind) -> ProtocolManifest {
+    ProtocolManifest {
+        task,
+        task_version: "test".into(),
+        obs_type: ObsType::State,
+        protocol,
+        robot_look: None,
+        mjcf_sha256: "m".into(),
+        initial_states_sha256: "i".into(),
+        initial_states: format!("{}-v1.json", task.slug()),
+        mujoco_version: "2.2.2".into(),
+        evaluator_version: "0".into(),
+        n_contexts: 1,
+        rollouts_per_context: 1,
+        max_steps: 10,
+        policy_sha256: "p".into(),
+        history: 1,
+        horizon: 1,
+        execute: 1,
+        seed: 0,
+        simulated_once: false,
+        build: None,
     }
 }
 

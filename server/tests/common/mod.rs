@@ -377,26 +377,9 @@ pub fn aligning_result(
     };
     d3il_protocol::EvalResult {
         manifest: d3il_protocol::ProtocolManifest {
-            task: d3il_protocol::TaskId::Aligning,
-            task_version: "test".into(),
-            obs_type: d3il_protocol::ObsType::State,
-            protocol,
-            robot_look: None,
-            mjcf_sha256: "m".into(),
-            initial_states_sha256: "i".into(),
             initial_states: initial_states.into(),
-            mujoco_version: "2.2.2".into(),
-            evaluator_version: "0".into(),
-            n_contexts: 1,
             rollouts_per_context: 2,
-            max_steps: 10,
-            policy_sha256: "p".into(),
-            history: 1,
-            horizon: 1,
-            execute: 1,
-            seed: 0,
-            simulated_once: false,
-            build: None,
+            ..d3il_test_support::test_manifest(d3il_protocol::TaskId::Aligning, protocol)
         },
         metrics: d3il_protocol::Metrics {
             success_rate: est(success),
