@@ -163,32 +163,35 @@ def read_collada(path):
     return verts, faces
 
 
+def _merge(verts, faces, key):
+    """Vertices with the same key merged into the first of them (its
+    coordinates kept) and faces that become degenerate dropped."""
+    index, out, welded = {}, [], []
+    for v in verts:
+        k = key(v)
+        if k not in index:
+            index[k] = len(out)
+            out.append(v)
+        welded.append(index[k])
+    tris = [(welded[a], welded[b], welded[c]) for a, b, c in faces]
+    return out, [t for t in tris if len(set(t)) == 3]
+
+
 def weld(verts, faces):
     """Merge vertices at the same position (to 1e-6 m; Collada repeats them per
     face) and drop faces that become degenerate, so edges can be collapsed."""
-    index, out, welded = {}, [], []
-    for v in verts:
-        key = tuple(round(c * 1e6) for c in v)
-        if key not in index:
-            index[key] = len(out)
-            out.append(v)
-        welded.append(index[key])
-    tris = [(welded[a], welded[b], welded[c]) for a, b, c in faces]
-    return out, [t for t in tris if len(set(t)) == 3]
+    return _merge(verts, faces, lambda v: tuple(round(c * 1e6) for c in v))
+
+
+def _float32(v):
+    return tuple(struct.unpack("<3f", struct.pack("<3f", *v)))
 
 
 def merge_equal(verts, faces):
     """Vertices with equal float32 coordinates merged into one and faces that
     become degenerate dropped, as MuJoCo's STL loader does (RemoveRepeated)."""
-    index, out, welded = {}, [], []
-    for v in verts:
-        key = tuple(struct.unpack("<3f", struct.pack("<3f", *v)))
-        if key not in index:
-            index[key] = len(out)
-            out.append(key)
-        welded.append(index[key])
-    tris = [(welded[a], welded[b], welded[c]) for a, b, c in faces]
-    return out, [t for t in tris if len(set(t)) == 3]
+    out, tris = _merge(verts, faces, _float32)
+    return [_float32(v) for v in out], tris
 
 
 def vertex_normals(verts, faces):
