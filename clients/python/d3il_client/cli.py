@@ -6,6 +6,7 @@ r"""``d3il-client``: the API client on the command line, for shell scripts and S
     d3il-client results ID [--json] [--rollouts-csv r.csv]
     d3il-client compare A B [--json]
     d3il-client leaderboard aligning [--obs state] [--csv out.csv] [--json]
+    d3il-client export --agent my_module:make_agent --checkpoint ckpt.pth --task aligning --out policy.onnx
 
 ``submit`` takes the flags of ``d3il submit`` and prints what it prints:
 ``submission N accepted: URL``, with ``--wait`` progress lines on standard
@@ -76,6 +77,17 @@ def _parser() -> argparse.ArgumentParser:
     c.add_argument("a", type=int)
     c.add_argument("b", type=int)
     c.add_argument("--json", action="store_true", help="print the server's document")
+
+    ex = sub.add_parser(
+        "export",
+        help="export a D3IL reference agent to ONNX, checked against its predict() (docs/export.md; needs torch)",
+    )
+    ex.add_argument("--agent", required=True, metavar="MODULE:NAME", help="factory of the trained agent object")
+    ex.add_argument("--checkpoint", help="passed to MODULE:NAME as its one argument")
+    ex.add_argument("--task", required=True, help="task slug (aligning, pushing, ...)")
+    ex.add_argument("--out", default="policy.onnx", help="ONNX file to write; its manifest goes next to it as .json")
+    ex.add_argument("--d3il", help="d3il binary for the runtime check (default $D3IL_BIN, else d3il on the PATH)")
+    ex.add_argument("--atol", type=float, default=1e-5, help="largest action difference the checks accept")
 
     lb = sub.add_parser("leaderboard", parents=[common], help="a task's leaderboard")
     lb.add_argument("task")
@@ -189,6 +201,26 @@ def _leaderboard(client: Client, a: argparse.Namespace) -> int:
     return 0
 
 
+def _export(a: argparse.Namespace) -> int:
+    try:
+        from .agents import UnknownAgent
+        from .agents.check import CheckFailed
+        from .agents.export import ExportFailed, export_agent
+    except ImportError as e:
+        print(f"error: export needs torch and onnxruntime (pip install 'd3il-client[export]'): {e}", file=sys.stderr)
+        return 1
+    from .objects import make_agent
+
+    agent = make_agent(a.agent, a.checkpoint)
+    try:
+        report = export_agent(agent, a.task, a.out, atol=a.atol, d3il=a.d3il)
+    except (UnknownAgent, CheckFailed, ExportFailed) as e:
+        print(f"error: {e}\nnothing was written", file=sys.stderr)
+        return 1
+    print(report.summary())
+    return 0
+
+
 COMMANDS = {
     "submit": _submit,
     "status": _status,
@@ -201,6 +233,12 @@ COMMANDS = {
 def main(argv: Optional[List[str]] = None) -> int:
     """Run ``d3il-client`` with ``argv`` (default: the process's arguments); returns the exit status."""
     a = _parser().parse_args(argv)
+    if a.command == "export":  # no server involved
+        try:
+            return _export(a)
+        except (errors.D3ILError, ValueError, OSError) as e:
+            print(f"error: {e}", file=sys.stderr)
+            return 1
     try:
         client = Client(a.server, a.token)
         return COMMANDS[a.command](client, a)

@@ -34,6 +34,7 @@ class Case:
     prev_actions: Optional[torch.Tensor]  # [B, w-1, act_dim]
     noise: Optional[torch.Tensor]  # [B, *noise_shape]
     actions: torch.Tensor  # [B, H, act_dim], the module's output
+    predict_diff: float = 0.0  # largest |module − predict()| over this call's executed actions
 
 
 def observations(agent: Any, batch: int, steps: int, gen: torch.Generator) -> torch.Tensor:
@@ -128,5 +129,6 @@ def against_predict(
                     f"step {t} (window {cases[-1].window}), rollout {b}: the module gives {want.tolist()}, "
                     f"predict() gives {got_t.tolist()} (max difference {diff:.3g} > {atol:g})"
                 )
+            cases[-1].predict_diff = max(cases[-1].predict_diff, diff)
             act_hist[b, t] = got_t
     return cases
