@@ -135,6 +135,11 @@ class Draw:
 
     kind: str
     value: torch.Tensor
+    #: For a draw whose result depends on the call's arguments (``multinomial``: the bin
+    #: depends on the probabilities predict() computes): called with the call's
+    #: arguments, it returns what the call returns; ``value`` is then the noise the
+    #: result is made from. None: the call returns ``value`` (every other kind).
+    given: Optional[Callable[..., torch.Tensor]] = None
 
 
 class TapeError(AssertionError):
@@ -193,7 +198,9 @@ class Tape:
             return self._next("randint", tuple(k.get("size", a[-1])))
 
         def multinomial(p: torch.Tensor, *a: Any, **k: Any) -> torch.Tensor:
-            return self._next("multinomial", None)
+            d = self.draws[self.pos] if self.pos < len(self.draws) else None
+            v = self._next("multinomial", None)
+            return d.given(p, *a, **k) if d is not None and d.given is not None else v
 
         def in_place(kind: str) -> Callable[..., torch.Tensor]:
             def f(t: torch.Tensor, *a: Any, **k: Any) -> torch.Tensor:
@@ -225,3 +232,27 @@ class Tape:
 def uniform_from_noise(n: torch.Tensor) -> torch.Tensor:
     """U(0, 1) samples from N(0, 1) samples: the standard normal CDF Φ(n)."""
     return 0.5 * (1.0 + torch.erf(n / 1.4142135623730951))
+
+
+def inverse_cdf_index(probs: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
+    """The bin a categorical distribution ``probs`` [..., n] gives for uniforms ``u``
+    [...]: the first bin whose cumulative probability reaches u (the last bin when
+    rounding leaves the total below u). Counting only the first n − 1 cumulative sums
+    keeps the index below n without a clamp, so the same arithmetic exports.
+    """
+    cdf = probs.cumsum(-1)[..., :-1]
+    return (cdf < u.unsqueeze(-1)).to(torch.int64).sum(-1)
+
+
+def multinomial_draw(u: torch.Tensor) -> Draw:
+    """The draw of ``torch.multinomial(probs, 1)`` (probs [rows, n]) made by inverse CDF
+    from the uniforms ``u`` [rows]: returns [rows, 1] indices as torch does.
+    """
+
+    def given(p: torch.Tensor, *a: Any, **k: Any) -> torch.Tensor:
+        n = k.get("num_samples", a[0] if a else 1)
+        if n != 1:
+            raise TapeError(f"predict() called torch.multinomial with num_samples={n}; the family draws one")
+        return inverse_cdf_index(p, u.to(p.dtype).reshape(p.shape[:-1])).unsqueeze(-1)
+
+    return Draw("multinomial", u, given=given)
