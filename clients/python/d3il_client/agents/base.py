@@ -41,6 +41,7 @@ import contextlib
 import dataclasses
 from typing import Any, Callable, Iterator, List, Optional, Sequence, Tuple
 
+import numpy as np
 import torch
 
 #: Family names, as the manifests and docs spell them.
@@ -130,7 +131,9 @@ class Draw:
 
     ``kind`` is the function's name: ``randn``, ``randn_like``, ``rand``,
     ``rand_like``, ``randint``, ``multinomial``, ``normal_`` or ``uniform_``
-    (for ``Tensor.normal_`` / ``Tensor.uniform_``, filled in place).
+    (for ``Tensor.normal_`` / ``Tensor.uniform_``, filled in place), or
+    ``numpy.random.uniform`` (IBC's initial samples; the call returns ``value`` as a
+    float64 array, as numpy does).
     """
 
     kind: str
@@ -182,6 +185,7 @@ class Tape:
         """Patch, run the body, unpatch; then check every draw was used."""
         saved = {n: getattr(torch, n) for n in self.PATCHED}
         saved_normal, saved_uniform = torch.Tensor.normal_, torch.Tensor.uniform_
+        saved_np_uniform = np.random.uniform
 
         def like(kind: str) -> Callable[..., torch.Tensor]:
             return lambda t, *a, **k: self._next(kind, t.shape).to(t.dtype)
@@ -202,6 +206,10 @@ class Tape:
             v = self._next("multinomial", None)
             return d.given(p, *a, **k) if d is not None and d.given is not None else v
 
+        def np_uniform(low: Any = 0.0, high: Any = 1.0, size: Any = None) -> Any:
+            shape = () if size is None else (tuple(size) if isinstance(size, (tuple, list)) else (int(size),))
+            return self._next("numpy.random.uniform", shape).numpy().astype(np.float64)
+
         def in_place(kind: str) -> Callable[..., torch.Tensor]:
             def f(t: torch.Tensor, *a: Any, **k: Any) -> torch.Tensor:
                 with torch.no_grad():
@@ -219,12 +227,14 @@ class Tape:
             torch.multinomial = multinomial
             torch.Tensor.normal_ = in_place("normal_")  # type: ignore[method-assign]
             torch.Tensor.uniform_ = in_place("uniform_")  # type: ignore[method-assign]
+            np.random.uniform = np_uniform
             yield self
         finally:
             for n, f in saved.items():
                 setattr(torch, n, f)
             torch.Tensor.normal_ = saved_normal  # type: ignore[method-assign]
             torch.Tensor.uniform_ = saved_uniform  # type: ignore[method-assign]
+            np.random.uniform = saved_np_uniform
         if self.pos != len(self.draws):
             raise TapeError(f"predict() made {self.pos} draws, the family expected {len(self.draws)}")
 
