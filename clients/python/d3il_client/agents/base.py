@@ -177,7 +177,9 @@ class Tape:
 
     @staticmethod
     def _shape(args: Tuple[Any, ...], kwargs: dict[str, Any]) -> Tuple[int, ...]:
-        size = kwargs.get("size", args[0] if len(args) == 1 and isinstance(args[0], (tuple, list, torch.Size)) else args)
+        size = kwargs.get(
+            "size", args[0] if len(args) == 1 and isinstance(args[0], (tuple, list, torch.Size)) else args
+        )
         return tuple(int(s) for s in size)
 
     @contextlib.contextmanager
