@@ -78,6 +78,7 @@ class BetGraph(torch.nn.Module):
     def forward(
         self, obs: torch.Tensor, prev_actions: Optional[torch.Tensor] = None, noise: Optional[torch.Tensor] = None
     ) -> torch.Tensor:
+        """Raw actions [B, 1, act] for raw windows [B, T, obs] (module docstring)."""
         assert noise is not None
         x = self.encoder(self.scaler.scale_input(obs))
         out, _ = self.gpt(x, None)  # [B, T, V (1 + A)]
@@ -93,13 +94,17 @@ class BetGraph(torch.nn.Module):
 
 
 class BetFamily(Family):
+    """BeT (module docstring)."""
+
     name = "bet"
     classes = ("BeT_Agent",)
 
     def accepts(self, agent: Any) -> bool:
+        """State agents only: the vision variants share the class name."""
         return not is_visual(agent)
 
     def settings(self, agent: Any) -> Settings:
+        """The window k from the deque, H = E = 1."""
         sc = ScalerArithmetic(agent.scaler)
         gen = latent_generator(agent)
         return Settings(
@@ -120,9 +125,11 @@ class BetFamily(Family):
         )
 
     def graph(self, agent: Any) -> torch.nn.Module:
+        """The batched module of predict, on the agent's own networks."""
         return BetGraph(agent)
 
     def draws(self, agent: Any, noise: torch.Tensor, window: int) -> List[Draw]:
+        """One torch.multinomial call of ``window`` rows, each given u = Φ(noise[0])."""
         u = uniform_from_noise(noise.reshape(1)[:1])
         return [multinomial_draw(u.expand(window).clone())]
 

@@ -61,19 +61,24 @@ class GptBcGraph(torch.nn.Module):
     def forward(
         self, obs: torch.Tensor, prev_actions: Optional[torch.Tensor] = None, noise: Optional[torch.Tensor] = None
     ) -> torch.Tensor:
+        """Raw actions [B, 1, act] for raw windows [B, T, obs] (module docstring)."""
         actions = self.model(self.scaler.scale_input(obs))  # [B, T, act]
         actions = torch.clamp(actions[:, -1:, :], self.lo, self.hi)
         return self.scaler.inverse_scale_output(actions)
 
 
 class GptBcFamily(Family):
+    """BC-GPT (module docstring)."""
+
     name = "bc_gpt"
     classes = ("Gpt_Agent",)
 
     def accepts(self, agent: Any) -> bool:
+        """State agents only: the vision variants share the class name."""
         return not is_visual(agent)
 
     def settings(self, agent: Any) -> Settings:
+        """The window k from the deque, H = E = 1."""
         sc = ScalerArithmetic(agent.scaler)
         return Settings(
             family=self.name,
@@ -89,9 +94,11 @@ class GptBcFamily(Family):
         )
 
     def graph(self, agent: Any) -> torch.nn.Module:
+        """The batched module of predict, on the agent's own networks."""
         return GptBcGraph(agent)
 
     def draws(self, agent: Any, noise: torch.Tensor, window: int) -> List[Draw]:
+        """None: deterministic."""
         return []
 
 

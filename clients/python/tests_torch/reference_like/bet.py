@@ -42,7 +42,7 @@ class eval_mode:  # noqa: N801 (agents/models/bet/utils.py)
     def __exit__(self, *args: Any) -> bool:
         if self.no_grad:
             self.ctx.__exit__(*args)
-        for m, state in zip(self.models, self.prev):
+        for m, state in zip(self.models, self.prev, strict=True):
             m.train(state)
         return False
 
