@@ -109,7 +109,17 @@ class _Denoiser(nn.Module):
         x = x.reshape(b, -1, 2, e)[:, :, 1, :]
         return m.action_pred(x)
 
-    def forward(self, states, x, sigma, emb_t, c_skip, c_out, c_in) -> torch.Tensor:
+    def forward(
+        self,
+        states: torch.Tensor,
+        x: torch.Tensor,
+        sigma: torch.Tensor,
+        emb_t: torch.Tensor,
+        c_skip: torch.Tensor,
+        c_out: torch.Tensor,
+        c_in: torch.Tensor,
+    ) -> torch.Tensor:
+        """D(x; sigma) = F(c_in x) c_out + x c_skip, as GCDenoiser.forward."""
         if self.gpt:
             f = self.inner_gpt(states, x * c_in, emb_t)
         else:
@@ -219,7 +229,9 @@ class BesoGraph(nn.Module):
         return self.scale.inverse_scale_output(last)
 
 
-def ancestral_step(sigma_from: torch.Tensor, sigma_to: torch.Tensor, eta: float = 1.0):
+def ancestral_step(
+    sigma_from: torch.Tensor, sigma_to: torch.Tensor, eta: float = 1.0
+) -> Tuple[torch.Tensor, torch.Tensor]:
     """k-diffusion's ancestral step sizes, with the reference's float32 expressions."""
     sigma_up = min(sigma_to, eta * (sigma_to**2 * (sigma_from**2 - sigma_to**2) / sigma_from**2) ** 0.5)
     sigma_down = (sigma_to**2 - sigma_up**2) ** 0.5
@@ -285,6 +297,7 @@ class BesoFamily(Family):
         out = [Draw("randn", noise[0, :1, :].reshape(1, 1, act).clone())]
         n = len(sigma_schedule(agent)) - 1
         if sampler == "euler_ancestral":
+            assert s.noise_shape is not None
             for j in range(s.noise_shape[0] - 1):
                 out.append(Draw("randn_like", noise[1 + j, :window, :].reshape(1, window, act).clone()))
         elif sampler in ("euler", "heun"):

@@ -4,15 +4,16 @@ The remote protocol (docs/remote-protocol.md): a WebSocket with msgpack frames,
 which the evaluator connects to when a submission names an endpoint.
 :func:`serve` serves a batched callable ``policy(obs, request)``,
 :func:`serve_agent` an object with the reference agents' ``reset()`` /
-``predict(obs)`` (one agent state per rollout). From the shell::
+``predict(obs)``: batched (one model call per request group) when
+``d3il_client.agents`` knows its family, else one agent state per rollout. From the shell::
 
-    python -m d3il_client.serve --agent my_module:make_agent --checkpoint ckpt.pth --port 8765
+    python -m d3il_client.serve --agent my_module:make_agent --checkpoint ckpt.pth --task aligning
     python -m d3il_client.serve --demo avoiding --port 8765
 
 Needs the ``serve`` extra: ``pip install 'd3il-client[serve]'``.
 """
 
-from .agent import AgentAdapter, agent_server, serve_agent
+from .agent import AgentAdapter, BatchedAgentAdapter, agent_server, make_adapter, serve_agent, startup_projection
 from .policy import (
     DEMOS,
     PROTOCOL_VERSION,
@@ -32,14 +33,17 @@ __all__ = [
     "DEMOS",
     "PROTOCOL_VERSION",
     "AgentAdapter",
+    "BatchedAgentAdapter",
     "PolicyServer",
     "Request",
     "agent_server",
+    "make_adapter",
     "avoiding_policy",
     "pack_array",
     "packb",
     "serve",
     "serve_agent",
+    "startup_projection",
     "tls_context",
     "unpack_array",
     "unpackb",

@@ -1,6 +1,6 @@
 """``python -m d3il_client.serve``: serve an agent, a policy callable or a demo policy.
 
-    python -m d3il_client.serve --agent my_module:make_agent --checkpoint ckpt.pth --port 8765
+    python -m d3il_client.serve --agent my_module:make_agent --checkpoint ckpt.pth --task aligning --port 8765
     python -m d3il_client.serve --policy my_module:policy --history 5 --port 8765
     python -m d3il_client.serve --demo avoiding --port 0
 
@@ -8,7 +8,14 @@
 current directory or ``sys.path``); it is called once, with the checkpoint path
 when ``--checkpoint`` is given, and must return an object with the reference
 agents' ``reset()`` and ``predict(obs)``: it is deep-copied for every rollout
-(``d3il_client.serve.serve_agent``). ``--policy MODULE:NAME`` names a batched
+(``d3il_client.serve.serve_agent``). An agent of a D3IL family that
+``d3il_client.agents`` recognises is served batched (one model call per request
+group, torch needed); any other per rollout (one ``predict`` per rollout and step).
+Before serving, an agent's cost is measured on a dummy request of ``--max-live``
+rollouts (the evaluator's 96 by default) and the projected inference time of the
+``--task``'s paper protocol (every task's without ``--task``) is printed against
+the default wall limit of an evaluation, with a loud warning when it will not fit
+(``--no-measure`` skips this). ``--policy MODULE:NAME`` names a batched
 callable ``policy(obs, request)`` served with ``--history/--horizon/--execute``.
 Prints ``listening on HOST:PORT`` once it accepts connections; submit it as
 ``ws://HOST:PORT/`` (``wss://`` with ``--certfile``).
@@ -21,7 +28,8 @@ import importlib
 import sys
 from typing import Any, List, Optional
 
-from .agent import AgentAdapter
+from .. import tasks
+from .agent import make_adapter, startup_projection
 from .policy import DEMOS, serve
 
 
@@ -54,6 +62,18 @@ def main(argv: Optional[List[str]] = None) -> None:
     what.add_argument("--policy", metavar="MODULE:NAME", help="batched callable policy(obs, request)")
     what.add_argument("--demo", choices=sorted(DEMOS), help="built-in policy to serve (default zeros)")
     ap.add_argument("--checkpoint", help="with --agent: passed to MODULE:NAME as its one argument")
+    ap.add_argument(
+        "--task",
+        choices=sorted(tasks.PAPER_PROTOCOL),
+        help="with --agent: the task whose paper protocol the startup projection is for",
+    )
+    ap.add_argument(
+        "--max-live",
+        type=int,
+        default=tasks.MAX_LIVE,
+        help="with --agent: rollouts per request to measure at (the evaluator's --max-live)",
+    )
+    ap.add_argument("--no-measure", action="store_true", help="with --agent: skip the startup measurement")
     ap.add_argument("--host", default="127.0.0.1")
     ap.add_argument("--port", type=int, default=8765, help="0 picks a free port (printed)")
     ap.add_argument("--history", type=int, default=1, help="observations per query (not with --agent)")
@@ -66,6 +86,8 @@ def main(argv: Optional[List[str]] = None) -> None:
         ap.error("--keyfile needs --certfile")
     if a.checkpoint and not a.agent:
         ap.error("--checkpoint goes with --agent")
+    if a.task and not a.agent:
+        ap.error("--task goes with --agent")
     if a.agent:
         if (a.history, a.horizon, a.execute) != (1, 1, 1):
             ap.error("an agent is served with history = horizon = execute = 1 (it keeps its own window)")
@@ -73,7 +95,9 @@ def main(argv: Optional[List[str]] = None) -> None:
         agent = make(a.checkpoint) if a.checkpoint is not None else make()
         if not (hasattr(agent, "reset") and hasattr(agent, "predict")):
             ap.error(f"{a.agent} returned {type(agent).__name__}, which has no reset() and predict(obs)")
-        adapter = AgentAdapter(agent)
+        adapter = make_adapter(agent)
+        if not a.no_measure:
+            startup_projection(adapter, a.task, max_live=a.max_live)
         serve(
             adapter,
             host=a.host,
