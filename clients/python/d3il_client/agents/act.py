@@ -37,6 +37,7 @@ class ActGraph(torch.nn.Module):
     def __init__(self, agent: Any) -> None:
         super().__init__()
         self.model = unwrap(agent.model)
+        self.horizon, self.width = (int(n) for n in self.model.query_embed.weight.shape)
         self.scaler = ScalerArithmetic(agent.scaler)
         lo, hi = clamp_bounds(agent)
         self.register_buffer("lo", lo)
@@ -54,7 +55,7 @@ class ActGraph(torch.nn.Module):
         encoder_input = torch.cat([state_embed, m.latent_out_proj(latent)], dim=1)
         encoder_input = encoder_input + m.pos_emb[:, :2]
         encoder_output = m.encoder(encoder_input)
-        queries = m.query_embed.weight.unsqueeze(0).expand(obs.shape[0], -1, -1)
+        queries = m.query_embed.weight.unsqueeze(0).expand(obs.shape[0], self.horizon, self.width)
         out = m.action_head(m.decoder(queries, encoder_output))  # [B, H, act]
         out = torch.clamp(out, self.lo, self.hi)
         return self.scaler.inverse_scale_output(out)
