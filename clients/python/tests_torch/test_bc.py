@@ -9,6 +9,7 @@ import numpy as np
 import torch
 from family_helpers import export_and_compare, matching_families
 from reference_like import bc as ref
+from reference_like.scaler import Scaler, aligning_like_data
 
 from d3il_client.agents.bc import FAMILY
 from d3il_client.agents.check import against_predict, observations
@@ -72,3 +73,27 @@ def test_exports_and_matches_onnxruntime(tmp_path: Path):
     # another batch size than the example's
     cases5 = against_predict(agent, FAMILY, batch=5, steps=2, seed=1)
     assert export_and_compare(FAMILY, agent, cases5, tmp_path / "bc5.onnx") <= 1e-5
+
+
+def test_constant_dims_off_their_training_value():
+    """In the simulator a constant dimension may differ from its training value by a
+    rounding: (x - mean) / 1e-12 is then huge, the network saturates and the clamp
+    bounds the action; the module computes the same as predict() (finite, clamped).
+    """
+    agent = ref.make_agent()
+    obs = observations(agent, 4, 1, torch.Generator().manual_seed(1))
+    obs[:, :, -4:] += torch.tensor([1e-7, -3e-8, 2e-6, 0.0])
+    with torch.no_grad():
+        ours = FAMILY.graph(agent).eval()(obs, None, None)
+    assert torch.isfinite(ours).all()
+    for b in range(4):
+        want = copy.deepcopy(agent).predict(obs[b, 0].numpy().astype(np.float32))
+        assert np.abs(np.asarray(want).reshape(-1) - ours[b, 0].numpy()).max() <= 1e-6
+
+
+def test_unscaled_agent():
+    """scale_data: False — no scaling at all, the bounds are the raw data's."""
+    agent = ref.make_agent()
+    x, y = aligning_like_data(ref.OBS_DIM, ref.ACT_DIM)
+    agent = ref.BC_Agent(agent.model, Scaler(x, y, False, "cpu"))
+    against_predict(agent, FAMILY, batch=3, steps=3)
