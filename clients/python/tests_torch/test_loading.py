@@ -172,7 +172,6 @@ def test_example_reads_the_hydra_run_directory(tmp_path: Path):
     """With OmegaConf (as where the agent was trained): .hydra/config.yaml of the run,
     with the reference's ${add:...} interpolation and device: cuda.
     """
-    pytest.importorskip("omegaconf")
     from omegaconf import OmegaConf
 
     run = tmp_path / "run"
