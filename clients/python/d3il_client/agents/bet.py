@@ -87,9 +87,10 @@ class BetGraph(torch.nn.Module):
         offsets = last[:, self.vocab :].reshape(-1, self.vocab, self.act_dim)  # [B, V, A]
         probs = torch.softmax(logits, dim=-1)
         idx = inverse_cdf_index(probs, uniform_from_noise(noise[:, 0]))  # [B]
-        center = self.centers.index_select(0, idx)  # [B, A]
-        offset = torch.gather(offsets, 1, idx.reshape(-1, 1, 1).expand(-1, 1, self.act_dim)).squeeze(1)
-        action = torch.clamp((center + offset).unsqueeze(1), self.lo, self.hi)  # [B, 1, A]
+        center = self.centers.index_select(0, idx).unsqueeze(1)  # [B, 1, A]
+        # [B, 1, A] without a squeeze: the exporter writes squeeze(1) of a dynamic shape as an If
+        offset = torch.gather(offsets, 1, idx.reshape(-1, 1, 1).expand(-1, 1, self.act_dim))
+        action = torch.clamp(center + offset, self.lo, self.hi)
         return self.scaler.inverse_scale_output(action)
 
 
