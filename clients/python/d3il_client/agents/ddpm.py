@@ -49,6 +49,7 @@ from typing import Any, List, Optional
 import torch
 
 from .base import Draw, Family, Settings
+from .scaling import ScalerArithmetic, as_float32_bound
 
 AGENT_CLASSES = ("DiffusionAgent",)
 
@@ -66,36 +67,6 @@ def denoiser(agent: Any) -> Any:
     if diffusion is None or not hasattr(diffusion, "p_sample_loop"):
         return None
     return getattr(diffusion, "model", None)
-
-
-class Scaling(torch.nn.Module):
-    """The reference Scaler's ``scale_input`` and ``inverse_scale_output`` as buffers:
-    computed in the scaler's dtype (float64 when it was fitted on float64 data),
-    ``std + 1e-12`` formed exactly as the scaler forms it.
-    """
-
-    def __init__(self, scaler: Any) -> None:
-        super().__init__()
-        self.scale_data = bool(getattr(scaler, "scale_data", True))
-
-        def buf(name: str) -> torch.Tensor:
-            return torch.as_tensor(getattr(scaler, name)).detach().to("cpu").clone()
-
-        x_std, y_std = buf("x_std"), buf("y_std")
-        self.register_buffer("x_mean", buf("x_mean"))
-        self.register_buffer("x_den", x_std + 1e-12 * torch.ones(x_std.shape, dtype=x_std.dtype))
-        self.register_buffer("y_mean", buf("y_mean"))
-        self.register_buffer("y_den", y_std + 1e-12 * torch.ones(y_std.shape, dtype=y_std.dtype))
-
-    def scale_input(self, x: torch.Tensor) -> torch.Tensor:
-        if not self.scale_data:
-            return x
-        return ((x.to(self.x_mean.dtype) - self.x_mean) / self.x_den).to(torch.float32)
-
-    def inverse_scale_output(self, y: torch.Tensor) -> torch.Tensor:
-        if not self.scale_data:
-            return y
-        return (y.to(self.y_den.dtype) * self.y_den + self.y_mean).to(torch.float32)
 
 
 def predict_diffusion(agent: Any) -> Any:
@@ -130,12 +101,12 @@ class DdpmSampler(torch.nn.Module):
         self.register_buffer("coef2", f32("posterior_mean_coef2"))
         # predict: nonzero_mask * (0.5 * log_variance).exp() * z, the mask 1.0 for t > 0
         self.register_buffer("sigma", (0.5 * f32("posterior_log_variance_clipped")).exp())
-        # The bounds are float64 in the reference (y_bounds); clamping a float32 sample to
-        # them gives the same float32 as clamping to their float32 roundings.
-        self.register_buffer("lo", torch.as_tensor(diffusion.min_action).detach().to("cpu", torch.float32).clone())
-        self.register_buffer("hi", torch.as_tensor(diffusion.max_action).detach().to("cpu", torch.float32).clone())
+        # float64 in the reference (the scaler's y_bounds): see as_float32_bound
+        self.register_buffer("lo", as_float32_bound(diffusion.min_action))
+        self.register_buffer("hi", as_float32_bound(diffusion.max_action))
 
     def clamp(self, x: torch.Tensor) -> torch.Tensor:
+        """``clamp_(min_action, max_action)``."""
         return torch.minimum(torch.maximum(x, self.lo), self.hi)
 
     def step(self, x: torch.Tensor, eps: torch.Tensor, t: int, z: Optional[torch.Tensor]) -> torch.Tensor:
@@ -161,6 +132,7 @@ class DdpmSampler(torch.nn.Module):
         return self.clamp(x)
 
     def describe(self) -> str:
+        """The sampler as ``Settings.sampler`` says it."""
         return (
             f"DDPM, {self.n} steps (the agent's schedule), x0 clipped to the data bounds, "
             "posterior variance log-clipped, no noise at t = 0"
@@ -209,9 +181,10 @@ class DdpmMlpGraph(torch.nn.Module):
         d = predict_diffusion(agent)
         self.net = d.model
         self.sampler = DdpmSampler(d)
-        self.scaling = Scaling(agent.scaler)
+        self.scaling = ScalerArithmetic(agent.scaler)
 
     def forward(self, obs: torch.Tensor, prev_actions: Optional[torch.Tensor], noise: torch.Tensor) -> torch.Tensor:
+        """[B, 1, obs] raw observations, noise [B, n, 1, act] -> [B, 1, act] raw actions."""
         s = self.scaling.scale_input(obs[:, 0])  # [B, obs]
         x = self.sampler.run(
             noise[:, 0, 0],
@@ -231,7 +204,7 @@ class DdpmGptGraph(torch.nn.Module):
         d = predict_diffusion(agent)
         self.net = d.model
         self.sampler = DdpmSampler(d)
-        self.scaling = Scaling(agent.scaler)
+        self.scaling = ScalerArithmetic(agent.scaler)
 
     def denoise(self, actions: torch.Tensor, t: int, states: torch.Tensor) -> torch.Tensor:
         """``DiffusionTransformerNetwork.forward`` (not goal-conditioned, eval mode) with
@@ -251,6 +224,7 @@ class DdpmGptGraph(torch.nn.Module):
         return net.action_pred(x[:, :, 1])  # [B, w, act]
 
     def forward(self, obs: torch.Tensor, prev_actions: Optional[torch.Tensor], noise: torch.Tensor) -> torch.Tensor:
+        """[B, w, obs] raw observations, noise [B, n, k, act] -> [B, 1, act] raw actions."""
         s = self.scaling.scale_input(obs)  # [B, w, obs]
         w = obs.shape[1]
         x = self.sampler.run(
@@ -262,10 +236,13 @@ class DdpmGptGraph(torch.nn.Module):
 
 
 class DdpmMlp(Family):
+    """DDPM-MLP: ``DiffusionAgent`` with a ``DiffusionMLPNetwork`` (window 1)."""
+
     name = "ddpm_mlp"
     classes = AGENT_CLASSES
 
     def accepts(self, agent: Any) -> bool:
+        """Whether the agent's denoiser is this family's network."""
         net = denoiser(agent)
         return (
             net is not None
@@ -274,6 +251,7 @@ class DdpmMlp(Family):
         )
 
     def settings(self, agent: Any) -> Settings:
+        """The window k, H = E = 1 and the noise layout, from the agent object."""
         check_supported(agent, self.name)
         if int(agent.window_size) != 1:
             raise ValueError(
@@ -296,20 +274,25 @@ class DdpmMlp(Family):
         )
 
     def graph(self, agent: Any) -> torch.nn.Module:
+        """The batched module of the agent's predict (module docstring)."""
         self.settings(agent)
         return DdpmMlpGraph(agent).eval()
 
     def draws(self, agent: Any, noise: torch.Tensor, window: int) -> List[Draw]:
+        """The torch.randn and randn_like draws of predict() from one noise row."""
         sampler = DdpmSampler(agent.model)
         act = int(agent.model.action_dim)
         return sampler.draws(noise, [(1, act)] * (1 + sampler.n + sampler.extra))
 
 
 class DdpmGpt(Family):
+    """DDPM-GPT: ``DiffusionAgent`` with a ``DiffusionTransformerNetwork``."""
+
     name = "ddpm_gpt"
     classes = AGENT_CLASSES
 
     def accepts(self, agent: Any) -> bool:
+        """Whether the agent's denoiser is this family's network."""
         net = denoiser(agent)
         return (
             net is not None
@@ -318,6 +301,7 @@ class DdpmGpt(Family):
         )
 
     def settings(self, agent: Any) -> Settings:
+        """The window k, H = E = 1 and the noise layout, from the agent object."""
         check_supported(agent, self.name)
         k = int(agent.window_size)
         net = denoiser(agent)
@@ -342,10 +326,12 @@ class DdpmGpt(Family):
         )
 
     def graph(self, agent: Any) -> torch.nn.Module:
+        """The batched module of the agent's predict (module docstring)."""
         self.settings(agent)
         return DdpmGptGraph(agent).eval()
 
     def draws(self, agent: Any, noise: torch.Tensor, window: int) -> List[Draw]:
+        """The torch.randn and randn_like draws of predict() from one noise row."""
         sampler = DdpmSampler(agent.model)
         act = int(agent.model.action_dim)
         count = 1 + sampler.n + sampler.extra

@@ -81,18 +81,18 @@ class ExponentialMovingAverage:
         self.num_updates += 1
         decay = min(self.decay, (1 + self.num_updates) / (10 + self.num_updates))
         with torch.no_grad():
-            for s, p in zip(self.shadow_params, [p for p in parameters if p.requires_grad]):
+            for s, p in zip(self.shadow_params, [p for p in parameters if p.requires_grad], strict=False):
                 s.sub_((1.0 - decay) * (s - p))
 
     def copy_to(self, parameters: Any) -> None:
-        for s, p in zip(self.shadow_params, [p for p in parameters if p.requires_grad]):
+        for s, p in zip(self.shadow_params, [p for p in parameters if p.requires_grad], strict=False):
             p.data.copy_(s.data)
 
     def store(self, parameters: Any) -> None:
         self.collected_params = [p.clone() for p in parameters]
 
     def restore(self, parameters: Any) -> None:
-        for c, p in zip(self.collected_params, parameters):
+        for c, p in zip(self.collected_params, parameters, strict=False):
             p.data.copy_(c.data)
 
 
@@ -318,7 +318,10 @@ class DiffusionTransformerNetwork(nn.Module):
         self.ln_f = nn.LayerNorm(embed_dim)
         self.block_size, self.goal_seq_len, self.obs_seq_len = block_size, goal_seq_len, obs_seq_len
         self.time_emb = nn.Sequential(
-            SinusoidalPosEmb(embed_dim), nn.Linear(embed_dim, embed_dim * 2), nn.Mish(), nn.Linear(embed_dim * 2, embed_dim)
+            SinusoidalPosEmb(embed_dim),
+            nn.Linear(embed_dim, embed_dim * 2),
+            nn.Mish(),
+            nn.Linear(embed_dim * 2, embed_dim),
         )
         self.action_emb = nn.Linear(action_dim, embed_dim)
         if linear_output:
