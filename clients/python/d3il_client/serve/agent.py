@@ -260,7 +260,7 @@ def make_adapter(
         except Exception as e:  # UnknownAgent, or a family refusing this configuration
             why = str(e)
     print(f"serving {type(obj).__name__} per rollout (one predict() per rollout and step): {why}", file=log, flush=True)
-    return AgentAdapter(obj if obj is not None else agent, predict_kwargs)
+    return AgentAdapter(agent, predict_kwargs)  # a factory stays one: a fresh agent per rollout
 
 
 # ---- what one request costs, and what that makes of a paper protocol ---------------
