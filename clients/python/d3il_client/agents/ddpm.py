@@ -244,11 +244,7 @@ class DdpmMlp(Family):
     def accepts(self, agent: Any) -> bool:
         """Whether the agent's denoiser is this family's network."""
         net = denoiser(agent)
-        return (
-            net is not None
-            and not hasattr(agent, "action_seq_size")
-            and ("DiffusionMLPNetwork" in class_names(net) or getattr(net, "network_type", None) == "mlp")
-        )
+        return net is not None and not hasattr(agent, "action_seq_size") and "DiffusionMLPNetwork" in class_names(net)
 
     def settings(self, agent: Any) -> Settings:
         """The window k, H = E = 1 and the noise layout, from the agent object."""
