@@ -52,6 +52,20 @@ def test_the_mimics_predict_with_the_ema_weights():
     assert any(not torch.equal(s, p) for s, p in zip(a.ema_helper.shadow_params, live, strict=True))
 
 
+def test_without_ema_the_module_uses_the_live_weights():
+    a = ref.make_mlp_agent(n_timesteps=3)
+    a.use_ema = False
+    against_predict(a, MLP, steps=2)
+
+
+def test_a_module_of_the_live_weights_is_caught():
+    a = ref.make_mlp_agent(n_timesteps=3)
+    live = ref.make_mlp_agent(n_timesteps=3)
+    live.use_ema = False
+    with pytest.raises(CheckFailed):
+        against_predict(a, MLP, steps=1, module=MLP.graph(live).eval())
+
+
 @pytest.mark.parametrize("schedule", ["cosine", "linear", "vp"])
 def test_mlp_equals_predict(schedule):
     a = ref.make_mlp_agent(beta_schedule=schedule)
