@@ -73,6 +73,14 @@ def test_mlp_equals_predict(schedule):
     assert len(cases) == 3
 
 
+@pytest.mark.parametrize("flags", [dict(predict_epsilon=False), dict(clip_denoised=False)])
+def test_mlp_with_other_sampler_flags_equals_predict(flags):
+    a = ref.make_mlp_agent(n_timesteps=3)
+    for k, v in flags.items():
+        setattr(a.model, k, v)
+    against_predict(a, MLP, steps=2)
+
+
 def test_mlp_with_extra_steps_at_t0_equals_predict():
     against_predict(ref.make_mlp_agent(diffusion_x=True, n_timesteps=4), MLP, steps=2)
 
