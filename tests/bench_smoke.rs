@@ -7,12 +7,22 @@
 //!
 //! Needs what the full benches need: ffmpeg (video), PostgreSQL and taskset
 //! (scale, chaos), onnxruntime in python3 (agents), websockets and msgpack
-//! in python3 (chaos's remote endpoint); `./dev test` installs them.
+//! in python3 (chaos's remote endpoint), the torch virtualenv (served-agent,
+//! `$D3IL_TORCH_PYTHON`); `./dev test` installs them.
 
 use std::process::Command;
 
-const BENCHES: [&str; 9] = [
-    "physics", "eval", "render", "agents", "serve", "scale", "video", "scripts", "chaos",
+const BENCHES: [&str; 10] = [
+    "physics",
+    "eval",
+    "render",
+    "agents",
+    "serve",
+    "scale",
+    "video",
+    "scripts",
+    "chaos",
+    "served-agent",
 ];
 
 fn d3il() -> Command {

@@ -14,7 +14,7 @@ use std::time::Instant;
 
 #[derive(clap::Args)]
 pub struct Args {
-    /// Which benchmark: `physics`, `eval`, `render`, `agents`, `serve`, `scale`, `video`, `scripts` or `chaos`.
+    /// Which benchmark: `physics`, `eval`, `render`, `agents`, `serve`, `scale`, `video`, `scripts`, `chaos` or `served-agent`.
     pub which: String,
     /// A short run that only shows the bench still works (seconds, not
     /// minutes; its numbers mean little). `tests/bench_smoke.rs` runs every
@@ -30,7 +30,8 @@ pub struct Args {
     /// Protocol of the image evaluation in `render` (quick: 3 initial states x 2 rollouts).
     #[arg(long, default_value = "quick")]
     pub render_protocol: ProtocolKind,
-    /// Rollouts simulated at once in `eval` and `render`.
+    /// Rollouts simulated at once in `eval` and `render` (the batch of `agents`
+    /// and `served-agent`).
     #[arg(long, default_value_t = 96)]
     pub max_live: usize,
     /// Robot look in `render` (primitives: the scene the ratio goal is set
@@ -69,6 +70,7 @@ pub fn run(mut args: Args) -> anyhow::Result<()> {
         "video" => super::bench_video::run(args.protocol),
         "scripts" => super::bench_scripts::run(args.smoke),
         "chaos" => super::bench_chaos::run(args.smoke),
+        "served-agent" => super::bench_served_agent::run(args.smoke, args.max_live),
         other => {
             bail!(
                 "unknown benchmark `{other}`; available: {}",
@@ -79,8 +81,17 @@ pub fn run(mut args: Args) -> anyhow::Result<()> {
 }
 
 /// Every bench `d3il bench` runs.
-pub const BENCHES: [&str; 9] = [
-    "physics", "eval", "render", "agents", "serve", "scale", "video", "scripts", "chaos",
+pub const BENCHES: [&str; 10] = [
+    "physics",
+    "eval",
+    "render",
+    "agents",
+    "serve",
+    "scale",
+    "video",
+    "scripts",
+    "chaos",
+    "served-agent",
 ];
 
 /// Runs a policy one row at a time: the "unbatched" evaluation, with a model
