@@ -33,13 +33,17 @@ D3IL = os.environ.get("D3IL_BIN", "d3il")
 
 
 def mimics() -> Dict[str, str]:
-    """family -> "module:factory" of every reference-like agent factory."""
+    """family -> "module:factory" of every reference-like agent factory; a module's
+    ``make_small_agent`` (a narrower network for these end-to-end runs) is preferred
+    to the ones named like the reference's sizes.
+    """
     found: Dict[str, str] = {}
     for m in pkgutil.iter_modules(reference_like.__path__):
         mod = importlib.import_module(f"reference_like.{m.name}")
-        for name in dir(mod):
+        names = sorted(n for n in dir(mod) if n.startswith("make_") and n.endswith("agent"))
+        for name in sorted(names, key=lambda n: n != "make_small_agent"):
             f = getattr(mod, name)
-            if name.startswith("make_") and name.endswith("agent") and callable(f):
+            if callable(f):
                 found.setdefault(recognise(f()).name, f"reference_like.{m.name}:{name}")
     return found
 
@@ -69,7 +73,7 @@ def first_actions(result: Dict[str, Any], act_dim: int) -> Dict[int, List[float]
         trace = r.get("trace")
         if trace is None:
             continue
-        out.setdefault(int(r["context"]), unpack_f32(trace["actions"])[:act_dim])
+        out.setdefault(int(r["context_index"]), unpack_f32(trace["actions"])[:act_dim])
     return out
 
 

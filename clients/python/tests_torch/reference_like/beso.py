@@ -347,3 +347,10 @@ def make_agent(
         for p in agent.ema_helper.shadow_params:
             p.add_(torch.randn(p.shape) * 0.01)
     return agent
+
+
+def make_small_agent(checkpoint: Optional[str] = None) -> BesoAgent:
+    """A narrower BESO (width 16, 2 layers, 4 sampling steps) for the end-to-end tests,
+    where the Aligning-sized default would spend minutes in predict() step by step.
+    """
+    return make_agent(checkpoint, embed_dim=16, n_layers=2, n_heads=2, num_sampling_steps=4)
