@@ -5,8 +5,10 @@ exported with ``export_agent`` — which checks the graph against the agent's ow
 ``predict()`` fed the same draws, onnxruntime and ``d3il infer`` (tract, the
 evaluator's runtime) — and the file is evaluated by ``d3il eval --protocol quick``;
 then the agent object itself is served (``python -m d3il_client.serve --agent``) and
-evaluated by ``d3il eval`` over the remote protocol with no flag (a local endpoint),
-its first actions equal to the exported graph's where the policy is deterministic.
+evaluated by ``d3il eval`` over the remote protocol with no flag (a local endpoint; the
+quick protocol's first initial state), its first actions equal to the exported
+graph's where the policy is deterministic. That served actions equal ``predict()``
+fed the same draws, stochastic families included, is test_serve_batched.py's.
 """
 
 from __future__ import annotations
@@ -77,9 +79,9 @@ def first_actions(result: Dict[str, Any], act_dim: int) -> Dict[int, List[float]
     return out
 
 
-def evaluate(policy: str, out: Path) -> Dict[str, Any]:
+def evaluate(policy: str, out: Path, *extra: str) -> Dict[str, Any]:
     p = subprocess.run(
-        [D3IL, "eval", "--task", "aligning", "--policy", policy, "--protocol", "quick", "--json", str(out)],
+        [D3IL, "eval", "--task", "aligning", "--policy", policy, "--protocol", "quick", "--json", str(out), *extra],
         capture_output=True,
         text=True,
         timeout=900,
@@ -120,13 +122,14 @@ def test_export_check_evaluate_and_serve(family: str, tmp_path: Path):
                 break
         assert line.startswith("listening on"), f"the server did not start: {line!r}"
         port = int(line.rsplit(":", 1)[1])
-        served = evaluate(f"ws://127.0.0.1:{port}", tmp_path / "served.json")
+        # The first of the quick protocol's three initial states (a shard: CI time).
+        served = evaluate(f"ws://127.0.0.1:{port}", tmp_path / "served.json", "--shard", "1/3")
     finally:
         server.terminate()
         server.wait(timeout=30)
-    assert len(served["rollouts"]) == len(exported["rollouts"])
+    assert served["rollouts"] and {r["context_index"] for r in served["rollouts"]} == {0}
     if s.noise_shape is None:
         a, b = first_actions(exported, s.act_dim), first_actions(served, s.act_dim)
-        assert a.keys() == b.keys() and a
-        for ctx in a:
+        assert b and b.keys() <= a.keys()
+        for ctx in b:
             assert max(abs(x - y) for x, y in zip(a[ctx], b[ctx], strict=True)) <= 1e-5, (ctx, a[ctx], b[ctx])
