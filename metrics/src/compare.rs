@@ -169,6 +169,37 @@ pub fn compare_parts(
     cfg: &Bootstrap,
 ) -> Result<Comparison, MetricsError> {
     let ((ma, pa), (mb, pb)) = (a, b);
+    check_comparable(ma, mb)?;
+    let ia: Vec<usize> = pa.iter().map(|c| c.context_index).collect();
+    let ib: Vec<usize> = pb.iter().map(|c| c.context_index).collect();
+    if ia != ib {
+        return Err(MetricsError::NotComparable(
+            "their per-state breakdowns list different initial states".into(),
+        ));
+    }
+    let sa: Vec<ContextSummary> = pa.iter().map(ContextSummary::from_result).collect();
+    let sb: Vec<ContextSummary> = pb.iter().map(ContextSummary::from_result).collect();
+    let empty = EntropyConvention::for_task(ma.task).empty_contexts;
+    let [success_rate, conditional_entropy] = compare_states(&sa, &sb, empty, cfg)?;
+    Ok(Comparison {
+        task: ma.task,
+        protocol: ma.protocol,
+        initial_states: ma.initial_states_name(),
+        initial_states_sha256: ma.initial_states_sha256.clone(),
+        n_contexts: ma.n_contexts,
+        rollouts_per_context: ma.rollouts_per_context,
+        resamples: cfg.resamples,
+        confidence: cfg.confidence,
+        success_rate,
+        conditional_entropy,
+        caveats: caveats(ma, mb),
+    })
+}
+
+/// Whether two results can be compared pair by pair: same task, protocol,
+/// initial-state set and size, else [`MetricsError::NotComparable`] naming
+/// what differs.
+pub fn check_comparable(ma: &ProtocolManifest, mb: &ProtocolManifest) -> Result<(), MetricsError> {
     let differ = |what: &str, x: String, y: String| -> Result<(), MetricsError> {
         if x != y {
             return Err(MetricsError::NotComparable(format!(
@@ -201,30 +232,7 @@ pub fn compare_parts(
         format!("{} × {} rollouts", ma.n_contexts, ma.rollouts_per_context),
         format!("{} × {} rollouts", mb.n_contexts, mb.rollouts_per_context),
     )?;
-    let ia: Vec<usize> = pa.iter().map(|c| c.context_index).collect();
-    let ib: Vec<usize> = pb.iter().map(|c| c.context_index).collect();
-    if ia != ib {
-        return Err(MetricsError::NotComparable(
-            "their per-state breakdowns list different initial states".into(),
-        ));
-    }
-    let sa: Vec<ContextSummary> = pa.iter().map(ContextSummary::from_result).collect();
-    let sb: Vec<ContextSummary> = pb.iter().map(ContextSummary::from_result).collect();
-    let empty = EntropyConvention::for_task(ma.task).empty_contexts;
-    let [success_rate, conditional_entropy] = compare_states(&sa, &sb, empty, cfg)?;
-    Ok(Comparison {
-        task: ma.task,
-        protocol: ma.protocol,
-        initial_states: ma.initial_states_name(),
-        initial_states_sha256: ma.initial_states_sha256.clone(),
-        n_contexts: ma.n_contexts,
-        rollouts_per_context: ma.rollouts_per_context,
-        resamples: cfg.resamples,
-        confidence: cfg.confidence,
-        success_rate,
-        conditional_entropy,
-        caveats: caveats(ma, mb),
-    })
+    Ok(())
 }
 
 /// What differs between two results that [`compare_parts`] pairs anyway: the

@@ -25,6 +25,7 @@
 
 mod bootstrap;
 pub mod compare;
+pub mod sequential;
 pub mod shard;
 pub(crate) use bootstrap::bias_corrected_interval;
 pub use bootstrap::{bootstrap, bootstrap_all, Bootstrap, Statistic};
