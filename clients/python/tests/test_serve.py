@@ -67,6 +67,8 @@ def test_serve_says_what_is_wrong(tmp_path: Path) -> None:
         (["--agent", "not_an_agent:make"], "has no reset() and predict(obs)"),
         (["--checkpoint", "x.pth"], "--checkpoint goes with --agent"),
         (["--agent", "not_an_agent:make", "--history", "3"], "history = horizon = execute = 1"),
+        (["--task", "aligning"], "--task goes with --agent"),
+        (["--agent", "not_an_agent:make", "--task", "juggling"], "invalid choice: 'juggling'"),
     ]:
         out = subprocess.run(
             [sys.executable, "-m", "d3il_client.serve", *args], capture_output=True, text=True, cwd=tmp_path, timeout=60

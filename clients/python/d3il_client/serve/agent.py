@@ -258,7 +258,8 @@ def make_adapter(
         except ImportError as e:
             why = f"the agent families cannot be loaded ({e})"
         except Exception as e:  # UnknownAgent, or a family refusing this configuration
-            why = str(e)
+            known = type(e).__name__ != "UnknownAgent"
+            why = str(e) if known else "not an agent of the D3IL families d3il_client.agents knows"
     print(f"serving {type(obj).__name__} per rollout (one predict() per rollout and step): {why}", file=log, flush=True)
     return AgentAdapter(agent, predict_kwargs)  # a factory stays one: a fresh agent per rollout
 
@@ -354,7 +355,11 @@ def startup_projection(
     else:
         dim = obs_dim if obs_dim is not None else _agent_obs_dim(adapter)
         if dim is None:
-            print("no observation size known for a dummy request: not measured (give --task)", file=log)
+            print(
+                "not measured: the agent has no scaler.x_mean to size a dummy observation by",
+                file=log,
+                flush=True,
+            )
             return None
         per = time_predict(adapter, dim)
         call_s, execute = per * batch, 1
