@@ -135,7 +135,8 @@ def main() -> None:
     print(
         f"{TASK}, served BESO of the reference's size ({s.sampler}; window {s.history}, "
         f"DiffusionGPT 4 x 72, 4 heads), batch {batch}; paper protocol {protocol.episodes} rollouts x "
-        f"{protocol.max_steps} steps; default wall limit {tasks.WALL_SECONDS} s; {torch.get_num_threads()} torch threads"
+        f"{protocol.max_steps} steps; default wall limit {tasks.WALL_SECONDS} s; "
+        f"{torch.get_num_threads()} torch threads"
     )
     if a.smoke:
         torch.set_num_threads(1)  # no thread comparison: seconds, not minutes
