@@ -227,15 +227,15 @@ class Tape:
             torch.rand_like = like("rand_like")
             torch.randint = randint
             torch.multinomial = multinomial
-            torch.Tensor.normal_ = in_place("normal_")  # type: ignore[method-assign]
-            torch.Tensor.uniform_ = in_place("uniform_")  # type: ignore[method-assign]
+            torch.Tensor.normal_ = in_place("normal_")
+            torch.Tensor.uniform_ = in_place("uniform_")
             np.random.uniform = np_uniform
             yield self
         finally:
             for n, f in saved.items():
                 setattr(torch, n, f)
-            torch.Tensor.normal_ = saved_normal  # type: ignore[method-assign]
-            torch.Tensor.uniform_ = saved_uniform  # type: ignore[method-assign]
+            torch.Tensor.normal_ = saved_normal
+            torch.Tensor.uniform_ = saved_uniform
             np.random.uniform = saved_np_uniform
         if self.pos != len(self.draws):
             raise TapeError(f"predict() made {self.pos} draws, the family expected {len(self.draws)}")

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import copy
 import dataclasses
-from typing import Any, List, Optional
+from typing import Any, List, Optional, Tuple
 
 import numpy as np
 import torch
@@ -48,7 +48,9 @@ def observations(agent: Any, batch: int, steps: int, gen: torch.Generator) -> to
     return mean + std * z
 
 
-def module_inputs(s: Settings, obs_hist: torch.Tensor, act_hist: torch.Tensor, t: int, noise: Optional[torch.Tensor]):
+def module_inputs(
+    s: Settings, obs_hist: torch.Tensor, act_hist: torch.Tensor, t: int, noise: Optional[torch.Tensor]
+) -> Tuple[int, torch.Tensor, Optional[torch.Tensor], Optional[torch.Tensor]]:
     """The window, previous actions and noise the evaluator sends at step t
     (``obs_hist`` [B, t+1, obs], ``act_hist`` [B, t, act]).
     """
@@ -64,7 +66,9 @@ def module_inputs(s: Settings, obs_hist: torch.Tensor, act_hist: torch.Tensor, t
     return w, obs, prev, noise
 
 
-def run_module(module: torch.nn.Module, obs: torch.Tensor, prev: Optional[torch.Tensor], noise: Optional[torch.Tensor]):
+def run_module(
+    module: torch.nn.Module, obs: torch.Tensor, prev: Optional[torch.Tensor], noise: Optional[torch.Tensor]
+) -> torch.Tensor:
     """The module's actions [B, H, act] for one call."""
     with torch.no_grad():
         return module(obs, prev, noise)
@@ -103,13 +107,9 @@ def against_predict(
             w, obs, prev, noise = module_inputs(s, obs_hist, act_hist, t, noise)
             chunk = run_module(g, obs, prev, noise)
             if tuple(chunk.shape) != (batch, s.horizon, s.act_dim):
-                raise CheckFailed(
-                    f"the module returned {tuple(chunk.shape)}, expected {(batch, s.horizon, s.act_dim)}"
-                )
+                raise CheckFailed(f"the module returned {tuple(chunk.shape)}, expected {(batch, s.horizon, s.act_dim)}")
             cases.append(Case(w, obs, prev, noise, chunk))
-            tapes = [
-                Tape(family.draws(agents[b], noise[b], w) if noise is not None else []) for b in range(batch)
-            ]
+            tapes = [Tape(family.draws(agents[b], noise[b], w) if noise is not None else []) for b in range(batch)]
         else:
             tapes = [Tape([]) for _ in range(batch)]
         assert chunk is not None

@@ -44,7 +44,7 @@ Tracing traps handled here without touching the user's model:
 from __future__ import annotations
 
 import copy
-from typing import Any, List, Optional
+from typing import Any, List, Optional, Tuple
 
 import torch
 
@@ -121,7 +121,7 @@ class DdpmSampler(torch.nn.Module):
             return mean
         return mean + self.sigma[t] * z
 
-    def run(self, x: torch.Tensor, denoise, noise_row) -> torch.Tensor:
+    def run(self, x: torch.Tensor, denoise: Any, noise_row: Any) -> torch.Tensor:
         """The whole loop from x_T = ``x``: ``denoise(x, t)`` the network, ``noise_row(j)``
         the noise of loop step j (1-based, t = n − j); clamped at the end as ``sample``.
         """
@@ -332,7 +332,7 @@ class DdpmGpt(Family):
         act = int(agent.model.action_dim)
         count = 1 + sampler.n + sampler.extra
         if int(agent.window_size) > 1:
-            shapes = [(1, window, act)] * count
+            shapes: List[Tuple[int, ...]] = [(1, window, act)] * count
         else:
             # 2-D state: x starts [1, act]; the first step's output broadcasts with the
             # network's [1, 1, act] and stays 3-D.

@@ -28,7 +28,7 @@ import shutil
 import subprocess
 import tempfile
 from pathlib import Path
-from typing import Any, Dict, List, Optional, Sequence
+from typing import Any, Dict, List, Optional, Sequence, Union
 
 import torch
 
@@ -188,7 +188,7 @@ def check_d3il(d3il: str, path: Path, manifest: Path, s: Settings, cases: Sequen
 def export_agent(
     agent: Any,
     task: str,
-    out: "str | os.PathLike[str]" = "policy.onnx",
+    out: Union[str, os.PathLike[str]] = "policy.onnx",
     *,
     atol: float = 1e-5,
     batch: int = 3,

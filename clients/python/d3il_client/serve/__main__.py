@@ -24,32 +24,12 @@ Prints ``listening on HOST:PORT`` once it accepts connections; submit it as
 from __future__ import annotations
 
 import argparse
-import importlib
-import sys
-from typing import Any, List, Optional
+from typing import List, Optional
 
 from .. import tasks
+from ..objects import load_object, make_agent
 from .agent import make_adapter, startup_projection
 from .policy import DEMOS, serve
-
-
-def load_object(spec: str) -> Any:
-    """The object ``MODULE:NAME`` names (``NAME`` may be dotted: ``module:Class.factory``)."""
-    module_name, sep, attr = spec.partition(":")
-    if not sep or not module_name or not attr:
-        raise SystemExit(f"error: {spec!r} is not MODULE:NAME (e.g. my_agents:make_agent)")
-    if "" not in sys.path:
-        sys.path.insert(0, "")  # the current directory, as `python -m` sees it
-    try:
-        obj: Any = importlib.import_module(module_name)
-    except ImportError as e:
-        raise SystemExit(f"error: cannot import {module_name}: {e}") from e
-    for part in attr.split("."):
-        try:
-            obj = getattr(obj, part)
-        except AttributeError as e:
-            raise SystemExit(f"error: {module_name} has no {attr}") from e
-    return obj
 
 
 def main(argv: Optional[List[str]] = None) -> None:
@@ -91,10 +71,7 @@ def main(argv: Optional[List[str]] = None) -> None:
     if a.agent:
         if (a.history, a.horizon, a.execute) != (1, 1, 1):
             ap.error("an agent is served with history = horizon = execute = 1 (it keeps its own window)")
-        make = load_object(a.agent)
-        agent = make(a.checkpoint) if a.checkpoint is not None else make()
-        if not (hasattr(agent, "reset") and hasattr(agent, "predict")):
-            ap.error(f"{a.agent} returned {type(agent).__name__}, which has no reset() and predict(obs)")
+        agent = make_agent(a.agent, a.checkpoint)
         adapter = make_adapter(agent)
         if not a.no_measure:
             startup_projection(adapter, a.task, max_live=a.max_live)
