@@ -29,7 +29,14 @@ fn every_reference_agent_family_exports_checks_evaluates_and_serves() {
         python.display()
     );
     let out = Command::new(&python)
-        .args(["-m", "pytest", "-q", "-p", "no:cacheprovider", "clients/python/tests_torch"])
+        .args([
+            "-m",
+            "pytest",
+            "-q",
+            "-p",
+            "no:cacheprovider",
+            "clients/python/tests_torch",
+        ])
         .current_dir(root)
         .env(
             "PYTHONPATH",
@@ -41,7 +48,10 @@ fn every_reference_agent_family_exports_checks_evaluates_and_serves() {
     let stdout = String::from_utf8_lossy(&out.stdout);
     let stderr = String::from_utf8_lossy(&out.stderr);
     println!("{stdout}\n{stderr}");
-    assert!(out.status.success(), "tests_torch failed:\n{stdout}\n{stderr}");
+    assert!(
+        out.status.success(),
+        "tests_torch failed:\n{stdout}\n{stderr}"
+    );
     // pytest's summary line, e.g. "42 passed in 61.2s": nothing skipped.
     assert!(
         !stdout.contains(" skipped"),
