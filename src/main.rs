@@ -32,6 +32,8 @@ enum Command {
     Eval(cmd::eval::Args),
     /// How closely this simulator follows the original D3IL one: the fidelity report (Markdown or JSON).
     Fidelity(cmd::fidelity::Args),
+    /// Run an ONNX policy on given inputs after the evaluator's admission and print its raw actions as JSON (an exporter's check).
+    Infer(cmd::infer::Args),
     /// Merge the part files of a sharded `d3il eval --shard K/N` into one result (docs/cluster.md).
     Merge(cmd::merge::Args),
     /// Render what an image policy sees (both 96x96 cameras) to a PNG.
@@ -64,6 +66,7 @@ fn main() -> anyhow::Result<()> {
         Command::Bench(a) => cmd::bench::run(a),
         Command::Compare(a) => cmd::compare::run(a),
         Command::Contexts(a) => cmd::contexts::run(a),
+        Command::Infer(a) => cmd::infer::run(a),
         Command::Merge(a) => cmd::merge::run(a),
         Command::Render(a) => cmd::render::run(a),
         Command::Replay(a) => cmd::replay::run(a),

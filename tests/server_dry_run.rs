@@ -204,6 +204,11 @@ fn loopback_endpoints_are_refused_without_the_explicit_setting() {
             assert_eq!((status, code.as_str()), (400, "invalid_field"), "{message}");
             assert_eq!(field.as_deref(), Some("endpoint_url"));
             assert!(message.contains("loopback or private address"), "{message}");
+            // The refusal names the setting that would admit it.
+            assert!(
+                message.contains("`d3il serve`") && message.contains("`--allow-private-endpoints`"),
+                "{message}"
+            );
         }
         other => panic!("expected a refusal, got {other:?}"),
     }

@@ -231,6 +231,13 @@ fn private_endpoints_are_refused_by_default() {
     let e = failure(&r);
     assert_eq!(e.kind, ErrorKind::BadEndpoint, "{e:?}");
     assert!(e.message.contains("loopback"), "{}", e.message);
+    // What the operator changes to allow it (a job of `d3il serve` or
+    // `d3il workers`; `d3il eval` always allows it).
+    assert!(
+        e.message.contains("`d3il serve`") && e.message.contains("`--allow-private-endpoints`"),
+        "{}",
+        e.message
+    );
     for url in ["http://127.0.0.1/", "ws:///nohost", "ws://169.254.169.254/"] {
         let job = avoiding_job(PolicySource::Remote { url: url.into() }, Limits::default());
         let (r, _) = run(&job, Duration::from_secs(120));

@@ -332,3 +332,24 @@ fn endless_graph_loads_without_running() {
     let p = load("hostile_endless", TaskId::Avoiding, 0).unwrap();
     assert_eq!(p.shape().act_dim, 2);
 }
+
+/// scripts/make_frozen_window_fixture.py: `int(obs.size()[1] / 1)` frozen by
+/// tracing into a Reshape to the example window. tract's refusal of the graph
+/// with a symbolic window names that cause and its fix, not only tract's nodes.
+#[test]
+fn a_window_frozen_by_tracing_is_refused_naming_the_cause() {
+    let (bytes, man) = fixture("frozen_window");
+    let e = d3il_policy::onnx::admit(&bytes, &man, &spec(TaskId::Aligning), 0).unwrap_err();
+    let m = e.to_string();
+    eprintln!("{m}");
+    for want in [
+        "int(x.size()[1] / 2)",
+        "frozen by tracing",
+        "d3il_client.agents",
+        "noise[:, i, :T]",
+        "docs/export.md",
+        "Traps",
+    ] {
+        assert!(m.contains(want), "`{want}` missing from: {m}");
+    }
+}

@@ -6,7 +6,10 @@
 //! names or resolves to is in a non-public range ([`special_range`]). Ranges
 //! marked [`SpecialRange::always_refused`] (unspecified, multicast, broadcast)
 //! are refused even when private endpoints are allowed
-//! (`Limits::allow_private_endpoints`, for tests and trusted set-ups).
+//! (`Limits::allow_private_endpoints`: always in `d3il eval`, which connects
+//! to whatever its user names on their own machine and network; in a server
+//! only when its operator passes `--allow-private-endpoints`). Every refusal
+//! the setting would lift names it ([`ALLOW_PRIVATE_SETTING`]).
 //!
 //! Every IPv6 form that reaches an IPv4 host is judged by the IPv4 address it
 //! carries: IPv4-compatible `::a.b.c.d`, IPv4-mapped `::ffff:a.b.c.d`,
@@ -43,22 +46,46 @@ impl SpecialRange {
     }
 }
 
+/// The setting that lets a server evaluate endpoints on loopback and private
+/// addresses, named by every refusal it can lift (intake, dry run, worker,
+/// remote client). `d3il eval` on the user's own machine always has it.
+pub const ALLOW_PRIVATE_SETTING: &str = "a server evaluates submitted endpoints only on public \
+     addresses unless its operator starts `d3il serve` (and each `d3il workers` host) with \
+     `--allow-private-endpoints`; use a public host, or ask the operator of a trusted set-up \
+     to set it (`d3il eval --policy ws://…` on your own machine needs no setting)";
+
 /// Why an endpoint host is refused.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 pub enum AddressError {
     #[error("the endpoint host `{host}` could not be resolved ({reason}); check the host name and its DNS records")]
     Resolve { host: String, reason: String },
+    /// A loopback, private or reserved address: refused unless private
+    /// endpoints are allowed.
     #[error(
         "the endpoint host `{host}` resolves to {addr}, which is in the {range} range \
-         (loopback/private/reserved); the evaluator only connects to public addresses"
+         (loopback/private/reserved); {setting}",
+        setting = ALLOW_PRIVATE_SETTING
     )]
     Forbidden {
         host: String,
         addr: IpAddr,
         range: &'static str,
     },
+    /// An address no policy server can be reached at (unspecified,
+    /// multicast, broadcast): refused even when private endpoints are allowed.
     #[error(
-        "the endpoint host `{host}` is a loopback name; the evaluator only connects to public addresses"
+        "the endpoint host `{host}` resolves to {addr}, a {range} address, which no policy \
+         server can be reached at (a server listening on 0.0.0.0 or :: is reached at \
+         127.0.0.1, ::1 or the machine's own address); use the server's own address"
+    )]
+    Unreachable {
+        host: String,
+        addr: IpAddr,
+        range: &'static str,
+    },
+    #[error(
+        "the endpoint host `{host}` is a loopback name; {setting}",
+        setting = ALLOW_PRIVATE_SETTING
     )]
     LoopbackName { host: String },
 }
@@ -92,11 +119,21 @@ pub fn check_addresses(
         });
     }
     for &addr in addrs {
-        if let Some(range) = refused_range(addr, allow_private) {
+        let Some(range) = special_range(addr) else {
+            continue;
+        };
+        if range.always_refused {
+            return Err(AddressError::Unreachable {
+                host: truncate(host),
+                addr,
+                range: range.name,
+            });
+        }
+        if !allow_private {
             return Err(AddressError::Forbidden {
                 host: truncate(host),
                 addr,
-                range,
+                range: range.name,
             });
         }
     }
@@ -379,9 +416,29 @@ mod tests {
             }
         );
         assert!(e.to_string().contains("public addresses"), "{e}");
-        // Allowing private endpoints admits private but never multicast.
+        // The refusal names the setting that lifts it.
+        assert!(
+            e.to_string().contains("`d3il serve`")
+                && e.to_string().contains("`--allow-private-endpoints`"),
+            "{e}"
+        );
+        // Allowing private endpoints admits private but never multicast,
+        // whose refusal names no setting (none would help).
         assert!(check_addresses("h", &[public, private], true).is_ok());
-        assert!(check_addresses("h", &[public, multicast], true).is_err());
+        let e = check_addresses("h", &[public, multicast], true).unwrap_err();
+        assert!(
+            matches!(
+                e,
+                AddressError::Unreachable {
+                    range: "multicast",
+                    ..
+                }
+            ),
+            "{e:?}"
+        );
+        assert!(!e.to_string().contains("--allow-private-endpoints"), "{e}");
+        let e = check_addresses("h", &["0.0.0.0".parse().unwrap()], false).unwrap_err();
+        assert!(e.to_string().contains("127.0.0.1"), "{e}");
         assert!(matches!(
             check_addresses("h", &[], true),
             Err(AddressError::Resolve { .. })
@@ -400,7 +457,11 @@ mod tests {
             "LocalHost.",
             "x.localhost",
         ] {
-            assert!(check_host_literal(h, false).is_err(), "{h}");
+            let e = check_host_literal(h, false).unwrap_err();
+            assert!(
+                e.to_string().contains("--allow-private-endpoints"),
+                "{h}: {e}"
+            );
             assert!(check_host_literal(h, true).is_ok(), "{h}");
         }
         assert!(check_host_literal("[::]", true).is_err());

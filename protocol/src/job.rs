@@ -210,7 +210,9 @@ pub struct Limits {
     pub remote_deadline_ms: u64,
     /// Maximum size of one remote frame, bytes.
     pub remote_frame_bytes: u64,
-    /// Allow remote endpoints on loopback/private addresses (tests, trusted set-ups).
+    /// Allow remote endpoints on loopback/private addresses: always for
+    /// `d3il eval` (the user's own machine), for a server only when its
+    /// operator passes `--allow-private-endpoints` (trusted set-ups, tests).
     pub allow_private_endpoints: bool,
     /// Extra CA certificate(s), PEM text, trusted for `wss://` endpoints besides
     /// the public web roots (tests, private deployments). The parent fills it

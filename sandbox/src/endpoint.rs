@@ -35,7 +35,8 @@ impl From<EndpointError> for WorkerError {
 
 /// Check `url` and resolve its host. Returns every address it resolves to (all
 /// allowed). `allow_private` (Limits::allow_private_endpoints) admits loopback,
-/// link-local and private ranges, for tests and trusted set-ups; unspecified,
+/// link-local and private ranges (`d3il eval`, and servers of trusted set-ups
+/// started with `--allow-private-endpoints`); unspecified,
 /// multicast and broadcast addresses are refused even then.
 pub fn validate_endpoint(url: &str, allow_private: bool) -> Result<Vec<SocketAddr>, EndpointError> {
     let parsed = url::Url::parse(url).map_err(|e| EndpointError::Parse {
@@ -125,6 +126,7 @@ mod tests {
             );
             let msg = e.to_string();
             assert!(msg.contains("public addresses"), "{msg}");
+            assert!(msg.contains("--allow-private-endpoints"), "{msg}");
         }
         let ok = validate_endpoint("ws://127.0.0.1:9000/", true).unwrap();
         assert_eq!(ok, vec!["127.0.0.1:9000".parse().unwrap()]);
@@ -142,7 +144,7 @@ mod tests {
         ] {
             let e = validate_endpoint(u, true).unwrap_err();
             assert!(
-                matches!(e, EndpointError::Address(AddressError::Forbidden { .. })),
+                matches!(e, EndpointError::Address(AddressError::Unreachable { .. })),
                 "{u}: {e:?}"
             );
         }

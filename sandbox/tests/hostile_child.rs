@@ -291,6 +291,12 @@ fn private_endpoints_are_refused_unless_allowed() {
         "{}",
         e.message
     );
+    // Refused at resolution time, naming the setting that would allow it.
+    assert!(
+        e.message.contains("--allow-private-endpoints"),
+        "{}",
+        e.message
+    );
     let (run, _) = run_mode("ok", &job(by_name, l), WALL);
     assert!(
         matches!(run.outcome, Outcome::Completed(_)),

@@ -442,15 +442,14 @@ fn policy_fields(raw: &mut RawSubmission, limits: &Limits) -> Result<ValidPolicy
 /// Refuses an endpoint whose host is a loopback name or an address literal
 /// in a non-public range, with the classifier the worker and the remote
 /// client use too (`d3il_protocol::address`); host names are resolved and
-/// checked by the worker.
+/// checked by the worker. The classifier's message names the server setting
+/// that would admit the address (`--allow-private-endpoints`), if one would.
 fn check_endpoint_host(url: &url::Url, limits: &Limits) -> Result<(), AppError> {
     let host = url.host_str().unwrap_or_default();
     d3il_protocol::address::check_host_literal(host, limits.allow_private_endpoints).map_err(|e| {
         AppError::invalid(
             "endpoint_url",
-            format!(
-                "`endpoint_url` points to a loopback or private address ({e}); use a public host"
-            ),
+            format!("`endpoint_url` points to a loopback or private address: {e}"),
         )
     })
 }

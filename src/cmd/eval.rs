@@ -53,10 +53,16 @@ pub struct Args {
     /// (docs/cluster.md).
     #[arg(long, value_name = "K/N")]
     pub shard: Option<d3il_evaluator::shard::Shard>,
-    /// Limits of the sandboxed worker (--sandbox); the remote deadline, frame
-    /// cap and private-address rule apply without --sandbox too.
+    /// Limits of the sandboxed worker (--sandbox); the remote deadline and
+    /// frame cap apply without --sandbox too. A remote endpoint may be on any
+    /// address the user names, loopback and private ones included (only a
+    /// server refuses those for submitted endpoints).
     #[command(flatten)]
     pub limits: super::limits::LimitArgs,
+    /// Accepted and ignored: `d3il eval` connects to loopback and private
+    /// addresses without it (command lines of older versions keep working).
+    #[arg(long, hide = true)]
+    pub allow_private_endpoints: bool,
 }
 
 fn progress_bar(done: usize, total: usize, started: Instant) {
@@ -156,8 +162,30 @@ pub fn read_manifest(
     Ok((mpath, mtext, parsed))
 }
 
+/// The job `args` describe, with everything about them checked that can be
+/// checked without a simulation, a model load or this build's physics
+/// fingerprint (issue 43: a wrong name or file is refused at once, not after
+/// a minute of fingerprinting): the scripted name, the endpoint URL, the ONNX
+/// file and its manifest against the task, the shard and the output path.
+/// `build` is left empty: [`run`] fills it in after the policy has loaded.
 pub fn build_job(args: &Args) -> anyhow::Result<Job> {
+    let def = d3il_evaluator::tasks::task_def(args.task)?;
+    if let Some(path) = &args.json {
+        super::check_output_path(path, "--json")?;
+    }
+    if let Some(shard) = args.shard {
+        if args.json.is_none() {
+            bail!("--shard {shard} needs --json FILE: the part file `d3il merge` joins with the other shards");
+        }
+        // Whole initial states of the protocol: at most that many shards.
+        let set = def.context_set()?;
+        let (n_ctx, _) = args
+            .task
+            .protocol_size(args.protocol, def.n_contexts_paper(set.len()));
+        shard.contexts(n_ctx)?;
+    }
     let (policy, manifest) = if let Some(name) = args.policy.strip_prefix("scripted:") {
+        d3il_evaluator::scripted::ScriptedPolicy::from_name(name, def.spec_for(ObsType::State))?;
         (
             PolicySource::Scripted { name: name.into() },
             PolicyManifest {
@@ -171,6 +199,9 @@ pub fn build_job(args: &Args) -> anyhow::Result<Job> {
             },
         )
     } else if args.policy.starts_with("ws://") || args.policy.starts_with("wss://") {
+        // The URL's form and its host's resolution; the user's own evaluation
+        // may name loopback and private addresses.
+        d3il_sandbox::validate_endpoint(&args.policy, true)?;
         (
             PolicySource::Remote {
                 url: args.policy.clone(),
@@ -188,8 +219,20 @@ pub fn build_job(args: &Args) -> anyhow::Result<Job> {
         )
     } else {
         let path = PathBuf::from(&args.policy);
+        if !path.is_file() {
+            bail!(
+                "--policy {}: no such file; give an ONNX file (its manifest next to it as .json, or --manifest), a ws:// or wss:// URL, or scripted:<name> ({})",
+                path.display(),
+                d3il_evaluator::scripted::names_for(args.task)
+            );
+        }
         let bytes = std::fs::read(&path).with_context(|| format!("reading {}", path.display()))?;
-        let (_, _, manifest) = read_manifest(&path, args.manifest.as_deref())?;
+        let (mpath, _, manifest) = read_manifest(&path, args.manifest.as_deref())?;
+        if manifest.task == args.task {
+            manifest
+                .validate_for(&def.spec_for(manifest.obs_type))
+                .map_err(|e| anyhow::anyhow!("the manifest {}: {e}", mpath.display()))?;
+        }
         let abs = std::fs::canonicalize(&path)?;
         (
             PolicySource::Onnx {
@@ -206,6 +249,12 @@ pub fn build_job(args: &Args) -> anyhow::Result<Job> {
             args.task
         );
     }
+    if manifest.obs_type == ObsType::Image && !args.task.has_image_variant() {
+        bail!(
+            "task {} has no image variant (image tasks: aligning, sorting-4, sorting-6, stacking); evaluate a state policy",
+            args.task
+        );
+    }
     Ok(Job {
         job_id: "cli".into(),
         task: args.task,
@@ -213,11 +262,12 @@ pub fn build_job(args: &Args) -> anyhow::Result<Job> {
         policy,
         manifest,
         seed: args.seed,
-        limits: args.limits.limits()?,
+        // The user's own evaluation reaches whatever they name.
+        limits: args.limits.limits(true)?,
         assets_dir: crate::cmd::assets_dir().to_string_lossy().into_owned(),
         dry_run_steps: None,
         shard: None,
-        build: Some(super::verify::this_build()?),
+        build: None,
     })
 }
 
@@ -249,19 +299,46 @@ pub fn sandboxed(
     }
 }
 
+/// Loads the task and the policy in process, runs the policy's test
+/// inference, and only then computes this build's fingerprint (slow on a
+/// fresh machine), so a model that cannot run is refused first. A remote
+/// endpoint is connected to after the fingerprint instead: a connection left
+/// idle for a minute can be closed by the server's keep-alive (its URL was
+/// checked and its host resolved in [`build_job`]).
+pub fn load_then_fingerprint(
+    args: &Args,
+    job: &mut Job,
+) -> anyhow::Result<(
+    LoadedTask,
+    Box<dyn d3il_policy::Policy>,
+    PolicyInfo,
+    EvalOptions,
+)> {
+    if matches!(job.policy, PolicySource::Remote { .. }) {
+        job.build = Some(super::verify::this_build()?);
+        return load_in_process(args, job);
+    }
+    let (task, mut policy, info, mut opts) = load_in_process(args, job)?;
+    policy.self_test()?;
+    job.build = Some(super::verify::this_build()?);
+    opts.build = job.build.clone();
+    Ok((task, policy, info, opts))
+}
+
 pub fn run(args: Args) -> anyhow::Result<()> {
-    let job = build_job(&args)?;
+    let mut job = build_job(&args)?;
     if let Some(shard) = args.shard {
-        return run_shard(&args, &job, shard);
+        return run_shard(&args, &mut job, shard);
     }
     let mut on_progress = progress_printer();
     let result = if args.sandbox {
+        job.build = Some(super::verify::this_build()?);
         match sandboxed(&job, &mut on_progress)? {
             d3il_sandbox::Outcome::Completed(r) => *r,
             _ => bail!("the worker answered a whole evaluation with a shard's part"),
         }
     } else {
-        let (task, mut policy, info, opts) = load_in_process(&args, &job)?;
+        let (task, mut policy, info, opts) = load_then_fingerprint(&args, &mut job)?;
         let (r, t) = eval::evaluate(&task, policy.as_mut(), &info, &opts, &mut on_progress)?;
         print_timing(&t);
         r
@@ -276,12 +353,13 @@ pub fn run(args: Args) -> anyhow::Result<()> {
 }
 
 /// `d3il eval --shard K/N`: evaluates one shard and writes its part file.
-pub fn run_shard(args: &Args, job: &Job, shard: Shard) -> anyhow::Result<()> {
+pub fn run_shard(args: &Args, job: &mut Job, shard: Shard) -> anyhow::Result<()> {
     let Some(path) = &args.json else {
         bail!("--shard {shard} needs --json FILE: the part file `d3il merge` joins with the other shards");
     };
     let mut on_progress = progress_printer();
     let part = if args.sandbox {
+        job.build = Some(super::verify::this_build()?);
         // The worker runs the shard (`Job::shard`) and answers with its part.
         let job = Job {
             shard: Some(shard),
@@ -292,7 +370,7 @@ pub fn run_shard(args: &Args, job: &Job, shard: Shard) -> anyhow::Result<()> {
             _ => bail!("the worker answered shard {shard} with a whole result"),
         }
     } else {
-        let (task, mut policy, info, opts) = load_in_process(args, job)?;
+        let (task, mut policy, info, opts) = load_then_fingerprint(args, job)?;
         let (part, t) = eval::evaluate_shard(
             &task,
             policy.as_mut(),

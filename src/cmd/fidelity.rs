@@ -57,6 +57,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         "reference data directory {} does not exist; pass --data (the repository's tests/data)",
         data.root.display()
     );
+    if let Some(out) = &args.out {
+        super::check_output_path(out, "--out")?;
+    }
     let mode = if args.quick {
         FidelityMode::Quick
     } else {

@@ -1,5 +1,6 @@
-//! The sandbox limits of an evaluation, as flags shared by `d3il serve` and
-//! `d3il eval` (defined once here; the defaults are `Limits::default()`).
+//! The sandbox limits of an evaluation, as flags shared by `d3il serve`,
+//! `d3il workers` and `d3il eval` (defined once here; the defaults are
+//! `Limits::default()`), and the servers' private-endpoint setting.
 
 use d3il_protocol::Limits;
 
@@ -26,14 +27,26 @@ pub struct LimitArgs {
     /// Largest frame a remote endpoint may send, MiB.
     #[arg(long, default_value_t = Limits::default().remote_frame_bytes >> 20, help_heading = "Sandbox limits")]
     pub remote_frame_mb: u64,
-    /// Accept remote endpoints on loopback/private addresses (tests, trusted set-ups).
+}
+
+/// `d3il serve` and `d3il workers`: whether submitted endpoints may be on
+/// loopback or private addresses. Every refusal of such an endpoint names
+/// this flag (`d3il_protocol::address::ALLOW_PRIVATE_SETTING`). `d3il eval`
+/// has no such setting: it connects to whatever its user names.
+#[derive(clap::Args, Debug, Clone)]
+pub struct EndpointArgs {
+    /// Evaluate submitted remote endpoints on loopback and private addresses
+    /// too (a trusted network, tests); without it they are refused at
+    /// submission, at the dry run and in the worker.
     #[arg(long, help_heading = "Sandbox limits")]
     pub allow_private_endpoints: bool,
 }
 
 impl LimitArgs {
     /// The limits these flags give; every value must be at least 1.
-    pub fn limits(&self) -> anyhow::Result<Limits> {
+    /// `allow_private_endpoints` is the caller's: `d3il eval` always allows
+    /// them, a server only with `EndpointArgs`.
+    pub fn limits(&self, allow_private_endpoints: bool) -> anyhow::Result<Limits> {
         for (flag, v) in [
             ("--memory-mb", self.memory_mb),
             ("--cpu-seconds", self.cpu_seconds),
@@ -53,7 +66,7 @@ impl LimitArgs {
             file_size_bytes: self.file_size_mb << 20,
             remote_deadline_ms: self.remote_deadline_ms,
             remote_frame_bytes: self.remote_frame_mb << 20,
-            allow_private_endpoints: self.allow_private_endpoints,
+            allow_private_endpoints,
             extra_ca_pem: None,
         })
     }

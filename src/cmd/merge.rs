@@ -18,6 +18,9 @@ pub struct Args {
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
+    if let Some(path) = &args.json {
+        super::check_output_path(path, "--json")?;
+    }
     let mut parts = Vec::with_capacity(args.parts.len());
     for path in &args.parts {
         let text = std::fs::read(path).with_context(|| format!("reading {}", path.display()))?;

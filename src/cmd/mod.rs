@@ -12,6 +12,7 @@ pub mod db;
 pub mod eval;
 pub mod fidelity;
 pub mod fixtures;
+pub mod infer;
 pub mod limits;
 pub mod merge;
 pub mod render;
@@ -28,4 +29,29 @@ pub mod workers;
 /// repository's `assets/`.
 pub fn assets_dir() -> std::path::PathBuf {
     d3il_server::app::default_assets_dir()
+}
+
+/// Refuses an output path a command could not write at its end (no such
+/// directory, or a directory where the file should go), so that a long run
+/// is not lost to a typo: every command checks its outputs before the slow
+/// part (issue 43).
+pub fn check_output_path(path: &std::path::Path, flag: &str) -> anyhow::Result<()> {
+    if path.is_dir() {
+        anyhow::bail!(
+            "{flag} {}: is a directory; give a file name",
+            path.display()
+        );
+    }
+    let parent = match path.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p,
+        _ => std::path::Path::new("."),
+    };
+    if !parent.is_dir() {
+        anyhow::bail!(
+            "{flag} {}: the directory {} does not exist; create it or give another path",
+            path.display(),
+            parent.display()
+        );
+    }
+    Ok(())
 }

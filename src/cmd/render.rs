@@ -62,9 +62,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     } else {
         ObsType::State
     };
-    let look = args.look.robot_look();
-    let task = LoadedTask::load_look(args.task, obs, look)?;
-    let set = task.def.context_set()?;
+    super::check_output_path(&args.out, "--out")?;
+    // The initial state is looked up before the scene is compiled.
+    let set = d3il_evaluator::tasks::task_def(args.task)?.context_set()?;
     let context = set.get(args.context).with_context(|| {
         format!(
             "--context {} is out of range: the {} set has {} initial states (0..{})",
@@ -74,6 +74,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             set.len().saturating_sub(1)
         )
     })?;
+    let look = args.look.robot_look();
+    let task = LoadedTask::load_look(args.task, obs, look)?;
     let mut env = task.env()?;
     env.reset(context)?;
     let zero = vec![0.0f32; task.def.act_dim()];

@@ -63,6 +63,12 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             Ok(())
         }
         (None, None, Some(result), Some(n)) => {
+            if let Some(video) = &args.video {
+                super::check_output_path(video, "--video")?;
+            }
+            if args.video_size == 0 {
+                bail!("--video-size must be at least 1 pixel (default 320)");
+            }
             replay_record(&read(result)?, n, args.video.as_deref(), args.video_size, args.json)
         }
         _ => bail!(

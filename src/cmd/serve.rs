@@ -62,6 +62,8 @@ pub struct Args {
     pub max_connections_per_client: usize,
     #[command(flatten)]
     pub limits: super::limits::LimitArgs,
+    #[command(flatten)]
+    pub endpoints: super::limits::EndpointArgs,
     /// The fidelity report of /fidelity, computed at start in the background
     /// by `d3il fidelity` (one thread, lowest priority, cached per build):
     /// `full` (paper protocol for the closed-loop policies), `quick` or `off`.
@@ -100,6 +102,7 @@ pub fn base_config(
     workers: Option<usize>,
     assets: Option<PathBuf>,
     limits: &super::limits::LimitArgs,
+    endpoints: &super::limits::EndpointArgs,
 ) -> anyhow::Result<d3il_server::app::ServerConfig> {
     let exe = match worker_exe {
         Some(p) => p,
@@ -121,7 +124,7 @@ pub fn base_config(
         cfg.assets_dir.display()
     );
     cfg.assets_dir = cfg.assets_dir.canonicalize().unwrap_or(cfg.assets_dir);
-    cfg.limits = limits.limits()?;
+    cfg.limits = limits.limits(endpoints.allow_private_endpoints)?;
     cfg.worker.wall_clock = std::time::Duration::from_secs(cfg.limits.wall_seconds + 30);
     Ok(cfg)
 }
@@ -134,6 +137,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         args.workers,
         args.assets,
         &args.limits,
+        &args.endpoints,
     )?;
     cfg.max_upload_bytes = args.max_upload_mb.max(1) << 20;
     cfg.rate_limit_per_minute = args.rate_limit.max(1);

@@ -77,7 +77,66 @@ pub struct Args {
     pub timeout: u64,
 }
 
+/// The checks the server would make that need no server, before anything is
+/// uploaded (a model can take minutes to upload; issue 43): the names of the
+/// task, observation type and protocol, the seed and data fraction, the
+/// policy file, the manifest against --task and --obs-type, the endpoint's
+/// scheme. The server checks all of it again, and more.
+fn check_locally(a: &Args) -> anyhow::Result<()> {
+    let task: d3il_protocol::TaskId = a
+        .task
+        .parse()
+        .map_err(|e| anyhow::anyhow!("--task {}: {e}", a.task))?;
+    let obs_type: d3il_protocol::ObsType = a
+        .obs_type
+        .parse()
+        .map_err(|e| anyhow::anyhow!("--obs-type {}: {e}", a.obs_type))?;
+    a.protocol
+        .parse::<d3il_protocol::ProtocolKind>()
+        .map_err(|e| anyhow::anyhow!("--protocol {}: {e}", a.protocol))?;
+    anyhow::ensure!(
+        (0..=i64::from(i32::MAX)).contains(&a.training_seed),
+        "--training-seed must be a whole number from 0 to 2147483647, got {}",
+        a.training_seed
+    );
+    anyhow::ensure!(
+        a.data_fraction > 0.0 && a.data_fraction <= 1.0,
+        "--data-fraction must be a number in (0, 1] (e.g. 0.25), got {}",
+        a.data_fraction
+    );
+    if let Some(url) = &a.endpoint {
+        anyhow::ensure!(
+            url.starts_with("ws://") || url.starts_with("wss://"),
+            "--endpoint {url}: give a ws:// or wss:// URL (docs/remote-protocol.md)"
+        );
+    }
+    if let Some(onnx) = &a.onnx {
+        anyhow::ensure!(onnx.is_file(), "--onnx {}: no such file", onnx.display());
+        let (mpath, _, man) = super::eval::read_manifest(onnx, a.manifest.as_deref())?;
+        anyhow::ensure!(
+            man.task == task,
+            "the manifest {} is for task `{}` but --task is `{task}`",
+            mpath.display(),
+            man.task
+        );
+        anyhow::ensure!(
+            man.obs_type == obs_type,
+            "the manifest {} says obs_type `{}` but --obs-type is `{obs_type}`",
+            mpath.display(),
+            man.obs_type
+        );
+        man.validate()
+            .map_err(|e| anyhow::anyhow!("the manifest {}: {e}", mpath.display()))?;
+    }
+    Ok(())
+}
+
 pub fn run(a: Args) -> anyhow::Result<()> {
+    anyhow::ensure!(
+        a.onnx.is_some() || a.endpoint.is_some(),
+        "give --onnx FILE (its manifest next to it as FILE.json, or --manifest) or --endpoint URL"
+    );
+    check_locally(&a)?;
     let token = match a.token.clone() {
         Some(t) => t,
         None => std::env::var("D3IL_TOKEN").context(
@@ -107,10 +166,6 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             fields.push((k, v));
         }
     }
-    anyhow::ensure!(
-        a.onnx.is_some() || a.endpoint.is_some(),
-        "give --onnx FILE (its manifest next to it as FILE.json, or --manifest) or --endpoint URL"
-    );
     if let Some(onnx) = &a.onnx {
         let (_, text, _) = super::eval::read_manifest(onnx, a.manifest.as_deref())?;
         fields.push(("manifest", text));

@@ -37,6 +37,19 @@ pub struct Args {
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
+    // The arguments first, before the database is opened.
+    if let Some(path) = &args.out {
+        super::check_output_path(path, "--out")?;
+    }
+    match (args.figure, args.submission) {
+        (Some(FigureKind::AvoidingPaths), None) => anyhow::bail!(
+            "--figure avoiding-paths draws the rollouts of one submission: pass --submission ID of an evaluated Avoiding submission"
+        ),
+        (Some(FigureKind::AvoidingPaths), Some(_)) | (_, None) => {}
+        (_, Some(_)) => anyhow::bail!(
+            "--submission goes with --figure avoiding-paths (the other tables and figures draw every result)"
+        ),
+    }
     // The store is async (sqlx); this command needs nothing more than a
     // single-threaded runtime for the few queries it makes.
     let rt = tokio::runtime::Builder::new_current_thread()

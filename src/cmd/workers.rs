@@ -22,6 +22,8 @@ pub struct Args {
     pub lease_seconds: i64,
     #[command(flatten)]
     pub limits: super::limits::LimitArgs,
+    #[command(flatten)]
+    pub endpoints: super::limits::EndpointArgs,
     /// Do not run the drift canary (`d3il verify`) at start: this host's
     /// results then record no physics fingerprint and are kept apart from
     /// those that do (as for `d3il serve --no-verify`).
@@ -42,6 +44,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         args.workers.map(|w| w.max(1)),
         args.assets,
         &args.limits,
+        &args.endpoints,
     )?;
     anyhow::ensure!(
         args.lease_seconds >= 3,

@@ -61,6 +61,17 @@ pub(super) fn bucket(b: usize) -> usize {
     }
 }
 
+/// The usual causes of a graph that tract cannot analyse or plan once the
+/// window (or batch) is a symbol, and their fixes; added to those refusals,
+/// whose own text names tract's nodes rather than the Python that made them.
+pub(super) const FROZEN_SIZE_HINT: &str = "The usual causes: a Python int computed from a tensor \
+     size in `forward` (e.g. `int(x.size()[1] / 2)`) is frozen by tracing to the example \
+     input's window (or batch), so the graph only runs at that size: export with the window \
+     symbolic (the exporter in d3il_client.agents does), or compute it with tensor \
+     operations; or a \
+     suffix slice of the noise such as `noise[:, i, K-T:]`: slice prefixes, `noise[:, i, :T]`. \
+     See docs/export.md, \"Traps, with their messages and fixes\".";
+
 fn unsupported(e: impl std::fmt::Display) -> PolicyError {
     PolicyError::Unsupported(e.to_string())
 }
@@ -118,7 +129,8 @@ impl Model {
         }
         let typed = model.into_typed().map_err(|e| {
             unsupported(format!(
-                "tract could not analyse the graph with the declared input shapes: {e:#}"
+                "tract could not analyse the graph with the declared input shapes ({}): {e:#}. {FROZEN_SIZE_HINT}",
+                declared_shapes(sig, manifest, task)
             ))
         })?;
         let out_name = proto
@@ -176,7 +188,9 @@ impl Model {
                 }
             })
             .map_err(|e| {
-                format!("tract could not prepare the graph for batch {batch}, window {w}: {e:#}")
+                format!(
+                    "tract could not prepare the graph for batch {batch}, window {w}: {e:#}. {FROZEN_SIZE_HINT}"
+                )
             })?;
         self.plans
             .lock()
@@ -184,6 +198,39 @@ impl Model {
             .insert(key, plan.clone());
         Ok(plan)
     }
+}
+
+/// The input shapes the graph was analysed with, e.g. `obs [B, T, 20]`
+/// (`B` the batch, `T` the window when it grows).
+fn declared_shapes(sig: &Signature, manifest: &PolicyManifest, task: &TaskSpec) -> String {
+    let b = match sig.fixed_batch {
+        Some(n) => n.to_string(),
+        None => "B".into(),
+    };
+    let t = if sig.grow {
+        "T".to_string()
+    } else {
+        manifest.history.to_string()
+    };
+    sig.feeds
+        .iter()
+        .map(|f| {
+            let dims = match f {
+                Feed::Obs => format!("{b}, {t}, {}", task.obs_dim),
+                Feed::Images => format!(
+                    "{b}, {t}, {}",
+                    IMAGE_SHAPE.map(|d| d.to_string()).join(", ")
+                ),
+                Feed::PrevActions => format!("{b}, {t} - 1, {}", task.act_dim),
+                Feed::Noise => std::iter::once(b.clone())
+                    .chain(sig.noise_dims.iter().map(|d| d.to_string()))
+                    .collect::<Vec<_>>()
+                    .join(", "),
+            };
+            format!("{} [{dims}]", f.name())
+        })
+        .collect::<Vec<_>>()
+        .join(", ")
 }
 
 /// tract's cost estimate of one row (batch 1, window `k`), summed over the

@@ -297,7 +297,8 @@ impl OnnxPolicy {
     }
 }
 
-/// See [`OnnxPolicy::run_explicit`].
+/// See [`OnnxPolicy::run_explicit`]. Every length is checked against the
+/// model's inputs first, with a message naming the input and its shape.
 pub(super) fn run_explicit(
     p: &OnnxPolicy,
     batch: usize,
@@ -308,21 +309,75 @@ pub(super) fn run_explicit(
 ) -> Result<Vec<f32>, PolicyError> {
     let s = &p.shape;
     let bad = |m: String| PolicyError::Caller(m);
+    if batch == 0 {
+        return Err(bad("the batch must be at least 1".into()));
+    }
+    if let Some(fixed) = p.sig.fixed_batch {
+        if batch != fixed {
+            return Err(bad(format!(
+                "the model fixes its batch dimension to {fixed}; run it at batch {fixed}"
+            )));
+        }
+    }
+    let windows = if p.sig.grow {
+        1..=s.history
+    } else {
+        s.history..=s.history
+    };
+    if !windows.contains(&window) {
+        return Err(bad(format!(
+            "window {window} is not one the model is run with: {} (history k = {}, window `{}`)",
+            if p.sig.grow {
+                format!("1 to {}", s.history)
+            } else {
+                s.history.to_string()
+            },
+            s.history,
+            if p.sig.grow { "grow" } else { "pad" },
+        )));
+    }
+    for (feed, given) in [(Feed::PrevActions, prev_actions), (Feed::Noise, noise)] {
+        // Previous actions of a window of 1 are empty: null is fine there.
+        let empty = feed == Feed::PrevActions && window == 1;
+        match (p.has(feed), given.is_some()) {
+            (true, false) if !empty => {
+                return Err(bad(format!(
+                    "the model takes `{}`; give it (not null)",
+                    feed.name()
+                )))
+            }
+            (false, true) => {
+                return Err(bad(format!(
+                    "the model has no `{}` input; give null",
+                    feed.name()
+                )))
+            }
+            _ => {}
+        }
+    }
     let mut inputs: TVec<TValue> = tvec![];
     for feed in &p.sig.feeds {
         let (shape, data): (Vec<usize>, &[f32]) = match feed {
             Feed::Obs => (vec![batch, window, s.obs_dim], obs),
             Feed::PrevActions => (
                 vec![batch, window - 1, s.act_dim],
-                prev_actions.ok_or_else(|| bad("prev_actions not given".into()))?,
+                prev_actions.unwrap_or_default(),
             ),
             Feed::Noise => {
                 let mut sh = vec![batch];
                 sh.extend_from_slice(&p.sig.noise_dims);
-                (sh, noise.ok_or_else(|| bad("noise not given".into()))?)
+                (sh, noise.unwrap_or_default())
             }
             Feed::Images => return Err(bad("run_explicit takes state policies only".into())),
         };
+        let want: usize = shape.iter().product();
+        if data.len() != want {
+            return Err(bad(format!(
+                "`{}` has {} values; its shape {shape:?} needs {want}",
+                feed.name(),
+                data.len()
+            )));
+        }
         let t = Tensor::from_shape(&shape, data).map_err(|e| bad(format!("{e:#}")))?;
         inputs.push(t.into_tvalue());
     }

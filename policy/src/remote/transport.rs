@@ -48,8 +48,8 @@ impl Endpoint {
 }
 
 /// Resolve the endpoint's host, check every address (refused if any is
-/// private unless `limits.allow_private_endpoints`), then connect to a checked
-/// one (no second lookup that could answer differently). The returned stream's
+/// private unless `limits.allow_private_endpoints`), then connect to the first
+/// checked one that answers (no second lookup that could answer differently). The returned stream's
 /// deadline is `deadline` from now, for the TLS and WebSocket handshakes.
 pub(super) fn connect_tcp(
     url: &str,
@@ -68,11 +68,29 @@ pub(super) fn connect_tcp(
                 reason: e.to_string(),
             },
         })?;
-    let tcp =
-        TcpStream::connect_timeout(&addrs[0], deadline).map_err(|e| PolicyError::Connect {
-            url: url.into(),
-            reason: e.to_string(),
-        })?;
+    // Every checked address in turn (`localhost` gives ::1 and 127.0.0.1; a
+    // server on one of them must be found), all within the one deadline.
+    let start = Instant::now();
+    let mut failures = vec![];
+    let mut connected = None;
+    for addr in &addrs {
+        let left = deadline.saturating_sub(start.elapsed());
+        if left.is_zero() {
+            failures.push(format!("{addr}: deadline passed"));
+            break;
+        }
+        match TcpStream::connect_timeout(addr, left) {
+            Ok(tcp) => {
+                connected = Some(tcp);
+                break;
+            }
+            Err(e) => failures.push(format!("{addr}: {e}")),
+        }
+    }
+    let tcp = connected.ok_or_else(|| PolicyError::Connect {
+        url: url.into(),
+        reason: failures.join("; "),
+    })?;
     let _ = tcp.set_nodelay(true);
     Ok(DeadlineStream {
         inner: tcp,

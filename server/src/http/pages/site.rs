@@ -459,7 +459,7 @@ pub(super) async fn admin_page(
             if l.allow_private_endpoints {
                 "allowed (trusted set-up)".to_string()
             } else {
-                "refused".to_string()
+                "refused (start with --allow-private-endpoints to allow them)".to_string()
             },
         ),
     ];
