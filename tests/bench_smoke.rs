@@ -12,7 +12,7 @@
 
 use std::process::Command;
 
-const BENCHES: [&str; 10] = [
+const BENCHES: [&str; 11] = [
     "physics",
     "eval",
     "render",
@@ -22,6 +22,7 @@ const BENCHES: [&str; 10] = [
     "video",
     "scripts",
     "chaos",
+    "sequential",
     "served-agent",
 ];
 

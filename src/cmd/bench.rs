@@ -14,7 +14,7 @@ use std::time::Instant;
 
 #[derive(clap::Args)]
 pub struct Args {
-    /// Which benchmark: `physics`, `eval`, `render`, `agents`, `serve`, `scale`, `video`, `scripts`, `chaos` or `served-agent`.
+    /// Which benchmark: `physics`, `eval`, `render`, `agents`, `serve`, `scale`, `video`, `scripts`, `chaos`, `sequential` or `served-agent`.
     pub which: String,
     /// A short run that only shows the bench still works (seconds, not
     /// minutes; its numbers mean little). `tests/bench_smoke.rs` runs every
@@ -70,6 +70,7 @@ pub fn run(mut args: Args) -> anyhow::Result<()> {
         "video" => super::bench_video::run(args.protocol),
         "scripts" => super::bench_scripts::run(args.smoke),
         "chaos" => super::bench_chaos::run(args.smoke),
+        "sequential" => super::bench_sequential::run(args.smoke),
         "served-agent" => super::bench_served_agent::run(args.smoke, args.max_live),
         other => {
             bail!(
@@ -81,7 +82,7 @@ pub fn run(mut args: Args) -> anyhow::Result<()> {
 }
 
 /// Every bench `d3il bench` runs.
-pub const BENCHES: [&str; 10] = [
+pub const BENCHES: [&str; 11] = [
     "physics",
     "eval",
     "render",
@@ -91,6 +92,7 @@ pub const BENCHES: [&str; 10] = [
     "video",
     "scripts",
     "chaos",
+    "sequential",
     "served-agent",
 ];
 

@@ -21,6 +21,18 @@ pub struct Args {
     /// Print the comparison as JSON instead of a table.
     #[arg(long)]
     pub json: bool,
+    /// Replay the paired outcomes (by initial state and rollout) in a random
+    /// order seeded by `--seed` through the anytime-valid sequential test,
+    /// and report when it would have stopped (docs/sequential.md).
+    #[arg(long)]
+    pub sequential: bool,
+    /// Level of the sequential test (two-sided).
+    #[arg(long, default_value_t = 0.05, requires = "sequential")]
+    pub alpha: f64,
+    /// With `--sequential`: also stop with "no difference larger than δ"
+    /// when the confidence sequence of rate(A) − rate(B) lies inside (−δ, δ).
+    #[arg(long, requires = "sequential")]
+    pub delta: Option<f64>,
 }
 
 fn load(path: &Path) -> anyhow::Result<EvalResult> {
@@ -37,6 +49,9 @@ fn load(path: &Path) -> anyhow::Result<EvalResult> {
 pub fn run(args: Args) -> anyhow::Result<()> {
     let a = load(&args.a)?;
     let b = load(&args.b)?;
+    if args.sequential {
+        return sequential(&a, &b, &args);
+    }
     let cfg = Bootstrap {
         resamples: args.resamples,
         confidence: 0.95,
@@ -81,6 +96,71 @@ pub fn render(c: &Comparison) -> String {
     s += &format!(
         "p: randomisation test paired by initial state ({} permutations); min. det.: the difference detected with 80 % power at the 5 % level at this size\n",
         c.resamples
+    );
+    s
+}
+
+fn sequential(a: &EvalResult, b: &EvalResult, args: &Args) -> anyhow::Result<()> {
+    if !(args.alpha > 0.0 && args.alpha < 1.0) {
+        anyhow::bail!("--alpha {} is not in (0, 1); use e.g. 0.05", args.alpha);
+    }
+    if let Some(d) = args.delta {
+        if !(d > 0.0 && d < 2.0) {
+            anyhow::bail!(
+                "--delta {d} is not in (0, 2); use e.g. 0.1 (ten points of success rate)"
+            );
+        }
+    }
+    let pairs = d3il_metrics::sequential::paired_outcomes(a, b)?;
+    let r = d3il_metrics::sequential::replay(&pairs, args.alpha, args.delta, args.seed);
+    if args.json {
+        println!("{}", serde_json::to_string_pretty(&r)?);
+    } else {
+        print!("{}", render_sequential(&r));
+    }
+    Ok(())
+}
+
+/// The replay as plain text; its last line says what was saved.
+pub fn render_sequential(r: &d3il_metrics::sequential::Replay) -> String {
+    let mut s = format!(
+        "sequential paired comparison A vs B, replayed in random order (seed {}), alpha {}{}\n",
+        r.seed,
+        r.alpha,
+        r.delta
+            .map(|d| format!(", margin δ {d}"))
+            .unwrap_or_default()
+    );
+    s += &format!(
+        "success rate over all {} pairs: A {:.3}, B {:.3}\n",
+        r.pairs_total, r.rate_a, r.rate_b
+    );
+    match (&r.decision, r.decided_at) {
+        (Some(d), Some(at)) => s += &format!("decision: {d} at pair {at} of {}\n", r.pairs_total),
+        _ => {
+            s += &format!(
+                "decision: none after all {} pairs (the fixed-size test used the same pairs)\n",
+                r.pairs_total
+            )
+        }
+    }
+    s += &format!(
+        "e-value {:.3}, anytime-valid p-value {:.4}; discordant pairs so far: A won {}, B won {}\n",
+        r.e_value, r.p_value, r.discordant.0, r.discordant.1
+    );
+    if let Some((lo, hi)) = r.difference_interval {
+        s += &format!("confidence sequence of A − B: {lo:+.3} – {hi:+.3}\n");
+    }
+    s += &format!(
+        "fixed-size paired test (exact sign test on all {} pairs): p = {:.4}\n",
+        r.pairs_total, r.fixed_p_value
+    );
+    s += &format!(
+        "rollouts used: {} of {} ({} per policy), ratio {:.3} of the fixed-size test\n",
+        2 * r.pairs_used,
+        2 * r.pairs_total,
+        r.pairs_used,
+        r.pairs_used as f64 / r.pairs_total.max(1) as f64
     );
     s
 }

@@ -3,6 +3,7 @@ pub mod bench_chaos;
 pub mod bench_procs;
 pub mod bench_scale;
 pub mod bench_scripts;
+pub mod bench_sequential;
 pub mod bench_serve;
 pub mod bench_served_agent;
 pub mod bench_video;
