@@ -7,6 +7,7 @@
 
 mod lockstep;
 
+use crate::perturb::Active;
 use crate::shard::{EvalPart, Shard};
 use crate::tasks::{Env, LoadedTask, TaskError};
 use d3il_policy::{HistoryBuffer, Policy, PolicyError};
@@ -155,6 +156,12 @@ struct Slot {
     failure: Option<RolloutFailure>,
     /// What the rollout did, for replays ([`crate::trace`]).
     trace: Option<TraceBuilder>,
+    /// The robustness track's perturbation (None: the standard protocol).
+    perturb: Option<std::sync::Arc<Active>>,
+    /// Latency: the policy's actions not yet applied, oldest first.
+    in_flight: VecDeque<Vec<f32>>,
+    /// The evaluation's seed (observation noise).
+    seed: u64,
 }
 
 /// Runs `policy` on `task` under the protocol and computes the D3IL metrics.
@@ -166,7 +173,7 @@ pub fn evaluate(
     on_progress: &mut dyn FnMut(usize, usize),
 ) -> Result<(EvalResult, Timing), EvalError> {
     let t0 = Instant::now();
-    let run = run_rollouts(task, policy, info, opts, None, on_progress)?;
+    let run = run_rollouts(task, policy, info, opts, None, None, on_progress)?;
     let mut timing = run.timing;
     let result = assemble(
         run.manifest,
@@ -193,7 +200,7 @@ pub fn evaluate_shard(
     shard: Shard,
     on_progress: &mut dyn FnMut(usize, usize),
 ) -> Result<(EvalPart, Timing), EvalError> {
-    let run = run_rollouts(task, policy, info, opts, Some(shard), on_progress)?;
+    let run = run_rollouts(task, policy, info, opts, Some(shard), None, on_progress)?;
     Ok((
         EvalPart {
             format: crate::shard::PART_FORMAT.into(),
@@ -212,6 +219,49 @@ pub fn evaluate_shard(
 
 pub use d3il_metrics::shard::{assemble, inference_ms};
 
+/// [`evaluate`] under one perturbation of the robustness track
+/// ([`crate::perturb`]): the same initial states (shifted for `start_shift`),
+/// seed and rollout ids, hence the same policy noise, as the plain
+/// evaluation that is its level 0; the manifest records the perturbation.
+/// Deterministic policies are simulated once per initial state as in a
+/// plain evaluation, except under observation noise, which differs from
+/// rollout to rollout.
+pub fn evaluate_perturbed(
+    task: &LoadedTask,
+    policy: &mut dyn Policy,
+    info: &PolicyInfo,
+    opts: &EvalOptions,
+    perturbation: &d3il_protocol::perturbation::Perturbation,
+    on_progress: &mut dyn FnMut(usize, usize),
+) -> Result<(EvalResult, Timing), EvalError> {
+    let t0 = Instant::now();
+    let active =
+        Active::new(perturbation, task.def.id()).map_err(|e| EvalError::Setup(e.to_string()))?;
+    let perturbed = active
+        .task(task)
+        .map_err(|e| EvalError::Setup(e.to_string()))?;
+    let active = std::sync::Arc::new(active);
+    let run = run_rollouts(
+        &perturbed,
+        policy,
+        info,
+        opts,
+        None,
+        Some(&active),
+        on_progress,
+    )?;
+    let mut timing = run.timing;
+    let result = assemble(
+        run.manifest,
+        run.rollouts,
+        &run.behaviour_keys,
+        inference_ms(timing.policy_s, timing.policy_calls),
+        opts.bootstrap_resamples,
+    )?;
+    timing.total_s = t0.elapsed().as_secs_f64();
+    Ok((result, timing))
+}
+
 /// The rollouts of one evaluation (or of one shard of it), before metrics.
 struct Run {
     manifest: ProtocolManifest,
@@ -228,6 +278,7 @@ fn run_rollouts(
     info: &PolicyInfo,
     opts: &EvalOptions,
     shard: Option<Shard>,
+    perturb: Option<&std::sync::Arc<Active>>,
     on_progress: &mut dyn FnMut(usize, usize),
 ) -> Result<Run, EvalError> {
     let t0 = Instant::now();
@@ -245,7 +296,10 @@ fn run_rollouts(
     // computation (the reset, the physics and each row's actions are
     // functions of their inputs alone): simulate rollout 0 of each state and
     // record it under every rollout index.
-    let sim_per_ctx = if policy.deterministic() && !opts.simulate_every_rollout {
+    // Observation noise is drawn per rollout: the rollouts of one state
+    // differ even for a deterministic policy.
+    let noisy = perturb.is_some_and(|p| p.noise.is_some());
+    let sim_per_ctx = if policy.deterministic() && !opts.simulate_every_rollout && !noisy {
         1
     } else {
         per_ctx
@@ -270,13 +324,19 @@ fn run_rollouts(
     let live = sim_total.min(opts.max_live.max(1));
     let plan = Plan {
         contexts: (0..n_ctx)
-            .map(|i| set.get(i).cloned().unwrap_or(Value::Null))
+            .map(|i| {
+                let c = set.get(i).cloned().unwrap_or(Value::Null);
+                match perturb {
+                    Some(p) => p.context(&c),
+                    None => c,
+                }
+            })
             .collect(),
         ctx_range: ctx_range.clone(),
         per_ctx,
         sim_per_ctx,
     };
-    let mut lockstep = Lockstep::new(task, policy, opts, plan, live)?;
+    let mut lockstep = Lockstep::new(task, policy, opts, plan, live, perturb)?;
     let started = lockstep.start_all()?;
     policy.reset(&started)?;
     while lockstep.live() {
@@ -314,6 +374,7 @@ fn run_rollouts(
         seed: opts.seed,
         simulated_once: sim_per_ctx < per_ctx,
         build: opts.build.clone(),
+        perturbation: perturb.map(|p| p.perturbation.clone()),
     };
     timing.total_s = t0.elapsed().as_secs_f64();
     timing.step_cpu_s = slots.iter().map(|s| s.step_cpu_s).sum();
@@ -337,7 +398,21 @@ fn run_rollouts(
 /// action from the policy still fails it.
 fn step_slot(s: &mut Slot, record_paths: bool, every_frame: bool) -> Result<bool, EvalError> {
     let (id, ctx, _) = s.rollout.expect("filtered to live slots");
-    let action = s.queue.pop_front().unwrap_or_default();
+    let issued = s.queue.pop_front().unwrap_or_default();
+    // Latency: the environment gets the action issued `latency` steps ago
+    // (the hold action before the first arrives); the policy's own memory
+    // of its actions (`executed`) keeps what it issued.
+    let action = match s.perturb.as_deref() {
+        Some(p) if p.latency > 0 => {
+            s.in_flight.push_back(issued.clone());
+            if s.in_flight.len() > p.latency {
+                s.in_flight.pop_front().unwrap_or_default()
+            } else {
+                p.hold.clone()
+            }
+        }
+        _ => issued.clone(),
+    };
     // The frame this step renders is pushed now; the next query comes after
     // the `queue.len()` actions still queued, each pushing one more frame,
     // and reads the k newest: this one only if fewer than k are queued.
@@ -376,15 +451,25 @@ fn step_slot(s: &mut Slot, record_paths: bool, every_frame: bool) -> Result<bool
         if s.executed.len() == s.prev_cap {
             s.executed.pop_front();
         }
-        s.executed.push_back(action);
+        s.executed.push_back(issued);
     }
-    s.history.push(&s.env.policy_obs())?;
+    s.history.push(&observed(s, id))?;
     push_images(s)?;
     if record_paths {
         let p = s.env.sim.tcp_pos();
         s.path.push([p[0] as f32, p[1] as f32]);
     }
     Ok(out.done)
+}
+
+/// The policy's observation of slot `s` (rollout `id`) now: the env's, with
+/// the observation noise of a perturbation.
+fn observed(s: &Slot, id: usize) -> Vec<f32> {
+    let mut obs = s.env.policy_obs();
+    if let Some(noise) = s.perturb.as_deref().and_then(|p| p.noise.as_ref()) {
+        noise.apply(s.seed, id as u64, s.env.steps() as u64, &mut obs);
+    }
+    obs
 }
 
 /// Appends the last `n` executed actions of the slot (oldest first) to `out`,

@@ -18,6 +18,7 @@ pub mod job;
 #[allow(unsafe_code)]
 pub mod mujoco;
 pub mod open_loop;
+pub mod perturb;
 pub mod replay_input;
 pub mod robot;
 #[cfg(feature = "engine")]

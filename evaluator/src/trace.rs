@@ -57,6 +57,8 @@ pub enum ReplayError {
     Render(#[from] crate::mujoco::MjError),
     #[error("{0}")]
     Output(String),
+    #[error(transparent)]
+    Perturbation(#[from] crate::perturb::PerturbError),
 }
 
 /// What replaying one record gave, and where it differs from the record.
@@ -87,10 +89,17 @@ impl ReplayCheck {
 /// Loads the task as the record's evaluation did (observation type and robot
 /// look: physics is the same in every look, the video draws it as the
 /// evaluation's cameras did).
+/// A result of the robustness track gets its perturbation's task (the
+/// dynamics axis changes the model), its suite checked against the sha256
+/// the manifest records.
 pub fn load_task(manifest: &ProtocolManifest) -> Result<LoadedTask, ReplayError> {
-    Ok(match (manifest.obs_type, manifest.robot_look) {
+    let task = match (manifest.obs_type, manifest.robot_look) {
         (ObsType::Image, Some(look)) => LoadedTask::load_look(manifest.task, ObsType::Image, look)?,
         (obs, _) => LoadedTask::load_obs(manifest.task, obs)?,
+    };
+    Ok(match &manifest.perturbation {
+        Some(p) => crate::perturb::Active::new(p, manifest.task)?.task(&task)?,
+        None => task,
     })
 }
 
@@ -131,6 +140,15 @@ pub fn replay(
             set.len()
         ))
     })?;
+    // A shifted start (robustness track) is recomputed from the suite.
+    let shifted;
+    let context = match &manifest.perturbation {
+        Some(p) => {
+            shifted = crate::perturb::Active::new(p, manifest.task)?.context(context);
+            &shifted
+        }
+        None => context,
+    };
     let t = trace.unpack().map_err(|e| bad(e.to_string()))?;
     if t.act_dim != task.def.act_dim() {
         return Err(bad(format!(

@@ -25,6 +25,7 @@
 
 mod bootstrap;
 pub mod compare;
+pub mod robustness;
 pub mod sequential;
 pub mod shard;
 pub(crate) use bootstrap::bias_corrected_interval;

@@ -8,6 +8,7 @@ pub mod behaviour;
 pub mod fidelity;
 pub mod job;
 pub mod paper;
+pub mod perturbation;
 pub mod results;
 pub mod rollout;
 pub mod shard;

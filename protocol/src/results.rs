@@ -42,6 +42,11 @@ pub struct ProtocolManifest {
     /// before builds were identified (evaluator 0.1.0).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub build: Option<BuildIdentity>,
+    /// The robustness track's perturbation this result ran under (suite file
+    /// and sha256, axis, level, setting); absent for a plain evaluation,
+    /// which is every axis's level 0 (issue 40, docs/robustness.md).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub perturbation: Option<crate::perturbation::Perturbation>,
 }
 
 /// Which build made a result, beyond `evaluator_version`, `mujoco_version`

@@ -287,6 +287,7 @@ fn fake_result(job: &Job) -> EvalResult {
             seed: job.seed,
             simulated_once: false,
             build: None,
+            perturbation: None,
         },
         metrics: Metrics {
             success_rate: zero,

@@ -46,6 +46,7 @@ fn result_line(task: TaskId) -> String {
             seed: 0,
             simulated_once: false,
             build: None,
+            perturbation: None,
         },
         metrics: Metrics {
             success_rate: est(0.5),
@@ -280,6 +281,7 @@ async fn stacking_levels_are_stored_and_shown_each_with_its_own_numbers(b: Backe
             seed: 0,
             simulated_once: false,
             build: None,
+            perturbation: None,
         },
         metrics: ev.metrics.clone(),
         per_context: ev.per_context.clone(),

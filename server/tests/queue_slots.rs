@@ -58,6 +58,7 @@ fn result_line_once(once: bool) -> String {
             seed: 0,
             simulated_once: once,
             build: None,
+            perturbation: None,
         },
         metrics: ev.metrics,
         per_context: ev.per_context,

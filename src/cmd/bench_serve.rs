@@ -256,6 +256,7 @@ fn result_480() -> anyhow::Result<EvalResult> {
             seed: 0,
             simulated_once: false,
             build: None,
+            perturbation: None,
         },
         metrics: ev.metrics,
         per_context: ev.per_context,

@@ -59,6 +59,11 @@ pub struct Args {
     /// server refuses those for submitted endpoints).
     #[command(flatten)]
     pub limits: super::limits::LimitArgs,
+    /// `robustness`: also run every level of the task's perturbation suite
+    /// (`assets/robustness/`) against level 0, the plain evaluation, and
+    /// print the paired drops per axis and level (docs/robustness.md).
+    #[arg(long, value_name = "robustness")]
+    pub suite: Option<String>,
     /// Accepted and ignored: `d3il eval` connects to loopback and private
     /// addresses without it (command lines of older versions keep working).
     #[arg(long, hide = true)]
@@ -305,7 +310,7 @@ pub fn sandboxed(
 /// endpoint is connected to after the fingerprint instead: a connection left
 /// idle for a minute can be closed by the server's keep-alive (its URL was
 /// checked and its host resolved in [`build_job`]).
-pub fn load_then_fingerprint(
+pub pub fn load_then_fingerprint(
     args: &Args,
     job: &mut Job,
 ) -> anyhow::Result<(
@@ -326,6 +331,9 @@ pub fn load_then_fingerprint(
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
+    if let Some(suite) = &args.suite {
+        return super::robustness::run(&args, suite);
+    }
     let mut job = build_job(&args)?;
     if let Some(shard) = args.shard {
         return run_shard(&args, &mut job, shard);

@@ -18,6 +18,7 @@ pub mod limits;
 pub mod merge;
 pub mod render;
 pub mod replay;
+pub mod robustness;
 pub mod serve;
 pub mod submit;
 pub mod tables;

@@ -42,6 +42,11 @@ pub struct Args {
     /// Side of each camera's picture in the video, pixels.
     #[arg(long, default_value_t = 320)]
     pub video_size: usize,
+    /// With --result of a robustness document (`d3il eval --suite
+    /// robustness --json`): the level whose rollout to replay, `AXIS/LEVEL`
+    /// (e.g. `latency/2`; `AXIS/0` is the control).
+    #[arg(long, requires = "result")]
+    pub level: Option<String>,
     /// With --result: print the replay's check as JSON instead of text.
     #[arg(long)]
     pub json: bool,
@@ -69,7 +74,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             if args.video_size == 0 {
                 bail!("--video-size must be at least 1 pixel (default 320)");
             }
-            replay_record(&read(result)?, n, args.video.as_deref(), args.video_size, args.json)
+            let mut text = read(result)?;
+            if let Some(level) = &args.level {
+                text = super::robustness::level_text(&text, level)?;
+            }
+            replay_record(&text, n, args.video.as_deref(), args.video_size, args.json)
         }
         _ => bail!(
             "give either --result out.json --rollout N (a stored rollout) or --task T --input ep.json (actions)"

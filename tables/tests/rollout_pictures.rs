@@ -456,6 +456,7 @@ fn start_states_come_from_each_initial_states_first_trace() {
             seed: 0,
             simulated_once: true,
             build: None,
+            perturbation: None,
         },
         metrics: Metrics {
             success_rate: est,

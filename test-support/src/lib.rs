@@ -212,6 +212,7 @@ pub fn test_manifest(task: TaskId, protocol: ProtocolKind) -> ProtocolManifest {
         seed: 0,
         simulated_once: false,
         build: None,
+        perturbation: None,
     }
 }
 

@@ -6,7 +6,10 @@
 //! live rollout in parallel, **record** the finished ones and start pending
 //! rollouts in their slots. [`super::run_rollouts`] strings them together.
 
-use super::{push_images, step_slot, write_prev_actions, EvalError, EvalOptions, Slot, Timing};
+use super::{
+    observed, push_images, step_slot, write_prev_actions, EvalError, EvalOptions, Slot, Timing,
+};
+use crate::perturb::Active;
 use crate::tasks::LoadedTask;
 use d3il_policy::{validate_actions, ActionChunks, HistoryBuffer, Policy, PolicyShape, Query};
 use d3il_protocol::{Ending, ObsType, RolloutRecord, TaskId};
@@ -72,6 +75,7 @@ impl<'a> Lockstep<'a> {
         opts: &'a EvalOptions,
         plan: Plan,
         live: usize,
+        perturb: Option<&std::sync::Arc<Active>>,
     ) -> Result<Self, EvalError> {
         let shape = policy.shape();
         let spec = task.spec();
@@ -98,6 +102,9 @@ impl<'a> Lockstep<'a> {
                 step_cpu_s: 0.0,
                 failure: None,
                 trace: None,
+                perturb: perturb.cloned(),
+                in_flight: VecDeque::new(),
+                seed: opts.seed,
             });
         }
         let total = plan.total();
@@ -158,9 +165,10 @@ impl<'a> Lockstep<'a> {
             // in which order rollouts ran).
             images.reset();
         }
-        slot.history.push(&slot.env.policy_obs())?;
+        slot.history.push(&observed(slot, id))?;
         push_images(slot)?;
         slot.queue.clear();
+        slot.in_flight.clear();
         slot.executed.clear();
         slot.path.clear();
         slot.failure = None;
@@ -402,7 +410,7 @@ mod tests {
             per_ctx: 2,
             sim_per_ctx: 1,
         };
-        let mut ls = Lockstep::new(&task, &policy, &opts, plan, 2).unwrap();
+        let mut ls = Lockstep::new(&task, &policy, &opts, plan, 2, None).unwrap();
         // Global ids: initial state × rollouts per state + index.
         let started = ls.start_all().unwrap();
         assert_eq!(started, vec![0, 2]);

@@ -355,6 +355,71 @@ impl Model {
         Ok(self.jnt_dofadr()[self.id(ObjKind::Joint, joint)?] as usize)
     }
 
+    model_slice!(
+        /// Body id of each geom.
+        geom_bodyid, geom_bodyid, i32, |m: &ffi::mjModel| m.ngeom);
+    model_slice!(
+        /// Geom contact priorities.
+        geom_priority, geom_priority, i32, |m: &ffi::mjModel| m.ngeom);
+    model_slice!(
+        /// Geom friction (sliding, torsional, rolling; 3 per geom).
+        geom_friction, geom_friction, f64, |m: &ffi::mjModel| 3 * m.ngeom);
+
+    /// Changes the dynamics of a model that no `Data` uses yet (the
+    /// robustness track's dynamics axis): scales the listed bodies' mass and
+    /// inertia by `mass`, gives their geoms `friction` (sliding, as
+    /// `(geom, value)`) and `priority` (`(geom, value)`), then recomputes the
+    /// constants MuJoCo derives from masses (`mj_setConst`). `Arc::get_mut`
+    /// on the shared model is what makes "no `Data` uses it" hold.
+    pub fn perturb_dynamics(
+        &mut self,
+        bodies: &[usize],
+        mass: f64,
+        friction: &[(usize, f64)],
+        priority: &[(usize, i32)],
+    ) -> Result<(), MjError> {
+        let (nbody, ngeom) = (self.raw().nbody as usize, self.raw().ngeom as usize);
+        if let Some(b) = bodies.iter().find(|&&b| b >= nbody) {
+            return Err(MjError::Input(format!("body id {b} out of range")));
+        }
+        if let Some(g) = friction
+            .iter()
+            .map(|f| f.0)
+            .chain(priority.iter().map(|p| p.0))
+            .find(|&g| g >= ngeom)
+        {
+            return Err(MjError::Input(format!("geom id {g} out of range")));
+        }
+        // SAFETY: `&mut self` is the only reference to the model; the ids
+        // were checked against the arrays' lengths above.
+        unsafe {
+            let m = self.ptr.as_mut();
+            for &b in bodies {
+                *m.body_mass.add(b) *= mass;
+                for k in 0..3 {
+                    *m.body_inertia.add(3 * b + k) *= mass;
+                }
+            }
+            for &(g, f) in friction {
+                *m.geom_friction.add(3 * g) = f;
+            }
+            for &(g, p) in priority {
+                *m.geom_priority.add(g) = p;
+            }
+        }
+        install_handlers();
+        let ptr = self.ptr.as_ptr();
+        guarded(|| unsafe {
+            // SAFETY: a scratch mjData of this model, deleted right after
+            // mj_setConst has used it.
+            let d = ffi::mj_makeData(ptr);
+            if !d.is_null() {
+                ffi::mj_setConst(ptr, d);
+                ffi::mj_deleteData(d);
+            }
+        })
+    }
+
     /// Pointer for the rendering module (same crate, still inside the binding).
     #[allow(dead_code)]
     pub(crate) fn as_ptr(&self) -> *const ffi::mjModel {

@@ -1,0 +1,478 @@
+//! The robustness track's perturbations (issue 40, docs/robustness.md): the
+//! fixed, versioned suite files (`assets/robustness/<task>-v<N>.json`, sha256
+//! checked at load like the initial-state sets) and what each axis does.
+//!
+//! Every axis leaves the initial states, the seed and the rollout ids alone,
+//! so a perturbed level gets the same policy noise as level 0 (the ONNX
+//! `noise` input is a function of seed, rollout id and step) and its drop is
+//! paired by initial state:
+//!
+//! * `start_shift`: each listed coordinate of a test state is pushed away
+//!   from the centre `c` of the task's sampling range, `x' = c + (x − c)(1 +
+//!   w)`: the range widened by `w`, and every shifted state the twin of the
+//!   level-0 state it came from (the same "seed" at every level).
+//! * `obs_noise`: Gaussian noise on the environment observation (not on the
+//!   previous-command prefix, which is the controller's own variable), in
+//!   task units: metres on positions, radians on yaw angles (applied to the
+//!   angle behind a `tan(yaw)` or a quaternion); drawn from a ChaCha8 stream
+//!   keyed by (seed, rollout id, step) and a tag of its own, so it is
+//!   reproducible and independent of the policy's noise.
+//! * `latency`: the action the policy gives at step t is applied at step
+//!   t + L; the first L steps apply the hold action (a zero delta: stay at
+//!   the previous command). The record holds what the environment received.
+//! * `dynamics`: the boxes' mass and inertia scaled, and the box–table
+//!   sliding friction scaled: MuJoCo takes a contact's friction from the geom
+//!   of higher priority (the larger of the two at equal priority), so the
+//!   boxes' geoms get priority over the table and the scaled value of the
+//!   friction the contact had.
+
+use crate::mujoco::ObjKind;
+use crate::tasks::{CommandKind, LoadedTask, TaskError};
+use d3il_protocol::perturbation::{Axis, LevelSetting, Perturbation};
+use d3il_protocol::{ObsType, TaskId};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use serde::{Deserialize, Serialize};
+use serde_json::Value;
+use std::sync::Arc;
+
+const ALIGNING_V1: &[u8] = include_bytes!("../../assets/robustness/aligning-v1.json");
+pub const ALIGNING_V1_SHA256: &str =
+    "75e2dcd985e67adf8516cc171e23ae9377b28271798905e11f660a3bdb0da246";
+const PUSHING_V1: &[u8] = include_bytes!("../../assets/robustness/pushing-v1.json");
+pub const PUSHING_V1_SHA256: &str =
+    "25899d09f088d638302084e768b9366bf56626a43f58031f02c9d33ce7c462a1";
+
+/// Every committed suite: (task, file name, bytes, expected sha256).
+const SUITES: &[(TaskId, &str, &[u8], &str)] = &[
+    (
+        TaskId::Aligning,
+        "aligning-v1.json",
+        ALIGNING_V1,
+        ALIGNING_V1_SHA256,
+    ),
+    (
+        TaskId::Pushing,
+        "pushing-v1.json",
+        PUSHING_V1,
+        PUSHING_V1_SHA256,
+    ),
+];
+
+#[derive(Debug, thiserror::Error)]
+pub enum PerturbError {
+    #[error("robustness suite `{name}`: {message}")]
+    Suite { name: String, message: String },
+    #[error("task {0} has no robustness suite yet (suites: {1})")]
+    NoSuite(TaskId, String),
+    #[error(transparent)]
+    Task(#[from] TaskError),
+}
+
+/// A coordinate of the initial state that `start_shift` moves.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct ShiftField {
+    /// Context field, e.g. `box_xy_deg`.
+    pub field: String,
+    /// 0 = x, 1 = y.
+    pub index: usize,
+    /// The task's sampling range of that coordinate (docs/original-d3il.md).
+    pub range: [f64; 2],
+}
+
+/// How noise enters one entry of the environment observation.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ObsUnit {
+    /// A position in metres: `+ σ_position · z`.
+    Position,
+    /// `tan(yaw)`: the yaw gets `σ_angle · z`.
+    TanYaw,
+    /// A quaternion (w, x, y, z; four entries): turned about the vertical
+    /// by `σ_angle · z`.
+    QuatYaw,
+    /// Left exact.
+    Exact,
+}
+
+impl ObsUnit {
+    fn width(self) -> usize {
+        match self {
+            ObsUnit::QuatYaw => 4,
+            _ => 1,
+        }
+    }
+}
+
+/// One axis of a suite and its levels (1, 2, ...; level 0 is implicit).
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct SuiteAxis {
+    pub axis: Axis,
+    /// Why these levels.
+    #[serde(default)]
+    pub rationale: String,
+    pub levels: Vec<LevelSetting>,
+}
+
+/// A suite file as committed.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct SuiteFile {
+    pub task: TaskId,
+    pub version: String,
+    pub description: String,
+    /// The coordinates `start_shift` moves, with their sampling ranges.
+    pub start_shift_fields: Vec<ShiftField>,
+    /// The environment observation entry by entry (a `quat_yaw` covers four).
+    pub obs_units: Vec<ObsUnit>,
+    /// The bodies `dynamics` changes, and the table geom whose contacts
+    /// with them get the scaled friction.
+    pub dynamics_bodies: Vec<String>,
+    pub table_geom: String,
+    pub axes: Vec<SuiteAxis>,
+}
+
+/// A verified suite.
+#[derive(Debug, Clone)]
+pub struct Suite {
+    pub name: String,
+    pub sha256: String,
+    pub file: Arc<SuiteFile>,
+}
+
+impl Suite {
+    /// The committed suite of `task`, sha256 checked.
+    pub fn for_task(task: TaskId) -> Result<Suite, PerturbError> {
+        let &(_, name, bytes, sha) = SUITES.iter().find(|s| s.0 == task).ok_or_else(|| {
+            PerturbError::NoSuite(
+                task,
+                SUITES
+                    .iter()
+                    .map(|s| s.0.to_string())
+                    .collect::<Vec<_>>()
+                    .join(", "),
+            )
+        })?;
+        Suite::verify(name, bytes, sha)
+    }
+
+    /// The committed suite named `name` (as a manifest records it) of `task`.
+    pub fn named(task: TaskId, name: &str) -> Result<Suite, PerturbError> {
+        let &(_, name, bytes, sha) = SUITES
+            .iter()
+            .find(|s| s.0 == task && s.1 == name)
+            .ok_or_else(|| PerturbError::Suite {
+                name: name.into(),
+                message: format!("this build has no such robustness suite for {task}"),
+            })?;
+        Suite::verify(name, bytes, sha)
+    }
+
+    /// Parses `bytes` after checking their sha256 against `expected_sha256`.
+    pub fn verify(name: &str, bytes: &[u8], expected_sha256: &str) -> Result<Suite, PerturbError> {
+        let bad = |message: String| PerturbError::Suite {
+            name: name.into(),
+            message,
+        };
+        let got = crate::tasks::contexts::sha256_hex(bytes);
+        if got != expected_sha256 {
+            return Err(bad(format!(
+                "sha256 is {got} but this evaluator expects {expected_sha256}; the file was modified. \
+                 Restore it from the repository (git checkout assets/robustness/{name}) — suites are versioned and never edited in place: a new version is a new file"
+            )));
+        }
+        let file: SuiteFile = serde_json::from_slice(bytes)
+            .map_err(|e| bad(format!("not a valid suite file: {e}")))?;
+        let suite = Suite {
+            name: name.into(),
+            sha256: got,
+            file: Arc::new(file),
+        };
+        suite.check().map_err(bad)?;
+        Ok(suite)
+    }
+
+    fn check(&self) -> Result<(), String> {
+        let def = crate::tasks::task_def(self.file.task).map_err(|e| e.to_string())?;
+        let width: usize = self.file.obs_units.iter().map(|u| u.width()).sum();
+        if width != def.env_obs_dim() {
+            return Err(format!(
+                "obs_units cover {width} observation entries but {} observes {}",
+                self.file.task,
+                def.env_obs_dim()
+            ));
+        }
+        for f in &self.file.start_shift_fields {
+            if f.index > 1 || !f.field.ends_with("_xy_deg") || f.range[0] >= f.range[1] {
+                return Err(format!(
+                    "start_shift field {}[{}] must be the x or y of a `_xy_deg` pose with an increasing range",
+                    f.field, f.index
+                ));
+            }
+        }
+        for a in &self.file.axes {
+            for (i, l) in a.levels.iter().enumerate() {
+                let ok = match a.axis {
+                    Axis::StartShift => l.widen.is_some_and(|w| w > 0.0),
+                    Axis::ObsNoise => {
+                        l.position_m.is_some_and(|v| v >= 0.0)
+                            && l.angle_rad.is_some_and(|v| v >= 0.0)
+                    }
+                    Axis::Latency => {
+                        l.steps.is_some_and(|s| s > 0)
+                            && def.command_kind() != CommandKind::JointDelta
+                    }
+                    Axis::Dynamics => {
+                        l.mass.is_some_and(|m| m > 0.0) && l.friction.is_some_and(|f| f > 0.0)
+                    }
+                };
+                if !ok {
+                    return Err(format!(
+                        "level {} of axis {} does not give what the axis needs (start_shift: widen > 0; obs_noise: position_m and angle_rad ≥ 0; latency: steps > 0 on a delta-command task; dynamics: mass and friction > 0)",
+                        i + 1,
+                        a.axis
+                    ));
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// Every perturbed level of the suite, axis by axis in the file's order.
+    pub fn perturbations(&self) -> Vec<Perturbation> {
+        self.file
+            .axes
+            .iter()
+            .flat_map(|a| {
+                a.levels.iter().enumerate().map(|(i, l)| Perturbation {
+                    suite: self.name.clone(),
+                    suite_sha256: self.sha256.clone(),
+                    axis: a.axis,
+                    level: i + 1,
+                    setting: l.clone(),
+                })
+            })
+            .collect()
+    }
+}
+
+/// A perturbation ready to act: what the engine and a replay need.
+#[derive(Debug, Clone)]
+pub struct Active {
+    pub perturbation: Perturbation,
+    pub suite: Suite,
+    /// Env steps by which actions are late (0: none).
+    pub latency: usize,
+    /// What the environment receives while the first actions are in flight.
+    pub hold: Vec<f32>,
+    pub noise: Option<ObsNoise>,
+}
+
+impl Active {
+    /// `perturbation` (as a manifest records it) against its suite: the
+    /// suite must be this build's file with that sha256.
+    pub fn new(perturbation: &Perturbation, task: TaskId) -> Result<Active, PerturbError> {
+        let suite = Suite::named(task, &perturbation.suite)?;
+        if suite.sha256 != perturbation.suite_sha256 {
+            return Err(PerturbError::Suite {
+                name: suite.name,
+                message: format!(
+                    "the result was made with the suite of sha256 {}, this build's has sha256 {}",
+                    perturbation.suite_sha256, suite.sha256
+                ),
+            });
+        }
+        let def = crate::tasks::task_def(task)?;
+        let s = &perturbation.setting;
+        let noise = (perturbation.axis == Axis::ObsNoise).then(|| ObsNoise {
+            units: suite.file.obs_units.clone(),
+            position_m: s.position_m.unwrap_or(0.0),
+            angle_rad: s.angle_rad.unwrap_or(0.0),
+            offset: def.cmd_dim(),
+        });
+        Ok(Active {
+            latency: match perturbation.axis {
+                Axis::Latency => s.steps.unwrap_or(0),
+                _ => 0,
+            },
+            hold: vec![0.0; def.act_dim()],
+            noise,
+            perturbation: perturbation.clone(),
+            suite,
+        })
+    }
+
+    /// The task as this perturbation simulates it: `task` itself, or for
+    /// `dynamics` a fresh compile of its scene with the changed masses and
+    /// friction (the scene file, hence `mjcf_sha256`, is the same).
+    pub fn task(&self, task: &LoadedTask) -> Result<LoadedTask, PerturbError> {
+        if task.obs_type != ObsType::State {
+            return Err(PerturbError::Suite {
+                name: self.suite.name.clone(),
+                message: "the robustness suites are for state policies; image axes (camera pose, lighting) are not built yet".into(),
+            });
+        }
+        if self.perturbation.axis != Axis::Dynamics {
+            return Ok(task.clone());
+        }
+        let mut fresh = LoadedTask::load_look(task.def.id(), task.obs_type, task.look)?;
+        let model = std::sync::Arc::get_mut(&mut fresh.model)
+            .expect("a freshly compiled model has no other user");
+        let s = &self.perturbation.setting;
+        let (mass, friction) = (s.mass.unwrap_or(1.0), s.friction.unwrap_or(1.0));
+        let file = &self.suite.file;
+        let mut bodies = vec![];
+        for b in &file.dynamics_bodies {
+            bodies.push(model.id(ObjKind::Body, b).map_err(TaskError::from)?);
+        }
+        let table = model
+            .id(ObjKind::Geom, &file.table_geom)
+            .map_err(TaskError::from)?;
+        let (mut frictions, mut priorities) = (vec![], vec![]);
+        if friction != 1.0 {
+            let (prio, fric) = (model.geom_priority(), model.geom_friction());
+            let (pt, ft) = (prio[table], fric[3 * table]);
+            for (g, &b) in model.geom_bodyid().iter().enumerate() {
+                if !bodies.contains(&(b as usize)) {
+                    continue;
+                }
+                let (pg, fg) = (prio[g], fric[3 * g]);
+                // The friction the box–table contact has now.
+                let mixed = match pg.cmp(&pt) {
+                    std::cmp::Ordering::Greater => fg,
+                    std::cmp::Ordering::Equal => fg.max(ft),
+                    std::cmp::Ordering::Less => ft,
+                };
+                frictions.push((g, mixed * friction));
+                priorities.push((g, pg.max(pt + 1)));
+            }
+        }
+        model
+            .perturb_dynamics(&bodies, mass, &frictions, &priorities)
+            .map_err(TaskError::from)?;
+        Ok(fresh)
+    }
+
+    /// The initial state as this perturbation starts it.
+    pub fn context(&self, context: &Value) -> Value {
+        match (self.perturbation.axis, self.perturbation.setting.widen) {
+            (Axis::StartShift, Some(w)) => shift_context(&self.suite.file, w, context),
+            _ => context.clone(),
+        }
+    }
+}
+
+/// `start_shift`: every listed coordinate pushed away from its range's
+/// centre by `widen` (see the module's documentation).
+pub fn shift_context(file: &SuiteFile, widen: f64, context: &Value) -> Value {
+    let mut out = context.clone();
+    if widen == 0.0 {
+        // `c + (x − c)` need not be `x` to the last bit.
+        return out;
+    }
+    for f in &file.start_shift_fields {
+        let c = 0.5 * (f.range[0] + f.range[1]);
+        if let Some(v) = out.get_mut(&f.field).and_then(|a| a.get_mut(f.index)) {
+            if let Some(x) = v.as_f64() {
+                *v = Value::from(c + (x - c) * (1.0 + widen));
+            }
+        }
+    }
+    out
+}
+
+/// `obs_noise` of one level.
+#[derive(Debug, Clone)]
+pub struct ObsNoise {
+    pub units: Vec<ObsUnit>,
+    pub position_m: f64,
+    pub angle_rad: f64,
+    /// Entries of the policy observation before the environment's (the
+    /// previous command), left exact.
+    pub offset: usize,
+}
+
+impl ObsNoise {
+    /// Adds the noise of (seed, rollout, step) to a policy observation. A
+    /// zero deviation leaves its entries untouched to the bit (`tan(atan(v))`
+    /// need not be `v`).
+    pub fn apply(&self, seed: u64, rollout: u64, step: u64, obs: &mut [f32]) {
+        let mut key = [0u8; 32];
+        key[0..8].copy_from_slice(&seed.to_le_bytes());
+        key[8..16].copy_from_slice(&rollout.to_le_bytes());
+        key[16..24].copy_from_slice(&step.to_le_bytes());
+        key[24..32].copy_from_slice(b"d3ilobsn");
+        let mut rng = ChaCha8Rng::from_seed(key);
+        let mut i = self.offset;
+        for &u in &self.units {
+            match u {
+                ObsUnit::Position if self.position_m > 0.0 => {
+                    obs[i] = (obs[i] as f64 + self.position_m * normal(&mut rng)) as f32;
+                }
+                ObsUnit::TanYaw if self.angle_rad > 0.0 => {
+                    let yaw = (obs[i] as f64).atan() + self.angle_rad * normal(&mut rng);
+                    obs[i] = yaw.tan() as f32;
+                }
+                ObsUnit::QuatYaw if self.angle_rad > 0.0 => {
+                    let e = self.angle_rad * normal(&mut rng);
+                    let (a, d) = ((0.5 * e).cos(), (0.5 * e).sin());
+                    let q: Vec<f64> = obs[i..i + 4].iter().map(|&v| v as f64).collect();
+                    // (a, 0, 0, d) ⊗ q: a turn about the world's vertical.
+                    let r = [
+                        a * q[0] - d * q[3],
+                        a * q[1] - d * q[2],
+                        a * q[2] + d * q[1],
+                        a * q[3] + d * q[0],
+                    ];
+                    for (o, v) in obs[i..i + 4].iter_mut().zip(r) {
+                        *o = v as f32;
+                    }
+                }
+                _ => {}
+            }
+            i += u.width();
+        }
+    }
+}
+
+/// A standard normal draw (Box–Muller, one per call).
+fn normal(rng: &mut ChaCha8Rng) -> f64 {
+    let u1: f64 = 1.0 - rng.gen::<f64>();
+    let u2: f64 = rng.gen::<f64>();
+    (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn committed_suites_load_and_a_changed_byte_is_refused_naming_the_hash() {
+        for &(task, name, bytes, sha) in SUITES {
+            let s = Suite::for_task(task).unwrap();
+            assert_eq!((s.name.as_str(), s.sha256.as_str()), (name, sha));
+            assert!(!s.perturbations().is_empty());
+            let mut changed = bytes.to_vec();
+            let at = changed.iter().position(|&b| b == b'5').unwrap();
+            changed[at] = b'6';
+            let e = Suite::verify(name, &changed, sha).unwrap_err().to_string();
+            let got = crate::tasks::contexts::sha256_hex(&changed);
+            assert!(
+                e.contains(&got) && e.contains(sha) && e.contains(name),
+                "{e}"
+            );
+        }
+    }
+
+    #[test]
+    fn start_shift_widens_about_the_range_centre() {
+        let s = Suite::for_task(TaskId::Pushing).unwrap();
+        let ctx =
+            serde_json::json!({"red_xy_deg": [0.5, -0.15, 10.0], "green_xy_deg": [0.6, 0.0, 5.0]});
+        let out = shift_context(&s.file, 1.0, &ctx);
+        // Red x range 0.4..0.5 (centre 0.45): 0.5 -> 0.55; y -0.15..0 -> -0.225.
+        let r = out["red_xy_deg"].as_array().unwrap();
+        assert!((r[0].as_f64().unwrap() - 0.55).abs() < 1e-12);
+        assert!((r[1].as_f64().unwrap() + 0.225).abs() < 1e-12);
+        assert_eq!(r[2], 10.0, "yaw is not shifted");
+    }
+}

@@ -1,0 +1,174 @@
+//! The robustness track (issue 40): perturbation suites, the perturbation a
+//! result was evaluated under (recorded in its protocol manifest, so that its
+//! rollouts replay), and the robustness document `d3il eval --suite` writes.
+//!
+//! A suite is a fixed, versioned file per task (`assets/robustness/`, sha256
+//! checked at load like the initial-state sets). It has axes, each with
+//! levels; level 0 of every axis is the standard protocol, which is the
+//! control arm: every level runs on the same initial states, with the same
+//! seed and rollout ids (so the same policy noise), and its drop is a paired
+//! difference against level 0.
+
+use crate::results::{Comparison, Estimate, EvalResult};
+use crate::TaskId;
+use serde::{Deserialize, Serialize};
+
+/// The axes of a suite.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Axis {
+    /// Object start poses pushed outwards: each sampled coordinate of the
+    /// initial state moved away from the centre of the task's sampling range
+    /// by the level's fraction (the range widened by it).
+    StartShift,
+    /// Gaussian noise on the state observation, in task units.
+    ObsNoise,
+    /// Each action applied a number of environment steps late.
+    Latency,
+    /// Box mass and box–table friction scaled.
+    Dynamics,
+}
+
+impl Axis {
+    pub const ALL: [Axis; 4] = [
+        Axis::StartShift,
+        Axis::ObsNoise,
+        Axis::Latency,
+        Axis::Dynamics,
+    ];
+
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Axis::StartShift => "start_shift",
+            Axis::ObsNoise => "obs_noise",
+            Axis::Latency => "latency",
+            Axis::Dynamics => "dynamics",
+        }
+    }
+}
+
+impl std::fmt::Display for Axis {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.as_str())
+    }
+}
+
+impl std::str::FromStr for Axis {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        Axis::ALL
+            .into_iter()
+            .find(|a| a.as_str() == s)
+            .ok_or_else(|| {
+                format!(
+                    "unknown axis `{s}`; the axes are {}",
+                    Axis::ALL.map(Axis::as_str).join(", ")
+                )
+            })
+    }
+}
+
+/// One level of an axis as the suite file states it. Only the fields of the
+/// level's axis are set.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+pub struct LevelSetting {
+    /// Short human label, e.g. `+50 %`, `5 mm / 2.9°`, `2 steps`, `mass ×2`.
+    pub label: String,
+    /// start_shift: fraction by which each sampling range is widened
+    /// (0.5 = +50 %: a coordinate at the range's edge moves half a
+    /// half-width further out).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub widen: Option<f64>,
+    /// obs_noise: standard deviation on positions, metres.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub position_m: Option<f64>,
+    /// obs_noise: standard deviation on yaw angles, radians.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub angle_rad: Option<f64>,
+    /// latency: env steps between the policy's action and its application.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub steps: Option<usize>,
+    /// dynamics: factor on the boxes' mass (and inertia).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub mass: Option<f64>,
+    /// dynamics: factor on the box–table sliding friction.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub friction: Option<f64>,
+}
+
+/// The perturbation a result was evaluated under (its protocol manifest's
+/// `perturbation`; absent for a plain evaluation, i.e. level 0). With the
+/// suite file it names, it is everything a replay needs besides the record.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Perturbation {
+    /// The suite file, e.g. `aligning-v1.json` (in `assets/robustness/`).
+    pub suite: String,
+    pub suite_sha256: String,
+    pub axis: Axis,
+    /// 1-based; level 0 is the standard protocol and has no perturbation.
+    pub level: usize,
+    pub setting: LevelSetting,
+}
+
+/// Format tag of [`RobustnessResult`].
+pub const ROBUSTNESS_FORMAT: &str = "d3il-robustness-v1";
+
+/// One perturbed level of a robustness evaluation.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct LevelResult {
+    pub axis: Axis,
+    pub level: usize,
+    pub setting: LevelSetting,
+    /// The level's evaluation (its manifest carries the perturbation, its
+    /// records replay with `d3il replay --result FILE --level AXIS/LEVEL`).
+    pub result: EvalResult,
+    /// Level 0 − this level, paired by initial state (`d3il compare`'s
+    /// machinery): success-rate drop and conditional-entropy change with
+    /// intervals and p-values.
+    pub paired: Comparison,
+    /// Success rate of this level over that of level 0 (None when level 0
+    /// has no success).
+    pub retained: Option<f64>,
+}
+
+/// The robustness score of one axis: success retained (a level's success
+/// rate over level 0's), averaged over the axis's levels, with a paired
+/// bootstrap interval over initial states.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct AxisScore {
+    pub axis: Axis,
+    /// None when level 0 has no success (nothing to retain).
+    pub score: Option<Estimate>,
+}
+
+/// What `d3il eval --suite robustness --json FILE` writes.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct RobustnessResult {
+    /// [`ROBUSTNESS_FORMAT`].
+    pub format: String,
+    pub task: TaskId,
+    pub suite: String,
+    pub suite_sha256: String,
+    /// Level 0: the plain evaluation, bit for bit.
+    pub control: EvalResult,
+    /// Every perturbed level, axis by axis in the suite's order.
+    pub levels: Vec<LevelResult>,
+    pub axes: Vec<AxisScore>,
+    /// Mean of the axes' scores, with its interval.
+    pub overall: Option<Estimate>,
+    pub resamples: usize,
+    pub confidence: f64,
+}
+
+impl RobustnessResult {
+    /// The evaluation of `axis`/`level` (level 0: the control).
+    pub fn level(&self, axis: Axis, level: usize) -> Option<&EvalResult> {
+        if level == 0 {
+            return Some(&self.control);
+        }
+        self.levels
+            .iter()
+            .find(|l| l.axis == axis && l.level == level)
+            .map(|l| &l.result)
+    }
+}

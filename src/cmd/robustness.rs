@@ -1,0 +1,233 @@
+//! `d3il eval --suite robustness`: the robustness track of issue 40. Runs
+//! level 0 (the plain evaluation, the control arm) and every level of the
+//! task's perturbation suite on the same initial states, seed and rollout
+//! ids, then prints per axis and level the paired drop against level 0 (the
+//! machinery of `d3il compare`), the entropies and the success retained, and
+//! the robustness score per axis and overall (docs/robustness.md).
+
+use super::eval::Args;
+use anyhow::{bail, Context};
+use d3il_evaluator::eval;
+use d3il_evaluator::perturb::Suite;
+use d3il_metrics::robustness::robustness_scores;
+use d3il_metrics::Bootstrap;
+use d3il_protocol::perturbation::{
+    Axis, AxisScore, LevelResult, RobustnessResult, ROBUSTNESS_FORMAT,
+};
+use d3il_protocol::{Comparison, Estimate, EvalResult};
+
+/// Resamples of the paired comparisons and of the scores' intervals (as
+/// `d3il compare`'s default).
+const RESAMPLES: usize = 2000;
+
+pub fn run(args: &Args, suite_name: &str) -> anyhow::Result<()> {
+    if suite_name != "robustness" {
+        bail!("--suite {suite_name}: the one suite is `robustness`");
+    }
+    if args.shard.is_some() {
+        bail!("--suite robustness runs whole evaluations; sharding a robustness run is not built yet (run it on one machine)");
+    }
+    if args.sandbox {
+        bail!("--suite robustness runs in process; the sandboxed worker does not take perturbations yet");
+    }
+    let suite = Suite::for_task(args.task)?;
+    let mut job = super::eval::build_job(args)?;
+    let (task, mut policy, info, opts) = super::eval::load_then_fingerprint(args, &mut job)?;
+    let levels = suite.perturbations();
+    // The count up front: every level records the protocol's rollouts; a
+    // deterministic policy simulates each state once, except under
+    // observation noise (it differs from rollout to rollout).
+    let set = task.def.context_set()?;
+    let (n_ctx, per_ctx) = eval::protocol_size(&task, opts.protocol, set.len());
+    let once = policy.deterministic() && !opts.simulate_every_rollout;
+    let per_level = n_ctx * per_ctx;
+    let simulated = |noisy: bool| {
+        if once && !noisy {
+            n_ctx
+        } else {
+            per_level
+        }
+    };
+    let sim_total: usize = simulated(false)
+        + levels
+            .iter()
+            .map(|p| simulated(p.axis == Axis::ObsNoise))
+            .sum::<usize>();
+    println!(
+        "robustness suite {} (sha256 {}): level 0 and {} perturbed levels on {} axes, each {} initial states × {} rollouts ({} protocol): {} rollouts recorded, {} simulated{}",
+        suite.name,
+        suite.sha256,
+        levels.len(),
+        suite.file.axes.len(),
+        n_ctx,
+        per_ctx,
+        opts.protocol.as_str(),
+        per_level * (levels.len() + 1),
+        sim_total,
+        if once {
+            " (deterministic policy: each initial state once, all rollouts under observation noise)"
+        } else {
+            ""
+        }
+    );
+    eprintln!("level 0 (standard protocol, the control arm)");
+    let mut progress = super::eval::progress_printer();
+    let (control, t) = eval::evaluate(&task, policy.as_mut(), &info, &opts, &mut progress)?;
+    super::eval::print_timing(&t);
+    let cfg = Bootstrap {
+        resamples: RESAMPLES,
+        confidence: 0.95,
+        seed: opts.seed,
+    };
+    let mut results: Vec<(
+        d3il_protocol::perturbation::Perturbation,
+        EvalResult,
+        Comparison,
+    )> = vec![];
+    for p in &levels {
+        eprintln!("{} level {} ({})", p.axis, p.level, p.setting.label);
+        let mut progress = super::eval::progress_printer();
+        let (r, t) =
+            eval::evaluate_perturbed(&task, policy.as_mut(), &info, &opts, p, &mut progress)?;
+        super::eval::print_timing(&t);
+        let paired = d3il_metrics::compare(&control, &r, &cfg)?;
+        results.push((p.clone(), r, paired));
+    }
+    let axes: Vec<Axis> = suite.file.axes.iter().map(|a| a.axis).collect();
+    let indexed: Vec<(usize, &[d3il_protocol::ContextResult])> = results
+        .iter()
+        .map(|(p, r, _)| {
+            let a = axes.iter().position(|&x| x == p.axis).unwrap_or(0);
+            (a, &r.per_context[..])
+        })
+        .collect();
+    let scores = robustness_scores(&control.per_context, &indexed, axes.len(), &cfg)?;
+    let doc = RobustnessResult {
+        format: ROBUSTNESS_FORMAT.into(),
+        task: args.task,
+        suite: suite.name.clone(),
+        suite_sha256: suite.sha256.clone(),
+        levels: results
+            .into_iter()
+            .zip(&scores.retained)
+            .map(|((p, result, paired), retained)| LevelResult {
+                axis: p.axis,
+                level: p.level,
+                setting: p.setting,
+                result,
+                paired,
+                retained: *retained,
+            })
+            .collect(),
+        axes: axes
+            .iter()
+            .zip(&scores.axes)
+            .map(|(&axis, score)| AxisScore {
+                axis,
+                score: *score,
+            })
+            .collect(),
+        overall: scores.overall,
+        control,
+        resamples: cfg.resamples,
+        confidence: cfg.confidence,
+    };
+    print!("{}", render(&doc));
+    if let Some(path) = &args.json {
+        std::fs::write(path, serde_json::to_vec_pretty(&doc)?)
+            .with_context(|| format!("writing {}", path.display()))?;
+        eprintln!("wrote {}", path.display());
+    }
+    Ok(())
+}
+
+fn interval(e: &Option<Estimate>) -> String {
+    match e {
+        Some(e) => format!("{:.3} [{:.3}, {:.3}]", e.value, e.ci_low, e.ci_high),
+        None => "— (no success at level 0)".into(),
+    }
+}
+
+/// The tables: one per axis, a row per level (level 0 first).
+pub fn render(doc: &RobustnessResult) -> String {
+    let c = &doc.control;
+    let m = &c.manifest;
+    let mut s = format!(
+        "robustness of {} ({} × {} rollouts, {} protocol, seed {}); suite {} (sha256 {})\n",
+        m.task,
+        m.n_contexts,
+        m.rollouts_per_context,
+        m.protocol.as_str(),
+        m.seed,
+        doc.suite,
+        doc.suite_sha256
+    );
+    let head = format!(
+        "{:<18} {:>7} {:>8} {:>19} {:>8} {:>7} {:>7} {:>8}\n",
+        "level", "success", "drop", "95% CI", "p", "H", "H|s0", "retained"
+    );
+    for a in &doc.axes {
+        s += &format!("\n{}: score {}\n", a.axis, interval(&a.score));
+        s += &head;
+        s += &format!(
+            "{:<18} {:>7.3} {:>8} {:>19} {:>8} {:>7.3} {:>7.3} {:>8}\n",
+            "0 (standard)",
+            c.metrics.success_rate.value,
+            "",
+            "",
+            "",
+            c.metrics.behaviour_entropy.value,
+            c.metrics.conditional_entropy.value,
+            "1"
+        );
+        for l in doc.levels.iter().filter(|l| l.axis == a.axis) {
+            let d = &l.paired.success_rate;
+            s += &format!(
+                "{:<18} {:>7.3} {:>+8.3} {:>+8.3} – {:<+8.3} {:>8.4} {:>7.3} {:>7.3} {:>8}\n",
+                format!("{} ({})", l.level, l.setting.label),
+                l.result.metrics.success_rate.value,
+                d.difference.value,
+                d.difference.ci_low,
+                d.difference.ci_high,
+                d.p_value,
+                l.result.metrics.behaviour_entropy.value,
+                l.result.metrics.conditional_entropy.value,
+                l.retained
+                    .map(|r| format!("{r:.3}"))
+                    .unwrap_or_else(|| "—".into())
+            );
+        }
+    }
+    s += &format!("\noverall robustness score: {}\n", interval(&doc.overall));
+    s += &format!(
+        "drop: level 0 − level, paired by initial state (`d3il compare`: bootstrap interval, randomisation-test p, {} resamples); H: behaviour entropy; H|s0: conditional behaviour entropy; retained: success rate over level 0's; score: retained averaged over the axis's levels (overall: over the axes), {:.0} % paired bootstrap interval\n",
+        doc.resamples,
+        doc.confidence * 100.0
+    );
+    s
+}
+
+/// The evaluation of level `spec` (`AXIS/LEVEL`, e.g. `latency/2`; level 0
+/// is the control) of a robustness document, as JSON for `d3il replay`.
+pub fn level_text(text: &str, spec: &str) -> anyhow::Result<String> {
+    let (axis, level) = spec
+        .split_once('/')
+        .with_context(|| format!("--level {spec}: give AXIS/LEVEL, e.g. latency/2"))?;
+    let axis: Axis = axis.parse().map_err(|e: String| anyhow::anyhow!(e))?;
+    let level: usize = level
+        .parse()
+        .with_context(|| format!("--level {spec}: the level is a number (0 is the control)"))?;
+    let doc: RobustnessResult = serde_json::from_str(text)
+        .context("--level reads a robustness document (`d3il eval --suite robustness --json`)")?;
+    let result = doc.level(axis, level).with_context(|| {
+        format!(
+            "the document has no level {level} of {axis}; it has levels {}",
+            doc.levels
+                .iter()
+                .map(|l| format!("{}/{}", l.axis, l.level))
+                .collect::<Vec<_>>()
+                .join(", ")
+        )
+    })?;
+    Ok(serde_json::to_string(result)?)
+}
