@@ -679,6 +679,45 @@ impl FixedPairedTest {
 /// The paired outcomes `(A succeeded, B succeeded)` of two finished
 /// evaluations on the same initial states, paired by (initial state,
 /// rollout), in that order; [`crate::compare::check_comparable`] first.
+///
+/// When neither result's outcome varies within any initial state
+/// (deterministic policies: their rollouts of a state are copies), the pairs
+/// are one per initial state (its first rollout), `per_state` true: copies
+/// are not independent evidence, and a test fed them would be
+/// overconfident.
+pub fn paired_outcomes_per_unit(
+    a: &d3il_protocol::EvalResult,
+    b: &d3il_protocol::EvalResult,
+) -> Result<(Vec<(bool, bool)>, bool), crate::MetricsError> {
+    let all = paired_outcomes(a, b)?;
+    let mut states: Vec<usize> = a.rollouts.iter().map(|r| r.context_index).collect();
+    states.sort_unstable();
+    Ok(one_pair_per_state_if_copies(&states, all))
+}
+
+/// `pairs[i]` belongs to initial state `states[i]` (sorted): one pair per
+/// state when every state's pairs are equal, else all of them.
+pub(crate) fn one_pair_per_state_if_copies(
+    states: &[usize],
+    pairs: Vec<(bool, bool)>,
+) -> (Vec<(bool, bool)>, bool) {
+    let mut groups: Vec<&[(bool, bool)]> = vec![];
+    let mut start = 0;
+    for i in 1..=states.len().min(pairs.len()) {
+        if i == states.len() || states[i] != states[start] {
+            groups.push(&pairs[start..i]);
+            start = i;
+        }
+    }
+    if groups.iter().all(|g| g.iter().all(|p| *p == g[0])) {
+        let firsts = groups.iter().map(|g| g[0]).collect();
+        (firsts, true)
+    } else {
+        (pairs, false)
+    }
+}
+
+/// [`paired_outcomes_per_unit`]'s pairs, one per rollout, always.
 pub fn paired_outcomes(
     a: &d3il_protocol::EvalResult,
     b: &d3il_protocol::EvalResult,

@@ -371,3 +371,21 @@ fn a_replay_stops_at_the_decision_in_a_seeded_order() {
     let r = replay(&same, 0.05, None, 0);
     assert_eq!((r.decision, r.pairs_used, r.p_value), (None, 50, 1.0));
 }
+
+#[test]
+fn copies_of_a_deterministic_rollout_are_one_pair_per_initial_state() {
+    let (tf, tt, ff) = ((true, false), (true, true), (false, false));
+    // Three states, two rollouts each, copies within every state.
+    let states = [0, 0, 1, 1, 2, 2];
+    let pairs = vec![tf, tf, tt, tt, ff, ff];
+    assert_eq!(
+        one_pair_per_state_if_copies(&states, pairs),
+        (vec![tf, tt, ff], true)
+    );
+    // One rollout of state 1 differs: every rollout is a pair.
+    let pairs = vec![tf, tf, tt, ff, ff, ff];
+    assert_eq!(
+        one_pair_per_state_if_copies(&states, pairs.clone()),
+        (pairs, false)
+    );
+}
