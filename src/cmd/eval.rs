@@ -310,7 +310,7 @@ pub fn sandboxed(
 /// endpoint is connected to after the fingerprint instead: a connection left
 /// idle for a minute can be closed by the server's keep-alive (its URL was
 /// checked and its host resolved in [`build_job`]).
-pub pub fn load_then_fingerprint(
+pub fn load_then_fingerprint(
     args: &Args,
     job: &mut Job,
 ) -> anyhow::Result<(
