@@ -128,6 +128,12 @@ impl Canary {
         self.state.read().unwrap_or_else(|e| e.into_inner()).clone()
     }
 
+    /// This build's physics fingerprint, once the canary has computed it
+    /// (the board's rows of other builds say so against it).
+    pub fn fingerprint(&self) -> Option<String> {
+        self.state().fingerprint().map(str::to_string)
+    }
+
     /// The identity the results of jobs handed out now record.
     pub fn build(&self) -> BuildIdentity {
         BuildIdentity {
@@ -155,9 +161,6 @@ impl Canary {
                     tracing::info!("drift canary passed: physics fingerprint {fingerprint}")
                 }
                 other => tracing::warn!("{}", other.summary()),
-            }
-            if let Some(fp) = state.fingerprint() {
-                crate::leaderboard::set_current_fingerprint(fp);
             }
             *me.state.write().unwrap_or_else(|e| e.into_inner()) = state;
             me.done.send_replace(true);

@@ -63,22 +63,12 @@ pub struct BoardRow {
     pub physics_fingerprint: Option<String>,
 }
 
-/// The physics fingerprint of this server's build, once its drift canary
-/// has run (`crate::canary`): rows made by other builds say so.
-static CURRENT_FINGERPRINT: std::sync::OnceLock<String> = std::sync::OnceLock::new();
-
-pub fn set_current_fingerprint(fp: &str) {
-    let _ = CURRENT_FINGERPRINT.set(fp.to_string());
-}
-
-pub fn current_fingerprint() -> Option<&'static str> {
-    CURRENT_FINGERPRINT.get().map(String::as_str)
-}
-
 /// Why an evaluated row made with `fingerprint` is not this build's (None:
-/// it is, or neither is known).
-pub fn other_build_note(fingerprint: Option<&str>) -> Option<String> {
-    match (fingerprint, current_fingerprint()) {
+/// it is, or neither is known). `current` is the physics fingerprint of the
+/// build showing the row, once known (a server's drift canary,
+/// `crate::canary::Canary::fingerprint`; None for `d3il tables`).
+pub fn other_build_note(fingerprint: Option<&str>, current: Option<&str>) -> Option<String> {
+    match (fingerprint, current) {
         (Some(f), Some(cur)) if f == cur => None,
         (Some(f), Some(cur)) => Some(format!(
             "other build: physics fingerprint {f}, this build's is {cur}"
@@ -99,15 +89,18 @@ impl BoardRow {
         }
     }
 
-    /// Evaluated rows of another build than this server's: why.
-    pub fn build_note(&self) -> Option<String> {
+    /// Evaluated rows of another build than the one with the `current`
+    /// physics fingerprint: why.
+    pub fn build_note(&self, current: Option<&str>) -> Option<String> {
         match self.source {
             Source::Reported => None,
-            Source::Evaluated => other_build_note(self.physics_fingerprint.as_deref()),
+            Source::Evaluated => other_build_note(self.physics_fingerprint.as_deref(), current),
         }
     }
 
-    pub fn to_cell(&self) -> ResultCell {
+    /// The row as a table cell, shown by the build with the `current`
+    /// physics fingerprint.
+    pub fn to_cell(&self, current: Option<&str>) -> ResultCell {
         ResultCell {
             table: self.paper_table.clone(),
             method: self.method.clone(),
@@ -125,7 +118,7 @@ impl BoardRow {
             robot_look: self.robot_look_note().map(|n| n.badge.to_string()),
             // Rows of another build are kept apart in the tables too, with
             // the reason in the row's annotation.
-            build: self.build_note(),
+            build: self.build_note(current),
         }
     }
 }
@@ -447,12 +440,14 @@ impl RankGroup {
         *self != RankGroup::Smoke
     }
 
-    pub fn heading(&self) -> String {
+    /// The group's heading on the board of the build with the `current`
+    /// physics fingerprint.
+    pub fn heading(&self, current: Option<&str>) -> String {
         match self {
             RankGroup::Evaluated(set, look, fingerprint) => {
                 let mut notes = vec![format!("initial states {set}")];
                 notes.extend(look.as_ref().map(|l| l.badge.to_string()));
-                notes.extend(other_build_note(fingerprint.as_deref()));
+                notes.extend(other_build_note(fingerprint.as_deref(), current));
                 format!("Evaluated here ({})", notes.join("; "))
             }
             RankGroup::Reported => "Reported in the D3IL paper".into(),
@@ -620,11 +615,11 @@ mod tests {
         assert_eq!(groups.len(), 3, "{groups:?}");
         // Drawn as the original: the plain heading, first.
         assert_eq!(
-            groups[0].0.heading(),
+            groups[0].0.heading(None),
             "Evaluated here (initial states pushing-v2.json)"
         );
         assert_eq!(groups[0].1[0].robot_look, Some(RobotLook::Meshes));
-        let headings: Vec<String> = groups[1..].iter().map(|g| g.0.heading()).collect();
+        let headings: Vec<String> = groups[1..].iter().map(|g| g.0.heading(None)).collect();
         assert!(
             headings.iter().any(|h| h.contains("primitive robot")),
             "{headings:?}"
@@ -645,5 +640,25 @@ mod tests {
         assert!(View::parse(Some("ablation"))
             .unwrap_err()
             .contains("data-fraction"));
+    }
+
+    /// The build showing a row is passed in (a server's canary), not kept in
+    /// a process-wide global: every combination, in one process.
+    #[test]
+    fn rows_of_other_builds_say_so_against_the_build_showing_them() {
+        assert_eq!(other_build_note(Some("a"), Some("a")), None);
+        assert_eq!(
+            other_build_note(Some("a"), Some("b")).as_deref(),
+            Some("other build: physics fingerprint a, this build's is b")
+        );
+        assert_eq!(
+            other_build_note(Some("a"), None).as_deref(),
+            Some("physics fingerprint a")
+        );
+        assert_eq!(
+            other_build_note(None, Some("b")).as_deref(),
+            Some("other build: made before builds were identified")
+        );
+        assert_eq!(other_build_note(None, None), None);
     }
 }

@@ -92,7 +92,7 @@ async fn results_of_different_fingerprints_are_never_ranked_together() {
 
     // d3il tables keeps the cells apart, with the reason in the row's
     // annotation (tables/tests/evaluated.rs: separate rows).
-    let cells = app.state.store.result_cells().await.expect("cells");
+    let cells = app.state.store.result_cells(None).await.expect("cells");
     let mine: Vec<&ResultCell> = cells.iter().filter(|c| c.method == "Mine").collect();
     assert_eq!(mine.len(), 3);
     let builds: Vec<Option<&str>> = mine.iter().map(|c| c.build.as_deref()).collect();

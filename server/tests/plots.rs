@@ -122,7 +122,7 @@ async fn served_plots_are_readable_and_colour_methods_as_the_cli_does() {
         "evaluated rows keep the method's colour"
     );
     // The CLI figure from the same database (what `d3il tables --figure` draws).
-    let cells = app.state.store.result_cells().await.unwrap();
+    let cells = app.state.store.result_cells(None).await.unwrap();
     let cli = parse(
         &render_figure(
             &cells,

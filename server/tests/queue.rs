@@ -156,7 +156,7 @@ async fn completed_job_is_stored_and_shown(b: Backend) {
     assert_eq!(s, 200);
     assert!(svg.contains("<svg"));
     // The tables' cells exclude quick-protocol runs.
-    let cells = app.state.store.result_cells().await.unwrap();
+    let cells = app.state.store.result_cells(None).await.unwrap();
     assert!(cells.iter().all(|c| c.method != "Fixture"));
 }
 

@@ -52,7 +52,7 @@ fn eval_result(task: TaskId, success: f64, cond: f64, paths: bool) -> EvalResult
 async fn paper_rows_load_once_and_match_the_embedded_cells(b: Backend) {
     let db = TestDb::new(b);
     let store = db.open().await;
-    let cells = store.result_cells().await.unwrap();
+    let cells = store.result_cells(None).await.unwrap();
     let paper = paper::load_embedded();
     assert_eq!(cells, paper.cells());
     assert_eq!(store.methods().await.unwrap().len(), 11);
@@ -60,7 +60,7 @@ async fn paper_rows_load_once_and_match_the_embedded_cells(b: Backend) {
     // A second start must not duplicate anything.
     let store = db.open().await;
     assert_eq!(
-        store.result_cells().await.unwrap().len(),
+        store.result_cells(None).await.unwrap().len(),
         paper.cells().len()
     );
     let bc = store.method_by_name("BC-MLP").await.unwrap().unwrap();
@@ -82,7 +82,7 @@ async fn evaluated_rows_aggregate_over_seeds_with_sample_std(b: Backend) {
         let r2 = eval_result(TaskId::Aligning, 0.0, 0.0, false);
         store.complete_job(job, sub, &r2, &[]).await.unwrap();
     }
-    let cells = store.result_cells().await.unwrap();
+    let cells = store.result_cells(None).await.unwrap();
     let mine: Vec<_> = cells.iter().filter(|c| c.method == "MyPolicy").collect();
     assert_eq!(mine.len(), 1);
     let c = mine[0];
@@ -122,7 +122,7 @@ async fn image_rows_keep_the_robot_look_their_manifests_record(b: Backend) {
     assert_eq!(rows, looks.map(|l| (l, 1)));
     // `d3il tables` keeps them apart too, labelled as on the board.
     let cells: Vec<Option<String>> = store
-        .result_cells()
+        .result_cells(None)
         .await
         .unwrap()
         .into_iter()
@@ -173,7 +173,7 @@ async fn duplicate_seed_is_refused_and_stacking_expands(b: Backend) {
     ]);
     let levels = result.metrics.stacking_levels.unwrap();
     store.complete_job(job, sub, &result, &[]).await.unwrap();
-    let cells = store.result_cells().await.unwrap();
+    let cells = store.result_cells(None).await.unwrap();
     let rows: Vec<_> = cells
         .iter()
         .filter(|c| c.method == "Stacker")
@@ -273,7 +273,7 @@ async fn stacking_results_stored_before_the_levels_share_one_entropy(b: Backend)
         )
         .await
         .unwrap();
-    let cells = store.result_cells().await.unwrap();
+    let cells = store.result_cells(None).await.unwrap();
     let rows: Vec<_> = cells
         .iter()
         .filter(|c| c.method == "OldStacker")

@@ -82,7 +82,11 @@ async fn render(args: &Args) -> anyhow::Result<String> {
         let title = format!("Avoiding: end-effector paths of submission {id}");
         return Ok(d3il_tables::render_avoiding_paths(&paths, &title)?);
     }
-    let cells = store.result_cells().await.context("reading result cells")?;
+    // No canary runs here: no row is called another build's.
+    let cells = store
+        .result_cells(None)
+        .await
+        .context("reading result cells")?;
     let methods = store.method_infos().await.context("reading methods")?;
     match (args.table, args.figure) {
         (Some(kind), _) => Ok(d3il_tables::render_table_with(

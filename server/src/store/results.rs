@@ -201,14 +201,15 @@ impl Store {
     /// Reported rows (as the paper printed them) and evaluated rows aggregated
     /// over training seeds (mean, sample std, n_seeds), for `d3il tables`.
     /// Only paper-protocol evaluations are included: quick-protocol runs are
-    /// smoke tests and do not belong in the paper's tables.
-    pub async fn result_cells(&self) -> Result<Vec<ResultCell>, StoreError> {
+    /// smoke tests and do not belong in the paper's tables. `current`: the
+    /// physics fingerprint of the build showing them (rows of others say so).
+    pub async fn result_cells(&self, current: Option<&str>) -> Result<Vec<ResultCell>, StoreError> {
         Ok(self
             .board_rows()
             .await?
             .iter()
             .filter(|r| r.source == Source::Reported || r.protocol == Some(ProtocolKind::Paper))
-            .map(BoardRow::to_cell)
+            .map(|r| r.to_cell(current))
             .collect())
     }
 

@@ -199,6 +199,7 @@ pub(super) async fn leaderboard(
     };
     let base = format!("/tasks/{}", task.slug());
     let rows = board_for(&state.store.board_rows().await?, task, obs);
+    let current = state.canary.fingerprint();
     let mut sections = vec![];
     for (title, rs) in by_title(rows) {
         let svg = figures::pareto_svg(
@@ -211,7 +212,7 @@ pub(super) async fn leaderboard(
             .map(|(g, mut rs)| {
                 sort_rows(&mut rs, key, desc);
                 Group {
-                    heading: g.heading(),
+                    heading: g.heading(current.as_deref()),
                     kind: match g {
                         RankGroup::Evaluated(..) => "evaluated",
                         RankGroup::Reported => "reported",

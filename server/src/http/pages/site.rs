@@ -197,7 +197,8 @@ pub(super) async fn home(
     Query(q): Query<HomeQuery>,
 ) -> Result<Html<String>, PageError> {
     let obs = obs_query(q.obs.as_deref())?;
-    let cells = state.store.result_cells().await?;
+    let current = state.canary.fingerprint();
+    let cells = state.store.result_cells(current.as_deref()).await?;
     let infos = state.store.method_infos().await?;
     let (blocks, caption, any_evaluated) =
         match d3il_tables::build_table(&cells, TableKind::Main, obs, SourceFilter::Both, &infos) {
