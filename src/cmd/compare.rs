@@ -111,11 +111,23 @@ fn sequential(a: &EvalResult, b: &EvalResult, args: &Args) -> anyhow::Result<()>
             );
         }
     }
-    let pairs = d3il_metrics::sequential::paired_outcomes(a, b)?;
+    let (pairs, per_state) = d3il_metrics::sequential::paired_outcomes_per_unit(a, b)?;
     let r = d3il_metrics::sequential::replay(&pairs, args.alpha, args.delta, args.seed);
     if args.json {
-        println!("{}", serde_json::to_string_pretty(&r)?);
+        let mut v = serde_json::to_value(&r)?;
+        v["pair"] = (if per_state {
+            "initial state"
+        } else {
+            "rollout"
+        })
+        .into();
+        println!("{}", serde_json::to_string_pretty(&v)?);
     } else {
+        if per_state {
+            println!(
+                "both policies did the same in every rollout of each initial state (deterministic): one pair per initial state"
+            );
+        }
         print!("{}", render_sequential(&r));
     }
     Ok(())
@@ -163,4 +175,30 @@ pub fn render_sequential(r: &d3il_metrics::sequential::Replay) -> String {
         r.pairs_used as f64 / r.pairs_total.max(1) as f64
     );
     s
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn the_sequential_report_says_when_and_what_it_decided_and_what_it_saved() {
+        let mut pairs = vec![(true, false); 40];
+        pairs.extend([(false, true); 5]);
+        pairs.extend([(true, true); 155]);
+        let r = d3il_metrics::sequential::replay(&pairs, 0.05, None, 3);
+        let text = super::render_sequential(&r);
+        let at = r.decided_at.unwrap();
+        assert!(
+            text.contains(&format!("decision: A better at pair {at} of 200")),
+            "{text}"
+        );
+        assert!(
+            text.contains(&format!("rollouts used: {} of 400", 2 * at)),
+            "{text}"
+        );
+        assert!(text.contains("anytime-valid p-value"), "{text}");
+        let none = d3il_metrics::sequential::replay(&[(true, true); 30], 0.05, Some(0.5), 0);
+        let text = super::render_sequential(&none);
+        assert!(text.contains("decision: "), "{text}");
+        assert!(text.contains("confidence sequence of A − B"), "{text}");
+    }
 }
