@@ -71,7 +71,10 @@ fn main() -> anyhow::Result<()> {
         Command::Render(a) => cmd::render::run(a),
         Command::Replay(a) => cmd::replay::run(a),
         Command::Verify(a) => cmd::verify::run(a),
-        Command::Eval(a) => cmd::eval::run(a),
+        Command::Eval(a) => match a.suite.clone() {
+            Some(suite) => cmd::robustness::run(&a, &suite),
+            None => cmd::eval::run(a),
+        },
         Command::Fidelity(a) => cmd::fidelity::run(a),
         Command::Tables(a) => cmd::tables::run(a),
         Command::Serve(a) => cmd::serve::run(a),

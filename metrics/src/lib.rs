@@ -28,6 +28,7 @@ pub mod compare;
 pub mod robustness;
 pub mod sequential;
 pub mod shard;
+pub mod sign_test;
 pub(crate) use bootstrap::bias_corrected_interval;
 pub use bootstrap::{bootstrap, bootstrap_all, Bootstrap, Statistic};
 #[cfg(test)]

@@ -1,6 +1,7 @@
 //! The robustness track (issue 40): perturbation suites, the perturbation a
 //! result was evaluated under (recorded in its protocol manifest, so that its
-//! rollouts replay), and the robustness document `d3il eval --suite` writes.
+//! rollouts replay); the document `d3il eval --suite` writes is
+//! [`crate::robustness`].
 //!
 //! A suite is a fixed, versioned file per task (`assets/robustness/`, sha256
 //! checked at load like the initial-state sets). It has axes, each with
@@ -9,8 +10,6 @@
 //! seed and rollout ids (so the same policy noise), and its drop is a paired
 //! difference against level 0.
 
-use crate::results::{Comparison, Estimate, EvalResult};
-use crate::TaskId;
 use serde::{Deserialize, Serialize};
 
 /// The axes of a suite.
@@ -108,67 +107,4 @@ pub struct Perturbation {
     /// 1-based; level 0 is the standard protocol and has no perturbation.
     pub level: usize,
     pub setting: LevelSetting,
-}
-
-/// Format tag of [`RobustnessResult`].
-pub const ROBUSTNESS_FORMAT: &str = "d3il-robustness-v1";
-
-/// One perturbed level of a robustness evaluation.
-#[derive(Debug, Clone, Serialize, Deserialize)]
-pub struct LevelResult {
-    pub axis: Axis,
-    pub level: usize,
-    pub setting: LevelSetting,
-    /// The level's evaluation (its manifest carries the perturbation, its
-    /// records replay with `d3il replay --result FILE --level AXIS/LEVEL`).
-    pub result: EvalResult,
-    /// Level 0 − this level, paired by initial state (`d3il compare`'s
-    /// machinery): success-rate drop and conditional-entropy change with
-    /// intervals and p-values.
-    pub paired: Comparison,
-    /// Success rate of this level over that of level 0 (None when level 0
-    /// has no success).
-    pub retained: Option<f64>,
-}
-
-/// The robustness score of one axis: success retained (a level's success
-/// rate over level 0's), averaged over the axis's levels, with a paired
-/// bootstrap interval over initial states.
-#[derive(Debug, Clone, Serialize, Deserialize)]
-pub struct AxisScore {
-    pub axis: Axis,
-    /// None when level 0 has no success (nothing to retain).
-    pub score: Option<Estimate>,
-}
-
-/// What `d3il eval --suite robustness --json FILE` writes.
-#[derive(Debug, Clone, Serialize, Deserialize)]
-pub struct RobustnessResult {
-    /// [`ROBUSTNESS_FORMAT`].
-    pub format: String,
-    pub task: TaskId,
-    pub suite: String,
-    pub suite_sha256: String,
-    /// Level 0: the plain evaluation, bit for bit.
-    pub control: EvalResult,
-    /// Every perturbed level, axis by axis in the suite's order.
-    pub levels: Vec<LevelResult>,
-    pub axes: Vec<AxisScore>,
-    /// Mean of the axes' scores, with its interval.
-    pub overall: Option<Estimate>,
-    pub resamples: usize,
-    pub confidence: f64,
-}
-
-impl RobustnessResult {
-    /// The evaluation of `axis`/`level` (level 0: the control).
-    pub fn level(&self, axis: Axis, level: usize) -> Option<&EvalResult> {
-        if level == 0 {
-            return Some(&self.control);
-        }
-        self.levels
-            .iter()
-            .find(|l| l.axis == axis && l.level == level)
-            .map(|l| &l.result)
-    }
 }

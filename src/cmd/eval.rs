@@ -330,10 +330,8 @@ pub fn load_then_fingerprint(
     Ok((task, policy, info, opts))
 }
 
+/// A plain evaluation (`--suite` runs go to `robustness::run`, see main.rs).
 pub fn run(args: Args) -> anyhow::Result<()> {
-    if let Some(suite) = &args.suite {
-        return super::robustness::run(&args, suite);
-    }
     let mut job = build_job(&args)?;
     if let Some(shard) = args.shard {
         return run_shard(&args, &mut job, shard);

@@ -11,9 +11,8 @@ use d3il_evaluator::eval;
 use d3il_evaluator::perturb::Suite;
 use d3il_metrics::robustness::robustness_scores;
 use d3il_metrics::Bootstrap;
-use d3il_protocol::perturbation::{
-    Axis, AxisScore, LevelResult, RobustnessResult, ROBUSTNESS_FORMAT,
-};
+use d3il_protocol::perturbation::Axis;
+use d3il_protocol::robustness::{AxisScore, LevelResult, RobustnessResult, ROBUSTNESS_FORMAT};
 use d3il_protocol::{Comparison, Estimate, EvalResult};
 
 /// Resamples of the paired comparisons and of the scores' intervals (as
