@@ -133,3 +133,29 @@ def test_export_check_evaluate_and_serve(family: str, tmp_path: Path):
         assert b and b.keys() <= a.keys()
         for ctx in b:
             assert max(abs(x - y) for x, y in zip(a[ctx], b[ctx], strict=True)) <= 1e-5, (ctx, a[ctx], b[ctx])
+
+
+def test_the_export_command_of_the_docs(tmp_path: Path):
+    """`d3il-client export --agent MODULE:NAME --task T --out F` as docs/export.md shows
+    it: checks, writes the file and its manifest, prints the summary; an object of no
+    known family is refused with the advice to serve it, and nothing is written.
+    """
+    out = tmp_path / "bc.onnx"
+    cmd = [sys.executable, "-m", "d3il_client.cli", "export", "--agent", MIMICS["bc"], "--task", "aligning"]
+    p = subprocess.run([*cmd, "--out", str(out), "--d3il", D3IL], capture_output=True, text=True, timeout=600)
+    assert p.returncode == 0, p.stderr
+    assert "d3il (tract) within" in p.stdout and out.exists() and out.with_suffix(".json").exists()
+    (tmp_path / "my_agents.py").write_text(
+        "class MyAgent:\n    def reset(self):\n        pass\n\n    def predict(self, obs):\n        return obs[:3]\n"
+    )
+    unknown = tmp_path / "unknown.onnx"
+    q = subprocess.run(
+        [*cmd[:4], "--agent", "my_agents:MyAgent", "--task", "aligning", "--out", str(unknown)],
+        capture_output=True,
+        text=True,
+        timeout=600,
+        cwd=tmp_path,
+        env={**os.environ, "PYTHONPATH": os.pathsep.join(str(Path(p).resolve()) for p in sys.path if p)},
+    )
+    assert q.returncode == 1 and "Serve it instead" in q.stderr and "nothing was written" in q.stderr, q.stderr
+    assert not unknown.exists()
