@@ -8,20 +8,15 @@
 //! Needs python3 with numpy, websockets and msgpack (the `serve` extra of
 //! clients/python).
 
-use std::io::{BufRead, BufReader};
-use std::process::{Child, Command, Output, Stdio};
+use d3il_test_support::listening::Listening;
+use std::process::{Command, Output};
 
 const EXE: &str = env!("CARGO_BIN_EXE_d3il");
 
-/// The reference demo server on `host`; killed (by its own pid) when dropped.
-struct PolicyServer {
-    child: Child,
-    port: u16,
-}
-
-impl PolicyServer {
-    fn start(host: &str) -> PolicyServer {
-        let mut child = Command::new("python3")
+/// The reference demo server on `host`; killed when dropped.
+fn start(host: &str) -> Listening {
+    Listening::spawn(
+        Command::new("python3")
             .args([
                 "-m",
                 "d3il_client.serve",
@@ -34,31 +29,9 @@ impl PolicyServer {
             .env(
                 "PYTHONPATH",
                 concat!(env!("CARGO_MANIFEST_DIR"), "/clients/python"),
-            )
-            .stdin(Stdio::null())
-            .stdout(Stdio::piped())
-            .stderr(Stdio::inherit())
-            .spawn()
-            .expect("python3 with numpy, websockets and msgpack");
-        let mut line = String::new();
-        BufReader::new(child.stdout.take().unwrap())
-            .read_line(&mut line)
-            .unwrap();
-        let port = line
-            .trim()
-            .rsplit(':')
-            .next()
-            .and_then(|p| p.parse().ok())
-            .unwrap_or_else(|| panic!("the policy server did not start: `{line}`"));
-        PolicyServer { child, port }
-    }
-}
-
-impl Drop for PolicyServer {
-    fn drop(&mut self) {
-        let _ = self.child.kill();
-        let _ = self.child.wait();
-    }
+            ),
+        "python3 with numpy, websockets and msgpack",
+    )
 }
 
 fn eval(url: &str, extra: &[&str]) -> Output {
@@ -89,7 +62,7 @@ fn assert_evaluated(url: &str, out: &Output) {
 
 #[test]
 fn eval_connects_to_a_loopback_endpoint_without_a_flag() {
-    let v4 = PolicyServer::start("127.0.0.1");
+    let v4 = start("127.0.0.1");
     let url = format!("ws://127.0.0.1:{}/", v4.port);
     assert_evaluated(&url, &eval(&url, &[]));
     // `localhost` resolves here to loopback addresses; the one the server
@@ -100,7 +73,7 @@ fn eval_connects_to_a_loopback_endpoint_without_a_flag() {
     let url = format!("ws://127.0.0.1:{}/", v4.port);
     assert_evaluated(&url, &eval(&url, &["--allow-private-endpoints"]));
     drop(v4);
-    let v6 = PolicyServer::start("::1");
+    let v6 = start("::1");
     let url = format!("ws://[::1]:{}/", v6.port);
     assert_evaluated(&url, &eval(&url, &[]));
 }

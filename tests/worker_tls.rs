@@ -11,27 +11,15 @@ mod worker_common;
 
 use d3il_protocol::{ErrorKind, EvalResult, Limits, PolicySource};
 use d3il_sandbox::{Outcome, WorkerRun};
+use d3il_test_support::listening::Listening;
 use d3il_test_support::Pki;
-use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
+use std::process::{Command, Stdio};
 use std::time::Duration;
 use worker_common::*;
 
 /// The reference server with its avoiding demo policy, killed when dropped.
-struct Server {
-    child: Child,
-    port: u16,
-}
-
-impl Drop for Server {
-    fn drop(&mut self) {
-        let _ = self.child.kill();
-        let _ = self.child.wait();
-    }
-}
-
-fn start(tls: Option<&Pki>) -> Server {
+fn start(tls: Option<&Pki>) -> Listening {
     let clients = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("clients/python");
     let mut cmd = Command::new("python3");
     cmd.args([
@@ -49,23 +37,7 @@ fn start(tls: Option<&Pki>) -> Server {
             .arg("--keyfile")
             .arg(&p.key);
     }
-    let mut child = cmd
-        .stdin(Stdio::null())
-        .stdout(Stdio::piped())
-        .stderr(Stdio::inherit())
-        .spawn()
-        .expect("python3 is needed for the remote tests");
-    let mut line = String::new();
-    BufReader::new(child.stdout.take().unwrap())
-        .read_line(&mut line)
-        .unwrap();
-    let port = line
-        .trim()
-        .rsplit(':')
-        .next()
-        .and_then(|p| p.parse().ok())
-        .unwrap_or_else(|| panic!("server did not start: `{line}`"));
-    Server { child, port }
+    Listening::spawn(&mut cmd, "python3 is needed for the remote tests")
 }
 
 fn tls_limits(extra_ca: Option<&str>) -> Limits {

@@ -15,6 +15,7 @@ pub use d3il_pgtemp::free_port;
 
 pub mod chromium;
 pub mod layout;
+pub mod listening;
 
 use d3il_protocol::{
     EvalResult, FailureReason, Job, Limits, ObsType, PolicyManifest, PolicySource, ProtocolKind,
