@@ -28,20 +28,17 @@ from typing import Any, List, Optional
 import torch
 
 from .base import Draw, Family, Settings, uniform_from_noise
-from .scaling import ScalerArithmetic, clamp_bounds, unwrap
+from .scaling import ClampedScaledGraph, ScalerArithmetic, unwrap
+from .vae import latent_dim
 
 
-class ActGraph(torch.nn.Module):
+class ActGraph(ClampedScaledGraph):
     """[B, 1, obs] raw observations, [B, latent] noise -> [B, H, act] raw actions."""
 
     def __init__(self, agent: Any) -> None:
-        super().__init__()
+        super().__init__(agent)
         self.model = unwrap(agent.model)
         self.horizon, self.width = (int(n) for n in self.model.query_embed.weight.shape)
-        self.scaler = ScalerArithmetic(agent.scaler)
-        lo, hi = clamp_bounds(agent)
-        self.register_buffer("lo", lo)
-        self.register_buffer("hi", hi)
 
     def forward(
         self, obs: torch.Tensor, prev_actions: Optional[torch.Tensor] = None, noise: Optional[torch.Tensor] = None
@@ -57,13 +54,7 @@ class ActGraph(torch.nn.Module):
         encoder_output = m.encoder(encoder_input)
         queries = m.query_embed.weight.unsqueeze(0).expand(obs.shape[0], self.horizon, self.width)
         out = m.action_head(m.decoder(queries, encoder_output))  # [B, H, act]
-        out = torch.clamp(out, self.lo, self.hi)
-        return self.scaler.inverse_scale_output(out)
-
-
-def latent_dim(agent: Any) -> int:
-    """The size of the prior's latent, ``ActVAE.latent_dim``."""
-    return int(unwrap(agent.model).latent_dim)
+        return self.clamp_unscale(out)
 
 
 class ActFamily(Family):

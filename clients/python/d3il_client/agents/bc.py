@@ -21,19 +21,15 @@ from typing import Any, List, Optional
 import torch
 
 from .base import Draw, Family, Settings
-from .scaling import ScalerArithmetic, clamp_bounds, unwrap
+from .scaling import ClampedScaledGraph, ScalerArithmetic, unwrap
 
 
-class BcGraph(torch.nn.Module):
+class BcGraph(ClampedScaledGraph):
     """[B, 1, obs] raw observations -> [B, 1, act] raw actions, as BC_Agent.predict."""
 
     def __init__(self, agent: Any) -> None:
-        super().__init__()
+        super().__init__(agent)
         self.model = unwrap(agent.model)
-        self.scaler = ScalerArithmetic(agent.scaler)
-        lo, hi = clamp_bounds(agent)
-        self.register_buffer("lo", lo)
-        self.register_buffer("hi", hi)
 
     def forward(
         self, obs: torch.Tensor, prev_actions: Optional[torch.Tensor] = None, noise: Optional[torch.Tensor] = None
@@ -41,8 +37,7 @@ class BcGraph(torch.nn.Module):
         """Raw observations [B, w, obs] (the last one is used) -> raw actions [B, 1, act]."""
         state = self.scaler.scale_input(obs[:, -1:, :])  # [B, 1, obs]
         out = self.model(state)  # [B, 1, act]
-        out = torch.clamp(out, self.lo, self.hi)
-        return self.scaler.inverse_scale_output(out)
+        return self.clamp_unscale(out)
 
 
 class BcFamily(Family):

@@ -45,7 +45,7 @@ import torch
 
 from .base import Draw, Family, Settings, inverse_cdf_index, multinomial_draw, uniform_from_noise
 from .gpt_bc import is_visual, window_of
-from .scaling import ScalerArithmetic, clamp_bounds, unwrap
+from .scaling import ClampedScaledGraph, ScalerArithmetic, unwrap
 
 
 def latent_generator(agent: Any) -> Any:
@@ -53,11 +53,11 @@ def latent_generator(agent: Any) -> Any:
     return unwrap(agent.model).model
 
 
-class BetGraph(torch.nn.Module):
+class BetGraph(ClampedScaledGraph):
     """[B, T, obs] raw observations, [B, 1] noise -> [B, 1, act] raw actions, as BeT_Agent.predict."""
 
     def __init__(self, agent: Any) -> None:
-        super().__init__()
+        super().__init__(agent)
         policy = unwrap(agent.model)
         gen = policy.model
         if not getattr(gen, "predict_offsets", False):
@@ -69,11 +69,7 @@ class BetGraph(torch.nn.Module):
         self.gpt = gen.model
         self.vocab = int(gen.vocab_size)
         self.act_dim = int(gen.action_dim)
-        self.scaler = ScalerArithmetic(agent.scaler)
         self.register_buffer("centers", torch.as_tensor(agent.action_ae.bin_centers).detach().cpu().clone())
-        lo, hi = clamp_bounds(agent)
-        self.register_buffer("lo", lo)
-        self.register_buffer("hi", hi)
 
     def forward(
         self, obs: torch.Tensor, prev_actions: Optional[torch.Tensor] = None, noise: Optional[torch.Tensor] = None
@@ -90,8 +86,7 @@ class BetGraph(torch.nn.Module):
         center = self.centers.index_select(0, idx).unsqueeze(1)  # [B, 1, A]
         # [B, 1, A] without a squeeze: the exporter writes squeeze(1) of a dynamic shape as an If
         offset = torch.gather(offsets, 1, idx.reshape(-1, 1, 1).expand(-1, 1, self.act_dim))
-        action = torch.clamp(center + offset, self.lo, self.hi)
-        return self.scaler.inverse_scale_output(action)
+        return self.clamp_unscale(center + offset)
 
 
 class BetFamily(Family):

@@ -25,14 +25,14 @@ from typing import Any, List, Optional
 import torch
 
 from .base import Draw, Family, Settings, inverse_cdf_index, multinomial_draw, uniform_from_noise
-from .scaling import ScalerArithmetic, clamp_bounds, unwrap
+from .scaling import ClampedScaledGraph, ScalerArithmetic, unwrap
 
 
-class BetMlpGraph(torch.nn.Module):
+class BetMlpGraph(ClampedScaledGraph):
     """[B, 1, obs] raw observations, [B, 1] noise -> [B, 1, act] raw actions."""
 
     def __init__(self, agent: Any) -> None:
-        super().__init__()
+        super().__init__(agent)
         policy = unwrap(agent.model)
         if not getattr(policy, "predict_offsets", False):
             raise ValueError(
@@ -44,10 +44,6 @@ class BetMlpGraph(torch.nn.Module):
         self.vocab_size = int(policy.vocab_size)
         self.act_dim = int(policy.act_dim)
         self.register_buffer("bin_centers", torch.as_tensor(agent.action_ae.bin_centers).detach().cpu().clone())
-        self.scaler = ScalerArithmetic(agent.scaler)
-        lo, hi = clamp_bounds(agent)
-        self.register_buffer("lo", lo)
-        self.register_buffer("hi", hi)
 
     def forward(
         self, obs: torch.Tensor, prev_actions: Optional[torch.Tensor] = None, noise: Optional[torch.Tensor] = None
@@ -62,8 +58,7 @@ class BetMlpGraph(torch.nn.Module):
         idx = inverse_cdf_index(probs, uniform_from_noise(noise[:, 0]))  # [B]
         onehot = (torch.arange(v).unsqueeze(0) == idx.unsqueeze(-1)).to(offsets.dtype).unsqueeze(-1)  # [B, V, 1]
         action = (onehot * self.bin_centers.to(offsets.dtype)).sum(1) + (onehot * offsets).sum(1)  # [B, A]
-        action = torch.clamp(action.unsqueeze(1), self.lo, self.hi)
-        return self.scaler.inverse_scale_output(action)
+        return self.clamp_unscale(action.unsqueeze(1))
 
 
 class BetMlpFamily(Family):

@@ -30,7 +30,7 @@ from typing import Any, List, Optional
 import torch
 
 from .base import Draw, Family, Settings
-from .scaling import ScalerArithmetic, clamp_bounds, unwrap
+from .scaling import ClampedScaledGraph, ScalerArithmetic, unwrap
 
 
 def window_of(agent: Any) -> int:
@@ -47,24 +47,19 @@ def is_visual(agent: Any) -> bool:
     return bool(getattr(unwrap(agent.model), "visual_input", False))
 
 
-class GptBcGraph(torch.nn.Module):
+class GptBcGraph(ClampedScaledGraph):
     """[B, T, obs] raw observations (T = 1..k) -> [B, 1, act] raw actions, as Gpt_Agent.predict."""
 
     def __init__(self, agent: Any) -> None:
-        super().__init__()
+        super().__init__(agent)
         self.model = unwrap(agent.model)
-        self.scaler = ScalerArithmetic(agent.scaler)
-        lo, hi = clamp_bounds(agent)
-        self.register_buffer("lo", lo)
-        self.register_buffer("hi", hi)
 
     def forward(
         self, obs: torch.Tensor, prev_actions: Optional[torch.Tensor] = None, noise: Optional[torch.Tensor] = None
     ) -> torch.Tensor:
         """Raw actions [B, 1, act] for raw windows [B, T, obs] (module docstring)."""
         actions = self.model(self.scaler.scale_input(obs))  # [B, T, act]
-        actions = torch.clamp(actions[:, -1:, :], self.lo, self.hi)
-        return self.scaler.inverse_scale_output(actions)
+        return self.clamp_unscale(actions[:, -1:, :])
 
 
 class GptBcFamily(Family):

@@ -95,6 +95,24 @@ def clamp_bounds(agent: Any) -> tuple[torch.Tensor, torch.Tensor]:
     return as_float32_bound(agent.min_action), as_float32_bound(agent.max_action)
 
 
+class ClampedScaledGraph(torch.nn.Module):
+    """Base of the graphs whose agent's predict() clamps the scaled actions to its
+    ``min_action`` / ``max_action`` and then inverse-scales them (BC, VAE-State,
+    VAE-ACT, BeT-MLP, BeT, BC-GPT): the scaler and the bounds, held once.
+    """
+
+    def __init__(self, agent: Any) -> None:
+        super().__init__()
+        self.scaler = ScalerArithmetic(agent.scaler)
+        lo, hi = clamp_bounds(agent)
+        self.register_buffer("lo", lo)
+        self.register_buffer("hi", hi)
+
+    def clamp_unscale(self, scaled: torch.Tensor) -> torch.Tensor:
+        """Raw actions from scaled ones, clamped first as predict() does."""
+        return self.scaler.inverse_scale_output(torch.clamp(scaled, self.lo, self.hi))
+
+
 def unwrap(model: torch.nn.Module) -> torch.nn.Module:
     """The network inside ``nn.DataParallel`` (BC_Agent wraps its model when several
     GPUs are visible); the same object otherwise.

@@ -23,19 +23,15 @@ from typing import Any, List, Optional
 import torch
 
 from .base import Draw, Family, Settings
-from .scaling import ScalerArithmetic, clamp_bounds, unwrap
+from .scaling import ClampedScaledGraph, ScalerArithmetic, unwrap
 
 
-class VaeStateGraph(torch.nn.Module):
+class VaeStateGraph(ClampedScaledGraph):
     """[B, 1, obs] raw observations, [B, latent] noise -> [B, 1, act] raw actions."""
 
     def __init__(self, agent: Any) -> None:
-        super().__init__()
+        super().__init__(agent)
         self.decoder = unwrap(agent.model).decoder
-        self.scaler = ScalerArithmetic(agent.scaler)
-        lo, hi = clamp_bounds(agent)
-        self.register_buffer("lo", lo)
-        self.register_buffer("hi", hi)
 
     def forward(
         self, obs: torch.Tensor, prev_actions: Optional[torch.Tensor] = None, noise: Optional[torch.Tensor] = None
@@ -45,12 +41,13 @@ class VaeStateGraph(torch.nn.Module):
         state = self.scaler.scale_input(obs[:, -1, :])  # [B, obs]
         z = noise.clamp(-0.5, 0.5)
         out = self.decoder(torch.cat([state, z], dim=-1))  # [B, act]
-        out = torch.clamp(out, self.lo, self.hi)
-        return self.scaler.inverse_scale_output(out).unsqueeze(1)
+        return self.clamp_unscale(out).unsqueeze(1)
 
 
 def latent_dim(agent: Any) -> int:
-    """The prior's latent size, as ``VariationalAE.predict`` reads it."""
+    """The prior's latent size, as ``VariationalAE.predict`` (VAE-State) and
+    ``ActVAE`` (VAE-ACT) read it.
+    """
     return int(unwrap(agent.model).latent_dim)
 
 
