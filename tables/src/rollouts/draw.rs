@@ -152,6 +152,34 @@ impl Layer {
         self.groups.last_mut().expect("just pushed")
     }
 
+    /// Clips what is drawn to a chart's plotting area: writes the area's
+    /// `<clipPath>` (once per area; its id names the area, so pictures
+    /// inlined in one page never point at another's) and returns the
+    /// attribute that clips a group to it.
+    pub fn clip_to(&mut self, f: &Frame) -> (&'static str, String) {
+        let r = f.rect();
+        let id = format!(
+            "plot-area-{}-{}-{}-{}",
+            r.x0.round(),
+            r.y0.round(),
+            r.x1.round(),
+            r.y1.round()
+        );
+        let def = format!("<clipPath id=\"{id}\">");
+        if !self.groups.iter().any(|g| g.body.contains(&def)) {
+            let g = self.group("plot-clip", &[]);
+            let _ = writeln!(
+                g.body,
+                r#"<defs>{def}<rect x="{}" y="{}" width="{}" height="{}"/></clipPath></defs>"#,
+                num(r.x0),
+                num(r.y0),
+                num(r.x1 - r.x0),
+                num(r.y1 - r.y0)
+            );
+        }
+        ("clip-path", format!("url(#{id})"))
+    }
+
     pub fn finish(self, svg: String, ov: Overlay) -> String {
         let end = svg.rfind("</svg>").unwrap_or(svg.len());
         let size: usize = self.groups.iter().map(|g| g.body.len() + 64).sum();

@@ -96,6 +96,11 @@ impl View {
         v.widen(min_side)
     }
 
+    /// Whether a world point (x, y) lies in the view, the plotting area.
+    pub fn holds(&self, p: [f64; 2]) -> bool {
+        (self.x.0..=self.x.1).contains(&p[0]) && (self.y.0..=self.y.1).contains(&p[1])
+    }
+
     fn widen(mut self, min_side: f64) -> View {
         for r in [&mut self.x, &mut self.y] {
             if r.1 - r.0 < min_side {
@@ -122,6 +127,24 @@ impl View {
         let h = side(&mut self.x, wx);
         (self, w, h)
     }
+}
+
+/// The caption's note on paths that leave the drawn area, which are clipped
+/// at its edge: `whose` are "the TCP" and object names, or "3 of 40 rollouts".
+pub(super) fn outside_note(whose: &[String], count: usize) -> Option<String> {
+    let (who, leave, be) = match (whose, count) {
+        ([], _) => return None,
+        ([one], 1) => (format!("The path of {one}"), "leaves", "is"),
+        ([one], _) => (format!("The paths of {one}"), "leave", "are"),
+        ([init @ .., last], _) => (
+            format!("The paths of {} and {last}", init.join(", ")),
+            "leave",
+            "are",
+        ),
+    };
+    Some(format!(
+        "{who} {leave} the drawn area (the table and a margin around it) and {be} cut off at its edge."
+    ))
 }
 
 /// The size of a chart area whose plot is `w` × `h` pixels.

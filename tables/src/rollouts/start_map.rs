@@ -194,10 +194,17 @@ pub fn start_map_svg(task: TaskId, contexts: &[StartState]) -> Result<String, Ta
     let width = (f64::from(2 * cw) + column_w)
         .max(text_width(&title, 18.0) + 40.0)
         .ceil();
-    let paragraphs = vec![format!(
+    let mut paragraphs = vec![format!(
         "{ORIENTATION} Each point is where an object stood after the reset of one initial state ({} states; the start poses of its first rollout's trace). Left: the state's success rate over its rollouts, light (none succeeded) to dark (all did). Right: the behaviour most of its successful rollouts showed.",
         contexts.len()
     )];
+    let outside = points.iter().filter(|p| !view.holds(p.2)).count();
+    if outside > 0 {
+        paragraphs.push(format!(
+            "{outside} of {} object positions lie outside the drawn area and are cut off at its edge.",
+            points.len()
+        ));
+    }
     let lines = caption_lines(&paragraphs, width - 20.0);
     let column_h =
         f64::from(TITLE_H + HEADING_H) + 8.0 + 20.0 + COLOUR_BAR_H + 12.0 + 4.0 + bh + 16.0 + oh;
@@ -228,7 +235,8 @@ pub fn start_map_svg(task: TaskId, contexts: &[StartState]) -> Result<String, Ta
                     heading,
                 );
             scene::frame_group(&mut layer, &f, view);
-            let g = layer.group("points", &[("data-panel", key.to_string())]);
+            let clip = layer.clip_to(&f);
+            let g = layer.group("points", &[("data-panel", key.to_string()), clip]);
             for (c, k, p) in &points {
                 let fill = if panel == 0 {
                     sequential(c.success_rate)

@@ -94,9 +94,17 @@ fn time_path(
     Some((*px.first()?, *px.last()?))
 }
 
-fn marks(layer: &mut Layer, name: &str, ends: ((f64, f64), (f64, f64))) {
+fn marks(
+    layer: &mut Layer,
+    name: &str,
+    ends: ((f64, f64), (f64, f64)),
+    clip: &(&'static str, String),
+) {
     layer
-        .group("start-mark", &[("data-path", name.to_string())])
+        .group(
+            "start-mark",
+            &[("data-path", name.to_string()), clip.clone()],
+        )
         .circle(
             ends.0,
             4.5,
@@ -105,7 +113,7 @@ fn marks(layer: &mut Layer, name: &str, ends: ((f64, f64), (f64, f64))) {
             r#" stroke-width="1.2""#,
         );
     layer
-        .group("end-mark", &[("data-path", name.to_string())])
+        .group("end-mark", &[("data-path", name.to_string()), clip.clone()])
         .cross(ends.1, 4.5, "#222222", 2.0);
 }
 
@@ -233,6 +241,12 @@ pub fn top_down_svg(
             "The paths stop at state {c}: from there the simulation state was not finite."
         ));
     }
+    let outside: Vec<String> = std::iter::once(("the TCP", &tcp))
+        .chain(moving.iter().map(|(n, p)| (*n, p)))
+        .filter(|(_, p)| p.iter().any(|q| !view.holds(*q)))
+        .map(|(n, _)| n.to_string())
+        .collect();
+    paragraphs.extend(scene::outside_note(&outside, outside.len()));
     let lines = caption_lines(&paragraphs, width - 20.0);
     let (_, lh) = legend_size(None, &entries);
     let column_h = 44.0 + lh + 16.0 + 20.0 + COLOUR_BAR_H + 12.0;
@@ -249,13 +263,14 @@ pub fn top_down_svg(
         let area = root.clone().shrink((0, TITLE_H), (cw, ch));
         let f = scene::axes(&area, view)?;
         scene::frame_group(&mut layer, &f, view);
+        let clip = layer.clip_to(&f);
         scene::draw_landmarks(&mut layer, &f, &trace.landmarks);
         for (name, at) in &targets {
             scene::draw_target_object(&mut layer, &f, name, *at);
         }
         let mut ends = Vec::new();
         for (name, p) in &moving {
-            let attrs = vec![("data-object", name.to_string())];
+            let attrs = vec![("data-object", name.to_string()), clip.clone()];
             if let Some(e) = time_path(
                 &mut layer,
                 &f,
@@ -268,11 +283,19 @@ pub fn top_down_svg(
                 ends.push((name.to_string(), e));
             }
         }
-        if let Some(e) = time_path(&mut layer, &f, "tcp-path", vec![], &tcp, states, (2.0, "")) {
+        if let Some(e) = time_path(
+            &mut layer,
+            &f,
+            "tcp-path",
+            vec![clip.clone()],
+            &tcp,
+            states,
+            (2.0, ""),
+        ) {
             ends.push(("tcp".to_string(), e));
         }
         for (name, e) in &ends {
-            marks(&mut layer, name, *e);
+            marks(&mut layer, name, *e, &clip);
         }
         // Names at the objects' starts and the targets.
         let mut anchors = Vec::new();
@@ -410,9 +433,17 @@ pub fn overlay_svg(
     let width = (f64::from(cw) + column_width(&entries, Some(LEGEND_TITLE), None))
         .max(text_width(&title, 18.0) + 40.0)
         .ceil();
-    let paragraphs = vec![format!(
+    let mut paragraphs = vec![format!(
         "{ORIENTATION} Each line is one rollout's TCP path, coloured by its behaviour when it succeeded; failed rollouts are thin grey. The table and landmarks are those of the first rollout's trace."
     )];
+    let outside = paths
+        .iter()
+        .filter(|p| p.2.iter().any(|q| !view.holds(*q)))
+        .count();
+    if outside > 0 {
+        let whose = format!("{outside} of {} rollouts", paths.len());
+        paragraphs.extend(scene::outside_note(&[whose], outside));
+    }
     let lines = caption_lines(&paragraphs, width - 20.0);
     let (_, lh) = legend_size(Some(LEGEND_TITLE), &entries);
     let top_h = f64::from(TITLE_H + ch).max(f64::from(TITLE_H) + 16.0 + lh);
@@ -428,6 +459,7 @@ pub fn overlay_svg(
         let area = root.clone().shrink((0, TITLE_H), (cw, ch));
         let f = scene::axes(&area, view)?;
         scene::frame_group(&mut layer, &f, view);
+        let clip = layer.clip_to(&f);
         scene::draw_landmarks(&mut layer, &f, landmarks);
         // Failed rollouts underneath, then the successful ones.
         for pass in [false, true] {
@@ -445,6 +477,7 @@ pub fn overlay_svg(
                         ("data-behaviour", label.clone()),
                         ("data-context", r.context_index.to_string()),
                         ("data-rollout", r.rollout_index.to_string()),
+                        clip.clone(),
                     ],
                 );
                 if pass {
