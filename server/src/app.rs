@@ -6,6 +6,7 @@ use crate::ratelimit::RateLimiter;
 use crate::sandbox_status::SandboxStatus;
 pub use crate::state::AppState;
 use crate::store::{Store, StoreError};
+use crate::telemetry::Telemetry;
 use axum::Router;
 use std::net::SocketAddr;
 use std::sync::Arc;
@@ -19,6 +20,11 @@ pub fn router(state: AppState) -> Router {
         ))
         .layer(axum::middleware::from_fn(etag))
         .layer(axum::middleware::map_response(security_headers))
+        // Outermost: every response is counted, 429s and 304s included.
+        .layer(axum::middleware::from_fn_with_state(
+            state.telemetry.clone(),
+            crate::http::ops::count_requests,
+        ))
         .with_state(state)
 }
 
@@ -157,7 +163,7 @@ async fn client_rate_limits(
     }
     let resp = next.run(req).await;
     if credentialed && resp.status() == StatusCode::UNAUTHORIZED {
-        let _ = limits.failed_auth.check(ip);
+        limits.failed_auth.record(ip);
     }
     resp
 }
@@ -198,6 +204,8 @@ pub enum ServeError {
 /// A running server (used by `d3il serve` and the tests).
 pub struct Running {
     pub addr: SocketAddr,
+    /// Where `--metrics-bind` serves `/metrics` (None: not asked for).
+    pub metrics_addr: Option<SocketAddr>,
     pub state: AppState,
 }
 
@@ -220,7 +228,7 @@ pub async fn serve(
 pub async fn run_workers(
     cfg: ServerConfig,
     runner: Arc<dyn JobRunner>,
-    on_ready: impl FnOnce(&Store),
+    on_ready: impl FnOnce(&Store, Option<SocketAddr>),
 ) -> Result<(), ServeError> {
     if !cfg.db.is_postgres() {
         return Err(ServeError::Store(StoreError::Config(format!(
@@ -234,6 +242,18 @@ pub async fn run_workers(
     let runner = crate::runner::SharedSlots::wrap(runner, cfg.workers + 1);
     let canary = Arc::new(crate::canary::Canary::new(cfg.canary.clone()));
     canary.start();
+    let telemetry = Arc::new(crate::telemetry::Telemetry::new(
+        store.clone(),
+        canary.clone(),
+        cfg.workers,
+    ));
+    if let crate::store::DbTarget::Postgres(url) = &cfg.db {
+        crate::telemetry::presence::announce(
+            url,
+            format!("{}-{}", crate::queue::owner_host(), std::process::id()),
+        )
+        .map_err(StoreError::Db)?;
+    }
     start_pool(
         store.clone(),
         runner,
@@ -243,11 +263,13 @@ pub async fn run_workers(
             assets_dir: cfg.assets_dir.clone(),
             limits: cfg.limits.clone(),
             canary: canary.clone(),
+            metrics: telemetry.pool.clone(),
         },
         QueueSignal::default(),
     )
     .await?;
-    on_ready(&store);
+    let metrics_addr = bind_metrics(&cfg, &telemetry).await?;
+    on_ready(&store, metrics_addr);
     std::future::pending::<()>().await;
     Ok(())
 }
@@ -343,6 +365,11 @@ pub async fn prepare(
     let signal = QueueSignal::default();
     let canary = Arc::new(crate::canary::Canary::new(cfg.canary.clone()));
     canary.start();
+    let telemetry = Arc::new(crate::telemetry::Telemetry::new(
+        store.clone(),
+        canary.clone(),
+        cfg.workers,
+    ));
     start_pool(
         store.clone(),
         runner.clone(),
@@ -352,12 +379,32 @@ pub async fn prepare(
             assets_dir: cfg.assets_dir.clone(),
             limits: cfg.limits.clone(),
             canary: canary.clone(),
+            metrics: telemetry.pool.clone(),
         },
         signal.clone(),
     )
     .await?;
+    let metrics_addr = bind_metrics(&cfg, &telemetry).await?;
     let sandbox = Arc::new(SandboxStatus::new(runner.clone(), cfg.assets_dir.clone()));
-    let videos = crate::videos::Videos::new(cfg.videos.clone(), store.data_dir(), &cfg.assets_dir)?;
+    let mut videos =
+        crate::videos::Videos::new(cfg.videos.clone(), store.data_dir(), &cfg.assets_dir)?;
+    videos.counters = crate::videos::VideoCounters {
+        rendered: Telemetry::counter(&telemetry.video_renders, &[("outcome", "ok")]),
+        failed: Telemetry::counter(&telemetry.video_renders, &[("outcome", "failed")]),
+        cache_hits: telemetry.video_cache_hits.clone(),
+    };
+    let refusals = |limit| Telemetry::counter(&telemetry.rate_limit_refusals, &[("limit", limit)]);
+    let mut limiter = RateLimiter::new(cfg.rate_limit_per_minute);
+    limiter.refusals = refusals("token");
+    let mut client_limits = crate::ratelimit::ClientLimits::new(
+        cfg.anonymous_rate_limit_per_minute,
+        cfg.failed_auth_per_minute,
+    );
+    client_limits.anonymous.refusals = refusals("anonymous");
+    client_limits.failed_auth.refusals = refusals("failed_auth");
+    let mut finished = crate::cache::FinishedCache::new(FINISHED_CACHE_ENTRIES);
+    finished.hits = Telemetry::counter(&telemetry.results_cache, &[("outcome", "hit")]);
+    finished.misses = Telemetry::counter(&telemetry.results_cache, &[("outcome", "miss")]);
     let fidelity = Arc::new(crate::fidelity::FidelityReports::new(
         cfg.fidelity.clone(),
         store.data_dir(),
@@ -366,23 +413,45 @@ pub async fn prepare(
     let state = AppState {
         sandbox,
         store,
-        limiter: Arc::new(RateLimiter::new(cfg.rate_limit_per_minute)),
-        client_limits: Arc::new(crate::ratelimit::ClientLimits::new(
-            cfg.anonymous_rate_limit_per_minute,
-            cfg.failed_auth_per_minute,
-        )),
+        limiter: Arc::new(limiter),
+        client_limits: Arc::new(client_limits),
         uploads: Arc::new(tokio::sync::Semaphore::new(
             cfg.max_concurrent_uploads.max(1),
         )),
         cfg: Arc::new(cfg),
         signal,
         runner,
-        finished: Arc::new(crate::cache::FinishedCache::new(FINISHED_CACHE_ENTRIES)),
+        finished: Arc::new(finished),
         videos: Arc::new(videos),
         fidelity,
         canary,
+        telemetry,
     };
-    Ok((listener, Running { addr, state }))
+    Ok((
+        listener,
+        Running {
+            addr,
+            metrics_addr,
+            state,
+        },
+    ))
+}
+
+/// Binds `--metrics-bind` (if given) and serves `/metrics`, `/healthz` and
+/// `/readyz` there without credentials; the bound address.
+async fn bind_metrics(
+    cfg: &ServerConfig,
+    telemetry: &Arc<Telemetry>,
+) -> Result<Option<SocketAddr>, ServeError> {
+    let Some(addr) = cfg.metrics_bind else {
+        return Ok(None);
+    };
+    let listener = tokio::net::TcpListener::bind(addr)
+        .await
+        .map_err(|source| ServeError::Bind { addr, source })?;
+    let bound = listener.local_addr()?;
+    crate::http::ops::spawn_private(listener, telemetry.clone());
+    Ok(Some(bound))
 }
 
 #[cfg(test)]

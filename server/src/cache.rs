@@ -34,6 +34,9 @@ type Entries = (HashMap<Key, Arc<str>>, VecDeque<Key>);
 pub struct FinishedCache {
     capacity: usize,
     inner: Mutex<Entries>,
+    /// Lookups answered from memory, and not (`/metrics`).
+    pub hits: prometheus_client::metrics::counter::Counter,
+    pub misses: prometheus_client::metrics::counter::Counter,
 }
 
 impl FinishedCache {
@@ -41,12 +44,20 @@ impl FinishedCache {
         FinishedCache {
             capacity: capacity.max(1),
             inner: Mutex::new((HashMap::new(), VecDeque::new())),
+            hits: Default::default(),
+            misses: Default::default(),
         }
     }
 
     pub fn get(&self, kind: Rendered, id: i64) -> Option<Arc<str>> {
         let g = self.inner.lock().unwrap_or_else(|e| e.into_inner());
-        g.0.get(&(kind, id)).cloned()
+        let found = g.0.get(&(kind, id)).cloned();
+        if found.is_some() {
+            self.hits.inc();
+        } else {
+            self.misses.inc();
+        }
+        found
     }
 
     /// Stores `body` (call only for what can no longer change) and returns it.

@@ -28,6 +28,9 @@ pub fn serve_blocking(cfg: ServerConfig) -> Result<(), ServeError> {
         let (db, workers) = (cfg.db.clone(), cfg.workers);
         serve(cfg, runner, |r| {
             println!("listening on http://{}", r.addr);
+            if let Some(m) = r.metrics_addr {
+                println!("metrics on http://{m}/metrics");
+            }
             println!("database {db} · {workers} worker slot(s)");
         })
         .await
@@ -42,7 +45,10 @@ pub fn workers_blocking(cfg: ServerConfig) -> Result<(), ServeError> {
     rt.block_on(async move {
         let runner = crate::app::default_runner(&cfg);
         let (db, workers) = (cfg.db.clone(), cfg.workers);
-        crate::app::run_workers(cfg, runner, |_| {
+        crate::app::run_workers(cfg, runner, |_, metrics| {
+            if let Some(m) = metrics {
+                println!("metrics on http://{m}/metrics");
+            }
             println!(
                 "worker host ready: {workers} worker slot(s) (plus one for quick jobs) on {db}"
             );

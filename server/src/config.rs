@@ -14,6 +14,9 @@ pub struct ServerConfig {
     /// Where uploaded policies live (`Store::connect`); needed with PostgreSQL.
     pub policy_store: Option<PathBuf>,
     pub bind: SocketAddr,
+    /// A second listener serving `/metrics`, `/healthz` and `/readyz`
+    /// without credentials (a private address); None: none.
+    pub metrics_bind: Option<SocketAddr>,
     /// Worker slots (concurrent evaluations).
     pub workers: usize,
     /// The project's assets (MJCF, initial-state sets, CSS).
@@ -125,6 +128,7 @@ impl ServerConfig {
             db: db.into(),
             policy_store: None,
             bind,
+            metrics_bind: None,
             workers: std::thread::available_parallelism()
                 .map(|n| n.get())
                 .unwrap_or(1),

@@ -42,5 +42,6 @@ pub mod sandbox_status;
 pub mod schema;
 pub mod state;
 pub mod store;
+pub mod telemetry;
 pub mod videos;
 pub mod views;

@@ -55,6 +55,8 @@ pub struct PoolConfig {
     pub limits: Limits,
     /// The build identity results record; the pool waits for its canary.
     pub canary: Arc<crate::canary::Canary>,
+    /// Where the pool counts its jobs (`/metrics`).
+    pub metrics: crate::telemetry::PoolMetrics,
 }
 
 /// Failures worth another attempt: the process died or our side broke, or the
@@ -137,6 +139,7 @@ pub async fn start_pool(
         let n = store.requeue_abandoned().await?;
         if n > 0 {
             tracing::info!("requeued {n} job(s) interrupted by the previous shutdown");
+            cfg.metrics.leases_lost.inc_by(n);
         }
     }
     let cfg = Arc::new(cfg);
@@ -170,7 +173,7 @@ pub async fn start_pool(
 }
 
 /// This host's name (`/proc/sys/kernel/hostname`), for lease owners.
-fn owner_host() -> String {
+pub fn owner_host() -> String {
     std::fs::read_to_string("/proc/sys/kernel/hostname")
         .map(|h| h.trim().to_string())
         .ok()
@@ -186,6 +189,7 @@ async fn slot_loop(
     owner: String,
     only: Option<ProtocolKind>,
 ) {
+    let _alive = crate::telemetry::SlotAlive::new(&cfg.metrics.slots_alive);
     // Every result records the build's physics fingerprint: none is
     // evaluated before the drift canary has run.
     cfg.canary.ready().await;
@@ -220,6 +224,12 @@ async fn run_claimed(
     let job_id = c.job.id;
     let submission_id = c.submission.id;
     let shard = c.job.shard();
+    let m = &cfg.metrics;
+    let kind = crate::telemetry::labels_of(&[
+        ("task", c.submission.task.slug()),
+        ("protocol", c.submission.protocol.as_str()),
+    ]);
+    let lease_lost = |r| lease_lost_is_a_warning(r, m);
     let job = match job_from_claim(&c, &cfg.assets_dir, &cfg.limits, cfg.canary.build()) {
         Ok(j) => j,
         Err(message) => {
@@ -227,14 +237,17 @@ async fn run_claimed(
                 kind: ErrorKind::BadJob,
                 message,
             };
-            return lease_lost_is_a_warning(store.fail_attempt(job_id, owner, &err, false).await)
-                .map(|_| ());
+            let r = lease_lost(store.fail_attempt(job_id, owner, &err, false).await)?;
+            count_failure(m, &err, r);
+            return Ok(());
         }
     };
     tracing::info!(
         "job {job_id} (submission {submission_id}, attempt {}) started on {owner}",
         c.job.attempts
     );
+    m.jobs_started.get_or_create(&kind).inc();
+    let began = Instant::now();
     let (ptx, mut prx) = mpsc::unbounded_channel::<(usize, usize)>();
     let r = runner.clone();
     let mut handle = tokio::task::spawn_blocking(move || {
@@ -279,10 +292,11 @@ async fn run_claimed(
             store
                 .complete_job(job_id, submission_id, &result, &report.mechanisms)
                 .await?;
+            count_finished(m, &kind, began);
             tracing::info!("job {job_id} completed");
         }
         Ok(Evaluated::Part(part)) if shard == Some(part.shard) => {
-            let Some(merged) = lease_lost_is_a_warning(
+            let Some(merged) = lease_lost(
                 store
                     .complete_shard(job_id, owner, &part, &report.mechanisms)
                     .await,
@@ -290,6 +304,7 @@ async fn run_claimed(
             else {
                 return Ok(());
             };
+            count_finished(m, &kind, began);
             tracing::info!(
                 "job {job_id} (shard {} of submission {submission_id}) completed{}",
                 part.shard,
@@ -310,15 +325,17 @@ async fn run_claimed(
                     None => "the worker answered a whole evaluation with a shard's part".into(),
                 },
             };
-            lease_lost_is_a_warning(store.fail_attempt(job_id, owner, &err, false).await)?;
+            let r = lease_lost(store.fail_attempt(job_id, owner, &err, false).await)?;
+            count_failure(m, &err, r);
         }
         Err(err) => {
-            let Some(requeued) = lease_lost_is_a_warning(
+            let r = lease_lost(
                 store
                     .fail_attempt(job_id, owner, &err, is_retryable(err.kind))
                     .await,
-            )?
-            else {
+            )?;
+            count_failure(m, &err, r);
+            let Some(requeued) = r else {
                 return Ok(());
             };
             tracing::warn!(
@@ -333,15 +350,47 @@ async fn run_claimed(
 }
 
 /// A slot whose lease expired leaves the job to whoever holds it now.
-fn lease_lost_is_a_warning(r: Result<bool, StoreError>) -> Result<Option<bool>, StoreError> {
+fn lease_lost_is_a_warning(
+    r: Result<bool, StoreError>,
+    m: &crate::telemetry::PoolMetrics,
+) -> Result<Option<bool>, StoreError> {
     match r {
         Ok(requeued) => Ok(Some(requeued)),
         Err(e @ StoreError::LeaseLost { .. }) => {
             tracing::warn!("{e}");
+            m.leases_lost.inc();
             Ok(None)
         }
         Err(e) => Err(e),
     }
+}
+
+/// A job's result (or shard part) was written: counted with its wall time.
+fn count_finished(
+    m: &crate::telemetry::PoolMetrics,
+    kind: &crate::telemetry::Labels,
+    began: Instant,
+) {
+    m.jobs_finished.get_or_create(kind).inc();
+    m.evaluation_seconds
+        .get_or_create(kind)
+        .observe(began.elapsed().as_secs_f64());
+}
+
+/// A failed attempt recorded (`Some(requeued)`; `None`: the lease was lost,
+/// counted as such).
+fn count_failure(m: &crate::telemetry::PoolMetrics, err: &WorkerError, recorded: Option<bool>) {
+    let Some(requeued) = recorded else { return };
+    let reason = serde_json::to_value(err.kind)
+        .ok()
+        .and_then(|v| v.as_str().map(str::to_string))
+        .unwrap_or_else(|| "internal".into());
+    m.jobs_failed
+        .get_or_create(&crate::telemetry::labels_of(&[
+            ("reason", reason.as_str()),
+            ("requeued", if requeued { "true" } else { "false" }),
+        ]))
+        .inc();
 }
 
 /// A heartbeat that fails (a busy or briefly unavailable database) must not

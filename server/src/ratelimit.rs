@@ -18,6 +18,8 @@ const PRUNE_AT: usize = 10_000;
 pub struct RateLimiter<K = i64> {
     per_window: u32,
     windows: Mutex<HashMap<K, (Instant, u32)>>,
+    /// Requests refused by this limit (`/metrics`).
+    pub refusals: prometheus_client::metrics::counter::Counter,
 }
 
 impl<K: Hash + Eq + Copy> RateLimiter<K> {
@@ -25,6 +27,7 @@ impl<K: Hash + Eq + Copy> RateLimiter<K> {
         RateLimiter {
             per_window: per_minute,
             windows: Mutex::new(HashMap::new()),
+            refusals: Default::default(),
         }
     }
 
@@ -33,14 +36,26 @@ impl<K: Hash + Eq + Copy> RateLimiter<K> {
         self.per_window
     }
 
-    /// Counts one request for `key`; `Err(seconds)` when over the limit.
+    /// Counts one request for `key`; `Err(seconds)` when over the limit
+    /// (the request is refused).
     pub fn check(&self, key: K) -> Result<(), u64> {
-        self.count(key, 1)
+        self.count(key, 1).inspect_err(|_| {
+            self.refusals.inc();
+        })
     }
 
-    /// `Err(seconds)` if `key` is over the limit now, without counting.
+    /// `Err(seconds)` if `key` is over the limit now (the request is
+    /// refused), without counting.
     pub fn peek(&self, key: K) -> Result<(), u64> {
-        self.count(key, 0)
+        self.count(key, 0).inspect_err(|_| {
+            self.refusals.inc();
+        })
+    }
+
+    /// Counts one event for `key` that refuses nothing (a failed token
+    /// check already answered 401).
+    pub fn record(&self, key: K) {
+        let _ = self.count(key, 1);
     }
 
     fn count(&self, key: K, n: u32) -> Result<(), u64> {

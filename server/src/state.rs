@@ -29,4 +29,6 @@ pub struct AppState {
     pub fidelity: Arc<crate::fidelity::FidelityReports>,
     /// The drift canary's outcome and this build's identity.
     pub canary: Arc<crate::canary::Canary>,
+    /// Metrics and readiness (`/metrics`, `/readyz`).
+    pub telemetry: Arc<crate::telemetry::Telemetry>,
 }

@@ -61,6 +61,19 @@ pub struct Videos {
     slots: Arc<Semaphore>,
     waiting: Mutex<HashMap<String, Shared>>,
     started: AtomicUsize,
+    /// Renders and cache hits (`/metrics`).
+    pub counters: VideoCounters,
+}
+
+/// What the video pool counts.
+#[derive(Debug, Default)]
+pub struct VideoCounters {
+    /// Renders that made a video.
+    pub rendered: prometheus_client::metrics::counter::Counter,
+    /// Renders that failed.
+    pub failed: prometheus_client::metrics::counter::Counter,
+    /// Videos served from the cache without a render.
+    pub cache_hits: prometheus_client::metrics::counter::Counter,
 }
 
 /// Prefix of a render's temporary directory (left by a crash: removed at start).
@@ -91,6 +104,7 @@ impl Videos {
             assets_dir: assets_dir.to_path_buf(),
             waiting: Mutex::default(),
             started: AtomicUsize::new(0),
+            counters: VideoCounters::default(),
         })
     }
 
@@ -127,6 +141,7 @@ impl Videos {
     pub async fn video(self: &Arc<Self>, job: VideoJob) -> Result<PathBuf, VideoError> {
         let path = self.path_of(&job);
         if tokio::fs::try_exists(&path).await.unwrap_or(false) {
+            self.counters.cache_hits.inc();
             return Ok(path);
         }
         let key = path.to_string_lossy().into_owned();
@@ -194,6 +209,10 @@ impl Videos {
             .await
             .map_err(|e| io("cannot create", e))?;
         let out = self.run(&job, &tmp).await;
+        match &out {
+            Ok(_) => self.counters.rendered.inc(),
+            Err(_) => self.counters.failed.inc(),
+        };
         let out = match out {
             Ok(video) => tokio::fs::rename(&video, &path)
                 .await

@@ -11,6 +11,11 @@ pub struct Args {
     /// Address to listen on (port 0 picks a free port).
     #[arg(long, default_value = "127.0.0.1:8080")]
     pub bind: SocketAddr,
+    /// Also serve /metrics, /healthz and /readyz without credentials on
+    /// this address, for a scraper on a private network (on --bind,
+    /// /metrics needs an admin token); see docs/ops.md.
+    #[arg(long)]
+    pub metrics_bind: Option<SocketAddr>,
     /// Concurrent evaluations (sandboxed worker processes); default: number of cores.
     #[arg(long)]
     pub workers: Option<usize>,
@@ -139,6 +144,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         &args.limits,
         &args.endpoints,
     )?;
+    cfg.metrics_bind = args.metrics_bind;
     cfg.max_upload_bytes = args.max_upload_mb.max(1) << 20;
     cfg.rate_limit_per_minute = args.rate_limit.max(1);
     cfg.anonymous_rate_limit_per_minute = args.anonymous_rate_limit.max(1);

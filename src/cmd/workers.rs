@@ -20,6 +20,10 @@ pub struct Args {
     /// jobs to other hosts after this long.
     #[arg(long, default_value_t = 30)]
     pub lease_seconds: i64,
+    /// Serve this host's /metrics, /healthz and /readyz (no credentials) on
+    /// this address, for a scraper on a private network; see docs/ops.md.
+    #[arg(long)]
+    pub metrics_bind: Option<std::net::SocketAddr>,
     #[command(flatten)]
     pub limits: super::limits::LimitArgs,
     #[command(flatten)]
@@ -51,6 +55,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         "--lease-seconds must be at least 3"
     );
     cfg.lease_seconds = args.lease_seconds;
+    cfg.metrics_bind = args.metrics_bind;
     // The results are this host's: they record its build and the canary's
     // physics fingerprint, as those of `d3il serve`'s own slots do.
     cfg.canary.run = !args.no_verify;

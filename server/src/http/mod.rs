@@ -9,6 +9,7 @@ pub mod api;
 pub mod csv;
 pub mod extract;
 pub mod media;
+pub mod ops;
 pub mod pages;
 pub mod plots;
 
@@ -19,5 +20,6 @@ pub fn router(max_upload: usize) -> Router<AppState> {
     Router::new()
         .merge(pages::router(max_upload))
         .merge(plots::router())
+        .merge(ops::router())
         .nest("/api/v1", api::router(max_upload))
 }

@@ -281,6 +281,7 @@ async fn stream_to_file(
         let last = chunk.is_none();
         if let Some(c) = chunk {
             up.bytes += c.len() as u64;
+            state.telemetry.upload_bytes.inc_by(c.len() as u64);
             quota.check(up.bytes)?;
             batch_len += c.len();
             batch.push(c);

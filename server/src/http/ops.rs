@@ -1,0 +1,119 @@
+//! What operators and their tools ask (issue 42 item 2): `/healthz` (the
+//! process serves: always 200), `/readyz` (200 when ready to take traffic,
+//! else 503 with a JSON body naming what is not ready; see
+//! [`crate::telemetry::readiness`]) and `/metrics` (Prometheus, OpenMetrics
+//! text). On the public listener `/metrics` needs an admin token (it shows
+//! queue depth and traffic); `--metrics-bind ADDR` serves all three without
+//! credentials on a second listener meant for a private interface, which is
+//! also how a worker host (`d3il workers`) is scraped. The request counter
+//! [`count_requests`] wraps every route.
+
+use crate::auth::Admin;
+use crate::state::AppState;
+use crate::telemetry::{labels_of, Telemetry};
+use axum::extract::{MatchedPath, Request, State};
+use axum::http::{header, Method, StatusCode};
+use axum::middleware::Next;
+use axum::response::{IntoResponse, Response};
+use axum::routing::get;
+use axum::{Json, Router};
+use std::sync::Arc;
+
+/// The content type of the OpenMetrics text exposition.
+pub const OPENMETRICS: &str = "application/openmetrics-text; version=1.0.0; charset=utf-8";
+
+/// The routes on the public listener.
+pub fn router() -> Router<AppState> {
+    Router::new()
+        .route("/healthz", get(healthz))
+        .route(
+            "/readyz",
+            get(|State(s): State<AppState>| async move { readyz(&s.telemetry).await }),
+        )
+        .route(
+            "/metrics",
+            get(|State(s): State<AppState>, _: Admin| async move { metrics(&s.telemetry).await }),
+        )
+}
+
+/// The routes of `--metrics-bind` (no credentials: a private address).
+pub fn private_router(t: Arc<Telemetry>) -> Router {
+    Router::new()
+        .route("/healthz", get(healthz))
+        .route(
+            "/readyz",
+            get(|State(t): State<Arc<Telemetry>>| async move { readyz(&t).await }),
+        )
+        .route(
+            "/metrics",
+            get(|State(t): State<Arc<Telemetry>>| async move { metrics(&t).await }),
+        )
+        .with_state(t)
+}
+
+/// Serves [`private_router`] on `listener` until the process ends.
+pub fn spawn_private(listener: tokio::net::TcpListener, t: Arc<Telemetry>) {
+    tokio::spawn(async move {
+        if let Err(e) = axum::serve(listener, private_router(t)).await {
+            tracing::error!("the metrics listener stopped: {e}");
+        }
+    });
+}
+
+async fn healthz() -> Response {
+    (
+        [(header::CACHE_CONTROL, "no-store")],
+        "ok: the process is serving\n",
+    )
+        .into_response()
+}
+
+async fn readyz(t: &Telemetry) -> Response {
+    let report = t.readiness().await;
+    let status = if report.ready {
+        StatusCode::OK
+    } else {
+        StatusCode::SERVICE_UNAVAILABLE
+    };
+    (status, [(header::CACHE_CONTROL, "no-store")], Json(report)).into_response()
+}
+
+async fn metrics(t: &Telemetry) -> Response {
+    (
+        [
+            (header::CONTENT_TYPE, OPENMETRICS),
+            (header::CACHE_CONTROL, "no-store"),
+        ],
+        t.scrape().await,
+    )
+        .into_response()
+}
+
+/// Counts every request by method, matched route template (never the raw
+/// path: ids would make a series each) and status. Requests no route
+/// matched count under `unmatched`.
+pub async fn count_requests(State(t): State<Arc<Telemetry>>, req: Request, next: Next) -> Response {
+    let route = req
+        .extensions()
+        .get::<MatchedPath>()
+        .map_or_else(|| "unmatched".to_string(), |p| p.as_str().to_string());
+    let method = match *req.method() {
+        Method::GET => "GET",
+        Method::HEAD => "HEAD",
+        Method::POST => "POST",
+        Method::PUT => "PUT",
+        Method::DELETE => "DELETE",
+        Method::PATCH => "PATCH",
+        Method::OPTIONS => "OPTIONS",
+        _ => "other",
+    };
+    let resp = next.run(req).await;
+    t.http_requests
+        .get_or_create(&labels_of(&[
+            ("method", method),
+            ("route", route.as_str()),
+            ("status", resp.status().as_str()),
+        ]))
+        .inc();
+    resp
+}
