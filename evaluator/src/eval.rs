@@ -16,7 +16,8 @@ use d3il_protocol::{
     ErrorKind, EvalResult, FailureReason, ObsType, ProtocolKind, ProtocolManifest, RolloutFailure,
     RolloutRecord,
 };
-use lockstep::{infer, Lockstep, Plan};
+use d3il_protocol::Progress;
+use lockstep::{Lockstep, Plan};
 use serde_json::Value;
 use std::collections::VecDeque;
 use std::time::Instant;
@@ -172,6 +173,24 @@ pub fn evaluate(
     opts: &EvalOptions,
     on_progress: &mut dyn FnMut(usize, usize),
 ) -> Result<(EvalResult, Timing), EvalError> {
+    evaluate_reporting(task, policy, info, opts, &mut counts_only(on_progress))
+}
+
+/// Adapts a `(done, total)` progress callback to [`Progress`] reports.
+fn counts_only(on_progress: &mut dyn FnMut(usize, usize)) -> impl FnMut(&Progress) + '_ {
+    move |p: &Progress| on_progress(p.rollouts_done, p.rollouts_total)
+}
+
+/// [`evaluate`] whose `on_progress` also gets the outcomes of the initial
+/// states as they complete, in the evaluation's random order
+/// ([`Progress::states`]; docs/sequential.md).
+pub fn evaluate_reporting(
+    task: &LoadedTask,
+    policy: &mut dyn Policy,
+    info: &PolicyInfo,
+    opts: &EvalOptions,
+    on_progress: &mut dyn FnMut(&Progress),
+) -> Result<(EvalResult, Timing), EvalError> {
     let t0 = Instant::now();
     let run = run_rollouts(task, policy, info, opts, None, None, on_progress)?;
     let mut timing = run.timing;
@@ -199,6 +218,21 @@ pub fn evaluate_shard(
     opts: &EvalOptions,
     shard: Shard,
     on_progress: &mut dyn FnMut(usize, usize),
+) -> Result<(EvalPart, Timing), EvalError> {
+    let on_progress = &mut counts_only(on_progress);
+    evaluate_shard_reporting(task, policy, info, opts, shard, on_progress)
+}
+
+/// [`evaluate_shard`] reporting like [`evaluate_reporting`]: the shard's
+/// states in the evaluation's random order (the order of all states, less
+/// those of other shards).
+pub fn evaluate_shard_reporting(
+    task: &LoadedTask,
+    policy: &mut dyn Policy,
+    info: &PolicyInfo,
+    opts: &EvalOptions,
+    shard: Shard,
+    on_progress: &mut dyn FnMut(&Progress),
 ) -> Result<(EvalPart, Timing), EvalError> {
     let run = run_rollouts(task, policy, info, opts, Some(shard), None, on_progress)?;
     Ok((
@@ -248,7 +282,7 @@ pub fn evaluate_perturbed(
         opts,
         None,
         Some(&active),
-        on_progress,
+        &mut counts_only(on_progress),
     )?;
     let mut timing = run.timing;
     let result = assemble(
@@ -279,7 +313,7 @@ fn run_rollouts(
     opts: &EvalOptions,
     shard: Option<Shard>,
     perturb: Option<&std::sync::Arc<Active>>,
-    on_progress: &mut dyn FnMut(usize, usize),
+    on_progress: &mut dyn FnMut(&Progress),
 ) -> Result<Run, EvalError> {
     let t0 = Instant::now();
     let mut timing = Timing::default();
@@ -333,6 +367,13 @@ fn run_rollouts(
             })
             .collect(),
         ctx_range: ctx_range.clone(),
+        // The evaluation's random order of its states (issue 41): any prefix
+        // of what has finished is a fair sample. The records are stored by
+        // rollout id, so the result does not depend on it.
+        order: d3il_metrics::order::state_order(n_ctx, opts.seed)
+            .into_iter()
+            .filter(|c| ctx_range.contains(c))
+            .collect(),
         per_ctx,
         sim_per_ctx,
     };
@@ -340,17 +381,12 @@ fn run_rollouts(
     let started = lockstep.start_all()?;
     policy.reset(&started)?;
     while lockstep.live() {
-        for w in lockstep.windows() {
-            let rows = lockstep.gather(w)?;
-            let chunks = infer(policy, &lockstep.query(w), &shape, &mut timing)?;
-            lockstep.scatter(&rows, &chunks);
-        }
-        lockstep.step(&mut timing)?;
-        let started = lockstep.record()?;
-        if !started.is_empty() {
-            policy.reset(&started)?;
-        }
-        on_progress(lockstep.done, lockstep.total());
+        lockstep.advance(policy, &mut timing)?;
+        on_progress(&Progress {
+            rollouts_done: lockstep.done,
+            rollouts_total: lockstep.total(),
+            states: lockstep.newly_complete(),
+        });
     }
     let (rollouts, behaviour_keys, slots) = lockstep.finish();
     let manifest = ProtocolManifest {

@@ -2,12 +2,15 @@
 //! evaluate it ([`crate::eval`]) or one shard of it.
 
 use crate::eval::{
-    evaluate, evaluate_shard, protocol_size, sha256_hex, EvalError, EvalOptions, PolicyInfo,
+    evaluate_reporting, evaluate_shard_reporting, protocol_size, sha256_hex, EvalError,
+    EvalOptions, PolicyInfo,
 };
 use crate::scripted::ScriptedPolicy;
 use crate::tasks::{LoadedTask, TaskError};
 use d3il_policy::{OnnxPolicy, Policy, RemotePolicy};
-use d3il_protocol::{ErrorKind, EvalResult, Evaluated, Job, ObsType, PolicySource, WorkerError};
+use d3il_protocol::{
+    ErrorKind, EvalResult, Evaluated, Job, ObsType, PolicySource, Progress, WorkerError,
+};
 
 /// Builds the policy a job names. ONNX bytes are checked against the job's sha256.
 pub fn load_policy(
@@ -78,7 +81,8 @@ pub fn run_job(
     job: &Job,
     on_progress: &mut dyn FnMut(usize, usize),
 ) -> Result<EvalResult, WorkerError> {
-    match run_job_or_shard(job, on_progress)? {
+    let mut counts = |p: &Progress| on_progress(p.rollouts_done, p.rollouts_total);
+    match run_job_or_shard(job, &mut counts)? {
         Evaluated::Result(r) => Ok(*r),
         Evaluated::Part(_) => Err(WorkerError {
             kind: ErrorKind::BadJob,
@@ -88,10 +92,12 @@ pub fn run_job(
 }
 
 /// [`run_job`] for any job: a job with [`Job::shard`] runs only that shard
-/// ([`evaluate_shard`]) and gives its part.
+/// ([`evaluate_shard_reporting`]) and gives its part. `on_progress` gets the
+/// initial states' outcomes as they complete, in the evaluation's random
+/// order ([`Progress::states`]).
 pub fn run_job_or_shard(
     job: &Job,
-    on_progress: &mut dyn FnMut(usize, usize),
+    on_progress: &mut dyn FnMut(&Progress),
 ) -> Result<Evaluated, WorkerError> {
     let to_worker = |e: EvalError| WorkerError {
         kind: e.kind(),
@@ -113,7 +119,7 @@ pub fn run_job_or_shard(
             Some(Ok(range)) => range.len(),
             _ => n_ctx,
         };
-        on_progress(0, n * per_ctx);
+        on_progress(&Progress::counts(0, n * per_ctx));
     }
     let opts = EvalOptions {
         protocol: job.protocol,
@@ -123,9 +129,11 @@ pub fn run_job_or_shard(
         ..EvalOptions::default()
     };
     match job.shard {
-        Some(shard) => evaluate_shard(&task, policy.as_mut(), &info, &opts, shard, on_progress)
-            .map(|(p, _)| Evaluated::Part(Box::new(p))),
-        None => evaluate(&task, policy.as_mut(), &info, &opts, on_progress)
+        Some(shard) => {
+            evaluate_shard_reporting(&task, policy.as_mut(), &info, &opts, shard, on_progress)
+                .map(|(p, _)| Evaluated::Part(Box::new(p)))
+        }
+        None => evaluate_reporting(&task, policy.as_mut(), &info, &opts, on_progress)
             .map(|(r, _)| Evaluated::Result(Box::new(r))),
     }
     .map_err(to_worker)

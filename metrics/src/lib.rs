@@ -25,6 +25,7 @@
 
 mod bootstrap;
 pub mod compare;
+pub mod order;
 pub mod robustness;
 pub mod sequential;
 pub mod shard;

@@ -633,16 +633,10 @@ pub struct Replay {
     pub rate_b: f64,
 }
 
-/// Replays paired outcomes in a seeded random order (Fisher–Yates with
-/// ChaCha8) through a [`SequentialComparison`], stopping at its decision.
+/// Replays paired outcomes in a seeded random order
+/// ([`crate::order::random_order`]) through a [`SequentialComparison`], stopping at its decision.
 pub fn replay(pairs: &[(bool, bool)], alpha: f64, delta: Option<f64>, seed: u64) -> Replay {
-    use rand::{Rng, SeedableRng};
-    let mut order: Vec<usize> = (0..pairs.len()).collect();
-    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
-    for i in (1..order.len()).rev() {
-        let j = rng.random_range(0..=i as u64) as usize;
-        order.swap(i, j);
-    }
+    let order = crate::order::random_order(pairs.len(), seed);
     let mut test = SequentialComparison::new(alpha, delta);
     for &i in &order {
         let (a, b) = pairs[i];

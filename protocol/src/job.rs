@@ -348,10 +348,9 @@ pub enum WorkerMessage {
     Sandbox {
         mechanisms: Vec<SandboxMechanism>,
     },
-    Progress {
-        rollouts_done: usize,
-        rollouts_total: usize,
-    },
+    /// Rollouts done, and the initial states newly finished in the
+    /// evaluation's random order ([`crate::progress::Progress`]).
+    Progress(crate::progress::Progress),
     Result(Box<EvalResult>),
     /// The part of one shard (a job with [`Job::shard`]).
     Part(Box<crate::shard::EvalPart>),

@@ -9,6 +9,7 @@ pub mod fidelity;
 pub mod job;
 pub mod paper;
 pub mod perturbation;
+pub mod progress;
 pub mod results;
 pub mod robustness;
 pub mod rollout;
@@ -17,6 +18,7 @@ pub mod task;
 
 pub use behaviour::{behaviour_name, sorting_order};
 pub use job::*;
+pub use progress::{Progress, StateOutcome};
 pub use results::*;
 pub use rollout::{Ending, Landmark, LandmarkKind, RolloutTrace};
 pub use task::*;

@@ -9,7 +9,7 @@
 use crate::confine::{self, names};
 use crate::endpoint::validate_endpoint;
 use d3il_protocol::{
-    exit_code, ErrorKind, Evaluated, Job, PolicySource, SandboxMechanism, WorkerError,
+    exit_code, ErrorKind, Evaluated, Job, PolicySource, Progress, SandboxMechanism, WorkerError,
     WorkerMessage,
 };
 use std::fs::File;
@@ -74,7 +74,7 @@ impl ProtocolOut {
 /// Read the job from stdin, confine, run `evaluate`, report. Returns the exit code.
 pub fn worker_main<F>(opts: &WorkerOptions, evaluate: F) -> i32
 where
-    F: FnOnce(&Job, &mut dyn FnMut(usize, usize)) -> Result<Evaluated, WorkerError>,
+    F: FnOnce(&Job, &mut dyn FnMut(&Progress)) -> Result<Evaluated, WorkerError>,
 {
     let mut out = match ProtocolOut::take_stdout() {
         Ok(o) => o,
@@ -133,12 +133,7 @@ where
         }
     }
     let result = {
-        let mut progress = |done: usize, total: usize| {
-            out.send(&WorkerMessage::Progress {
-                rollouts_done: done,
-                rollouts_total: total,
-            })
-        };
+        let mut progress = |p: &Progress| out.send(&WorkerMessage::Progress(p.clone()));
         evaluate(&job, &mut progress)
     };
     match result {

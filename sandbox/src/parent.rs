@@ -10,8 +10,8 @@
 
 use crate::confine::format_bytes;
 use d3il_protocol::{
-    exit_code, ErrorKind, EvalResult, Job, Limits, PolicySource, SandboxMechanism, WorkerError,
-    WorkerMessage,
+    exit_code, ErrorKind, EvalResult, Job, Limits, PolicySource, Progress, SandboxMechanism,
+    WorkerError, WorkerMessage,
 };
 use std::io::{BufRead, BufReader, Read, Write};
 use std::os::unix::process::CommandExt;
@@ -110,6 +110,20 @@ pub fn run_worker(
     cmd: &WorkerCommand,
     job: &Job,
     on_progress: &mut dyn FnMut(usize, usize),
+) -> WorkerRun {
+    run_worker_reporting(cmd, job, &mut |p: &Progress| {
+        on_progress(p.rollouts_done, p.rollouts_total)
+    })
+}
+
+/// [`run_worker`] whose `on_progress` gets every progress line whole: the
+/// counts and the initial states newly finished in the evaluation's random
+/// order ([`Progress::states`], issue 41), from which a live confidence
+/// sequence of the success rate is computed.
+pub fn run_worker_reporting(
+    cmd: &WorkerCommand,
+    job: &Job,
+    on_progress: &mut dyn FnMut(&Progress),
 ) -> WorkerRun {
     // The operator's extra CA for wss:// endpoints travels in the job: the
     // worker may not read the file itself.
@@ -230,12 +244,9 @@ pub fn run_worker(
         match rx.recv_timeout((deadline - now).min(Duration::from_millis(50))) {
             Ok(Event::Message(m)) => match *m {
                 WorkerMessage::Sandbox { mechanisms: m } => mechanisms = m,
-                WorkerMessage::Progress {
-                    rollouts_done,
-                    rollouts_total,
-                } => {
-                    progress = Some((rollouts_done, rollouts_total));
-                    on_progress(rollouts_done, rollouts_total);
+                WorkerMessage::Progress(p) => {
+                    progress = Some((p.rollouts_done, p.rollouts_total));
+                    on_progress(&p);
                 }
                 WorkerMessage::Result(r) => final_msg = Some(Outcome::Completed(r)),
                 WorkerMessage::Part(p) => final_msg = Some(Outcome::Part(p)),

@@ -22,7 +22,7 @@ fn stdout_reader_stops_at_garbage_and_at_the_cap() {
     let ev: Vec<Event> = rx.iter().collect();
     assert_eq!(ev.len(), 2);
     assert!(
-        matches!(&ev[0], Event::Message(m) if matches!(**m, WorkerMessage::Progress { rollouts_done: 1, .. }))
+        matches!(&ev[0], Event::Message(m) if matches!(**m, WorkerMessage::Progress(d3il_protocol::Progress { rollouts_done: 1, .. })))
     );
     assert!(matches!(&ev[1], Event::Garbage(g) if g == "not json"));
 

@@ -56,7 +56,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 std::process::exit(code);
             }
             d3il_sandbox::worker_main(&opts, |job, progress| {
-                d3il_sandbox::selftest::evaluate(mode, job, progress).map(Into::into)
+                let mut counts =
+                    |d: usize, t: usize| progress(&d3il_protocol::Progress::counts(d, t));
+                d3il_sandbox::selftest::evaluate(mode, job, &mut counts).map(Into::into)
             })
         }
         None => d3il_sandbox::worker_main(&opts, |job, progress| {

@@ -12,7 +12,7 @@ use super::{
 use crate::perturb::Active;
 use crate::tasks::LoadedTask;
 use d3il_policy::{validate_actions, ActionChunks, HistoryBuffer, Policy, PolicyShape, Query};
-use d3il_protocol::{Ending, ObsType, RolloutRecord, TaskId};
+use d3il_protocol::{Ending, ObsType, RolloutRecord, StateOutcome, TaskId};
 use rayon::prelude::*;
 use serde_json::Value;
 use std::collections::VecDeque;
@@ -25,6 +25,9 @@ pub(super) struct Plan {
     pub contexts: Vec<Value>,
     /// The initial states this run covers.
     pub ctx_range: Range<usize>,
+    /// The same states in the order they are started and reported: the
+    /// evaluation's random order ([`d3il_metrics::order::state_order`]).
+    pub order: Vec<usize>,
     /// Rollouts per initial state in the protocol.
     pub per_ctx: usize,
     /// Rollouts simulated per initial state (1 for a deterministic policy
@@ -59,6 +62,8 @@ pub(super) struct Lockstep<'a> {
     keys: Vec<Option<Option<String>>>,
     /// Rollouts recorded so far (copies of once-simulated ones included).
     pub done: usize,
+    /// Initial states reported complete so far (a prefix of `plan.order`).
+    reported: usize,
     // The query buffers, reused from call to call.
     ids: Vec<u64>,
     steps: Vec<u64>,
@@ -119,6 +124,7 @@ impl<'a> Lockstep<'a> {
             records: vec![None; total],
             keys: vec![None; total],
             done: 0,
+            reported: 0,
             plan,
             ids: Vec::new(),
             steps: Vec::new(),
@@ -148,7 +154,7 @@ impl<'a> Lockstep<'a> {
             return Ok(None);
         }
         let (ctx, r) = (
-            plan.ctx_range.start + self.next / plan.sim_per_ctx,
+            plan.order[self.next / plan.sim_per_ctx],
             self.next % plan.sim_per_ctx,
         );
         // Rollout ids are global (context * per_ctx + index): a shard's
@@ -366,6 +372,57 @@ impl<'a> Lockstep<'a> {
         true
     }
 
+    /// Starts no further rollout: the live ones run to their end (a race
+    /// that has decided, [`super::race`]).
+    pub fn stop_starting(&mut self) {
+        self.next = self.plan.sim_total();
+    }
+
+    /// The initial states complete since the last call, in the plan's
+    /// order: a state is returned once all its rollouts are recorded and
+    /// every state before it in the order has been returned.
+    pub fn newly_complete(&mut self) -> Vec<StateOutcome> {
+        let per_ctx = self.plan.per_ctx;
+        let first_id = self.plan.ctx_range.start * per_ctx;
+        let mut out = Vec::new();
+        while let Some(&ctx) = self.plan.order.get(self.reported) {
+            let at = ctx * per_ctx - first_id;
+            let recs = &self.records[at..at + per_ctx];
+            if recs.iter().any(Option::is_none) {
+                break;
+            }
+            out.push(StateOutcome {
+                position: self.reported,
+                context_index: ctx,
+                successes: recs.iter().flatten().map(|r| r.success).collect(),
+            });
+            self.reported += 1;
+        }
+        out
+    }
+
+    /// One turn of the loop: every live rollout that needs actions gets
+    /// them (gather, infer, scatter: one batched call per window length),
+    /// all step, finished ones are recorded and pending ones start.
+    pub fn advance(
+        &mut self,
+        policy: &mut dyn Policy,
+        timing: &mut Timing,
+    ) -> Result<(), EvalError> {
+        let shape = self.shape;
+        for w in self.windows() {
+            let rows = self.gather(w)?;
+            let chunks = infer(policy, &self.query(w), &shape, timing)?;
+            self.scatter(&rows, &chunks);
+        }
+        self.step(timing)?;
+        let started = self.record()?;
+        if !started.is_empty() {
+            policy.reset(&started)?;
+        }
+        Ok(())
+    }
+
     /// The records and behaviour keys in rollout order, and the slots (for
     /// their timings).
     pub fn finish(self) -> (Vec<RolloutRecord>, Vec<Option<String>>, Vec<Slot>) {
@@ -407,6 +464,7 @@ mod tests {
         let plan = Plan {
             contexts: (0..3).map(|i| set.get(i).unwrap().clone()).collect(),
             ctx_range: 0..3,
+            order: vec![0, 1, 2],
             per_ctx: 2,
             sim_per_ctx: 1,
         };

@@ -29,7 +29,9 @@ fn main() {
         std::process::exit(code);
     }
     let code = d3il_sandbox::worker_main(&opts, |job, progress| {
-        d3il_sandbox::selftest::evaluate(&mode, job, progress).map(Into::into)
+        let mut counts =
+            |done: usize, total: usize| progress(&d3il_protocol::Progress::counts(done, total));
+        d3il_sandbox::selftest::evaluate(&mode, job, &mut counts).map(Into::into)
     });
     std::process::exit(code);
 }
