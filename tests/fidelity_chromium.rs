@@ -4,8 +4,10 @@
 //! being computed; then headless Chromium renders every section of it
 //! filled from the real report (episodes recorded in the original replayed
 //! here, both closed-loop policies, both cameras' frames, the deviations),
-//! and the navigation links to it. A restart of the same build shows the
-//! cached report at once.
+//! and the navigation links to it, labelled as the quick report. A restart
+//! of the same build shows the cached report at once; asked for the full
+//! report, it shows the cached quick one at once, labelled, while the full
+//! one is computed (tests/fidelity_first_minute.rs: the full one replaces it).
 
 mod server_support;
 use d3il_test_support::chromium::{chromium, dump_dom};
@@ -69,6 +71,15 @@ fn chromium_renders_the_fidelity_report_computed_in_the_background() {
     assert!(
         dom.contains("quick report"),
         "the report says which mode made it"
+    );
+    let label = section(
+        &dom,
+        "<p class=\"fidelity-label\" id=\"fidelity-quick\"",
+        "</p>",
+    );
+    assert!(
+        label.contains("Quick report") && !label.contains("being computed"),
+        "labelled; the quick report was asked for, nothing follows: {label}"
     );
 
     // 1. Every recorded episode, with its contact phase where it has one.
@@ -166,6 +177,42 @@ fn chromium_renders_the_fidelity_report_computed_in_the_background() {
         std::fs::metadata(&cache[0]).unwrap().modified().unwrap(),
         written,
         "not recomputed"
+    );
+    server.kill();
+
+    // The full report asked of a build that has only the quick one: the
+    // quick one at once, labelled, while the full one is computed.
+    let full_args = ["--workers", "0", "--fidelity", "full"];
+    let server = Server::start(&db, &full_args);
+    let (status, page) = server.get_text("/fidelity");
+    assert_eq!(status, 200);
+    let page = if page.contains("id=\"fidelity-build\"") {
+        page
+    } else {
+        wait_for(Duration::from_secs(30), || {
+            let (_, page) = server.get_text("/fidelity");
+            page.contains("id=\"fidelity-build\"").then_some(page)
+        })
+        .expect("the cached quick report within 30 s")
+    };
+    let label = section(
+        &page,
+        "<p class=\"fidelity-label\" id=\"fidelity-quick\"",
+        "</p>",
+    );
+    assert!(
+        label.contains("Quick report") && label.contains("The full report is being computed"),
+        "{label}"
+    );
+    assert!(
+        page.contains("<meta http-equiv=\"refresh\""),
+        "reloads until the full one"
+    );
+    let (status, json) = server.get_text("/fidelity/json");
+    assert_eq!(status, 200);
+    assert!(
+        json.contains("\"mode\": \"quick\""),
+        "labelled in the JSON too"
     );
     server.kill();
 }

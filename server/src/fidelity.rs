@@ -5,7 +5,9 @@
 //! stopped after a timeout, outside the worker slots, so it never holds up
 //! an evaluation. The JSON is cached on disk keyed by the binary (sha256
 //! of the executable) and the report's mode; a restart of the same build
-//! shows it at once. Until it is ready the page says it is being computed.
+//! shows it at once. A full report comes after the quick one, which is
+//! shown (labelled) meanwhile; until there is one the page says it is being
+//! computed.
 
 use d3il_protocol::fidelity::{FidelityMode, FidelityReport};
 use sha2::{Digest, Sha256};
@@ -48,13 +50,29 @@ impl FidelityConfig {
 pub enum FidelityState {
     /// Not computed on this server (`--fidelity off`).
     Off,
-    /// Being computed since this Unix time.
+    /// Being computed since this Unix time; nothing to show yet.
     Computing {
         since: i64,
         mode: FidelityMode,
     },
-    Ready(Arc<FidelityReport>),
+    /// A report (its `mode` says which), and what comes after it: the full
+    /// report replaces a quick one shown while it is computed.
+    Ready {
+        report: Arc<FidelityReport>,
+        next: Next,
+    },
     Failed(String),
+}
+
+/// After a shown report.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Next {
+    /// It is the one asked for.
+    Nothing,
+    /// The full report is being computed since this Unix time.
+    Full { since: i64 },
+    /// The full report could not be computed; the quick one stays.
+    FullFailed(String),
 }
 
 pub struct FidelityReports {
@@ -101,14 +119,51 @@ impl FidelityReports {
         *self.state.write().unwrap_or_else(|e| e.into_inner()) = s;
     }
 
-    /// Starts the background computation (or reads the cached report).
+    /// Starts the background computation (or reads the cached report). For
+    /// a full report on a build that has none cached, the quick one comes
+    /// first (read from the cache or computed, minutes instead of the full
+    /// one's tens of minutes on two cores) and is shown, labelled, until the
+    /// full one replaces it.
     pub fn start(self: &Arc<Self>) {
         let Some(mode) = self.cfg.mode else { return };
         let me = self.clone();
         tokio::spawn(async move {
-            let state = match me.load_or_compute(mode).await {
-                Ok(r) => FidelityState::Ready(Arc::new(r)),
-                Err(e) => {
+            let key = match me.key().await {
+                Ok(k) => k,
+                Err(e) => return me.set(FidelityState::Failed(e)),
+            };
+            if mode == FidelityMode::Full && me.cached(&key, mode).await.is_none() {
+                me.set(FidelityState::Computing {
+                    since: now(),
+                    mode: FidelityMode::Quick,
+                });
+                match me.load_or_compute(&key, FidelityMode::Quick).await {
+                    Ok(r) => me.set(FidelityState::Ready {
+                        report: Arc::new(r),
+                        next: Next::Full { since: now() },
+                    }),
+                    Err(e) => {
+                        tracing::warn!("quick fidelity report: {e}");
+                        me.set(FidelityState::Computing {
+                            since: now(),
+                            mode: FidelityMode::Full,
+                        });
+                    }
+                }
+            }
+            let state = match (me.load_or_compute(&key, mode).await, me.state()) {
+                (Ok(r), _) => FidelityState::Ready {
+                    report: Arc::new(r),
+                    next: Next::Nothing,
+                },
+                (Err(e), FidelityState::Ready { report, .. }) => {
+                    tracing::warn!("full fidelity report: {e}");
+                    FidelityState::Ready {
+                        report,
+                        next: Next::FullFailed(e),
+                    }
+                }
+                (Err(e), _) => {
                     tracing::warn!("fidelity report: {e}");
                     FidelityState::Failed(e)
                 }
@@ -117,20 +172,34 @@ impl FidelityReports {
         });
     }
 
-    async fn load_or_compute(&self, mode: FidelityMode) -> Result<FidelityReport, String> {
+    /// The cache key of this build: the executable's sha256.
+    async fn key(&self) -> Result<String, String> {
         let exe = self.cfg.exe.clone();
-        let key = tokio::task::spawn_blocking(move || file_sha256(&exe))
+        tokio::task::spawn_blocking(move || file_sha256(&exe))
             .await
             .map_err(|e| e.to_string())?
-            .map_err(|e| format!("cannot read {}: {e}", self.cfg.exe.display()))?;
-        let path = self
-            .dir
-            .join(format!("{}-{}.json", &key[..16], mode.as_str()));
-        if let Ok(bytes) = tokio::fs::read(&path).await {
-            if let Ok(r) = serde_json::from_slice::<FidelityReport>(&bytes) {
-                return Ok(r);
-            }
+            .map_err(|e| format!("cannot read {}: {e}", self.cfg.exe.display()))
+    }
+
+    fn path(&self, key: &str, mode: FidelityMode) -> PathBuf {
+        self.dir
+            .join(format!("{}-{}.json", &key[..16], mode.as_str()))
+    }
+
+    async fn cached(&self, key: &str, mode: FidelityMode) -> Option<FidelityReport> {
+        let bytes = tokio::fs::read(self.path(key, mode)).await.ok()?;
+        serde_json::from_slice::<FidelityReport>(&bytes).ok()
+    }
+
+    async fn load_or_compute(
+        &self,
+        key: &str,
+        mode: FidelityMode,
+    ) -> Result<FidelityReport, String> {
+        if let Some(r) = self.cached(key, mode).await {
+            return Ok(r);
         }
+        let path = self.path(key, mode);
         tokio::fs::create_dir_all(&self.dir)
             .await
             .map_err(|e| format!("cannot create {}: {e}", self.dir.display()))?;

@@ -4,13 +4,13 @@
 use super::format::fmt_time;
 use super::render;
 use crate::error::{AppError, PageError};
-use crate::fidelity::FidelityState;
+use crate::fidelity::{FidelityState, Next};
 use crate::state::AppState;
 use askama::Template;
 use axum::extract::State;
 use axum::http::{header, StatusCode};
 use axum::response::{Html, IntoResponse, Response};
-use d3il_protocol::fidelity::FidelityReport;
+use d3il_protocol::fidelity::{FidelityMode, FidelityReport};
 
 struct EpisodeRow {
     file: String,
@@ -87,6 +87,11 @@ struct FidelityPage {
     status: &'static str,
     message: String,
     report: Option<ReportView>,
+    /// Which report is shown (`quick` or `full`) and what comes next.
+    mode: &'static str,
+    label: String,
+    /// Reload while something is being computed.
+    refresh: bool,
 }
 
 fn steps(s: Option<usize>, remaining: usize) -> String {
@@ -258,39 +263,62 @@ fn view(r: &FidelityReport) -> ReportView {
 pub(super) async fn fidelity_page(
     State(state): State<AppState>,
 ) -> Result<Html<String>, PageError> {
+    let waiting = |status, message| FidelityPage {
+        status,
+        message,
+        report: None,
+        mode: "",
+        label: String::new(),
+        refresh: status == "computing",
+    };
     let page = match state.fidelity.state() {
-        FidelityState::Off => FidelityPage {
-            status: "off",
-            message: "This server does not compute the fidelity report (d3il serve --fidelity off). Run `d3il fidelity` to make it.".into(),
-            report: None,
-        },
-        FidelityState::Computing { since, mode } => FidelityPage {
-            status: "computing",
-            message: format!(
+        FidelityState::Off => waiting("off", "This server does not compute the fidelity report (d3il serve --fidelity off). Run `d3il fidelity` to make it.".into()),
+        FidelityState::Computing { since, mode } => waiting(
+            "computing",
+            format!(
                 "The {} fidelity report is being computed for this build (started {}); this page shows it when it is ready.",
                 mode.as_str(),
                 fmt_time(since)
             ),
-            report: None,
-        },
-        FidelityState::Failed(e) => FidelityPage {
-            status: "failed",
-            message: format!("The fidelity report could not be computed: {e}"),
-            report: None,
-        },
-        FidelityState::Ready(r) => FidelityPage {
-            status: "ready",
-            message: String::new(),
-            report: Some(view(&r)),
-        },
+        ),
+        FidelityState::Failed(e) => waiting(
+            "failed",
+            format!("The fidelity report could not be computed: {e}"),
+        ),
+        FidelityState::Ready { report, next } => {
+            let quick = report.mode == FidelityMode::Quick;
+            let what = if quick {
+                "Quick report: the closed-loop policies under the quick protocol (3 initial states, 2 rollouts each); episodes and camera frames as in the full report."
+            } else {
+                "Full report: the closed-loop policies under the paper protocol."
+            };
+            let after = match &next {
+                Next::Nothing => String::new(),
+                Next::Full { since } => format!(
+                    " The full report is being computed (started {}) and replaces this one when it is ready.",
+                    fmt_time(*since)
+                ),
+                Next::FullFailed(e) => {
+                    format!(" The full report could not be computed: {e}")
+                }
+            };
+            FidelityPage {
+                status: "ready",
+                message: String::new(),
+                mode: report.mode.as_str(),
+                label: format!("{what}{after}"),
+                refresh: matches!(next, Next::Full { .. }),
+                report: Some(view(&report)),
+            }
+        }
     };
     render(&page)
 }
 
 pub(super) async fn fidelity_json(State(state): State<AppState>) -> Result<Response, PageError> {
     match state.fidelity.state() {
-        FidelityState::Ready(r) => {
-            let body = serde_json::to_string_pretty(&*r)
+        FidelityState::Ready { report, .. } => {
+            let body = serde_json::to_string_pretty(&*report)
                 .map_err(|e| AppError::Internal(format!("json: {e}")))?;
             Ok(([(header::CONTENT_TYPE, "application/json")], body).into_response())
         }
