@@ -96,7 +96,7 @@ pub async fn count_requests(State(t): State<Arc<Telemetry>>, req: Request, next:
     let route = req
         .extensions()
         .get::<MatchedPath>()
-        .map_or_else(|| "unmatched".to_string(), |p| p.as_str().to_string());
+        .map_or_else(|| "unmatched".to_string(), |p| route_label(p.as_str()));
     let method = match *req.method() {
         Method::GET => "GET",
         Method::HEAD => "HEAD",
@@ -116,4 +116,43 @@ pub async fn count_requests(State(t): State<Arc<Telemetry>>, req: Request, next:
         ]))
         .inc();
     resp
+}
+
+/// A route template as a label: `{param}` written `:param` (braces inside a
+/// label value trip up simple exposition parsers), the catch-all of a nested
+/// router's fallback as `*`.
+pub fn route_label(template: &str) -> String {
+    let mut out = String::with_capacity(template.len());
+    let mut rest = template;
+    while let Some(open) = rest.find('{') {
+        out.push_str(&rest[..open]);
+        let Some(close) = rest[open..].find('}') else {
+            out.push_str(&rest[open..]);
+            return out;
+        };
+        let name = &rest[open + 1..open + close];
+        if name.starts_with('*') {
+            out.push('*');
+        } else {
+            out.push(':');
+            out.push_str(name);
+        }
+        rest = &rest[open + close + 1..];
+    }
+    out.push_str(rest);
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn route_labels_name_parameters_without_braces() {
+        use super::route_label;
+        assert_eq!(
+            route_label("/api/v1/submissions/{id}/rollouts/{n}"),
+            "/api/v1/submissions/:id/rollouts/:n"
+        );
+        assert_eq!(route_label("/api/v1/{*rest}"), "/api/v1/*");
+        assert_eq!(route_label("/healthz"), "/healthz");
+    }
 }
