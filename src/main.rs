@@ -28,6 +28,8 @@ enum Command {
     Compare(cmd::compare::Args),
     /// Generate or verify the fixed initial-state sets.
     Contexts(cmd::contexts::Args),
+    /// Back up, restore and check the leaderboard's database and policy files (docs/ops.md).
+    Db(cmd::db::Args),
     /// Evaluate a policy (ONNX file, ws:// or wss:// endpoint, or scripted) on a task and print the D3IL metrics.
     Eval(cmd::eval::Args),
     /// How closely this simulator follows the original D3IL one: the fidelity report (Markdown or JSON).
@@ -66,6 +68,7 @@ fn main() -> anyhow::Result<()> {
         Command::Bench(a) => cmd::bench::run(a),
         Command::Compare(a) => cmd::compare::run(a),
         Command::Contexts(a) => cmd::contexts::run(a),
+        Command::Db(a) => cmd::db::run(a),
         Command::Infer(a) => cmd::infer::run(a),
         Command::Merge(a) => cmd::merge::run(a),
         Command::Render(a) => cmd::render::run(a),

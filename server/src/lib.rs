@@ -22,6 +22,7 @@
 
 pub mod app;
 pub mod auth;
+pub mod backup;
 pub mod board_figures;
 pub mod cache;
 pub mod canary;

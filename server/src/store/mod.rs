@@ -247,11 +247,7 @@ impl Store {
         if let Some(parent) = path.parent().filter(|p| !p.as_os_str().is_empty()) {
             std::fs::create_dir_all(parent).map_err(io_err(parent))?;
         }
-        let stem = path
-            .file_stem()
-            .map(|s| s.to_string_lossy().into_owned())
-            .unwrap_or_else(|| "d3il".into());
-        let data_dir = policy_store_dir(&path.with_file_name(format!("{stem}-data")))?;
+        let data_dir = policy_store_dir(&sqlite_data_dir(path))?;
 
         // FULL synchronous: an accepted submission must survive a power cut
         // once the response is sent (issue 7, "durable before the response").
@@ -342,6 +338,16 @@ impl Store {
     pub fn data_dir(&self) -> &Path {
         &self.data_dir
     }
+}
+
+/// Where a SQLite store at `path` keeps uploaded policies unless
+/// `--policy-store` says otherwise: `<file stem>-data/` next to it.
+pub fn sqlite_data_dir(path: &Path) -> PathBuf {
+    let stem = path
+        .file_stem()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_else(|| "d3il".into());
+    path.with_file_name(format!("{stem}-data"))
 }
 
 /// `dir` made absolute (the sandboxed worker is given paths inside it to
