@@ -35,6 +35,11 @@ fn every_reference_agent_family_exports_checks_evaluates_and_serves() {
             "-q",
             "-p",
             "no:cacheprovider",
+            // one pytest worker per core (pytest-xdist): each test's torch runs on
+            // one thread (tests_torch/conftest.py), so the suite takes half the
+            // wall time on CI's 2 cores
+            "-n",
+            "auto",
             "clients/python/tests_torch",
         ])
         .current_dir(root)
