@@ -17,6 +17,7 @@ use std::io::{BufRead, BufReader, Read, Write};
 use std::os::unix::process::CommandExt;
 use std::path::PathBuf;
 use std::process::{Command, Stdio};
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::mpsc::{self, RecvTimeoutError};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
@@ -111,19 +112,35 @@ pub fn run_worker(
     job: &Job,
     on_progress: &mut dyn FnMut(usize, usize),
 ) -> WorkerRun {
-    run_worker_reporting(cmd, job, &mut |p: &Progress| {
-        on_progress(p.rollouts_done, p.rollouts_total)
-    })
+    run_worker_cancellable(cmd, job, on_progress, &AtomicBool::new(false))
 }
 
-/// [`run_worker`] whose `on_progress` gets every progress line whole: the
-/// counts and the initial states newly finished in the evaluation's random
-/// order ([`Progress::states`], issue 41), from which a live confidence
-/// sequence of the success rate is computed.
+/// [`run_worker`] that also stops the worker (kills its process group) within
+/// about 50 ms of `cancel` becoming true; the outcome is then an `Internal`
+/// failure saying so (the caller, who cancelled, knows why).
+pub fn run_worker_cancellable(
+    cmd: &WorkerCommand,
+    job: &Job,
+    on_progress: &mut dyn FnMut(usize, usize),
+    cancel: &AtomicBool,
+) -> WorkerRun {
+    run_worker_reporting(
+        cmd,
+        job,
+        &mut |p: &Progress| on_progress(p.rollouts_done, p.rollouts_total),
+        cancel,
+    )
+}
+
+/// [`run_worker_cancellable`] whose `on_progress` gets every progress line
+/// whole: the counts and the initial states newly finished in the
+/// evaluation's random order ([`Progress::states`], issue 41), from which a
+/// live confidence sequence of the success rate is computed.
 pub fn run_worker_reporting(
     cmd: &WorkerCommand,
     job: &Job,
     on_progress: &mut dyn FnMut(&Progress),
+    cancel: &AtomicBool,
 ) -> WorkerRun {
     // The operator's extra CA for wss:// endpoints travels in the job: the
     // worker may not read the file itself.
@@ -232,11 +249,16 @@ pub fn run_worker_reporting(
     let mut final_msg: Option<Outcome> = None;
     let mut violation: Option<String> = None;
     let mut timed_out = false;
+    let mut cancelled = false;
     let mut leader_exited = false;
     loop {
         let now = Instant::now();
         if now >= deadline {
             timed_out = true;
+            break;
+        }
+        if cancel.load(Ordering::Relaxed) {
+            cancelled = true;
             break;
         }
         // Wake up regularly to notice the worker's exit even if something it left
@@ -280,12 +302,12 @@ pub fn run_worker_reporting(
             }
         }
     }
-    if violation.is_some() || timed_out {
+    if violation.is_some() || timed_out || cancelled {
         kill_group(pid);
     }
     // stdout is closed (or we gave up on it); wait for the process itself, still
     // under the wall clock: a worker can close stdout and keep running.
-    if !timed_out && violation.is_none() && !wait_exited(pid, deadline) {
+    if !timed_out && !cancelled && violation.is_none() && !wait_exited(pid, deadline) {
         timed_out = final_msg.is_none();
         kill_group(pid);
     }
@@ -310,7 +332,9 @@ pub fn run_worker_reporting(
         wall_clock: cmd.wall_clock,
         stderr: &stderr,
     };
-    let outcome = if let Some(v) = violation {
+    let outcome = if cancelled {
+        failed(ErrorKind::Internal, "the evaluation was cancelled")
+    } else if let Some(v) = violation {
         failed(ErrorKind::ProtocolViolation, v)
     } else if let Some(m) = final_msg {
         m

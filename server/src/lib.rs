@@ -35,6 +35,7 @@ pub mod fidelity;
 pub mod http;
 pub mod intake;
 pub mod leaderboard;
+pub mod live;
 pub mod queue;
 pub mod ratelimit;
 pub mod rollouts;

@@ -26,6 +26,22 @@ pub struct RunReport {
 pub trait JobRunner: Send + Sync + 'static {
     fn run(&self, job: &Job, on_progress: &mut dyn FnMut(usize, usize)) -> RunReport;
 
+    /// [`JobRunner::run`] that stops the run soon after `cancel` becomes true
+    /// (the evaluation was cancelled, issue 41). Runners that cannot stop a
+    /// run let it finish; its report is then ignored.
+    /// Its `on_progress` gets every progress report whole, with the initial
+    /// states newly finished in the evaluation's random order.
+    fn run_cancellable(
+        &self,
+        job: &Job,
+        on_progress: &mut dyn FnMut(&d3il_protocol::Progress),
+        _cancel: &std::sync::atomic::AtomicBool,
+    ) -> RunReport {
+        self.run(job, &mut |done, total| {
+            on_progress(&d3il_protocol::Progress::counts(done, total))
+        })
+    }
+
     /// The sandbox mechanisms a job would run under on this host (and the
     /// probes that they hold), for the admin page. Blocking.
     fn check_sandbox(
@@ -248,35 +264,49 @@ async fn run_claimed(
     );
     m.jobs_started.get_or_create(&kind).inc();
     let began = Instant::now();
-    let (ptx, mut prx) = mpsc::unbounded_channel::<(usize, usize)>();
+    let (ptx, mut prx) = mpsc::unbounded_channel::<d3il_protocol::Progress>();
     let r = runner.clone();
+    let cancel = Arc::new(std::sync::atomic::AtomicBool::new(false));
+    let stop = cancel.clone();
     let mut handle = tokio::task::spawn_blocking(move || {
-        let mut cb = |done: usize, total: usize| {
-            let _ = ptx.send((done, total));
+        let mut cb = |p: &d3il_protocol::Progress| {
+            let _ = ptx.send(p.clone());
         };
-        r.run(&job, &mut cb)
+        r.run_cancellable(&job, &mut cb, &stop)
     });
     let beat = Duration::from_secs((cfg.lease_seconds / 3).max(1) as u64);
     let mut ticker = tokio::time::interval(beat);
     let mut latest: Option<(usize, usize)> = None;
+    // The states reported so far (issue 41), written with the heartbeats.
+    let mut reported = crate::live::Reported::default();
     let mut last_written = Instant::now() - beat;
     let report = loop {
         tokio::select! {
             res = &mut handle => break res,
             Some(p) = prx.recv() => {
-                latest = Some(p);
+                latest = Some((p.rollouts_done, p.rollouts_total));
+                reported.add(&p);
                 // Progress is written at most once a second.
                 if last_written.elapsed() >= Duration::from_secs(1) {
-                    beat_or_warn(store, job_id, owner, cfg.lease_seconds, latest).await;
+                    let held = beat_or_warn(store, job_id, owner, cfg.lease_seconds, latest).await;
+                    reported.flush(store, job_id, owner).await;
+                    stop_if_cancelled(store, held, submission_id, &cancel).await;
                     last_written = Instant::now();
                 }
             }
             _ = ticker.tick() => {
-                beat_or_warn(store, job_id, owner, cfg.lease_seconds, latest).await;
+                let held = beat_or_warn(store, job_id, owner, cfg.lease_seconds, latest).await;
+                reported.flush(store, job_id, owner).await;
+                stop_if_cancelled(store, held, submission_id, &cancel).await;
                 last_written = Instant::now();
             }
         }
     };
+    // The last states reported before the result, while the lease is held.
+    while let Ok(p) = prx.try_recv() {
+        reported.add(&p);
+    }
+    reported.flush(store, job_id, owner).await;
     let report = match report {
         Ok(r) => r,
         Err(e) => RunReport {
@@ -397,21 +427,43 @@ fn count_failure(m: &crate::telemetry::PoolMetrics, err: &WorkerError, recorded:
 /// abandon the running worker: returning early would leave its process
 /// running while the slot claims another job. The job goes on; if the lease
 /// does expire meanwhile, the result write is idempotent.
+/// Returns false when the lease is lost.
 async fn beat_or_warn(
     store: &Store,
     job_id: i64,
     owner: &str,
     lease_seconds: i64,
     progress: Option<(usize, usize)>,
-) {
+) -> bool {
     match store
         .heartbeat(job_id, owner, lease_seconds, progress)
         .await
     {
-        Ok(true) => {}
+        Ok(true) => true,
         Ok(false) => {
-            tracing::warn!("job {job_id}: lease lost; its result will be written idempotently")
+            tracing::warn!("job {job_id}: lease lost; its result will be written idempotently");
+            false
         }
-        Err(e) => tracing::warn!("job {job_id}: heartbeat not written ({e}); the job goes on"),
+        Err(e) => {
+            tracing::warn!("job {job_id}: heartbeat not written ({e}); the job goes on");
+            true
+        }
+    }
+}
+
+/// A lost lease may mean the evaluation was cancelled (issue 41): then the
+/// run is stopped (its report is ignored: the job is no longer leased).
+async fn stop_if_cancelled(
+    store: &Store,
+    lease_held: bool,
+    submission_id: i64,
+    cancel: &std::sync::atomic::AtomicBool,
+) {
+    if lease_held || cancel.load(std::sync::atomic::Ordering::Relaxed) {
+        return;
+    }
+    if let Ok(Some(c)) = store.cancelled(submission_id).await {
+        tracing::info!("submission {submission_id}: cancelled by {}; stopping its worker", c.by);
+        cancel.store(true, std::sync::atomic::Ordering::Relaxed);
     }
 }

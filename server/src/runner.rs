@@ -4,7 +4,9 @@
 
 use crate::queue::{JobRunner, RunReport, WorkerProcess};
 use d3il_protocol::{Evaluated, Job, Limits, SandboxMechanism};
-use d3il_sandbox::{run_worker, Outcome, WorkerCommand};
+use d3il_protocol::Progress;
+use d3il_sandbox::{run_worker_reporting, Outcome, WorkerCommand};
+use std::sync::atomic::AtomicBool;
 use std::sync::Arc;
 
 pub struct SandboxRunner {
@@ -15,7 +17,20 @@ pub struct SandboxRunner {
 
 impl JobRunner for SandboxRunner {
     fn run(&self, job: &Job, on_progress: &mut dyn FnMut(usize, usize)) -> RunReport {
-        let run = run_worker(&self.cmd, job, on_progress);
+        self.run_cancellable(
+            job,
+            &mut |p: &Progress| on_progress(p.rollouts_done, p.rollouts_total),
+            &AtomicBool::new(false),
+        )
+    }
+
+    fn run_cancellable(
+        &self,
+        job: &Job,
+        on_progress: &mut dyn FnMut(&Progress),
+        cancel: &AtomicBool,
+    ) -> RunReport {
+        let run = run_worker_reporting(&self.cmd, job, on_progress, cancel);
         if !run.stderr.trim().is_empty() {
             // Operators' eyes only: stderr may contain anything the policy printed.
             tracing::debug!("worker {} stderr tail: {}", run.pid, run.stderr.trim());
@@ -152,6 +167,16 @@ impl JobRunner for SharedSlots {
     fn run(&self, job: &Job, on_progress: &mut dyn FnMut(usize, usize)) -> RunReport {
         let _slot = self.slots.acquire();
         self.inner.run(job, on_progress)
+    }
+
+    fn run_cancellable(
+        &self,
+        job: &Job,
+        on_progress: &mut dyn FnMut(&Progress),
+        cancel: &AtomicBool,
+    ) -> RunReport {
+        let _slot = self.slots.acquire();
+        self.inner.run_cancellable(job, on_progress, cancel)
     }
 
     fn check_sandbox(&self, assets_dir: &std::path::Path) -> Result<Vec<SandboxMechanism>, String> {

@@ -148,6 +148,10 @@ pub struct SubmissionView {
     /// Estimated seconds until the result, from past runs or this run's
     /// progress; null when finished or when there is no basis for one yet.
     pub eta_seconds: Option<i64>,
+    /// Set when the evaluation was cancelled (status `failed`, error kind
+    /// `cancelled`): what ran is in `progress.live`, marked partial, and
+    /// never ranked.
+    pub cancelled: Option<CancelledView>,
     pub created_at: i64,
     pub updated_at: i64,
     /// The result once completed.
@@ -178,6 +182,18 @@ pub struct ErrorView {
 pub struct ProgressView {
     pub rollouts_done: i64,
     pub rollouts_total: i64,
+    /// The success rate so far with its confidence sequence, valid at every
+    /// look (issue 41; docs/sequential.md); kept once the evaluation ends
+    /// (a cancelled one's partial result). Null until the first initial
+    /// state has finished.
+    pub live: Option<crate::live::LiveEstimate>,
+}
+
+/// Who cancelled an evaluation, and when.
+#[derive(Debug, Serialize, ToSchema)]
+pub struct CancelledView {
+    pub at: i64,
+    pub by: String,
 }
 
 /// Metrics, protocol manifest, per-context and per-rollout results.
@@ -260,6 +276,8 @@ pub async fn submission_view(state: &AppState, id: i64) -> Result<SubmissionView
     let s = state.store.submission(id).await?;
     let job = state.store.job_for(id).await?;
     let p = progress(state, &job, &s).await?;
+    let cancelled = state.store.cancelled(id).await?;
+    let live = crate::live::live_estimate(&state.store, id, cancelled.is_some()).await?;
     let result = match state.store.result_for(id).await? {
         Some(r) => Some(results_view(state, r).await?),
         None => None,
@@ -292,9 +310,11 @@ pub async fn submission_view(state: &AppState, id: i64) -> Result<SubmissionView
         progress: ProgressView {
             rollouts_done: p.rollouts_done,
             rollouts_total: p.rollouts_total,
+            live,
         },
         queue_position: p.queue_position,
         eta_seconds: p.eta_seconds,
+        cancelled: cancelled.map(|c| CancelledView { at: c.at, by: c.by }),
         created_at: s.created_at,
         updated_at: s.updated_at,
         result,

@@ -319,7 +319,7 @@ impl Store {
                 let updated = sqlx::query(
                     "UPDATE jobs SET attempts = CASE WHEN state = 'queued' THEN attempts + 1 ELSE attempts END, \
                      state = 'leased', lease_owner = $1, lease_expires_at = $2, heartbeat_at = $3, \
-                     started_at = $3, rollouts_done = 0, rollouts_total = 0 \
+                     started_at = $3, rollouts_done = 0, rollouts_total = 0, outcomes_json = NULL \
                      WHERE id = $4 AND (state = 'queued' OR (state = 'leased' AND lease_expires_at < $3))",
                 )
                 .bind(owner)
@@ -397,6 +397,18 @@ impl Store {
         let total = result.rollouts.len() as i64;
         on_db!(&self.db, pool => {
             let mut tx = pool.begin().await?;
+            // A cancelled evaluation stays cancelled (and unranked) even if
+            // its worker finished before it noticed (issue 41).
+            let cancelled: Option<i64> =
+                sqlx::query_scalar("SELECT cancelled_at FROM submissions WHERE id = $1")
+                    .bind(submission_id)
+                    .fetch_optional(&mut *tx)
+                    .await?
+                    .flatten();
+            if cancelled.is_some() {
+                tx.commit().await?;
+                return Ok(());
+            }
             insert_result!(&mut *tx, submission_id, result, t);
             sqlx::query(
                 "UPDATE jobs SET state = 'done', lease_owner = NULL, lease_expires_at = NULL, finished_at = $1, \

@@ -44,6 +44,7 @@ macro_rules! begin_write {
 
 mod files;
 mod jobs;
+mod live;
 mod methods;
 mod paper;
 mod results;
@@ -53,6 +54,7 @@ pub mod types;
 
 pub use files::{PolicyFilesGuard, TMP_MARKER};
 pub use jobs::{ClaimedJob, JobKind, JobRow};
+pub use live::{CancelOutcome, Cancelled, StateOutcome, CANCELLED_KIND};
 pub use methods::{MethodRow, NewMethod};
 pub use results::{ResultRow, RolloutRow, SeedSummary};
 /// Re-exported so that callers reading the rows themselves (`d3il bench

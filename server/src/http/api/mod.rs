@@ -2,6 +2,7 @@
 //! OpenAPI document at `/api/v1/openapi.json`, generated from the handlers'
 //! annotations and the view structs in [`openapi`]).
 
+pub mod cancel;
 pub mod compare;
 pub mod openapi;
 pub mod rollouts;
@@ -41,6 +42,7 @@ pub fn router(max_upload: usize) -> Router<AppState> {
                 .layer(DefaultBodyLimit::max(max_upload + (1 << 20))),
         )
         .route("/submissions/{id}", get(get_submission))
+        .route("/submissions/{id}/cancel", post(cancel::cancel_submission))
         .route("/submissions/{id}/results", get(get_results))
         .route("/submissions/{id}/rollouts", get(rollouts::list_rollouts))
         .route("/submissions/{id}/rollouts/{n}", get(rollouts::get_rollout))

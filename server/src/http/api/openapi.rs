@@ -24,6 +24,7 @@ use utoipa::{Modify, OpenApi};
         super::create_submission,
         super::list_submissions,
         super::get_submission,
+        super::cancel::cancel_submission,
         super::get_results,
         super::list_leaderboards,
         super::get_leaderboard,

@@ -3,6 +3,7 @@
 //! generate ourselves (plotters escapes the text it draws).
 
 mod boards;
+mod cancel;
 mod compare;
 mod fidelity;
 mod format;
@@ -36,6 +37,10 @@ pub fn router(max_upload: usize) -> Router<AppState> {
         .route("/submissions", get(submissions_page))
         .route("/submissions/{id}", get(submission_page))
         .route("/submissions/{id}/json", get(submission_download))
+        .route(
+            "/submissions/{id}/cancel",
+            axum::routing::post(cancel::cancel_post),
+        )
         .route(
             "/submissions/{id}/rollouts/{n}",
             get(rollouts::rollout_page),

@@ -77,6 +77,33 @@ struct SubmissionPage {
     mostly_unstable: bool,
     /// Sorting results carry the protocol caveat of docs/tasks.md.
     sorting: bool,
+    /// The success rate so far and its confidence sequence (issue 41).
+    so_far: Option<SoFar>,
+    /// Who cancelled the evaluation, when it was.
+    cancelled_by: Option<String>,
+}
+
+/// The live estimate as the page shows it.
+struct SoFar {
+    rate: String,
+    cs: String,
+    states: u64,
+    rollouts: u64,
+    successes: u64,
+    level: String,
+    partial: bool,
+}
+
+fn so_far(e: &crate::live::LiveEstimate) -> SoFar {
+    SoFar {
+        rate: e.success_rate.map_or_else(|| "—".into(), fmt_num),
+        cs: format!("[{}, {}]", fmt_num(e.cs_low), fmt_num(e.cs_high)),
+        states: e.states,
+        rollouts: e.rollouts,
+        successes: e.successes,
+        level: format!("{}", ((1.0 - e.alpha) * 100.0).round()),
+        partial: e.partial,
+    }
 }
 
 fn pretty<T: serde::Serialize>(v: &T) -> String {
@@ -93,6 +120,8 @@ pub(super) async fn submission_page(
     let job = store.job_for(id).await?;
     let p = progress(&state, &job, &s).await?;
     let result = store.result_for(id).await?;
+    let cancelled = store.cancelled(id).await?;
+    let live_estimate = crate::live::live_estimate(store, id, cancelled.is_some()).await?;
     let mut metrics = vec![];
     let mut contexts = vec![];
     let mut protocol_manifest = String::new();
@@ -259,6 +288,8 @@ pub(super) async fn submission_page(
         ),
     };
     let page = render(&SubmissionPage {
+        so_far: live_estimate.as_ref().map(so_far),
+        cancelled_by: cancelled.map(|c| c.by),
         live: matches!(
             s.status,
             SubmissionStatus::Queued | SubmissionStatus::Running

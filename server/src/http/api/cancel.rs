@@ -1,0 +1,56 @@
+//! `POST /api/v1/submissions/{id}/cancel` (issue 41): stop a queued or
+//! running evaluation, keeping what ran as a partial result.
+
+use crate::auth::Authed;
+use crate::error::{AppError, ErrorBody};
+use crate::http::extract::Param;
+use crate::state::AppState;
+use crate::store::{CancelOutcome, Submitter};
+use crate::views::{submission_view, SubmissionView};
+use axum::extract::State;
+use axum::Json;
+
+/// Cancels submission `id` as `who`: its submitter or an admin may. The one
+/// rule for the API and the submission page's button.
+pub async fn cancel_as(state: &AppState, id: i64, who: &Submitter) -> Result<(), AppError> {
+    let s = state.store.submission(id).await?;
+    if !who.is_admin && s.submitter.as_deref() != Some(who.name.as_str()) {
+        return Err(AppError::Forbidden(format!(
+            "submission {id} belongs to {}; only its submitter or an admin may cancel it",
+            s.submitter.as_deref().unwrap_or("nobody")
+        )));
+    }
+    match state.store.cancel_submission(id, &who.name).await? {
+        CancelOutcome::Cancelled => {
+            tracing::info!("submission {id} cancelled by {}", who.name);
+            Ok(())
+        }
+        CancelOutcome::AlreadyFinished => Err(AppError::Conflict {
+            field: None,
+            message: format!(
+                "submission {id} is {} already; only a queued or running evaluation can be cancelled",
+                s.status.as_str()
+            ),
+        }),
+    }
+}
+
+#[utoipa::path(post, path = "/submissions/{id}/cancel", tag = "submissions",
+    summary = "Cancel a queued or running evaluation (what ran is kept, marked partial, never ranked)",
+    security(("bearer" = [])),
+    params(("id" = i64, Path, description = "Submission id")),
+    responses(
+        (status = 200, description = "Cancelled: status `failed`, error kind `cancelled`, `cancelled` set, the partial outcomes in `progress.live`", body = SubmissionView),
+        (status = 401, description = "Missing or wrong token", body = ErrorBody),
+        (status = 403, description = "Not the submission's submitter nor an admin", body = ErrorBody),
+        (status = 404, description = "No such submission", body = ErrorBody),
+        (status = 409, description = "The evaluation has finished already", body = ErrorBody),
+        (status = 429, description = "Rate limit exceeded; see the Retry-After header", body = ErrorBody)))]
+pub async fn cancel_submission(
+    State(state): State<AppState>,
+    Param(id): Param<i64>,
+    Authed(who): Authed,
+) -> Result<Json<SubmissionView>, AppError> {
+    cancel_as(&state, id, &who).await?;
+    Ok(Json(submission_view(&state, id).await?))
+}
