@@ -19,6 +19,7 @@ fn onnx_job(name: &str, seed: u64) -> Job {
     let (path, manifest) = fixture(name);
     Job {
         job_id: "test".into(),
+        suite: None,
         task: manifest.task,
         protocol: ProtocolKind::Quick,
         policy: PolicySource::Onnx {
@@ -112,6 +113,7 @@ fn malformed_onnx_is_a_bad_model_error() {
 fn scripted_job(task: TaskId, name: &str) -> Job {
     Job {
         job_id: "scripted".into(),
+        suite: None,
         task,
         protocol: ProtocolKind::Quick,
         policy: PolicySource::Scripted { name: name.into() },

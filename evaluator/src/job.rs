@@ -88,6 +88,7 @@ pub fn run_job(
             kind: ErrorKind::BadJob,
             message: "this job is one shard of an evaluation; its part is not a result".into(),
         }),
+        Evaluated::Robustness(doc) => Ok(doc.control),
     }
 }
 
@@ -110,6 +111,21 @@ pub fn run_job_or_shard(
         },
         message: e.to_string(),
     })?;
+    let suite = match &job.suite {
+        Some(name) => {
+            let suite = crate::robustness::suite_for(name, job.task, job.manifest.obs_type)
+                .map_err(to_worker)?;
+            if job.shard.is_some() {
+                return Err(WorkerError {
+                    kind: ErrorKind::BadJob,
+                    message: "a robustness job runs whole evaluations; it is not sharded".into(),
+                });
+            }
+            // A dry run only checks that the suite exists.
+            job.dry_run_steps.is_none().then_some(suite)
+        }
+        None => None,
+    };
     let (mut policy, info) = load_policy(job, &task).map_err(to_worker)?;
     // "Loaded, 0 done": the supervisor then attributes a limit hit in the first
     // query to running the rollouts, not to loading the policy.
@@ -128,6 +144,23 @@ pub fn run_job_or_shard(
         build: job.build.clone(),
         ..EvalOptions::default()
     };
+    if let Some(suite) = suite {
+        let plan =
+            crate::robustness::plan(&task, policy.as_ref(), &opts, &suite).map_err(to_worker)?;
+        let mut counts = |d: usize, t: usize| on_progress(&Progress::counts(d, t));
+        let mut observer = crate::robustness::Cumulative::new(&mut counts, plan.recorded);
+        return crate::robustness::evaluate_suite(
+            &task,
+            policy.as_mut(),
+            &info,
+            &opts,
+            &suite,
+            &plan,
+            &mut observer,
+        )
+        .map(|doc| Evaluated::Robustness(Box::new(doc)))
+        .map_err(to_worker);
+    }
     match job.shard {
         Some(shard) => {
             evaluate_shard_reporting(&task, policy.as_mut(), &info, &opts, shard, on_progress)

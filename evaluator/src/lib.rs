@@ -22,6 +22,8 @@ pub mod perturb;
 pub mod replay_input;
 pub mod robot;
 #[cfg(feature = "engine")]
+pub mod robustness;
+#[cfg(feature = "engine")]
 pub mod scripted;
 #[cfg(feature = "engine")]
 pub use d3il_metrics::shard;

@@ -291,6 +291,12 @@ pub struct Job {
     /// `d3il eval` know the fingerprint; a sandboxed worker cannot compute it).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub build: Option<crate::results::BuildIdentity>,
+    /// Evaluate the task's perturbation suite (`"robustness"`, issue 40):
+    /// level 0 (the plain evaluation) and every level, answered with a
+    /// [`crate::robustness::RobustnessResult`]. A dry run with a suite only
+    /// checks that the suite exists, then runs as without it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub suite: Option<String>,
 }
 
 /// What a worker's evaluation produced: a whole result, or the part of one
@@ -299,6 +305,8 @@ pub struct Job {
 pub enum Evaluated {
     Result(Box<EvalResult>),
     Part(Box<crate::shard::EvalPart>),
+    /// A job with [`Job::suite`]: level 0 and every perturbed level.
+    Robustness(Box<crate::robustness::RobustnessResult>),
 }
 
 impl From<EvalResult> for Evaluated {
@@ -354,6 +362,8 @@ pub enum WorkerMessage {
     Result(Box<EvalResult>),
     /// The part of one shard (a job with [`Job::shard`]).
     Part(Box<crate::shard::EvalPart>),
+    /// The robustness document of a job with [`Job::suite`].
+    Robustness(Box<crate::robustness::RobustnessResult>),
     Error(WorkerError),
 }
 

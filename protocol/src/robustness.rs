@@ -11,7 +11,7 @@ use serde::{Deserialize, Serialize};
 pub const ROBUSTNESS_FORMAT: &str = "d3il-robustness-v1";
 
 /// One perturbed level of a robustness evaluation.
-#[derive(Debug, Clone, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct LevelResult {
     pub axis: Axis,
     pub level: usize,
@@ -31,7 +31,7 @@ pub struct LevelResult {
 /// The robustness score of one axis: success retained (a level's success
 /// rate over level 0's), averaged over the axis's levels, with a paired
 /// bootstrap interval over initial states.
-#[derive(Debug, Clone, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct AxisScore {
     pub axis: Axis,
     /// None when level 0 has no success (nothing to retain).
@@ -39,7 +39,7 @@ pub struct AxisScore {
 }
 
 /// What `d3il eval --suite robustness --json FILE` writes.
-#[derive(Debug, Clone, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct RobustnessResult {
     /// [`ROBUSTNESS_FORMAT`].
     pub format: String,

@@ -145,6 +145,10 @@ where
             out.send(&WorkerMessage::Part(p));
             exit_code::OK
         }
+        Ok(Evaluated::Robustness(doc)) => {
+            out.send(&WorkerMessage::Robustness(doc));
+            exit_code::OK
+        }
         Err(e) => {
             out.send(&WorkerMessage::Error(e));
             exit_code::JOB_FAILED
@@ -211,6 +215,7 @@ pub fn check_sandbox_with(
 ) -> Result<Vec<SandboxMechanism>, confine::SandboxError> {
     let job = Job {
         job_id: "check-sandbox".into(),
+        suite: None,
         task: d3il_protocol::TaskId::Avoiding,
         protocol: Default::default(),
         policy: PolicySource::Scripted {

@@ -58,6 +58,8 @@ pub enum Outcome {
     Completed(Box<EvalResult>),
     /// The part of one shard (a job with `Job::shard`).
     Part(Box<d3il_protocol::shard::EvalPart>),
+    /// The robustness document of a job with `Job::suite`.
+    Robustness(Box<d3il_protocol::robustness::RobustnessResult>),
     Failed(WorkerError),
 }
 
@@ -272,6 +274,7 @@ pub fn run_worker_reporting(
                 }
                 WorkerMessage::Result(r) => final_msg = Some(Outcome::Completed(r)),
                 WorkerMessage::Part(p) => final_msg = Some(Outcome::Part(p)),
+                WorkerMessage::Robustness(d) => final_msg = Some(Outcome::Robustness(d)),
                 WorkerMessage::Error(e) => final_msg = Some(Outcome::Failed(e)),
             },
             Ok(Event::Garbage(excerpt)) => {

@@ -115,6 +115,7 @@ pub fn job_from_claim(
     };
     Ok(Job {
         job_id: c.job.id.to_string(),
+        suite: s.suite.clone(),
         task: s.task,
         protocol: s.protocol,
         policy,
@@ -324,6 +325,16 @@ async fn run_claimed(
                 .await?;
             count_finished(m, &kind, began);
             tracing::info!("job {job_id} completed");
+        }
+        Ok(Evaluated::Robustness(doc)) if shard.is_none() => {
+            // The document first: once the submission is completed (level 0
+            // stored as its plain result) its robustness is there too.
+            store.save_robustness(submission_id, &doc).await?;
+            store
+                .complete_job(job_id, submission_id, &doc.control, &report.mechanisms)
+                .await?;
+            count_finished(m, &kind, began);
+            tracing::info!("job {job_id} completed (robustness suite {})", doc.suite);
         }
         Ok(Evaluated::Part(part)) if shard == Some(part.shard) => {
             let Some(merged) = lease_lost(

@@ -39,6 +39,7 @@ impl JobRunner for SandboxRunner {
             outcome: match run.outcome {
                 Outcome::Completed(r) => Ok(Evaluated::Result(r)),
                 Outcome::Part(p) => Ok(Evaluated::Part(p)),
+                Outcome::Robustness(d) => Ok(Evaluated::Robustness(d)),
                 Outcome::Failed(e) => Err(e),
             },
             mechanisms: run.mechanisms,

@@ -262,6 +262,7 @@ pub fn build_job(args: &Args) -> anyhow::Result<Job> {
     }
     Ok(Job {
         job_id: "cli".into(),
+        suite: None,
         task: args.task,
         protocol: args.protocol,
         policy,

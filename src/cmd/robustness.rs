@@ -7,130 +7,54 @@
 
 use super::eval::Args;
 use anyhow::{bail, Context};
-use d3il_evaluator::eval;
-use d3il_evaluator::perturb::Suite;
-use d3il_metrics::robustness::robustness_scores;
-use d3il_metrics::Bootstrap;
-use d3il_protocol::perturbation::Axis;
-use d3il_protocol::robustness::{AxisScore, LevelResult, RobustnessResult, ROBUSTNESS_FORMAT};
-use d3il_protocol::{Comparison, Estimate, EvalResult};
-
-/// Resamples of the paired comparisons and of the scores' intervals (as
-/// `d3il compare`'s default).
-const RESAMPLES: usize = 2000;
+use d3il_evaluator::robustness;
+use d3il_protocol::perturbation::{Axis, Perturbation};
+use d3il_protocol::robustness::RobustnessResult;
+use d3il_protocol::Estimate;
 
 pub fn run(args: &Args, suite_name: &str) -> anyhow::Result<()> {
-    if suite_name != "robustness" {
-        bail!("--suite {suite_name}: the one suite is `robustness`");
-    }
     if args.shard.is_some() {
         bail!("--suite robustness runs whole evaluations; sharding a robustness run is not built yet (run it on one machine)");
     }
     if args.sandbox {
         bail!("--suite robustness runs in process; the sandboxed worker does not take perturbations yet");
     }
-    let suite = Suite::for_task(args.task)?;
     let mut job = super::eval::build_job(args)?;
+    let suite = robustness::suite_for(suite_name, args.task, job.manifest.obs_type)?;
     let (task, mut policy, info, opts) = super::eval::load_then_fingerprint(args, &mut job)?;
-    let levels = suite.perturbations();
+    let plan = robustness::plan(&task, policy.as_ref(), &opts, &suite)?;
     // The count up front: every level records the protocol's rollouts; a
     // deterministic policy simulates each state once, except under
     // observation noise (it differs from rollout to rollout).
-    let set = task.def.context_set()?;
-    let (n_ctx, per_ctx) = eval::protocol_size(&task, opts.protocol, set.len());
-    let once = policy.deterministic() && !opts.simulate_every_rollout;
-    let per_level = n_ctx * per_ctx;
-    let simulated = |noisy: bool| {
-        if once && !noisy {
-            n_ctx
-        } else {
-            per_level
-        }
-    };
-    let sim_total: usize = simulated(false)
-        + levels
-            .iter()
-            .map(|p| simulated(p.axis == Axis::ObsNoise))
-            .sum::<usize>();
     println!(
         "robustness suite {} (sha256 {}): level 0 and {} perturbed levels on {} axes, each {} initial states × {} rollouts ({} protocol): {} rollouts recorded, {} simulated{}",
         suite.name,
         suite.sha256,
-        levels.len(),
+        plan.levels.len(),
         suite.file.axes.len(),
-        n_ctx,
-        per_ctx,
+        plan.n_contexts,
+        plan.rollouts_per_context,
         opts.protocol.as_str(),
-        per_level * (levels.len() + 1),
-        sim_total,
-        if once {
+        plan.recorded,
+        plan.simulated,
+        if plan.once {
             " (deterministic policy: each initial state once, all rollouts under observation noise)"
         } else {
             ""
         }
     );
-    eprintln!("level 0 (standard protocol, the control arm)");
-    let mut progress = super::eval::progress_printer();
-    let (control, t) = eval::evaluate(&task, policy.as_mut(), &info, &opts, &mut progress)?;
-    super::eval::print_timing(&t);
-    let cfg = Bootstrap {
-        resamples: RESAMPLES,
-        confidence: 0.95,
-        seed: opts.seed,
+    let mut printer = Printer {
+        progress: Box::new(super::eval::progress_printer()),
     };
-    let mut results: Vec<(
-        d3il_protocol::perturbation::Perturbation,
-        EvalResult,
-        Comparison,
-    )> = vec![];
-    for p in &levels {
-        eprintln!("{} level {} ({})", p.axis, p.level, p.setting.label);
-        let mut progress = super::eval::progress_printer();
-        let (r, t) =
-            eval::evaluate_perturbed(&task, policy.as_mut(), &info, &opts, p, &mut progress)?;
-        super::eval::print_timing(&t);
-        let paired = d3il_metrics::compare(&control, &r, &cfg)?;
-        results.push((p.clone(), r, paired));
-    }
-    let axes: Vec<Axis> = suite.file.axes.iter().map(|a| a.axis).collect();
-    let indexed: Vec<(usize, &[d3il_protocol::ContextResult])> = results
-        .iter()
-        .map(|(p, r, _)| {
-            let a = axes.iter().position(|&x| x == p.axis).unwrap_or(0);
-            (a, &r.per_context[..])
-        })
-        .collect();
-    let scores = robustness_scores(&control.per_context, &indexed, axes.len(), &cfg)?;
-    let doc = RobustnessResult {
-        format: ROBUSTNESS_FORMAT.into(),
-        task: args.task,
-        suite: suite.name.clone(),
-        suite_sha256: suite.sha256.clone(),
-        levels: results
-            .into_iter()
-            .zip(&scores.retained)
-            .map(|((p, result, paired), retained)| LevelResult {
-                axis: p.axis,
-                level: p.level,
-                setting: p.setting,
-                result,
-                paired,
-                retained: *retained,
-            })
-            .collect(),
-        axes: axes
-            .iter()
-            .zip(&scores.axes)
-            .map(|(&axis, score)| AxisScore {
-                axis,
-                score: *score,
-            })
-            .collect(),
-        overall: scores.overall,
-        control,
-        resamples: cfg.resamples,
-        confidence: cfg.confidence,
-    };
+    let doc = robustness::evaluate_suite(
+        &task,
+        policy.as_mut(),
+        &info,
+        &opts,
+        &suite,
+        &plan,
+        &mut printer,
+    )?;
     print!("{}", render(&doc));
     if let Some(path) = &args.json {
         std::fs::write(path, serde_json::to_vec_pretty(&doc)?)
@@ -138,6 +62,28 @@ pub fn run(args: &Args, suite_name: &str) -> anyhow::Result<()> {
         eprintln!("wrote {}", path.display());
     }
     Ok(())
+}
+
+/// The CLI's view of a running suite: a line per level, the progress bar,
+/// the timing.
+struct Printer {
+    progress: Box<dyn FnMut(usize, usize)>,
+}
+
+impl robustness::SuiteObserver for Printer {
+    fn level_started(&mut self, level: Option<&Perturbation>) {
+        match level {
+            None => eprintln!("level 0 (standard protocol, the control arm)"),
+            Some(p) => eprintln!("{} level {} ({})", p.axis, p.level, p.setting.label),
+        }
+        self.progress = Box::new(super::eval::progress_printer());
+    }
+    fn progress(&mut self, done: usize, total: usize) {
+        (self.progress)(done, total)
+    }
+    fn level_finished(&mut self, timing: &d3il_evaluator::eval::Timing) {
+        super::eval::print_timing(timing);
+    }
 }
 
 fn interval(e: &Option<Estimate>) -> String {

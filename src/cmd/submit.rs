@@ -32,6 +32,11 @@ pub struct Args {
     /// `paper` (full protocol) or `quick` (smoke test).
     #[arg(long, default_value = "paper")]
     pub protocol: String,
+    /// `robustness`: evaluate the task's perturbation suite too (level 0 is
+    /// the plain result; docs/robustness.md). Aligning and Pushing, state
+    /// policies.
+    #[arg(long)]
+    pub suite: Option<String>,
     /// ONNX policy file.
     #[arg(long, conflicts_with = "endpoint")]
     pub onnx: Option<PathBuf>,
@@ -94,6 +99,10 @@ fn check_locally(a: &Args) -> anyhow::Result<()> {
     a.protocol
         .parse::<d3il_protocol::ProtocolKind>()
         .map_err(|e| anyhow::anyhow!("--protocol {}: {e}", a.protocol))?;
+    if let Some(suite) = &a.suite {
+        d3il_evaluator::robustness::suite_for(suite, task, obs_type)
+            .map_err(|e| anyhow::anyhow!("--suite {suite}: {e}"))?;
+    }
     anyhow::ensure!(
         (0..=i64::from(i32::MAX)).contains(&a.training_seed),
         "--training-seed must be a whole number from 0 to 2147483647, got {}",
@@ -161,6 +170,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         ("paper_url", a.paper_url.clone()),
         ("description", a.description.clone()),
         ("endpoint_url", a.endpoint.clone()),
+        ("suite", a.suite.clone()),
     ] {
         if let Some(v) = v {
             fields.push((k, v));
@@ -207,6 +217,15 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             "{}",
             d3il_tables::summary::metrics_table(&result_of(&done)?)
         );
+        if a.suite.is_some() {
+            // The robustness tables, as `d3il eval --suite robustness`.
+            let doc = client.get(&format!(
+                "/api/v1/submissions/{id}/robustness?rollouts=false"
+            ))?;
+            let doc: d3il_protocol::robustness::RobustnessResult = serde_json::from_value(doc)
+                .context("the server's robustness document does not parse")?;
+            print!("{}", super::robustness::render(&doc));
+        }
     }
     Ok(())
 }

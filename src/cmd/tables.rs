@@ -11,9 +11,10 @@ use std::path::PathBuf;
 #[derive(clap::Args, Debug)]
 #[command(group(clap::ArgGroup::new("what").required(true).args(["table", "figure"])))]
 pub struct Args {
-    /// Table to regenerate: main, datasize, posvel, prelim.
+    /// Table to regenerate: main, datasize, posvel, prelim, or robustness
+    /// (methods × axes of the robustness track, by suite version).
     #[arg(long)]
-    pub table: Option<TableKind>,
+    pub table: Option<TableArg>,
     /// Figure to draw as SVG: datasize, pareto, avoiding-paths.
     #[arg(long)]
     pub figure: Option<FigureKind>,
@@ -34,6 +35,25 @@ pub struct Args {
     /// Submission whose Avoiding rollouts to draw (for --figure avoiding-paths).
     #[arg(long)]
     pub submission: Option<i64>,
+}
+
+/// `--table`: one of the paper's tables, or the robustness table.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum TableArg {
+    Paper(TableKind),
+    Robustness,
+}
+
+impl std::str::FromStr for TableArg {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        if s.trim().eq_ignore_ascii_case("robustness") {
+            return Ok(TableArg::Robustness);
+        }
+        s.parse()
+            .map(TableArg::Paper)
+            .map_err(|e: d3il_tables::TablesError| format!("{e}, robustness"))
+    }
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
@@ -89,7 +109,8 @@ async fn render(args: &Args) -> anyhow::Result<String> {
         .context("reading result cells")?;
     let methods = store.method_infos().await.context("reading methods")?;
     match (args.table, args.figure) {
-        (Some(kind), _) => Ok(d3il_tables::render_table_with(
+        (Some(TableArg::Robustness), _) => robustness_table(&store, args).await,
+        (Some(TableArg::Paper(kind)), _) => Ok(d3il_tables::render_table_with(
             &cells,
             kind,
             args.obs,
@@ -109,6 +130,23 @@ async fn render(args: &Args) -> anyhow::Result<String> {
     }
 }
 
+/// `--table robustness`: every stored robustness result of `--obs`
+/// policies, grouped by suite version (docs/robustness.md).
+async fn robustness_table(store: &Store, args: &Args) -> anyhow::Result<String> {
+    let entries: Vec<_> = store
+        .robustness_rows(None)
+        .await
+        .context("reading robustness results")?
+        .into_iter()
+        .filter(|r| r.obs_type == args.obs)
+        .map(|r| r.into_entry())
+        .collect();
+    Ok(d3il_tables::robustness::render_robustness(
+        &entries,
+        args.format,
+    )?)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -123,7 +161,7 @@ mod tests {
 
     fn args(db: PathBuf, out: PathBuf) -> Args {
         Args {
-            table: Some(TableKind::Main),
+            table: Some(TableArg::Paper(TableKind::Main)),
             figure: None,
             obs: ObsType::State,
             format: Format::Latex,
@@ -171,7 +209,7 @@ mod tests {
             for format in Format::ALL {
                 let out = dir.join(format!("{kind}.{}", format.extension()));
                 let mut a = args(db.clone(), out.clone());
-                a.table = Some(kind);
+                a.table = Some(TableArg::Paper(kind));
                 a.format = format;
                 run(a).unwrap_or_else(|e| panic!("{kind} {format}: {e:#}"));
                 assert!(std::fs::metadata(&out).expect("written").len() > 0);

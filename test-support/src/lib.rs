@@ -92,6 +92,7 @@ pub fn avoiding_manifest() -> PolicyManifest {
 pub fn avoiding_job(policy: PolicySource, limits: Limits) -> Job {
     Job {
         job_id: "test".into(),
+        suite: None,
         task: TaskId::Avoiding,
         protocol: ProtocolKind::Quick,
         policy,

@@ -82,6 +82,7 @@ pub fn limits() -> Limits {
 pub fn avoiding_job(policy: PolicySource, limits: Limits) -> Job {
     Job {
         job_id: "worker-test".into(),
+        suite: None,
         ..d3il_test_support::avoiding_job(policy, limits)
     }
 }

@@ -48,6 +48,7 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--training-seed", type=int, required=True, help="training seed of this policy (0, 1, ...)")
     s.add_argument("--data-fraction", type=float, default=1.0, help="fraction of the demonstrations (0 < f <= 1)")
     s.add_argument("--protocol", default="paper", help="paper (full protocol) or quick (smoke test)")
+    s.add_argument("--suite", help="robustness: evaluate the task's perturbation suite too (docs/robustness.md)")
     what = s.add_mutually_exclusive_group(required=True)
     what.add_argument("--onnx", help="ONNX policy file (its manifest next to it as FILE.json, or --manifest)")
     what.add_argument("--endpoint", help="remote policy endpoint URL (ws://, wss://)")
@@ -122,6 +123,7 @@ def _submit(client: Client, a: argparse.Namespace) -> int:
         code_url=a.code_url,
         paper_url=a.paper_url,
         description=a.description,
+        suite=a.suite,
         progress=sys.stderr.isatty(),
     )
     print(f"submission {sub.id} accepted: {client.server}{sub.url}", flush=True)

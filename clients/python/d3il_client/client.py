@@ -28,6 +28,7 @@ from ._version import API_VERSION, __version__
 from .manifest import (
     OBS_TYPES,
     PROTOCOLS,
+    SUITES,
     TASKS,
     ManifestArg,
     PathLike,
@@ -370,6 +371,7 @@ class Client:
         code_url: Optional[str] = None,
         paper_url: Optional[str] = None,
         description: Optional[str] = None,
+        suite: Optional[str] = None,
         progress: bool = False,
     ) -> Submission:
         """Submit a policy: an ONNX file (``onnx=``) or a remote endpoint (``endpoint=``).
@@ -384,7 +386,9 @@ class Client:
 
         ``history``, ``backbone``, ``prediction``, ``diversity``, ``code_url``,
         ``paper_url`` and ``description`` describe the method (its page, its
-        group in the paper's tables). Returns the queued
+        group in the paper's tables). ``suite="robustness"`` evaluates the
+        task's perturbation suite too (Aligning and Pushing, state policies;
+        level 0 is the plain result, :meth:`robustness` has the rest). Returns the queued
         :class:`~d3il_client.models.Submission`; follow it with :meth:`wait`.
         """
         if not method or len(method) > 64:
@@ -392,6 +396,8 @@ class Client:
         check_choice("task", task, TASKS)
         check_choice("obs_type", obs_type, OBS_TYPES)
         check_choice("protocol", protocol, PROTOCOLS)
+        if suite is not None:
+            check_choice("suite", suite, SUITES)
         if isinstance(training_seed, bool) or not isinstance(training_seed, int) or training_seed < 0:
             raise errors.ManifestError("training_seed must be a whole number >= 0", "training_seed")
         if not 0.0 < float(data_fraction) <= 1.0:
@@ -416,6 +422,7 @@ class Client:
             ("code_url", code_url),
             ("paper_url", paper_url),
             ("description", description),
+            ("suite", suite),
         ):
             if value is not None:
                 fields.append((key, value))
@@ -545,6 +552,68 @@ class Client:
         Raises :class:`~d3il_client.errors.NotFound` until the evaluation completed.
         """
         return from_json(Results, self._get_json(f"/api/v1/submissions/{_id(submission)}/results"))
+
+    def robustness(self, submission: SubmissionRef, *, rollouts: bool = False) -> Dict[str, Any]:
+        """The robustness document of a submission made with ``suite="robustness"``.
+
+        Level 0 (``control``), every perturbed level with its paired drop, the
+        axes' scores and the overall score (docs/robustness.md). Without
+        ``rollouts=True`` the rollout records are left out (much smaller).
+        Raises :class:`~d3il_client.errors.NotFound` until the evaluation completed.
+        """
+        doc: Dict[str, Any] = self._get_json(
+            f"/api/v1/submissions/{_id(submission)}/robustness", {"rollouts": "true" if rollouts else "false"}
+        )
+        return doc
+
+    def robustness_frame(self, submission: SubmissionRef) -> pd.DataFrame:
+        """The robustness document as a DataFrame, one row per level (level 0 first, axis ``control``).
+
+        Columns: ``axis``, ``level``, ``setting``, ``success_rate``, ``ci_low``,
+        ``ci_high``, ``drop``, ``drop_ci_low``, ``drop_ci_high``, ``p_value``,
+        ``retained``, ``conditional_entropy``.
+        """
+        import pandas as pd
+
+        doc = self.robustness(submission)
+        m0 = doc["control"]["metrics"]
+        rows: List[Dict[str, Any]] = [
+            {
+                "axis": "control",
+                "level": 0,
+                "setting": "standard protocol",
+                "success_rate": m0["success_rate"]["value"],
+                "ci_low": m0["success_rate"]["ci_low"],
+                "ci_high": m0["success_rate"]["ci_high"],
+                "drop": None,
+                "drop_ci_low": None,
+                "drop_ci_high": None,
+                "p_value": None,
+                "retained": 1.0,
+                "conditional_entropy": m0["conditional_entropy"]["value"],
+            }
+        ]
+        for lv in doc["levels"]:
+            m = lv["result"]["metrics"]
+            d = lv["paired"]["success_rate"]
+            rows.append(
+                {
+                    "axis": lv["axis"],
+                    "level": lv["level"],
+                    "setting": lv["setting"]["label"],
+                    "success_rate": m["success_rate"]["value"],
+                    "ci_low": m["success_rate"]["ci_low"],
+                    "ci_high": m["success_rate"]["ci_high"],
+                    "drop": d["difference"]["value"],
+                    "drop_ci_low": d["difference"]["ci_low"],
+                    "drop_ci_high": d["difference"]["ci_high"],
+                    "p_value": d["p_value"],
+                    "retained": lv["retained"],
+                    "conditional_entropy": m["conditional_entropy"]["value"],
+                }
+            )
+        frame: pd.DataFrame = pd.DataFrame(rows)
+        return frame
 
     def rollouts_page(
         self,

@@ -30,6 +30,8 @@ TASKS = (
 OBS_TYPES = ("state", "image")
 #: Evaluation protocols: ``paper`` (the full protocol) or ``quick`` (a smoke test).
 PROTOCOLS = ("paper", "quick")
+#: Suites a submission can ask for besides the plain evaluation (docs/robustness.md).
+SUITES = ("robustness",)
 #: Largest history k a manifest may declare.
 MAX_HISTORY = 64
 #: Largest chunk length H (and so execute E) a manifest may declare.

@@ -101,6 +101,7 @@ pub fn evaluate_here(
         serde_json::from_value(read_json(&mpath)?).map_err(|e| FidelityError::data(&mpath, e))?;
     let job = Job {
         job_id: format!("fidelity-{name}"),
+        suite: None,
         task,
         protocol,
         policy: PolicySource::Onnx {

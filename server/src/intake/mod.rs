@@ -51,6 +51,8 @@ pub struct ValidSubmission {
     pub protocol: ProtocolKind,
     pub manifest: PolicyManifest,
     pub policy: ValidPolicy,
+    /// The perturbation suite asked for (`robustness`, issue 40).
+    pub suite: Option<String>,
 }
 
 #[derive(Debug)]
@@ -97,8 +99,10 @@ pub fn validate(mut raw: RawSubmission, limits: &Limits) -> Result<ValidSubmissi
     let data_fraction = fraction_field(raw_ref)?;
     let protocol = protocol_field(raw_ref)?;
     let manifest = manifest_field(raw_ref, task, obs_type, method.history)?;
+    let suite = suite_field(raw_ref)?;
     let policy = policy_fields(&mut raw, limits)?;
     Ok(ValidSubmission {
+        suite,
         method,
         task,
         obs_type,
@@ -108,6 +112,62 @@ pub fn validate(mut raw: RawSubmission, limits: &Limits) -> Result<ValidSubmissi
         manifest,
         policy,
     })
+}
+
+/// The one suite a submission can ask for (docs/robustness.md).
+pub const SUITE: &str = "robustness";
+
+fn suite_field(raw: &RawSubmission) -> Result<Option<String>, AppError> {
+    match opt(raw, "suite") {
+        None => Ok(None),
+        Some(s) if s == SUITE => Ok(Some(s)),
+        Some(s) => Err(AppError::invalid(
+            "suite",
+            format!("`suite` is `{s}`; the one suite is `{SUITE}` (or leave it out for a plain evaluation)"),
+        )),
+    }
+}
+
+/// Whether `task` with `obs` observations has a robustness suite: state
+/// policies of the tasks with a suite file in `assets/robustness/` (the
+/// worker's `d3il_evaluator::robustness::suite_for` checks the same, with
+/// the files' sha256, before it evaluates).
+pub fn check_suite_available(
+    assets_dir: &std::path::Path,
+    task: TaskId,
+    obs: ObsType,
+) -> Result<(), AppError> {
+    let dir = assets_dir.join("robustness");
+    let with_suite: Vec<TaskId> = TaskId::ALL
+        .iter()
+        .copied()
+        .filter(|t| {
+            std::fs::read_dir(&dir).is_ok_and(|entries| {
+                entries.flatten().any(|e| {
+                    let name = e.file_name().to_string_lossy().into_owned();
+                    name.starts_with(&format!("{}-v", t.slug())) && name.ends_with(".json")
+                })
+            })
+        })
+        .collect();
+    let names = with_suite
+        .iter()
+        .map(|t| t.slug())
+        .collect::<Vec<_>>()
+        .join(", ");
+    if !with_suite.contains(&task) {
+        return Err(AppError::invalid(
+            "suite",
+            format!("task `{task}` has no robustness suite yet; suites exist for {names} (state observations); leave `suite` out for a plain evaluation"),
+        ));
+    }
+    if obs != ObsType::State {
+        return Err(AppError::invalid(
+            "suite",
+            format!("the robustness suite of `{task}` has no axes for {obs} observations yet (state policies only); leave `suite` out for a plain evaluation"),
+        ));
+    }
+    Ok(())
 }
 
 fn protocol_field(raw: &RawSubmission) -> Result<ProtocolKind, AppError> {
@@ -478,6 +538,7 @@ pub async fn dry_run(
     let remote = matches!(policy, PolicySource::Remote { .. });
     let job = Job {
         job_id: "dry-run".into(),
+        suite: v.suite.clone(),
         task: v.task,
         protocol: ProtocolKind::Quick,
         policy,
@@ -495,6 +556,7 @@ pub async fn dry_run(
     let e = match report.outcome {
         Ok(Evaluated::Result(r)) => return Ok(r.manifest.simulated_once),
         Ok(Evaluated::Part(p)) => return Ok(p.manifest.simulated_once),
+        Ok(Evaluated::Robustness(d)) => return Ok(d.control.manifest.simulated_once),
         Err(e) if e.kind == ErrorKind::Internal => return Err(AppError::Internal(e.message)),
         Err(e) => e,
     };
@@ -541,6 +603,9 @@ pub async fn accept(
         v.protocol,
     )
     .await?;
+    if v.suite.is_some() {
+        check_suite_available(&state.cfg.assets_dir, v.task, v.obs_type)?;
+    }
     let dry = match &v.policy {
         ValidPolicy::Remote(url) => Some(PolicySource::Remote { url: url.clone() }),
         ValidPolicy::Onnx(_) if !state.cfg.dry_run_uploads => None,
@@ -600,24 +665,31 @@ pub async fn accept(
         .cfg
         .shards
         .min(v.task.protocol_size(v.protocol, usize::MAX).0);
-    let inserted = store
-        .create_submission_sharded(
-            &NewSubmission {
-                method_id: method.id,
-                submitter_id: Some(who.id),
-                task: v.task,
-                obs_type: v.obs_type,
-                training_seed: v.training_seed,
-                data_fraction: v.data_fraction,
-                protocol: v.protocol,
-                policy,
-                manifest_json,
-                simulated_once: dry_once,
-            },
-            state.cfg.max_attempts,
-            shards,
-        )
-        .await;
+    let new = NewSubmission {
+        method_id: method.id,
+        submitter_id: Some(who.id),
+        task: v.task,
+        obs_type: v.obs_type,
+        training_seed: v.training_seed,
+        data_fraction: v.data_fraction,
+        protocol: v.protocol,
+        policy,
+        manifest_json,
+        simulated_once: dry_once,
+    };
+    // A suite's job runs whole evaluations, never sharded.
+    let inserted = match &v.suite {
+        Some(suite) => {
+            store
+                .create_suite_submission(&new, state.cfg.max_attempts, suite)
+                .await
+        }
+        None => {
+            store
+                .create_submission_sharded(&new, state.cfg.max_attempts, shards)
+                .await
+        }
+    };
     drop(files);
     let id = match inserted {
         Ok(id) => id,

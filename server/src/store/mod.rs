@@ -48,6 +48,7 @@ mod live;
 mod methods;
 mod paper;
 mod results;
+mod robustness;
 mod submissions;
 mod tokens;
 pub mod types;
@@ -57,6 +58,7 @@ pub use jobs::{ClaimedJob, JobKind, JobRow};
 pub use live::{CancelOutcome, Cancelled, StateOutcome, CANCELLED_KIND};
 pub use methods::{MethodRow, NewMethod};
 pub use results::{ResultRow, RolloutRow, SeedSummary};
+pub use robustness::{summary_of, RobustnessRow};
 /// Re-exported so that callers reading the rows themselves (`d3il bench
 /// chaos` checks what a run left behind) need no own dependency.
 pub use sqlx;

@@ -61,6 +61,10 @@ pub struct SubmissionRow {
     /// [`NewSubmission::simulated_once`]; the result sets it too).
     #[serde(skip)]
     pub simulated_once: Option<bool>,
+    /// The perturbation suite the submission asked for (`robustness`, issue
+    /// 40), None for a plain evaluation.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub suite: Option<String>,
 }
 
 /// What a new submission needs; validated by the HTTP layer before it gets here.
@@ -131,7 +135,7 @@ pub enum NewPolicy {
 const SUBMISSION_SELECT: &str = "SELECT s.id, s.method_id, m.name AS method, sub.name AS submitter, s.task, s.obs_type, \
      s.training_seed, s.data_fraction, s.protocol, s.policy_kind, s.onnx_sha256, s.onnx_bytes, s.onnx_path, \
      s.endpoint_url, s.manifest_json, s.status, s.error_kind, s.error_message, s.created_at, s.updated_at, \
-     s.simulated_once FROM submissions s JOIN methods m ON m.id = s.method_id LEFT JOIN submitters sub ON sub.id = s.submitter_id";
+     s.simulated_once, s.suite FROM submissions s JOIN methods m ON m.id = s.method_id LEFT JOIN submitters sub ON sub.id = s.submitter_id";
 
 impl Store {
     /// The submission that already holds this seed, if any (checked before an
@@ -166,7 +170,18 @@ impl Store {
         shards: usize,
     ) -> Result<i64, StoreError> {
         let shards = shards.max(1) as i64;
-        super::retry_busy(|| self.create_submission_once(s, max_attempts, shards)).await
+        super::retry_busy(|| self.create_submission_once(s, max_attempts, shards, None)).await
+    }
+
+    /// [`Store::create_submission`] of a submission asking for the
+    /// perturbation suite `suite` (issue 40): one job, never sharded.
+    pub async fn create_suite_submission(
+        &self,
+        s: &NewSubmission,
+        max_attempts: i64,
+        suite: &str,
+    ) -> Result<i64, StoreError> {
+        super::retry_busy(|| self.create_submission_once(s, max_attempts, 1, Some(suite))).await
     }
 
     async fn create_submission_once(
@@ -174,6 +189,7 @@ impl Store {
         s: &NewSubmission,
         max_attempts: i64,
         shards: i64,
+        suite: Option<&str>,
     ) -> Result<i64, StoreError> {
         // SQLite's IMMEDIATE takes the write lock before the duplicate check,
         // so two concurrent submissions of the same seed cannot both pass it
@@ -230,6 +246,13 @@ impl Store {
             }
             _ => e.into(),
         })?;
+        if let Some(suite) = suite {
+            sqlx::query("UPDATE submissions SET suite = $1 WHERE id = $2")
+                .bind(suite)
+                .bind(id)
+                .execute(&mut *tx)
+                .await?;
+        }
         for index in 0..shards {
             sqlx::query(
                 "INSERT INTO jobs (submission_id, state, max_attempts, created_at, shard_index, shard_count) \

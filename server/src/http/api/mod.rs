@@ -5,6 +5,7 @@
 pub mod cancel;
 pub mod compare;
 pub mod openapi;
+pub mod robustness;
 pub mod rollouts;
 
 use crate::auth::Authed;
@@ -44,6 +45,7 @@ pub fn router(max_upload: usize) -> Router<AppState> {
         .route("/submissions/{id}", get(get_submission))
         .route("/submissions/{id}/cancel", post(cancel::cancel_submission))
         .route("/submissions/{id}/results", get(get_results))
+        .route("/submissions/{id}/robustness", get(robustness::get_robustness))
         .route("/submissions/{id}/rollouts", get(rollouts::list_rollouts))
         .route("/submissions/{id}/rollouts/{n}", get(rollouts::get_rollout))
         .route(

@@ -26,6 +26,7 @@ use utoipa::{Modify, OpenApi};
         super::get_submission,
         super::cancel::cancel_submission,
         super::get_results,
+        super::robustness::get_robustness,
         super::list_leaderboards,
         super::get_leaderboard,
         super::get_leaderboard_csv,
@@ -43,6 +44,7 @@ use utoipa::{Modify, OpenApi};
         ErrorDetail,
         SubmissionView,
         ResultsView,
+        super::robustness::RobustnessDocument,
         NewSubmissionForm,
         LeaderboardList,
         LeaderboardView,
@@ -149,4 +151,8 @@ pub struct NewSubmissionForm {
     manifest: Option<String>,
     /// ws(s)/http(s) URL of a remote policy (instead of `onnx`).
     endpoint_url: Option<String>,
+    /// `robustness`: evaluate the task's perturbation suite too (level 0 is
+    /// the plain result; `/submissions/{id}/robustness` has the rest).
+    /// Refused for tasks and observation types without a suite.
+    suite: Option<String>,
 }

@@ -8,6 +8,7 @@ mod compare;
 mod fidelity;
 mod format;
 mod lists;
+mod robustness;
 mod rollouts;
 mod site;
 mod submission;
@@ -31,6 +32,7 @@ pub fn router(max_upload: usize) -> Router<AppState> {
         .route("/tasks/{task}", get(leaderboard))
         .route("/tasks/{task}/csv", get(leaderboard_csv))
         .route("/tasks/{task}/data-fraction", get(data_fraction))
+        .route("/tasks/{task}/robustness", get(robustness::robustness_page))
         .route("/methods", get(methods_page))
         .route("/methods/{name}", get(method_page))
         .route("/compare", get(compare_page))

@@ -1,0 +1,242 @@
+//! A robustness evaluation (issue 40, docs/robustness.md): level 0 (the plain
+//! evaluation, the control arm) and every level of the task's perturbation
+//! suite on the same initial states, seed and rollout ids, with each level's
+//! paired drop against level 0 (`d3il compare`'s machinery) and the
+//! robustness scores. `d3il eval --suite robustness` and a worker's job with
+//! `suite` both run it.
+
+use crate::eval::{self, evaluate, evaluate_perturbed, EvalError, EvalOptions, PolicyInfo, Timing};
+use crate::perturb::Suite;
+use crate::tasks::LoadedTask;
+use d3il_metrics::robustness::robustness_scores;
+use d3il_metrics::Bootstrap;
+use d3il_policy::Policy;
+use d3il_protocol::perturbation::{Axis, Perturbation};
+use d3il_protocol::robustness::{AxisScore, LevelResult, RobustnessResult, ROBUSTNESS_FORMAT};
+use d3il_protocol::{Comparison, ContextResult, EvalResult, ObsType, TaskId};
+
+/// Resamples of the paired comparisons and of the scores' intervals (as
+/// `d3il compare`'s default).
+pub const RESAMPLES: usize = 2000;
+
+/// The one suite name a job or `d3il eval --suite` takes.
+pub const SUITE_NAME: &str = "robustness";
+
+/// Checks a requested suite name.
+pub fn check_suite_name(name: &str) -> Result<(), EvalError> {
+    if name == SUITE_NAME {
+        Ok(())
+    } else {
+        Err(EvalError::Setup(format!(
+            "suite `{name}`: the one suite is `{SUITE_NAME}`"
+        )))
+    }
+}
+
+/// The suite a job or `d3il eval --suite NAME` asks for, for `task` and
+/// `obs`: suites exist for some tasks and state observations only (the
+/// server checks the same before queueing, docs/robustness.md).
+pub fn suite_for(name: &str, task: TaskId, obs: ObsType) -> Result<Suite, EvalError> {
+    check_suite_name(name)?;
+    if obs != ObsType::State {
+        return Err(EvalError::Setup(format!(
+            "the robustness suite has no axes for {obs} observations yet (state policies only)"
+        )));
+    }
+    Suite::for_task(task).map_err(|e| EvalError::Setup(e.to_string()))
+}
+
+/// How big a robustness evaluation is, before it runs.
+#[derive(Debug, Clone)]
+pub struct SuitePlan {
+    pub levels: Vec<Perturbation>,
+    pub n_contexts: usize,
+    pub rollouts_per_context: usize,
+    /// Whether a deterministic policy simulates each initial state once
+    /// (except under observation noise, which differs per rollout).
+    pub once: bool,
+    /// Rollouts recorded over level 0 and every level.
+    pub recorded: usize,
+    /// Rollouts simulated over level 0 and every level.
+    pub simulated: usize,
+}
+
+pub fn plan(
+    task: &LoadedTask,
+    policy: &dyn Policy,
+    opts: &EvalOptions,
+    suite: &Suite,
+) -> Result<SuitePlan, EvalError> {
+    let levels = suite.perturbations();
+    let set = task.def.context_set()?;
+    let (n_ctx, per_ctx) = eval::protocol_size(task, opts.protocol, set.len());
+    let once = policy.deterministic() && !opts.simulate_every_rollout;
+    let per_level = n_ctx * per_ctx;
+    let simulated = |noisy: bool| {
+        if once && !noisy {
+            n_ctx
+        } else {
+            per_level
+        }
+    };
+    let sim_total = simulated(false)
+        + levels
+            .iter()
+            .map(|p| simulated(p.axis == Axis::ObsNoise))
+            .sum::<usize>();
+    Ok(SuitePlan {
+        n_contexts: n_ctx,
+        rollouts_per_context: per_ctx,
+        once,
+        recorded: per_level * (levels.len() + 1),
+        simulated: sim_total,
+        levels,
+    })
+}
+
+/// What a caller sees of a running robustness evaluation.
+pub trait SuiteObserver {
+    /// Before a level (None: level 0).
+    fn level_started(&mut self, _level: Option<&Perturbation>) {}
+    /// Progress within the current level.
+    fn progress(&mut self, done: usize, total: usize);
+    fn level_finished(&mut self, _timing: &Timing) {}
+}
+
+/// Runs level 0 and every level of `plan`, and builds the document.
+pub fn evaluate_suite(
+    task: &LoadedTask,
+    policy: &mut dyn Policy,
+    info: &PolicyInfo,
+    opts: &EvalOptions,
+    suite: &Suite,
+    plan: &SuitePlan,
+    observer: &mut dyn SuiteObserver,
+) -> Result<RobustnessResult, EvalError> {
+    observer.level_started(None);
+    let (control, t) = evaluate(task, policy, info, opts, &mut |d, n| {
+        observer.progress(d, n)
+    })?;
+    observer.level_finished(&t);
+    let mut results: Vec<(Perturbation, EvalResult)> = vec![];
+    for p in &plan.levels {
+        observer.level_started(Some(p));
+        let (r, t) = evaluate_perturbed(task, policy, info, opts, p, &mut |d, n| {
+            observer.progress(d, n)
+        })?;
+        observer.level_finished(&t);
+        results.push((p.clone(), r));
+    }
+    document(suite, control, results)
+}
+
+/// The robustness document of level 0's result and every level's (in the
+/// suite's order): each level's paired drop against level 0 and the scores,
+/// bootstrapped with the evaluation's seed. An evaluation and the merge of
+/// its shards (`crate::suite_shard`) both end here.
+pub fn document(
+    suite: &Suite,
+    control: EvalResult,
+    levels: Vec<(Perturbation, EvalResult)>,
+) -> Result<RobustnessResult, EvalError> {
+    let seed = control.manifest.seed;
+    assemble(suite, control, levels, seed).map_err(EvalError::from)
+}
+
+/// The robustness document of level 0 (`control`) and the levels'
+/// results: each level's paired drop against level 0 (`d3il compare`'s
+/// machinery, [`RESAMPLES`] resamples, seeded by `seed`), the success
+/// retained and the scores per axis and overall.
+pub fn assemble(
+    suite: &Suite,
+    control: EvalResult,
+    results: Vec<(Perturbation, EvalResult)>,
+    seed: u64,
+) -> Result<RobustnessResult, d3il_metrics::MetricsError> {
+    let cfg = Bootstrap {
+        resamples: RESAMPLES,
+        confidence: 0.95,
+        seed,
+    };
+    let results = results
+        .into_iter()
+        .map(|(p, r)| {
+            let paired = d3il_metrics::compare(&control, &r, &cfg)?;
+            Ok((p, r, paired))
+        })
+        .collect::<Result<Vec<(Perturbation, EvalResult, Comparison)>, d3il_metrics::MetricsError>>(
+        )?;
+    let axes: Vec<Axis> = suite.file.axes.iter().map(|a| a.axis).collect();
+    let indexed: Vec<(usize, &[ContextResult])> = results
+        .iter()
+        .map(|(p, r, _)| {
+            let a = axes.iter().position(|&x| x == p.axis).unwrap_or(0);
+            (a, &r.per_context[..])
+        })
+        .collect();
+    let scores = robustness_scores(&control.per_context, &indexed, axes.len(), &cfg)?;
+    Ok(RobustnessResult {
+        format: ROBUSTNESS_FORMAT.into(),
+        task: control.manifest.task,
+        suite: suite.name.clone(),
+        suite_sha256: suite.sha256.clone(),
+        levels: results
+            .into_iter()
+            .zip(&scores.retained)
+            .map(|((p, result, paired), retained)| LevelResult {
+                axis: p.axis,
+                level: p.level,
+                setting: p.setting,
+                result,
+                paired,
+                retained: *retained,
+            })
+            .collect(),
+        axes: axes
+            .iter()
+            .zip(&scores.axes)
+            .map(|(&axis, score)| AxisScore {
+                axis,
+                score: *score,
+            })
+            .collect(),
+        overall: scores.overall,
+        control,
+        resamples: cfg.resamples,
+        confidence: cfg.confidence,
+    })
+}
+
+/// Progress over the whole suite for a worker: level by level, counted
+/// against the rollouts of every level.
+pub struct Cumulative<'a> {
+    pub on_progress: &'a mut dyn FnMut(usize, usize),
+    pub total: usize,
+    done_before: usize,
+    level_total: usize,
+}
+
+impl<'a> Cumulative<'a> {
+    pub fn new(on_progress: &'a mut dyn FnMut(usize, usize), total: usize) -> Self {
+        Cumulative {
+            on_progress,
+            total,
+            done_before: 0,
+            level_total: 0,
+        }
+    }
+}
+
+impl SuiteObserver for Cumulative<'_> {
+    fn level_started(&mut self, _level: Option<&Perturbation>) {
+        self.done_before += self.level_total;
+        self.level_total = 0;
+    }
+    fn progress(&mut self, done: usize, total: usize) {
+        self.level_total = total;
+        (self.on_progress)(
+            self.done_before + done,
+            self.total.max(self.done_before + total),
+        );
+    }
+}

@@ -1,0 +1,115 @@
+//! A task's Robustness view (issue 40, docs/robustness.md): per suite
+//! version and protocol, methods × axes with retained-success scores and
+//! intervals, per-axis degradation curves and robustness against
+//! conditional behaviour entropy. Tables and figures come from
+//! `d3il_tables::robustness` (as `d3il tables --table robustness`).
+
+use super::format::method_url;
+use super::render;
+use crate::error::PageError;
+use crate::http::extract::Param;
+use crate::state::AppState;
+use askama::Template;
+use axum::extract::State;
+use axum::response::Html;
+use d3il_protocol::TaskId;
+use d3il_tables::robustness::figures::{degradation_svg, score_vs_entropy_svg};
+use d3il_tables::robustness::{group_by_suite, interval_text, RobustnessEntry, NOTE};
+
+struct Row {
+    rank: usize,
+    method: String,
+    method_url: String,
+    seed: i64,
+    submission: i64,
+    control: String,
+    entropy: String,
+    scores: Vec<String>,
+    overall: String,
+}
+
+struct Figure {
+    caption: String,
+    svg: String,
+}
+
+struct Group {
+    title: String,
+    anchor: String,
+    axes: Vec<String>,
+    rows: Vec<Row>,
+    figures: Vec<Figure>,
+}
+
+#[derive(Template)]
+#[template(path = "robustness.html")]
+struct RobustnessPage {
+    title: &'static str,
+    slug: &'static str,
+    groups: Vec<Group>,
+    note: &'static str,
+}
+
+pub(super) async fn robustness_page(
+    State(state): State<AppState>,
+    Param(task): Param<TaskId>,
+) -> Result<Html<String>, PageError> {
+    let entries: Vec<RobustnessEntry> = state
+        .store
+        .robustness_rows(Some(task))
+        .await?
+        .into_iter()
+        .map(|r| r.into_entry())
+        .collect();
+    let mut groups = Vec::new();
+    for (i, g) in group_by_suite(&entries).iter().enumerate() {
+        let rows = g
+            .entries
+            .iter()
+            .enumerate()
+            .map(|(rank, e)| Row {
+                rank: rank + 1,
+                method: e.method.clone(),
+                method_url: method_url(&e.method),
+                seed: e.training_seed,
+                submission: e.submission_id,
+                control: interval_text(&Some(e.doc.control.metrics.success_rate)),
+                entropy: format!("{:.3}", e.doc.control.metrics.conditional_entropy.value),
+                scores: g
+                    .axes
+                    .iter()
+                    .map(|&a| interval_text(&e.axis_score(a)))
+                    .collect(),
+                overall: interval_text(&e.doc.overall),
+            })
+            .collect();
+        let internal = |e: d3il_tables::TablesError| {
+            PageError(crate::error::AppError::Internal(e.to_string()))
+        };
+        let mut figures = vec![Figure {
+            caption: "Overall robustness score against level 0's conditional behaviour entropy (does diversity buy robustness?)".into(),
+            svg: score_vs_entropy_svg(g).map_err(internal)?,
+        }];
+        for &axis in &g.axes {
+            figures.push(Figure {
+                caption: format!(
+                    "{axis}: success rate per level (level 0 = the control arm), 95 % intervals"
+                ),
+                svg: degradation_svg(g, axis).map_err(internal)?,
+            });
+        }
+        groups.push(Group {
+            title: g.title(),
+            anchor: format!("suite-{}", i + 1),
+            axes: g.axes.iter().map(|a| a.to_string()).collect(),
+            rows,
+            figures,
+        });
+    }
+    render(&RobustnessPage {
+        title: task.title(),
+        slug: task.slug(),
+        groups,
+        note: NOTE,
+    })
+}

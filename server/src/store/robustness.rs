@@ -1,0 +1,132 @@
+//! Robustness results (issue 40, migration 0008): the robustness document of
+//! a submission that asked for the suite, stored whole for the API and as a
+//! summary without rollout records for the boards and tables.
+
+use super::types::Json;
+use super::types::Stored;
+use super::{Store, StoreError};
+use d3il_protocol::robustness::RobustnessResult;
+use d3il_protocol::{ObsType, ProtocolKind, TaskId};
+use d3il_tables::robustness::RobustnessEntry;
+use sqlx::FromRow;
+
+/// One evaluated submission's robustness, as the board and tables read it.
+#[derive(Debug, Clone, FromRow)]
+pub struct RobustnessRow {
+    pub submission_id: i64,
+    pub method: String,
+    #[sqlx(try_from = "Stored<TaskId>")]
+    pub task: TaskId,
+    #[sqlx(try_from = "Stored<ObsType>")]
+    pub obs_type: ObsType,
+    #[sqlx(try_from = "Stored<ProtocolKind>")]
+    pub protocol: ProtocolKind,
+    pub training_seed: i64,
+    pub data_fraction: f64,
+    pub suite: String,
+    pub suite_sha256: String,
+    /// The document without rollout records (per-initial-state outcomes,
+    /// metrics, paired drops and scores are all there).
+    pub summary_json: Json<RobustnessResult>,
+}
+
+impl RobustnessRow {
+    /// The row as the robustness tables and figures take it.
+    pub fn into_entry(self) -> RobustnessEntry {
+        RobustnessEntry {
+            submission_id: self.submission_id,
+            method: self.method,
+            training_seed: self.training_seed,
+            protocol: self.protocol,
+            doc: self.summary_json.0,
+        }
+    }
+}
+
+/// The document without its rollout records (what boards and tables need).
+pub fn summary_of(doc: &RobustnessResult) -> RobustnessResult {
+    let mut s = doc.clone();
+    s.control.rollouts.clear();
+    for l in &mut s.levels {
+        l.result.rollouts.clear();
+    }
+    s
+}
+
+impl Store {
+    /// Stores a submission's robustness document (idempotent: a document
+    /// already stored for the submission is kept).
+    pub async fn save_robustness(
+        &self,
+        submission_id: i64,
+        doc: &RobustnessResult,
+    ) -> Result<(), StoreError> {
+        let document = serde_json::to_string(doc)
+            .map_err(|e| StoreError::Corrupt(format!("robustness document not encoded: {e}")))?;
+        let summary = serde_json::to_string(&summary_of(doc))
+            .map_err(|e| StoreError::Corrupt(format!("robustness summary not encoded: {e}")))?;
+        on_db!(&self.db, pool => sqlx::query(
+            "INSERT INTO robustness_results (submission_id, suite, suite_sha256, overall, overall_ci_low, \
+             overall_ci_high, summary_json, document_json, created_at) VALUES ($1, $2, $3, $4, $5, $6, $7, $8, $9) \
+             ON CONFLICT (submission_id) DO NOTHING",
+        )
+        .bind(submission_id)
+        .bind(&doc.suite)
+        .bind(&doc.suite_sha256)
+        .bind(doc.overall.map(|e| e.value))
+        .bind(doc.overall.map(|e| e.ci_low))
+        .bind(doc.overall.map(|e| e.ci_high))
+        .bind(summary)
+        .bind(document)
+        .bind(super::now())
+        .execute(pool)
+        .await
+        .map(|_| ()))?;
+        Ok(())
+    }
+
+    /// The whole robustness document of a submission, as stored (JSON text),
+    /// or None when it has none (yet).
+    pub async fn robustness_document(
+        &self,
+        submission_id: i64,
+    ) -> Result<Option<String>, StoreError> {
+        Ok(on_db!(&self.db, pool => sqlx::query_scalar(
+            "SELECT document_json FROM robustness_results WHERE submission_id = $1",
+        )
+        .bind(submission_id)
+        .fetch_optional(pool)
+        .await)?)
+    }
+
+    /// The summary (document without rollout records) of a submission.
+    pub async fn robustness_summary(
+        &self,
+        submission_id: i64,
+    ) -> Result<Option<RobustnessResult>, StoreError> {
+        let j: Option<Json<RobustnessResult>> = on_db!(&self.db, pool => sqlx::query_scalar(
+            "SELECT summary_json FROM robustness_results WHERE submission_id = $1",
+        )
+        .bind(submission_id)
+        .fetch_optional(pool)
+        .await)?;
+        Ok(j.map(|j| j.0))
+    }
+
+    /// Every completed submission's robustness for `task` (all tasks when
+    /// None), oldest first.
+    pub async fn robustness_rows(
+        &self,
+        task: Option<TaskId>,
+    ) -> Result<Vec<RobustnessRow>, StoreError> {
+        Ok(on_db!(&self.db, pool => sqlx::query_as(
+            "SELECT r.submission_id, m.name AS method, s.task, s.obs_type, s.protocol, s.training_seed, \
+             s.data_fraction, r.suite, r.suite_sha256, r.summary_json FROM robustness_results r \
+             JOIN submissions s ON s.id = r.submission_id JOIN methods m ON m.id = s.method_id \
+             WHERE s.status = 'completed' AND ($1 IS NULL OR s.task = $1) ORDER BY r.submission_id",
+        )
+        .bind(task.map(|t| t.slug()))
+        .fetch_all(pool)
+        .await)?)
+    }
+}

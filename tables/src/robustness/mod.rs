@@ -1,0 +1,373 @@
+//! The robustness track's tables (issue 40, docs/robustness.md): methods ×
+//! axes with retained-success scores and their intervals, grouped by suite
+//! version. `d3il tables --table robustness` prints them (LaTeX, Markdown,
+//! CSV) and the leaderboard's Robustness view shows the same groups with the
+//! figures of [`figures`]. Rows of different suite files (name and sha256)
+//! or protocols are never ranked together.
+
+pub mod figures;
+
+use crate::numfmt::{latex_escape, markdown_escape, three_decimals};
+use crate::{Format, TablesError};
+use d3il_protocol::perturbation::Axis;
+use d3il_protocol::robustness::RobustnessResult;
+use d3il_protocol::{Estimate, ProtocolKind, TaskId};
+use std::fmt::Write;
+
+/// One evaluated submission's robustness (its document without rollout
+/// records is enough).
+#[derive(Debug, Clone)]
+pub struct RobustnessEntry {
+    pub submission_id: i64,
+    pub method: String,
+    pub training_seed: i64,
+    pub protocol: ProtocolKind,
+    pub doc: RobustnessResult,
+}
+
+impl RobustnessEntry {
+    /// The row's label: the method and its training seed.
+    pub fn label(&self) -> String {
+        format!("{} (seed {})", self.method, self.training_seed)
+    }
+
+    /// The score of `axis`, if the suite has it and level 0 had a success.
+    pub fn axis_score(&self, axis: Axis) -> Option<Estimate> {
+        self.doc
+            .axes
+            .iter()
+            .find(|a| a.axis == axis)
+            .and_then(|a| a.score)
+    }
+
+    /// Success rate (with interval) per level of `axis`, level 0 first.
+    pub fn curve(&self, axis: Axis) -> Vec<(usize, Estimate)> {
+        let mut c = vec![(0, self.doc.control.metrics.success_rate)];
+        c.extend(
+            self.doc
+                .levels
+                .iter()
+                .filter(|l| l.axis == axis)
+                .map(|l| (l.level, l.result.metrics.success_rate)),
+        );
+        c
+    }
+}
+
+/// The entries of one task evaluated with one suite file under one
+/// protocol: the only rows ranked together.
+#[derive(Debug, Clone)]
+pub struct SuiteGroup<'a> {
+    pub task: TaskId,
+    pub suite: String,
+    pub suite_sha256: String,
+    pub protocol: ProtocolKind,
+    /// The suite's axes in its order.
+    pub axes: Vec<Axis>,
+    /// Ranked: overall score, highest first (rows without one last).
+    pub entries: Vec<&'a RobustnessEntry>,
+}
+
+impl SuiteGroup<'_> {
+    pub fn title(&self) -> String {
+        format!(
+            "{}: suite {} (sha256 {}…), {} protocol{}",
+            self.task.title(),
+            self.suite,
+            &self.suite_sha256[..self.suite_sha256.len().min(12)],
+            self.protocol.as_str(),
+            if self.protocol == ProtocolKind::Quick {
+                " (smoke test: 3 initial states × 2 rollouts per level)"
+            } else {
+                ""
+            }
+        )
+    }
+
+    /// `(level, label)` of every level of `axis` (level 0 is the control),
+    /// from the first entry (every entry of a group has the same suite file).
+    pub fn levels(&self, axis: Axis) -> Vec<(usize, String)> {
+        let mut v = vec![(0, "control".to_string())];
+        if let Some(e) = self.entries.first() {
+            v.extend(
+                e.doc
+                    .levels
+                    .iter()
+                    .filter(|l| l.axis == axis)
+                    .map(|l| (l.level, l.setting.label.clone())),
+            );
+        }
+        v
+    }
+}
+
+/// Groups entries by (task, suite file, sha256, protocol): paper protocol
+/// before quick, newer suite files first; within a group ranked by overall
+/// score.
+pub fn group_by_suite(entries: &[RobustnessEntry]) -> Vec<SuiteGroup<'_>> {
+    let mut groups: Vec<SuiteGroup<'_>> = Vec::new();
+    for e in entries {
+        let key = |g: &SuiteGroup<'_>| {
+            g.task == e.doc.task
+                && g.suite == e.doc.suite
+                && g.suite_sha256 == e.doc.suite_sha256
+                && g.protocol == e.protocol
+        };
+        match groups.iter_mut().find(|g| key(g)) {
+            Some(g) => g.entries.push(e),
+            None => groups.push(SuiteGroup {
+                task: e.doc.task,
+                suite: e.doc.suite.clone(),
+                suite_sha256: e.doc.suite_sha256.clone(),
+                protocol: e.protocol,
+                axes: e.doc.axes.iter().map(|a| a.axis).collect(),
+                entries: vec![e],
+            }),
+        }
+    }
+    for g in &mut groups {
+        g.entries.sort_by(|a, b| {
+            let v = |e: &RobustnessEntry| e.doc.overall.map(|o| o.value);
+            match (v(a), v(b)) {
+                (Some(x), Some(y)) => y.total_cmp(&x),
+                (Some(_), None) => std::cmp::Ordering::Less,
+                (None, Some(_)) => std::cmp::Ordering::Greater,
+                (None, None) => std::cmp::Ordering::Equal,
+            }
+            .then(a.submission_id.cmp(&b.submission_id))
+        });
+    }
+    groups.sort_by(|a, b| {
+        (a.task, a.protocol != ProtocolKind::Paper)
+            .cmp(&(b.task, b.protocol != ProtocolKind::Paper))
+            .then(b.suite.cmp(&a.suite))
+            .then(a.suite_sha256.cmp(&b.suite_sha256))
+    });
+    groups
+}
+
+/// `value [low, high]`, or `–` when there is none.
+pub fn interval_text(e: &Option<Estimate>) -> String {
+    match e {
+        Some(e) => format!(
+            "{} [{}, {}]",
+            three_decimals(e.value),
+            three_decimals(e.ci_low),
+            three_decimals(e.ci_high)
+        ),
+        None => "–".into(),
+    }
+}
+
+/// What the scores mean (every format prints it).
+pub const NOTE: &str = "Score: success retained (a level's success rate over level 0's), averaged over an axis's levels; overall: the mean of the axes' scores; 95 % paired bootstrap intervals over initial states. Level 0 is the plain evaluation (the control arm); every level runs on the same initial states, seed and rollout ids. Rows of different suite files or protocols are never ranked together. – : no success at level 0 (nothing to retain).";
+
+fn header(g: &SuiteGroup<'_>) -> Vec<String> {
+    let mut h = vec![
+        "Rank".to_string(),
+        "Method".into(),
+        "Level 0 success".into(),
+        "H|s0".into(),
+    ];
+    h.extend(g.axes.iter().map(|a| a.to_string()));
+    h.push("Overall".into());
+    h
+}
+
+fn cells(rank: usize, e: &RobustnessEntry, g: &SuiteGroup<'_>) -> Vec<String> {
+    let m = &e.doc.control.metrics;
+    let mut c = vec![
+        rank.to_string(),
+        e.label(),
+        interval_text(&Some(m.success_rate)),
+        three_decimals(m.conditional_entropy.value),
+    ];
+    c.extend(g.axes.iter().map(|&a| interval_text(&e.axis_score(a))));
+    c.push(interval_text(&e.doc.overall));
+    c
+}
+
+/// The robustness table of `entries` in `format`.
+pub fn render_robustness(
+    entries: &[RobustnessEntry],
+    format: Format,
+) -> Result<String, TablesError> {
+    let groups = group_by_suite(entries);
+    if groups.is_empty() {
+        return Err(TablesError::NoFigureData {
+            figure: "robustness table",
+            hint: "no submission evaluated with suite=robustness is in the database (submit with `d3il submit --suite robustness`)",
+        });
+    }
+    Ok(match format {
+        Format::Markdown => markdown(&groups),
+        Format::Latex => latex(&groups),
+        Format::Csv => csv(&groups)?,
+    })
+}
+
+fn markdown(groups: &[SuiteGroup<'_>]) -> String {
+    let mut out = format!("**D3IL robustness.** {}\n", markdown_escape(NOTE));
+    for g in groups {
+        let _ = writeln!(out, "\n**{}**\n", markdown_escape(&g.title()));
+        let h = header(g);
+        let _ = writeln!(
+            out,
+            "| {} |",
+            h.iter()
+                .map(|s| markdown_escape(s))
+                .collect::<Vec<_>>()
+                .join(" | ")
+        );
+        let align: Vec<&str> = (0..h.len())
+            .map(|i| if i == 1 { ":--" } else { "--:" })
+            .collect();
+        let _ = writeln!(out, "| {} |", align.join(" | "));
+        for (i, e) in g.entries.iter().enumerate() {
+            let c: Vec<String> = cells(i + 1, e, g)
+                .iter()
+                .map(|s| markdown_escape(s))
+                .collect();
+            let _ = writeln!(out, "| {} |", c.join(" | "));
+        }
+    }
+    out
+}
+
+fn latex(groups: &[SuiteGroup<'_>]) -> String {
+    let mut out = String::new();
+    for g in groups {
+        let h = header(g);
+        let _ = writeln!(out, "\\begin{{table}}[t]\n\\centering\\small");
+        let _ = writeln!(
+            out,
+            "\\caption{{D3IL robustness, {}. {}}}",
+            latex_escape(&g.title()),
+            latex_escape(NOTE)
+        );
+        let _ = writeln!(out, "\\begin{{tabular}}{{rl{}}}", "r".repeat(h.len() - 2));
+        let _ = writeln!(out, "\\toprule");
+        let _ = writeln!(
+            out,
+            "{} \\\\",
+            h.iter()
+                .map(|s| latex_escape(s))
+                .collect::<Vec<_>>()
+                .join(" & ")
+        );
+        let _ = writeln!(out, "\\midrule");
+        for (i, e) in g.entries.iter().enumerate() {
+            let c: Vec<String> = cells(i + 1, e, g).iter().map(|s| latex_escape(s)).collect();
+            let _ = writeln!(out, "{} \\\\", c.join(" & "));
+        }
+        let _ = writeln!(out, "\\bottomrule\n\\end{{tabular}}\n\\end{{table}}\n");
+    }
+    out
+}
+
+const CSV_HEADER: [&str; 19] = [
+    "task",
+    "suite",
+    "suite_sha256",
+    "protocol",
+    "rank",
+    "method",
+    "training_seed",
+    "submission_id",
+    "axis",
+    "level",
+    "setting",
+    "success_rate",
+    "success_ci_low",
+    "success_ci_high",
+    "drop",
+    "drop_ci_low",
+    "drop_ci_high",
+    "p_value",
+    "retained",
+];
+
+/// One line per level of every axis (level 0 once, axis `control`), then a
+/// line per axis score (level `score`) and the overall score (axis
+/// `overall`): the score lines carry the score in `retained` and its
+/// interval in the success interval columns.
+fn csv(groups: &[SuiteGroup<'_>]) -> Result<String, TablesError> {
+    let f = |x: f64| format!("{x}");
+    let mut rows: Vec<Vec<String>> = Vec::new();
+    for g in groups {
+        for (i, e) in g.entries.iter().enumerate() {
+            let base = vec![
+                g.task.slug().to_string(),
+                g.suite.clone(),
+                g.suite_sha256.clone(),
+                g.protocol.as_str().to_string(),
+                (i + 1).to_string(),
+                e.method.clone(),
+                e.training_seed.to_string(),
+                e.submission_id.to_string(),
+            ];
+            let s0 = e.doc.control.metrics.success_rate;
+            let mut r = base.clone();
+            r.extend([
+                "control".into(),
+                "0".into(),
+                "standard protocol".into(),
+                f(s0.value),
+                f(s0.ci_low),
+                f(s0.ci_high),
+                String::new(),
+                String::new(),
+                String::new(),
+                String::new(),
+                "1".into(),
+            ]);
+            rows.push(r);
+            for l in &e.doc.levels {
+                let s = l.result.metrics.success_rate;
+                let d = &l.paired.success_rate;
+                let mut r = base.clone();
+                r.extend([
+                    l.axis.to_string(),
+                    l.level.to_string(),
+                    l.setting.label.clone(),
+                    f(s.value),
+                    f(s.ci_low),
+                    f(s.ci_high),
+                    f(d.difference.value),
+                    f(d.difference.ci_low),
+                    f(d.difference.ci_high),
+                    f(d.p_value),
+                    l.retained.map(f).unwrap_or_default(),
+                ]);
+                rows.push(r);
+            }
+            let scores = g
+                .axes
+                .iter()
+                .map(|&a| (a.to_string(), "score", e.axis_score(a)))
+                .chain([("overall".to_string(), "score", e.doc.overall)]);
+            for (axis, level, score) in scores {
+                let mut r = base.clone();
+                let (v, lo, hi) = match score {
+                    Some(s) => (f(s.value), f(s.ci_low), f(s.ci_high)),
+                    None => Default::default(),
+                };
+                r.extend([
+                    axis,
+                    level.into(),
+                    String::new(),
+                    String::new(),
+                    lo,
+                    hi,
+                    String::new(),
+                    String::new(),
+                    String::new(),
+                    String::new(),
+                    v,
+                ]);
+                rows.push(r);
+            }
+        }
+    }
+    crate::csv::write_csv(&CSV_HEADER, rows)
+}

@@ -1,0 +1,107 @@
+//! Headless Chromium loads a task's Robustness view served by the real
+//! `d3il serve` over a database holding three robustness results (written as
+//! a worker stores them), and we check the DOM it rendered: one section per
+//! suite version (never ranked together), methods × axes with intervals, the
+//! per-axis degradation curves and robustness against conditional entropy;
+//! the task's board links the view.
+
+mod robustness_support;
+mod server_support;
+use d3il_test_support::chromium::{chromium, dump_dom};
+use robustness_support::{seed, three, OTHER_SHA256};
+use server_support::*;
+
+#[test]
+fn chromium_renders_the_robustness_view() {
+    let browser = chromium();
+    let dir = TempDir::new("robustness-chromium");
+    let db = dir.path().join("lb.sqlite");
+    let ids = seed(&db, &three());
+    let server = Server::start(&db, &["--workers", "0"]);
+    let dom = dump_dom(
+        &browser,
+        &format!("{}/tasks/pushing/robustness", server.base),
+        &dir.path().join("profile"),
+        &[],
+    );
+
+    let sections: Vec<&str> = dom
+        .split("<section class=\"board-section robustness-group\"")
+        .skip(1)
+        .collect();
+    assert_eq!(sections.len(), 2, "one section per suite version");
+    let (current, other) = if sections[0].contains(&OTHER_SHA256[..12]) {
+        (sections[1], sections[0])
+    } else {
+        (sections[0], sections[1])
+    };
+    assert!(
+        current.contains("pushing-v1.json"),
+        "the suite file is named"
+    );
+    assert!(other.contains("Older-Suite") && !other.contains(">Diverse<"));
+    assert!(!current.contains("Older-Suite"));
+
+    // Methods × axes: ranked by overall score, intervals in every cell.
+    let table = &current[current.find("<table").unwrap()..current.find("</table>").unwrap()];
+    for axis in ["start_shift", "obs_noise", "latency", "dynamics"] {
+        assert!(table.contains(&format!("<th>{axis}</th>")), "{axis} column");
+    }
+    let rows: Vec<&str> = table.split("<tr>").skip(2).collect();
+    assert_eq!(rows.len(), 2, "Diverse and Narrow");
+    assert!(rows[0].contains(">Diverse</a>") && rows[1].contains(">Narrow</a>"));
+    assert_eq!(
+        rows[0].matches("<td class=\"num score\">").count(),
+        4,
+        "a score per axis"
+    );
+    assert!(
+        rows[0].contains('[') && rows[0].contains(']'),
+        "intervals: {}",
+        rows[0]
+    );
+    assert!(rows[0].contains(&format!("/submissions/{}", ids[0])));
+
+    // Figures: robustness vs entropy (a point per method) and one
+    // degradation figure per axis (a line per method, level 0 included).
+    let figures: Vec<&str> = current
+        .split("<figure class=\"plot robustness-figure\">")
+        .skip(1)
+        .collect();
+    assert_eq!(figures.len(), 5);
+    let scatter = figures[0];
+    assert!(scatter.contains("<svg") && scatter.contains("Robustness score"));
+    assert!(scatter.contains("Conditional behaviour entropy"));
+    assert!(scatter.contains("Diverse (seed 0)") && scatter.contains("Narrow (seed 0)"));
+    for (f, axis) in figures[1..]
+        .iter()
+        .zip(["start_shift", "obs_noise", "latency", "dynamics"])
+    {
+        assert!(f.contains(&format!("{axis}: success vs level")), "{axis}");
+        assert!(f.contains("0 = control"), "level 0 is the control");
+        assert!(f.matches("<polyline").count() >= 2, "a line per method");
+    }
+
+    // The board links the view; the submission page links its robustness part.
+    let board = dump_dom(
+        &browser,
+        &format!("{}/tasks/pushing", server.base),
+        &dir.path().join("profile2"),
+        &[],
+    );
+    assert!(board.contains("href=\"/tasks/pushing/robustness\""));
+    let sub = dump_dom(
+        &browser,
+        &format!("{}/submissions/{}", server.base, ids[0]),
+        &dir.path().join("profile3"),
+        &[],
+    );
+    assert!(sub.contains(&format!("/api/v1/submissions/{}/robustness", ids[0])));
+    assert!(sub.contains("href=\"/tasks/pushing/robustness\""));
+
+    // A task without results says so.
+    let (s, empty) = server.get_text("/tasks/aligning/robustness");
+    assert_eq!(s, 200);
+    assert!(empty.contains("id=\"no-robustness\""));
+    server.kill();
+}

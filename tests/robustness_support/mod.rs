@@ -1,0 +1,144 @@
+//! Robustness results written into a database as a worker would store them
+//! (the store's claim, `save_robustness` and completion), for the tests of
+//! the Robustness view and `d3il tables --table robustness`. The documents
+//! are assembled by the evaluator's own `robustness::assemble` from
+//! synthetic Pushing results (30 initial states × 16 rollouts per level).
+#![allow(dead_code)]
+
+use d3il_evaluator::perturb::Suite;
+use d3il_protocol::robustness::RobustnessResult;
+use d3il_protocol::{ObsType, ProtocolKind, TaskId};
+use d3il_server::store::{NewMethod, NewPolicy, NewSubmission, Store};
+use d3il_test_support::{pushing_result, SynthRollout};
+
+/// A method's synthetic behaviour: successes per initial state at level 0
+/// (of 16), how many it loses at each level of the suite, and how many
+/// behaviours its rollouts spread over.
+pub struct Synth {
+    pub method: &'static str,
+    pub base: usize,
+    pub loss_per_level: usize,
+    pub behaviours: usize,
+    /// Store the document as of another suite version (its sha256 changed):
+    /// it must never be ranked with the others.
+    pub other_version: bool,
+}
+
+pub const OTHER_SHA256: &str = "00000000000000000000000000000000000000000000000000000000000000ff";
+
+/// The robustness document of `s` on Pushing's committed suite.
+pub fn document(s: &Synth) -> RobustnessResult {
+    let suite = Suite::for_task(TaskId::Pushing).expect("Pushing's suite");
+    let result = |k: usize| {
+        let b = s.behaviours;
+        pushing_result(ProtocolKind::Paper, move |c, r| SynthRollout {
+            success: r + (c % 2) < k,
+            label: (r + c) % b,
+            unstable: false,
+        })
+    };
+    let control = result(s.base);
+    let levels = suite
+        .perturbations()
+        .into_iter()
+        .map(|p| {
+            let k = s.base.saturating_sub(s.loss_per_level * p.level);
+            (p, result(k))
+        })
+        .collect();
+    let mut doc = d3il_evaluator::robustness::assemble(&suite, control, levels, 0)
+        .expect("assemble the robustness document");
+    if s.other_version {
+        doc.suite_sha256 = OTHER_SHA256.into();
+    }
+    doc
+}
+
+/// Writes one finished robustness submission per `synths` entry; returns
+/// their ids.
+pub fn seed(db: &std::path::Path, synths: &[Synth]) -> Vec<i64> {
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .expect("runtime");
+    rt.block_on(async {
+        let store = Store::open(db).await.expect("open store");
+        let mut ids = vec![];
+        for s in synths {
+            let doc = document(s);
+            let m = store
+                .ensure_method(
+                    &NewMethod {
+                        name: s.method.into(),
+                        ..NewMethod::default()
+                    },
+                    None,
+                )
+                .await
+                .expect("method");
+            let id = store
+                .create_suite_submission(
+                    &NewSubmission {
+                        method_id: m.id,
+                        submitter_id: None,
+                        task: TaskId::Pushing,
+                        obs_type: ObsType::State,
+                        training_seed: 0,
+                        data_fraction: 1.0,
+                        protocol: ProtocolKind::Paper,
+                        policy: NewPolicy::Remote {
+                            url: "http://127.0.0.1:9/".into(),
+                        },
+                        manifest_json: r#"{"task": "pushing", "obs_type": "state", "history": 1, "horizon": 1, "execute": 1}"#.into(),
+                        simulated_once: None,
+                    },
+                    3,
+                    "robustness",
+                )
+                .await
+                .expect("submission");
+            let c = store
+                .claim_job("test", 60)
+                .await
+                .expect("claim")
+                .expect("a job");
+            assert_eq!(c.submission.id, id);
+            assert_eq!(c.submission.suite.as_deref(), Some("robustness"));
+            store.save_robustness(id, &doc).await.expect("save");
+            store
+                .complete_job(c.job.id, id, &doc.control, &[])
+                .await
+                .expect("complete");
+            ids.push(id);
+        }
+        ids
+    })
+}
+
+/// Three methods: a diverse one that loses little, a narrow one that loses
+/// much, and one stored under another suite version.
+pub fn three() -> [Synth; 3] {
+    [
+        Synth {
+            method: "Diverse",
+            base: 12,
+            loss_per_level: 1,
+            behaviours: 4,
+            other_version: false,
+        },
+        Synth {
+            method: "Narrow",
+            base: 14,
+            loss_per_level: 4,
+            behaviours: 1,
+            other_version: false,
+        },
+        Synth {
+            method: "Older-Suite",
+            base: 10,
+            loss_per_level: 2,
+            behaviours: 2,
+            other_version: true,
+        },
+    ]
+}

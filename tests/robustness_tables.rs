@@ -1,0 +1,118 @@
+//! `d3il tables --table robustness` from a database holding robustness
+//! results (written as a worker stores them): one table per suite version,
+//! ranked by overall score, in Markdown, LaTeX and CSV; a database without
+//! any says what to do.
+
+mod robustness_support;
+mod server_support;
+use robustness_support::{seed, three, OTHER_SHA256};
+use server_support::*;
+use std::process::Command;
+
+fn tables(db: &std::path::Path, format: &str) -> (bool, String, String) {
+    let out = Command::new(EXE)
+        .args([
+            "tables",
+            "--table",
+            "robustness",
+            "--format",
+            format,
+            "--db",
+        ])
+        .arg(db)
+        .output()
+        .expect("run d3il tables");
+    (
+        out.status.success(),
+        String::from_utf8_lossy(&out.stdout).into_owned(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
+
+#[test]
+fn the_robustness_table_ranks_within_a_suite_version_in_every_format() {
+    let dir = TempDir::new("robustness-tables");
+    let db = dir.path().join("lb.sqlite");
+    // An empty database: a clear error, not an empty table.
+    let (ok, _, err) = tables(&db, "markdown");
+    assert!(!ok);
+    assert!(err.contains("suite=robustness"), "{err}");
+    let ids = seed(&db, &three());
+
+    let (ok, md, err) = tables(&db, "markdown");
+    assert!(ok, "{err}");
+    // Two groups: the committed suite and the other version, never together.
+    let groups: Vec<&str> = md.split("\n**Pushing: suite ").skip(1).collect();
+    assert_eq!(groups.len(), 2, "{md}");
+    let (current, other) = if groups[0].contains(&OTHER_SHA256[..12]) {
+        (groups[1], groups[0])
+    } else {
+        (groups[0], groups[1])
+    };
+    assert!(
+        other.contains("Older-Suite") && !other.contains("Diverse"),
+        "{md}"
+    );
+    assert!(!current.contains("Older-Suite"), "{md}");
+    // The diverse method keeps more of its success: ranked first.
+    let diverse = current
+        .find("| 1 | Diverse (seed 0) |")
+        .expect("Diverse ranked 1");
+    let narrow = current
+        .find("| 2 | Narrow (seed 0) |")
+        .expect("Narrow ranked 2");
+    assert!(diverse < narrow);
+    for axis in ["start_shift", "obs_noise", "latency", "dynamics", "Overall"] {
+        assert!(current.contains(axis), "{axis} column: {md}");
+    }
+    assert!(
+        md.contains("paired bootstrap"),
+        "the note says what the intervals are"
+    );
+
+    let (ok, tex, err) = tables(&db, "latex");
+    assert!(ok, "{err}");
+    assert_eq!(tex.matches("\\begin{tabular}").count(), 2, "{tex}");
+    assert!(tex.contains("Diverse (seed 0)") && tex.contains("\\toprule"));
+
+    let (ok, csv, err) = tables(&db, "csv");
+    assert!(ok, "{err}");
+    let mut lines = csv.lines();
+    let header: Vec<&str> = lines.next().unwrap().split(',').collect();
+    assert_eq!(header[0], "task");
+    let col = |name: &str| header.iter().position(|h| *h == name).unwrap();
+    let rows: Vec<Vec<&str>> = lines.map(|l| l.split(',').collect()).collect();
+    // Per submission: level 0, the suite's 14 levels, 4 axis scores, overall.
+    for id in &ids {
+        let n = rows
+            .iter()
+            .filter(|r| r[col("submission_id")] == id.to_string())
+            .count();
+        assert_eq!(n, 1 + 14 + 4 + 1, "rows of submission {id}");
+    }
+    let narrow_dynamics_4: Vec<&Vec<&str>> = rows
+        .iter()
+        .filter(|r| {
+            r[col("method")] == "Narrow" && r[col("axis")] == "dynamics" && r[col("level")] == "4"
+        })
+        .collect();
+    assert_eq!(narrow_dynamics_4.len(), 1);
+    let r = narrow_dynamics_4[0];
+    let success: f64 = r[col("success_rate")].parse().unwrap();
+    let drop: f64 = r[col("drop")].parse().unwrap();
+    assert_eq!(success, 0.0, "14 − 4 × 4: no success left");
+    assert!(drop > 0.8, "the paired drop from level 0: {drop}");
+    let retained: f64 = r[col("retained")].parse().unwrap();
+    assert_eq!(retained, 0.0);
+}
+
+#[test]
+fn an_unknown_table_names_robustness_among_the_choices() {
+    let out = Command::new(EXE)
+        .args(["tables", "--table", "robust"])
+        .output()
+        .expect("run d3il tables");
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("robustness") && err.contains("main"), "{err}");
+}
