@@ -56,7 +56,11 @@ pub fn run(mut args: Args) -> anyhow::Result<()> {
     }
     match args.which.as_str() {
         "physics" => physics(args.steps),
-        "eval" => eval_bench(args.protocol, args.max_live),
+        "eval" => eval_bench(
+            args.protocol,
+            args.max_live,
+            args.smoke.then_some(SMOKE_EVAL_STEPS),
+        ),
         "render" => render_bench(
             args.steps,
             args.render_protocol,
@@ -132,7 +136,18 @@ impl Policy for RowByRow {
 /// -> 3), batched (one call per lockstep step) and unbatched (one call per
 /// rollout and step). Physics time is the wall time of the parallel stepping
 /// phases of the same run.
-fn eval_bench(protocol: ProtocolKind, max_live: usize) -> anyhow::Result<()> {
+/// `--smoke` ends every rollout of the eval and render benches' evaluations
+/// after this many env steps (the dry run's step cap): the engine, the
+/// policy calls and the timing all run, at a fraction of a full episode
+/// (whole quick-protocol evaluations made these two smoke runs most of
+/// tests/bench_smoke.rs's time).
+const SMOKE_EVAL_STEPS: usize = 60;
+
+fn eval_bench(
+    protocol: ProtocolKind,
+    max_live: usize,
+    step_cap: Option<usize>,
+) -> anyhow::Result<()> {
     let task = LoadedTask::load(TaskId::Aligning)?;
     let threads = rayon::current_num_threads();
     println!(
@@ -146,6 +161,7 @@ fn eval_bench(protocol: ProtocolKind, max_live: usize) -> anyhow::Result<()> {
         seed: 0,
         max_live,
         simulate_every_rollout: true,
+        step_cap,
         ..EvalOptions::default()
     };
     let mut ratios = Vec::new();
@@ -321,6 +337,7 @@ fn render_bench(
         // (the fixture is deterministic and would be simulated once per
         // initial state).
         simulate_every_rollout: true,
+        step_cap: smoke.then_some(SMOKE_EVAL_STEPS),
         ..EvalOptions::default()
     };
     let (r, t) = eval::evaluate(&task, &mut policy, &info, &opts, &mut |_, _| {})?;

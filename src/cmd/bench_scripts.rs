@@ -6,7 +6,8 @@
 //! simulator's fidelity is a bench, run on purpose.
 //!
 //! `--smoke` runs each expert on the first initial state only (Avoiding: the
-//! first path) and checks that the bench runs, not the expectations.
+//! first path), for its first [`SMOKE_STEPS`] env steps, and checks that the
+//! bench runs, not the expectations.
 
 use anyhow::{bail, Context};
 use d3il_evaluator::scripted::ScriptedPolicy;
@@ -118,6 +119,9 @@ fn experts() -> Vec<Expert> {
 
 /// Avoiding has one initial state: its expert is run once per path instead.
 const AVOIDING_PATHS: usize = 24;
+/// `--smoke`: env steps per rollout (whole episodes of the 15 experts, one
+/// thread each, were minutes of tests/bench_smoke.rs).
+const SMOKE_STEPS: u64 = 100;
 
 pub fn run(smoke: bool) -> anyhow::Result<()> {
     let t0 = Instant::now();
@@ -142,7 +146,7 @@ pub fn run(smoke: bool) -> anyhow::Result<()> {
             runs.truncate(1);
         }
         let t = Instant::now();
-        let hits = run_expert(task, &ex, &runs)?;
+        let hits = run_expert(task, &ex, &runs, smoke.then_some(SMOKE_STEPS))?;
         let rate = hits as f64 / runs.len() as f64;
         let what = match ex.measure {
             Measure::Success => "success".to_string(),
@@ -186,7 +190,12 @@ pub fn run(smoke: bool) -> anyhow::Result<()> {
 
 /// How many of `runs` (rollout id, initial state) count for the expert's
 /// measure, on two threads.
-fn run_expert(task: &LoadedTask, ex: &Expert, runs: &[(u64, Value)]) -> anyhow::Result<usize> {
+fn run_expert(
+    task: &LoadedTask,
+    ex: &Expert,
+    runs: &[(u64, Value)],
+    step_cap: Option<u64>,
+) -> anyhow::Result<usize> {
     let threads = std::thread::available_parallelism()
         .map_or(1, |n| n.get())
         .min(2);
@@ -198,7 +207,7 @@ fn run_expert(task: &LoadedTask, ex: &Expert, runs: &[(u64, Value)]) -> anyhow::
                     let mut policy = ScriptedPolicy::from_name(ex.name, task.spec())?;
                     let mut hits = 0;
                     for (id, ctx) in runs.iter().skip(w).step_by(threads) {
-                        rollout(&mut env, &mut policy, *id, ctx)?;
+                        rollout(&mut env, &mut policy, *id, ctx, step_cap)?;
                         let key = env.behaviour_key();
                         hits += usize::from(match ex.measure {
                             Measure::Success => env.success(),
@@ -223,8 +232,15 @@ fn run_expert(task: &LoadedTask, ex: &Expert, runs: &[(u64, Value)]) -> anyhow::
     Ok(total)
 }
 
-/// One rollout of the script from `ctx` to the end of its episode.
-fn rollout(env: &mut Env, policy: &mut ScriptedPolicy, id: u64, ctx: &Value) -> anyhow::Result<()> {
+/// One rollout of the script from `ctx` to the end of its episode (or to
+/// `step_cap` env steps).
+fn rollout(
+    env: &mut Env,
+    policy: &mut ScriptedPolicy,
+    id: u64,
+    ctx: &Value,
+    step_cap: Option<u64>,
+) -> anyhow::Result<()> {
     env.reset(ctx)?;
     policy.reset(&[id])?;
     let mut step = 0u64;
@@ -235,5 +251,8 @@ fn rollout(env: &mut Env, policy: &mut ScriptedPolicy, id: u64, ctx: &Value) -> 
             return Ok(());
         }
         step += 1;
+        if step_cap.is_some_and(|cap| step >= cap) {
+            return Ok(());
+        }
     }
 }
