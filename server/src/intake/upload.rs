@@ -35,6 +35,7 @@ pub const TEXT_FIELDS: &[&str] = &[
     "protocol",
     "manifest",
     "endpoint_url",
+    "suite",
     "token",
 ];
 
