@@ -76,6 +76,16 @@ impl FinishedCache {
         body
     }
 
+    /// Drops what was rendered of `id` (an admin withdrew it or put it
+    /// back: its status document says so).
+    pub fn forget(&self, kind: Rendered, id: i64) {
+        let mut g = self.inner.lock().unwrap_or_else(|e| e.into_inner());
+        let (map, order) = &mut *g;
+        if map.remove(&(kind, id)).is_some() {
+            order.retain(|k| *k != (kind, id));
+        }
+    }
+
     pub fn len(&self) -> usize {
         self.inner.lock().unwrap_or_else(|e| e.into_inner()).0.len()
     }

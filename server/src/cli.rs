@@ -87,6 +87,42 @@ pub fn revoke_token_blocking(
     })?;
     rt.block_on(async {
         let store = Store::connect(db, policy_store).await?;
-        store.revoke_token(token_or_prefix).await
+        let revoked = store.revoke_token(token_or_prefix).await?;
+        if !revoked.prefixes.is_empty() {
+            let detail = format!("revoked {}", revoked.prefixes.join(", "));
+            let target = format!("token {}", revoked.prefixes.join(", "));
+            store
+                .audit(&cli_actor(), "revoke_token", &target, &detail)
+                .await?;
+        }
+        Ok(revoked)
+    })
+}
+
+/// Who the audit log names for an action of the `d3il` command on the
+/// database: `cli:<login>` ($USER, else `cli:unknown`).
+pub fn cli_actor() -> String {
+    let user = std::env::var("USER")
+        .ok()
+        .filter(|u| !u.is_empty())
+        .unwrap_or_else(|| "unknown".into());
+    format!("cli:{user}")
+}
+
+/// Sets submitter `name`'s quota overrides in `db` (`d3il token
+/// set-quota`), written to the audit log.
+pub fn set_quota_blocking(
+    db: &DbTarget,
+    policy_store: Option<&Path>,
+    name: &str,
+    q: crate::store::QuotaOverrides,
+) -> Result<crate::store::AuditEntry, StoreError> {
+    let rt = runtime().map_err(|source| StoreError::Io {
+        path: PathBuf::from(db.to_string()),
+        source,
+    })?;
+    rt.block_on(async {
+        let store = Store::connect(db, policy_store).await?;
+        store.set_quota(name, q, &cli_actor()).await
     })
 }

@@ -57,6 +57,8 @@ pub struct ServerConfig {
     pub fidelity: crate::fidelity::FidelityConfig,
     /// The drift canary run at start (`d3il verify`, issue 32).
     pub canary: crate::canary::CanaryConfig,
+    /// Submission quotas per submitter (issue 42; `crate::quota`).
+    pub quotas: QuotaLimits,
 }
 
 /// How rollout videos are made: the `d3il` binary replays the stored record
@@ -154,6 +156,7 @@ impl ServerConfig {
             },
             limits,
             connections: ConnectionLimits::default(),
+            quotas: QuotaLimits::NONE,
         }
     }
 }
@@ -174,4 +177,36 @@ pub fn default_assets_dir() -> PathBuf {
         .and_then(|exe| exe.parent().map(|d| d.join("assets")))
         .filter(|d| d.is_dir())
         .unwrap_or_else(|| PathBuf::from("assets"))
+}
+
+/// A server's quota for each submitter; 0 is no limit.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct QuotaLimits {
+    pub per_day: i64,
+    pub total: i64,
+    pub concurrent: i64,
+}
+
+impl QuotaLimits {
+    /// `d3il serve`'s defaults (its `--quota-*` flags).
+    pub const SERVE_DEFAULT: QuotaLimits = QuotaLimits {
+        per_day: 10,
+        total: 500,
+        concurrent: 2,
+    };
+    /// No quota (the library default, for embedded and test servers).
+    pub const NONE: QuotaLimits = QuotaLimits {
+        per_day: 0,
+        total: 0,
+        concurrent: 0,
+    };
+
+    /// These limits with a submitter's overrides in place.
+    pub fn with(self, o: crate::store::QuotaOverrides) -> QuotaLimits {
+        QuotaLimits {
+            per_day: o.per_day.unwrap_or(self.per_day),
+            total: o.total.unwrap_or(self.total),
+            concurrent: o.concurrent.unwrap_or(self.concurrent),
+        }
+    }
 }

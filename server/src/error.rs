@@ -34,6 +34,15 @@ pub enum AppError {
     PayloadTooLarge(String),
     #[error("rate limit exceeded; retry in {retry_after} s")]
     RateLimited { retry_after: u64 },
+    /// The submitter's submission quota allows no submission now
+    /// (`crate::quota`): the message says why and when the next is possible.
+    #[error("{message}")]
+    QuotaExceeded {
+        message: String,
+        retry_after: Option<u64>,
+        /// Unix seconds, when known.
+        next_at: Option<i64>,
+    },
     /// The database stayed locked by another writer past the busy timeout
     /// (and the store's retries), or too many videos wait to be rendered:
     /// try again shortly. `reason` says which.
@@ -71,7 +80,9 @@ impl AppError {
             AppError::MethodNotAllowed(_) => StatusCode::METHOD_NOT_ALLOWED,
             AppError::Conflict { .. } => StatusCode::CONFLICT,
             AppError::PayloadTooLarge(_) => StatusCode::PAYLOAD_TOO_LARGE,
-            AppError::RateLimited { .. } => StatusCode::TOO_MANY_REQUESTS,
+            AppError::RateLimited { .. } | AppError::QuotaExceeded { .. } => {
+                StatusCode::TOO_MANY_REQUESTS
+            }
             AppError::Busy { .. } => StatusCode::SERVICE_UNAVAILABLE,
             AppError::EndpointRejected { .. } => StatusCode::UNPROCESSABLE_ENTITY,
             AppError::NotRendered(_) => StatusCode::UNPROCESSABLE_ENTITY,
@@ -89,6 +100,7 @@ impl AppError {
             AppError::Conflict { .. } => "conflict",
             AppError::PayloadTooLarge(_) => "payload_too_large",
             AppError::RateLimited { .. } => "rate_limited",
+            AppError::QuotaExceeded { .. } => "quota_exceeded",
             AppError::Busy { .. } => "busy",
             AppError::EndpointRejected { .. } => "endpoint_rejected",
             AppError::NotRendered(_) => "not_rendered",
@@ -110,6 +122,10 @@ impl AppError {
                 code: self.code().to_string(),
                 message: self.to_string(),
                 field: self.field().map(str::to_string),
+                next_submission_at: match self {
+                    AppError::QuotaExceeded { next_at, .. } => *next_at,
+                    _ => None,
+                },
             },
         }
     }
@@ -122,7 +138,12 @@ impl AppError {
 
     fn headers(&self, resp: &mut Response) {
         match self {
-            AppError::RateLimited { retry_after } | AppError::Busy { retry_after, .. } => {
+            AppError::RateLimited { retry_after }
+            | AppError::Busy { retry_after, .. }
+            | AppError::QuotaExceeded {
+                retry_after: Some(retry_after),
+                ..
+            } => {
                 if let Ok(v) = HeaderValue::from_str(&retry_after.to_string()) {
                     resp.headers_mut().insert(header::RETRY_AFTER, v);
                 }
@@ -153,10 +174,14 @@ pub struct ErrorDetail {
     pub message: String,
     /// The request field at fault, if one is.
     pub field: Option<String>,
+    /// `quota_exceeded`: when the next submission is possible (unix
+    /// seconds), when that is a time (not "when an evaluation finishes").
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub next_submission_at: Option<i64>,
 }
 
 /// Every value of [`AppError::code`].
-pub const ERROR_CODES: [&str; 12] = [
+pub const ERROR_CODES: [&str; 13] = [
     "invalid_field",
     "unauthorized",
     "forbidden",
@@ -165,6 +190,7 @@ pub const ERROR_CODES: [&str; 12] = [
     "conflict",
     "payload_too_large",
     "rate_limited",
+    "quota_exceeded",
     "busy",
     "endpoint_rejected",
     "not_rendered",
@@ -271,6 +297,11 @@ mod tests {
             },
             AppError::PayloadTooLarge(String::new()),
             AppError::RateLimited { retry_after: 1 },
+            AppError::QuotaExceeded {
+                message: String::new(),
+                retry_after: None,
+                next_at: None,
+            },
             AppError::Busy {
                 retry_after: 1,
                 reason: "busy",

@@ -61,6 +61,9 @@ pub struct BoardRow {
     /// (null before builds were identified); rows of different fingerprints
     /// are never merged or ranked together.
     pub physics_fingerprint: Option<String>,
+    /// An operator marked the method as a baseline (issue 42): the boards
+    /// say so on its rows.
+    pub baseline: bool,
 }
 
 /// Why an evaluated row made with `fingerprint` is not this build's (None:
@@ -288,6 +291,7 @@ pub fn evaluated_rows(seeds: &[EvaluatedSeed]) -> Result<Vec<BoardRow>, MetricsE
         .map(|g| {
             let f = g.first;
             Ok(BoardRow {
+                baseline: false,
                 method: f.method.clone(),
                 method_id: f.method_id,
                 paper_table: if f.data_fraction == 1.0 {

@@ -37,6 +37,7 @@ pub mod intake;
 pub mod leaderboard;
 pub mod live;
 pub mod queue;
+pub mod quota;
 pub mod ratelimit;
 pub mod rollouts;
 pub mod runner;

@@ -154,6 +154,9 @@ pub struct SubmissionView {
     pub cancelled: Option<CancelledView>,
     pub created_at: i64,
     pub updated_at: i64,
+    /// Set when an admin withdrew the submission (issue 42): it is kept but
+    /// shown on no board or table.
+    pub withdrawn: Option<crate::store::Withdrawal>,
     /// The result once completed.
     pub result: Option<ResultsView>,
 }
@@ -193,6 +196,7 @@ pub struct ProgressView {
 #[derive(Debug, Serialize, ToSchema)]
 pub struct CancelledView {
     pub at: i64,
+    /// The token name of the submitter or admin who cancelled it.
     pub by: String,
 }
 
@@ -317,6 +321,7 @@ pub async fn submission_view(state: &AppState, id: i64) -> Result<SubmissionView
         cancelled: cancelled.map(|c| CancelledView { at: c.at, by: c.by }),
         created_at: s.created_at,
         updated_at: s.updated_at,
+        withdrawn: state.store.withdrawal(id).await?,
         result,
     })
 }
@@ -380,6 +385,17 @@ pub async fn results_view(state: &AppState, r: ResultRow) -> Result<ResultsView,
 #[derive(Debug, Serialize, ToSchema)]
 pub struct WhoAmI {
     pub submitter: String,
+    /// What is left of the submission quota (issue 42).
+    pub quota: crate::quota::QuotaView,
+}
+
+/// `POST /api/v1/submissions`' answer: the submission and what is left of
+/// the submitter's quota after it.
+#[derive(Debug, Serialize, ToSchema)]
+pub struct CreatedView {
+    #[serde(flatten)]
+    pub submission: SubmissionView,
+    pub quota: crate::quota::QuotaView,
 }
 
 /// The build this server runs: what its results record (issue 32).

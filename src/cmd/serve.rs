@@ -65,6 +65,17 @@ pub struct Args {
     /// Open connections from one client address; more are closed at once.
     #[arg(long, default_value_t = 128)]
     pub max_connections_per_client: usize,
+    /// Submissions one submitter may make in any 24 hours (admission
+    /// refusals do not count; admin tokens have no quota; per-submitter
+    /// overrides: `d3il token set-quota`); 0: no limit.
+    #[arg(long, default_value_t = d3il_server::config::QuotaLimits::SERVE_DEFAULT.per_day)]
+    pub quota_per_day: i64,
+    /// Submissions one submitter may make in total; 0: no limit.
+    #[arg(long, default_value_t = d3il_server::config::QuotaLimits::SERVE_DEFAULT.total)]
+    pub quota_total: i64,
+    /// Evaluations of one submitter queued or running at once; 0: no limit.
+    #[arg(long, default_value_t = d3il_server::config::QuotaLimits::SERVE_DEFAULT.concurrent)]
+    pub quota_concurrent: i64,
     #[command(flatten)]
     pub limits: super::limits::LimitArgs,
     #[command(flatten)]
@@ -156,6 +167,15 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     cfg.max_attempts = args.max_attempts;
     cfg.shards = args.shards.max(1);
     cfg.dry_run_uploads = !args.no_upload_dry_run;
+    anyhow::ensure!(
+        args.quota_per_day >= 0 && args.quota_total >= 0 && args.quota_concurrent >= 0,
+        "--quota-per-day, --quota-total and --quota-concurrent must be 0 (no limit) or more"
+    );
+    cfg.quotas = d3il_server::config::QuotaLimits {
+        per_day: args.quota_per_day,
+        total: args.quota_total,
+        concurrent: args.quota_concurrent,
+    };
     anyhow::ensure!(
         args.header_timeout >= 1
             && args.max_connections >= 1

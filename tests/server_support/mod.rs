@@ -28,7 +28,8 @@ impl Server {
     /// [`Server::start`] on any `--db` (a SQLite path or a PostgreSQL URL).
     /// Test servers skip the background work of a real start unless asked:
     /// the drift canary (`--no-verify`; [`Server::start_with_canary`] runs
-    /// it) and the fidelity report (`--fidelity off` unless EXTRA sets it).
+    /// it) and the fidelity report (`--fidelity off` unless EXTRA sets it),
+    /// and have no submission quota unless EXTRA sets a `--quota-*` flag.
     pub fn start_on(db: &std::ffi::OsStr, extra: &[&str]) -> Server {
         let mut args = vec!["--no-verify"];
         args.extend_from_slice(extra);
@@ -44,6 +45,18 @@ impl Server {
         let mut args: Vec<&str> = extra.to_vec();
         if !extra.contains(&"--fidelity") {
             args.extend(["--fidelity", "off"]);
+        }
+        // No submission quota (issue 42) unless asked: tests submit many
+        // evaluations with one token to measure other things.
+        if !extra.iter().any(|a| a.starts_with("--quota")) {
+            args.extend([
+                "--quota-per-day",
+                "0",
+                "--quota-total",
+                "0",
+                "--quota-concurrent",
+                "0",
+            ]);
         }
         let mut child = Command::new(EXE)
             .arg("serve")

@@ -69,6 +69,9 @@ class Server:
     log: list[str]
 
 
+NO_QUOTA = ["--quota-per-day", "0", "--quota-total", "0", "--quota-concurrent", "0"]
+
+
 @contextlib.contextmanager
 def run_server(tmp: Path, *extra: str) -> Iterator[Server]:
     """`d3il serve` on a fresh database in `tmp` with one worker and EXTRA flags."""
@@ -91,6 +94,8 @@ def run_server(tmp: Path, *extra: str) -> Iterator[Server]:
             "--no-verify",
             "--fidelity",
             "off",
+            # No submission quota unless the test sets one: the session submits many.
+            *([] if any(str(e).startswith("--quota") for e in extra) else NO_QUOTA),
             *extra,
         ],
         stdout=subprocess.PIPE,

@@ -133,6 +133,8 @@ pub async fn precheck(
     raw: &RawSubmission,
     who: &Submitter,
 ) -> Result<Quota, AppError> {
+    // A submitter out of quota is refused before any of the file is read.
+    crate::quota::admit(state, who).await?;
     if opt(raw, "endpoint_url").is_some() {
         return Err(AppError::invalid(
             "endpoint_url",
@@ -538,6 +540,7 @@ pub async fn accept(
     who: &Submitter,
 ) -> Result<i64, AppError> {
     let store = &state.store;
+    crate::quota::admit(state, who).await?;
     // A duplicate seed is refused before an endpoint's dry-run (which can
     // take minutes) or an ONNX write; create_submission checks again under
     // the write lock. A new method cannot hold the seed yet.
@@ -578,6 +581,9 @@ pub async fn accept(
     // No failed submission's file release may run between placing the file
     // and recording the submission that refers to it.
     let files = store.lock_policy_files().await?;
+    // Again under the lock: concurrent submissions of one submitter (on
+    // this host) are counted one after the other.
+    crate::quota::admit(state, who).await?;
     let policy = match &mut v.policy {
         ValidPolicy::Onnx(file) => {
             if let Some(cap) = state.cfg.max_disk_bytes_per_submitter {

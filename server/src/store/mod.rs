@@ -46,6 +46,7 @@ mod files;
 mod jobs;
 mod live;
 mod methods;
+mod moderation;
 mod paper;
 mod results;
 mod robustness;
@@ -57,6 +58,7 @@ pub use files::{PolicyFilesGuard, TMP_MARKER};
 pub use jobs::{ClaimedJob, JobKind, JobRow};
 pub use live::{CancelOutcome, Cancelled, StateOutcome, CANCELLED_KIND};
 pub use methods::{MethodRow, NewMethod};
+pub use moderation::{AuditEntry, QuotaOverrides, QuotaUsage, Withdrawal, DAY_S};
 pub use results::{ResultRow, RolloutRow, SeedSummary};
 pub use robustness::{summary_of, RobustnessRow};
 /// Re-exported so that callers reading the rows themselves (`d3il bench

@@ -106,6 +106,7 @@ impl Store {
             .map(|r| {
                 let obs = r.obs_type;
                 BoardRow {
+                    baseline: false,
                     method: r.method,
                     method_id: r.method_id,
                     paper_table: r.paper_table,

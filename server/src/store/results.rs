@@ -215,9 +215,15 @@ impl Store {
 
     /// All leaderboard rows: reported first (paper order of insertion), then
     /// evaluated ones.
+    /// Withdrawn submissions are left out; rows of methods marked as
+    /// baselines say so (issue 42).
     pub async fn board_rows(&self) -> Result<Vec<BoardRow>, StoreError> {
         let mut rows = self.reported_rows().await?;
         rows.extend(self.evaluated_rows().await?);
+        let baselines = self.baseline_methods().await?;
+        for r in &mut rows {
+            r.baseline = baselines.contains(&r.method_id);
+        }
         Ok(rows)
     }
 
@@ -242,7 +248,7 @@ impl Store {
              r.stacking_levels_json, r.inference_ms, {initial_states} AS initial_states, {robot_look} AS robot_look, \
              {fingerprint} AS physics_fingerprint \
              FROM submissions s JOIN results r ON r.submission_id = s.id \
-             JOIN methods m ON m.id = s.method_id WHERE s.status = $1 ORDER BY s.id"
+             JOIN methods m ON m.id = s.method_id WHERE s.status = $1 AND s.withdrawn_at IS NULL ORDER BY s.id"
         );
         let db: Vec<SeedDbRow> = on_db!(&self.db, pool => sqlx::query_as(sqlx::AssertSqlSafe(sql.as_str()))
         .bind(SubmissionStatus::Completed)

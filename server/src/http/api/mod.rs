@@ -3,6 +3,7 @@
 //! annotations and the view structs in [`openapi`]).
 
 pub mod cancel;
+pub mod admin;
 pub mod compare;
 pub mod openapi;
 pub mod robustness;
@@ -62,6 +63,7 @@ pub fn router(max_upload: usize) -> Router<AppState> {
         .route("/methods", get(list_methods))
         .route("/compare", get(compare::compare))
         .route("/whoami", get(whoami))
+        .nest("/admin", admin::router())
         .route("/build", get(get_build))
         .route("/openapi.json", get(openapi))
         .fallback(api_not_found)
@@ -99,10 +101,15 @@ async fn get_build(State(state): State<AppState>) -> Json<crate::views::BuildVie
         (status = 200, description = "The token's submitter", body = WhoAmI),
         (status = 401, description = "Missing or wrong token", body = ErrorBody),
         (status = 429, description = "Rate limit exceeded; see the Retry-After header", body = ErrorBody)))]
-async fn whoami(Authed(who): Authed) -> Json<WhoAmI> {
-    Json(WhoAmI {
+async fn whoami(
+    State(state): State<AppState>,
+    Authed(who): Authed,
+) -> Result<Json<WhoAmI>, AppError> {
+    let quota = crate::quota::status(&state, &who).await?;
+    Ok(Json(WhoAmI {
         submitter: who.name,
-    })
+        quota,
+    }))
 }
 
 #[utoipa::path(post, path = "/submissions", tag = "submissions",
@@ -110,13 +117,13 @@ async fn whoami(Authed(who): Authed) -> Json<WhoAmI> {
     security(("bearer" = [])),
     request_body(content = openapi::NewSubmissionForm, content_type = "multipart/form-data"),
     responses(
-        (status = 201, description = "Accepted and durably queued", body = SubmissionView),
+        (status = 201, description = "Accepted and durably queued, with what is left of the quota", body = crate::views::CreatedView),
         (status = 400, description = "A field is missing or invalid (`field` names it)", body = ErrorBody),
         (status = 401, description = "Missing or wrong token", body = ErrorBody),
         (status = 409, description = "Duplicate training seed or method owned by someone else", body = ErrorBody),
         (status = 413, description = "Upload over the size limit", body = ErrorBody),
         (status = 422, description = "Remote endpoint failed its conformance dry-run", body = ErrorBody),
-        (status = 429, description = "Rate limit exceeded; see the Retry-After header", body = ErrorBody)))]
+        (status = 429, description = "Rate limit exceeded (`rate_limited`), or the submission quota allows no submission now (`quota_exceeded`: the message and `next_submission_at` say when); see the Retry-After header", body = ErrorBody)))]
 async fn create_submission(
     State(state): State<AppState>,
     headers: HeaderMap,
@@ -133,7 +140,10 @@ async fn create_submission(
     let who = intake::read_multipart(mp, &state, intake::Caller::Known(who), &mut raw).await?;
     let valid = intake::validate(raw, &state.cfg.limits)?;
     let id = intake::accept(&state, valid, &who).await?;
-    let body = submission_view(&state, id).await?;
+    let body = crate::views::CreatedView {
+        submission: submission_view(&state, id).await?,
+        quota: crate::quota::status(&state, &who).await?,
+    };
     let mut resp = (StatusCode::CREATED, Json(body)).into_response();
     if let Ok(v) = header::HeaderValue::from_str(&format!("/api/v1/submissions/{id}")) {
         resp.headers_mut().insert(header::LOCATION, v);

@@ -43,6 +43,8 @@ pub struct RowView {
     /// badge and its explanation (empty otherwise).
     pub look_badge: &'static str,
     pub look_note: &'static str,
+    /// An operator marked the method as a baseline (issue 42).
+    pub baseline: bool,
 }
 
 fn row_view(rank: Option<usize>, r: &BoardRow) -> RowView {
@@ -67,6 +69,7 @@ fn row_view(rank: Option<usize>, r: &BoardRow) -> RowView {
         initial_states: r.initial_states_label.clone().unwrap_or_default(),
         look_badge: look.map_or("", |n| n.badge),
         look_note: look.map_or("", |n| n.text),
+        baseline: r.baseline,
     }
 }
 

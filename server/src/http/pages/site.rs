@@ -415,6 +415,8 @@ struct AdminPage {
     workers: usize,
     limits: Vec<(&'static str, String)>,
     server_limits: Vec<(&'static str, String)>,
+    /// The newest admin actions (issue 42), with their time shown.
+    audit: Vec<(String, crate::store::AuditEntry)>,
 }
 
 /// Operators' view: the sandbox mechanisms in force on this host (what
@@ -477,6 +479,13 @@ pub(super) async fn admin_page(
         workers: state.cfg.workers,
         limits,
         server_limits: server_limits(&state.cfg),
+        audit: state
+            .store
+            .audit_log(200)
+            .await?
+            .into_iter()
+            .map(|e| (fmt_time(e.at), e))
+            .collect(),
     })
 }
 
@@ -488,6 +497,14 @@ fn server_limits(c: &crate::config::ServerConfig) -> Vec<(&'static str, String)>
             "unlimited".to_string()
         } else {
             format!("{n} per minute")
+        }
+    };
+    // Quotas: 0 is no limit; admin tokens have none.
+    let count = |n: i64| {
+        if n == 0 {
+            "unlimited".to_string()
+        } else {
+            n.to_string()
         }
     };
     vec![
@@ -530,6 +547,18 @@ fn server_limits(c: &crate::config::ServerConfig) -> Vec<(&'static str, String)>
         (
             "Attempts per job (--max-attempts)",
             c.max_attempts.to_string(),
+        ),
+        (
+            "Submissions per submitter in 24 hours (--quota-per-day)",
+            count(c.quotas.per_day),
+        ),
+        (
+            "Submissions per submitter in total (--quota-total)",
+            count(c.quotas.total),
+        ),
+        (
+            "Evaluations per submitter at once (--quota-concurrent)",
+            count(c.quotas.concurrent),
         ),
         (
             "Worker slots (--workers; plus one for quick runs, shared with submission dry-runs)",

@@ -81,6 +81,8 @@ struct SubmissionPage {
     so_far: Option<SoFar>,
     /// Who cancelled the evaluation, when it was.
     cancelled_by: Option<String>,
+    /// (when, by whom, why) an admin withdrew it (issue 42).
+    withdrawn: Option<(String, String, String)>,
 }
 
 /// The live estimate as the page shows it.
@@ -287,9 +289,14 @@ pub(super) async fn submission_page(
             s.endpoint_url.as_deref().unwrap_or("?")
         ),
     };
+    let withdrawn = store
+        .withdrawal(id)
+        .await?
+        .map(|w| (fmt_time(w.at), w.by, w.reason));
     let page = render(&SubmissionPage {
         so_far: live_estimate.as_ref().map(so_far),
         cancelled_by: cancelled.map(|c| c.by),
+        withdrawn,
         live: matches!(
             s.status,
             SubmissionStatus::Queued | SubmissionStatus::Running

@@ -1,0 +1,268 @@
+//! Quotas and moderation (issue 42): what a submitter has used of its
+//! quota, per-submitter quota overrides, withdrawn submissions, methods
+//! marked as baselines, and the audit log of every admin action.
+
+use super::{now, Store, StoreError};
+use sqlx::FromRow;
+
+/// A submitter's quota overrides (NULL in the database: the server's
+/// default; 0: no limit).
+#[derive(
+    Debug, Clone, Copy, Default, PartialEq, Eq, FromRow, serde::Serialize, serde::Deserialize,
+)]
+pub struct QuotaOverrides {
+    pub per_day: Option<i64>,
+    pub total: Option<i64>,
+    pub concurrent: Option<i64>,
+}
+
+/// What a submitter has used: accepted submissions (refused ones never get
+/// a row) in the last 24 hours and ever, and those still queued or running.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct QuotaUsage {
+    pub last_day: i64,
+    pub total: i64,
+    pub active: i64,
+    /// When the oldest submission of the last 24 hours was made (it leaves
+    /// the window 24 hours later).
+    pub oldest_in_day: Option<i64>,
+}
+
+/// Why and when a submission was withdrawn.
+#[derive(Debug, Clone, PartialEq, Eq, FromRow, serde::Serialize, utoipa::ToSchema)]
+pub struct Withdrawal {
+    /// Unix seconds.
+    pub at: i64,
+    pub reason: String,
+    /// The admin who withdrew it.
+    pub by: String,
+}
+
+/// One admin action.
+#[derive(Debug, Clone, PartialEq, Eq, FromRow, serde::Serialize, utoipa::ToSchema)]
+pub struct AuditEntry {
+    pub id: i64,
+    /// Unix seconds.
+    pub at: i64,
+    /// The admin token's submitter, or `cli:<user>` for the `d3il` command.
+    pub actor: String,
+    /// `withdraw`, `reinstate`, `baseline`, `unbaseline`, `revoke_token`, `set_quota`.
+    pub action: String,
+    /// What it was done to (`submission 12`, `method BC`, `token d3il_ab12…`, `submitter alice`).
+    pub target: String,
+    pub detail: String,
+}
+
+/// The 24 hours of the per-day quota.
+pub const DAY_S: i64 = 86_400;
+
+impl Store {
+    /// The quota overrides of submitter `id` (all None if it has none).
+    pub async fn quota_overrides(&self, submitter_id: i64) -> Result<QuotaOverrides, StoreError> {
+        let row: Option<QuotaOverrides> = on_db!(&self.db, pool => sqlx::query_as(
+            "SELECT quota_per_day AS per_day, quota_total AS total, quota_concurrent AS concurrent \
+             FROM submitters WHERE id = $1",
+        )
+        .bind(submitter_id)
+        .fetch_optional(pool)
+        .await)?;
+        Ok(row.unwrap_or_default())
+    }
+
+    /// Sets submitter `name`'s overrides (None: back to the server's
+    /// default). `NotFound` if no token was ever made for that name.
+    pub async fn set_quota_overrides(
+        &self,
+        name: &str,
+        q: QuotaOverrides,
+    ) -> Result<(), StoreError> {
+        let n = on_db!(&self.db, pool => sqlx::query(
+            "UPDATE submitters SET quota_per_day = $1, quota_total = $2, quota_concurrent = $3 WHERE name = $4",
+        )
+        .bind(q.per_day)
+        .bind(q.total)
+        .bind(q.concurrent)
+        .bind(name)
+        .execute(pool)
+        .await
+        .map(|r| r.rows_affected()))?;
+        if n == 0 {
+            return Err(StoreError::NotFound(format!(
+                "a submitter `{name}` (tokens name one: `d3il token create --name {name}`)"
+            )));
+        }
+        Ok(())
+    }
+
+    /// Sets `name`'s overrides and writes the audit entry: the one way the
+    /// admin API and `d3il token set-quota` do it.
+    pub async fn set_quota(
+        &self,
+        name: &str,
+        q: QuotaOverrides,
+        actor: &str,
+    ) -> Result<AuditEntry, StoreError> {
+        self.set_quota_overrides(name, q).await?;
+        let show = |v: Option<i64>| match v {
+            None => "default".to_string(),
+            Some(0) => "no limit".to_string(),
+            Some(n) => n.to_string(),
+        };
+        let detail = format!(
+            "per day {}, total {}, at once {}",
+            show(q.per_day),
+            show(q.total),
+            show(q.concurrent)
+        );
+        self.audit(actor, "set_quota", &format!("submitter {name}"), &detail)
+            .await
+    }
+
+    /// What submitter `id` has used of its quota at time `t`.
+    pub async fn quota_usage(&self, submitter_id: i64, t: i64) -> Result<QuotaUsage, StoreError> {
+        let (last_day, total, active, oldest): (i64, i64, i64, Option<i64>) = on_db!(&self.db, pool => sqlx::query_as(
+            "SELECT CAST(COALESCE(SUM(CASE WHEN created_at > $2 THEN 1 ELSE 0 END), 0) AS BIGINT), \
+             CAST(COUNT(*) AS BIGINT), \
+             CAST(COALESCE(SUM(CASE WHEN status IN ('queued', 'running') THEN 1 ELSE 0 END), 0) AS BIGINT), \
+             MIN(CASE WHEN created_at > $2 THEN created_at END) \
+             FROM submissions WHERE submitter_id = $1",
+        )
+        .bind(submitter_id)
+        .bind(t - DAY_S)
+        .fetch_one(pool)
+        .await)?;
+        Ok(QuotaUsage {
+            last_day,
+            total,
+            active,
+            oldest_in_day: oldest,
+        })
+    }
+
+    /// Withdraws submission `id` (kept, hidden from boards and tables) and
+    /// records it in the audit log; withdrawing again replaces the reason.
+    pub async fn withdraw_submission(
+        &self,
+        id: i64,
+        reason: &str,
+        actor: &str,
+    ) -> Result<AuditEntry, StoreError> {
+        let t = now();
+        let n = on_db!(&self.db, pool => sqlx::query(
+            "UPDATE submissions SET withdrawn_at = $1, withdrawn_reason = $2, withdrawn_by = $3 WHERE id = $4",
+        )
+        .bind(t)
+        .bind(reason)
+        .bind(actor)
+        .bind(id)
+        .execute(pool)
+        .await
+        .map(|r| r.rows_affected()))?;
+        if n == 0 {
+            return Err(StoreError::NotFound(format!("submission {id}")));
+        }
+        self.audit(actor, "withdraw", &format!("submission {id}"), reason)
+            .await
+    }
+
+    /// Puts a withdrawn submission back on the boards.
+    pub async fn reinstate_submission(
+        &self,
+        id: i64,
+        actor: &str,
+    ) -> Result<AuditEntry, StoreError> {
+        let n = on_db!(&self.db, pool => sqlx::query(
+            "UPDATE submissions SET withdrawn_at = NULL, withdrawn_reason = NULL, withdrawn_by = NULL WHERE id = $1",
+        )
+        .bind(id)
+        .execute(pool)
+        .await
+        .map(|r| r.rows_affected()))?;
+        if n == 0 {
+            return Err(StoreError::NotFound(format!("submission {id}")));
+        }
+        self.audit(actor, "reinstate", &format!("submission {id}"), "")
+            .await
+    }
+
+    /// Why submission `id` was withdrawn, if it was.
+    pub async fn withdrawal(&self, id: i64) -> Result<Option<Withdrawal>, StoreError> {
+        let row: Option<(Option<i64>, Option<String>, Option<String>)> = on_db!(&self.db, pool => sqlx::query_as(
+            "SELECT withdrawn_at, withdrawn_reason, withdrawn_by FROM submissions WHERE id = $1",
+        )
+        .bind(id)
+        .fetch_optional(pool)
+        .await)?;
+        Ok(match row {
+            Some((Some(at), reason, by)) => Some(Withdrawal {
+                at,
+                reason: reason.unwrap_or_default(),
+                by: by.unwrap_or_default(),
+            }),
+            _ => None,
+        })
+    }
+
+    /// Marks method `name` as a baseline (or not): its rows say so on the
+    /// boards.
+    pub async fn set_baseline(
+        &self,
+        name: &str,
+        baseline: bool,
+        actor: &str,
+    ) -> Result<AuditEntry, StoreError> {
+        let n = on_db!(&self.db, pool => sqlx::query("UPDATE methods SET baseline = $1 WHERE name = $2")
+            .bind(baseline)
+            .bind(name)
+            .execute(pool)
+            .await
+            .map(|r| r.rows_affected()))?;
+        if n == 0 {
+            return Err(StoreError::NotFound(format!("method `{name}`")));
+        }
+        let action = if baseline { "baseline" } else { "unbaseline" };
+        self.audit(actor, action, &format!("method {name}"), "")
+            .await
+    }
+
+    /// Ids of the methods marked as baselines.
+    pub async fn baseline_methods(&self) -> Result<Vec<i64>, StoreError> {
+        Ok(
+            on_db!(&self.db, pool => sqlx::query_scalar("SELECT id FROM methods WHERE baseline = $1 ORDER BY id")
+            .bind(true)
+            .fetch_all(pool)
+            .await)?,
+        )
+    }
+
+    /// Appends one admin action to the audit log and returns its entry.
+    pub async fn audit(
+        &self,
+        actor: &str,
+        action: &str,
+        target: &str,
+        detail: &str,
+    ) -> Result<AuditEntry, StoreError> {
+        Ok(on_db!(&self.db, pool => sqlx::query_as(
+            "INSERT INTO audit_log (at, actor, action, target, detail) VALUES ($1, $2, $3, $4, $5) \
+             RETURNING id, at, actor, action, target, detail",
+        )
+        .bind(now())
+        .bind(actor)
+        .bind(action)
+        .bind(target)
+        .bind(detail)
+        .fetch_one(pool)
+        .await)?)
+    }
+
+    /// The newest `limit` admin actions, newest first.
+    pub async fn audit_log(&self, limit: i64) -> Result<Vec<AuditEntry>, StoreError> {
+        Ok(on_db!(&self.db, pool => sqlx::query_as(
+            "SELECT id, at, actor, action, target, detail FROM audit_log ORDER BY id DESC LIMIT $1",
+        )
+        .bind(limit)
+        .fetch_all(pool)
+        .await)?)
+    }
+}

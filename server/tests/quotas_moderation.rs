@@ -1,0 +1,453 @@
+//! Quotas and moderation (issue 42) over HTTP on 127.0.0.1, on SQLite and
+//! PostgreSQL: submissions counted, the refusal with the time of the next
+//! one, admission refusals not counted, admin tokens exempt, overrides;
+//! a withdrawn submission hidden from the board JSON and page with its
+//! reason on its page, a baseline marked, a revoked token refused, and every
+//! admin action in the audit log on `/admin`.
+
+mod common;
+use common::*;
+use d3il_server::config::QuotaLimits;
+use serde_json::{json, Value};
+
+/// An app with quotas `limits` and no workers (submissions stay queued).
+async fn app_with(b: Backend, limits: QuotaLimits, dry_run: bool) -> TestApp {
+    let app = spawn_app_with(Options {
+        backend: b,
+        dry_run_uploads: dry_run,
+        ..Options::default()
+    })
+    .await;
+    // The config is shared by the handlers: set before any request.
+    let mut cfg = (*app.state.cfg).clone();
+    cfg.quotas = limits;
+    let mut state = app.state.clone();
+    state.cfg = std::sync::Arc::new(cfg);
+    let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
+    let addr = listener.local_addr().unwrap();
+    tokio::spawn(d3il_server::app::serve_listener(listener, state.clone()));
+    TestApp {
+        addr,
+        base: format!("http://{addr}"),
+        state,
+        ..app
+    }
+}
+
+fn fields(method: &str, seed: u32) -> Vec<(String, String)> {
+    vec![
+        ("method".into(), method.into()),
+        ("task".into(), "aligning".into()),
+        ("training_seed".into(), seed.to_string()),
+        ("protocol".into(), "quick".into()),
+        ("manifest".into(), manifest("aligning")),
+    ]
+}
+
+async fn submit_as(
+    app: &TestApp,
+    token: &str,
+    f: &[(String, String)],
+) -> (u16, Value, Option<String>) {
+    let mut form = reqwest::multipart::Form::new();
+    for (k, v) in f {
+        form = form.text(k.clone(), v.clone());
+    }
+    form = form.part(
+        "onnx",
+        reqwest::multipart::Part::bytes(fake_onnx()).file_name("p.onnx"),
+    );
+    let r = app
+        .http
+        .post(app.url("/api/v1/submissions"))
+        .bearer_auth(token)
+        .multipart(form)
+        .send()
+        .await
+        .unwrap();
+    let status = r.status().as_u16();
+    let retry = r
+        .headers()
+        .get("retry-after")
+        .map(|v| v.to_str().unwrap().to_string());
+    (status, r.json().await.unwrap(), retry)
+}
+
+async fn get_json_as(app: &TestApp, token: &str, path: &str) -> (u16, Value) {
+    let r = app
+        .http
+        .get(app.url(path))
+        .bearer_auth(token)
+        .send()
+        .await
+        .unwrap();
+    (r.status().as_u16(), r.json().await.unwrap())
+}
+
+async fn admin_post(
+    app: &TestApp,
+    admin: &str,
+    method: reqwest::Method,
+    path: &str,
+    body: Option<Value>,
+) -> (u16, Value) {
+    let mut req = app.http.request(method, app.url(path)).bearer_auth(admin);
+    if let Some(b) = body {
+        req = req.json(&b);
+    }
+    let r = req.send().await.unwrap();
+    (r.status().as_u16(), r.json().await.unwrap())
+}
+
+async fn counted_refused_with_the_time_and_admin_exempt(b: Backend) {
+    let app = app_with(
+        b,
+        QuotaLimits {
+            per_day: 2,
+            total: 10,
+            concurrent: 5,
+        },
+        false,
+    )
+    .await;
+    let store = &app.state.store;
+    let alice = store.create_token("alice").await.unwrap();
+    let (s, who) = get_json_as(&app, &alice, "/api/v1/whoami").await;
+    assert_eq!(s, 200, "{who}");
+    assert_eq!(who["quota"]["remaining"], 2, "{who}");
+    assert_eq!(who["quota"]["per_day"]["limit"], 2);
+
+    // A bad request (no task) is refused at admission and not counted.
+    let mut bad = fields("Q", 0);
+    bad.retain(|(k, _)| k != "task");
+    let (s, body, _) = submit_as(&app, &alice, &bad).await;
+    assert_eq!(s, 400, "{body}");
+    let (_, who) = get_json_as(&app, &alice, "/api/v1/whoami").await;
+    assert_eq!(who["quota"]["per_day"]["used"], 0, "{who}");
+
+    // Two accepted: each answer carries the quota left after it.
+    let (s, first, _) = submit_as(&app, &alice, &fields("Q", 1)).await;
+    assert_eq!(s, 201, "{first}");
+    assert_eq!(first["quota"]["remaining"], 1, "{first}");
+    assert_eq!(first["status"], "queued");
+    assert!(first["quota"]["summary"]
+        .as_str()
+        .unwrap()
+        .starts_with("1 of 2 submissions left today"));
+    let (s, second, _) = submit_as(&app, &alice, &fields("Q", 2)).await;
+    assert_eq!(s, 201, "{second}");
+    assert_eq!(second["quota"]["remaining"], 0);
+    let next = second["quota"]["next_submission_at"].as_i64().unwrap();
+    let first_at = first["created_at"].as_i64().unwrap();
+    assert_eq!(next, first_at + 86_400, "the oldest leaves the 24 hours");
+
+    // The third is refused: 429, when the next is possible, Retry-After.
+    let (s, refused, retry) = submit_as(&app, &alice, &fields("Q", 3)).await;
+    assert_eq!(s, 429, "{refused}");
+    assert_eq!(refused["error"]["code"], "quota_exceeded");
+    assert_eq!(refused["error"]["next_submission_at"], next);
+    let msg = refused["error"]["message"].as_str().unwrap();
+    assert!(msg.starts_with("daily submission quota reached: 2 submissions in the last 24 hours (limit 2); the next submission is possible in "), "{msg}");
+    let retry: i64 = retry.expect("Retry-After").parse().unwrap();
+    assert!((86_390..=86_400).contains(&retry), "{retry}");
+    let (_, who) = get_json_as(&app, &alice, "/api/v1/whoami").await;
+    assert_eq!(
+        who["quota"]["per_day"]["used"], 2,
+        "the refusal is not counted"
+    );
+
+    // An admin token has no quota.
+    let admin = store.create_token_with("op", true).await.unwrap();
+    for seed in 10..13 {
+        let (s, body, _) = submit_as(&app, &admin, &fields("OpQ", seed)).await;
+        assert_eq!(s, 201, "{body}");
+        assert_eq!(body["quota"]["exempt"], true);
+    }
+
+    // An override lifts alice's daily limit and sets her concurrency to 3.
+    let (s, done) = admin_post(
+        &app,
+        &admin,
+        reqwest::Method::PUT,
+        "/api/v1/admin/submitters/alice/quota",
+        Some(json!({"per_day": 0, "concurrent": 3})),
+    )
+    .await;
+    assert_eq!(s, 200, "{done}");
+    assert_eq!(done["audit"]["action"], "set_quota");
+    assert_eq!(
+        done["audit"]["detail"],
+        "per day no limit, total default, at once 3"
+    );
+    let (s, third, _) = submit_as(&app, &alice, &fields("Q", 3)).await;
+    assert_eq!(s, 201, "{third}");
+    // Three queued now: the concurrency override refuses a fourth, saying when.
+    let (s, busy, retry) = submit_as(&app, &alice, &fields("Q", 4)).await;
+    assert_eq!(s, 429, "{busy}");
+    assert!(busy["error"]["message"].as_str().unwrap().contains(
+        "3 of your submissions are queued or running (limit 3 at once); the next submission is possible when one of them finishes"
+    ), "{busy}");
+    assert_eq!(retry.as_deref(), Some("60"));
+    // A bad override is refused with the field named.
+    let (s, bad) = admin_post(
+        &app,
+        &admin,
+        reqwest::Method::PUT,
+        "/api/v1/admin/submitters/alice/quota",
+        Some(json!({"total": -1})),
+    )
+    .await;
+    assert_eq!(
+        (s, bad["error"]["field"].as_str()),
+        (400, Some("total")),
+        "{bad}"
+    );
+}
+
+async fn dry_run_refusals_are_not_counted(b: Backend) {
+    // The worker is /bin/false: every upload's dry run fails.
+    let app = app_with(
+        b,
+        QuotaLimits {
+            per_day: 1,
+            total: 1,
+            concurrent: 1,
+        },
+        true,
+    )
+    .await;
+    let bob = app.state.store.create_token("bob").await.unwrap();
+    for seed in 0..3 {
+        let (s, body, _) = submit_as(&app, &bob, &fields("D", seed)).await;
+        assert_eq!(s, 400, "the dry run refuses it: {body}");
+        assert_ne!(body["error"]["code"], "quota_exceeded", "{body}");
+    }
+    let (_, who) = get_json_as(&app, &bob, "/api/v1/whoami").await;
+    assert_eq!(who["quota"]["remaining"], 1, "{who}");
+    assert_eq!(who["quota"]["total"]["used"], 0, "{who}");
+}
+
+async fn moderation_and_the_audit_log(b: Backend) {
+    let app = app_with(b, QuotaLimits::NONE, false).await;
+    let store = &app.state.store;
+    let result = aligning_result(
+        d3il_protocol::ProtocolKind::Paper,
+        0.8,
+        0.3,
+        "aligning-v1.json",
+    );
+    let kept = finished_submission(store, "KeptMethod", &result).await;
+    let gone = finished_submission(store, "GoneMethod", &result).await;
+    let admin = store.create_token_with("moderator", true).await.unwrap();
+    let user = store.create_token("carol").await.unwrap();
+    let board = "/api/v1/leaderboards/aligning";
+    let methods = |v: &Value| -> Vec<String> {
+        v["rows"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|r| r["method"].as_str().unwrap().to_string())
+            .collect()
+    };
+    let (_, before) = app.get_json(board).await;
+    assert!(
+        methods(&before).contains(&"GoneMethod".to_string()),
+        "{before}"
+    );
+
+    // A submitter's token may not moderate.
+    let (s, body) = admin_post(
+        &app,
+        &user,
+        reqwest::Method::POST,
+        &format!("/api/v1/admin/submissions/{gone}/withdraw"),
+        Some(json!({"reason": "x"})),
+    )
+    .await;
+    assert_eq!(s, 403, "{body}");
+    // A reason is needed.
+    let (s, body) = admin_post(
+        &app,
+        &admin,
+        reqwest::Method::POST,
+        &format!("/api/v1/admin/submissions/{gone}/withdraw"),
+        Some(json!({"reason": "  "})),
+    )
+    .await;
+    assert_eq!(
+        (s, body["error"]["field"].as_str()),
+        (400, Some("reason")),
+        "{body}"
+    );
+
+    // Fetch the completed submission once so that its document is cached.
+    let (s, doc) = app.get_json(&format!("/api/v1/submissions/{gone}")).await;
+    assert_eq!((s, doc["withdrawn"].is_null()), (200, true), "{doc}");
+    let reason = "trained on the test contexts <see #4>";
+    let (s, done) = admin_post(
+        &app,
+        &admin,
+        reqwest::Method::POST,
+        &format!("/api/v1/admin/submissions/{gone}/withdraw"),
+        Some(json!({ "reason": reason })),
+    )
+    .await;
+    assert_eq!(s, 200, "{done}");
+    assert_eq!(done["audit"]["actor"], "moderator");
+
+    // Hidden from the board JSON and page; kept, with its reason, on its page.
+    let (_, after) = app.get_json(board).await;
+    assert!(
+        !methods(&after).contains(&"GoneMethod".to_string()),
+        "{after}"
+    );
+    assert!(
+        methods(&after).contains(&"KeptMethod".to_string()),
+        "{after}"
+    );
+    let (_, page) = app.get_text("/tasks/aligning").await;
+    assert!(!page.contains("GoneMethod") && page.contains("KeptMethod"));
+    let (s, page) = app.get_text(&format!("/submissions/{gone}")).await;
+    assert_eq!(s, 200);
+    let w = page
+        .split("id=\"withdrawn\">")
+        .nth(1)
+        .and_then(|p| p.split("</section>").next())
+        .expect("the withdrawal is shown");
+    assert!(w.contains("Withdrawn by the operators (moderator, "), "{w}");
+    assert!(
+        w.contains("trained on the test contexts &#60;see #4&#62;"),
+        "{w}"
+    );
+    let (_, doc) = app.get_json(&format!("/api/v1/submissions/{gone}")).await;
+    assert_eq!(doc["withdrawn"]["reason"], reason, "{doc}");
+    assert_eq!(doc["status"], "completed");
+
+    // A baseline is marked on the board, JSON and page.
+    let (s, done) = admin_post(
+        &app,
+        &admin,
+        reqwest::Method::POST,
+        "/api/v1/admin/methods/KeptMethod/baseline",
+        Some(json!({"baseline": true})),
+    )
+    .await;
+    assert_eq!(s, 200, "{done}");
+    let (_, after) = app.get_json(board).await;
+    let row = after["rows"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|r| r["method"] == "KeptMethod")
+        .unwrap();
+    assert_eq!(row["baseline"], true, "{row}");
+    assert!(after["rows"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|r| r["method"] != "KeptMethod")
+        .all(|r| r["baseline"] == false));
+    let (_, page) = app.get_text("/tasks/aligning").await;
+    let cell = page
+        .split("<td class=\"method\"><a href=\"/methods/KeptMethod\">KeptMethod</a>")
+        .nth(1)
+        .expect("the row");
+    assert!(
+        cell.starts_with(" <span class=\"badge badge-baseline\""),
+        "{cell}"
+    );
+    let (s, body) = admin_post(
+        &app,
+        &admin,
+        reqwest::Method::POST,
+        "/api/v1/admin/methods/NoSuchMethod/baseline",
+        Some(json!({"baseline": true})),
+    )
+    .await;
+    assert_eq!(s, 404, "{body}");
+
+    // Revoking a token through the API: it is refused from then on.
+    let (s, _) = get_json_as(&app, &user, "/api/v1/whoami").await;
+    assert_eq!(s, 200);
+    let prefix = &user[..d3il_server::store::TOKEN_PREFIX_LEN];
+    let (s, done) = admin_post(
+        &app,
+        &admin,
+        reqwest::Method::POST,
+        &format!("/api/v1/admin/tokens/{prefix}/revoke"),
+        None,
+    )
+    .await;
+    assert_eq!(s, 200, "{done}");
+    assert_eq!(done["audit"]["detail"], format!("revoked {prefix}"));
+    let (s, body) = get_json_as(&app, &user, "/api/v1/whoami").await;
+    assert_eq!(s, 401, "{body}");
+
+    // Every action is in the audit log, newest first, and on /admin.
+    let (s, log) = get_json_as(&app, &admin, "/api/v1/admin/audit").await;
+    assert_eq!(s, 200, "{log}");
+    let actions: Vec<(&str, &str)> = log["entries"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|e| (e["action"].as_str().unwrap(), e["target"].as_str().unwrap()))
+        .collect();
+    let gone_target = format!("submission {gone}");
+    let token_target = format!("token {prefix}");
+    assert_eq!(
+        actions,
+        vec![
+            ("revoke_token", token_target.as_str()),
+            ("baseline", "method KeptMethod"),
+            ("withdraw", gone_target.as_str()),
+        ],
+        "refused actions are not logged"
+    );
+    let (s, page) = app.get_admin_text("/admin").await;
+    assert_eq!(s, 200);
+    let table = page
+        .split("<table class=\"board\" id=\"audit\">")
+        .nth(1)
+        .and_then(|t| t.split("</table>").next())
+        .expect("the audit table");
+    let rows: Vec<&str> = table.split("<tr data-audit=").skip(1).collect();
+    assert_eq!(rows.len(), 3, "{table}");
+    assert!(
+        rows[0].contains("<td>moderator</td><td><code>revoke_token</code></td>"),
+        "{}",
+        rows[0]
+    );
+    assert!(
+        rows[2].contains("<td><code>withdraw</code></td><td>submission"),
+        "{}",
+        rows[2]
+    );
+    assert!(
+        rows[2].contains("trained on the test contexts &#60;see #4&#62;"),
+        "{}",
+        rows[2]
+    );
+
+    // Reinstated: back on the board.
+    let (s, _) = admin_post(
+        &app,
+        &admin,
+        reqwest::Method::POST,
+        &format!("/api/v1/admin/submissions/{gone}/reinstate"),
+        None,
+    )
+    .await;
+    assert_eq!(s, 200);
+    let (_, after) = app.get_json(board).await;
+    assert!(
+        methods(&after).contains(&"GoneMethod".to_string()),
+        "{after}"
+    );
+    let _ = kept;
+}
+
+on_both_backends!(
+    counted_refused_with_the_time_and_admin_exempt,
+    dry_run_refusals_are_not_counted,
+    moderation_and_the_audit_log,
+);
