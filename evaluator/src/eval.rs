@@ -6,6 +6,7 @@
 //! strings them together.
 
 mod lockstep;
+pub mod race;
 
 use crate::perturb::Active;
 use crate::shard::{EvalPart, Shard};
@@ -306,17 +307,28 @@ struct Run {
     timing: Timing,
 }
 
-fn run_rollouts(
+/// What an evaluation (or a shard, or one side of a race) runs: the states,
+/// their order, how many rollouts of each are simulated, the slots.
+struct Prepared {
+    set: crate::tasks::ContextSet,
+    n_ctx: usize,
+    per_ctx: usize,
+    ctx_range: std::ops::Range<usize>,
+    sim_per_ctx: usize,
+    plan: Plan,
+    live: usize,
+    shape: d3il_policy::PolicyShape,
+}
+
+/// Checks `policy` against `task` (observation type, dimensions, a test
+/// inference) and plans its rollouts under `opts`.
+fn prepare(
     task: &LoadedTask,
     policy: &mut dyn Policy,
-    info: &PolicyInfo,
     opts: &EvalOptions,
     shard: Option<Shard>,
     perturb: Option<&std::sync::Arc<Active>>,
-    on_progress: &mut dyn FnMut(&Progress),
-) -> Result<Run, EvalError> {
-    let t0 = Instant::now();
-    let mut timing = Timing::default();
+) -> Result<Prepared, EvalError> {
     let set = task.def.context_set()?;
     let (n_ctx, per_ctx) = protocol_size(task, opts.protocol, set.len());
     let ctx_range = match shard {
@@ -325,7 +337,6 @@ fn run_rollouts(
             .map_err(|e| EvalError::Setup(e.to_string()))?,
         None => 0..n_ctx,
     };
-    let total = ctx_range.len() * per_ctx;
     // A deterministic policy's rollouts of one initial state are the same
     // computation (the reset, the physics and each row's actions are
     // functions of their inputs alone): simulate rollout 0 of each state and
@@ -377,6 +388,41 @@ fn run_rollouts(
         per_ctx,
         sim_per_ctx,
     };
+    Ok(Prepared {
+        set,
+        n_ctx,
+        per_ctx,
+        ctx_range,
+        sim_per_ctx,
+        plan,
+        live,
+        shape,
+    })
+}
+
+fn run_rollouts(
+    task: &LoadedTask,
+    policy: &mut dyn Policy,
+    info: &PolicyInfo,
+    opts: &EvalOptions,
+    shard: Option<Shard>,
+    perturb: Option<&std::sync::Arc<Active>>,
+    on_progress: &mut dyn FnMut(&Progress),
+) -> Result<Run, EvalError> {
+    let t0 = Instant::now();
+    let mut timing = Timing::default();
+    let Prepared {
+        set,
+        n_ctx,
+        per_ctx,
+        ctx_range,
+        sim_per_ctx,
+        plan,
+        live,
+        shape,
+    } = prepare(task, policy, opts, shard, perturb)?;
+    let total = ctx_range.len() * per_ctx;
+    let sim_total = ctx_range.len() * sim_per_ctx;
     let mut lockstep = Lockstep::new(task, policy, opts, plan, live, perturb)?;
     let started = lockstep.start_all()?;
     policy.reset(&started)?;
@@ -402,7 +448,7 @@ fn run_rollouts(
         evaluator_version: env!("CARGO_PKG_VERSION").into(),
         n_contexts: n_ctx,
         rollouts_per_context: per_ctx,
-        max_steps: spec.max_steps,
+        max_steps: task.spec().max_steps,
         policy_sha256: info.sha256.clone(),
         history: shape.history,
         horizon: shape.horizon,

@@ -8,14 +8,17 @@ use std::path::{Path, PathBuf};
 
 #[derive(clap::Args)]
 pub struct Args {
-    /// Result A (`d3il eval --json a.json`).
+    /// Result A (`d3il eval --json a.json`); with `--task`, policy A, as
+    /// `d3il eval --policy` takes it (ONNX file, `scripted:NAME`, `ws://…`).
     pub a: PathBuf,
-    /// Result B, on the same task, protocol and initial states.
+    /// Result B, on the same task, protocol and initial states; with
+    /// `--task`, policy B.
     pub b: PathBuf,
     /// Bootstrap resamples and randomisation-test permutations.
     #[arg(long, default_value_t = 2000)]
     pub resamples: usize,
-    /// Seed of the resampling (ChaCha8).
+    /// Seed of the resampling (ChaCha8); with `--sequential`, of the random
+    /// order (and, with `--task`, of both evaluations: their noise).
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
     /// Print the comparison as JSON instead of a table.
@@ -33,6 +36,18 @@ pub struct Args {
     /// when the confidence sequence of rate(A) − rate(B) lies inside (−δ, δ).
     #[arg(long, requires = "sequential")]
     pub delta: Option<f64>,
+    /// With `--sequential`: race policies A and B on this task instead of
+    /// replaying results: both run interleaved on the same initial states in
+    /// the same random order, stopping at the test's decision.
+    #[arg(long, requires = "sequential")]
+    pub task: Option<d3il_protocol::TaskId>,
+    /// With `--task`: `paper` or `quick`.
+    #[arg(long, default_value = "paper", requires = "task")]
+    pub protocol: d3il_protocol::ProtocolKind,
+    /// With `--task`: rollouts simulated at once per policy (fewer stop
+    /// sooner after a decision, more run faster).
+    #[arg(long, default_value_t = 8, requires = "task")]
+    pub max_live: usize,
 }
 
 fn load(path: &Path) -> anyhow::Result<EvalResult> {
@@ -47,6 +62,9 @@ fn load(path: &Path) -> anyhow::Result<EvalResult> {
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
+    if let Some(task) = args.task {
+        return super::race::run(&args, task);
+    }
     let a = load(&args.a)?;
     let b = load(&args.b)?;
     if args.sequential {

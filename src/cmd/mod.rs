@@ -16,6 +16,7 @@ pub mod fixtures;
 pub mod infer;
 pub mod limits;
 pub mod merge;
+pub mod race;
 pub mod render;
 pub mod replay;
 pub mod robustness;

@@ -64,6 +64,8 @@ pub(super) struct Lockstep<'a> {
     pub done: usize,
     /// Initial states reported complete so far (a prefix of `plan.order`).
     reported: usize,
+    /// Set by [`Lockstep::stop_starting`].
+    stopped: bool,
     // The query buffers, reused from call to call.
     ids: Vec<u64>,
     steps: Vec<u64>,
@@ -125,6 +127,7 @@ impl<'a> Lockstep<'a> {
             keys: vec![None; total],
             done: 0,
             reported: 0,
+            stopped: false,
             plan,
             ids: Vec::new(),
             steps: Vec::new(),
@@ -149,7 +152,7 @@ impl<'a> Lockstep<'a> {
     fn start(&mut self, i: usize) -> Result<Option<u64>, EvalError> {
         let plan = &self.plan;
         let slot = &mut self.slots[i];
-        if self.next >= plan.sim_total() {
+        if self.stopped || self.next >= plan.sim_total() {
             slot.rollout = None;
             return Ok(None);
         }
@@ -375,7 +378,12 @@ impl<'a> Lockstep<'a> {
     /// Starts no further rollout: the live ones run to their end (a race
     /// that has decided, [`super::race`]).
     pub fn stop_starting(&mut self) {
-        self.next = self.plan.sim_total();
+        self.stopped = true;
+    }
+
+    /// Rollouts started (simulated, or being simulated) so far.
+    pub fn started(&self) -> usize {
+        self.next
     }
 
     /// The initial states complete since the last call, in the plan's
