@@ -12,7 +12,7 @@
 
 use std::process::Command;
 
-const BENCHES: [&str; 11] = [
+const BENCHES: [&str; 12] = [
     "physics",
     "eval",
     "render",
@@ -24,6 +24,7 @@ const BENCHES: [&str; 11] = [
     "chaos",
     "sequential",
     "served-agent",
+    "robustness",
 ];
 
 fn d3il() -> Command {

@@ -413,9 +413,18 @@ fn the_cli_runs_the_suite_and_its_rollouts_replay() {
         String::from_utf8_lossy(&out.stderr)
     );
     let first = stdout.lines().next().unwrap();
+    // The current suite (v2); quick protocol: 3 states × 2 rollouts a level.
+    let n_levels = Suite::for_task(TaskId::Aligning)
+        .unwrap()
+        .perturbations()
+        .len();
+    let rollouts = 6 * (n_levels + 1);
     assert!(
-        first.contains("level 0 and 13 perturbed levels on 4 axes")
-            && first.contains("84 rollouts recorded, 84 simulated"),
+        first.contains(&format!(
+            "level 0 and {n_levels} perturbed levels on 4 axes"
+        )) && first.contains(&format!(
+            "{rollouts} rollouts recorded, {rollouts} simulated"
+        )),
         "{first}"
     );
     for axis in ["start_shift", "obs_noise", "latency", "dynamics"] {
@@ -439,8 +448,8 @@ fn the_cli_runs_the_suite_and_its_rollouts_replay() {
     }
     assert_eq!(control, plain, "level 0 is not the plain evaluation");
     let levels = read(&doc)["levels"].as_array().unwrap().len();
-    assert_eq!(levels, 13);
-    for level in ["dynamics/4", "start_shift/3", "latency/0"] {
+    assert_eq!(levels, n_levels);
+    for level in ["dynamics/4", "start_shift/3", "latency/0", "latency/1"] {
         let out = Command::new(d3il)
             .args(["replay", "--result"])
             .arg(&doc)

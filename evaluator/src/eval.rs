@@ -236,20 +236,7 @@ pub fn evaluate_shard_reporting(
     on_progress: &mut dyn FnMut(&Progress),
 ) -> Result<(EvalPart, Timing), EvalError> {
     let run = run_rollouts(task, policy, info, opts, Some(shard), None, on_progress)?;
-    Ok((
-        EvalPart {
-            format: crate::shard::PART_FORMAT.into(),
-            manifest: run.manifest,
-            shard,
-            contexts: [run.contexts.start, run.contexts.end],
-            rollouts: run.rollouts,
-            behaviour_keys: run.behaviour_keys,
-            policy_seconds: run.timing.policy_s,
-            policy_calls: run.timing.policy_calls,
-            bootstrap_resamples: opts.bootstrap_resamples,
-        },
-        run.timing,
-    ))
+    Ok(run.into_part(shard, opts))
 }
 
 pub use d3il_metrics::shard::{assemble, inference_ms};
@@ -270,12 +257,7 @@ pub fn evaluate_perturbed(
     on_progress: &mut dyn FnMut(usize, usize),
 ) -> Result<(EvalResult, Timing), EvalError> {
     let t0 = Instant::now();
-    let active =
-        Active::new(perturbation, task.def.id()).map_err(|e| EvalError::Setup(e.to_string()))?;
-    let perturbed = active
-        .task(task)
-        .map_err(|e| EvalError::Setup(e.to_string()))?;
-    let active = std::sync::Arc::new(active);
+    let (perturbed, active) = activate(task, perturbation)?;
     let run = run_rollouts(
         &perturbed,
         policy,
@@ -297,6 +279,44 @@ pub fn evaluate_perturbed(
     Ok((result, timing))
 }
 
+/// [`evaluate_perturbed`] of shard `shard` only: the part that
+/// [`crate::shard::merge`] joins with the same level's other shards into the
+/// level's result (`d3il eval --suite robustness --shard K/N`).
+pub fn evaluate_perturbed_shard(
+    task: &LoadedTask,
+    policy: &mut dyn Policy,
+    info: &PolicyInfo,
+    opts: &EvalOptions,
+    perturbation: &d3il_protocol::perturbation::Perturbation,
+    shard: Shard,
+    on_progress: &mut dyn FnMut(usize, usize),
+) -> Result<(EvalPart, Timing), EvalError> {
+    let (perturbed, active) = activate(task, perturbation)?;
+    let run = run_rollouts(
+        &perturbed,
+        policy,
+        info,
+        opts,
+        Some(shard),
+        Some(&active),
+        &mut counts_only(on_progress),
+    )?;
+    Ok(run.into_part(shard, opts))
+}
+
+/// The task as `perturbation` simulates it, and the perturbation ready to act.
+fn activate(
+    task: &LoadedTask,
+    perturbation: &d3il_protocol::perturbation::Perturbation,
+) -> Result<(LoadedTask, std::sync::Arc<Active>), EvalError> {
+    let active =
+        Active::new(perturbation, task.def.id()).map_err(|e| EvalError::Setup(e.to_string()))?;
+    let perturbed = active
+        .task(task)
+        .map_err(|e| EvalError::Setup(e.to_string()))?;
+    Ok((perturbed, std::sync::Arc::new(active)))
+}
+
 /// The rollouts of one evaluation (or of one shard of it), before metrics.
 struct Run {
     manifest: ProtocolManifest,
@@ -305,6 +325,26 @@ struct Run {
     rollouts: Vec<RolloutRecord>,
     behaviour_keys: Vec<Option<String>>,
     timing: Timing,
+}
+
+impl Run {
+    /// The part file of shard `shard` (`d3il merge` joins the parts).
+    fn into_part(self, shard: Shard, opts: &EvalOptions) -> (EvalPart, Timing) {
+        (
+            EvalPart {
+                format: crate::shard::PART_FORMAT.into(),
+                manifest: self.manifest,
+                shard,
+                contexts: [self.contexts.start, self.contexts.end],
+                rollouts: self.rollouts,
+                behaviour_keys: self.behaviour_keys,
+                policy_seconds: self.timing.policy_s,
+                policy_calls: self.timing.policy_calls,
+                bootstrap_resamples: opts.bootstrap_resamples,
+            },
+            self.timing,
+        )
+    }
 }
 
 /// What an evaluation (or a shard, or one side of a race) runs: the states,
@@ -485,13 +525,27 @@ fn step_slot(s: &mut Slot, record_paths: bool, every_frame: bool) -> Result<bool
     // (the hold action before the first arrives); the policy's own memory
     // of its actions (`executed`) keeps what it issued.
     let action = match s.perturb.as_deref() {
-        Some(p) if p.latency > 0 => {
+        Some(p) if p.latency > 0 || p.late_fraction > 0.0 => {
             s.in_flight.push_back(issued.clone());
-            if s.in_flight.len() > p.latency {
-                s.in_flight.pop_front().unwrap_or_default()
+            // The action issued `k` steps ago (the hold action before the first).
+            let late = |k: usize| match s.in_flight.len().checked_sub(k + 1) {
+                Some(i) => s.in_flight[i].clone(),
+                None => p.hold.clone(),
+            };
+            let mut action = late(p.latency);
+            let keep = if p.late_fraction > 0.0 {
+                let f = p.late_fraction;
+                for (a, b) in action.iter_mut().zip(late(p.latency + 1)) {
+                    *a = (1.0 - f) * *a + f * b;
+                }
+                p.latency + 1
             } else {
-                p.hold.clone()
+                p.latency
+            };
+            while s.in_flight.len() > keep {
+                s.in_flight.pop_front();
             }
+            action
         }
         _ => issued.clone(),
     };

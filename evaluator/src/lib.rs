@@ -26,6 +26,8 @@ pub mod robustness;
 #[cfg(feature = "engine")]
 pub mod scripted;
 #[cfg(feature = "engine")]
+pub mod suite_shard;
+#[cfg(feature = "engine")]
 pub use d3il_metrics::shard;
 pub mod sim;
 pub mod tasks;

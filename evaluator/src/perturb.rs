@@ -19,7 +19,9 @@
 //!   reproducible and independent of the policy's noise.
 //! * `latency`: the action the policy gives at step t is applied at step
 //!   t + L; the first L steps apply the hold action (a zero delta: stay at
-//!   the previous command). The record holds what the environment received.
+//!   the previous command). A fractional L = n + f (suites v2) applies the
+//!   blend `(1 − f)·a(t − n) + f·a(t − n − 1)`: latency interpolated between
+//!   n and n + 1 steps. The record holds what the environment received.
 //! * `dynamics`: the boxes' mass and inertia scaled, and the box–table
 //!   sliding friction scaled: MuJoCo takes a contact's friction from the geom
 //!   of higher priority (the larger of the two at equal priority), so the
@@ -43,7 +45,16 @@ const PUSHING_V1: &[u8] = include_bytes!("../../assets/robustness/pushing-v1.jso
 pub const PUSHING_V1_SHA256: &str =
     "25899d09f088d638302084e768b9366bf56626a43f58031f02c9d33ce7c462a1";
 
-/// Every committed suite: (task, file name, bytes, expected sha256).
+const ALIGNING_V2: &[u8] = include_bytes!("../../assets/robustness/aligning-v2.json");
+pub const ALIGNING_V2_SHA256: &str =
+    "aa74f7e8ced1d8d0932b57368489fd1951c8617cb1dbed8ab820e42a6d5017e1";
+const PUSHING_V2: &[u8] = include_bytes!("../../assets/robustness/pushing-v2.json");
+pub const PUSHING_V2_SHA256: &str =
+    "581dd17af6538df6f45bb16238b0a787cac0fd1f7c44d150781bdbd273c851cb";
+
+/// Every committed suite: (task, file name, bytes, expected sha256), oldest
+/// first: a task's last one is its current suite (what `d3il eval --suite
+/// robustness` runs), the older ones stay for replays of older results.
 const SUITES: &[(TaskId, &str, &[u8], &str)] = &[
     (
         TaskId::Aligning,
@@ -56,6 +67,18 @@ const SUITES: &[(TaskId, &str, &[u8], &str)] = &[
         "pushing-v1.json",
         PUSHING_V1,
         PUSHING_V1_SHA256,
+    ),
+    (
+        TaskId::Aligning,
+        "aligning-v2.json",
+        ALIGNING_V2,
+        ALIGNING_V2_SHA256,
+    ),
+    (
+        TaskId::Pushing,
+        "pushing-v2.json",
+        PUSHING_V2,
+        PUSHING_V2_SHA256,
     ),
 ];
 
@@ -140,18 +163,19 @@ pub struct Suite {
 }
 
 impl Suite {
-    /// The committed suite of `task`, sha256 checked.
+    /// The current suite of `task` (its newest version), sha256 checked.
     pub fn for_task(task: TaskId) -> Result<Suite, PerturbError> {
-        let &(_, name, bytes, sha) = SUITES.iter().find(|s| s.0 == task).ok_or_else(|| {
-            PerturbError::NoSuite(
-                task,
-                SUITES
-                    .iter()
-                    .map(|s| s.0.to_string())
-                    .collect::<Vec<_>>()
-                    .join(", "),
-            )
-        })?;
+        let &(_, name, bytes, sha) =
+            SUITES.iter().rev().find(|s| s.0 == task).ok_or_else(|| {
+                PerturbError::NoSuite(
+                    task,
+                    SUITES
+                        .iter()
+                        .map(|s| s.0.to_string())
+                        .collect::<Vec<_>>()
+                        .join(", "),
+                )
+            })?;
         Suite::verify(name, bytes, sha)
     }
 
@@ -218,7 +242,9 @@ impl Suite {
                             && l.angle_rad.is_some_and(|v| v >= 0.0)
                     }
                     Axis::Latency => {
-                        l.steps.is_some_and(|s| s > 0)
+                        let f = l.fraction.unwrap_or(0.0);
+                        (0.0..1.0).contains(&f)
+                            && l.steps.unwrap_or(0) as f64 + f > 0.0
                             && def.command_kind() != CommandKind::JointDelta
                     }
                     Axis::Dynamics => {
@@ -227,7 +253,7 @@ impl Suite {
                 };
                 if !ok {
                     return Err(format!(
-                        "level {} of axis {} does not give what the axis needs (start_shift: widen > 0; obs_noise: position_m and angle_rad ≥ 0; latency: steps > 0 on a delta-command task; dynamics: mass and friction > 0)",
+                        "level {} of axis {} does not give what the axis needs (start_shift: widen > 0; obs_noise: position_m and angle_rad ≥ 0; latency: steps + fraction > 0 with 0 ≤ fraction < 1, on a delta-command task; dynamics: mass and friction > 0)",
                         i + 1,
                         a.axis
                     ));
@@ -262,6 +288,9 @@ pub struct Active {
     pub suite: Suite,
     /// Env steps by which actions are late (0: none).
     pub latency: usize,
+    /// A further fraction of a step (0: none): the environment gets the
+    /// blend `(1 − f)·a(t − latency) + f·a(t − latency − 1)`.
+    pub late_fraction: f32,
     /// What the environment receives while the first actions are in flight.
     pub hold: Vec<f32>,
     pub noise: Option<ObsNoise>,
@@ -293,6 +322,10 @@ impl Active {
             latency: match perturbation.axis {
                 Axis::Latency => s.steps.unwrap_or(0),
                 _ => 0,
+            },
+            late_fraction: match perturbation.axis {
+                Axis::Latency => s.fraction.unwrap_or(0.0) as f32,
+                _ => 0.0,
             },
             hold: vec![0.0; def.act_dim()],
             noise,
@@ -447,8 +480,16 @@ mod tests {
 
     #[test]
     fn committed_suites_load_and_a_changed_byte_is_refused_naming_the_hash() {
+        for task in [TaskId::Aligning, TaskId::Pushing] {
+            let current = Suite::for_task(task).unwrap().name;
+            assert_eq!(
+                current,
+                format!("{task}-v2.json"),
+                "v2 is the current suite"
+            );
+        }
         for &(task, name, bytes, sha) in SUITES {
-            let s = Suite::for_task(task).unwrap();
+            let s = Suite::named(task, name).unwrap();
             assert_eq!((s.name.as_str(), s.sha256.as_str()), (name, sha));
             assert!(!s.perturbations().is_empty());
             let mut changed = bytes.to_vec();

@@ -1,6 +1,12 @@
-//! The robustness track's score (issue 40): success retained, a perturbed
-//! level's success rate over level 0's, averaged over an axis's levels (the
-//! axis's score) and over the axes (the overall score). Its interval is the
+//! The robustness track's score (issue 40): success retained, averaged over
+//! an axis's levels (the axis's score) and over the axes (the overall
+//! score). Success retained is paired by initial state and bounded to
+//! [0, 1]: `Σ_s min(p0(s), pL(s)) / Σ_s p0(s)`, with `p0(s)` and `pL(s)`
+//! the success rates of state `s` at level 0 and at the level: the share of
+//! level 0's successes the level keeps. A level that does better than level
+//! 0 on some states does not make up there for what it loses on others (the
+//! plain ratio of success rates did, and exceeded 1); the net change, gains
+//! included, is the paired drop. Its interval is the
 //! paired bootstrap of [`crate::compare`]: initial states resampled, the same
 //! picks for level 0 and every level, and the same bias-corrected percentile
 //! interval. The per-level drops themselves are [`crate::compare`]'s.
@@ -51,17 +57,21 @@ pub fn robustness_scores(
         }
     }
     let n = control.len();
-    let rate = |c: &[ContextResult], picks: &[usize]| {
-        picks.iter().map(|&i| c[i].success_rate).sum::<f64>() / picks.len() as f64
+    let base_sum = |picks: &[usize]| picks.iter().map(|&i| control[i].success_rate).sum::<f64>();
+    let kept = |l: &[ContextResult], picks: &[usize]| {
+        picks
+            .iter()
+            .map(|&i| l[i].success_rate.min(control[i].success_rate))
+            .sum::<f64>()
     };
     // (per level retained, per axis score, overall) for one selection of states.
     type Selection = (Vec<f64>, Vec<Option<f64>>, Option<f64>);
     let score = |picks: &[usize]| -> Option<Selection> {
-        let base = rate(control, picks);
+        let base = base_sum(picks);
         if base <= 0.0 {
             return None;
         }
-        let retained: Vec<f64> = levels.iter().map(|(_, l)| rate(l, picks) / base).collect();
+        let retained: Vec<f64> = levels.iter().map(|(_, l)| kept(l, picks) / base).collect();
         let axes: Vec<Option<f64>> = (0..n_axes)
             .map(|a| {
                 let v: Vec<f64> = levels
@@ -106,7 +116,7 @@ pub fn robustness_scores(
             }
         }
     }
-    let bounds = (0.0, f64::INFINITY);
+    let bounds = (0.0, 1.0);
     Ok(Scores {
         retained: retained.into_iter().map(Some).collect(),
         axes: axes
@@ -148,6 +158,15 @@ mod tests {
         assert!((a0.value - 0.75).abs() < 1e-12 && a0.ci_low <= 0.75 && a0.ci_high >= 0.75);
         assert_eq!(s.axes[1].unwrap().value, 1.0);
         assert!((s.overall.unwrap().value - 0.875).abs() < 1e-12);
+        // Gains on one state do not make up for losses on another.
+        let swapped = states(&[0.0, 1.0, 1.0, 1.0]);
+        let s =
+            robustness_scores(&control, &[(0, &swapped[..])], 1, &Bootstrap::default()).unwrap();
+        assert!((s.retained[0].unwrap() - 2.0 / 3.0).abs() < 1e-12);
+        let better = states(&[1.0, 1.0, 1.0, 1.0]);
+        let s = robustness_scores(&control, &[(0, &better[..])], 1, &Bootstrap::default()).unwrap();
+        assert_eq!(s.retained[0], Some(1.0), "bounded by 1");
+        assert!(s.axes[0].unwrap().ci_high <= 1.0);
         let none = states(&[0.0; 4]);
         let s = robustness_scores(&none, &levels, 2, &Bootstrap::default()).unwrap();
         assert_eq!((s.retained[0], s.axes[0], s.overall), (None, None, None));

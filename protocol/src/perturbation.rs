@@ -87,6 +87,11 @@ pub struct LevelSetting {
     /// latency: env steps between the policy's action and its application.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub steps: Option<usize>,
+    /// latency: a further fraction `f` of a step (0 < f < 1, suites v2 on):
+    /// the environment receives `(1 − f)·a(t − steps) + f·a(t − steps − 1)`,
+    /// the zero-order hold of a command that arrives `f` of a step later.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub fraction: Option<f64>,
     /// dynamics: factor on the boxes' mass (and inertia).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub mass: Option<f64>,

@@ -23,13 +23,15 @@ pub struct LevelResult {
     /// machinery): success-rate drop and conditional-entropy change with
     /// intervals and p-values.
     pub paired: Comparison,
-    /// Success rate of this level over that of level 0 (None when level 0
-    /// has no success).
+    /// Success retained, in [0, 1]: the share of level 0's successes this
+    /// level keeps, paired by initial state, `Σ_s min(p0(s), pL(s)) / Σ_s
+    /// p0(s)` (`d3il_metrics::robustness`; gains elsewhere are in `paired`).
+    /// None when level 0 has no success.
     pub retained: Option<f64>,
 }
 
-/// The robustness score of one axis: success retained (a level's success
-/// rate over level 0's), averaged over the axis's levels, with a paired
+/// The robustness score of one axis: success retained (see
+/// [`LevelResult::retained`]), averaged over the axis's levels, with a paired
 /// bootstrap interval over initial states.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct AxisScore {
@@ -68,4 +70,26 @@ impl RobustnessResult {
             .find(|l| l.axis == axis && l.level == level)
             .map(|l| &l.result)
     }
+}
+
+/// Format tag of [`RobustnessPart`].
+pub const ROBUSTNESS_PART_FORMAT: &str = "d3il-robustness-part-v1";
+
+/// What `d3il eval --suite robustness --shard K/N --json FILE` writes: the
+/// shard's part of level 0 and of every level (the same block of initial
+/// states at every level). `d3il merge` joins the parts of all shards into
+/// the [`RobustnessResult`] of the unsharded run, bit for bit.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct RobustnessPart {
+    /// [`ROBUSTNESS_PART_FORMAT`].
+    pub format: String,
+    pub task: TaskId,
+    pub suite: String,
+    pub suite_sha256: String,
+    pub shard: crate::shard::Shard,
+    /// Level 0's part.
+    pub control: crate::shard::EvalPart,
+    /// Every perturbed level's part, in the suite's order (each manifest
+    /// records its perturbation).
+    pub levels: Vec<crate::shard::EvalPart>,
 }

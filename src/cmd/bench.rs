@@ -14,7 +14,7 @@ use std::time::Instant;
 
 #[derive(clap::Args)]
 pub struct Args {
-    /// Which benchmark: `physics`, `eval`, `render`, `agents`, `serve`, `scale`, `video`, `scripts`, `chaos`, `sequential` or `served-agent`.
+    /// Which benchmark: `physics`, `eval`, `render`, `agents`, `serve`, `scale`, `video`, `scripts`, `chaos`, `sequential`, `served-agent` or `robustness`.
     pub which: String,
     /// A short run that only shows the bench still works (seconds, not
     /// minutes; its numbers mean little). `tests/bench_smoke.rs` runs every
@@ -76,6 +76,10 @@ pub fn run(mut args: Args) -> anyhow::Result<()> {
         "chaos" => super::bench_chaos::run(args.smoke),
         "sequential" => super::bench_sequential::run(args.smoke),
         "served-agent" => super::bench_served_agent::run(args.smoke, args.max_live),
+        "robustness" => super::bench_robustness::run(
+            args.protocol,
+            args.smoke.then_some(SMOKE_EVAL_STEPS),
+        ),
         other => {
             bail!(
                 "unknown benchmark `{other}`; available: {}",
@@ -86,7 +90,7 @@ pub fn run(mut args: Args) -> anyhow::Result<()> {
 }
 
 /// Every bench `d3il bench` runs.
-pub const BENCHES: [&str; 11] = [
+pub const BENCHES: [&str; 12] = [
     "physics",
     "eval",
     "render",
@@ -98,6 +102,7 @@ pub const BENCHES: [&str; 11] = [
     "chaos",
     "sequential",
     "served-agent",
+    "robustness",
 ];
 
 /// Runs a policy one row at a time: the "unbatched" evaluation, with a model

@@ -1,6 +1,7 @@
 pub mod bench;
 pub mod bench_chaos;
 pub mod bench_procs;
+pub mod bench_robustness;
 pub mod bench_scale;
 pub mod bench_scripts;
 pub mod bench_sequential;

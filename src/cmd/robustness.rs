@@ -13,9 +13,6 @@ use d3il_protocol::robustness::RobustnessResult;
 use d3il_protocol::Estimate;
 
 pub fn run(args: &Args, suite_name: &str) -> anyhow::Result<()> {
-    if args.shard.is_some() {
-        bail!("--suite robustness runs whole evaluations; sharding a robustness run is not built yet (run it on one machine)");
-    }
     if args.sandbox {
         bail!("--suite robustness runs in process; the sandboxed worker does not take perturbations yet");
     }
@@ -46,6 +43,32 @@ pub fn run(args: &Args, suite_name: &str) -> anyhow::Result<()> {
     let mut printer = Printer {
         progress: Box::new(super::eval::progress_printer()),
     };
+    if let Some(shard) = args.shard {
+        // build_job checked the shard against the protocol and that --json is given.
+        let path = args.json.as_ref().context("--shard needs --json FILE")?;
+        let part = d3il_evaluator::suite_shard::evaluate_suite_shard(
+            &task,
+            policy.as_mut(),
+            &info,
+            &opts,
+            &suite,
+            &plan,
+            shard,
+            &mut printer,
+        )?;
+        std::fs::write(path, serde_json::to_vec_pretty(&part)?)
+            .with_context(|| format!("writing {}", path.display()))?;
+        let [from, to] = part.control.contexts;
+        println!(
+            "task {} shard {shard}: initial states {from}..{to} of {} at level 0 and {} levels (merge all {} parts with `d3il merge`)",
+            args.task,
+            plan.n_contexts,
+            plan.levels.len(),
+            shard.count
+        );
+        eprintln!("wrote {}", path.display());
+        return Ok(());
+    }
     let doc = robustness::evaluate_suite(
         &task,
         policy.as_mut(),
@@ -145,7 +168,7 @@ pub fn render(doc: &RobustnessResult) -> String {
     }
     s += &format!("\noverall robustness score: {}\n", interval(&doc.overall));
     s += &format!(
-        "drop: level 0 − level, paired by initial state (`d3il compare`: bootstrap interval, randomisation-test p, {} resamples); H: behaviour entropy; H|s0: conditional behaviour entropy; retained: success rate over level 0's; score: retained averaged over the axis's levels (overall: over the axes), {:.0} % paired bootstrap interval\n",
+        "drop: level 0 − level, paired by initial state (`d3il compare`: bootstrap interval, randomisation-test p, {} resamples); H: behaviour entropy; H|s0: conditional behaviour entropy; retained: share of level 0's successes kept, paired by initial state (Σ min(p0, p) / Σ p0, at most 1); score: retained averaged over the axis's levels (overall: over the axes), {:.0} % paired bootstrap interval\n",
         doc.resamples,
         doc.confidence * 100.0
     );
