@@ -123,6 +123,15 @@ impl Client {
         Ok((status, r.text()?))
     }
 
+    /// Cancels a queued or running evaluation (`POST
+    /// /api/v1/submissions/{id}/cancel`): what ran is kept, marked partial.
+    pub fn cancel(&self, id: i64) -> Result<Value, ClientError> {
+        let rb = self
+            .http
+            .post(format!("{}/api/v1/submissions/{id}/cancel", self.base));
+        Self::decode(self.auth(rb).send()?)
+    }
+
     pub fn submission(&self, id: i64) -> Result<Value, ClientError> {
         self.get(&format!("/api/v1/submissions/{id}"))
     }

@@ -226,6 +226,11 @@ def progress_line(sub: Submission) -> str:
         line = sub.status
     if sub.eta_seconds is not None and not sub.done:
         line += f", about {_format_seconds(sub.eta_seconds)} left"
+    live = p.live
+    if live is not None and live.success_rate is not None:
+        line += (
+            f", success so far {live.success_rate:.3f} [{live.cs_low:.3f}, {live.cs_high:.3f}] (valid at every look)"
+        )
     return line
 
 
@@ -475,6 +480,16 @@ class Client:
     def submission(self, submission: SubmissionRef) -> Submission:
         """A submission and how its evaluation stands."""
         return from_json(Submission, self._get_json(f"/api/v1/submissions/{_id(submission)}"))
+
+    def cancel(self, submission: SubmissionRef) -> Submission:
+        """Cancel a queued or running evaluation (its submitter or an admin may).
+
+        What ran is kept as a partial result (``progress.live``, ``partial``
+        true), never ranked; the submission is then ``failed`` with error kind
+        ``cancelled``.
+        """
+        resp = self._send("POST", f"/api/v1/submissions/{_id(submission)}/cancel", auth=True)
+        return from_json(Submission, _json(resp))
 
     def submissions(
         self,

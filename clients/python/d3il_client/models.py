@@ -85,12 +85,49 @@ def _frame(rows: List[Dict[str, Any]], columns: List[str]) -> pd.DataFrame:
 
 
 @dataclasses.dataclass(frozen=True)
+class LiveEstimate:
+    """The success rate so far and its confidence sequence (issue 41).
+
+    ``cs_low``..``cs_high`` covers the true success rate at every look,
+    however often and whenever one looks, with probability at least
+    ``1 - alpha`` (``valid_at_every_look``); one value per finished initial
+    state. ``partial``: the evaluation was cancelled, this is all it has.
+    """
+
+    SCHEMA: ClassVar[str] = "LiveEstimate"
+    states: int
+    rollouts: int
+    successes: int
+    cs_low: float
+    cs_high: float
+    alpha: float
+    valid_at_every_look: bool
+    partial: bool
+    success_rate: Optional[float] = None
+    raw: Dict[str, Any] = _raw()
+
+
+@dataclasses.dataclass(frozen=True)
 class Progress:
-    """Rollouts done of the total (the total is 0 until the worker has said it)."""
+    """Rollouts done of the total (the total is 0 until the worker has said it).
+
+    ``live``: the success rate so far with its confidence sequence.
+    """
 
     SCHEMA: ClassVar[str] = "ProgressView"
     rollouts_done: int
     rollouts_total: int
+    live: Optional[LiveEstimate] = None
+    raw: Dict[str, Any] = _raw()
+
+
+@dataclasses.dataclass(frozen=True)
+class Cancelled:
+    """Who cancelled an evaluation (a token name), and when (Unix seconds)."""
+
+    SCHEMA: ClassVar[str] = "CancelledView"
+    at: int
+    by: str
     raw: Dict[str, Any] = _raw()
 
 
@@ -298,6 +335,8 @@ class Submission:
     eta_seconds: Optional[int] = None
     #: The results once completed.
     result: Optional[Results] = None
+    #: Set when the evaluation was cancelled (``progress.live`` holds what ran).
+    cancelled: Optional[Cancelled] = None
     raw: Dict[str, Any] = _raw()
 
     @property
