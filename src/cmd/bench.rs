@@ -76,10 +76,9 @@ pub fn run(mut args: Args) -> anyhow::Result<()> {
         "chaos" => super::bench_chaos::run(args.smoke),
         "sequential" => super::bench_sequential::run(args.smoke),
         "served-agent" => super::bench_served_agent::run(args.smoke, args.max_live),
-        "robustness" => super::bench_robustness::run(
-            args.protocol,
-            args.smoke.then_some(SMOKE_EVAL_STEPS),
-        ),
+        "robustness" => {
+            super::bench_robustness::run(args.protocol, args.smoke.then_some(SMOKE_EVAL_STEPS))
+        }
         other => {
             bail!(
                 "unknown benchmark `{other}`; available: {}",
