@@ -35,10 +35,8 @@ fn chromium_renders_the_robustness_view() {
     } else {
         (sections[0], sections[1])
     };
-    assert!(
-        current.contains("pushing-v1.json"),
-        "the suite file is named"
-    );
+    let suite = d3il_evaluator::perturb::Suite::for_task(d3il_protocol::TaskId::Pushing).unwrap();
+    assert!(current.contains(&suite.name), "the suite file is named");
     assert!(other.contains("Older-Suite") && !other.contains(">Diverse<"));
     assert!(!current.contains("Older-Suite"));
 

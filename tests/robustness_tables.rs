@@ -82,13 +82,15 @@ fn the_robustness_table_ranks_within_a_suite_version_in_every_format() {
     assert_eq!(header[0], "task");
     let col = |name: &str| header.iter().position(|h| *h == name).unwrap();
     let rows: Vec<Vec<&str>> = lines.map(|l| l.split(',').collect()).collect();
-    // Per submission: level 0, the suite's 14 levels, 4 axis scores, overall.
+    // Per submission: level 0, the suite's levels, the axis scores, overall.
+    let suite = d3il_evaluator::perturb::Suite::for_task(d3il_protocol::TaskId::Pushing).unwrap();
+    let (n_levels, n_axes) = (suite.perturbations().len(), suite.file.axes.len());
     for id in &ids {
         let n = rows
             .iter()
             .filter(|r| r[col("submission_id")] == id.to_string())
             .count();
-        assert_eq!(n, 1 + 14 + 4 + 1, "rows of submission {id}");
+        assert_eq!(n, 1 + n_levels + n_axes + 1, "rows of submission {id}");
     }
     let narrow_dynamics_4: Vec<&Vec<&str>> = rows
         .iter()
