@@ -191,6 +191,16 @@ fn containerfile_builds_the_manifests_image_which_evaluates_and_serves() {
             &ctx.join("reference").join(d),
         );
     }
+    let image_id = || {
+        let out = podman()
+            .args(["image", "inspect", "--format", "{{.Id}}", &image])
+            .output()
+            .unwrap();
+        out.status
+            .success()
+            .then(|| String::from_utf8_lossy(&out.stdout).trim().to_string())
+    };
+    let before = image_id();
     let t = Instant::now();
     run(
         podman()
@@ -202,6 +212,11 @@ fn containerfile_builds_the_manifests_image_which_evaluates_and_serves() {
         "podman build",
     );
     eprintln!("podman build: {:.0} s", t.elapsed().as_secs_f64());
+    // The previous build's image (untagged now) goes; its base and apt
+    // layers stay, shared with this one.
+    if let Some(old) = before.filter(|old| Some(old) != image_id().as_ref()) {
+        let _ = podman().args(["rmi", &old]).output();
+    }
 
     let inspect = run(
         podman().args([
