@@ -65,12 +65,10 @@ fn assert_clipped_to_frame(doc: &Document, class: &str) {
     assert!(!gs.is_empty(), "no {class}");
     for g in gs {
         let b = clip_box(doc, &g);
-        for k in 0..4 {
-            assert!(
-                (b[k] - frame[k]).abs() < 0.01,
-                "{class}: {b:?} vs {frame:?}"
-            );
-        }
+        assert!(
+            b.iter().zip(&frame).all(|(x, y)| (x - y).abs() < 0.01),
+            "{class}: {b:?} vs {frame:?}"
+        );
     }
 }
 
