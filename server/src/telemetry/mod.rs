@@ -60,6 +60,46 @@ pub struct PoolMetrics {
     pub slots_alive: Gauge,
 }
 
+impl PoolMetrics {
+    /// Zero series for every task and protocol and every failure reason, so
+    /// that each family is in `/metrics` (and `rate()` starts from 0) before
+    /// its first event.
+    fn precreate(&self) {
+        use d3il_protocol::{ErrorKind as E, ProtocolKind, TaskId};
+        for task in TaskId::ALL {
+            for protocol in [ProtocolKind::Paper, ProtocolKind::Quick] {
+                let kind = labels_of(&[("task", task.slug()), ("protocol", protocol.as_str())]);
+                let _ = self.jobs_started.get_or_create(&kind);
+                let _ = self.jobs_finished.get_or_create(&kind);
+                let _ = self.evaluation_seconds.get_or_create(&kind);
+            }
+        }
+        for kind in [
+            E::BadJob,
+            E::BadModel,
+            E::BadAction,
+            E::Remote,
+            E::BadEndpoint,
+            E::MemoryLimit,
+            E::CpuLimit,
+            E::WallClock,
+            E::Crashed,
+            E::ProtocolViolation,
+            E::Internal,
+        ] {
+            if let Some(reason) = serde_json::to_value(kind)
+                .ok()
+                .and_then(|v| v.as_str().map(str::to_string))
+            {
+                let _ = self.jobs_failed.get_or_create(&labels_of(&[
+                    ("reason", reason.as_str()),
+                    ("requeued", "false"),
+                ]));
+            }
+        }
+    }
+}
+
 impl Default for PoolMetrics {
     fn default() -> Self {
         PoolMetrics {
@@ -123,6 +163,7 @@ impl Telemetry {
             database_up: Gauge::default(),
             ready: Gauge::default(),
         };
+        t.pool.precreate();
         let r = &mut t.registry;
         let p = &t.pool;
         r.register(
