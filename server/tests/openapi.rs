@@ -18,6 +18,12 @@ fn the_document_names_every_route_and_its_schemas() {
     assert_eq!(
         paths,
         [
+            "/admin/audit",
+            "/admin/methods/{name}/baseline",
+            "/admin/submissions/{id}/reinstate",
+            "/admin/submissions/{id}/withdraw",
+            "/admin/submitters/{name}/quota",
+            "/admin/tokens/{prefix}/revoke",
             "/build",
             "/compare",
             "/leaderboards",
@@ -26,7 +32,9 @@ fn the_document_names_every_route_and_its_schemas() {
             "/methods",
             "/submissions",
             "/submissions/{id}",
+            "/submissions/{id}/cancel",
             "/submissions/{id}/results",
+            "/submissions/{id}/robustness",
             "/submissions/{id}/rollouts",
             "/submissions/{id}/rollouts/{n}",
             "/submissions/{id}/rollouts/{n}/paths.svg",
