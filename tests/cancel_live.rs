@@ -24,17 +24,17 @@ fn running_evaluation_shows_a_confidence_sequence_and_cancels_to_a_partial_resul
     let admin = create_admin_token(&db, "operator");
     let server = Server::start(&db, &["--workers", "1"]);
     let client = server.client(Some(&token));
-    let manifest = std::fs::read_to_string(fixture("avoiding_noise.json")).unwrap();
+    let manifest = std::fs::read_to_string(fixture("aligning_mlp_noise.json")).unwrap();
     let created = client
         .submit(
             &[
                 ("method", "Noisy-Cancel".to_string()),
-                ("task", "avoiding".to_string()),
+                ("task", "aligning".to_string()),
                 ("training_seed", "0".to_string()),
                 ("protocol", "paper".to_string()),
                 ("manifest", manifest),
             ],
-            Some(&fixture("avoiding_noise.onnx")),
+            Some(&fixture("aligning_mlp_noise.onnx")),
         )
         .expect("submit");
     let id = created["id"].as_i64().unwrap();
@@ -98,7 +98,7 @@ fn running_evaluation_shows_a_confidence_sequence_and_cancels_to_a_partial_resul
         .unwrap();
     assert!(ps.stdout.is_empty(), "a worker still runs: {}", String::from_utf8_lossy(&ps.stdout));
     // Never ranked: the board has no row of it.
-    let board = client.get("/api/v1/leaderboards/avoiding").unwrap();
+    let board = client.get("/api/v1/leaderboards/aligning").unwrap();
     assert!(!board.to_string().contains("Noisy-Cancel"), "{board}");
     let (_, page) = server.get_text(&format!("/submissions/{id}"));
     assert!(page.contains("Partial result (cancelled by owner; never ranked)"), "{page}");

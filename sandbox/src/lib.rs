@@ -28,6 +28,8 @@ pub mod child;
 pub mod confine;
 pub mod endpoint;
 #[allow(unsafe_code)]
+mod group;
+#[allow(unsafe_code)]
 pub mod parent;
 #[allow(unsafe_code)]
 pub mod selftest;
