@@ -42,7 +42,7 @@ fn the_robustness_table_ranks_within_a_suite_version_in_every_format() {
     let (ok, md, err) = tables(&db, "markdown");
     assert!(ok, "{err}");
     // Two groups: the committed suite and the other version, never together.
-    let groups: Vec<&str> = md.split("\n**Pushing: suite ").skip(1).collect();
+    let groups: Vec<&str> = md.split("): suite ").skip(1).collect();
     assert_eq!(groups.len(), 2, "{md}");
     let (current, other) = if groups[0].contains(&OTHER_SHA256[..12]) {
         (groups[1], groups[0])
