@@ -193,6 +193,9 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         a.server.trim_end_matches('/'),
         created["url"].as_str().unwrap_or("")
     );
+    if let Some(q) = created["quota"]["summary"].as_str() {
+        eprintln!("quota: {q}");
+    }
     if !a.wait {
         return Ok(());
     }
