@@ -246,7 +246,7 @@ fn round_trip(dir: &Path, source: StoreArgs, restored: StoreArgs) {
             .unwrap();
         let live_result = &back["results"]
             .values()
-            .find(|r| r["submission_id"].to_string() == *key)
+            .find(|r| r["submission_id"].as_i64() == key.parse::<i64>().ok())
             .unwrap();
         assert_eq!(
             api["result"]["metrics"]["success_rate"]["value"].as_f64(),

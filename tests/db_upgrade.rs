@@ -189,7 +189,7 @@ fn upgrade_from_every_level(pg: bool, dir: &Path) {
             let api = server.client(None).submission(id.parse().unwrap()).unwrap();
             let result = after["results"]
                 .values()
-                .find(|r| r["submission_id"].to_string() == *id)
+                .find(|r| r["submission_id"].as_i64() == id.parse::<i64>().ok())
                 .unwrap();
             assert_eq!(
                 api["result"]["metrics"]["success_rate"]["value"].as_f64(),
