@@ -63,7 +63,11 @@ fn the_robustness_table_ranks_within_a_suite_version_in_every_format() {
         .expect("Narrow ranked 2");
     assert!(diverse < narrow);
     for axis in ["start_shift", "obs_noise", "latency", "dynamics", "Overall"] {
-        assert!(current.contains(axis), "{axis} column: {md}");
+        // Markdown escapes the underscores.
+        assert!(
+            current.contains(&axis.replace('_', "\\_")),
+            "{axis} column: {md}"
+        );
     }
     assert!(
         md.contains("paired bootstrap"),
