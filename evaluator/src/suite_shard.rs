@@ -29,7 +29,7 @@ pub enum SuiteMergeError {
     Level {
         level: String,
         #[source]
-        source: MergeError,
+        source: Box<MergeError>,
     },
     #[error(transparent)]
     Eval(#[from] EvalError),
@@ -81,7 +81,7 @@ pub fn merge_suite(
     let Some((first_file, first)) = parts.first() else {
         return Err(SuiteMergeError::Level {
             level: "level 0".into(),
-            source: MergeError::NoParts,
+            source: Box::new(MergeError::NoParts),
         });
     };
     let (first_file, task, suite_name, sha) = (
@@ -150,14 +150,14 @@ pub fn merge_suite(
     }
     let control = merge(controls).map_err(|source| SuiteMergeError::Level {
         level: "level 0".into(),
-        source,
+        source: Box::new(source),
     })?;
     let mut results: Vec<(Perturbation, d3il_protocol::EvalResult)> = vec![];
     for (p, level) in expected.into_iter().zip(levels) {
         let name = format!("level {}/{}", p.axis, p.level);
         let r = merge(level).map_err(|source| SuiteMergeError::Level {
             level: name.clone(),
-            source,
+            source: Box::new(source),
         })?;
         if r.manifest.perturbation.as_ref() != Some(&p) {
             return Err(SuiteMergeError::Inconsistent {
