@@ -66,7 +66,10 @@ fn main() -> anyhow::Result<()> {
     let cli = Cli::parse();
     match cli.command {
         Command::Bench(a) => cmd::bench::run(a),
-        Command::Compare(a) => cmd::compare::run(a),
+        Command::Compare(a) => match a.task {
+            Some(task) => cmd::race::run(&a, task),
+            None => cmd::compare::run(a),
+        },
         Command::Contexts(a) => cmd::contexts::run(a),
         Command::Db(a) => cmd::db::run(a),
         Command::Infer(a) => cmd::infer::run(a),

@@ -43,16 +43,22 @@ fn running_evaluation_shows_a_confidence_sequence_and_cancels_to_a_partial_resul
     // Live: a confidence sequence once some initial states have finished.
     let live = wait_for(Duration::from_secs(600), || {
         let v = client.submission(id).unwrap();
-        assert_ne!(v["status"], "completed", "finished before it could be looked at: {v}");
+        assert_ne!(
+            v["status"], "completed",
+            "finished before it could be looked at: {v}"
+        );
         let l = &v["progress"]["live"];
-        (l["states"].as_u64().unwrap_or(0) >= 2).then(|| v)
+        (l["states"].as_u64().unwrap_or(0) >= 2).then_some(v)
     })
     .expect("no live estimate within 600 s");
     let l = &live["progress"]["live"];
     assert_eq!(l["valid_at_every_look"], true);
     assert_eq!(l["partial"], false);
     assert_eq!(l["alpha"], 0.05);
-    let (lo, hi) = (l["cs_low"].as_f64().unwrap(), l["cs_high"].as_f64().unwrap());
+    let (lo, hi) = (
+        l["cs_low"].as_f64().unwrap(),
+        l["cs_high"].as_f64().unwrap(),
+    );
     let rate = l["success_rate"].as_f64().unwrap();
     assert!(0.0 <= lo && lo <= rate && rate <= hi && hi <= 1.0, "{l}");
     assert!(hi - lo < 1.0, "a real interval after some states: {l}");
@@ -61,19 +67,33 @@ fn running_evaluation_shows_a_confidence_sequence_and_cancels_to_a_partial_resul
         rate
     );
     // Each state of the paper protocol has its 8 rollouts (stochastic policy).
-    assert_eq!(l["rollouts"].as_u64().unwrap(), 8 * l["states"].as_u64().unwrap(), "{l}");
+    assert_eq!(
+        l["rollouts"].as_u64().unwrap(),
+        8 * l["states"].as_u64().unwrap(),
+        "{l}"
+    );
     // The OpenAPI document describes it.
     let doc = client.get("/api/v1/openapi.json").unwrap();
     assert!(doc["paths"]["/submissions/{id}/cancel"]["post"].is_object());
-    assert!(doc["components"]["schemas"]["LiveEstimate"]["properties"]["valid_at_every_look"].is_object());
+    assert!(
+        doc["components"]["schemas"]["LiveEstimate"]["properties"]["valid_at_every_look"]
+            .is_object()
+    );
     // The page shows it, labelled.
     let (status, page) = server.get_text(&format!("/submissions/{id}"));
     assert_eq!(status, 200);
-    assert!(page.contains("id=\"so-far\"") && page.contains("valid at every look"), "{page}");
+    assert!(
+        page.contains("id=\"so-far\"") && page.contains("valid at every look"),
+        "{page}"
+    );
     assert!(page.contains("id=\"cancel-form\""));
 
     // Someone else's token may not cancel it; its submitter may.
-    let e = server.client(Some(&other)).cancel(id).unwrap_err().to_string();
+    let e = server
+        .client(Some(&other))
+        .cancel(id)
+        .unwrap_err()
+        .to_string();
     assert!(e.contains("403") || e.contains("only its submitter"), "{e}");
     let v = client.cancel(id).expect("cancel");
     assert_eq!(v["status"], "failed", "{v}");
@@ -83,7 +103,11 @@ fn running_evaluation_shows_a_confidence_sequence_and_cancels_to_a_partial_resul
     let kept = v["progress"]["live"]["states"].as_u64().unwrap();
     assert!(kept >= 2, "{v}");
     // A second cancel (here an admin's) is a conflict: it has finished.
-    let e = server.client(Some(&admin)).cancel(id).unwrap_err().to_string();
+    let e = server
+        .client(Some(&admin))
+        .cancel(id)
+        .unwrap_err()
+        .to_string();
     assert!(e.contains("409") || e.contains("already"), "{e}");
 
     // The worker stops: nothing changes any more, no result appears.
@@ -96,12 +120,19 @@ fn running_evaluation_shows_a_confidence_sequence_and_cancels_to_a_partial_resul
         .args(["-f", "d3il worker", "-P", &server.child.id().to_string()])
         .output()
         .unwrap();
-    assert!(ps.stdout.is_empty(), "a worker still runs: {}", String::from_utf8_lossy(&ps.stdout));
+    assert!(
+        ps.stdout.is_empty(),
+        "a worker still runs: {}",
+        String::from_utf8_lossy(&ps.stdout)
+    );
     // Never ranked: the board has no row of it.
     let board = client.get("/api/v1/leaderboards/aligning").unwrap();
     assert!(!board.to_string().contains("Noisy-Cancel"), "{board}");
     let (_, page) = server.get_text(&format!("/submissions/{id}"));
-    assert!(page.contains("Partial result (cancelled by owner; never ranked)"), "{page}");
+    assert!(
+        page.contains("Partial result (cancelled by owner; never ranked)"),
+        "{page}"
+    );
     assert!(!page.contains("id=\"cancel-form\""));
 
     // A restart leaves the same state (nothing is requeued).

@@ -13,11 +13,11 @@ use crate::shard::{EvalPart, Shard};
 use crate::tasks::{Env, LoadedTask, TaskError};
 use d3il_policy::{HistoryBuffer, Policy, PolicyError};
 use d3il_protocol::rollout::TraceBuilder;
+use d3il_protocol::Progress;
 use d3il_protocol::{
     ErrorKind, EvalResult, FailureReason, ObsType, ProtocolKind, ProtocolManifest, RolloutFailure,
     RolloutRecord,
 };
-use d3il_protocol::Progress;
 use lockstep::{Lockstep, Plan};
 use serde_json::Value;
 use std::collections::VecDeque;

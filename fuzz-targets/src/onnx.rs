@@ -55,6 +55,7 @@ pub fn confine_like_worker() -> Result<Vec<SandboxMechanism>, String> {
         assets_dir: concat!(env!("CARGO_MANIFEST_DIR"), "/../assets").into(),
         dry_run_steps: None,
         shard: None,
+        suite: None,
         build: None,
     };
     d3il_sandbox::confine(&job, None).map_err(|e| e.to_string())

@@ -22,8 +22,8 @@ use std::sync::mpsc::{self, RecvTimeoutError};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
-use crate::group::{has_exited, kill_group, reap, wait_exited, wait_group_gone, ReapGuard, Status};
 pub use crate::group::live_group_members;
+use crate::group::{has_exited, kill_group, reap, wait_exited, wait_group_gone, ReapGuard, Status};
 
 /// Default cap on what a worker may print on stdout (all lines together). A
 /// paper-protocol result with per-rollout records is a few MiB.

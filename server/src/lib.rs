@@ -26,6 +26,7 @@ pub mod backup;
 pub mod board_figures;
 pub mod cache;
 pub mod canary;
+pub mod cancel;
 pub mod cli;
 pub mod client;
 pub mod comparison;

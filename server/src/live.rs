@@ -108,7 +108,9 @@ impl Reported {
         }
         match store.record_outcomes(job_id, owner, &self.outcomes).await {
             Ok(_) => self.unwritten = false,
-            Err(e) => tracing::warn!("job {job_id}: outcomes not written ({e}); retried with the next heartbeat"),
+            Err(e) => tracing::warn!(
+                "job {job_id}: outcomes not written ({e}); retried with the next heartbeat"
+            ),
         }
     }
 }
@@ -143,7 +145,10 @@ mod tests {
         assert_eq!(e.success_rate, Some(20.0 / 32.0));
         assert!(e.cs_low <= 0.625 && 0.625 <= e.cs_high, "{e:?}");
         let none = estimate(&[], true);
-        assert_eq!((none.cs_low, none.cs_high, none.success_rate), (0.0, 1.0, None));
+        assert_eq!(
+            (none.cs_low, none.cs_high, none.success_rate),
+            (0.0, 1.0, None)
+        );
         assert!(none.partial && none.valid_at_every_look);
     }
 }

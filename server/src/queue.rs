@@ -474,7 +474,10 @@ async fn stop_if_cancelled(
         return;
     }
     if let Ok(Some(c)) = store.cancelled(submission_id).await {
-        tracing::info!("submission {submission_id}: cancelled by {}; stopping its worker", c.by);
+        tracing::info!(
+            "submission {submission_id}: cancelled by {}; stopping its worker",
+            c.by
+        );
         cancel.store(true, std::sync::atomic::Ordering::Relaxed);
     }
 }

@@ -3,8 +3,8 @@
 //! server, wall clock, output cap, rlimits/namespaces/landlock/seccomp inside).
 
 use crate::queue::{JobRunner, RunReport, WorkerProcess};
-use d3il_protocol::{Evaluated, Job, Limits, SandboxMechanism};
 use d3il_protocol::Progress;
+use d3il_protocol::{Evaluated, Job, Limits, SandboxMechanism};
 use d3il_sandbox::{run_worker_reporting, Outcome, WorkerCommand};
 use std::sync::atomic::AtomicBool;
 use std::sync::Arc;

@@ -61,10 +61,9 @@ fn load(path: &Path) -> anyhow::Result<EvalResult> {
     })
 }
 
+/// Compares two result files (main.rs sends `--task T A B`, a race of two
+/// policies, to `cmd::race`).
 pub fn run(args: Args) -> anyhow::Result<()> {
-    if let Some(task) = args.task {
-        return super::race::run(&args, task);
-    }
     let a = load(&args.a)?;
     let b = load(&args.b)?;
     if args.sequential {

@@ -14,8 +14,8 @@ use d3il_protocol::{
 };
 use std::str::FromStr;
 use std::sync::Arc;
-pub use suite::{check_suite_available, SUITE};
 use suite::suite_field;
+pub use suite::{check_suite_available, SUITE};
 pub use upload::{
     disk_quota_error, read_multipart, Caller, Quota, RawSubmission, UploadedFile, TEXT_FIELDS,
 };

@@ -162,7 +162,14 @@ impl Cluster {
             .args(["--no-verify", "--fidelity", "off"])
             .args(["--rate-limit", "100000", "--anonymous-rate-limit", "100000"])
             // One token submits the whole load: no submission quota.
-            .args(["--quota-per-day", "0", "--quota-total", "0", "--quota-concurrent", "0"])
+            .args([
+                "--quota-per-day",
+                "0",
+                "--quota-total",
+                "0",
+                "--quota-concurrent",
+                "0",
+            ])
             .args(LIMITS)
             .stderr(log(&self.dir, name)?);
         if !Self::dry_runs(i) {

@@ -2,38 +2,13 @@
 //! running evaluation, keeping what ran as a partial result.
 
 use crate::auth::Authed;
+use crate::cancel::cancel_as;
 use crate::error::{AppError, ErrorBody};
 use crate::http::extract::Param;
 use crate::state::AppState;
-use crate::store::{CancelOutcome, Submitter};
 use crate::views::{submission_view, SubmissionView};
 use axum::extract::State;
 use axum::Json;
-
-/// Cancels submission `id` as `who`: its submitter or an admin may. The one
-/// rule for the API and the submission page's button.
-pub async fn cancel_as(state: &AppState, id: i64, who: &Submitter) -> Result<(), AppError> {
-    let s = state.store.submission(id).await?;
-    if !who.is_admin && s.submitter.as_deref() != Some(who.name.as_str()) {
-        return Err(AppError::Forbidden(format!(
-            "submission {id} belongs to {}; only its submitter or an admin may cancel it",
-            s.submitter.as_deref().unwrap_or("nobody")
-        )));
-    }
-    match state.store.cancel_submission(id, &who.name).await? {
-        CancelOutcome::Cancelled => {
-            tracing::info!("submission {id} cancelled by {}", who.name);
-            Ok(())
-        }
-        CancelOutcome::AlreadyFinished => Err(AppError::Conflict {
-            field: None,
-            message: format!(
-                "submission {id} is {} already; only a queued or running evaluation can be cancelled",
-                s.status.as_str()
-            ),
-        }),
-    }
-}
 
 #[utoipa::path(post, path = "/submissions/{id}/cancel", tag = "submissions",
     summary = "Cancel a queued or running evaluation (what ran is kept, marked partial, never ranked)",

@@ -2,8 +2,8 @@
 //! OpenAPI document at `/api/v1/openapi.json`, generated from the handlers'
 //! annotations and the view structs in [`openapi`]).
 
-pub mod cancel;
 pub mod admin;
+pub mod cancel;
 pub mod compare;
 pub mod openapi;
 pub mod robustness;
@@ -46,7 +46,10 @@ pub fn router(max_upload: usize) -> Router<AppState> {
         .route("/submissions/{id}", get(get_submission))
         .route("/submissions/{id}/cancel", post(cancel::cancel_submission))
         .route("/submissions/{id}/results", get(get_results))
-        .route("/submissions/{id}/robustness", get(robustness::get_robustness))
+        .route(
+            "/submissions/{id}/robustness",
+            get(robustness::get_robustness),
+        )
         .route("/submissions/{id}/rollouts", get(rollouts::list_rollouts))
         .route("/submissions/{id}/rollouts/{n}", get(rollouts::get_rollout))
         .route(

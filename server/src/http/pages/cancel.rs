@@ -3,8 +3,8 @@
 //! back to the page, which shows the partial result.
 
 use crate::auth::authenticate_token;
+use crate::cancel::cancel_as;
 use crate::error::PageError;
-use crate::http::api::cancel::cancel_as;
 use crate::http::extract::Param;
 use crate::state::AppState;
 use axum::extract::State;
