@@ -127,6 +127,10 @@ def _submit(client: Client, a: argparse.Namespace) -> int:
         progress=sys.stderr.isatty(),
     )
     print(f"submission {sub.id} accepted: {client.server}{sub.url}", flush=True)
+    quota = sub.raw.get("quota")
+    if isinstance(quota, dict) and isinstance(quota.get("summary"), str):
+        # as `d3il submit`: what is left of the quota, after the accepted line
+        print(f"quota: {quota['summary']}", file=sys.stderr, flush=True)
     if not a.wait:
         return 0
     last = [""]

@@ -357,6 +357,21 @@ class Client:
         """The submitter the token belongs to (checks the token)."""
         return str(_json(self._send("GET", "/api/v1/whoami", auth=True))["submitter"])
 
+    def quota(self) -> Dict[str, Any]:
+        """What is left of the token's submission quota (``GET /api/v1/whoami``'s ``quota``).
+
+        ``exempt`` (admin tokens), ``per_day``, ``total`` and ``concurrent`` (each
+        ``limit``, ``used``, ``remaining``; a None limit is none), ``remaining``
+        (the least), ``next_submission_at`` (unix seconds, when the daily quota is
+        spent) and ``summary`` (one sentence). Every :meth:`submit` answer carries
+        it too, in the returned submission's ``raw["quota"]``; past it, submit
+        raises :class:`~d3il_client.errors.QuotaExceeded`.
+        """
+        quota = _json(self._send("GET", "/api/v1/whoami", auth=True)).get("quota")
+        if not isinstance(quota, dict):
+            raise errors.IncompatibleServer("this server's /api/v1/whoami has no quota (an older server)")
+        return quota
+
     def submit(
         self,
         *,

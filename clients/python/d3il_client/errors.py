@@ -92,6 +92,19 @@ class RateLimited(ServerError):
         self.retry_after = retry_after
 
 
+class QuotaExceeded(RateLimited):
+    """429 ``quota_exceeded``: the submitter's submission quota allows none now.
+
+    The message says when the next submission is possible; ``next_submission_at``
+    is that time (unix seconds) when it is one (the daily quota), else None (the
+    total quota, or evaluations still running: wait for one to finish).
+    """
+
+    def __init__(self, *args: Any, next_submission_at: Optional[int] = None, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self.next_submission_at = next_submission_at
+
+
 class EvaluationFailed(D3ILError):
     """The submission was accepted but its evaluation failed.
 
@@ -125,14 +138,19 @@ _BY_STATUS = {
 def error_for(status: int, body: Any, url: Optional[str], retry_after: Optional[float]) -> ServerError:
     """The exception for an error answer ``body`` (parsed JSON, or text) with ``status``."""
     code = field = None
+    next_at: Optional[int] = None
     if isinstance(body, dict) and isinstance(body.get("error"), dict):
         detail = body["error"]
+        if isinstance(detail.get("next_submission_at"), int):
+            next_at = detail["next_submission_at"]
         message = str(detail.get("message") or "")
         code = detail.get("code")
         field = detail.get("field")
     else:
         text = body if isinstance(body, str) else ""
         message = text.strip()[:500] or "the server gave no message"
+    if status == 429 and code == "quota_exceeded":
+        return QuotaExceeded(status, message, code, field, url, retry_after=retry_after, next_submission_at=next_at)
     if status == 429:
         return RateLimited(status, message, code, field, url, retry_after=retry_after)
     cls = _BY_STATUS.get(status, ServerError)

@@ -257,3 +257,26 @@ def test_version_specifiers() -> None:
     assert version_matches("1.0.0rc1", ">=1.0")
     with pytest.raises(ValueError):
         version_matches("1.0", "=>1")
+
+
+def test_quota_left_and_a_refusal_that_says_when(tmp_path: Path) -> None:
+    """Issue 42: the quota left is in whoami and in every submit answer (and
+    the CLI prints it as `d3il submit` does); past it, QuotaExceeded carries
+    the time of the next possible submission."""
+    with run_server(tmp_path, "--quota-per-day", "1", "--quota-total", "0", "--quota-concurrent", "0") as server:
+        c = Client(server.base, server.token)
+        before = c.quota()
+        assert before["per_day"]["limit"] == 1 and before["per_day"]["remaining"] == 1, before
+        first = c.submit(
+            onnx=FIXTURES / "avoiding_path.onnx", method="q", task="avoiding", training_seed=0, protocol="quick"
+        )
+        assert first.raw["quota"]["remaining"] == 0, first.raw
+        assert c.quota()["per_day"]["used"] == 1
+        with pytest.raises(errors.QuotaExceeded) as refused:
+            c.submit(
+                onnx=FIXTURES / "avoiding_path.onnx", method="q", task="avoiding", training_seed=1, protocol="quick"
+            )
+        e = refused.value
+        assert e.status == 429 and e.code == "quota_exceeded", e
+        assert e.next_submission_at is not None and e.next_submission_at > first.created_at, e
+        assert isinstance(e, errors.RateLimited)
