@@ -562,6 +562,8 @@ class LeaderboardRow:
     initial_states: Optional[str] = None
     initial_states_label: Optional[str] = None
     robot_look: Optional[str] = None
+    #: The method is marked a baseline by the instance's admins (docs/ops.md, Moderation).
+    baseline: bool = False
     raw: Dict[str, Any] = _raw()
 
 
