@@ -16,8 +16,10 @@ fn fixture(name: &str) -> (String, PolicyManifest) {
 }
 
 fn onnx_job(name: &str, seed: u64) -> Job {
+    race: None,
     let (path, manifest) = fixture(name);
     Job {
+        race: None,
         job_id: "test".into(),
         suite: None,
         task: manifest.task,
@@ -111,7 +113,9 @@ fn malformed_onnx_is_a_bad_model_error() {
 // ---------------------------------------------------------------------------
 
 fn scripted_job(task: TaskId, name: &str) -> Job {
+    race: None,
     Job {
+        race: None,
         job_id: "scripted".into(),
         suite: None,
         task,
@@ -433,6 +437,7 @@ fn a_rollout_is_queried_again_only_after_executing_e_actions() {
 #[test]
 fn a_dry_run_cuts_every_rollout_after_its_step_budget() {
     let job = Job {
+        race: None,
         dry_run_steps: Some(7),
         shard: None,
         build: None,

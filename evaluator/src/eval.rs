@@ -472,6 +472,7 @@ fn run_rollouts(
             rollouts_done: lockstep.done,
             rollouts_total: lockstep.total(),
             states: lockstep.newly_complete(),
+            race: None,
         });
     }
     let (rollouts, behaviour_keys, slots) = lockstep.finish();

@@ -5,11 +5,13 @@ use crate::eval::{
     evaluate_reporting, evaluate_shard_reporting, protocol_size, sha256_hex, EvalError,
     EvalOptions, PolicyInfo,
 };
+use crate::eval::race::{self, Contender, RaceOptions, RaceProgress, RaceReport};
 use crate::scripted::ScriptedPolicy;
 use crate::tasks::{LoadedTask, TaskError};
 use d3il_policy::{OnnxPolicy, Policy, RemotePolicy};
 use d3il_protocol::{
-    ErrorKind, EvalResult, Evaluated, Job, ObsType, PolicySource, Progress, WorkerError,
+    race::RaceJob, ErrorKind, EvalResult, Evaluated, Job, ObsType, PolicySource, Progress,
+    WorkerError,
 };
 
 /// Builds the policy a job names. ONNX bytes are checked against the job's sha256.
@@ -89,6 +91,10 @@ pub fn run_job(
             message: "this job is one shard of an evaluation; its part is not a result".into(),
         }),
         Evaluated::Robustness(doc) => Ok(doc.control),
+        Evaluated::Race(_) => Err(WorkerError {
+            kind: ErrorKind::BadJob,
+            message: "this job is a race of two policies; its report is not a result".into(),
+        }),
     }
 }
 
@@ -144,6 +150,11 @@ pub fn run_job_or_shard(
         build: job.build.clone(),
         ..EvalOptions::default()
     };
+    if let Some(race) = &job.race {
+        return run_race(job, race, &task, policy.as_mut(), &info, &opts, on_progress)
+            .map(|r| Evaluated::Race(Box::new(r)))
+            .map_err(to_worker);
+    }
     if let Some(suite) = suite {
         let plan =
             crate::robustness::plan(&task, policy.as_ref(), &opts, &suite).map_err(to_worker)?;
@@ -170,4 +181,68 @@ pub fn run_job_or_shard(
             .map(|(r, _)| Evaluated::Result(Box::new(r))),
     }
     .map_err(to_worker)
+}
+
+/// A race job ([`Job::race`]): the job's policy is A, the race's B, loaded
+/// the same way ([`load_policy`]) on the same task variant; one progress
+/// report per pair, carrying where the test stands.
+fn run_race(
+    job: &Job,
+    race: &RaceJob,
+    task: &LoadedTask,
+    policy_a: &mut dyn Policy,
+    info_a: &PolicyInfo,
+    opts: &EvalOptions,
+    on_progress: &mut dyn FnMut(&Progress),
+) -> Result<RaceReport, EvalError> {
+    if job.suite.is_some() || job.shard.is_some() {
+        return Err(EvalError::Setup(
+            "a race runs two whole plain evaluations: no suite, no shard".into(),
+        ));
+    }
+    if race.manifest_b.obs_type != job.manifest.obs_type {
+        return Err(EvalError::Setup(format!(
+            "A takes {} observations and B {}: a race runs both on the same task variant",
+            job.manifest.obs_type, race.manifest_b.obs_type
+        )));
+    }
+    let job_b = Job {
+        policy: race.policy_b.clone(),
+        manifest: race.manifest_b.clone(),
+        race: None,
+        ..job.clone()
+    };
+    let (mut policy_b, info_b) = load_policy(&job_b, task)?;
+    let race_opts = RaceOptions {
+        alpha: race.alpha,
+        delta: race.delta,
+    };
+    let opts = EvalOptions {
+        max_live: race.max_live.max(1),
+        ..opts.clone()
+    };
+    let per_state = |p: &RaceProgress| p.a.successes.len() + p.b.successes.len();
+    let mut total = 0;
+    race::race(
+        task,
+        Contender {
+            policy: policy_a,
+            info: info_a,
+        },
+        Contender {
+            policy: policy_b.as_mut(),
+            info: &info_b,
+        },
+        &opts,
+        &race_opts,
+        &mut |p| {
+            total = total.max(p.states_total * per_state(p));
+            on_progress(&Progress {
+                rollouts_done: p.states * per_state(p),
+                rollouts_total: total,
+                states: Vec::new(),
+                race: Some(Box::new(p.clone())),
+            })
+        },
+    )
 }

@@ -42,6 +42,7 @@ pub fn confine_like_worker() -> Result<Vec<SandboxMechanism>, String> {
     let manifest: PolicyManifest =
         serde_json::from_str(MANIFESTS[0]).map_err(|e| format!("fixture manifest: {e}"))?;
     let job = Job {
+        race: None,
         job_id: "fuzz".into(),
         task: manifest.task,
         protocol: ProtocolKind::Quick,

@@ -297,6 +297,10 @@ pub struct Job {
     /// checks that the suite exists, then runs as without it.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub suite: Option<String>,
+    /// A sequential race (issue 41): this job's policy is A, the race's is
+    /// B; answered with a [`crate::race::RaceReport`].
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub race: Option<crate::race::RaceJob>,
 }
 
 /// What a worker's evaluation produced: a whole result, or the part of one
@@ -307,6 +311,8 @@ pub enum Evaluated {
     Part(Box<crate::shard::EvalPart>),
     /// A job with [`Job::suite`]: level 0 and every perturbed level.
     Robustness(Box<crate::robustness::RobustnessResult>),
+    /// A job with [`Job::race`]: the race's report.
+    Race(Box<crate::race::RaceReport>),
 }
 
 impl From<EvalResult> for Evaluated {
@@ -364,6 +370,8 @@ pub enum WorkerMessage {
     Part(Box<crate::shard::EvalPart>),
     /// The robustness document of a job with [`Job::suite`].
     Robustness(Box<crate::robustness::RobustnessResult>),
+    /// The report of a job with [`Job::race`].
+    Race(Box<crate::race::RaceReport>),
     Error(WorkerError),
 }
 

@@ -10,6 +10,7 @@ pub mod job;
 pub mod paper;
 pub mod perturbation;
 pub mod progress;
+pub mod race;
 pub mod results;
 pub mod robustness;
 pub mod rollout;

@@ -19,6 +19,10 @@ pub struct Progress {
     /// prefix of the order. Empty when nothing new is complete.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub states: Vec<StateOutcome>,
+    /// A race job's progress (issue 41): where the paired test stands after
+    /// the latest pair; one report per pair.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub race: Option<Box<crate::race::RaceProgress>>,
 }
 
 /// The outcomes of one initial state's rollouts.
@@ -54,6 +58,7 @@ impl Progress {
             rollouts_done,
             rollouts_total,
             states: Vec::new(),
+            race: None,
         }
     }
 }

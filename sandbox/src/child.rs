@@ -90,11 +90,15 @@ where
             return exit_code::BAD_JOB;
         }
     };
-    let policy_file = match &job.policy {
-        PolicySource::Onnx { path, .. } => Some(Path::new(path.as_str())),
-        _ => None,
-    };
-    let mechanisms = match confine::confine(&job, policy_file) {
+    // A race job's second policy is read too (issue 41).
+    let policy_files: Vec<&Path> = std::iter::once(&job.policy)
+        .chain(job.race.as_ref().map(|r| &r.policy_b))
+        .filter_map(|p| match p {
+            PolicySource::Onnx { path, .. } => Some(Path::new(path.as_str())),
+            _ => None,
+        })
+        .collect();
+    let mechanisms = match confine::confine(&job, &policy_files) {
         Ok(m) => m,
         Err(e) => {
             eprintln!("d3il worker: sandbox setup failed: {e}");
@@ -126,10 +130,12 @@ where
         out.error(ErrorKind::Internal, missing);
         return exit_code::SANDBOX_FAILED;
     }
-    if let PolicySource::Remote { url } = &job.policy {
-        if let Err(e) = validate_endpoint(url, job.limits.allow_private_endpoints) {
-            out.send(&WorkerMessage::Error(e.into()));
-            return exit_code::JOB_FAILED;
+    for policy in std::iter::once(&job.policy).chain(job.race.as_ref().map(|r| &r.policy_b)) {
+        if let PolicySource::Remote { url } = policy {
+            if let Err(e) = validate_endpoint(url, job.limits.allow_private_endpoints) {
+                out.send(&WorkerMessage::Error(e.into()));
+                return exit_code::JOB_FAILED;
+            }
         }
     }
     let result = {
@@ -147,6 +153,10 @@ where
         }
         Ok(Evaluated::Robustness(doc)) => {
             out.send(&WorkerMessage::Robustness(doc));
+            exit_code::OK
+        }
+        Ok(Evaluated::Race(report)) => {
+            out.send(&WorkerMessage::Race(report));
             exit_code::OK
         }
         Err(e) => {
@@ -214,6 +224,7 @@ pub fn check_sandbox_with(
     limits: &d3il_protocol::Limits,
 ) -> Result<Vec<SandboxMechanism>, confine::SandboxError> {
     let job = Job {
+        race: None,
         job_id: "check-sandbox".into(),
         suite: None,
         task: d3il_protocol::TaskId::Avoiding,
@@ -237,7 +248,7 @@ pub fn check_sandbox_with(
         shard: None,
         build: None,
     };
-    let mut mechanisms = confine::confine(&job, None)?;
+    let mut mechanisms = confine::confine(&job, &[])?;
     mechanisms.extend(crate::selftest::probes(assets_dir));
     Ok(mechanisms)
 }

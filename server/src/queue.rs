@@ -114,6 +114,7 @@ pub fn job_from_claim(
         },
     };
     Ok(Job {
+        race: None,
         job_id: c.job.id.to_string(),
         suite: s.suite.clone(),
         task: s.task,

@@ -40,6 +40,7 @@ impl JobRunner for SandboxRunner {
                 Outcome::Completed(r) => Ok(Evaluated::Result(r)),
                 Outcome::Part(p) => Ok(Evaluated::Part(p)),
                 Outcome::Robustness(d) => Ok(Evaluated::Robustness(d)),
+                Outcome::Race(r) => Ok(Evaluated::Race(r)),
                 Outcome::Failed(e) => Err(e),
             },
             mechanisms: run.mechanisms,

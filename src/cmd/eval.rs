@@ -261,6 +261,7 @@ pub fn build_job(args: &Args) -> anyhow::Result<Job> {
         );
     }
     Ok(Job {
+        race: None,
         job_id: "cli".into(),
         suite: None,
         task: args.task,
@@ -369,6 +370,7 @@ pub fn run_shard(args: &Args, job: &mut Job, shard: Shard) -> anyhow::Result<()>
         job.build = Some(super::verify::this_build()?);
         // The worker runs the shard (`Job::shard`) and answers with its part.
         let job = Job {
+            race: None,
             shard: Some(shard),
             ..job.clone()
         };

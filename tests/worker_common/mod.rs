@@ -80,7 +80,9 @@ pub fn limits() -> Limits {
 }
 
 pub fn avoiding_job(policy: PolicySource, limits: Limits) -> Job {
+    race: None,
     Job {
+        race: None,
         job_id: "worker-test".into(),
         suite: None,
         ..d3il_test_support::avoiding_job(policy, limits)

@@ -100,6 +100,7 @@ pub fn evaluate_here(
     let manifest: PolicyManifest =
         serde_json::from_value(read_json(&mpath)?).map_err(|e| FidelityError::data(&mpath, e))?;
     let job = Job {
+        race: None,
         job_id: format!("fidelity-{name}"),
         suite: None,
         task,

@@ -66,9 +66,9 @@ const RESOLVER_READ: &[&str] = &[
 
 pub(super) fn apply_landlock(
     assets: &Path,
-    policy_file: Option<&Path>,
+    policy_files: &[&Path],
     network_allowed: bool,
-    connect_port: Option<u16>,
+    connect_ports: &[u16],
     rendering: bool,
 ) -> Result<Vec<SandboxMechanism>, SandboxError> {
     let abi = match landlock_abi() {
@@ -102,9 +102,7 @@ pub(super) fn apply_landlock(
     readable.extend(SYSTEM_READ.iter().map(PathBuf::from));
     // /proc/self is a symlink; resolve it so the rule covers this process only.
     readable.push(PathBuf::from(format!("/proc/{}", std::process::id())));
-    if let Some(p) = policy_file {
-        readable.push(p.to_path_buf());
-    }
+    readable.extend(policy_files.iter().map(|p| p.to_path_buf()));
     if network_allowed {
         readable.extend(RESOLVER_READ.iter().map(PathBuf::from));
     }
@@ -122,9 +120,13 @@ pub(super) fn apply_landlock(
     ruleset = ruleset
         .add_rules(path_beneath_rules(&readable, read))
         .map_err(ll)?;
-    let mut ports = Vec::new();
-    if let Some(port) = connect_port {
-        ports.push(port);
+    let mut ports: Vec<u16> = Vec::new();
+    for &port in connect_ports {
+        if !ports.contains(&port) {
+            ports.push(port);
+        }
+    }
+    if !ports.is_empty() {
         // DNS over TCP (truncated answers) while resolving the endpoint's host.
         ports.push(53);
     }
@@ -143,17 +145,22 @@ pub(super) fn apply_landlock(
     let fs_detail = format!(
         "landlock ABI v{abi} ({how}): read-only {}{}, system libraries; writes nowhere",
         assets.display(),
-        policy_file
+        policy_files
+            .iter()
             .map(|p| format!(", {}", p.display()))
-            .unwrap_or_default()
+            .collect::<String>()
     );
     let net = if abi >= 4 && enforced {
         let d = if ports.is_empty() {
             "no TCP connect or bind at all".to_string()
         } else {
+            let endpoints = &ports[..ports.len() - 1];
+            let listed: Vec<String> = endpoints.iter().map(u16::to_string).collect();
             format!(
-                "TCP connect only to port {} (endpoint) and 53 (DNS); no bind",
-                ports[0]
+                "TCP connect only to port{} {} (endpoint{}) and 53 (DNS); no bind",
+                if endpoints.len() > 1 { "s" } else { "" },
+                listed.join(", "),
+                if endpoints.len() > 1 { "s" } else { "" },
             )
         };
         mech(names::LANDLOCK_NET, true, d)

@@ -95,16 +95,16 @@ fn mech(name: &str, active: bool, detail: impl Into<String>) -> SandboxMechanism
     }
 }
 
-/// Confine the calling process for `job`. `policy_file` is the one file besides
-/// the assets that the worker may read (the ONNX file); pass None for remote or
-/// scripted policies.
+/// Confine the calling process for `job`. `policy_files` are the files besides
+/// the assets that the worker may read (the ONNX files: one, or a race job's
+/// two); empty for remote or scripted policies.
 ///
 /// Returns the mechanisms with whether each is in force. Errors only when a
 /// mechanism that the kernel supports failed to apply (then the worker must not
 /// go on, exit code `SANDBOX_FAILED`).
 pub fn confine(
     job: &Job,
-    policy_file: Option<&Path>,
+    policy_files: &[&Path],
 ) -> Result<Vec<SandboxMechanism>, SandboxError> {
     // Landlock and seccomp apply to the calling thread (and threads it creates
     // later); unshare(CLONE_NEWNET) too. A thread started earlier would escape.
@@ -112,14 +112,21 @@ pub fn confine(
     if threads > 1 {
         return Err(SandboxError::Multithreaded(threads));
     }
-    if let Some(p) = policy_file {
+    for p in policy_files {
         // Fail with a clear message now rather than with EACCES later.
         std::fs::File::open(p).map_err(|source| SandboxError::PolicyFile {
             path: p.to_path_buf(),
             source,
         })?;
     }
-    let network_allowed = matches!(job.policy, PolicySource::Remote { .. });
+    // A race job (issue 41) has a second policy: B's endpoint needs the
+    // network as A's would.
+    let policies: Vec<&PolicySource> = std::iter::once(&job.policy)
+        .chain(job.race.as_ref().map(|r| &r.policy_b))
+        .collect();
+    let network_allowed = policies
+        .iter()
+        .any(|p| matches!(p, PolicySource::Remote { .. }));
     let mut out = Vec::new();
     out.push(apply_rlimits(&job.limits)?);
     out.push(if network_allowed {
@@ -133,16 +140,19 @@ pub fn confine(
         enter_network_namespace()?
     });
     out.push(drop_capabilities()?);
-    let connect_port = match &job.policy {
-        PolicySource::Remote { url } => endpoint_port(url),
-        _ => None,
-    };
+    let connect_ports: Vec<u16> = policies
+        .iter()
+        .filter_map(|p| match p {
+            PolicySource::Remote { url } => endpoint_port(url),
+            _ => None,
+        })
+        .collect();
     let rendering = job.manifest.obs_type == d3il_protocol::ObsType::Image;
     out.extend(apply_landlock(
         Path::new(&job.assets_dir),
-        policy_file,
+        policy_files,
         network_allowed,
-        connect_port,
+        &connect_ports,
         rendering,
     )?);
     out.push(apply_seccomp(network_allowed)?);

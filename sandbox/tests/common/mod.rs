@@ -24,7 +24,9 @@ pub fn limits() -> Limits {
 }
 
 pub fn job(policy: PolicySource, limits: Limits) -> Job {
+    race: None,
     Job {
+        race: None,
         job_id: "selftest".into(),
         suite: None,
         protocol: Default::default(),

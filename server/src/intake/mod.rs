@@ -486,6 +486,7 @@ pub async fn dry_run(
     limits.wall_seconds = limits.wall_seconds.min(120);
     let remote = matches!(policy, PolicySource::Remote { .. });
     let job = Job {
+        race: None,
         job_id: "dry-run".into(),
         suite: v.suite.clone(),
         task: v.task,
@@ -506,6 +507,11 @@ pub async fn dry_run(
         Ok(Evaluated::Result(r)) => return Ok(r.manifest.simulated_once),
         Ok(Evaluated::Part(p)) => return Ok(p.manifest.simulated_once),
         Ok(Evaluated::Robustness(d)) => return Ok(d.control.manifest.simulated_once),
+        Ok(Evaluated::Race(_)) => {
+            return Err(AppError::Internal(
+                "a dry-run answered with a race report".into(),
+            ))
+        }
         Err(e) if e.kind == ErrorKind::Internal => return Err(AppError::Internal(e.message)),
         Err(e) => e,
     };
