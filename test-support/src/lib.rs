@@ -90,7 +90,6 @@ pub fn avoiding_manifest() -> PolicyManifest {
 /// An Avoiding job under the quick protocol (seed 1) with the repository's
 /// assets; tests change the fields they care about.
 pub fn avoiding_job(policy: PolicySource, limits: Limits) -> Job {
-    race: None,
     Job {
         race: None,
         job_id: "test".into(),
