@@ -313,7 +313,9 @@ const MAX_LEGEND_BEHAVIOURS: usize = 30;
 /// Draws Avoiding end-effector xy paths, one colour per behaviour (named as
 /// everywhere, [`behaviour_name`]: the gap taken in each obstacle row), over
 /// the obstacle field and finish line of the task definition
-/// ([`avoiding::obstacles`]).
+/// ([`avoiding::obstacles`]). Paths are clipped to the plotting area as in
+/// every path plot (`crate::rollouts`), and a caption says how many rollouts
+/// left it.
 pub fn render_avoiding_paths(
     paths: &[(serde_json::Value, Vec<[f32; 2]>)],
     title: &str,
@@ -373,8 +375,39 @@ pub fn render_avoiding_paths(
         }))
         .collect();
     const LEGEND_TITLE: &str = "Gap per obstacle row (from small x)";
-    let (width, height, legend_x) =
-        with_legend((plot_w, plot_h + 40), Some(LEGEND_TITLE), &entries);
+    let outside = paths
+        .iter()
+        .filter(|(_, p)| {
+            p.iter().any(|q| {
+                let (x, y) = (f64::from(q[0]), f64::from(q[1]));
+                x < x0 || x > x1 || y < y0 || y > y1
+            })
+        })
+        .count();
+    let whose: Vec<String> = (outside > 0)
+        .then(|| format!("{outside} of {} rollouts", paths.len()))
+        .into_iter()
+        .collect();
+    let note = crate::rollouts::outside_note_of(
+        &whose,
+        outside,
+        "the obstacle field and a margin around it",
+    );
+    let lines = crate::rollouts::caption_lines(
+        &note.into_iter().collect::<Vec<_>>(),
+        f64::from(plot_w) - 20.0,
+    );
+    let caption_h = if lines.is_empty() {
+        0
+    } else {
+        (crate::rollouts::CAPTION_ROW * lines.len() as f64 + 8.0).ceil() as u32
+    };
+    let (width, height, legend_x) = with_legend(
+        (plot_w, plot_h + 40 + caption_h),
+        Some(LEGEND_TITLE),
+        &entries,
+    );
+    let mut layer = crate::rollouts::Layer::default();
     let mut ov = Overlay::default();
     let mut buf = String::new();
     {
@@ -419,12 +452,25 @@ pub fn render_avoiding_paths(
                 Polygon::new(pts, RGBColor(0x44, 0x44, 0x44).filled())
             }))
             .map_err(pe)?;
+        let f = crate::rollouts::Frame::of(chart.plotting_area().get_pixel_range(), x0..x1, y0..y1);
+        let clip = layer.clip_to(&f);
         for ((_, p), name) in paths.iter().zip(&names) {
             let colour = colour_of.get(name.as_str()).copied().unwrap_or(BLACK);
-            let pts: Vec<(f64, f64)> = p.iter().map(|q| (q[0] as f64, q[1] as f64)).collect();
-            chart
-                .draw_series(LineSeries::new(pts, colour.mix(0.7).stroke_width(1)))
-                .map_err(pe)?;
+            let pts: Vec<(f64, f64)> = p
+                .iter()
+                .map(|q| f.px(f64::from(q[0]), f64::from(q[1])))
+                .collect();
+            layer
+                .group(
+                    "avoiding-path",
+                    &[("data-behaviour", name.clone()), clip.clone()],
+                )
+                .polyline(
+                    &pts,
+                    &crate::plot::hex(colour),
+                    1.0,
+                    r#" stroke-opacity="0.7""#,
+                );
         }
         // The start: where the recorded paths begin (one fixed start).
         if let Some(first) = paths.iter().find_map(|(_, p)| p.first()) {
@@ -436,10 +482,11 @@ pub fn render_avoiding_paths(
                 )))
                 .map_err(pe)?;
         }
+        crate::rollouts::draw_caption(&mut layer, (10.0, f64::from(plot_h + 40) + 4.0), &lines);
         legend(&mut ov, (legend_x, 40.0), Some(LEGEND_TITLE), &entries);
         root.present().map_err(pe)?;
     }
-    Ok(ov.splice(buf))
+    Ok(layer.finish(buf, ov))
 }
 
 /// Axis tick text with one decimal and no `-0.0`.
@@ -455,6 +502,66 @@ fn tick(v: &f64) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Paths that run off the obstacle field are cut at the plotting area
+    /// (each path's group is clipped to a clip path of the area's rectangle)
+    /// and the caption says how many rollouts left it; paths inside get no
+    /// such note.
+    #[test]
+    fn avoiding_paths_are_clipped_to_the_plotting_area_and_the_caption_says_so() {
+        let inside = vec![[0.5f32, 0.0], [0.55, 0.1], [0.6, 0.3]];
+        let wild = vec![[0.5f32, 0.0], [1.4, 0.1], [1.6, -0.9]];
+        let b = serde_json::json!(null);
+        let svg = render_avoiding_paths(&[(b.clone(), inside.clone()), (b.clone(), wild)], "paths")
+            .unwrap();
+        let clip_id = svg
+            .split("<clipPath id=\"")
+            .nth(1)
+            .and_then(|r| r.split('"').next())
+            .expect("a clip path");
+        let rect: Vec<f64> = svg
+            .split(&format!("<clipPath id=\"{clip_id}\"><rect "))
+            .nth(1)
+            .unwrap()
+            .split('"')
+            .skip(1)
+            .step_by(2)
+            .take(4)
+            .map(|v| v.parse().unwrap())
+            .collect();
+        let paths: Vec<&str> = svg.split("<g class=\"avoiding-path\"").skip(1).collect();
+        assert_eq!(paths.len(), 2);
+        for p in &paths {
+            let open = p.split('>').next().unwrap();
+            assert!(
+                open.contains(&format!("clip-path=\"url(#{clip_id})\"")),
+                "{open}"
+            );
+        }
+        // The wild path's second point lies right of the clip rectangle: it
+        // would be drawn over the legend without the clip.
+        let wild_pts = paths[1].split("points=\"").nth(1).unwrap();
+        let x: f64 = wild_pts
+            .split(' ')
+            .nth(1)
+            .unwrap()
+            .split(',')
+            .next()
+            .unwrap()
+            .parse()
+            .unwrap();
+        assert!(x > rect[0] + rect[2], "{x} {rect:?}");
+        assert!(
+            svg.contains("1 of 2 rollouts leave")
+                || svg.contains("The path of 1 of 2 rollouts leaves"),
+            "the caption names what left"
+        );
+        let calm = render_avoiding_paths(&[(b, inside)], "paths").unwrap();
+        assert!(
+            !calm.contains("cut off"),
+            "no note when every path stays inside"
+        );
+    }
 
     #[test]
     fn hues_are_distinct() {

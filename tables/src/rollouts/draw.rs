@@ -16,7 +16,7 @@ pub(super) const MAX_POINTS: usize = 400;
 pub(super) const TITLE_H: u32 = 36;
 /// Font size of captions under the pictures.
 pub(super) const CAPTION_FONT: f64 = 13.0;
-pub(super) const CAPTION_ROW: f64 = 18.0;
+pub(crate) const CAPTION_ROW: f64 = 18.0;
 /// Colour of what failed or has no value.
 pub(super) const GREY: RGBColor = RGBColor(0xb0, 0xb0, 0xb0);
 /// Chart margins and label areas (pixels).
@@ -36,7 +36,7 @@ pub(super) fn num(v: f64) -> String {
 }
 
 /// One `<g>` with a class and data attributes, and its elements.
-pub(super) struct Group {
+pub(crate) struct Group {
     open: String,
     body: String,
 }
@@ -133,7 +133,7 @@ impl Group {
 /// Groups written in order (later ones on top), spliced into plotters' SVG
 /// under the [`Overlay`]'s labels and legend.
 #[derive(Default)]
-pub(super) struct Layer {
+pub(crate) struct Layer {
     groups: Vec<Group>,
 }
 
@@ -196,7 +196,7 @@ impl Layer {
 /// The linear map of a chart's plotting area: data (u to the right, v up) to
 /// pixels, as plotters maps it (the last pixel column and row are the ends).
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub(super) struct Frame {
+pub(crate) struct Frame {
     pub u: (f64, f64),
     pub v: (f64, f64),
     pub left: f64,
@@ -470,7 +470,7 @@ pub(super) fn wrap(text: &str, size: f64, width: f64) -> Vec<String> {
 }
 
 /// Caption paragraphs wrapped to `width`, each paragraph on new lines.
-pub(super) fn caption_lines(paragraphs: &[String], width: f64) -> Vec<String> {
+pub(crate) fn caption_lines(paragraphs: &[String], width: f64) -> Vec<String> {
     paragraphs
         .iter()
         .flat_map(|p| wrap(p, CAPTION_FONT, width))
@@ -478,7 +478,7 @@ pub(super) fn caption_lines(paragraphs: &[String], width: f64) -> Vec<String> {
 }
 
 /// Writes caption lines from `(x, y)` down.
-pub(super) fn draw_caption(layer: &mut Layer, (x, y): (f64, f64), lines: &[String]) {
+pub(crate) fn draw_caption(layer: &mut Layer, (x, y): (f64, f64), lines: &[String]) {
     let g = layer.group("caption", &[]);
     for (i, l) in lines.iter().enumerate() {
         g.text((x, y + CAPTION_ROW * i as f64), CAPTION_FONT, "start", l);

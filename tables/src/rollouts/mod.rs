@@ -28,6 +28,9 @@
 
 mod draw;
 mod scene;
+/// The pieces the other path plots share (`crate::figures`' Avoiding paths).
+pub(crate) use draw::{caption_lines, draw_caption, Frame, Layer, CAPTION_ROW};
+pub(crate) use scene::outside_note_of;
 mod start_map;
 mod steps;
 mod top_down;

@@ -132,6 +132,12 @@ impl View {
 /// The caption's note on paths that leave the drawn area, which are clipped
 /// at its edge: `whose` are "the TCP" and object names, or "3 of 40 rollouts".
 pub(super) fn outside_note(whose: &[String], count: usize) -> Option<String> {
+    outside_note_of(whose, count, "the table and a margin around it")
+}
+
+/// [`outside_note`] for a drawn area described as `area` (every path plot
+/// says it the same way, `crate::figures`' Avoiding paths too).
+pub(crate) fn outside_note_of(whose: &[String], count: usize, area: &str) -> Option<String> {
     let (who, leave, be) = match (whose, count) {
         ([], _) => return None,
         ([one], 1) => (format!("The path of {one}"), "leaves", "is"),
@@ -143,7 +149,7 @@ pub(super) fn outside_note(whose: &[String], count: usize) -> Option<String> {
         ),
     };
     Some(format!(
-        "{who} {leave} the drawn area (the table and a margin around it) and {be} cut off at its edge."
+        "{who} {leave} the drawn area ({area}) and {be} cut off at its edge."
     ))
 }
 
