@@ -16,7 +16,6 @@ fn fixture(name: &str) -> (String, PolicyManifest) {
 }
 
 fn onnx_job(name: &str, seed: u64) -> Job {
-    race: None,
     let (path, manifest) = fixture(name);
     Job {
         race: None,
@@ -113,7 +112,6 @@ fn malformed_onnx_is_a_bad_model_error() {
 // ---------------------------------------------------------------------------
 
 fn scripted_job(task: TaskId, name: &str) -> Job {
-    race: None,
     Job {
         race: None,
         job_id: "scripted".into(),

@@ -1,11 +1,11 @@
 //! What a worker does with one job: build the policy it names, then
 //! evaluate it ([`crate::eval`]) or one shard of it.
 
+use crate::eval::race::{self, Contender, RaceOptions, RaceProgress, RaceReport};
 use crate::eval::{
     evaluate_reporting, evaluate_shard_reporting, protocol_size, sha256_hex, EvalError,
     EvalOptions, PolicyInfo,
 };
-use crate::eval::race::{self, Contender, RaceOptions, RaceProgress, RaceReport};
 use crate::scripted::ScriptedPolicy;
 use crate::tasks::{LoadedTask, TaskError};
 use d3il_policy::{OnnxPolicy, Policy, RemotePolicy};

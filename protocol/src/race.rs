@@ -93,4 +93,3 @@ pub struct RaceReport {
     pub seconds: f64,
     pub policy_calls: usize,
 }
-

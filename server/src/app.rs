@@ -427,6 +427,8 @@ pub async fn prepare(
         canary,
         telemetry,
     };
+    // Comparisons a stopped server left unfinished race again (issue 41).
+    crate::races::resume(&state).await;
     Ok((
         listener,
         Running {

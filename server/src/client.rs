@@ -132,6 +132,43 @@ impl Client {
         Self::decode(self.auth(rb).send()?)
     }
 
+    /// Starts a sequential race of two submissions (`POST
+    /// /api/v1/comparisons`, issue 41); `body` is the request: `{"a", "b",
+    /// "alpha"?, "delta"?, "protocol"?, "seed"?, "task"?}`.
+    pub fn race(&self, body: &Value) -> Result<Value, ClientError> {
+        let rb = self
+            .http
+            .post(format!("{}/api/v1/comparisons", self.base))
+            .json(body);
+        Self::decode(self.auth(rb).send()?)
+    }
+
+    /// A comparison (`GET /api/v1/comparisons/{id}`).
+    pub fn comparison(&self, id: i64) -> Result<Value, ClientError> {
+        self.get(&format!("/api/v1/comparisons/{id}"))
+    }
+
+    /// Polls a comparison until it is completed or failed.
+    pub fn wait_comparison(
+        &self,
+        id: i64,
+        timeout: Duration,
+        mut on_update: impl FnMut(&Value),
+    ) -> Result<Value, ClientError> {
+        let start = Instant::now();
+        loop {
+            let v = self.comparison(id)?;
+            on_update(&v);
+            if matches!(v["status"].as_str(), Some("completed") | Some("failed")) {
+                return Ok(v);
+            }
+            if start.elapsed() > timeout {
+                return Err(ClientError::Timeout(id, timeout));
+            }
+            std::thread::sleep(Duration::from_millis(300));
+        }
+    }
+
     pub fn submission(&self, id: i64) -> Result<Value, ClientError> {
         self.get(&format!("/api/v1/submissions/{id}"))
     }

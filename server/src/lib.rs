@@ -39,6 +39,7 @@ pub mod leaderboard;
 pub mod live;
 pub mod queue;
 pub mod quota;
+pub mod races;
 pub mod ratelimit;
 pub mod rollouts;
 pub mod runner;

@@ -85,14 +85,11 @@ pub fn is_retryable(kind: ErrorKind) -> bool {
     )
 }
 
-/// Builds the worker's job document from a claimed submission.
-pub fn job_from_claim(
-    c: &ClaimedJob,
-    assets_dir: &std::path::Path,
-    limits: &Limits,
-    build: d3il_protocol::BuildIdentity,
-) -> Result<Job, String> {
-    let s = &c.submission;
+/// The policy a submission names and its manifest, as stored: what a job
+/// (an evaluation, or one side of a race) runs.
+pub fn policy_of(
+    s: &crate::store::SubmissionRow,
+) -> Result<(PolicySource, PolicyManifest), String> {
     let manifest: PolicyManifest = serde_json::from_value(s.manifest_json.0.clone())
         .map_err(|e| format!("stored manifest is invalid: {e}"))?;
     let policy = match s.policy_kind {
@@ -113,6 +110,18 @@ pub fn job_from_claim(
                 .ok_or("remote submission without a URL")?,
         },
     };
+    Ok((policy, manifest))
+}
+
+/// Builds the worker's job document from a claimed submission.
+pub fn job_from_claim(
+    c: &ClaimedJob,
+    assets_dir: &std::path::Path,
+    limits: &Limits,
+    build: d3il_protocol::BuildIdentity,
+) -> Result<Job, String> {
+    let s = &c.submission;
+    let (policy, manifest) = policy_of(s)?;
     Ok(Job {
         race: None,
         job_id: c.job.id.to_string(),

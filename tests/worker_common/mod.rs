@@ -80,7 +80,6 @@ pub fn limits() -> Limits {
 }
 
 pub fn avoiding_job(policy: PolicySource, limits: Limits) -> Job {
-    race: None,
     Job {
         race: None,
         job_id: "worker-test".into(),

@@ -102,10 +102,7 @@ fn mech(name: &str, active: bool, detail: impl Into<String>) -> SandboxMechanism
 /// Returns the mechanisms with whether each is in force. Errors only when a
 /// mechanism that the kernel supports failed to apply (then the worker must not
 /// go on, exit code `SANDBOX_FAILED`).
-pub fn confine(
-    job: &Job,
-    policy_files: &[&Path],
-) -> Result<Vec<SandboxMechanism>, SandboxError> {
+pub fn confine(job: &Job, policy_files: &[&Path]) -> Result<Vec<SandboxMechanism>, SandboxError> {
     // Landlock and seccomp apply to the calling thread (and threads it creates
     // later); unshare(CLONE_NEWNET) too. A thread started earlier would escape.
     let threads = thread_count();

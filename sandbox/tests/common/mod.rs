@@ -24,7 +24,6 @@ pub fn limits() -> Limits {
 }
 
 pub fn job(policy: PolicySource, limits: Limits) -> Job {
-    race: None,
     Job {
         race: None,
         job_id: "selftest".into(),

@@ -42,6 +42,7 @@ macro_rules! begin_write {
     };
 }
 
+mod comparisons;
 mod files;
 mod jobs;
 mod live;
@@ -54,6 +55,7 @@ mod submissions;
 mod tokens;
 pub mod types;
 
+pub use comparisons::{ComparisonRow, NewComparison};
 pub use files::{PolicyFilesGuard, TMP_MARKER};
 pub use jobs::{ClaimedJob, JobKind, JobRow};
 pub use live::{CancelOutcome, Cancelled, StateOutcome, CANCELLED_KIND};

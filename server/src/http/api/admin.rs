@@ -25,7 +25,10 @@ pub fn router() -> Router<AppState> {
 }
 
 /// A JSON request body, refused with the same error format as the rest.
-fn json_body<T: serde::de::DeserializeOwned>(body: &Bytes, example: &str) -> Result<T, AppError> {
+pub(super) fn json_body<T: serde::de::DeserializeOwned>(
+    body: &Bytes,
+    example: &str,
+) -> Result<T, AppError> {
     serde_json::from_slice(body).map_err(|e| AppError::Invalid {
         field: None,
         message: format!("expected a JSON body like {example}: {e}"),

@@ -5,6 +5,7 @@
 pub mod admin;
 pub mod cancel;
 pub mod compare;
+pub mod comparisons;
 pub mod openapi;
 pub mod robustness;
 pub mod rollouts;
@@ -65,6 +66,8 @@ pub fn router(max_upload: usize) -> Router<AppState> {
         .route("/leaderboards/{task}/csv", get(get_leaderboard_csv))
         .route("/methods", get(list_methods))
         .route("/compare", get(compare::compare))
+        .route("/comparisons", post(comparisons::create_comparison))
+        .route("/comparisons/{id}", get(comparisons::get_comparison))
         .route("/whoami", get(whoami))
         .nest("/admin", admin::router())
         .route("/build", get(get_build))

@@ -40,6 +40,8 @@ use utoipa::{Modify, OpenApi};
         super::admin::set_quota,
         super::admin::audit,
         super::compare::compare,
+        super::comparisons::create_comparison,
+        super::comparisons::get_comparison,
         super::rollouts::list_rollouts,
         super::rollouts::get_rollout,
         super::rollouts::get_video,
@@ -76,12 +78,16 @@ use utoipa::{Modify, OpenApi};
         crate::rollouts::RolloutList,
         crate::rollouts::RolloutItem,
         crate::rollouts::RolloutDetail,
+        crate::races::ComparisonRequest,
+        crate::races::ComparisonView,
+        crate::races::RaceLive,
     )),
     modifiers(&BearerToken),
     tags(
         (name = "submissions", description = "Submitting policies and following their evaluation"),
         (name = "leaderboards", description = "Reported and evaluated results"),
         (name = "rollouts", description = "What a policy did: rollouts by outcome and behaviour, records with their traces, videos and pictures"),
+        (name = "comparisons", description = "Sequential races of two submissions: decided as soon as the anytime-valid paired test can (docs/sequential.md)"),
         (name = "admin", description = "Moderation and quotas, for admin tokens; every action is written to the audit log"),
     )
 )]

@@ -1,0 +1,48 @@
+//! `POST /api/v1/comparisons` and `GET /api/v1/comparisons/{id}` (issue 41):
+//! a sequential race of two submissions' policies on the server
+//! ([`crate::races`]).
+
+use super::admin::json_body;
+use crate::auth::Authed;
+use crate::error::{AppError, ErrorBody};
+use crate::http::extract::Param;
+use crate::races::{self, ComparisonRequest, ComparisonView};
+use crate::state::AppState;
+use axum::body::Bytes;
+use axum::extract::State;
+use axum::http::StatusCode;
+use axum::Json;
+
+#[utoipa::path(post, path = "/comparisons", tag = "comparisons",
+    summary = "Race two submissions sequentially: both policies on the same initial states in the same random order, stopping when the anytime-valid paired test decides",
+    security(("bearer" = [])),
+    request_body = ComparisonRequest,
+    responses(
+        (status = 202, description = "Queued: poll GET /comparisons/{id} (or watch /comparisons/{id})", body = ComparisonView),
+        (status = 400, description = "A field is wrong (`field` names it): unknown or failed submission, a and b the same, different tasks or observation types, alpha or delta out of range, unknown protocol", body = ErrorBody),
+        (status = 401, description = "Missing or wrong token", body = ErrorBody),
+        (status = 429, description = "Rate limit or quota exceeded", body = ErrorBody)))]
+pub async fn create_comparison(
+    State(state): State<AppState>,
+    Authed(who): Authed,
+    body: Bytes,
+) -> Result<(StatusCode, Json<ComparisonView>), AppError> {
+    let req: ComparisonRequest = json_body(&body, r#"{"a": 12, "b": 15, "alpha": 0.05}"#)?;
+    let id = races::create(&state, &who, &req).await?;
+    let row = state.store.comparison(id).await?;
+    Ok((StatusCode::ACCEPTED, Json(ComparisonView::of(&row))))
+}
+
+#[utoipa::path(get, path = "/comparisons/{id}", tag = "comparisons",
+    summary = "A comparison: its status, the race so far (pairs, paired counts, e-value, anytime p-value) and its report once finished",
+    params(("id" = i64, Path, description = "Comparison id")),
+    responses(
+        (status = 200, description = "The comparison", body = ComparisonView),
+        (status = 404, description = "No such comparison", body = ErrorBody)))]
+pub async fn get_comparison(
+    State(state): State<AppState>,
+    Param(id): Param<i64>,
+) -> Result<Json<ComparisonView>, AppError> {
+    let row = state.store.comparison(id).await?;
+    Ok(Json(ComparisonView::of(&row)))
+}

@@ -1,0 +1,193 @@
+//! Issue 41 on the server, end to end through the real binary: `POST
+//! /api/v1/comparisons` races two submissions' policies in a real sandboxed
+//! `d3il worker` (MuJoCo, tract); `GET /api/v1/comparisons/{id}` shows the
+//! race so far and its report, which is the same, decision and counts, as
+//! `d3il compare --sequential --task` gives for the same pair (one rule, one
+//! place: `d3il_evaluator::eval::race`); wrong requests are 400s naming the
+//! field. `--workers 0`: the submissions stay queued (a race needs their
+//! policies, not their results) and the race runs in the server's own slot.
+
+mod server_support;
+use serde_json::{json, Value};
+use server_support::*;
+use std::path::PathBuf;
+use std::process::Command;
+use std::time::Duration;
+
+fn fixture(name: &str) -> PathBuf {
+    std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("assets/fixtures")
+        .join(name)
+}
+
+fn submit(client: &d3il_server::client::Client, stem: &str, task: &str, seed: u32) -> i64 {
+    let manifest = std::fs::read_to_string(fixture(&format!("{stem}.json"))).unwrap();
+    let obs: Value = serde_json::from_str(&manifest).unwrap();
+    let created = client
+        .submit(
+            &[
+                ("method", format!("Race-{stem}")),
+                ("task", task.to_string()),
+                ("training_seed", seed.to_string()),
+                ("protocol", "quick".to_string()),
+                ("obs_type", obs["obs_type"].as_str().unwrap().to_string()),
+                ("manifest", manifest),
+            ],
+            Some(&fixture(&format!("{stem}.onnx"))),
+        )
+        .unwrap_or_else(|e| panic!("submit {stem}: {e}"));
+    created["id"].as_i64().unwrap()
+}
+
+/// The refusal of a comparison request: (status, field).
+fn refused(client: &d3il_server::client::Client, body: Value) -> (u16, Option<String>, String) {
+    match client.race(&body) {
+        Err(d3il_server::client::ClientError::Api {
+            status,
+            field,
+            message,
+            ..
+        }) => (status, field, message),
+        other => panic!("{body} was not refused: {other:?}"),
+    }
+}
+
+#[test]
+fn a_race_on_the_server_reports_what_the_cli_race_reports_and_refuses_wrong_requests() {
+    let dir = TempDir::new("race-server");
+    let db = dir.path().join("lb.sqlite");
+    let token = create_token(&db, "racer");
+    let server = Server::start(&db, &["--workers", "0"]);
+    let client = server.client(Some(&token));
+    let a = submit(&client, "aligning_mlp", "aligning", 0);
+    let b = submit(&client, "aligning_mlp_noise", "aligning", 1);
+
+    let started = client
+        .race(&json!({"a": a, "b": b, "protocol": "quick", "task": "aligning"}))
+        .expect("race accepted");
+    let id = started["id"].as_i64().unwrap();
+    assert_eq!(
+        (started["a"].as_i64(), started["b"].as_i64()),
+        (Some(a), Some(b))
+    );
+    assert_eq!(started["alpha"], 0.05);
+    let done = client
+        .wait_comparison(id, Duration::from_secs(300), |_| {})
+        .unwrap();
+    assert_eq!(done["status"], "completed", "{done}");
+    let report = &done["report"];
+    let live = &done["live"];
+    // The live state's paired counts add up to the pairs, and end where the
+    // report ends.
+    let counts: u64 = ["both", "only_a", "only_b", "neither"]
+        .iter()
+        .map(|k| live[k].as_u64().unwrap())
+        .sum();
+    assert_eq!(counts, live["pairs"].as_u64().unwrap(), "{live}");
+    assert_eq!(live["pairs"], report["pairs_used"], "{done}");
+    assert_eq!(live["only_a"], report["discordant"][0]);
+    assert_eq!(live["only_b"], report["discordant"][1]);
+    assert_eq!(live["e_value"], report["e_value"]);
+
+    // The same race with the CLI: the same decision and counts, bit for bit.
+    let out = Command::new(EXE)
+        .args([
+            "compare",
+            "--sequential",
+            "--task",
+            "aligning",
+            "--protocol",
+            "quick",
+            "--json",
+        ])
+        .arg(fixture("aligning_mlp.onnx"))
+        .arg(fixture("aligning_mlp_noise.onnx"))
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let cli: Value = serde_json::from_slice(&out.stdout).unwrap();
+    for k in [
+        "task",
+        "protocol",
+        "seed",
+        "alpha",
+        "delta",
+        "decision",
+        "decided_at",
+        "e_value",
+        "p_value",
+        "discordant",
+        "difference_interval",
+        "rate_a",
+        "rate_b",
+        "pairs_used",
+        "pairs_full",
+        "states_used",
+        "states_full",
+        "rollouts_used",
+        "rollouts_full",
+        "fixed_p_value",
+        "fixed_pairs_for_power_90",
+    ] {
+        assert_eq!(report[k], cli[k], "{k}: server {report} vs CLI {cli}");
+    }
+    assert_eq!(report["states_full"], 3, "quick protocol: {report}");
+
+    // The document describes both routes.
+    let doc = client.get("/api/v1/openapi.json").unwrap();
+    assert!(doc["paths"]["/comparisons"]["post"].is_object());
+    assert!(doc["paths"]["/comparisons/{id}"]["get"].is_object());
+    assert!(doc["components"]["schemas"]["RaceLive"]["properties"]["only_a"].is_object());
+
+    // Wrong requests: 400s naming the field.
+    let avoiding = submit(&client, "avoiding_path", "avoiding", 0);
+    let image = submit(&client, "aligning_image", "aligning", 2);
+    for (body, field, says) in [
+        (json!({"a": 999_999, "b": b}), "a", "no submission 999999"),
+        (json!({"a": a, "b": 999_998}), "b", "no submission 999998"),
+        (json!({"a": a, "b": a}), "b", "both submission"),
+        (json!({"a": a, "b": avoiding}), "b", "same task"),
+        (json!({"a": a, "b": image}), "b", "same task variant"),
+        (
+            json!({"a": a, "b": b, "task": "pushing"}),
+            "task",
+            "not pushing",
+        ),
+        (
+            json!({"a": a, "b": b, "alpha": 1.5}),
+            "alpha",
+            "not in (0, 1)",
+        ),
+        (
+            json!({"a": a, "b": b, "delta": 0.0}),
+            "delta",
+            "not in (0, 2)",
+        ),
+        (
+            json!({"a": a, "b": b, "protocol": "huge"}),
+            "protocol",
+            "paper or quick",
+        ),
+    ] {
+        let (status, f, message) = refused(&client, body.clone());
+        assert_eq!(
+            (status, f.as_deref()),
+            (400, Some(field)),
+            "{body}: {message}"
+        );
+        assert!(message.contains(says), "{body}: {message}");
+    }
+    // Without a token: 401.
+    let anonymous = server.client(None);
+    let (status, _, _) = refused(&anonymous, json!({"a": a, "b": b}));
+    assert_eq!(status, 401);
+    // An unknown comparison: 404.
+    assert!(matches!(
+        client.comparison(id + 100),
+        Err(d3il_server::client::ClientError::Api { status: 404, .. })
+    ));
+}
