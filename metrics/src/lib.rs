@@ -25,9 +25,11 @@
 
 mod bootstrap;
 pub mod compare;
+pub mod horizon;
 pub mod order;
 pub mod robustness;
 pub mod sequential;
+pub mod sequential_sim;
 pub mod shard;
 pub mod sign_test;
 pub(crate) use bootstrap::bias_corrected_interval;

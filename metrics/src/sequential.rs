@@ -13,16 +13,23 @@
 //!   portfolio; Ramdas, Grünwald, Vovk & Shafer 2023, "Game-theoretic
 //!   statistics and safe anytime-valid inference", Statist. Sci. 38(4)), one
 //!   per direction, averaged for the two-sided test.
-//! * [`SequentialComparison`]: the decision rule built from both: "A better"
-//!   or "B better" when the two-sided e-value reaches 1/α, "no difference
-//!   larger than δ" when the betting confidence sequence of the paired
-//!   difference lies inside (−δ, δ).
+//! * [`SequentialComparison`]: the decision rule: "A better" or "B better"
+//!   when `w − l` crosses the [`CalibratedBoundary`] of the protocol's
+//!   horizon (`crate::horizon`: exact type-I error ≤ α over at most N
+//!   pairs), or, with no horizon, when the two-sided e-value reaches 1/α;
+//!   "no difference larger than δ" when the betting confidence sequence of
+//!   the paired difference lies inside (−δ, δ).
 //! * [`FixedPairedTest`]: the fixed-size test the sequential one is measured
 //!   against: the exact two-sided sign test on the discordant pairs (exact
 //!   McNemar), which is what `compare`'s randomisation test paired by initial
 //!   state computes when every state has one rollout; its exact power and the
 //!   sample size it needs for a given power.
 
+pub use crate::horizon::CalibratedBoundary;
+pub use crate::sequential_sim::{
+    discordant_probabilities, independent_discordance, simulate, truncate, DecisionTable, Run,
+    Simulated,
+};
 pub use crate::sign_test::FixedPairedTest;
 
 /// Points of the grid of candidate means a [`BettingCs`] tracks by default:
@@ -321,24 +328,38 @@ impl std::fmt::Display for Decision {
 
 /// The sequential paired comparison of A and B at level `alpha`.
 ///
-/// After each pair: if the two-sided e-value `E_t ≥ 1/α`, decide "A better"
-/// when `E⁺ ≥ E⁻`, else "B better". Otherwise, if a margin `δ` was given and
-/// the betting confidence sequence (level `1 − α`) of the paired difference
-/// `rate(A) − rate(B)` (from `x = (a − b + 1)/2`) lies inside `(−δ, δ)`,
-/// decide "no difference larger than δ". Each wrong decision has probability
-/// at most α: "A better" wrongly needs `E⁺ ≥ 1/α` under `rate(A) ≤ rate(B)`;
-/// "no difference" wrongly needs the confidence sequence to miss.
+/// After each pair, "A better" or "B better" is decided by one of two
+/// rules:
+///
+/// * with a horizon ([`Self::with_horizon`]: the protocol's most pairs `N`,
+///   known before the first), by the [`CalibratedBoundary`]: `|w − l|`
+///   reaching its running bound, or its last-look bound at pair `N`, on the
+///   side ahead. Its exact type-I error over at most `N` pairs is `≤ α`;
+///   pairs beyond `N` decide nothing.
+/// * without ([`Self::new`]), by the e-value: `E_t ≥ 1/α`, "A better" when
+///   `E⁺ ≥ E⁻`, else "B better"; valid with no horizon at all.
+///
+/// The e-value and its anytime p-value are reported either way. Otherwise,
+/// if a margin `δ` was given and the betting confidence sequence (level
+/// `1 − α`) of the paired difference `rate(A) − rate(B)` (from
+/// `x = (a − b + 1)/2`) lies inside `(−δ, δ)`, decide "no difference larger
+/// than δ". Each wrong decision has probability at most α: "A better"
+/// wrongly needs the boundary crossed upwards (or `E⁺ ≥ 1/α`) under
+/// `rate(A) ≤ rate(B)`; "no difference" wrongly needs the confidence
+/// sequence to miss.
 #[derive(Debug, Clone)]
 pub struct SequentialComparison {
     alpha: f64,
     delta: Option<f64>,
     eprocess: PairedEProcess,
     difference: Option<BettingCs>,
+    boundary: Option<CalibratedBoundary>,
     decided: Option<(Decision, u64)>,
 }
 
 impl SequentialComparison {
-    /// `alpha` in (0, 1); `delta`, if given, in (0, 2).
+    /// `alpha` in (0, 1); `delta`, if given, in (0, 2). Decides by the
+    /// e-value (no horizon).
     pub fn new(alpha: f64, delta: Option<f64>) -> Self {
         assert!(alpha > 0.0 && alpha < 1.0, "alpha {alpha} is not in (0, 1)");
         SequentialComparison {
@@ -346,8 +367,25 @@ impl SequentialComparison {
             delta,
             eprocess: PairedEProcess::new(),
             difference: delta.map(|_| BettingCs::new(alpha)),
+            boundary: None,
             decided: None,
         }
+    }
+
+    /// Decides by the boundary calibrated to at most `max_pairs` pairs (the
+    /// protocol's size); beyond [`crate::horizon::MAX_HORIZON`] pairs, or
+    /// with none, by the e-value as [`Self::new`].
+    pub fn with_horizon(alpha: f64, delta: Option<f64>, max_pairs: usize) -> Self {
+        let mut s = Self::new(alpha, delta);
+        if (1..=crate::horizon::MAX_HORIZON).contains(&max_pairs) {
+            s.boundary = Some(CalibratedBoundary::new(alpha, max_pairs));
+        }
+        s
+    }
+
+    /// The calibrated boundary, when it decides.
+    pub fn boundary(&self) -> Option<&CalibratedBoundary> {
+        self.boundary.as_ref()
     }
 
     /// Adds one pair; returns the decision once there is one (and keeps it:
@@ -359,7 +397,13 @@ impl SequentialComparison {
         }
         if self.decided.is_none() {
             let n = self.eprocess.pairs();
-            if let Some(d) = decide(self.eprocess.one_sided(), self.alpha) {
+            let (w, l) = self.eprocess.discordant();
+            let by_test = match &self.boundary {
+                Some(b) if n <= b.horizon() as u64 => b.decide(w, l, n == b.horizon() as u64),
+                Some(_) => None,
+                None => decide(self.eprocess.one_sided(), self.alpha),
+            };
+            if let Some(d) = by_test {
                 self.decided = Some((d, n));
             } else if let (Some(delta), Some((lo, hi))) = (self.delta, self.difference_interval()) {
                 if -delta < lo && hi < delta {
@@ -399,126 +443,6 @@ impl SequentialComparison {
             (2.0 * lo - 1.0, 2.0 * hi - 1.0)
         })
     }
-}
-
-/// [`e_value_decision`] for every `(w, l)` with `w + l ≤ max_pairs`: what
-/// the e-process decides depends only on these counts, so simulations look
-/// it up instead of recomputing the mixture.
-#[derive(Debug, Clone)]
-pub struct DecisionTable {
-    max_pairs: usize,
-    cells: Vec<Vec<Option<Decision>>>,
-}
-
-impl DecisionTable {
-    pub fn new(alpha: f64, max_pairs: usize) -> Self {
-        let cells = (0..=max_pairs as u64)
-            .map(|w| {
-                (0..=(max_pairs as u64 - w))
-                    .map(|l| e_value_decision(w, l, alpha))
-                    .collect()
-            })
-            .collect();
-        DecisionTable { max_pairs, cells }
-    }
-
-    pub fn get(&self, w: usize, l: usize) -> Option<Decision> {
-        self.cells
-            .get(w)
-            .and_then(|row| row.get(l))
-            .copied()
-            .flatten()
-    }
-
-    pub fn max_pairs(&self) -> usize {
-        self.max_pairs
-    }
-}
-
-/// One simulated run of the sequential test: the pair it decided at and
-/// what it decided, or `None` if it had not decided by the simulation's end.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Run {
-    pub pair: u32,
-    pub decision: Option<Decision>,
-}
-
-/// What the runs of [`simulate`] show when each is stopped at `max_pairs`.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Simulated {
-    /// Share of runs that decided "A better".
-    pub a_better: f64,
-    /// Share that decided "B better".
-    pub b_better: f64,
-    /// Mean pairs used: the pair of the decision, or all `max_pairs`.
-    pub mean_pairs: f64,
-}
-
-/// [`Simulated`] of `runs` truncated at `max_pairs`: a run that decides
-/// later counts as undecided after `max_pairs` pairs.
-pub fn truncate(runs: &[Run], max_pairs: u32) -> Simulated {
-    let (mut a_better, mut b_better, mut used) = (0usize, 0usize, 0u64);
-    for r in runs {
-        match r.decision {
-            Some(d) if r.pair <= max_pairs => {
-                used += r.pair as u64;
-                match d {
-                    Decision::ABetter => a_better += 1,
-                    Decision::BBetter => b_better += 1,
-                    Decision::NoDifferenceLargerThan(_) => {}
-                }
-            }
-            _ => used += max_pairs as u64,
-        }
-    }
-    let n = runs.len().max(1) as f64;
-    Simulated {
-        a_better: a_better as f64 / n,
-        b_better: b_better as f64 / n,
-        mean_pairs: used as f64 / n,
-    }
-}
-
-/// Monte Carlo of the sequential test (the e-process part) on i.i.d. pairs
-/// A wins with probability `p10` and B with `p01`, each run up to its
-/// decision or `max_pairs` pairs (at most the table's): `runs` runs from a
-/// ChaCha8 stream seeded with `seed`.
-pub fn simulate(
-    table: &DecisionTable,
-    p10: f64,
-    p01: f64,
-    runs: usize,
-    max_pairs: usize,
-    seed: u64,
-) -> Vec<Run> {
-    use rand::{Rng, SeedableRng};
-    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
-    let max_pairs = max_pairs.min(table.max_pairs);
-    (0..runs)
-        .map(|_| {
-            let (mut w, mut l) = (0usize, 0usize);
-            for t in 1..=max_pairs {
-                let u: f64 = rng.random();
-                if u < p10 {
-                    w += 1;
-                } else if u < p10 + p01 {
-                    l += 1;
-                } else {
-                    continue;
-                }
-                if let Some(d) = table.get(w, l) {
-                    return Run {
-                        pair: t as u32,
-                        decision: Some(d),
-                    };
-                }
-            }
-            Run {
-                pair: max_pairs as u32,
-                decision: None,
-            }
-        })
-        .collect()
 }
 
 /// The paired outcomes `(A succeeded, B succeeded)` of two finished
@@ -637,7 +561,8 @@ pub struct Replay {
 /// ([`crate::order::random_order`]) through a [`SequentialComparison`], stopping at its decision.
 pub fn replay(pairs: &[(bool, bool)], alpha: f64, delta: Option<f64>, seed: u64) -> Replay {
     let order = crate::order::random_order(pairs.len(), seed);
-    let mut test = SequentialComparison::new(alpha, delta);
+    // The finished results fix the horizon: all their pairs.
+    let mut test = SequentialComparison::with_horizon(alpha, delta, pairs.len());
     for &i in &order {
         let (a, b) = pairs[i];
         if test.observe(a, b).is_some() {
@@ -664,24 +589,6 @@ pub fn replay(pairs: &[(bool, bool)], alpha: f64, delta: Option<f64>, seed: u64)
         rate_a: pairs.iter().filter(|p| p.0).count() as f64 / n,
         rate_b: pairs.iter().filter(|p| p.1).count() as f64 / n,
     }
-}
-
-/// One pair of outcomes with success rates `rate_a`, `rate_b` and a share
-/// `discordance` of discordant pairs: the probabilities `(p10, p01)` that A
-/// wins / B wins a pair. `discordance` is clamped to what the two rates
-/// allow: at least `|rate_a − rate_b|`, at most
-/// `min(rate_a + rate_b, 2 − rate_a − rate_b)`.
-pub fn discordant_probabilities(rate_a: f64, rate_b: f64, discordance: f64) -> (f64, f64) {
-    let diff = rate_a - rate_b;
-    let most = (rate_a + rate_b).min(2.0 - rate_a - rate_b);
-    let d = discordance.clamp(diff.abs(), most.max(diff.abs()));
-    ((d + diff) / 2.0, (d - diff) / 2.0)
-}
-
-/// The share of discordant pairs when A and B succeed independently:
-/// `a(1 − b) + b(1 − a)`.
-pub fn independent_discordance(rate_a: f64, rate_b: f64) -> f64 {
-    rate_a * (1.0 - rate_b) + rate_b * (1.0 - rate_a)
 }
 
 #[cfg(test)]

@@ -1,8 +1,12 @@
 //! `d3il bench sequential`: how many rollouts the sequential paired test
 //! (d3il_metrics::sequential) saves against the fixed-size paired test of
 //! equal power, and that it keeps its type-I error, by Monte Carlo over a
-//! grid of success-rate pairs (issue 41). docs/sequential.md has the method
-//! and the figures.
+//! grid of success-rate pairs (issue 41). The protocol view (the last line)
+//! runs the test as a comparison does, deciding by the boundary calibrated
+//! to the protocol's horizon (d3il_metrics::horizon); the anytime e-value
+//! rule is measured beside it, and alone in the design view (which needs
+//! runs longer than the horizon). docs/sequential.md has the method and the
+//! figures.
 
 use d3il_metrics::sequential::{
     discordant_probabilities, independent_discordance, simulate, truncate, Decision, DecisionTable,
@@ -19,6 +23,9 @@ const MAX_PAIRS: usize = 480;
 /// capped here: a measured power of 1 would ask for an infinite fixed test.
 /// The cap favours the fixed test.
 const POWER_CAP: f64 = 0.99;
+/// Equal rates (the type-I error) get this many times the runs under the
+/// calibrated boundary.
+const NULL_RUNS_FACTOR: usize = 25;
 /// The power both tests are designed for in the "design view".
 const DESIGN_POWER: f64 = 0.9;
 /// Most pairs a simulated run goes on for (the design view's truncation
@@ -68,8 +75,12 @@ struct Row {
     a: f64,
     b: f64,
     discordance: f64,
-    /// Truncated at the protocol's `MAX_PAIRS`.
+    /// Decided by the boundary calibrated to `MAX_PAIRS`.
     protocol: Simulated,
+    /// The e-value rule truncated at `MAX_PAIRS`, and the fixed test's pairs
+    /// for its power.
+    e_protocol: Simulated,
+    e_protocol_fixed: Option<usize>,
     /// Pairs the fixed test needs for the sequential test's power at
     /// `MAX_PAIRS` (capped at `POWER_CAP`).
     protocol_fixed: Option<usize>,
@@ -79,15 +90,43 @@ struct Row {
     design: Option<(u32, Simulated, usize)>,
 }
 
-fn simulate_pair(a: f64, b: f64, ratio: f64, runs: usize, seed: u64, table: &DecisionTable) -> Row {
+fn simulate_pair(
+    a: f64,
+    b: f64,
+    ratio: f64,
+    runs: usize,
+    seed: u64,
+    (table, horizon): (&DecisionTable, &DecisionTable),
+) -> Row {
     let cap = table.max_pairs();
     let discordance = (ratio * independent_discordance(a, b)).max((a - b).abs());
     let (p10, p01) = discordant_probabilities(a, b, discordance);
-    let all = simulate(table, p10, p01, runs, cap, seed);
-    let protocol = truncate(&all, MAX_PAIRS as u32);
+    // Equal rates only need the protocol's size.
+    let all = simulate(
+        table,
+        p10,
+        p01,
+        runs,
+        if a == b { MAX_PAIRS } else { cap },
+        seed,
+    );
+    let e_protocol = truncate(&all, MAX_PAIRS as u32);
+    // The same seed: the same first pairs, decided by the calibrated
+    // boundary. Its type-I error is close to α by design, so equal rates
+    // get `NULL_RUNS_FACTOR` times the runs (a standard error of 0.0007).
+    let n = if a == b {
+        NULL_RUNS_FACTOR * runs
+    } else {
+        runs
+    };
+    let protocol = truncate(
+        &simulate(horizon, p10, p01, n, MAX_PAIRS, seed),
+        MAX_PAIRS as u32,
+    );
     let mut fixed = FixedPairedTest::new(ALPHA);
-    let (protocol_fixed, design) = if a > b {
+    let (protocol_fixed, e_protocol_fixed, design) = if a > b {
         let pf = fixed.pairs_for_power(p10, p01, protocol.a_better.min(POWER_CAP), 100_000);
+        let ef = fixed.pairs_for_power(p10, p01, e_protocol.a_better.min(POWER_CAP), 100_000);
         // Fewest pairs at which the truncated sequential test has the power.
         let mut decided: Vec<u32> = all
             .iter()
@@ -100,15 +139,17 @@ fn simulate_pair(a: f64, b: f64, ratio: f64, runs: usize, seed: u64, table: &Dec
             let f = fixed.pairs_for_power(p10, p01, DESIGN_POWER, 100_000)?;
             Some((n, truncate(&all, n), f))
         });
-        (pf, design)
+        (pf, ef, design)
     } else {
-        (None, None)
+        (None, None, None)
     };
     Row {
         a,
         b,
         discordance: p10 + p01,
         protocol,
+        e_protocol,
+        e_protocol_fixed,
         protocol_fixed,
         design,
     }
@@ -124,18 +165,27 @@ pub fn run(smoke: bool) -> anyhow::Result<()> {
     };
     let runs = if smoke { 200 } else { 4000 };
     let ratio = measured_discordance_ratio();
+    let table = DecisionTable::new(ALPHA, if smoke { 600 } else { CAP_PAIRS });
+    let horizon = DecisionTable::with_horizon(ALPHA, MAX_PAIRS);
+    let boundary = d3il_metrics::sequential::CalibratedBoundary::new(ALPHA, MAX_PAIRS);
     println!(
-        "sequential paired test (mixture e-process, two-sided, alpha {ALPHA}) against the exact fixed-size sign test \
-         of equal power; {runs} runs per rate pair; paired: {ratio:.3} x the discordant pairs of independent outcomes \
+        "sequential paired test (two-sided, alpha {ALPHA}): boundary calibrated to {MAX_PAIRS} pairs \
+         (|w - l| >= ceil({:.4} sqrt(w + l)), last look at pair {MAX_PAIRS}; exact type-I {:.5}), and the mixture e-process \
+         (e-value >= 1/alpha, anytime) beside it",
+        boundary.z(),
+        boundary.type_i_error()
+    );
+    println!(
+        "both against the exact fixed-size sign test \
+         of equal power; {runs} runs per rate pair ({} per equal pair under the boundary); paired: {ratio:.3} x the discordant pairs of independent outcomes \
          (measured: {} of {} pairs discordant, {} {} and {} {} successes, Aligning paper protocol)",
-        MEASURED.discordant, MEASURED.pairs, MEASURED.a_name, MEASURED.a_successes, MEASURED.b_name, MEASURED.b_successes
+        NULL_RUNS_FACTOR * runs, MEASURED.discordant, MEASURED.pairs, MEASURED.a_name, MEASURED.a_successes, MEASURED.b_name, MEASURED.b_successes
     );
     println!(
         "protocol view: runs stop at {MAX_PAIRS} pairs (Aligning's 60 x 8), fixed test of the sequential test's power (at most {POWER_CAP}); \
          design view: both tests at power {DESIGN_POWER}, the sequential one truncated at the fewest pairs that give it that power"
     );
-    let cap = if smoke { 600 } else { CAP_PAIRS };
-    let table = DecisionTable::new(ALPHA, cap);
+    let cap = table.max_pairs();
     let mut summary = vec![];
     for (label, r) in [("paired", ratio), ("unpaired", 1.0)] {
         let mut cells = vec![];
@@ -150,28 +200,43 @@ pub fn run(smoke: bool) -> anyhow::Result<()> {
         }
         let mut rows: Vec<Row> = cells
             .par_iter()
-            .map(|&(a, b, s)| simulate_pair(a, b, r, runs, s, &table))
+            .map(|&(a, b, s)| simulate_pair(a, b, r, runs, s, (&table, &horizon)))
             .collect();
         rows.sort_by(|x, y| (x.a, x.b).partial_cmp(&(y.a, y.b)).unwrap());
         let (equal, unequal): (Vec<&Row>, Vec<&Row>) = rows.iter().partition(|r| r.a == r.b);
-        println!("\n{label}: equal rates (type-I error: share of runs deciding either way by {MAX_PAIRS} pairs)");
-        let mut worst: f64 = 0.0;
+        println!(
+            "\n{label}: equal rates (type-I error: share of runs deciding either way by {MAX_PAIRS} pairs; boundary, e-value)"
+        );
+        let (mut worst, mut e_worst): (f64, f64) = (0.0, 0.0);
         for t in &equal {
             let e = t.protocol.a_better + t.protocol.b_better;
+            let ee = t.e_protocol.a_better + t.e_protocol.b_better;
             worst = worst.max(e);
+            e_worst = e_worst.max(ee);
             println!(
-                "{label}:   {:.2} = {:.2}  discordant {:.3}  type-I {:.4}",
-                t.a, t.b, t.discordance, e
+                "{label}:   {:.2} = {:.2}  discordant {:.3}  type-I {:.4} (exact {:.4})  e-value: {:.4}",
+                t.a,
+                t.b,
+                t.discordance,
+                e,
+                boundary.type_i_at(t.discordance),
+                ee
             );
         }
-        println!("{label}: largest type-I error {worst:.4} (must be <= {ALPHA})");
         println!(
-            "{label}: {:>5} {:>5} {:>6} | {:>6} {:>7} {:>8} {:>6} {:>6} | {:>6} {:>8} {:>6} {:>6}",
+            "{label}: largest type-I error {worst:.4} (boundary), {e_worst:.4} (e-value) (must be <= {ALPHA})"
+        );
+        println!(
+            "{label}: {:>5} {:>5} {:>6} | {:>6} {:>7} {:>8} {:>6} {:>6} | e-value: {:>6} {:>8} {:>6} {:>6} | {:>6} {:>8} {:>6} {:>6}",
             "A",
             "B",
             "disc.",
             "power",
             "wrong",
+            "E[pairs]",
+            "fixed",
+            "ratio",
+            "power",
             "E[pairs]",
             "fixed",
             "ratio",
@@ -181,9 +246,13 @@ pub fn run(smoke: bool) -> anyhow::Result<()> {
             "ratio"
         );
         let (mut p_seq, mut p_fixed, mut d_seq, mut d_fixed) = (0.0, 0.0, 0.0, 0.0);
+        let (mut e_seq, mut e_fixed) = (0.0, 0.0);
         let mut missing = 0;
+        let opt = |n: Option<usize>, used: f64| match n {
+            Some(f) => (format!("{f}"), format!("{:.2}", used / f as f64)),
+            None => ("-".into(), "-".into()),
+        };
         for row in &unequal {
-            let pf = row.protocol_fixed.map(|n| n as f64);
             let design = row.design.map_or(
                 format!("{:>6} {:>8} {:>6} {:>6}", "-", "-", "-", "-"),
                 |(n, s, f)| {
@@ -194,23 +263,26 @@ pub fn run(smoke: bool) -> anyhow::Result<()> {
                     )
                 },
             );
+            let (pf, pr) = opt(row.protocol_fixed, row.protocol.mean_pairs);
+            let (ef, er) = opt(row.e_protocol_fixed, row.e_protocol.mean_pairs);
             println!(
-                "{label}: {:>5.2} {:>5.2} {:>6.3} | {:>6.3} {:>7.4} {:>8.1} {:>6} {:>6} | {design}",
+                "{label}: {:>5.2} {:>5.2} {:>6.3} | {:>6.3} {:>7.4} {:>8.1} {pf:>6} {pr:>6} | e-value: {:>6.3} {:>8.1} {ef:>6} {er:>6} | {design}",
                 row.a,
                 row.b,
                 row.discordance,
                 row.protocol.a_better,
                 row.protocol.b_better,
                 row.protocol.mean_pairs,
-                pf.map_or("-".into(), |f| format!("{f:.0}")),
-                pf.map_or("-".into(), |f| format!(
-                    "{:.2}",
-                    row.protocol.mean_pairs / f
-                )),
+                row.e_protocol.a_better,
+                row.e_protocol.mean_pairs,
             );
-            if let Some(f) = pf {
+            if let Some(f) = row.protocol_fixed {
                 p_seq += row.protocol.mean_pairs;
-                p_fixed += f;
+                p_fixed += f as f64;
+            }
+            if let Some(f) = row.e_protocol_fixed {
+                e_seq += row.e_protocol.mean_pairs;
+                e_fixed += f as f64;
             }
             match row.design {
                 Some((_, s, f)) => {
@@ -224,18 +296,26 @@ pub fn run(smoke: bool) -> anyhow::Result<()> {
             unequal.iter().map(|r| r.protocol.a_better).sum::<f64>() / unequal.len() as f64;
         println!(
             "{label}: {} rate pairs, mean power at {MAX_PAIRS} pairs {mean_power:.3}; summed expected pairs: protocol view {p_seq:.0} \
-             sequential vs {p_fixed:.0} fixed (ratio {:.3}); design view {d_seq:.0} vs {d_fixed:.0} (ratio {:.3}, {missing} pairs \
-             without power {DESIGN_POWER} within {cap} pairs left out)",
+             sequential vs {p_fixed:.0} fixed (ratio {:.3}); e-value rule {e_seq:.0} vs {e_fixed:.0} (ratio {:.3}); e-value rule, \
+             design view {d_seq:.0} vs {d_fixed:.0} (ratio {:.3}, {missing} pairs without power {DESIGN_POWER} within {cap} pairs left out)",
             unequal.len(),
             p_seq / p_fixed,
+            e_seq / e_fixed,
             d_seq / d_fixed
         );
-        summary.push((label, worst, p_seq / p_fixed, d_seq / d_fixed));
+        summary.push((
+            label,
+            worst,
+            p_seq / p_fixed,
+            e_seq / e_fixed,
+            d_seq / d_fixed,
+        ));
     }
     println!();
-    for (label, worst, protocol, design) in &summary {
+    for (label, worst, protocol, e_protocol, design) in &summary {
         println!(
-            "{label}: largest type-I error {worst:.4} (alpha {ALPHA}); ratio protocol view {protocol:.3}, design view {design:.3}"
+            "{label}: largest type-I error {worst:.4} (alpha {ALPHA}); ratio protocol view {protocol:.3} \
+             (e-value rule {e_protocol:.3}, its design view {design:.3})"
         );
     }
     println!(

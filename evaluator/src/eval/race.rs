@@ -1,8 +1,10 @@
 //! A sequential race of two policies (issue 41 item 2): both run on the
 //! same initial states in the same random order, with the same seed and
 //! rollout ids (hence the same noise seeds), interleaved turn by turn; as a
-//! state completes for both, its paired outcomes go to the anytime-valid
-//! paired test ([`SequentialComparison`]), and the race stops starting
+//! state completes for both, its paired outcomes go to the sequential
+//! paired test ([`SequentialComparison`], deciding by the boundary
+//! calibrated to the protocol's number of initial states; its e-value and
+//! anytime-valid p-value are reported), and the race stops starting
 //! rollouts as soon as it decides, or runs the protocol's full size.
 //! docs/sequential.md has the rule.
 
@@ -89,7 +91,10 @@ pub fn race(
     b.policy.reset(&started)?;
     let mut timing = Timing::default();
     let (mut done_a, mut done_b) = (Vec::new(), Vec::new());
-    let mut test = SequentialComparison::new(race_opts.alpha, race_opts.delta);
+    // The protocol fixes the horizon: at most one pair per initial state,
+    // so the boundary calibrated to n_ctx pairs decides (its exact type-I
+    // error over at most n_ctx pairs is <= alpha; the e-value is reported).
+    let mut test = SequentialComparison::with_horizon(race_opts.alpha, race_opts.delta, n_ctx);
     let (mut paired, mut wins) = (0usize, (0u64, 0u64));
     let (mut successes_a, mut successes_b) = (0usize, 0usize);
     'race: while la.live() || lb.live() {
