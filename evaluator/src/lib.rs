@@ -19,6 +19,7 @@ pub mod job;
 pub mod mujoco;
 pub mod open_loop;
 pub mod perturb;
+pub mod perturb_view;
 pub mod replay_input;
 pub mod robot;
 #[cfg(feature = "engine")]

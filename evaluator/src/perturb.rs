@@ -27,6 +27,11 @@
 //!   of higher priority (the larger of the two at equal priority), so the
 //!   boxes' geoms get priority over the table and the scaled value of the
 //!   friction the contact had.
+//! * `camera` and `lighting` (image suites only, `crate::perturb_view`): the
+//!   cameras moved and turned in their own frames, the lights dimmed and
+//!   tilted, in a fresh compile of the scene like `dynamics`. State suites
+//!   have no image axes, image suites no `obs_noise` (an image policy does
+//!   not observe the state).
 
 use crate::mujoco::ObjKind;
 use crate::tasks::{CommandKind, LoadedTask, TaskError};
@@ -52,33 +57,49 @@ const PUSHING_V2: &[u8] = include_bytes!("../../assets/robustness/pushing-v2.jso
 pub const PUSHING_V2_SHA256: &str =
     "581dd17af6538df6f45bb16238b0a787cac0fd1f7c44d150781bdbd273c851cb";
 
-/// Every committed suite: (task, file name, bytes, expected sha256), oldest
-/// first: a task's last one is its current suite (what `d3il eval --suite
-/// robustness` runs), the older ones stay for replays of older results.
-const SUITES: &[(TaskId, &str, &[u8], &str)] = &[
+const ALIGNING_IMAGE_V1: &[u8] = include_bytes!("../../assets/robustness/aligning-image-v1.json");
+pub const ALIGNING_IMAGE_V1_SHA256: &str =
+    "1057e52c29a889ba95eb4733fd9bd91eea54acacbfa77dfb690ce161ccccc919";
+
+/// Every committed suite: (task, observation type, file name, bytes,
+/// expected sha256), oldest first: a task's last one of an observation type
+/// is its current suite (what `d3il eval --suite robustness` runs), the
+/// older ones stay for replays of older results.
+const SUITES: &[(TaskId, ObsType, &str, &[u8], &str)] = &[
     (
         TaskId::Aligning,
+        ObsType::State,
         "aligning-v1.json",
         ALIGNING_V1,
         ALIGNING_V1_SHA256,
     ),
     (
         TaskId::Pushing,
+        ObsType::State,
         "pushing-v1.json",
         PUSHING_V1,
         PUSHING_V1_SHA256,
     ),
     (
         TaskId::Aligning,
+        ObsType::State,
         "aligning-v2.json",
         ALIGNING_V2,
         ALIGNING_V2_SHA256,
     ),
     (
         TaskId::Pushing,
+        ObsType::State,
         "pushing-v2.json",
         PUSHING_V2,
         PUSHING_V2_SHA256,
+    ),
+    (
+        TaskId::Aligning,
+        ObsType::Image,
+        "aligning-image-v1.json",
+        ALIGNING_IMAGE_V1,
+        ALIGNING_IMAGE_V1_SHA256,
     ),
 ];
 
@@ -86,8 +107,8 @@ const SUITES: &[(TaskId, &str, &[u8], &str)] = &[
 pub enum PerturbError {
     #[error("robustness suite `{name}`: {message}")]
     Suite { name: String, message: String },
-    #[error("task {0} has no robustness suite yet (suites: {1})")]
-    NoSuite(TaskId, String),
+    #[error("task {0} has no robustness suite for {1} observations yet (suites: {2})")]
+    NoSuite(TaskId, ObsType, String),
     #[error(transparent)]
     Task(#[from] TaskError),
 }
@@ -141,6 +162,9 @@ pub struct SuiteAxis {
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct SuiteFile {
     pub task: TaskId,
+    /// The policies the suite is for (files before the image suites: state).
+    #[serde(default = "state")]
+    pub obs_type: ObsType,
     pub version: String,
     pub description: String,
     /// The coordinates `start_shift` moves, with their sampling ranges.
@@ -151,7 +175,14 @@ pub struct SuiteFile {
     /// with them get the scaled friction.
     pub dynamics_bodies: Vec<String>,
     pub table_geom: String,
+    /// The cameras `camera` moves (image suites).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub cameras: Vec<String>,
     pub axes: Vec<SuiteAxis>,
+}
+
+fn state() -> ObsType {
+    ObsType::State
 }
 
 /// A verified suite.
@@ -163,15 +194,27 @@ pub struct Suite {
 }
 
 impl Suite {
-    /// The current suite of `task` (its newest version), sha256 checked.
+    /// The current suite of `task` for state policies, sha256 checked.
     pub fn for_task(task: TaskId) -> Result<Suite, PerturbError> {
-        let &(_, name, bytes, sha) =
-            SUITES.iter().rev().find(|s| s.0 == task).ok_or_else(|| {
+        Suite::current(task, ObsType::State)
+    }
+
+    /// The current suite of `task` for `obs` policies (its newest version),
+    /// sha256 checked.
+    pub fn current(task: TaskId, obs: ObsType) -> Result<Suite, PerturbError> {
+        let &(_, _, name, bytes, sha) = SUITES
+            .iter()
+            .rev()
+            .find(|s| s.0 == task && s.1 == obs)
+            .ok_or_else(|| {
                 PerturbError::NoSuite(
                     task,
+                    obs,
                     SUITES
                         .iter()
-                        .map(|s| s.0.to_string())
+                        .map(|s| format!("{} ({})", s.0, s.1.as_str()))
+                        .collect::<std::collections::BTreeSet<_>>()
+                        .into_iter()
                         .collect::<Vec<_>>()
                         .join(", "),
                 )
@@ -181,9 +224,9 @@ impl Suite {
 
     /// The committed suite named `name` (as a manifest records it) of `task`.
     pub fn named(task: TaskId, name: &str) -> Result<Suite, PerturbError> {
-        let &(_, name, bytes, sha) = SUITES
+        let &(_, _, name, bytes, sha) = SUITES
             .iter()
-            .find(|s| s.0 == task && s.1 == name)
+            .find(|s| s.0 == task && s.2 == name)
             .ok_or_else(|| PerturbError::Suite {
                 name: name.into(),
                 message: format!("this build has no such robustness suite for {task}"),
@@ -233,7 +276,23 @@ impl Suite {
                 ));
             }
         }
+        let image = self.file.obs_type == ObsType::Image;
         for a in &self.file.axes {
+            let fits = match a.axis {
+                Axis::Camera | Axis::Lighting => image,
+                Axis::ObsNoise => !image,
+                _ => true,
+            };
+            if !fits {
+                return Err(format!(
+                    "axis {} is not for {} policies (camera and lighting are image axes; obs_noise acts on the state observation)",
+                    a.axis,
+                    self.file.obs_type.as_str()
+                ));
+            }
+            if a.axis == Axis::Camera && self.file.cameras.is_empty() {
+                return Err("axis camera needs the `cameras` it moves".into());
+            }
             for (i, l) in a.levels.iter().enumerate() {
                 let ok = match a.axis {
                     Axis::StartShift => l.widen.is_some_and(|w| w > 0.0),
@@ -250,10 +309,14 @@ impl Suite {
                     Axis::Dynamics => {
                         l.mass.is_some_and(|m| m > 0.0) && l.friction.is_some_and(|f| f > 0.0)
                     }
+                    Axis::Camera => l.camera_shift_m.is_some() && l.camera_turn_deg.is_some(),
+                    Axis::Lighting => {
+                        l.light_scale.is_some_and(|s| s > 0.0) && l.light_tilt_deg.is_some()
+                    }
                 };
                 if !ok {
                     return Err(format!(
-                        "level {} of axis {} does not give what the axis needs (start_shift: widen > 0; obs_noise: position_m and angle_rad ≥ 0; latency: steps + fraction > 0 with 0 ≤ fraction < 1, on a delta-command task; dynamics: mass and friction > 0)",
+                        "level {} of axis {} does not give what the axis needs (start_shift: widen > 0; obs_noise: position_m and angle_rad ≥ 0; latency: steps + fraction > 0 with 0 ≤ fraction < 1, on a delta-command task; dynamics: mass and friction > 0; camera: camera_shift_m and camera_turn_deg; lighting: light_scale > 0 and light_tilt_deg)",
                         i + 1,
                         a.axis
                     ));
@@ -338,19 +401,29 @@ impl Active {
     /// `dynamics` a fresh compile of its scene with the changed masses and
     /// friction (the scene file, hence `mjcf_sha256`, is the same).
     pub fn task(&self, task: &LoadedTask) -> Result<LoadedTask, PerturbError> {
-        if task.obs_type != ObsType::State {
+        if task.obs_type != self.suite.file.obs_type {
             return Err(PerturbError::Suite {
                 name: self.suite.name.clone(),
-                message: "the robustness suites are for state policies; image axes (camera pose, lighting) are not built yet".into(),
+                message: format!(
+                    "this suite is for {} policies, the evaluation's policy observes {}",
+                    self.suite.file.obs_type.as_str(),
+                    task.obs_type.as_str()
+                ),
             });
         }
-        if self.perturbation.axis != Axis::Dynamics {
+        let axis = self.perturbation.axis;
+        if !matches!(axis, Axis::Dynamics | Axis::Camera | Axis::Lighting) {
             return Ok(task.clone());
         }
         let mut fresh = LoadedTask::load_look(task.def.id(), task.obs_type, task.look)?;
         let model = std::sync::Arc::get_mut(&mut fresh.model)
             .expect("a freshly compiled model has no other user");
         let s = &self.perturbation.setting;
+        if axis != Axis::Dynamics {
+            crate::perturb_view::apply(model, &self.suite.file.cameras, s)
+                .map_err(TaskError::from)?;
+            return Ok(fresh);
+        }
         let (mass, friction) = (s.mass.unwrap_or(1.0), s.friction.unwrap_or(1.0));
         let file = &self.suite.file;
         let mut bodies = vec![];
@@ -488,7 +561,14 @@ mod tests {
                 "v2 is the current suite"
             );
         }
-        for &(task, name, bytes, sha) in SUITES {
+        assert_eq!(
+            Suite::current(TaskId::Aligning, ObsType::Image)
+                .unwrap()
+                .name,
+            "aligning-image-v1.json"
+        );
+        assert!(Suite::current(TaskId::Pushing, ObsType::Image).is_err());
+        for &(task, _, name, bytes, sha) in SUITES {
             let s = Suite::named(task, name).unwrap();
             assert_eq!((s.name.as_str(), s.sha256.as_str()), (name, sha));
             assert!(!s.perturbations().is_empty());

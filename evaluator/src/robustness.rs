@@ -34,16 +34,12 @@ pub fn check_suite_name(name: &str) -> Result<(), EvalError> {
 }
 
 /// The suite a job or `d3il eval --suite NAME` asks for, for `task` and
-/// `obs`: suites exist for some tasks and state observations only (the
-/// server checks the same before queueing, docs/robustness.md).
+/// `obs`: suites exist for some tasks and observation types only (state:
+/// Aligning and Pushing; image: Aligning, with the camera and lighting
+/// axes); the server checks the same before queueing, docs/robustness.md.
 pub fn suite_for(name: &str, task: TaskId, obs: ObsType) -> Result<Suite, EvalError> {
     check_suite_name(name)?;
-    if obs != ObsType::State {
-        return Err(EvalError::Setup(format!(
-            "the robustness suite has no axes for {obs} observations yet (state policies only)"
-        )));
-    }
-    Suite::for_task(task).map_err(|e| EvalError::Setup(e.to_string()))
+    Suite::current(task, obs).map_err(|e| EvalError::Setup(e.to_string()))
 }
 
 /// How big a robustness evaluation is, before it runs.

@@ -26,14 +26,20 @@ pub enum Axis {
     Latency,
     /// Box mass and box–table friction scaled.
     Dynamics,
+    /// Image policies: the cameras moved and turned in their own frames.
+    Camera,
+    /// Image policies: the scene's lights dimmed and tilted.
+    Lighting,
 }
 
 impl Axis {
-    pub const ALL: [Axis; 4] = [
+    pub const ALL: [Axis; 6] = [
         Axis::StartShift,
         Axis::ObsNoise,
         Axis::Latency,
         Axis::Dynamics,
+        Axis::Camera,
+        Axis::Lighting,
     ];
 
     pub fn as_str(self) -> &'static str {
@@ -42,6 +48,8 @@ impl Axis {
             Axis::ObsNoise => "obs_noise",
             Axis::Latency => "latency",
             Axis::Dynamics => "dynamics",
+            Axis::Camera => "camera",
+            Axis::Lighting => "lighting",
         }
     }
 }
@@ -98,6 +106,23 @@ pub struct LevelSetting {
     /// dynamics: factor on the box–table sliding friction.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub friction: Option<f64>,
+    /// camera: each camera moved by this offset (metres) along its own axes
+    /// (MuJoCo's camera frame: x right, y up, z backwards out of the view).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub camera_shift_m: Option<[f64; 3]>,
+    /// camera: each camera then turned by these angles (degrees) about its
+    /// own x, y and z axes, in that order (intrinsic).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub camera_turn_deg: Option<[f64; 3]>,
+    /// lighting: factor on every light's diffuse, specular and ambient
+    /// colour.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub light_scale: Option<f64>,
+    /// lighting: every light's direction turned by this angle (degrees)
+    /// about the world's y axis (towards −x, the robot, for a positive
+    /// angle: the scene's one light is directional and points down).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub light_tilt_deg: Option<f64>,
 }
 
 /// The perturbation a result was evaluated under (its protocol manifest's

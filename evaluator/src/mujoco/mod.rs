@@ -420,6 +420,86 @@ impl Model {
         })
     }
 
+    /// The image axes of the robustness suites (`crate::perturb`): each of
+    /// `cameras` (id, new `cam_pos`, new `cam_quat`) set; every light's
+    /// ambient, diffuse and specular colour scaled by `light_scale` and its
+    /// direction replaced by the one `light_dir` maps it to. Then
+    /// `mj_setConst`, so the derived reference poses agree.
+    pub fn perturb_view(
+        &mut self,
+        cameras: &[(usize, [f64; 3], [f64; 4])],
+        light_scale: f32,
+        light_dir: &dyn Fn([f64; 3]) -> [f64; 3],
+    ) -> Result<(), MjError> {
+        let (ncam, nlight) = (self.raw().ncam as usize, self.raw().nlight as usize);
+        if let Some(c) = cameras.iter().find(|c| c.0 >= ncam) {
+            return Err(MjError::Input(format!("camera id {} out of range", c.0)));
+        }
+        // SAFETY: `&mut self` is the only reference to the model; the camera
+        // ids were checked above, the light loop stays below `nlight`.
+        unsafe {
+            let m = self.ptr.as_mut();
+            for &(c, pos, quat) in cameras {
+                for k in 0..3 {
+                    *m.cam_pos.add(3 * c + k) = pos[k];
+                }
+                for k in 0..4 {
+                    *m.cam_quat.add(4 * c + k) = quat[k];
+                }
+            }
+            for l in 0..nlight {
+                for k in 0..3 {
+                    *m.light_ambient.add(3 * l + k) *= light_scale;
+                    *m.light_diffuse.add(3 * l + k) *= light_scale;
+                    *m.light_specular.add(3 * l + k) *= light_scale;
+                }
+                let d = [0, 1, 2].map(|k| *m.light_dir.add(3 * l + k));
+                let turned = light_dir(d);
+                for k in 0..3 {
+                    *m.light_dir.add(3 * l + k) = turned[k];
+                }
+            }
+        }
+        install_handlers();
+        let ptr = self.ptr.as_ptr();
+        guarded(|| unsafe {
+            // SAFETY: a scratch mjData of this model, deleted right after
+            // mj_setConst has used it.
+            let d = ffi::mj_makeData(ptr);
+            if !d.is_null() {
+                ffi::mj_setConst(ptr, d);
+                ffi::mj_deleteData(d);
+            }
+        })
+    }
+
+    /// A camera's pose relative to its body: (`cam_pos`, `cam_quat`).
+    pub fn cam_local_pose(&self, camera: usize) -> ([f64; 3], [f64; 4]) {
+        let m = self.raw();
+        assert!(camera < m.ncam as usize, "camera id {camera} out of range");
+        // SAFETY: checked against ncam; MuJoCo allocates 3 and 4 per camera.
+        unsafe {
+            (
+                [0, 1, 2].map(|k| *m.cam_pos.add(3 * camera + k)),
+                [0, 1, 2, 3].map(|k| *m.cam_quat.add(4 * camera + k)),
+            )
+        }
+    }
+
+    /// Every light's (diffuse colour, direction), in the light's body frame.
+    pub fn lights(&self) -> Vec<([f32; 3], [f64; 3])> {
+        let m = self.raw();
+        // SAFETY: MuJoCo allocates 3 entries per light for both fields.
+        (0..m.nlight as usize)
+            .map(|l| unsafe {
+                (
+                    [0, 1, 2].map(|k| *m.light_diffuse.add(3 * l + k)),
+                    [0, 1, 2].map(|k| *m.light_dir.add(3 * l + k)),
+                )
+            })
+            .collect()
+    }
+
     /// Pointer for the rendering module (same crate, still inside the binding).
     #[allow(dead_code)]
     pub(crate) fn as_ptr(&self) -> *const ffi::mjModel {

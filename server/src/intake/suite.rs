@@ -19,44 +19,82 @@ pub(super) fn suite_field(raw: &RawSubmission) -> Result<Option<String>, AppErro
     }
 }
 
-/// Whether `task` with `obs` observations has a robustness suite: state
-/// policies of the tasks with a suite file in `assets/robustness/` (the
-/// worker's `d3il_evaluator::robustness::suite_for` checks the same, with
-/// the files' sha256, before it evaluates).
+/// Whether `task` with `obs` observations has a robustness suite: a suite
+/// file in `assets/robustness/`, `<task>-v<N>.json` for state policies and
+/// `<task>-image-v<N>.json` for image policies (the worker's
+/// `d3il_evaluator::robustness::suite_for` checks the same, with the files'
+/// sha256, before it evaluates).
 pub fn check_suite_available(
     assets_dir: &std::path::Path,
     task: TaskId,
     obs: ObsType,
 ) -> Result<(), AppError> {
     let dir = assets_dir.join("robustness");
-    let with_suite: Vec<TaskId> = TaskId::ALL
-        .iter()
-        .copied()
-        .filter(|t| {
-            std::fs::read_dir(&dir).is_ok_and(|entries| {
-                entries.flatten().any(|e| {
-                    let name = e.file_name().to_string_lossy().into_owned();
-                    name.starts_with(&format!("{}-v", t.slug())) && name.ends_with(".json")
-                })
+    let prefix = |t: TaskId, o: ObsType| match o {
+        ObsType::State => format!("{}-v", t.slug()),
+        ObsType::Image => format!("{}-image-v", t.slug()),
+    };
+    let has = |t: TaskId, o: ObsType| {
+        std::fs::read_dir(&dir).is_ok_and(|entries| {
+            entries.flatten().any(|e| {
+                let name = e.file_name().to_string_lossy().into_owned();
+                name.starts_with(&prefix(t, o)) && name.ends_with(".json")
             })
         })
-        .collect();
-    let names = with_suite
-        .iter()
-        .map(|t| t.slug())
+    };
+    if has(task, obs) {
+        return Ok(());
+    }
+    let names = [ObsType::State, ObsType::Image]
+        .into_iter()
+        .map(|o| {
+            let tasks: Vec<&str> = TaskId::ALL
+                .iter()
+                .filter(|&&t| has(t, o))
+                .map(|t| t.slug())
+                .collect();
+            format!("{} observations: {}", o.as_str(), tasks.join(", "))
+        })
         .collect::<Vec<_>>()
-        .join(", ");
-    if !with_suite.contains(&task) {
-        return Err(AppError::invalid(
-            "suite",
-            format!("task `{task}` has no robustness suite yet; suites exist for {names} (state observations); leave `suite` out for a plain evaluation"),
-        ));
-    }
-    if obs != ObsType::State {
-        return Err(AppError::invalid(
-            "suite",
-            format!("the robustness suite of `{task}` has no axes for {obs} observations yet (state policies only); leave `suite` out for a plain evaluation"),
-        ));
-    }
-    Ok(())
+        .join("; ");
+    Err(AppError::invalid(
+        "suite",
+        format!("task `{task}` has no robustness suite for {obs} observations yet; suites exist for {names}; leave `suite` out for a plain evaluation"),
+    ))
+}
+
+/// How many evaluations a suite job of `task` with `obs` observations runs:
+/// level 0 and every level of the task's current suite file in
+/// `assets_dir/robustness/` (the newest `<task>-v<N>.json`, or
+/// `<task>-image-v<N>.json` for image policies). None without a readable
+/// suite file.
+pub fn suite_evaluations(
+    assets_dir: &std::path::Path,
+    task: TaskId,
+    obs: ObsType,
+) -> Option<usize> {
+    let prefix = match obs {
+        ObsType::State => format!("{}-v", task.slug()),
+        ObsType::Image => format!("{}-image-v", task.slug()),
+    };
+    let newest = std::fs::read_dir(assets_dir.join("robustness"))
+        .ok()?
+        .flatten()
+        .filter_map(|e| {
+            let name = e.file_name().to_string_lossy().into_owned();
+            let v: u32 = name
+                .strip_prefix(&prefix)?
+                .strip_suffix(".json")?
+                .parse()
+                .ok()?;
+            Some((v, e.path()))
+        })
+        .max_by_key(|(v, _)| *v)?;
+    let file: serde_json::Value = serde_json::from_slice(&std::fs::read(newest.1).ok()?).ok()?;
+    let levels: usize = file["axes"]
+        .as_array()?
+        .iter()
+        .map(|a| a["levels"].as_array().map_or(0, Vec::len))
+        .sum();
+    Some(1 + levels)
 }
