@@ -41,6 +41,7 @@ from .models import (
     Leaderboard,
     LeaderboardLink,
     Method,
+    RaceComparison,
     Results,
     RolloutItem,
     RolloutPage,
@@ -726,6 +727,63 @@ class Client:
     def compare(self, a: SubmissionRef, b: SubmissionRef) -> Comparison:
         """The paired comparison A − B of two completed submissions on the same task, protocol and initial states."""
         return from_json(Comparison, self._get_json("/api/v1/compare", {"a": _id(a), "b": _id(b)}))
+
+    def race(
+        self,
+        a: SubmissionRef,
+        b: SubmissionRef,
+        alpha: float = 0.05,
+        delta: Optional[float] = None,
+        wait: bool = True,
+        *,
+        protocol: Optional[str] = None,
+        seed: Optional[int] = None,
+        timeout: float = 7200.0,
+        poll: float = 1.0,
+        on_update: Optional[Callable[[RaceComparison], None]] = None,
+    ) -> RaceComparison:
+        """Race submissions ``a`` and ``b`` sequentially on the server (issue 41).
+
+        Both policies run interleaved on the same initial states in the same
+        random order; the race stops as soon as the anytime-valid paired test
+        decides at ``alpha`` ("A better", "B better", or with ``delta`` "no
+        difference larger than δ"), or at the protocol's full size
+        (``protocol``: ``paper``, the default, or ``quick``). With ``wait``
+        (default) returns the finished comparison (``decision``,
+        ``report``), else the queued one; ``on_update`` sees every state
+        polled (``live``: pairs so far, paired counts, e-value, anytime
+        p-value). Raises :class:`~d3il_client.errors.ServerError` (with the
+        field) for a wrong request, ``RuntimeError`` (with the server's
+        reason) when the race failed, and
+        :class:`~d3il_client.errors.WaitTimeout` after ``timeout`` seconds.
+        """
+        body: Dict[str, Any] = {"a": _id(a), "b": _id(b), "alpha": alpha}
+        for k, v in (("delta", delta), ("protocol", protocol), ("seed", seed)):
+            if v is not None:
+                body[k] = v
+        resp = self._send("POST", "/api/v1/comparisons", auth=True, json=body)
+        race = from_json(RaceComparison, _json(resp))
+        if not wait:
+            return race
+        deadline = time.monotonic() + timeout
+        while True:
+            if on_update is not None:
+                on_update(race)
+            if race.status == "completed":
+                return race
+            if race.status == "failed":
+                raise RuntimeError(f"comparison {race.id} failed: {race.error}")
+            if time.monotonic() >= deadline:
+                raise errors.WaitTimeout(
+                    f"comparison {race.id} is still {race.status} after {timeout:.0f} s; "
+                    f"wait again with client.comparison({race.id})"
+                )
+            time.sleep(max(0.05, min(poll, deadline - time.monotonic())))
+            race = self.comparison(race.id)
+
+    def comparison(self, comparison: int) -> RaceComparison:
+        """A sequential comparison (``GET /api/v1/comparisons/{id}``): status, live state, report."""
+        return from_json(RaceComparison, self._get_json(f"/api/v1/comparisons/{int(comparison)}"))
 
     def leaderboards(self) -> List[LeaderboardLink]:
         """Every leaderboard (task × observation type)."""

@@ -659,6 +659,69 @@ class Method:
     raw: Dict[str, Any] = _raw()
 
 
+@dataclasses.dataclass(frozen=True)
+class RaceLive:
+    """Where a running race stands after its latest pair (issue 41).
+
+    One pair per initial state (its rollout 0 for both policies); ``both``,
+    ``only_a``, ``only_b``, ``neither`` are the paired counts; ``e_value`` and
+    ``p_value`` (anytime-valid: valid whenever one looks) the sequential
+    test's now; ``decision`` once it decided.
+    """
+
+    SCHEMA: ClassVar[str] = "RaceLive"
+    states: int
+    states_total: int
+    pairs: int
+    both: int
+    only_a: int
+    only_b: int
+    neither: int
+    e_value: float
+    p_value: float
+    decision: Optional[str] = None
+    raw: Dict[str, Any] = _raw()
+
+
+@dataclasses.dataclass(frozen=True)
+class RaceComparison:
+    """A sequential race of two submissions (``POST /api/v1/comparisons``).
+
+    ``report`` (when ``status`` is ``completed``) is the document ``d3il
+    compare --sequential --task T A B --json`` prints: ``decision`` ("A
+    better", "B better", "no difference larger than δ", or None at the
+    protocol's full size), ``e_value``, ``p_value``, ``rollouts_used`` of
+    ``rollouts_full``, ``fixed_pairs_for_power_90``, ...
+    """
+
+    SCHEMA: ClassVar[str] = "ComparisonView"
+    id: int
+    a: int
+    b: int
+    task: str
+    protocol: str
+    seed: int
+    alpha: float
+    status: str
+    created_at: int
+    updated_at: int
+    delta: Optional[float] = None
+    live: Optional[RaceLive] = None
+    report: Optional[Dict[str, Any]] = None
+    error: Optional[str] = None
+    raw: Dict[str, Any] = _raw()
+
+    @property
+    def decision(self) -> Optional[str]:
+        """The decision, once the race has finished (None: none at full size, or not finished)."""
+        return None if self.report is None else self.report.get("decision")
+
+    @property
+    def rollouts_used(self) -> Optional[int]:
+        """Rollouts of both policies in the states used (None until finished)."""
+        return None if self.report is None else int(self.report["rollouts_used"])
+
+
 #: Every model with the OpenAPI schema it mirrors.
 MODELS: Tuple[Type[Any], ...] = (
     Progress,
@@ -675,6 +738,8 @@ MODELS: Tuple[Type[Any], ...] = (
     RolloutPage,
     PairedDifference,
     Comparison,
+    RaceLive,
+    RaceComparison,
     Stat,
     LeaderboardRow,
     Leaderboard,

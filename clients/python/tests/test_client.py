@@ -280,3 +280,24 @@ def test_quota_left_and_a_refusal_that_says_when(tmp_path: Path) -> None:
         assert e.status == 429 and e.code == "quota_exceeded", e
         assert e.next_submission_at is not None and e.next_submission_at > first.created_at, e
         assert isinstance(e, errors.RateLimited)
+
+
+def test_race_returns_a_typed_comparison_and_refuses_a_submission_against_itself(
+    client: Client, evaluated: Pair
+) -> None:
+    seen: list[d3il_client.models.RaceComparison] = []
+    race = client.race(evaluated.path, evaluated.noise, protocol="quick", poll=0.2, on_update=seen.append)
+    assert race.status == "completed" and race.report is not None, race
+    assert (race.a, race.b, race.alpha, race.protocol) == (evaluated.path.id, evaluated.noise.id, 0.05, "quick")
+    # Avoiding has one initial state: one pair, too few to decide at 5 %.
+    assert race.report["pairs_used"] == race.report["states_full"] == 1
+    assert race.decision is None
+    assert race.rollouts_used == race.report["rollouts_full"]
+    assert race.live is not None and race.live.pairs == 1
+    assert race.live.both + race.live.only_a + race.live.only_b + race.live.neither == 1
+    assert (race.live.only_a, race.live.only_b) == tuple(race.report["discordant"])
+    assert seen and seen[-1] == race
+    assert client.comparison(race.id) == race
+    with pytest.raises(errors.ServerError) as e:
+        client.race(evaluated.path, evaluated.path)
+    assert e.value.field == "b" and "different submissions" in e.value.message
