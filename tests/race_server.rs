@@ -137,6 +137,34 @@ fn a_race_on_the_server_reports_what_the_cli_race_reports_and_refuses_wrong_requ
     }
     assert_eq!(report["states_full"], 3, "quick protocol: {report}");
 
+    // `d3il submit --race A B --wait` (the CLI through the server): the same
+    // report, printed as `d3il compare --sequential --task` prints it.
+    let out = Command::new(EXE)
+        .args(["submit", "--server", &server.base, "--token", &token])
+        .args([
+            "--race",
+            &a.to_string(),
+            &b.to_string(),
+            "--protocol",
+            "quick",
+            "--wait",
+        ])
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{text}{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(text.starts_with("comparison "), "{text}");
+    let e_line = format!(
+        "e-value {:.3}, anytime-valid p-value {:.4}",
+        cli["e_value"].as_f64().unwrap(),
+        cli["p_value"].as_f64().unwrap()
+    );
+    assert!(text.contains(&e_line), "{e_line} in {text}");
+
     // The document describes both routes.
     let doc = client.get("/api/v1/openapi.json").unwrap();
     assert!(doc["paths"]["/comparisons"]["post"].is_object());
@@ -185,6 +213,18 @@ fn a_race_on_the_server_reports_what_the_cli_race_reports_and_refuses_wrong_requ
     let anonymous = server.client(None);
     let (status, _, _) = refused(&anonymous, json!({"a": a, "b": b}));
     assert_eq!(status, 401);
+    // `d3il submit --cancel ID`: the queued evaluation is cancelled.
+    let out = Command::new(EXE)
+        .args(["submit", "--server", &server.base, "--token", &token])
+        .args(["--cancel", &avoiding.to_string()])
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert_eq!(client.submission(avoiding).unwrap()["status"], "failed");
     // An unknown comparison: 404.
     assert!(matches!(
         client.comparison(id + 100),

@@ -18,6 +18,7 @@ pub mod infer;
 pub mod limits;
 pub mod merge;
 pub mod race;
+pub mod race_server;
 pub mod render;
 pub mod replay;
 pub mod robustness;

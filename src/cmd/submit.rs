@@ -13,18 +13,18 @@ pub struct Args {
     #[arg(long)]
     pub token: Option<String>,
     /// Method name.
-    #[arg(long)]
-    pub method: String,
+    #[arg(long, required_unless_present_any = ["cancel", "race"])]
+    pub method: Option<String>,
     /// Task slug (avoiding, aligning, pushing, sorting-2/4/6, stacking, inserting).
-    #[arg(long)]
-    pub task: String,
+    #[arg(long, required_unless_present_any = ["cancel", "race"])]
+    pub task: Option<String>,
     /// Observation type: `state` or `image` (must match the manifest).
     #[arg(long, default_value = "state")]
     pub obs_type: String,
     /// Training seed of this policy (0, 1, ...): the seeds of one method,
     /// task and setting are aggregated into one leaderboard row (mean ± std).
-    #[arg(long)]
-    pub training_seed: i64,
+    #[arg(long, required_unless_present_any = ["cancel", "race"])]
+    pub training_seed: Option<i64>,
     /// Fraction of the demonstrations the policy was trained on (0 < f ≤ 1;
     /// below 1 it shows in the data-fraction view).
     #[arg(long, default_value_t = 1.0)]
@@ -80,6 +80,23 @@ pub struct Args {
     /// Give up waiting after this many seconds.
     #[arg(long, default_value_t = 7200)]
     pub timeout: u64,
+    /// Cancel the queued or running evaluation of submission ID (`POST
+    /// /api/v1/submissions/{id}/cancel`): what ran is kept, marked partial.
+    #[arg(long, value_name = "ID", conflicts_with_all = ["race", "onnx", "endpoint"])]
+    pub cancel: Option<i64>,
+    /// Race submissions A and B sequentially on the server (`POST
+    /// /api/v1/comparisons`): both policies on the same initial states in
+    /// the same random order, stopping when the anytime-valid paired test
+    /// decides (docs/sequential.md). Uses --protocol, --alpha, --delta,
+    /// --wait and --json.
+    #[arg(long, num_args = 2, value_names = ["A", "B"], conflicts_with_all = ["onnx", "endpoint"])]
+    pub race: Option<Vec<i64>>,
+    /// With --race: the level of the sequential test.
+    #[arg(long, default_value_t = 0.05, requires = "race")]
+    pub alpha: f64,
+    /// With --race: also stop with "no difference larger than δ".
+    #[arg(long, requires = "race")]
+    pub delta: Option<f64>,
 }
 
 /// The checks the server would make that need no server, before anything is
@@ -87,11 +104,10 @@ pub struct Args {
 /// task, observation type and protocol, the seed and data fraction, the
 /// policy file, the manifest against --task and --obs-type, the endpoint's
 /// scheme. The server checks all of it again, and more.
-fn check_locally(a: &Args) -> anyhow::Result<()> {
-    let task: d3il_protocol::TaskId = a
-        .task
+fn check_locally(a: &Args, task: &str, training_seed: i64) -> anyhow::Result<()> {
+    let task: d3il_protocol::TaskId = task
         .parse()
-        .map_err(|e| anyhow::anyhow!("--task {}: {e}", a.task))?;
+        .map_err(|e| anyhow::anyhow!("--task {task}: {e}"))?;
     let obs_type: d3il_protocol::ObsType = a
         .obs_type
         .parse()
@@ -104,9 +120,8 @@ fn check_locally(a: &Args) -> anyhow::Result<()> {
             .map_err(|e| anyhow::anyhow!("--suite {suite}: {e}"))?;
     }
     anyhow::ensure!(
-        (0..=i64::from(i32::MAX)).contains(&a.training_seed),
-        "--training-seed must be a whole number from 0 to 2147483647, got {}",
-        a.training_seed
+        (0..=i64::from(i32::MAX)).contains(&training_seed),
+        "--training-seed must be a whole number from 0 to 2147483647, got {training_seed}"
     );
     anyhow::ensure!(
         a.data_fraction > 0.0 && a.data_fraction <= 1.0,
@@ -140,24 +155,44 @@ fn check_locally(a: &Args) -> anyhow::Result<()> {
     Ok(())
 }
 
-pub fn run(a: Args) -> anyhow::Result<()> {
-    anyhow::ensure!(
-        a.onnx.is_some() || a.endpoint.is_some(),
-        "give --onnx FILE (its manifest next to it as FILE.json, or --manifest) or --endpoint URL"
-    );
-    check_locally(&a)?;
+fn client_of(a: &Args) -> anyhow::Result<d3il_server::client::Client> {
     let token = match a.token.clone() {
         Some(t) => t,
         None => std::env::var("D3IL_TOKEN").context(
             "give --token or set D3IL_TOKEN (mint one with `d3il token create --name <you>`)",
         )?,
     };
-    let client = d3il_server::client::Client::new(&a.server, Some(token))?;
+    Ok(d3il_server::client::Client::new(&a.server, Some(token))?)
+}
+
+pub fn run(a: Args) -> anyhow::Result<()> {
+    if let Some(id) = a.cancel {
+        let v = client_of(&a)?.cancel(id)?;
+        println!(
+            "submission {id} cancelled: status {}, what ran is kept (partial)",
+            v["status"].as_str().unwrap_or("?")
+        );
+        return Ok(());
+    }
+    if let Some(pair) = &a.race {
+        return super::race_server::run(&a, &client_of(&a)?, pair[0], pair[1]);
+    }
+    let (Some(method), Some(task), Some(training_seed)) =
+        (a.method.clone(), a.task.clone(), a.training_seed)
+    else {
+        anyhow::bail!("give --method, --task and --training-seed (or --cancel ID, or --race A B)");
+    };
+    anyhow::ensure!(
+        a.onnx.is_some() || a.endpoint.is_some(),
+        "give --onnx FILE (its manifest next to it as FILE.json, or --manifest) or --endpoint URL"
+    );
+    check_locally(&a, &task, training_seed)?;
+    let client = client_of(&a)?;
     let mut fields: Vec<(&str, String)> = vec![
-        ("method", a.method.clone()),
-        ("task", a.task.clone()),
+        ("method", method),
+        ("task", task),
         ("obs_type", a.obs_type.clone()),
-        ("training_seed", a.training_seed.to_string()),
+        ("training_seed", training_seed.to_string()),
         ("data_fraction", a.data_fraction.to_string()),
         ("protocol", a.protocol.clone()),
     ];
