@@ -1,0 +1,201 @@
+#!/usr/bin/env python3
+"""Runs the workspace's test binaries a few at a time (`./dev test`, issue 43 item 5).
+
+`cargo test` runs its test binaries one after another. Most of ours wait on
+servers, workers, Chromium or PostgreSQL for much of their time, so on 2 cores
+one binary at a time leaves a core idle for half of the run. This builds every
+test binary once (`cargo test --workspace --no-run --message-format=json`),
+then runs them as cargo would (working directory the package's, CARGO_*
+variables set), JOBS at a time, longest first, each binary's output printed
+whole when it ends. The doc-tests run as one more job. At the end: every
+failed binary, then the ten slowest with their wall and CPU time (CI time
+stays visible: the budget of a clean-clone .ci/run is 40 minutes on 2 cores).
+
+Exits non-zero when the build or any binary fails; every binary runs either
+way (as cargo's --no-fail-fast). Arguments after `--` go to every test binary.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+# Wall seconds of the slowest binaries on an idle 2-core machine (./dev test of
+# 2026-11-28), so that they start first; others count as short. Only the order
+# depends on these.
+KNOWN_SECONDS = {
+    "closed_loop": 413,
+    "replay_records": 268,
+    "robustness": 258,
+    "sequential_race": 189,
+    "agents_torch": 183,
+    "bench_smoke": 169,
+    "eval_engine": 130,
+    "robustness_shard": 122,
+    "python_client": 83,
+    "cancel_live": 73,
+    "robustness_server": 46,
+    "container_image": 46,
+    "agents_cli": 45,
+    "verify": 39,
+    "remote_image": 38,
+    "fidelity_chromium": 38,
+    "fidelity_first_minute": 37,
+    "identical_rollouts": 35,
+    "replay_cli": 34,
+    "agent_server": 32,
+}
+
+
+@dataclass
+class Binary:
+    name: str  # what cargo prints after "Running": tests/x.rs, or "<crate> (unit tests)"
+    key: str  # the target's name
+    executable: str
+    cwd: str
+    env: dict[str, str]
+    wall: float = 0.0
+    cpu: float = 0.0
+    status: int = 0
+    output: str = ""
+    argv: list[str] = field(default_factory=list)
+
+
+def build(cargo_args: list[str]) -> list[Binary]:
+    meta = json.loads(
+        subprocess.run(
+            ["cargo", "metadata", "--format-version=1", "--no-deps"], check=True, capture_output=True, text=True
+        ).stdout
+    )
+    packages: dict[str, dict] = {p["id"]: p for p in meta["packages"]}
+    cmd = ["cargo", "test", "--workspace", "--no-run", "--message-format=json-render-diagnostics", *cargo_args]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True)
+    bins: list[Binary] = []
+    assert proc.stdout is not None
+    for line in proc.stdout:
+        try:
+            msg = json.loads(line)
+        except json.JSONDecodeError:
+            continue
+        if msg.get("reason") != "compiler-artifact" or not msg.get("executable") or not msg["profile"]["test"]:
+            continue
+        target = msg["target"]
+        pkg = packages.get(msg["package_id"])
+        if pkg is None:
+            continue
+        manifest_dir = str(Path(pkg["manifest_path"]).parent)
+        src = Path(target["src_path"])
+        if "test" in target["kind"]:
+            try:
+                name = str(src.relative_to(manifest_dir))
+            except ValueError:
+                name = str(src)
+        else:
+            name = f"{target['name']} (unit tests)"
+        env = {
+            "CARGO_MANIFEST_DIR": manifest_dir,
+            "CARGO_PKG_NAME": pkg["name"],
+            "CARGO_PKG_VERSION": pkg["version"],
+            "CARGO_CRATE_NAME": target["name"].replace("-", "_"),
+        }
+        bins.append(Binary(name=name, key=target["name"], executable=msg["executable"], cwd=manifest_dir, env=env))
+    if proc.wait() != 0:
+        sys.exit(f"test_pool: `{' '.join(cmd)}` failed (exit {proc.returncode}): the build errors are above")
+    return bins
+
+
+def run(b: Binary, test_args: list[str], lock: threading.Lock) -> None:
+    env = dict(os.environ)
+    env.update(b.env)
+    deps = str(Path(b.executable).parent)
+    env["LD_LIBRARY_PATH"] = deps + (":" + env["LD_LIBRARY_PATH"] if env.get("LD_LIBRARY_PATH") else "")
+    b.argv = [b.executable, *test_args]
+    with tempfile.TemporaryFile(mode="w+") as out:
+        t0 = time.monotonic()
+        proc = subprocess.Popen(b.argv, cwd=b.cwd, env=env, stdout=out, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL)
+        _, status, usage = os.wait4(proc.pid, 0)
+        proc.returncode = os.waitstatus_to_exitcode(status)
+        b.wall = time.monotonic() - t0
+        b.cpu = usage.ru_utime + usage.ru_stime
+        b.status = proc.returncode
+        out.seek(0)
+        b.output = out.read()
+    with lock:
+        print(f"     Running {b.name} ({b.executable})", flush=True)
+        sys.stdout.write(b.output)
+        verdict = "ok" if b.status == 0 else f"FAILED (exit {b.status})"
+        print(f"  {b.name}: {verdict} in {b.wall:.1f} s wall, {b.cpu:.1f} s CPU\n", flush=True)
+
+
+def main() -> int:
+    args = sys.argv[1:]
+    jobs = int(os.environ.get("D3IL_TEST_JOBS", "3"))
+    if "--" in args:
+        i = args.index("--")
+        cargo_args, test_args = args[:i], args[i + 1 :]
+    else:
+        cargo_args, test_args = args, []
+    cargo_args = [a for a in cargo_args if a != "--no-fail-fast"]
+    t_build = time.monotonic()
+    bins = build(cargo_args)
+    print(f"test_pool: {len(bins)} test binaries built in {time.monotonic() - t_build:.0f} s; running {jobs} at a time", flush=True)
+    doc = Binary(
+        name="doc-tests",
+        key="doc-tests",
+        executable="cargo",
+        cwd=os.getcwd(),
+        env={},
+    )
+    queue = sorted(bins, key=lambda b: -KNOWN_SECONDS.get(b.key, 0))
+    lock = threading.Lock()
+    t0 = time.monotonic()
+
+    def worker() -> None:
+        while True:
+            with lock:
+                if not queue:
+                    return
+                b = queue.pop(0)
+            run(b, test_args, lock)
+
+    threads = [threading.Thread(target=worker) for _ in range(max(1, jobs))]
+    for t in threads:
+        t.start()
+    # The doc-tests (rustdoc compiles each) run beside the binaries.
+    d0 = time.monotonic()
+    doc_proc = subprocess.run(
+        ["cargo", "test", "--workspace", "--doc", *cargo_args, "--", *test_args],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
+    doc.wall = time.monotonic() - d0
+    doc.status = doc_proc.returncode
+    with lock:
+        print("     Doc-tests (cargo test --workspace --doc)")
+        sys.stdout.write(doc_proc.stdout)
+    for t in threads:
+        t.join()
+    wall = time.monotonic() - t0
+    everything = [*bins, doc]
+    failed = [b for b in everything if b.status != 0]
+    print(f"\ntest_pool: {len(everything)} test binaries in {wall:.0f} s wall, {sum(b.cpu for b in bins):.0f} s CPU")
+    if failed:
+        print(f"{len(failed)} failed:")
+        for b in failed:
+            print(f"  {b.name} (exit {b.status}): {' '.join(b.argv) or 'cargo test --workspace --doc'}")
+    print("\nslowest test binaries (wall, CPU):")
+    for b in sorted(bins, key=lambda b: -b.wall)[:10]:
+        print(f"{b.wall:10.1f} s {b.cpu:8.1f} s CPU  {b.name}")
+    return 1 if failed else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
