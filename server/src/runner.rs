@@ -30,7 +30,8 @@ impl JobRunner for SandboxRunner {
         on_progress: &mut dyn FnMut(&Progress),
         cancel: &AtomicBool,
     ) -> RunReport {
-        let run = run_worker_reporting(&self.cmd, job, on_progress, cancel);
+        let (job, cmd) = scaled_for_suite(job, &self.cmd);
+        let run = run_worker_reporting(&cmd, &job, on_progress, cancel);
         if !run.stderr.trim().is_empty() {
             // Operators' eyes only: stderr may contain anything the policy printed.
             tracing::debug!("worker {} stderr tail: {}", run.pid, run.stderr.trim());
@@ -80,6 +81,49 @@ impl JobRunner for SandboxRunner {
             )
         })
     }
+}
+
+/// The job and worker command a job runs with: a suite job (`Job::suite`)
+/// runs level 0 and every level of its suite, each a whole evaluation, in
+/// one worker, so its wall clock, CPU time and output cap are those of one
+/// evaluation times the number of evaluations (`suite_limits`); any other
+/// job runs as given.
+fn scaled_for_suite(job: &Job, cmd: &WorkerCommand) -> (Job, WorkerCommand) {
+    let evaluations = match &job.suite {
+        Some(_) => crate::intake::suite_evaluations(
+            std::path::Path::new(&job.assets_dir),
+            job.task,
+            job.manifest.obs_type,
+        )
+        .unwrap_or(1),
+        None => 1,
+    };
+    let (limits, cmd) = suite_limits(&job.limits, cmd, evaluations);
+    let mut job = job.clone();
+    job.limits = limits;
+    (job, cmd)
+}
+
+/// The limits of `evaluations` evaluations in one worker, from those of one:
+/// the job's wall clock and CPU time, the supervisor's wall clock (the
+/// job's plus its margin) and output cap scaled by `evaluations`; memory,
+/// files and the remote endpoint's limits are per evaluation and stay.
+pub fn suite_limits(
+    one: &Limits,
+    cmd: &WorkerCommand,
+    evaluations: usize,
+) -> (Limits, WorkerCommand) {
+    let n = evaluations.max(1) as u64;
+    let mut limits = one.clone();
+    limits.wall_seconds = one.wall_seconds.saturating_mul(n);
+    limits.cpu_seconds = one.cpu_seconds.saturating_mul(n);
+    let margin = cmd
+        .wall_clock
+        .saturating_sub(std::time::Duration::from_secs(one.wall_seconds));
+    let mut cmd = cmd.clone();
+    cmd.wall_clock = std::time::Duration::from_secs(limits.wall_seconds) + margin;
+    cmd.max_output_bytes = cmd.max_output_bytes.saturating_mul(n as usize);
+    (limits, cmd)
 }
 
 /// `--limits-json` for limits other than the defaults (a worker of an older
@@ -183,5 +227,70 @@ impl JobRunner for SharedSlots {
 
     fn check_sandbox(&self, assets_dir: &std::path::Path) -> Result<Vec<SandboxMechanism>, String> {
         self.inner.check_sandbox(assets_dir)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A suite job runs level 0 and every level in one worker: the limits
+    /// meant for one evaluation, which would stop it after the first
+    /// evaluations' worth of time or output, grow with the suite.
+    #[test]
+    fn a_suite_job_gets_the_limits_of_all_its_evaluations() {
+        let assets = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../assets");
+        let one = Limits::default();
+        let cmd = WorkerCommand {
+            exe: "d3il".into(),
+            args: vec!["worker".into()],
+            wall_clock: std::time::Duration::from_secs(one.wall_seconds + 30),
+            max_output_bytes: d3il_sandbox::DEFAULT_MAX_OUTPUT_BYTES,
+        };
+        // Aligning's state suite v2: level 0 and 3 + 3 + 3 + 4 levels.
+        let n = crate::intake::suite_evaluations(
+            &assets,
+            d3il_protocol::TaskId::Aligning,
+            d3il_protocol::ObsType::State,
+        )
+        .unwrap();
+        assert_eq!(n, 14);
+        let (limits, scaled) = suite_limits(&one, &cmd, n);
+        assert_eq!(limits.wall_seconds, 14 * one.wall_seconds);
+        assert_eq!(limits.cpu_seconds, 14 * one.cpu_seconds);
+        assert_eq!(limits.memory_bytes, one.memory_bytes);
+        assert_eq!(
+            scaled.wall_clock,
+            std::time::Duration::from_secs(14 * one.wall_seconds + 30)
+        );
+        assert_eq!(scaled.max_output_bytes, 14 * cmd.max_output_bytes);
+        // An evaluation that needs 90 % of one evaluation's wall clock, 14
+        // times over, fits the suite job's limit but not one evaluation's.
+        let need = 14 * one.wall_seconds * 9 / 10;
+        assert!(need <= limits.wall_seconds && need > one.wall_seconds);
+        // Image policies: Aligning's image suite, 1 + 3 × 5 evaluations.
+        let image = crate::intake::suite_evaluations(
+            &assets,
+            d3il_protocol::TaskId::Aligning,
+            d3il_protocol::ObsType::Image,
+        );
+        assert_eq!(image, Some(17));
+        // Through the runner: a suite job of Aligning (state) gets 14 times
+        // the limits; a plain job runs as given.
+        let mut job = d3il_test_support::avoiding_job(
+            d3il_protocol::PolicySource::Scripted {
+                name: "aligning:inside".into(),
+            },
+            one.clone(),
+        );
+        job.task = d3il_protocol::TaskId::Aligning;
+        job.manifest.task = job.task;
+        let (plain, plain_cmd) = scaled_for_suite(&job, &cmd);
+        assert_eq!(plain.limits, one);
+        assert_eq!(plain_cmd.wall_clock, cmd.wall_clock);
+        job.suite = Some("robustness".into());
+        let (suite_job, suite_cmd) = scaled_for_suite(&job, &cmd);
+        assert_eq!(suite_job.limits, limits);
+        assert_eq!(suite_cmd.wall_clock, scaled.wall_clock);
     }
 }

@@ -15,7 +15,7 @@ use d3il_protocol::{
 use std::str::FromStr;
 use std::sync::Arc;
 use suite::suite_field;
-pub use suite::{check_suite_available, SUITE};
+pub use suite::{check_suite_available, suite_evaluations, SUITE};
 pub use upload::{
     disk_quota_error, read_multipart, Caller, Quota, RawSubmission, UploadedFile, TEXT_FIELDS,
 };
