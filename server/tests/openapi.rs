@@ -26,6 +26,8 @@ fn the_document_names_every_route_and_its_schemas() {
             "/admin/tokens/{prefix}/revoke",
             "/build",
             "/compare",
+            "/comparisons",
+            "/comparisons/{id}",
             "/leaderboards",
             "/leaderboards/{task}",
             "/leaderboards/{task}/csv",
@@ -52,6 +54,8 @@ fn the_document_names_every_route_and_its_schemas() {
         "RolloutList",
         "RolloutDetail",
         "Ending",
+        "ComparisonView",
+        "RaceLive",
     ] {
         assert!(schemas.get(name).is_some(), "schema {name} missing");
     }
