@@ -277,6 +277,34 @@ impl CalibratedBoundary {
     }
 }
 
+/// The rule in one line, for reports: "boundary calibrated to 60 pairs:
+/// |w − l| ≥ ⌈2.683 √(w + l)⌉, last look at pair 60 (exact type-I ≤ 0.05)".
+impl std::fmt::Display for CalibratedBoundary {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "boundary calibrated to {n} pairs: |w − l| ≥ ⌈{z:.3} √(w + l)⌉, last look at pair {n} \
+             (exact type-I ≤ {a})",
+            n = self.horizon,
+            z = self.z,
+            a = self.alpha
+        )
+    }
+}
+
+/// The line a report prints about which rule decides a comparison of at
+/// most `horizon` pairs at `alpha` (`SequentialComparison::with_horizon`).
+pub fn rule_line(alpha: f64, horizon: usize) -> String {
+    if (1..=MAX_HORIZON).contains(&horizon) {
+        format!(
+            "rule: {}; the e-value and p-value are anytime-valid, for any stop",
+            CalibratedBoundary::new(alpha, horizon)
+        )
+    } else {
+        format!("rule: the e-value reaching 1/α = {:.0}", 1.0 / alpha)
+    }
+}
+
 #[cfg(test)]
 #[path = "horizon_tests.rs"]
 mod tests;

@@ -218,3 +218,14 @@ fn the_table_and_the_comparison_decide_by_the_boundary_and_its_last_look() {
     assert_eq!(test.decision(), None);
     assert!(test.eprocess().e_value() > 20.0);
 }
+
+#[test]
+fn reports_say_which_rule_decides() {
+    let line = rule_line(0.05, 60);
+    assert!(
+        line.starts_with("rule: boundary calibrated to 60 pairs: |w − l| ≥ ⌈2.683 √(w + l)⌉, last look at pair 60"),
+        "{line}"
+    );
+    assert!(line.contains("anytime-valid"), "{line}");
+    assert_eq!(rule_line(0.05, 0), "rule: the e-value reaching 1/α = 20");
+}
