@@ -440,11 +440,11 @@ impl Model {
         unsafe {
             let m = self.ptr.as_mut();
             for &(c, pos, quat) in cameras {
-                for k in 0..3 {
-                    *m.cam_pos.add(3 * c + k) = pos[k];
+                for (k, v) in pos.into_iter().enumerate() {
+                    *m.cam_pos.add(3 * c + k) = v;
                 }
-                for k in 0..4 {
-                    *m.cam_quat.add(4 * c + k) = quat[k];
+                for (k, v) in quat.into_iter().enumerate() {
+                    *m.cam_quat.add(4 * c + k) = v;
                 }
             }
             for l in 0..nlight {
@@ -454,9 +454,8 @@ impl Model {
                     *m.light_specular.add(3 * l + k) *= light_scale;
                 }
                 let d = [0, 1, 2].map(|k| *m.light_dir.add(3 * l + k));
-                let turned = light_dir(d);
-                for k in 0..3 {
-                    *m.light_dir.add(3 * l + k) = turned[k];
+                for (k, v) in light_dir(d).into_iter().enumerate() {
+                    *m.light_dir.add(3 * l + k) = v;
                 }
             }
         }
