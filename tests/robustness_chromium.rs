@@ -1,14 +1,15 @@
 //! Headless Chromium loads a task's Robustness view served by the real
 //! `d3il serve` over a database holding three robustness results (written as
 //! a worker stores them), and we check the DOM it rendered: one section per
-//! suite version (never ranked together), methods × axes with intervals, the
-//! per-axis degradation curves and robustness against conditional entropy;
-//! the task's board links the view.
+//! suite version (never ranked together), methods × axes aggregated over
+//! training seeds (mean ± std, as the boards) with the rows per seed and
+//! their intervals below, the per-axis degradation curves and robustness
+//! against conditional entropy; the task's board links the view.
 
 mod robustness_support;
 mod server_support;
 use d3il_test_support::chromium::{chromium, dump_dom};
-use robustness_support::{seed, three, OTHER_SHA256};
+use robustness_support::{seed, three_and_a_second_seed, OTHER_SHA256};
 use server_support::*;
 
 #[test]
@@ -16,7 +17,7 @@ fn chromium_renders_the_robustness_view() {
     let browser = chromium();
     let dir = TempDir::new("robustness-chromium");
     let db = dir.path().join("lb.sqlite");
-    let ids = seed(&db, &three());
+    let ids = seed(&db, &three_and_a_second_seed());
     let server = Server::start(&db, &["--workers", "0"]);
     let dom = dump_dom(
         &browser,
@@ -40,14 +41,49 @@ fn chromium_renders_the_robustness_view() {
     assert!(other.contains("Older-Suite") && !other.contains(">Diverse<"));
     assert!(!current.contains("Older-Suite"));
 
-    // Methods × axes: ranked by overall score, intervals in every cell.
-    let table = &current[current.find("<table").unwrap()..current.find("</table>").unwrap()];
+    // Methods × axes over seeds: Diverse's two seeds make one row, mean ±
+    // std in every cell; Narrow has one seed (its value alone, as the boards).
+    let methods = &current[current.find("<table").unwrap()..current.find("</table>").unwrap()];
+    assert!(methods.contains("robustness methods"));
     for axis in ["start_shift", "obs_noise", "latency", "dynamics"] {
-        assert!(table.contains(&format!("<th>{axis}</th>")), "{axis} column");
+        assert!(
+            methods.contains(&format!("<th>{axis}</th>")),
+            "{axis} column"
+        );
     }
+    let mrows: Vec<&str> = methods.split("<tr>").skip(2).collect();
+    assert_eq!(mrows.len(), 2, "Diverse (two seeds) and Narrow");
+    assert!(mrows[0].contains(">Diverse</a>") && mrows[1].contains(">Narrow</a>"));
+    assert!(
+        mrows[0].contains("<td class=\"num seeds\">0, 1</td>"),
+        "{}",
+        mrows[0]
+    );
+    assert_eq!(mrows[0].matches("<td class=\"num score\">").count(), 4);
+    assert!(
+        mrows[0].matches(" ± ").count() >= 6,
+        "mean ± std: {}",
+        mrows[0]
+    );
+    assert!(
+        !mrows[1].contains(" ± ") && !mrows[1].contains('['),
+        "{}",
+        mrows[1]
+    );
+
+    // The rows per seed stay reachable: ranked by overall score, intervals
+    // in every cell, each linking its submission.
+    let details = &current[current
+        .find("<details class=\"per-seed\"")
+        .expect("per-seed rows")..];
+    let table = &details[details.find("<table").unwrap()..details.find("</table>").unwrap()];
     let rows: Vec<&str> = table.split("<tr>").skip(2).collect();
-    assert_eq!(rows.len(), 2, "Diverse and Narrow");
-    assert!(rows[0].contains(">Diverse</a>") && rows[1].contains(">Narrow</a>"));
+    assert_eq!(rows.len(), 3, "Diverse seeds 0 and 1, Narrow");
+    assert!(
+        table.contains(&format!("/submissions/{}", ids[3])),
+        "seed 1's row"
+    );
+    assert!(rows[0].contains(">Diverse</a>") && rows[2].contains(">Narrow</a>"));
     assert_eq!(
         rows[0].matches("<td class=\"num score\">").count(),
         4,

@@ -1,11 +1,12 @@
 //! `d3il tables --table robustness` from a database holding robustness
 //! results (written as a worker stores them): one table per suite version,
-//! ranked by overall score, in Markdown, LaTeX and CSV; a database without
-//! any says what to do.
+//! ranked by overall score, methods aggregated over training seeds (mean ±
+//! std, as the boards) with the rows per seed after them, in Markdown, LaTeX
+//! and CSV; a database without any says what to do.
 
 mod robustness_support;
 mod server_support;
-use robustness_support::{seed, three, OTHER_SHA256};
+use robustness_support::{seed, three_and_a_second_seed, OTHER_SHA256};
 use server_support::*;
 use std::process::Command;
 
@@ -37,7 +38,7 @@ fn the_robustness_table_ranks_within_a_suite_version_in_every_format() {
     let (ok, _, err) = tables(&db, "markdown");
     assert!(!ok);
     assert!(err.contains("suite=robustness"), "{err}");
-    let ids = seed(&db, &three());
+    let ids = seed(&db, &three_and_a_second_seed());
 
     let (ok, md, err) = tables(&db, "markdown");
     assert!(ok, "{err}");
@@ -54,13 +55,22 @@ fn the_robustness_table_ranks_within_a_suite_version_in_every_format() {
         "{md}"
     );
     assert!(!current.contains("Older-Suite"), "{md}");
-    // The diverse method keeps more of its success: ranked first.
+    // Methods over seeds: Diverse's seeds 0 and 1 in one row, mean ± std.
+    let diverse = current
+        .find("| 1 | Diverse | 0, 1 | ")
+        .expect("Diverse over its two seeds ranked 1");
+    let line = current[diverse..].lines().next().unwrap();
+    assert!(line.matches(" ± ").count() >= 6, "{line}");
+    assert!(current.contains("| 2 | Narrow | 0 | "), "{md}");
+    // The rows per seed after them; the diverse method keeps more of its
+    // success: ranked first.
+    assert!(current.contains("Diverse (seed 1)"), "{md}");
     let diverse = current
         .find("| 1 | Diverse (seed 0) |")
         .expect("Diverse ranked 1");
     let narrow = current
-        .find("| 2 | Narrow (seed 0) |")
-        .expect("Narrow ranked 2");
+        .find("| 3 | Narrow (seed 0) |")
+        .expect("Narrow ranked 3, after Diverse's two seeds");
     assert!(diverse < narrow);
     for axis in ["start_shift", "obs_noise", "latency", "dynamics", "Overall"] {
         // Markdown escapes the underscores.
@@ -76,7 +86,9 @@ fn the_robustness_table_ranks_within_a_suite_version_in_every_format() {
 
     let (ok, tex, err) = tables(&db, "latex");
     assert!(ok, "{err}");
-    assert_eq!(tex.matches("\\begin{tabular}").count(), 2, "{tex}");
+    // Per suite version a methods table and a per-seed table.
+    assert_eq!(tex.matches("\\begin{tabular}").count(), 4, "{tex}");
+    assert!(tex.contains("per training seed"), "{tex}");
     assert!(tex.contains("Diverse (seed 0)") && tex.contains("\\toprule"));
 
     let (ok, csv, err) = tables(&db, "csv");
@@ -96,6 +108,18 @@ fn the_robustness_table_ranks_within_a_suite_version_in_every_format() {
             .count();
         assert_eq!(n, 1 + n_levels + n_axes + 1, "rows of submission {id}");
     }
+    // Per method over seeds: level 0, each axis's score and the overall one.
+    let diverse_all: Vec<&Vec<&str>> = rows
+        .iter()
+        .filter(|r| r[col("method")] == "Diverse" && r[col("training_seed")] == "all")
+        .collect();
+    assert_eq!(diverse_all.len(), 1 + n_axes + 1);
+    let overall = diverse_all
+        .iter()
+        .find(|r| r[col("axis")] == "overall")
+        .unwrap();
+    assert_eq!(overall[col("n_seeds")], "2");
+    assert!(overall[col("seeds_std")].parse::<f64>().unwrap() > 0.0);
     let narrow_dynamics_4: Vec<&Vec<&str>> = rows
         .iter()
         .filter(|r| {

@@ -22,6 +22,8 @@ pub struct Synth {
     /// Store the document as of another suite version (its sha256 changed):
     /// it must never be ranked with the others.
     pub other_version: bool,
+    /// The submission's training seed (a method's seeds are aggregated).
+    pub training_seed: i64,
 }
 
 pub const OTHER_SHA256: &str = "00000000000000000000000000000000000000000000000000000000000000ff";
@@ -83,7 +85,7 @@ pub fn seed(db: &std::path::Path, synths: &[Synth]) -> Vec<i64> {
                         submitter_id: None,
                         task: TaskId::Pushing,
                         obs_type: ObsType::State,
-                        training_seed: 0,
+                        training_seed: s.training_seed,
                         data_fraction: 1.0,
                         protocol: ProtocolKind::Paper,
                         policy: NewPolicy::Remote {
@@ -125,6 +127,7 @@ pub fn three() -> [Synth; 3] {
             loss_per_level: 1,
             behaviours: 4,
             other_version: false,
+            training_seed: 0,
         },
         Synth {
             method: "Narrow",
@@ -132,6 +135,7 @@ pub fn three() -> [Synth; 3] {
             loss_per_level: 4,
             behaviours: 1,
             other_version: false,
+            training_seed: 0,
         },
         Synth {
             method: "Older-Suite",
@@ -139,6 +143,23 @@ pub fn three() -> [Synth; 3] {
             loss_per_level: 2,
             behaviours: 2,
             other_version: true,
+            training_seed: 0,
         },
     ]
+}
+
+/// [`three`] and a second training seed of the diverse method (stored last,
+/// so the first three ids are [`three`]'s): the Robustness view and the
+/// tables aggregate it with seed 0 into one method row.
+pub fn three_and_a_second_seed() -> Vec<Synth> {
+    let mut v: Vec<Synth> = three().into_iter().collect();
+    v.push(Synth {
+        method: "Diverse",
+        base: 10,
+        loss_per_level: 1,
+        behaviours: 3,
+        other_version: false,
+        training_seed: 1,
+    });
+    v
 }

@@ -3,15 +3,18 @@
 //! version. `d3il tables --table robustness` prints them (LaTeX, Markdown,
 //! CSV) and the leaderboard's Robustness view shows the same groups with the
 //! figures of [`figures`]. Rows of different suite files (name and sha256)
-//! or protocols are never ranked together.
+//! or protocols are never ranked together. Within a group a method's
+//! training seeds are aggregated as the ordinary boards aggregate them
+//! ([`d3il_metrics::aggregate_seeds`]: mean and sample standard deviation,
+//! [`SuiteGroup::methods`]); the rows per seed follow.
 
 pub mod figures;
 
-use crate::numfmt::{latex_escape, markdown_escape, three_decimals};
+use crate::numfmt::{latex_escape, markdown_escape, mean_std, three_decimals};
 use crate::{Format, TablesError};
 use d3il_protocol::perturbation::Axis;
 use d3il_protocol::robustness::RobustnessResult;
-use d3il_protocol::{Estimate, ProtocolKind, TaskId};
+use d3il_protocol::{Estimate, ProtocolKind, Stat, TaskId};
 use std::fmt::Write;
 
 /// One evaluated submission's robustness (its document without rollout
@@ -101,6 +104,114 @@ impl SuiteGroup<'_> {
     }
 }
 
+/// A statistic over a method's seeds: the aggregate and how many seeds had
+/// a value (a seed without success at level 0 has no scores).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SeedStat {
+    pub stat: Stat,
+    pub n: usize,
+}
+
+/// One method of a suite group over its training seeds.
+#[derive(Debug, Clone)]
+pub struct MethodRow<'a> {
+    pub method: String,
+    /// Its entries (one per submission: seed), in the group's ranking.
+    pub seeds: Vec<&'a RobustnessEntry>,
+    pub control: SeedStat,
+    pub entropy: SeedStat,
+    /// Per axis of the group, in its order.
+    pub axes: Vec<Option<SeedStat>>,
+    pub overall: Option<SeedStat>,
+}
+
+impl MethodRow<'_> {
+    /// The training seeds, ascending.
+    pub fn seed_list(&self) -> String {
+        let mut s: Vec<i64> = self.seeds.iter().map(|e| e.training_seed).collect();
+        s.sort_unstable();
+        s.iter()
+            .map(|v| v.to_string())
+            .collect::<Vec<_>>()
+            .join(", ")
+    }
+}
+
+/// Aggregates `values` over seeds (`None` entries: seeds without a value).
+fn seed_stat(values: impl Iterator<Item = Option<f64>>) -> Option<SeedStat> {
+    let v: Vec<f64> = values.flatten().collect();
+    let stat = d3il_metrics::aggregate_seeds(&v).ok()?;
+    Some(SeedStat { stat, n: v.len() })
+}
+
+/// `mean ± std` over the seeds (the boards' format), with `(n of N seeds)`
+/// when only some seeds have a value; `–` when none has.
+pub fn seed_text(s: &Option<SeedStat>, seeds: usize) -> String {
+    match s {
+        Some(s) => {
+            let t = mean_std(s.stat.mean, s.stat.std, s.n);
+            if s.n < seeds {
+                format!("{t} ({} of {seeds} seeds)", s.n)
+            } else {
+                t
+            }
+        }
+        None => "–".into(),
+    }
+}
+
+impl<'a> SuiteGroup<'a> {
+    /// The group's methods, each over its seeds, ranked by mean overall
+    /// score (highest first; methods without one last, then by name).
+    pub fn methods(&self) -> Vec<MethodRow<'a>> {
+        let mut names: Vec<&str> = vec![];
+        for e in &self.entries {
+            if !names.contains(&e.method.as_str()) {
+                names.push(&e.method);
+            }
+        }
+        let mut rows: Vec<MethodRow<'a>> = names
+            .into_iter()
+            .map(|name| {
+                let seeds: Vec<&'a RobustnessEntry> = self
+                    .entries
+                    .iter()
+                    .copied()
+                    .filter(|e| e.method == name)
+                    .collect();
+                let m = |f: &dyn Fn(&RobustnessEntry) -> Option<f64>| {
+                    seed_stat(seeds.iter().map(|e| f(e)))
+                };
+                MethodRow {
+                    method: name.to_string(),
+                    control: m(&|e| Some(e.doc.control.metrics.success_rate.value))
+                        .expect("a method has a seed"),
+                    entropy: m(&|e| Some(e.doc.control.metrics.conditional_entropy.value))
+                        .expect("a method has a seed"),
+                    axes: self
+                        .axes
+                        .iter()
+                        .map(|&a| m(&|e| e.axis_score(a).map(|s| s.value)))
+                        .collect(),
+                    overall: m(&|e| e.doc.overall.map(|o| o.value)),
+                    seeds,
+                }
+            })
+            .collect();
+        rows.sort_by(|a, b| {
+            let v = |r: &MethodRow<'_>| r.overall.map(|o| o.stat.mean);
+            match (v(a), v(b)) {
+                (Some(x), Some(y)) => y.total_cmp(&x),
+                (Some(_), None) => std::cmp::Ordering::Less,
+                (None, Some(_)) => std::cmp::Ordering::Greater,
+                (None, None) => std::cmp::Ordering::Equal,
+            }
+            .then(a.method.cmp(&b.method))
+        });
+        rows
+    }
+}
+
 /// Groups entries by (task, suite file, sha256, protocol): paper protocol
 /// before quick, newer suite files first; within a group ranked by overall
 /// score.
@@ -160,7 +271,7 @@ pub fn interval_text(e: &Option<Estimate>) -> String {
 }
 
 /// What the scores mean (every format prints it).
-pub const NOTE: &str = "Score: success retained (a level's success rate over level 0's), averaged over an axis's levels; overall: the mean of the axes' scores; 95 % paired bootstrap intervals over initial states. Level 0 is the plain evaluation (the control arm); every level runs on the same initial states, seed and rollout ids. Rows of different suite files or protocols are never ranked together. – : no success at level 0 (nothing to retain).";
+pub const NOTE: &str = "Score: success retained (a level's success rate over level 0's), averaged over an axis's levels; overall: the mean of the axes' scores; 95 % paired bootstrap intervals over initial states. Methods: mean ± sample standard deviation over training seeds, as on the boards; the rows per seed (with intervals) follow. Level 0 is the plain evaluation (the control arm); every level runs on the same initial states, seed and rollout ids. Rows of different suite files or protocols are never ranked together. – : no success at level 0 (nothing to retain).";
 
 fn header(g: &SuiteGroup<'_>) -> Vec<String> {
     let mut h = vec![
@@ -172,6 +283,33 @@ fn header(g: &SuiteGroup<'_>) -> Vec<String> {
     h.extend(g.axes.iter().map(|a| a.to_string()));
     h.push("Overall".into());
     h
+}
+
+fn method_header(g: &SuiteGroup<'_>) -> Vec<String> {
+    let mut h = vec![
+        "Rank".to_string(),
+        "Method".into(),
+        "Seeds".into(),
+        "Level 0 success".into(),
+        "H|s0".into(),
+    ];
+    h.extend(g.axes.iter().map(|a| a.to_string()));
+    h.push("Overall".into());
+    h
+}
+
+fn method_cells(rank: usize, r: &MethodRow<'_>) -> Vec<String> {
+    let n = r.seeds.len();
+    let mut c = vec![
+        rank.to_string(),
+        r.method.clone(),
+        r.seed_list(),
+        seed_text(&Some(r.control), n),
+        seed_text(&Some(r.entropy), n),
+    ];
+    c.extend(r.axes.iter().map(|a| seed_text(a, n)));
+    c.push(seed_text(&r.overall, n));
+    c
 }
 
 fn cells(rank: usize, e: &RobustnessEntry, g: &SuiteGroup<'_>) -> Vec<String> {
@@ -210,62 +348,97 @@ fn markdown(groups: &[SuiteGroup<'_>]) -> String {
     let mut out = format!("**D3IL robustness.** {}\n", markdown_escape(NOTE));
     for g in groups {
         let _ = writeln!(out, "\n**{}**\n", markdown_escape(&g.title()));
-        let h = header(g);
-        let _ = writeln!(
-            out,
-            "| {} |",
-            h.iter()
-                .map(|s| markdown_escape(s))
-                .collect::<Vec<_>>()
-                .join(" | ")
-        );
-        let align: Vec<&str> = (0..h.len())
-            .map(|i| if i == 1 { ":--" } else { "--:" })
+        let methods: Vec<Vec<String>> = g
+            .methods()
+            .iter()
+            .enumerate()
+            .map(|(i, r)| method_cells(i + 1, r))
             .collect();
-        let _ = writeln!(out, "| {} |", align.join(" | "));
-        for (i, e) in g.entries.iter().enumerate() {
-            let c: Vec<String> = cells(i + 1, e, g)
-                .iter()
-                .map(|s| markdown_escape(s))
-                .collect();
-            let _ = writeln!(out, "| {} |", c.join(" | "));
-        }
+        markdown_table(&mut out, &method_header(g), &methods);
+        let _ = writeln!(out, "\nPer seed:\n");
+        let seeds: Vec<Vec<String>> = g
+            .entries
+            .iter()
+            .enumerate()
+            .map(|(i, e)| cells(i + 1, e, g))
+            .collect();
+        markdown_table(&mut out, &header(g), &seeds);
     }
     out
+}
+
+fn markdown_table(out: &mut String, h: &[String], rows: &[Vec<String>]) {
+    let _ = writeln!(
+        out,
+        "| {} |",
+        h.iter()
+            .map(|s| markdown_escape(s))
+            .collect::<Vec<_>>()
+            .join(" | ")
+    );
+    let align: Vec<&str> = (0..h.len())
+        .map(|i| if i == 1 { ":--" } else { "--:" })
+        .collect();
+    let _ = writeln!(out, "| {} |", align.join(" | "));
+    for row in rows {
+        let c: Vec<String> = row.iter().map(|s| markdown_escape(s)).collect();
+        let _ = writeln!(out, "| {} |", c.join(" | "));
+    }
 }
 
 fn latex(groups: &[SuiteGroup<'_>]) -> String {
     let mut out = String::new();
     for g in groups {
-        let h = header(g);
-        let _ = writeln!(out, "\\begin{{table}}[t]\n\\centering\\small");
-        let _ = writeln!(
-            out,
-            "\\caption{{D3IL robustness, {}. {}}}",
-            latex_escape(&g.title()),
-            latex_escape(NOTE)
+        let methods: Vec<Vec<String>> = g
+            .methods()
+            .iter()
+            .enumerate()
+            .map(|(i, r)| method_cells(i + 1, r))
+            .collect();
+        latex_table(
+            &mut out,
+            &format!("D3IL robustness, {}. {}", g.title(), NOTE),
+            &method_header(g),
+            &methods,
         );
-        let _ = writeln!(out, "\\begin{{tabular}}{{rl{}}}", "r".repeat(h.len() - 2));
-        let _ = writeln!(out, "\\toprule");
-        let _ = writeln!(
-            out,
-            "{} \\\\",
-            h.iter()
-                .map(|s| latex_escape(s))
-                .collect::<Vec<_>>()
-                .join(" & ")
+        let seeds: Vec<Vec<String>> = g
+            .entries
+            .iter()
+            .enumerate()
+            .map(|(i, e)| cells(i + 1, e, g))
+            .collect();
+        latex_table(
+            &mut out,
+            &format!("D3IL robustness per training seed, {}.", g.title()),
+            &header(g),
+            &seeds,
         );
-        let _ = writeln!(out, "\\midrule");
-        for (i, e) in g.entries.iter().enumerate() {
-            let c: Vec<String> = cells(i + 1, e, g).iter().map(|s| latex_escape(s)).collect();
-            let _ = writeln!(out, "{} \\\\", c.join(" & "));
-        }
-        let _ = writeln!(out, "\\bottomrule\n\\end{{tabular}}\n\\end{{table}}\n");
     }
     out
 }
 
-const CSV_HEADER: [&str; 19] = [
+fn latex_table(out: &mut String, caption: &str, h: &[String], rows: &[Vec<String>]) {
+    let _ = writeln!(out, "\\begin{{table}}[t]\n\\centering\\small");
+    let _ = writeln!(out, "\\caption{{{}}}", latex_escape(caption));
+    let _ = writeln!(out, "\\begin{{tabular}}{{rl{}}}", "r".repeat(h.len() - 2));
+    let _ = writeln!(out, "\\toprule");
+    let _ = writeln!(
+        out,
+        "{} \\\\",
+        h.iter()
+            .map(|s| latex_escape(s))
+            .collect::<Vec<_>>()
+            .join(" & ")
+    );
+    let _ = writeln!(out, "\\midrule");
+    for row in rows {
+        let c: Vec<String> = row.iter().map(|s| latex_escape(s)).collect();
+        let _ = writeln!(out, "{} \\\\", c.join(" & "));
+    }
+    let _ = writeln!(out, "\\bottomrule\n\\end{{tabular}}\n\\end{{table}}\n");
+}
+
+const CSV_HEADER: [&str; 21] = [
     "task",
     "suite",
     "suite_sha256",
@@ -285,16 +458,57 @@ const CSV_HEADER: [&str; 19] = [
     "drop_ci_high",
     "p_value",
     "retained",
+    "seeds_std",
+    "n_seeds",
 ];
 
 /// One line per level of every axis (level 0 once, axis `control`), then a
 /// line per axis score (level `score`) and the overall score (axis
 /// `overall`): the score lines carry the score in `retained` and its
-/// interval in the success interval columns.
+/// interval in the success interval columns. Then per method the lines over
+/// its seeds (`training_seed` `all`, level `seeds`): level 0's success rate
+/// and the scores as the mean in `success_rate` (control) or
+/// `retained` (scores), the sample standard deviation in `seeds_std` and the
+/// number of seeds with a value in `n_seeds`.
 fn csv(groups: &[SuiteGroup<'_>]) -> Result<String, TablesError> {
     let f = |x: f64| format!("{x}");
     let mut rows: Vec<Vec<String>> = Vec::new();
     for g in groups {
+        for (i, m) in g.methods().iter().enumerate() {
+            let mut lines = vec![("control".to_string(), Some(m.control))];
+            lines.extend(g.axes.iter().zip(&m.axes).map(|(a, s)| (a.to_string(), *s)));
+            lines.push(("overall".into(), m.overall));
+            for (axis, stat) in lines {
+                let control = axis == "control";
+                let (mean, std, n) = match stat {
+                    Some(s) => (f(s.stat.mean), f(s.stat.std), s.n.to_string()),
+                    None => (String::new(), String::new(), "0".into()),
+                };
+                rows.push(vec![
+                    g.task.slug().to_string(),
+                    g.suite.clone(),
+                    g.suite_sha256.clone(),
+                    g.protocol.as_str().to_string(),
+                    (i + 1).to_string(),
+                    m.method.clone(),
+                    "all".into(),
+                    String::new(),
+                    axis,
+                    "seeds".into(),
+                    format!("mean over {} seeds", m.seeds.len()),
+                    if control { mean.clone() } else { String::new() },
+                    String::new(),
+                    String::new(),
+                    String::new(),
+                    String::new(),
+                    String::new(),
+                    String::new(),
+                    if control { String::new() } else { mean },
+                    std,
+                    n,
+                ]);
+            }
+        }
         for (i, e) in g.entries.iter().enumerate() {
             let base = vec![
                 g.task.slug().to_string(),
@@ -321,6 +535,7 @@ fn csv(groups: &[SuiteGroup<'_>]) -> Result<String, TablesError> {
                 String::new(),
                 "1".into(),
             ]);
+            r.extend([String::new(), String::new()]);
             rows.push(r);
             for l in &e.doc.levels {
                 let s = l.result.metrics.success_rate;
@@ -339,6 +554,7 @@ fn csv(groups: &[SuiteGroup<'_>]) -> Result<String, TablesError> {
                     f(d.p_value),
                     l.retained.map(f).unwrap_or_default(),
                 ]);
+                r.extend([String::new(), String::new()]);
                 rows.push(r);
             }
             let scores = g
@@ -365,6 +581,7 @@ fn csv(groups: &[SuiteGroup<'_>]) -> Result<String, TablesError> {
                     String::new(),
                     v,
                 ]);
+                r.extend([String::new(), String::new()]);
                 rows.push(r);
             }
         }

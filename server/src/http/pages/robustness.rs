@@ -1,8 +1,11 @@
 //! A task's Robustness view (issue 40, docs/robustness.md): per suite
 //! version and protocol, methods × axes with retained-success scores and
 //! intervals, per-axis degradation curves and robustness against
-//! conditional behaviour entropy. Tables and figures come from
-//! `d3il_tables::robustness` (as `d3il tables --table robustness`).
+//! conditional behaviour entropy. A method's training seeds are aggregated
+//! as on the boards (mean ± sample std, `SuiteGroup::methods`); the rows
+//! per seed, with their intervals, are in a table below it. Tables and
+//! figures come from `d3il_tables::robustness` (as `d3il tables --table
+//! robustness`).
 
 use super::format::method_url;
 use super::render;
@@ -14,7 +17,19 @@ use axum::extract::State;
 use axum::response::Html;
 use d3il_protocol::TaskId;
 use d3il_tables::robustness::figures::{degradation_svg, score_vs_entropy_svg};
-use d3il_tables::robustness::{group_by_suite, interval_text, RobustnessEntry, NOTE};
+use d3il_tables::robustness::{group_by_suite, interval_text, seed_text, RobustnessEntry, NOTE};
+
+/// A method over its training seeds.
+struct MethodRow {
+    rank: usize,
+    method: String,
+    method_url: String,
+    seeds: String,
+    control: String,
+    entropy: String,
+    scores: Vec<String>,
+    overall: String,
+}
 
 struct Row {
     rank: usize,
@@ -37,6 +52,7 @@ struct Group {
     title: String,
     anchor: String,
     axes: Vec<String>,
+    methods: Vec<MethodRow>,
     rows: Vec<Row>,
     figures: Vec<Figure>,
 }
@@ -83,6 +99,24 @@ pub(super) async fn robustness_page(
                 overall: interval_text(&e.doc.overall),
             })
             .collect();
+        let methods = g
+            .methods()
+            .iter()
+            .enumerate()
+            .map(|(rank, m)| {
+                let n = m.seeds.len();
+                MethodRow {
+                    rank: rank + 1,
+                    method: m.method.clone(),
+                    method_url: method_url(&m.method),
+                    seeds: m.seed_list(),
+                    control: seed_text(&Some(m.control), n),
+                    entropy: seed_text(&Some(m.entropy), n),
+                    scores: m.axes.iter().map(|a| seed_text(a, n)).collect(),
+                    overall: seed_text(&m.overall, n),
+                }
+            })
+            .collect();
         let internal = |e: d3il_tables::TablesError| {
             PageError(crate::error::AppError::Internal(e.to_string()))
         };
@@ -102,6 +136,7 @@ pub(super) async fn robustness_page(
             title: g.title(),
             anchor: format!("suite-{}", i + 1),
             axes: g.axes.iter().map(|a| a.to_string()).collect(),
+            methods,
             rows,
             figures,
         });
