@@ -89,6 +89,31 @@ fn a_race_on_the_server_reports_what_the_cli_race_reports_and_refuses_wrong_requ
     assert_eq!(live["only_b"], report["discordant"][1]);
     assert_eq!(live["e_value"], report["e_value"]);
 
+    // The page shows the two policies, the paired counts, the evidence and
+    // the outcome, and stops refreshing once finished.
+    let (status, page) = client.get_text(&format!("/comparisons/{id}")).unwrap();
+    assert_eq!(status, 200, "{page}");
+    for want in [
+        format!("href=\"/submissions/{a}\""),
+        format!("href=\"/submissions/{b}\""),
+        format!(
+            "<td class=\"num\">{}</td><td class=\"num\">{}</td><td class=\"num\">{}</td><td class=\"num\">{}</td><td class=\"num\">{}</td>",
+            live["pairs"], live["both"], live["only_a"], live["only_b"], live["neither"]
+        ),
+        format!("<span id=\"e-value\">{:.3}</span>", report["e_value"].as_f64().unwrap()),
+        format!(
+            "Rollouts used: {} of the {}",
+            report["rollouts_used"], report["rollouts_full"]
+        ),
+        "Decision: <strong>none at the protocol".to_string(),
+    ] {
+        assert!(page.contains(&want), "{want} not in {page}");
+    }
+    assert!(
+        !page.contains("http-equiv=\"refresh\""),
+        "finished: no refresh"
+    );
+
     // The same race with the CLI: the same decision and counts, bit for bit.
     let out = Command::new(EXE)
         .args([

@@ -8,6 +8,7 @@ mod compare;
 mod fidelity;
 mod format;
 mod lists;
+mod race;
 mod robustness;
 mod rollouts;
 mod site;
@@ -36,6 +37,7 @@ pub fn router(max_upload: usize) -> Router<AppState> {
         .route("/methods", get(methods_page))
         .route("/methods/{name}", get(method_page))
         .route("/compare", get(compare_page))
+        .route("/comparisons/{id}", get(race::race_page))
         .route("/submissions", get(submissions_page))
         .route("/submissions/{id}", get(submission_page))
         .route("/submissions/{id}/json", get(submission_download))

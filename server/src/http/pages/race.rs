@@ -1,0 +1,109 @@
+//! `/comparisons/{id}` (issue 41): a sequential race of two submissions
+//! (`POST /api/v1/comparisons`, [`crate::races`]) as it runs: the two
+//! policies, the paired counts so far, the e-value and anytime-valid p-value,
+//! the decision when reached and the rollouts used against the fixed-size
+//! test. Refreshes every 2 seconds while queued or running.
+
+use super::render;
+use crate::error::PageError;
+use crate::http::extract::Param;
+use crate::races::{ComparisonView, RaceLive};
+use crate::state::AppState;
+use askama::Template;
+use axum::extract::State;
+use axum::response::Html;
+
+struct Side {
+    id: i64,
+    method: String,
+}
+
+/// The finished race's lines.
+struct Finished {
+    decision: String,
+    decided_at: String,
+    rollouts_used: usize,
+    rollouts_full: usize,
+    ratio: String,
+    fixed_note: String,
+    rate_a: String,
+    rate_b: String,
+}
+
+#[derive(Template)]
+#[template(path = "race.html")]
+struct RacePage {
+    id: i64,
+    a: Side,
+    b: Side,
+    task: String,
+    protocol: String,
+    alpha: f64,
+    delta: String,
+    status: String,
+    running: bool,
+    live: Option<RaceLive>,
+    e_value: String,
+    p_value: String,
+    finished: Option<Finished>,
+    error: Option<String>,
+}
+
+pub(super) async fn race_page(
+    State(state): State<AppState>,
+    Param(id): Param<i64>,
+) -> Result<Html<String>, PageError> {
+    let row = state.store.comparison(id).await?;
+    let view = ComparisonView::of(&row);
+    let side = |s: crate::store::SubmissionRow| Side {
+        id: s.id,
+        method: s.method,
+    };
+    let a = side(state.store.submission(view.a).await?);
+    let b = side(state.store.submission(view.b).await?);
+    let finished = view.race_report().map(|r| Finished {
+        decision: r
+            .decision
+            .clone()
+            .unwrap_or_else(|| "none at the protocol's full size".into()),
+        decided_at: r
+            .decided_at
+            .map(|p| format!("at pair {p} (initial state {} of {})", r.states_used, r.states_full))
+            .unwrap_or_default(),
+        rollouts_used: r.rollouts_used,
+        rollouts_full: r.rollouts_full,
+        ratio: format!("{:.3}", r.rollouts_used as f64 / r.rollouts_full.max(1) as f64),
+        fixed_note: r
+            .fixed_pairs_for_power_90
+            .map(|n| {
+                format!("at the discordance observed, the exact sign test needs {n} pairs for 90 % power")
+            })
+            .unwrap_or_default(),
+        rate_a: format!("{:.3}", r.rate_a),
+        rate_b: format!("{:.3}", r.rate_b),
+    });
+    let (e_value, p_value) = match (&view.live, view.race_report()) {
+        (_, Some(r)) => (format!("{:.3}", r.e_value), format!("{:.4}", r.p_value)),
+        (Some(l), None) => (format!("{:.3}", l.e_value), format!("{:.4}", l.p_value)),
+        (None, None) => ("1.000".into(), "1.0000".into()),
+    };
+    render(&RacePage {
+        id,
+        a,
+        b,
+        task: view.task.clone(),
+        protocol: view.protocol.clone(),
+        alpha: view.alpha,
+        delta: view
+            .delta
+            .map(|d| format!(", margin δ {d}"))
+            .unwrap_or_default(),
+        running: matches!(view.status.as_str(), "queued" | "running"),
+        status: view.status.clone(),
+        live: view.live.clone(),
+        e_value,
+        p_value,
+        finished,
+        error: view.error.clone(),
+    })
+}
