@@ -177,6 +177,8 @@ pub fn render_sequential(r: &d3il_metrics::sequential::Replay) -> String {
         "e-value {:.3}, anytime-valid p-value {:.4}; discordant pairs so far: A won {}, B won {}\n",
         r.e_value, r.p_value, r.discordant.0, r.discordant.1
     );
+    s += &d3il_metrics::horizon::rule_line(r.alpha, r.pairs_total as usize);
+    s.push('\n');
     if let Some((lo, hi)) = r.difference_interval {
         s += &format!("confidence sequence of A − B: {lo:+.3} – {hi:+.3}\n");
     }

@@ -120,6 +120,8 @@ pub fn render(r: &RaceReport, a: &std::path::Path, b: &std::path::Path) -> Strin
         "e-value {:.3}, anytime-valid p-value {:.4}; discordant pairs: A won {}, B won {}\n",
         r.e_value, r.p_value, r.discordant.0, r.discordant.1
     );
+    s += &d3il_metrics::horizon::rule_line(r.alpha, r.pairs_full as usize);
+    s.push('\n');
     s += &format!(
         "success rate on the states used: A {:.3}, B {:.3}\n",
         r.rate_a, r.rate_b
