@@ -31,7 +31,20 @@ fn d3il(args: &[&str], cache: &PathBuf, envs: &[(&str, &str)]) -> Output {
 #[test]
 fn verify_passes_and_every_result_records_its_build() {
     let dir = scratch("pass");
-    let out = d3il(&["verify", "--json"], &dir, &[]);
+    // Two runs of a build without a report, at once (as a server and a test
+    // suite start many): one runs the canary, the other waits for its
+    // report rather than running it again (the same report, to its seconds).
+    let (out, other) = std::thread::scope(|s| {
+        let a = s.spawn(|| d3il(&["verify", "--json", "--cached"], &dir, &[]));
+        let b = s.spawn(|| d3il(&["verify", "--json", "--cached"], &dir, &[]));
+        (a.join().unwrap(), b.join().unwrap())
+    });
+    assert_eq!(
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&other.stdout),
+        "two concurrent runs both ran the canary: {}",
+        String::from_utf8_lossy(&other.stderr)
+    );
     let stdout = String::from_utf8_lossy(&out.stdout);
     assert!(
         out.status.success(),

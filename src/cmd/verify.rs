@@ -38,12 +38,23 @@ pub struct VerifyReport {
     pub seconds: f64,
 }
 
+fn cached_report() -> Option<VerifyReport> {
+    cache_path("verify", "json")
+        .and_then(|f| std::fs::read(f).ok())
+        .and_then(|b| serde_json::from_slice::<VerifyReport>(&b).ok())
+}
+
 pub fn run(args: Args) -> anyhow::Result<()> {
+    // Held until this run has stored its report: a concurrent `--cached`
+    // run (or `d3il eval`'s fingerprint) waits for it instead of running
+    // the canary again.
+    let mut _lock = None;
     if args.cached {
-        if let Some(report) = cache_path("verify", "json")
-            .and_then(|f| std::fs::read(f).ok())
-            .and_then(|b| serde_json::from_slice::<VerifyReport>(&b).ok())
-        {
+        if let Some(report) = cached_report() {
+            return finish(&report, args.json, "");
+        }
+        _lock = canary_lock();
+        if let Some(report) = cached_report() {
             return finish(&report, args.json, "");
         }
     }
@@ -197,16 +208,33 @@ fn store_cached(fingerprint: &str) {
     }
 }
 
+fn cached_fingerprint() -> Option<String> {
+    let s = std::fs::read_to_string(cache_file()?).ok()?;
+    let s = s.trim();
+    (s.len() == 16 && s.bytes().all(|b| b.is_ascii_hexdigit())).then(|| s.to_string())
+}
+
+/// An exclusive lock on this binary's canary (a lock file next to its
+/// cache), held while one process runs the canary: the test suite and a
+/// cluster start many `d3il` processes of a fresh build at once, and
+/// without it each would compute the same fingerprint (half a minute of
+/// CPU each). None when there is no cache, or the lock cannot be taken:
+/// then the canary just runs.
+fn canary_lock() -> Option<std::fs::File> {
+    let f = std::fs::File::create(cache_path("canary", "lock")?).ok()?;
+    f.lock().ok()?;
+    Some(f)
+}
+
 /// This build's physics fingerprint: from the cache, or by running the
 /// canary once (about half a minute; said on stderr).
 pub fn build_fingerprint() -> anyhow::Result<String> {
-    if let Some(f) = cache_file() {
-        if let Ok(s) = std::fs::read_to_string(&f) {
-            let s = s.trim();
-            if s.len() == 16 && s.bytes().all(|b| b.is_ascii_hexdigit()) {
-                return Ok(s.to_string());
-            }
-        }
+    if let Some(fp) = cached_fingerprint() {
+        return Ok(fp);
+    }
+    let _lock = canary_lock();
+    if let Some(fp) = cached_fingerprint() {
+        return Ok(fp);
     }
     eprintln!("computing this build's physics fingerprint (the drift canary, once per build)...");
     let got: Outcomes = canary::run(&super::assets_dir(), &mut |_| {})?;
