@@ -59,5 +59,5 @@ pub fn confine_like_worker() -> Result<Vec<SandboxMechanism>, String> {
         suite: None,
         build: None,
     };
-    d3il_sandbox::confine(&job, None).map_err(|e| e.to_string())
+    d3il_sandbox::confine(&job, &[]).map_err(|e| e.to_string())
 }
