@@ -23,8 +23,9 @@ pub enum ClientError {
         path: String,
         source: std::io::Error,
     },
-    #[error("gave up waiting for submission {0} after {1:?}")]
-    Timeout(i64, Duration),
+    /// What was waited for ("submission 12", "comparison 3") and for how long.
+    #[error("gave up waiting for {0} after {1:?}")]
+    Timeout(String, Duration),
 }
 
 pub struct Client {
@@ -153,19 +154,33 @@ impl Client {
         &self,
         id: i64,
         timeout: Duration,
+        on_update: impl FnMut(&Value),
+    ) -> Result<Value, ClientError> {
+        let path = format!("/api/v1/comparisons/{id}");
+        let what = format!("comparison {id}");
+        self.poll_until_done(&path, &what, timeout, Duration::from_millis(300), on_update)
+    }
+
+    /// GETs `path` every `every` until its `status` is completed or failed.
+    fn poll_until_done(
+        &self,
+        path: &str,
+        what: &str,
+        timeout: Duration,
+        every: Duration,
         mut on_update: impl FnMut(&Value),
     ) -> Result<Value, ClientError> {
         let start = Instant::now();
         loop {
-            let v = self.comparison(id)?;
+            let v = self.get(path)?;
             on_update(&v);
             if matches!(v["status"].as_str(), Some("completed") | Some("failed")) {
                 return Ok(v);
             }
             if start.elapsed() > timeout {
-                return Err(ClientError::Timeout(id, timeout));
+                return Err(ClientError::Timeout(what.to_string(), timeout));
             }
-            std::thread::sleep(Duration::from_millis(300));
+            std::thread::sleep(every);
         }
     }
 
@@ -178,19 +193,10 @@ impl Client {
         &self,
         id: i64,
         timeout: Duration,
-        mut on_update: impl FnMut(&Value),
+        on_update: impl FnMut(&Value),
     ) -> Result<Value, ClientError> {
-        let start = Instant::now();
-        loop {
-            let v = self.submission(id)?;
-            on_update(&v);
-            if matches!(v["status"].as_str(), Some("completed") | Some("failed")) {
-                return Ok(v);
-            }
-            if start.elapsed() > timeout {
-                return Err(ClientError::Timeout(id, timeout));
-            }
-            std::thread::sleep(Duration::from_millis(500));
-        }
+        let path = format!("/api/v1/submissions/{id}");
+        let what = format!("submission {id}");
+        self.poll_until_done(&path, &what, timeout, Duration::from_millis(500), on_update)
     }
 }

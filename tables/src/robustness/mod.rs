@@ -285,16 +285,10 @@ fn header(g: &SuiteGroup<'_>) -> Vec<String> {
     h
 }
 
+/// [`header`] with the number of seeds after the method.
 fn method_header(g: &SuiteGroup<'_>) -> Vec<String> {
-    let mut h = vec![
-        "Rank".to_string(),
-        "Method".into(),
-        "Seeds".into(),
-        "Level 0 success".into(),
-        "H|s0".into(),
-    ];
-    h.extend(g.axes.iter().map(|a| a.to_string()));
-    h.push("Overall".into());
+    let mut h = header(g);
+    h.insert(2, "Seeds".into());
     h
 }
 
