@@ -21,7 +21,19 @@ fn fixture(name: &str) -> PathBuf {
 }
 
 fn submit(client: &d3il_server::client::Client, stem: &str, task: &str, seed: u32) -> i64 {
-    let manifest = std::fs::read_to_string(fixture(&format!("{stem}.json"))).unwrap();
+    submit_file(client, &fixture(stem), task, seed, "quick")
+}
+
+/// Submits `<path>.onnx` with its manifest `<path>.json`.
+fn submit_file(
+    client: &d3il_server::client::Client,
+    path: &std::path::Path,
+    task: &str,
+    seed: u32,
+    protocol: &str,
+) -> i64 {
+    let stem = path.file_name().unwrap().to_string_lossy().into_owned();
+    let manifest = std::fs::read_to_string(path.with_extension("json")).unwrap();
     let obs: Value = serde_json::from_str(&manifest).unwrap();
     let created = client
         .submit(
@@ -29,14 +41,82 @@ fn submit(client: &d3il_server::client::Client, stem: &str, task: &str, seed: u3
                 ("method", format!("Race-{stem}")),
                 ("task", task.to_string()),
                 ("training_seed", seed.to_string()),
-                ("protocol", "quick".to_string()),
+                ("protocol", protocol.to_string()),
                 ("obs_type", obs["obs_type"].as_str().unwrap().to_string()),
                 ("manifest", manifest),
             ],
-            Some(&fixture(&format!("{stem}.onnx"))),
+            Some(&path.with_extension("onnx")),
         )
         .unwrap_or_else(|e| panic!("submit {stem}: {e}"));
     created["id"].as_i64().unwrap()
+}
+
+/// A trained policy (align_bc of tests/data/reference-closed-loop, which
+/// succeeds on most Aligning test contexts in the original and here)
+/// against the untrained MLP fixture (which never succeeds), raced on the
+/// server under the paper protocol: it decides "A better" after a handful
+/// of the 60 initial states, the page says so, and the CLI race of the same
+/// two files decides at the same pair with the same counts.
+#[test]
+fn a_trained_policy_against_an_untrained_one_is_decided_early_on_the_server() {
+    let dir = TempDir::new("race-server-early");
+    let db = dir.path().join("lb.sqlite");
+    let token = create_token(&db, "racer");
+    let server = Server::start(&db, &["--workers", "0"]);
+    let client = server.client(Some(&token));
+    let trained = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/data/reference-closed-loop/align_bc");
+    let untrained = fixture("aligning_mlp");
+    let a = submit_file(&client, &trained, "aligning", 0, "paper");
+    let b = submit_file(&client, &untrained, "aligning", 0, "paper");
+    let started = client
+        .race(&json!({"a": a, "b": b, "protocol": "paper"}))
+        .expect("race accepted");
+    let id = started["id"].as_i64().unwrap();
+    let done = client
+        .wait_comparison(id, Duration::from_secs(600), |_| {})
+        .unwrap();
+    assert_eq!(done["status"], "completed", "{done}");
+    let report = &done["report"];
+    assert_eq!(report["decision"], "A better", "{report}");
+    assert_eq!(report["states_full"], 60, "{report}");
+    let used = report["states_used"].as_u64().unwrap();
+    assert!(used < 30, "decided early: {report}");
+    assert!(
+        report["rollouts_used"].as_u64() < report["rollouts_full"].as_u64(),
+        "{report}"
+    );
+    assert_eq!(
+        report["discordant"][1], 0,
+        "the untrained fixture never succeeds"
+    );
+
+    let (status, page) = client.get_text(&format!("/comparisons/{id}")).unwrap();
+    assert_eq!(status, 200, "{page}");
+    assert!(page.contains("Decision: <strong>A better"), "{page}");
+
+    let out = Command::new(EXE)
+        .args(["compare", "--sequential", "--task", "aligning", "--json"])
+        .arg(trained.with_extension("onnx"))
+        .arg(untrained.with_extension("onnx"))
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let cli: Value = serde_json::from_slice(&out.stdout).unwrap();
+    for k in [
+        "decision",
+        "decided_at",
+        "e_value",
+        "discordant",
+        "states_used",
+        "rollouts_used",
+    ] {
+        assert_eq!(report[k], cli[k], "{k}: server {report} vs CLI {cli}");
+    }
 }
 
 /// The refusal of a comparison request: (status, field).
