@@ -85,7 +85,12 @@ fn main() -> anyhow::Result<()> {
         Command::Tables(a) => cmd::tables::run(a),
         Command::Serve(a) => cmd::serve::run(a),
         Command::Token(a) => cmd::token::run(a),
-        Command::Submit(a) => cmd::submit::run(a),
+        // `d3il submit --race A B` races two submissions on the server
+        // (cmd::race_server, which reads submit's flags).
+        Command::Submit(a) => match a.race.clone() {
+            Some(pair) if a.cancel.is_none() => cmd::race_server::run_from_submit(&a, &pair),
+            _ => cmd::submit::run(a),
+        },
         Command::Worker(a) => cmd::worker::run(a),
         Command::Workers(a) => cmd::workers::run(a),
     }

@@ -270,6 +270,36 @@ fn a_race_on_the_server_reports_what_the_cli_race_reports_and_refuses_wrong_requ
     );
     assert!(text.contains(&e_line), "{e_line} in {text}");
 
+    // The /compare page's form starts the same race and leads to its page.
+    let (status, compare) = client.get_text(&format!("/compare?a={a}&b={b}")).unwrap();
+    assert_eq!(status, 200, "{compare}");
+    assert!(compare.contains("id=\"race-form\""), "{compare}");
+    let form = format!("a={a}&b={b}&protocol=quick&token={token}");
+    let (status, answer) = post_form(&server.base, "/comparisons", &form);
+    assert_eq!(status, 303, "{answer}");
+    let location = answer
+        .lines()
+        .find_map(|l| l.strip_prefix("location: /comparisons/"))
+        .unwrap_or_else(|| panic!("no location in {answer}"));
+    let by_form: i64 = location.trim().parse().unwrap();
+    let done = client
+        .wait_comparison(by_form, Duration::from_secs(300), |_| {})
+        .unwrap();
+    assert_eq!(done["report"]["e_value"], cli["e_value"], "{done}");
+    let (status, answer) = post_form(
+        &server.base,
+        "/comparisons",
+        &format!("a=x&b={b}&token={token}"),
+    );
+    assert_eq!(status, 400, "{answer}");
+    assert!(answer.contains("is not a submission id"), "{answer}");
+    let (status, _) = post_form(
+        &server.base,
+        "/comparisons",
+        &format!("a={a}&b={b}&token=wrong"),
+    );
+    assert_eq!(status, 401);
+
     // The document describes both routes.
     let doc = client.get("/api/v1/openapi.json").unwrap();
     assert!(doc["paths"]["/comparisons"]["post"].is_object());
@@ -335,4 +365,28 @@ fn a_race_on_the_server_reports_what_the_cli_race_reports_and_refuses_wrong_requ
         client.comparison(id + 100),
         Err(d3il_server::client::ClientError::Api { status: 404, .. })
     ));
+}
+
+/// POSTs a URL-encoded form to `base` + `path` over a plain socket (as a
+/// browser's form does); the status and the whole answer, header names in
+/// lower case.
+fn post_form(base: &str, path: &str, body: &str) -> (u16, String) {
+    use std::io::{Read, Write};
+    let addr = base.trim_start_matches("http://").trim_end_matches('/');
+    let mut s = std::net::TcpStream::connect(addr).unwrap();
+    write!(
+        s,
+        "POST {path} HTTP/1.1\r\nHost: {addr}\r\nContent-Type: application/x-www-form-urlencoded\r\nContent-Length: {}\r\nConnection: close\r\n\r\n{body}",
+        body.len()
+    )
+    .unwrap();
+    let mut answer = String::new();
+    s.read_to_string(&mut answer).unwrap();
+    let status = answer
+        .split_whitespace()
+        .nth(1)
+        .and_then(|c| c.parse().ok())
+        .unwrap_or(0);
+    let (head, rest) = answer.split_once("\r\n\r\n").unwrap_or((&answer, ""));
+    (status, format!("{}\n\n{rest}", head.to_lowercase()))
 }

@@ -28,8 +28,6 @@
 //! the largest), so it is `≤ α` for any number of discordant pairs, whatever
 //! the rate of concordant pairs.
 
-use crate::sequential::Decision;
-
 /// Share of α the running boundary spends; the last look spends the rest
 /// (chosen on the bench's grid, computed exactly: shares 0.6, 0.8, 0.9,
 /// 0.95, 0.98 give a protocol-view ratio of 0.621, 0.603, 0.591, 0.588,
@@ -308,3 +306,26 @@ pub fn rule_line(alpha: f64, horizon: usize) -> String {
 #[cfg(test)]
 #[path = "horizon_tests.rs"]
 mod tests;
+
+/// What a sequential comparison decided.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Decision {
+    /// A succeeds more often than B (the e-value reached 1/α, A's side ahead).
+    ABetter,
+    /// B succeeds more often than A.
+    BBetter,
+    /// The confidence sequence of `rate(A) − rate(B)` lies inside (−δ, δ).
+    NoDifferenceLargerThan(f64),
+}
+
+impl std::fmt::Display for Decision {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Decision::ABetter => f.write_str("A better"),
+            Decision::BBetter => f.write_str("B better"),
+            Decision::NoDifferenceLargerThan(d) => {
+                write!(f, "no difference larger than {d}")
+            }
+        }
+    }
+}

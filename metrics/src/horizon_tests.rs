@@ -4,7 +4,8 @@
 //! comparison and the simulation table decide by it.
 
 use super::*;
-use crate::sequential::{simulate, truncate, DecisionTable, SequentialComparison};
+use crate::sequential::SequentialComparison;
+use crate::sequential_sim::{simulate, truncate, DecisionTable};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 

@@ -26,10 +26,6 @@
 //!   sample size it needs for a given power.
 
 pub use crate::horizon::CalibratedBoundary;
-pub use crate::sequential_sim::{
-    discordant_probabilities, independent_discordance, simulate, truncate, DecisionTable, Run,
-    Simulated,
-};
 pub use crate::sign_test::FixedPairedTest;
 
 /// Points of the grid of candidate means a [`BettingCs`] tracks by default:
@@ -303,28 +299,9 @@ fn decide((ep, em): (f64, f64), alpha: f64) -> Option<Decision> {
     }
 }
 
-/// What a sequential comparison decided.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub enum Decision {
-    /// A succeeds more often than B (the e-value reached 1/α, A's side ahead).
-    ABetter,
-    /// B succeeds more often than A.
-    BBetter,
-    /// The confidence sequence of `rate(A) − rate(B)` lies inside (−δ, δ).
-    NoDifferenceLargerThan(f64),
-}
-
-impl std::fmt::Display for Decision {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        match self {
-            Decision::ABetter => f.write_str("A better"),
-            Decision::BBetter => f.write_str("B better"),
-            Decision::NoDifferenceLargerThan(d) => {
-                write!(f, "no difference larger than {d}")
-            }
-        }
-    }
-}
+/// What a sequential comparison decided (defined beside the boundary that
+/// decides it, [`crate::horizon`]).
+pub use crate::horizon::Decision;
 
 /// The sequential paired comparison of A and B at level `alpha`.
 ///

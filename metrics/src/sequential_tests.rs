@@ -2,6 +2,7 @@
 //! loops: coverage at every look, type-I error, the supermartingale property.
 
 use super::*;
+use crate::sequential_sim::*;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 

@@ -8,9 +8,9 @@
 //! runs longer than the horizon). docs/sequential.md has the method and the
 //! figures.
 
-use d3il_metrics::sequential::{
-    discordant_probabilities, independent_discordance, simulate, truncate, Decision, DecisionTable,
-    FixedPairedTest, Simulated,
+use d3il_metrics::sequential::{Decision, FixedPairedTest};
+use d3il_metrics::sequential_sim::{
+    discordant_probabilities, independent_discordance, simulate, truncate, DecisionTable, Simulated,
 };
 use rayon::prelude::*;
 

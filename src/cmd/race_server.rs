@@ -10,6 +10,14 @@ use d3il_protocol::race::RaceReport;
 use d3il_server::client::Client;
 use std::time::Duration;
 
+/// `d3il submit --race A B`: the server and token from submit's flags.
+pub fn run_from_submit(a: &Args, pair: &[i64]) -> anyhow::Result<()> {
+    let [id_a, id_b] = pair else {
+        anyhow::bail!("--race takes two submission ids: --race A B");
+    };
+    run(a, &super::submit::client_of(a)?, *id_a, *id_b)
+}
+
 pub fn run(a: &Args, client: &Client, id_a: i64, id_b: i64) -> anyhow::Result<()> {
     let mut body = serde_json::json!({
         "a": id_a,

@@ -155,7 +155,7 @@ fn check_locally(a: &Args, task: &str, training_seed: i64) -> anyhow::Result<()>
     Ok(())
 }
 
-fn client_of(a: &Args) -> anyhow::Result<d3il_server::client::Client> {
+pub(crate) fn client_of(a: &Args) -> anyhow::Result<d3il_server::client::Client> {
     let token = match a.token.clone() {
         Some(t) => t,
         None => std::env::var("D3IL_TOKEN").context(
@@ -173,9 +173,6 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             v["status"].as_str().unwrap_or("?")
         );
         return Ok(());
-    }
-    if let Some(pair) = &a.race {
-        return super::race_server::run(&a, &client_of(&a)?, pair[0], pair[1]);
     }
     let (Some(method), Some(task), Some(training_seed)) =
         (a.method.clone(), a.task.clone(), a.training_seed)

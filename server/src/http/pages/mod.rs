@@ -37,6 +37,7 @@ pub fn router(max_upload: usize) -> Router<AppState> {
         .route("/methods", get(methods_page))
         .route("/methods/{name}", get(method_page))
         .route("/compare", get(compare_page))
+        .route("/comparisons", axum::routing::post(race::race_post))
         .route("/comparisons/{id}", get(race::race_page))
         .route("/submissions", get(submissions_page))
         .route("/submissions/{id}", get(submission_page))

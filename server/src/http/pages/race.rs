@@ -107,3 +107,44 @@ pub(super) async fn race_page(
         error: view.error.clone(),
     })
 }
+
+/// The `/compare` page's "Race them" form: two submission ids, the
+/// protocol and the submitter's token.
+#[derive(serde::Deserialize)]
+pub(super) struct RaceForm {
+    a: String,
+    b: String,
+    #[serde(default)]
+    protocol: String,
+    #[serde(default)]
+    token: String,
+}
+
+/// `POST /comparisons` from the form: the API's checks and race
+/// (`races::create`), then on to the live page.
+pub(super) async fn race_post(
+    State(state): State<AppState>,
+    axum::Form(f): axum::Form<RaceForm>,
+) -> Result<axum::response::Response, PageError> {
+    use axum::response::IntoResponse;
+    let who = crate::auth::authenticate_token(&state, f.token.trim()).await?;
+    let id = |field: &str, v: &str| {
+        v.trim().parse::<i64>().map_err(|_| {
+            crate::error::AppError::invalid(
+                field,
+                format!("`{v}` is not a submission id: give the number shown as #N on its page"),
+            )
+        })
+    };
+    let req = crate::races::ComparisonRequest {
+        a: id("a", &f.a)?,
+        b: id("b", &f.b)?,
+        task: None,
+        alpha: None,
+        delta: None,
+        protocol: Some(f.protocol.trim().to_string()).filter(|p| !p.is_empty()),
+        seed: None,
+    };
+    let race = crate::races::create(&state, &who, &req).await?;
+    Ok(axum::response::Redirect::to(&format!("/comparisons/{race}")).into_response())
+}
