@@ -95,18 +95,11 @@ fn a_trained_policy_against_an_untrained_one_is_decided_early_on_the_server() {
     assert_eq!(status, 200, "{page}");
     assert!(page.contains("Decision: <strong>A better"), "{page}");
 
-    let out = Command::new(EXE)
-        .args(["compare", "--sequential", "--task", "aligning", "--json"])
-        .arg(trained.with_extension("onnx"))
-        .arg(untrained.with_extension("onnx"))
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
+    let cli = cli_race(
+        &[],
+        &trained.with_extension("onnx"),
+        &untrained.with_extension("onnx"),
     );
-    let cli: Value = serde_json::from_slice(&out.stdout).unwrap();
     for k in [
         "decision",
         "decided_at",
@@ -195,26 +188,11 @@ fn a_race_on_the_server_reports_what_the_cli_race_reports_and_refuses_wrong_requ
     );
 
     // The same race with the CLI: the same decision and counts, bit for bit.
-    let out = Command::new(EXE)
-        .args([
-            "compare",
-            "--sequential",
-            "--task",
-            "aligning",
-            "--protocol",
-            "quick",
-            "--json",
-        ])
-        .arg(fixture("aligning_mlp.onnx"))
-        .arg(fixture("aligning_mlp_noise.onnx"))
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
+    let cli = cli_race(
+        &["--protocol", "quick"],
+        &fixture("aligning_mlp.onnx"),
+        &fixture("aligning_mlp_noise.onnx"),
     );
-    let cli: Value = serde_json::from_slice(&out.stdout).unwrap();
     for k in [
         "task",
         "protocol",
@@ -393,4 +371,23 @@ fn post_form(base: &str, path: &str, body: &str) -> (u16, String) {
         .unwrap_or(0);
     let (head, rest) = answer.split_once("\r\n\r\n").unwrap_or((&answer, ""));
     (status, format!("{}\n\n{rest}", head.to_lowercase()))
+}
+
+/// `d3il compare --sequential --task aligning EXTRA --json A B`: the CLI's
+/// race report.
+fn cli_race(extra: &[&str], a: &std::path::Path, b: &std::path::Path) -> Value {
+    let out = Command::new(EXE)
+        .args(["compare", "--sequential", "--task", "aligning"])
+        .args(extra)
+        .arg("--json")
+        .arg(a)
+        .arg(b)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    serde_json::from_slice(&out.stdout).unwrap()
 }
