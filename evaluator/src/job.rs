@@ -91,6 +91,11 @@ pub fn run_job(
             message: "this job is one shard of an evaluation; its part is not a result".into(),
         }),
         Evaluated::Robustness(doc) => Ok(doc.control),
+        Evaluated::SuitePart(_) => Err(WorkerError {
+            kind: ErrorKind::BadJob,
+            message: "this job is one shard of a robustness evaluation; its part is not a result"
+                .into(),
+        }),
         Evaluated::Race(_) => Err(WorkerError {
             kind: ErrorKind::BadJob,
             message: "this job is a race of two policies; its report is not a result".into(),
@@ -121,12 +126,6 @@ pub fn run_job_or_shard(
         Some(name) => {
             let suite = crate::robustness::suite_for(name, job.task, job.manifest.obs_type)
                 .map_err(to_worker)?;
-            if job.shard.is_some() {
-                return Err(WorkerError {
-                    kind: ErrorKind::BadJob,
-                    message: "a robustness job runs whole evaluations; it is not sharded".into(),
-                });
-            }
             // A dry run only checks that the suite exists.
             job.dry_run_steps.is_none().then_some(suite)
         }
@@ -159,6 +158,28 @@ pub fn run_job_or_shard(
         let plan =
             crate::robustness::plan(&task, policy.as_ref(), &opts, &suite).map_err(to_worker)?;
         let mut counts = |d: usize, t: usize| on_progress(&Progress::counts(d, t));
+        if let Some(shard) = job.shard {
+            // The same block of whole initial states at level 0 and at
+            // every level (`d3il eval --suite robustness --shard K/N`).
+            let states = shard
+                .contexts(plan.n_contexts)
+                .map_err(|e| to_worker(EvalError::Setup(e.to_string())))?
+                .len();
+            let recorded = states * plan.rollouts_per_context * (plan.levels.len() + 1);
+            let mut observer = crate::robustness::Cumulative::new(&mut counts, recorded);
+            return crate::suite_shard::evaluate_suite_shard(
+                &task,
+                policy.as_mut(),
+                &info,
+                &opts,
+                &suite,
+                &plan,
+                shard,
+                &mut observer,
+            )
+            .map(|part| Evaluated::SuitePart(Box::new(part)))
+            .map_err(to_worker);
+        }
         let mut observer = crate::robustness::Cumulative::new(&mut counts, plan.recorded);
         return crate::robustness::evaluate_suite(
             &task,

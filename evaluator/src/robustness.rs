@@ -8,16 +8,15 @@
 use crate::eval::{self, evaluate, evaluate_perturbed, EvalError, EvalOptions, PolicyInfo, Timing};
 use crate::perturb::Suite;
 use crate::tasks::LoadedTask;
-use d3il_metrics::robustness::robustness_scores;
-use d3il_metrics::Bootstrap;
+use d3il_metrics::suite_shard::SuiteLevels;
 use d3il_policy::Policy;
 use d3il_protocol::perturbation::{Axis, Perturbation};
-use d3il_protocol::robustness::{AxisScore, LevelResult, RobustnessResult, ROBUSTNESS_FORMAT};
-use d3il_protocol::{Comparison, ContextResult, EvalResult, ObsType, TaskId};
+use d3il_protocol::robustness::RobustnessResult;
+use d3il_protocol::{EvalResult, ObsType, TaskId};
 
 /// Resamples of the paired comparisons and of the scores' intervals (as
 /// `d3il compare`'s default).
-pub const RESAMPLES: usize = 2000;
+pub use d3il_metrics::suite_shard::RESAMPLES;
 
 /// The one suite name a job or `d3il eval --suite` takes.
 pub const SUITE_NAME: &str = "robustness";
@@ -63,10 +62,26 @@ pub fn plan(
     opts: &EvalOptions,
     suite: &Suite,
 ) -> Result<SuitePlan, EvalError> {
+    plan_for(
+        task,
+        policy.deterministic() && !opts.simulate_every_rollout,
+        opts,
+        suite,
+    )
+}
+
+/// [`plan`] for a policy that is deterministic (`once`: each initial state
+/// simulated once) or not, without the policy (`d3il eval --suite
+/// --sandbox` loads it only in the sandboxed worker).
+pub fn plan_for(
+    task: &LoadedTask,
+    once: bool,
+    opts: &EvalOptions,
+    suite: &Suite,
+) -> Result<SuitePlan, EvalError> {
     let levels = suite.perturbations();
     let set = task.def.context_set()?;
     let (n_ctx, per_ctx) = eval::protocol_size(task, opts.protocol, set.len());
-    let once = policy.deterministic() && !opts.simulate_every_rollout;
     let per_level = n_ctx * per_ctx;
     let simulated = |noisy: bool| {
         if once && !noisy {
@@ -128,8 +143,8 @@ pub fn evaluate_suite(
 
 /// The robustness document of level 0's result and every level's (in the
 /// suite's order): each level's paired drop against level 0 and the scores,
-/// bootstrapped with the evaluation's seed. An evaluation and the merge of
-/// its shards (`crate::suite_shard`) both end here.
+/// bootstrapped with the evaluation's seed. An evaluation here and the
+/// merge of its shards (`d3il_metrics::suite_shard`) build it the same way.
 pub fn document(
     suite: &Suite,
     control: EvalResult,
@@ -140,67 +155,27 @@ pub fn document(
 }
 
 /// The robustness document of level 0 (`control`) and the levels'
-/// results: each level's paired drop against level 0 (`d3il compare`'s
-/// machinery, [`RESAMPLES`] resamples, seeded by `seed`), the success
-/// retained and the scores per axis and overall.
+/// results (`d3il_metrics::suite_shard::document`, with `suite`'s name,
+/// sha256 and axes): each level's paired drop against level 0, seeded by
+/// `seed`, the success retained and the scores per axis and overall.
 pub fn assemble(
     suite: &Suite,
     control: EvalResult,
     results: Vec<(Perturbation, EvalResult)>,
     seed: u64,
 ) -> Result<RobustnessResult, d3il_metrics::MetricsError> {
-    let cfg = Bootstrap {
-        resamples: RESAMPLES,
-        confidence: 0.95,
-        seed,
-    };
-    let results = results
-        .into_iter()
-        .map(|(p, r)| {
-            let paired = d3il_metrics::compare(&control, &r, &cfg)?;
-            Ok((p, r, paired))
-        })
-        .collect::<Result<Vec<(Perturbation, EvalResult, Comparison)>, d3il_metrics::MetricsError>>(
-        )?;
-    let axes: Vec<Axis> = suite.file.axes.iter().map(|a| a.axis).collect();
-    let indexed: Vec<(usize, &[ContextResult])> = results
-        .iter()
-        .map(|(p, r, _)| {
-            let a = axes.iter().position(|&x| x == p.axis).unwrap_or(0);
-            (a, &r.per_context[..])
-        })
-        .collect();
-    let scores = robustness_scores(&control.per_context, &indexed, axes.len(), &cfg)?;
-    Ok(RobustnessResult {
-        format: ROBUSTNESS_FORMAT.into(),
-        task: control.manifest.task,
-        suite: suite.name.clone(),
-        suite_sha256: suite.sha256.clone(),
-        levels: results
-            .into_iter()
-            .zip(&scores.retained)
-            .map(|((p, result, paired), retained)| LevelResult {
-                axis: p.axis,
-                level: p.level,
-                setting: p.setting,
-                result,
-                paired,
-                retained: *retained,
-            })
-            .collect(),
-        axes: axes
-            .iter()
-            .zip(&scores.axes)
-            .map(|(&axis, score)| AxisScore {
-                axis,
-                score: *score,
-            })
-            .collect(),
-        overall: scores.overall,
-        control,
-        resamples: cfg.resamples,
-        confidence: cfg.confidence,
-    })
+    d3il_metrics::suite_shard::document(&suite_levels(suite), control, results, seed)
+}
+
+/// What a robustness document records of `suite`: its name and sha256, its
+/// axes and its levels, in the file's order.
+pub fn suite_levels(suite: &Suite) -> SuiteLevels {
+    SuiteLevels {
+        name: suite.name.clone(),
+        sha256: suite.sha256.clone(),
+        axes: suite.file.axes.iter().map(|a| a.axis).collect(),
+        levels: suite.perturbations(),
+    }
 }
 
 /// Progress over the whole suite for a worker: level by level, counted

@@ -32,6 +32,7 @@ pub mod sequential;
 pub mod sequential_sim;
 pub mod shard;
 pub mod sign_test;
+pub mod suite_shard;
 pub(crate) use bootstrap::bias_corrected_interval;
 pub use bootstrap::{bootstrap, bootstrap_all, Bootstrap, Statistic};
 #[cfg(test)]

@@ -293,7 +293,9 @@ pub struct Job {
     pub build: Option<crate::results::BuildIdentity>,
     /// Evaluate the task's perturbation suite (`"robustness"`, issue 40):
     /// level 0 (the plain evaluation) and every level, answered with a
-    /// [`crate::robustness::RobustnessResult`]. A dry run with a suite only
+    /// [`crate::robustness::RobustnessResult`]; with [`Job::shard`] too, the
+    /// shard's part of level 0 and of every level
+    /// ([`crate::robustness::RobustnessPart`]). A dry run with a suite only
     /// checks that the suite exists, then runs as without it.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub suite: Option<String>,
@@ -311,6 +313,9 @@ pub enum Evaluated {
     Part(Box<crate::shard::EvalPart>),
     /// A job with [`Job::suite`]: level 0 and every perturbed level.
     Robustness(Box<crate::robustness::RobustnessResult>),
+    /// A job with [`Job::suite`] and [`Job::shard`]: the shard's part of
+    /// level 0 and of every level.
+    SuitePart(Box<crate::robustness::RobustnessPart>),
     /// A job with [`Job::race`]: the race's report.
     Race(Box<crate::race::RaceReport>),
 }
@@ -370,6 +375,8 @@ pub enum WorkerMessage {
     Part(Box<crate::shard::EvalPart>),
     /// The robustness document of a job with [`Job::suite`].
     Robustness(Box<crate::robustness::RobustnessResult>),
+    /// The part of one shard of a job with [`Job::suite`] and [`Job::shard`].
+    SuitePart(Box<crate::robustness::RobustnessPart>),
     /// The report of a job with [`Job::race`].
     Race(Box<crate::race::RaceReport>),
     Error(WorkerError),

@@ -79,7 +79,7 @@ pub const ROBUSTNESS_PART_FORMAT: &str = "d3il-robustness-part-v1";
 /// shard's part of level 0 and of every level (the same block of initial
 /// states at every level). `d3il merge` joins the parts of all shards into
 /// the [`RobustnessResult`] of the unsharded run, bit for bit.
-#[derive(Debug, Clone, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct RobustnessPart {
     /// [`ROBUSTNESS_PART_FORMAT`].
     pub format: String,

@@ -155,6 +155,10 @@ where
             out.send(&WorkerMessage::Robustness(doc));
             exit_code::OK
         }
+        Ok(Evaluated::SuitePart(p)) => {
+            out.send(&WorkerMessage::SuitePart(p));
+            exit_code::OK
+        }
         Ok(Evaluated::Race(report)) => {
             out.send(&WorkerMessage::Race(report));
             exit_code::OK

@@ -63,6 +63,8 @@ pub enum Outcome {
     Part(Box<d3il_protocol::shard::EvalPart>),
     /// The robustness document of a job with `Job::suite`.
     Robustness(Box<d3il_protocol::robustness::RobustnessResult>),
+    /// The part of one shard of a job with `Job::suite` and `Job::shard`.
+    SuitePart(Box<d3il_protocol::robustness::RobustnessPart>),
     /// The report of a race job (`Job::race`).
     Race(Box<d3il_protocol::race::RaceReport>),
     Failed(WorkerError),
@@ -280,6 +282,7 @@ pub fn run_worker_reporting(
                 WorkerMessage::Result(r) => final_msg = Some(Outcome::Completed(r)),
                 WorkerMessage::Part(p) => final_msg = Some(Outcome::Part(p)),
                 WorkerMessage::Robustness(d) => final_msg = Some(Outcome::Robustness(d)),
+                WorkerMessage::SuitePart(p) => final_msg = Some(Outcome::SuitePart(p)),
                 WorkerMessage::Race(r) => final_msg = Some(Outcome::Race(r)),
                 WorkerMessage::Error(e) => final_msg = Some(Outcome::Failed(e)),
             },

@@ -346,25 +346,17 @@ async fn run_claimed(
             count_finished(m, &kind, began);
             tracing::info!("job {job_id} completed (robustness suite {})", doc.suite);
         }
-        Ok(Evaluated::Part(part)) if shard == Some(part.shard) => {
-            let Some(merged) = lease_lost(
-                store
-                    .complete_shard(job_id, owner, &part, &report.mechanisms)
-                    .await,
-            )?
-            else {
-                return Ok(());
-            };
-            count_finished(m, &kind, began);
-            tracing::info!(
-                "job {job_id} (shard {} of submission {submission_id}) completed{}",
-                part.shard,
-                if merged {
-                    "; all shards done, result merged"
-                } else {
-                    ""
-                }
-            );
+        Ok(Evaluated::Part(part)) if shard == Some(part.shard) && c.submission.suite.is_none() => {
+            let part = crate::store::ShardPart::Plain(&part);
+            finish_shard(store, m, &kind, owner, &c, part, &report.mechanisms, began).await?;
+        }
+        Ok(Evaluated::SuitePart(part))
+            if shard == Some(part.shard) && c.submission.suite.is_some() =>
+        {
+            // A robustness submission's shard: level 0 and every level on
+            // its initial states; the last shard merges the document.
+            let part = crate::store::ShardPart::Suite(&part);
+            finish_shard(store, m, &kind, owner, &c, part, &report.mechanisms, began).await?;
         }
         Ok(_) => {
             let err = WorkerError {
@@ -397,6 +389,41 @@ async fn run_claimed(
             );
         }
     }
+    Ok(())
+}
+
+/// Stores a shard's part (the last one merges, `Store::complete_any_shard`).
+#[allow(clippy::too_many_arguments)]
+async fn finish_shard(
+    store: &Store,
+    m: &crate::telemetry::PoolMetrics,
+    kind: &crate::telemetry::Labels,
+    owner: &str,
+    c: &ClaimedJob,
+    part: crate::store::ShardPart<'_>,
+    mechanisms: &[SandboxMechanism],
+    began: Instant,
+) -> Result<(), StoreError> {
+    let (job_id, submission_id) = (c.job.id, c.submission.id);
+    let Some(merged) = lease_lost_is_a_warning(
+        store
+            .complete_any_shard(job_id, owner, part, mechanisms)
+            .await,
+        m,
+    )?
+    else {
+        return Ok(());
+    };
+    count_finished(m, kind, began);
+    tracing::info!(
+        "job {job_id} (shard {} of submission {submission_id}) completed{}",
+        c.job.shard().map(|s| s.to_string()).unwrap_or_default(),
+        if merged {
+            "; all shards done, result merged"
+        } else {
+            ""
+        }
+    );
     Ok(())
 }
 

@@ -41,6 +41,7 @@ impl JobRunner for SandboxRunner {
                 Outcome::Completed(r) => Ok(Evaluated::Result(r)),
                 Outcome::Part(p) => Ok(Evaluated::Part(p)),
                 Outcome::Robustness(d) => Ok(Evaluated::Robustness(d)),
+                Outcome::SuitePart(p) => Ok(Evaluated::SuitePart(p)),
                 Outcome::Race(r) => Ok(Evaluated::Race(r)),
                 Outcome::Failed(e) => Err(e),
             },
@@ -84,10 +85,11 @@ impl JobRunner for SandboxRunner {
 }
 
 /// The job and worker command a job runs with: a suite job (`Job::suite`)
-/// runs level 0 and every level of its suite, each a whole evaluation, in
-/// one worker, so its wall clock, CPU time and output cap are those of one
-/// evaluation times the number of evaluations (`suite_limits`); any other
-/// job runs as given.
+/// runs level 0 and every level of its suite, each a whole evaluation (or,
+/// for a shard, each the shard's block of it), in one worker, so its wall
+/// clock, CPU time and output cap are those of one evaluation (or shard)
+/// times the number of evaluations (`suite_limits`); any other job runs as
+/// given.
 fn scaled_for_suite(job: &Job, cmd: &WorkerCommand) -> (Job, WorkerCommand) {
     let evaluations = match &job.suite {
         Some(_) => crate::intake::suite_evaluations(
@@ -292,5 +294,12 @@ mod tests {
         let (suite_job, suite_cmd) = scaled_for_suite(&job, &cmd);
         assert_eq!(suite_job.limits, limits);
         assert_eq!(suite_cmd.wall_clock, scaled.wall_clock);
+        // A shard of a suite job runs level 0 and every level too (on its
+        // block of initial states): the same limits, as a plain shard gets
+        // those of a plain job.
+        job.shard = Some(d3il_protocol::shard::Shard { index: 2, count: 2 });
+        let (shard_job, shard_cmd) = scaled_for_suite(&job, &cmd);
+        assert_eq!(shard_job.limits, limits);
+        assert_eq!(shard_cmd.wall_clock, scaled.wall_clock);
     }
 }

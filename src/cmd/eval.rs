@@ -278,19 +278,33 @@ pub fn build_job(args: &Args) -> anyhow::Result<Job> {
     })
 }
 
+/// The sandboxed `d3il worker` (this executable) that runs `job`: its wall
+/// clock is the job's.
+pub fn worker_command(job: &Job) -> anyhow::Result<d3il_sandbox::WorkerCommand> {
+    Ok(d3il_sandbox::WorkerCommand {
+        exe: std::env::current_exe()?,
+        args: vec!["worker".into()],
+        wall_clock: std::time::Duration::from_secs(job.limits.wall_seconds),
+        max_output_bytes: 256 << 20,
+    })
+}
+
 /// Runs `job` in a sandboxed `d3il worker` (as the server does), prints the
 /// mechanisms in force and returns what it answered; a failure is an error.
 pub fn sandboxed(
     job: &Job,
     on_progress: &mut dyn FnMut(usize, usize),
 ) -> anyhow::Result<d3il_sandbox::Outcome> {
-    let cmd = d3il_sandbox::WorkerCommand {
-        exe: std::env::current_exe()?,
-        args: vec!["worker".into()],
-        wall_clock: std::time::Duration::from_secs(job.limits.wall_seconds),
-        max_output_bytes: 256 << 20,
-    };
-    let run = d3il_sandbox::run_worker(&cmd, job, on_progress);
+    sandboxed_with(&worker_command(job)?, job, on_progress)
+}
+
+/// [`sandboxed`] with the worker command `cmd`.
+pub fn sandboxed_with(
+    cmd: &d3il_sandbox::WorkerCommand,
+    job: &Job,
+    on_progress: &mut dyn FnMut(usize, usize),
+) -> anyhow::Result<d3il_sandbox::Outcome> {
+    let run = d3il_sandbox::run_worker(cmd, job, on_progress);
     eprintln!();
     for m in &run.mechanisms {
         eprintln!(

@@ -96,6 +96,7 @@ pub fn seed(db: &std::path::Path, synths: &[Synth]) -> Vec<i64> {
                     },
                     3,
                     "robustness",
+                    1,
                 )
                 .await
                 .expect("submission");

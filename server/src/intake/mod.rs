@@ -507,6 +507,7 @@ pub async fn dry_run(
         Ok(Evaluated::Result(r)) => return Ok(r.manifest.simulated_once),
         Ok(Evaluated::Part(p)) => return Ok(p.manifest.simulated_once),
         Ok(Evaluated::Robustness(d)) => return Ok(d.control.manifest.simulated_once),
+        Ok(Evaluated::SuitePart(p)) => return Ok(p.control.manifest.simulated_once),
         Ok(Evaluated::Race(_)) => {
             return Err(AppError::Internal(
                 "a dry-run answered with a race report".into(),
@@ -636,11 +637,12 @@ pub async fn accept(
         manifest_json,
         simulated_once: dry_once,
     };
-    // A suite's job runs whole evaluations, never sharded.
+    // A suite's job is sharded by the same rule: each shard runs level 0
+    // and every level on its block of initial states.
     let inserted = match &v.suite {
         Some(suite) => {
             store
-                .create_suite_submission(&new, state.cfg.max_attempts, suite)
+                .create_suite_submission(&new, state.cfg.max_attempts, suite, shards)
                 .await
         }
         None => {

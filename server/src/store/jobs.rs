@@ -6,7 +6,6 @@ use super::types::Json;
 use super::types::{JobState, SubmissionStatus};
 use super::{now, to_json, Store, StoreError};
 use crate::leaderboard::protocol_str;
-use d3il_protocol::shard::EvalPart;
 use d3il_protocol::{EvalResult, ProtocolKind, SandboxMechanism, WorkerError};
 use sqlx::FromRow;
 
@@ -424,91 +423,6 @@ impl Store {
             .await?;
             tx.commit().await?;
             Ok(())
-        })
-    }
-
-    /// Stores the part of one shard, run by `owner`. When it is the last
-    /// shard of its submission, the parts are merged
-    /// (`d3il_metrics::shard::merge`, the same as `d3il merge`) and the
-    /// result stored: returns whether that happened. A slot that no longer
-    /// holds the lease changes nothing ([`StoreError::LeaseLost`]; the part
-    /// another slot ran, or will run, is the same bit for bit).
-    pub async fn complete_shard(
-        &self,
-        job_id: i64,
-        owner: &str,
-        part: &EvalPart,
-        mechanisms: &[SandboxMechanism],
-    ) -> Result<bool, StoreError> {
-        let t = now();
-        let n = part.rollouts.len() as i64;
-        // Shards of one submission finish one at a time (the submission row
-        // is locked on PostgreSQL, the database on SQLite), so exactly one
-        // of them sees every part and merges.
-        let lock_submission = if self.is_postgres() {
-            "SELECT id FROM submissions WHERE id = $1 FOR UPDATE"
-        } else {
-            "SELECT id FROM submissions WHERE id = $1"
-        };
-        on_db!(&self.db, pool => {
-            let mut tx = begin_write!(self, pool);
-            let submission_id: Option<i64> = sqlx::query_scalar(
-                "SELECT submission_id FROM jobs WHERE id = $1 AND state = 'leased' AND lease_owner = $2",
-            )
-            .bind(job_id)
-            .bind(owner)
-            .fetch_optional(&mut *tx)
-            .await?;
-            let Some(submission_id) = submission_id else {
-                return Err(StoreError::LeaseLost { job_id, owner: owner.to_string() });
-            };
-            sqlx::query(lock_submission).bind(submission_id).execute(&mut *tx).await?;
-            sqlx::query(
-                "UPDATE jobs SET state = 'done', lease_owner = NULL, lease_expires_at = NULL, finished_at = $1, \
-                 rollouts_done = $2, rollouts_total = $2, sandbox_json = $3, part_json = $4, \
-                 error_kind = NULL, error_message = NULL WHERE id = $5",
-            )
-            .bind(t)
-            .bind(n)
-            .bind(to_json(&mechanisms))
-            .bind(to_json(part))
-            .bind(job_id)
-            .execute(&mut *tx)
-            .await?;
-            let parts: Vec<(i64, String, Option<String>)> = sqlx::query_as(
-                "SELECT shard_index, state, part_json FROM jobs WHERE submission_id = $1 ORDER BY shard_index",
-            )
-            .bind(submission_id)
-            .fetch_all(&mut *tx)
-            .await?;
-            if parts.iter().any(|(_, state, _)| state != JobState::Done.as_str()) {
-                tx.commit().await?;
-                return Ok(false);
-            }
-            let mut decoded = Vec::with_capacity(parts.len());
-            for (index, _, json) in parts {
-                let part: EvalPart = serde_json::from_str(json.as_deref().unwrap_or("")).map_err(|e| {
-                    StoreError::Corrupt(format!("shard {} of submission {submission_id}: {e}", index + 1))
-                })?;
-                decoded.push((format!("shard {}", index + 1), part));
-            }
-            let merged = d3il_metrics::shard::merge(decoded);
-            match merged {
-                Ok(result) => {
-                    insert_result!(&mut *tx, submission_id, &result, t);
-                    // The parts are in the result now.
-                    sqlx::query("UPDATE jobs SET part_json = NULL WHERE submission_id = $1")
-                        .bind(submission_id)
-                        .execute(&mut *tx)
-                        .await?;
-                }
-                Err(e) => {
-                    let message = format!("the shards could not be merged: {e}");
-                    finish_failed!(&mut *tx, job_id, submission_id, "internal", &message, t);
-                }
-            }
-            tx.commit().await?;
-            Ok(true)
         })
     }
 

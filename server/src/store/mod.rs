@@ -44,13 +44,16 @@ macro_rules! begin_write {
 
 mod comparisons;
 mod files;
+#[macro_use]
 mod jobs;
 mod live;
 mod methods;
 mod moderation;
 mod paper;
 mod results;
+#[macro_use]
 mod robustness;
+mod shards;
 mod submissions;
 mod tokens;
 pub mod types;
@@ -63,6 +66,7 @@ pub use methods::{MethodRow, NewMethod};
 pub use moderation::{AuditEntry, QuotaOverrides, QuotaUsage, Withdrawal, DAY_S};
 pub use results::{ResultRow, RolloutRow, SeedSummary};
 pub use robustness::{summary_of, RobustnessRow};
+pub use shards::ShardPart;
 /// Re-exported so that callers reading the rows themselves (`d3il bench
 /// chaos` checks what a run left behind) need no own dependency.
 pub use sqlx;

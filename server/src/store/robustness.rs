@@ -10,6 +10,39 @@ use d3il_protocol::{ObsType, ProtocolKind, TaskId};
 use d3il_tables::robustness::RobustnessEntry;
 use sqlx::FromRow;
 
+/// Writes a submission's robustness document and its summary (idempotent:
+/// a document already stored for the submission is kept), on a pool or
+/// inside the caller's transaction (the merge of a sharded suite job,
+/// `super::shards`).
+macro_rules! insert_robustness {
+    ($exec:expr, $submission_id:expr, $doc:expr) => {{
+        let (submission_id, doc): (i64, &d3il_protocol::robustness::RobustnessResult) =
+            ($submission_id, $doc);
+        let document = serde_json::to_string(doc).map_err(|e| {
+            StoreError::Corrupt(format!("robustness document not encoded: {e}"))
+        })?;
+        let summary = serde_json::to_string(&$crate::store::summary_of(doc)).map_err(|e| {
+            StoreError::Corrupt(format!("robustness summary not encoded: {e}"))
+        })?;
+        sqlx::query(
+            "INSERT INTO robustness_results (submission_id, suite, suite_sha256, overall, overall_ci_low, \
+             overall_ci_high, summary_json, document_json, created_at) VALUES ($1, $2, $3, $4, $5, $6, $7, $8, $9) \
+             ON CONFLICT (submission_id) DO NOTHING",
+        )
+        .bind(submission_id)
+        .bind(&doc.suite)
+        .bind(&doc.suite_sha256)
+        .bind(doc.overall.map(|e| e.value))
+        .bind(doc.overall.map(|e| e.ci_low))
+        .bind(doc.overall.map(|e| e.ci_high))
+        .bind(summary)
+        .bind(document)
+        .bind($crate::store::now())
+        .execute($exec)
+        .await?;
+    }};
+}
+
 /// One evaluated submission's robustness, as the board and tables read it.
 #[derive(Debug, Clone, FromRow)]
 pub struct RobustnessRow {
@@ -61,27 +94,9 @@ impl Store {
         submission_id: i64,
         doc: &RobustnessResult,
     ) -> Result<(), StoreError> {
-        let document = serde_json::to_string(doc)
-            .map_err(|e| StoreError::Corrupt(format!("robustness document not encoded: {e}")))?;
-        let summary = serde_json::to_string(&summary_of(doc))
-            .map_err(|e| StoreError::Corrupt(format!("robustness summary not encoded: {e}")))?;
-        on_db!(&self.db, pool => sqlx::query(
-            "INSERT INTO robustness_results (submission_id, suite, suite_sha256, overall, overall_ci_low, \
-             overall_ci_high, summary_json, document_json, created_at) VALUES ($1, $2, $3, $4, $5, $6, $7, $8, $9) \
-             ON CONFLICT (submission_id) DO NOTHING",
-        )
-        .bind(submission_id)
-        .bind(&doc.suite)
-        .bind(&doc.suite_sha256)
-        .bind(doc.overall.map(|e| e.value))
-        .bind(doc.overall.map(|e| e.ci_low))
-        .bind(doc.overall.map(|e| e.ci_high))
-        .bind(summary)
-        .bind(document)
-        .bind(super::now())
-        .execute(pool)
-        .await
-        .map(|_| ()))?;
+        on_db!(&self.db, pool => {
+            insert_robustness!(pool, submission_id, doc);
+        });
         Ok(())
     }
 

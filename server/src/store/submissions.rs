@@ -173,15 +173,20 @@ impl Store {
         super::retry_busy(|| self.create_submission_once(s, max_attempts, shards, None)).await
     }
 
-    /// [`Store::create_submission`] of a submission asking for the
-    /// perturbation suite `suite` (issue 40): one job, never sharded.
+    /// [`Store::create_submission_sharded`] of a submission asking for the
+    /// perturbation suite `suite` (issue 40): each shard runs level 0 and
+    /// every level on its block of initial states, and the last one to
+    /// finish merges the robustness document (`Store::complete_suite_shard`).
     pub async fn create_suite_submission(
         &self,
         s: &NewSubmission,
         max_attempts: i64,
         suite: &str,
+        shards: usize,
     ) -> Result<i64, StoreError> {
-        super::retry_busy(|| self.create_submission_once(s, max_attempts, 1, Some(suite))).await
+        let shards = shards.max(1) as i64;
+        super::retry_busy(|| self.create_submission_once(s, max_attempts, shards, Some(suite)))
+            .await
     }
 
     async fn create_submission_once(
