@@ -92,6 +92,13 @@ pub struct EvalOptions {
     /// The build identity the manifest records (the evaluator cannot know
     /// its own git commit or fingerprint; the binary tells it).
     pub build: Option<d3il_protocol::BuildIdentity>,
+    /// Run `n` rollouts of each initial state instead of the protocol's
+    /// (at most the protocol's; rollout ids are numbered over `n` per state,
+    /// as a protocol of `n` rollouts would number them). For tests that need
+    /// a sample of a paper-protocol evaluation, not its cost (`tests/closed_loop.rs`);
+    /// the manifest records the rollouts per state that ran. `None`: the
+    /// protocol's.
+    pub rollouts_per_state: Option<usize>,
 }
 
 impl Default for EvalOptions {
@@ -105,6 +112,7 @@ impl Default for EvalOptions {
             render_every_frame: false,
             simulate_every_rollout: false,
             build: None,
+            rollouts_per_state: None,
         }
     }
 }
@@ -371,6 +379,9 @@ fn prepare(
 ) -> Result<Prepared, EvalError> {
     let set = task.def.context_set()?;
     let (n_ctx, per_ctx) = protocol_size(task, opts.protocol, set.len());
+    let per_ctx = opts
+        .rollouts_per_state
+        .map_or(per_ctx, |n| n.clamp(1, per_ctx));
     let ctx_range = match shard {
         Some(s) => s
             .contexts(n_ctx)

@@ -87,12 +87,14 @@ pub fn read_original(path: &Path) -> Result<Original, FidelityError> {
 }
 
 /// Evaluates `<name>.onnx` (manifest `<name>.json`) here under `protocol`
-/// with seed 0, as `d3il eval` does in process.
+/// with seed 0, as `d3il eval` does in process; `rollouts_per_state` as
+/// [`EvalOptions::rollouts_per_state`].
 pub fn evaluate_here(
     dir: &Path,
     name: &str,
     task: TaskId,
     protocol: ProtocolKind,
+    rollouts_per_state: Option<usize>,
 ) -> Result<EvalResult, FidelityError> {
     let onnx = dir.join(format!("{name}.onnx"));
     let bytes = std::fs::read(&onnx).map_err(|e| FidelityError::data(&onnx, e))?;
@@ -121,6 +123,7 @@ pub fn evaluate_here(
     let (mut policy, info) = load_policy(&job, &loaded)?;
     let opts = EvalOptions {
         protocol,
+        rollouts_per_state,
         ..EvalOptions::default()
     };
     let (result, _) = evaluate(&loaded, policy.as_mut(), &info, &opts, &mut |_, _| {})?;
@@ -174,12 +177,23 @@ pub fn compare(
     name: &str,
     mode: FidelityMode,
 ) -> Result<PolicyFidelity, FidelityError> {
+    compare_sampled(dir, name, mode, None)
+}
+
+/// [`compare`] with `rollouts_per_state` rollouts of each initial state here
+/// instead of the protocol's (a cheaper sample for tests; `None`: all).
+pub fn compare_sampled(
+    dir: &Path,
+    name: &str,
+    mode: FidelityMode,
+    rollouts_per_state: Option<usize>,
+) -> Result<PolicyFidelity, FidelityError> {
     let original = read_original(&dir.join(format!("{name}.original.json")))?;
     let protocol = match mode {
         FidelityMode::Full => ProtocolKind::Paper,
         FidelityMode::Quick => ProtocolKind::Quick,
     };
-    let here = evaluate_here(dir, name, original.task, protocol)?;
+    let here = evaluate_here(dir, name, original.task, protocol, rollouts_per_state)?;
     let n_ctx = here.manifest.n_contexts;
     let per = here.manifest.rollouts_per_context;
     let theirs: Vec<&OriginalRollout> = original
