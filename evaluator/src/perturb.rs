@@ -43,65 +43,9 @@ use serde::{Deserialize, Serialize};
 use serde_json::Value;
 use std::sync::Arc;
 
-const ALIGNING_V1: &[u8] = include_bytes!("../../assets/robustness/aligning-v1.json");
-pub const ALIGNING_V1_SHA256: &str =
-    "75e2dcd985e67adf8516cc171e23ae9377b28271798905e11f660a3bdb0da246";
-const PUSHING_V1: &[u8] = include_bytes!("../../assets/robustness/pushing-v1.json");
-pub const PUSHING_V1_SHA256: &str =
-    "25899d09f088d638302084e768b9366bf56626a43f58031f02c9d33ce7c462a1";
-
-const ALIGNING_V2: &[u8] = include_bytes!("../../assets/robustness/aligning-v2.json");
-pub const ALIGNING_V2_SHA256: &str =
-    "aa74f7e8ced1d8d0932b57368489fd1951c8617cb1dbed8ab820e42a6d5017e1";
-const PUSHING_V2: &[u8] = include_bytes!("../../assets/robustness/pushing-v2.json");
-pub const PUSHING_V2_SHA256: &str =
-    "581dd17af6538df6f45bb16238b0a787cac0fd1f7c44d150781bdbd273c851cb";
-
-const ALIGNING_IMAGE_V1: &[u8] = include_bytes!("../../assets/robustness/aligning-image-v1.json");
-pub const ALIGNING_IMAGE_V1_SHA256: &str =
-    "1057e52c29a889ba95eb4733fd9bd91eea54acacbfa77dfb690ce161ccccc919";
-
-/// Every committed suite: (task, observation type, file name, bytes,
-/// expected sha256), oldest first: a task's last one of an observation type
-/// is its current suite (what `d3il eval --suite robustness` runs), the
-/// older ones stay for replays of older results.
-const SUITES: &[(TaskId, ObsType, &str, &[u8], &str)] = &[
-    (
-        TaskId::Aligning,
-        ObsType::State,
-        "aligning-v1.json",
-        ALIGNING_V1,
-        ALIGNING_V1_SHA256,
-    ),
-    (
-        TaskId::Pushing,
-        ObsType::State,
-        "pushing-v1.json",
-        PUSHING_V1,
-        PUSHING_V1_SHA256,
-    ),
-    (
-        TaskId::Aligning,
-        ObsType::State,
-        "aligning-v2.json",
-        ALIGNING_V2,
-        ALIGNING_V2_SHA256,
-    ),
-    (
-        TaskId::Pushing,
-        ObsType::State,
-        "pushing-v2.json",
-        PUSHING_V2,
-        PUSHING_V2_SHA256,
-    ),
-    (
-        TaskId::Aligning,
-        ObsType::Image,
-        "aligning-image-v1.json",
-        ALIGNING_IMAGE_V1,
-        ALIGNING_IMAGE_V1_SHA256,
-    ),
-];
+mod files;
+use files::SUITES;
+pub use files::*;
 
 #[derive(Debug, thiserror::Error)]
 pub enum PerturbError {
@@ -122,6 +66,29 @@ pub struct ShiftField {
     pub index: usize,
     /// The task's sampling range of that coordinate (docs/original-d3il.md).
     pub range: [f64; 2],
+}
+
+/// Poses kept in an array, each drawn from one of several regions and then
+/// permuted (Sorting's `entries`, docs/original-d3il.md §11.1.2): which range
+/// a pose was drawn from is the region that contains it, and `start_shift`
+/// pushes it away from that region's centre.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct ShiftRegions {
+    /// The context's array of poses, e.g. `entries`.
+    pub array: String,
+    /// Each element's pose field (x, y, yaw in degrees), e.g. `xy_deg`.
+    pub pose: String,
+    /// The sampling regions: (x range, y range) each.
+    pub regions: Vec<[[f64; 2]; 2]>,
+}
+
+impl ShiftRegions {
+    /// The region containing (x, y) (bounds included).
+    fn containing(&self, x: f64, y: f64) -> Option<&[[f64; 2]; 2]> {
+        self.regions
+            .iter()
+            .find(|[rx, ry]| (rx[0]..=rx[1]).contains(&x) && (ry[0]..=ry[1]).contains(&y))
+    }
 }
 
 /// How noise enters one entry of the environment observation.
@@ -167,14 +134,22 @@ pub struct SuiteFile {
     pub obs_type: ObsType,
     pub version: String,
     pub description: String,
-    /// The coordinates `start_shift` moves, with their sampling ranges.
+    /// The coordinates `start_shift` moves, with their sampling ranges
+    /// (none: a task whose start does not vary, e.g. Avoiding).
+    #[serde(default)]
     pub start_shift_fields: Vec<ShiftField>,
+    /// Poses drawn from permuted regions (Sorting).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub start_shift_regions: Option<ShiftRegions>,
     /// The environment observation entry by entry (a `quat_yaw` covers four).
     pub obs_units: Vec<ObsUnit>,
-    /// The bodies `dynamics` changes, and the table geom whose contacts
-    /// with them get the scaled friction.
+    /// The bodies `dynamics` changes, and the geom they rest on (the table,
+    /// Sorting's platform) whose contacts with them get the scaled friction;
+    /// none for a task without movable objects (Avoiding).
+    #[serde(default)]
     pub dynamics_bodies: Vec<String>,
-    pub table_geom: String,
+    #[serde(default)]
+    pub table_geom: Option<String>,
     /// The cameras `camera` moves (image suites).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub cameras: Vec<String>,
@@ -268,6 +243,12 @@ impl Suite {
                 def.env_obs_dim()
             ));
         }
+        let regions = self.file.start_shift_regions.as_ref();
+        if regions.is_some_and(|r| {
+            r.regions.is_empty() || r.regions.iter().any(|[x, y]| x[0] >= x[1] || y[0] >= y[1])
+        }) {
+            return Err("start_shift_regions needs regions with increasing x and y ranges".into());
+        }
         for f in &self.file.start_shift_fields {
             if f.index > 1 || !f.field.ends_with("_xy_deg") || f.range[0] >= f.range[1] {
                 return Err(format!(
@@ -293,6 +274,17 @@ impl Suite {
             if a.axis == Axis::Camera && self.file.cameras.is_empty() {
                 return Err("axis camera needs the `cameras` it moves".into());
             }
+            if a.axis == Axis::StartShift
+                && self.file.start_shift_fields.is_empty()
+                && regions.is_none()
+            {
+                return Err("axis start_shift needs the `start_shift_fields` or `start_shift_regions` it moves; leave the axis out for a task whose start does not vary".into());
+            }
+            if a.axis == Axis::Dynamics
+                && (self.file.dynamics_bodies.is_empty() || self.file.table_geom.is_none())
+            {
+                return Err("axis dynamics needs the `dynamics_bodies` it changes and the `table_geom` they rest on; leave the axis out for a task without movable objects".into());
+            }
             for (i, l) in a.levels.iter().enumerate() {
                 let ok = match a.axis {
                     Axis::StartShift => l.widen.is_some_and(|w| w > 0.0),
@@ -300,11 +292,13 @@ impl Suite {
                         l.position_m.is_some_and(|v| v >= 0.0)
                             && l.angle_rad.is_some_and(|v| v >= 0.0)
                     }
+                    // A fraction blends two actions: meaningless for
+                    // Stacking's absolute gripper value (open above 0.075).
                     Axis::Latency => {
                         let f = l.fraction.unwrap_or(0.0);
                         (0.0..1.0).contains(&f)
                             && l.steps.unwrap_or(0) as f64 + f > 0.0
-                            && def.command_kind() != CommandKind::JointDelta
+                            && (f == 0.0 || def.command_kind() != CommandKind::JointDelta)
                     }
                     Axis::Dynamics => {
                         l.mass.is_some_and(|m| m > 0.0) && l.friction.is_some_and(|f| f > 0.0)
@@ -316,7 +310,7 @@ impl Suite {
                 };
                 if !ok {
                     return Err(format!(
-                        "level {} of axis {} does not give what the axis needs (start_shift: widen > 0; obs_noise: position_m and angle_rad ≥ 0; latency: steps + fraction > 0 with 0 ≤ fraction < 1, on a delta-command task; dynamics: mass and friction > 0; camera: camera_shift_m and camera_turn_deg; lighting: light_scale > 0 and light_tilt_deg)",
+                        "level {} of axis {} does not give what the axis needs (start_shift: widen > 0; obs_noise: position_m and angle_rad ≥ 0; latency: steps + fraction > 0 with 0 ≤ fraction < 1, no fraction on a joint-command task (Stacking); dynamics: mass and friction > 0; camera: camera_shift_m and camera_turn_deg; lighting: light_scale > 0 and light_tilt_deg)",
                         i + 1,
                         a.axis
                     ));
@@ -390,7 +384,7 @@ impl Active {
                 Axis::Latency => s.fraction.unwrap_or(0.0) as f32,
                 _ => 0.0,
             },
-            hold: vec![0.0; def.act_dim()],
+            hold: def.command_kind().hold(),
             noise,
             perturbation: perturbation.clone(),
             suite,
@@ -430,8 +424,9 @@ impl Active {
         for b in &file.dynamics_bodies {
             bodies.push(model.id(ObjKind::Body, b).map_err(TaskError::from)?);
         }
+        let table_geom = file.table_geom.as_deref().unwrap_or_default();
         let table = model
-            .id(ObjKind::Geom, &file.table_geom)
+            .id(ObjKind::Geom, table_geom)
             .map_err(TaskError::from)?;
         let (mut frictions, mut priorities) = (vec![], vec![]);
         if friction != 1.0 {
@@ -475,11 +470,33 @@ pub fn shift_context(file: &SuiteFile, widen: f64, context: &Value) -> Value {
         // `c + (x − c)` need not be `x` to the last bit.
         return out;
     }
+    let push = |v: &mut Value, range: [f64; 2]| {
+        let c = 0.5 * (range[0] + range[1]);
+        if let Some(x) = v.as_f64() {
+            *v = Value::from(c + (x - c) * (1.0 + widen));
+        }
+    };
     for f in &file.start_shift_fields {
-        let c = 0.5 * (f.range[0] + f.range[1]);
         if let Some(v) = out.get_mut(&f.field).and_then(|a| a.get_mut(f.index)) {
-            if let Some(x) = v.as_f64() {
-                *v = Value::from(c + (x - c) * (1.0 + widen));
+            push(v, f.range);
+        }
+    }
+    if let Some(r) = &file.start_shift_regions {
+        let poses = out.get_mut(&r.array).and_then(Value::as_array_mut);
+        for pose in poses.into_iter().flatten() {
+            let Some(xy) = pose.get_mut(&r.pose).and_then(Value::as_array_mut) else {
+                continue;
+            };
+            let (Some(x), Some(y)) = (
+                xy.first().and_then(Value::as_f64),
+                xy.get(1).and_then(Value::as_f64),
+            ) else {
+                continue;
+            };
+            // A pose in no region (not from the task's distribution) stays.
+            if let Some(&[rx, ry]) = r.containing(x, y) {
+                push(&mut xy[0], rx);
+                push(&mut xy[1], ry);
             }
         }
     }
@@ -548,52 +565,4 @@ fn normal(rng: &mut ChaCha8Rng) -> f64 {
 }
 
 #[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn committed_suites_load_and_a_changed_byte_is_refused_naming_the_hash() {
-        for task in [TaskId::Aligning, TaskId::Pushing] {
-            let current = Suite::for_task(task).unwrap().name;
-            assert_eq!(
-                current,
-                format!("{task}-v2.json"),
-                "v2 is the current suite"
-            );
-        }
-        assert_eq!(
-            Suite::current(TaskId::Aligning, ObsType::Image)
-                .unwrap()
-                .name,
-            "aligning-image-v1.json"
-        );
-        assert!(Suite::current(TaskId::Pushing, ObsType::Image).is_err());
-        for &(task, _, name, bytes, sha) in SUITES {
-            let s = Suite::named(task, name).unwrap();
-            assert_eq!((s.name.as_str(), s.sha256.as_str()), (name, sha));
-            assert!(!s.perturbations().is_empty());
-            let mut changed = bytes.to_vec();
-            let at = changed.iter().position(|&b| b == b'5').unwrap();
-            changed[at] = b'6';
-            let e = Suite::verify(name, &changed, sha).unwrap_err().to_string();
-            let got = crate::tasks::contexts::sha256_hex(&changed);
-            assert!(
-                e.contains(&got) && e.contains(sha) && e.contains(name),
-                "{e}"
-            );
-        }
-    }
-
-    #[test]
-    fn start_shift_widens_about_the_range_centre() {
-        let s = Suite::for_task(TaskId::Pushing).unwrap();
-        let ctx =
-            serde_json::json!({"red_xy_deg": [0.5, -0.15, 10.0], "green_xy_deg": [0.6, 0.0, 5.0]});
-        let out = shift_context(&s.file, 1.0, &ctx);
-        // Red x range 0.4..0.5 (centre 0.45): 0.5 -> 0.55; y -0.15..0 -> -0.225.
-        let r = out["red_xy_deg"].as_array().unwrap();
-        assert!((r[0].as_f64().unwrap() - 0.55).abs() < 1e-12);
-        assert!((r[1].as_f64().unwrap() + 0.225).abs() < 1e-12);
-        assert_eq!(r[2], 10.0, "yaw is not shifted");
-    }
-}
+mod tests;

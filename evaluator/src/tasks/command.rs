@@ -48,6 +48,20 @@ impl CommandKind {
         }
     }
 
+    /// The action that leaves the controller where it is: what the robustness
+    /// track's `latency` applies while the first late actions are in flight
+    /// (`crate::perturb`). A zero delta in every convention; Stacking's
+    /// absolute gripper value is "open", as the reset left the fingers
+    /// (docs/original-d3il.md §11.0.5), not the measured width the first
+    /// "previous command" holds (which, applied, would close them).
+    pub fn hold(self) -> Vec<f32> {
+        let mut hold = vec![0.0; self.dim()];
+        if self == CommandKind::JointDelta {
+            hold[7] = super::stacking::OPEN;
+        }
+        hold
+    }
+
     /// The first "previous command" after reset.
     pub fn initial(self, sim: &Sim) -> Vec<f64> {
         match self {
@@ -133,6 +147,18 @@ mod tests {
         assert_eq!(next[0], (0.1f32 + 0.01f32) as f64);
         assert_eq!(next[7], 0.08f32 as f64);
         assert!(matches!(cmd, Command::Joint { gripper, .. } if gripper == 0.08f32 as f64));
+    }
+
+    #[test]
+    fn the_hold_action_keeps_the_command_and_an_open_gripper_open() {
+        let prev = [0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.0002];
+        let (next, cmd) =
+            CommandKind::JointDelta.apply(&prev, &CommandKind::JointDelta.hold(), 0.0);
+        assert_eq!(next[..7], prev.map(|v| v as f32 as f64)[..7]);
+        assert!(matches!(cmd, Command::Joint { gripper, .. } if gripper > 0.075));
+        for k in [CommandKind::XyDelta, CommandKind::XyzDelta] {
+            assert_eq!(k.hold(), vec![0.0; k.dim()], "{k:?}");
+        }
     }
 
     #[test]

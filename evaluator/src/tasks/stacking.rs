@@ -319,7 +319,9 @@ const CARRY_Z: f64 = 0.20;
 /// Box centre height on the table, and the tower's step.
 const BOX_REST_Z: f64 = 0.011;
 const BOX_H: f64 = 0.06;
-const OPEN: f32 = 0.08;
+/// An open gripper command (> 0.075); also latency's hold while the first
+/// late actions are in flight (`CommandKind::hold`).
+pub(crate) const OPEN: f32 = 0.08;
 const CLOSED: f32 = 0.0;
 
 impl StackingScript {

@@ -1,0 +1,128 @@
+//! The committed suite files (`assets/robustness/`), each with the sha256
+//! this build expects: a new suite is a new file and a new row here.
+
+use d3il_protocol::{ObsType, TaskId};
+
+const ALIGNING_V1: &[u8] = include_bytes!("../../../assets/robustness/aligning-v1.json");
+pub const ALIGNING_V1_SHA256: &str =
+    "75e2dcd985e67adf8516cc171e23ae9377b28271798905e11f660a3bdb0da246";
+const PUSHING_V1: &[u8] = include_bytes!("../../../assets/robustness/pushing-v1.json");
+pub const PUSHING_V1_SHA256: &str =
+    "25899d09f088d638302084e768b9366bf56626a43f58031f02c9d33ce7c462a1";
+
+const ALIGNING_V2: &[u8] = include_bytes!("../../../assets/robustness/aligning-v2.json");
+pub const ALIGNING_V2_SHA256: &str =
+    "aa74f7e8ced1d8d0932b57368489fd1951c8617cb1dbed8ab820e42a6d5017e1";
+const PUSHING_V2: &[u8] = include_bytes!("../../../assets/robustness/pushing-v2.json");
+pub const PUSHING_V2_SHA256: &str =
+    "581dd17af6538df6f45bb16238b0a787cac0fd1f7c44d150781bdbd273c851cb";
+
+const ALIGNING_IMAGE_V1: &[u8] =
+    include_bytes!("../../../assets/robustness/aligning-image-v1.json");
+pub const ALIGNING_IMAGE_V1_SHA256: &str =
+    "1057e52c29a889ba95eb4733fd9bd91eea54acacbfa77dfb690ce161ccccc919";
+
+// The six other tasks' first suites (docs/robustness.md, Measured: the
+// other tasks).
+const AVOIDING_V1: &[u8] = include_bytes!("../../../assets/robustness/avoiding-v1.json");
+pub const AVOIDING_V1_SHA256: &str =
+    "ddbd3c201f3814d37c87aed98913a471897200edc18f750aa54f80589ce49c9e";
+const SORTING_2_V1: &[u8] = include_bytes!("../../../assets/robustness/sorting-2-v1.json");
+pub const SORTING_2_V1_SHA256: &str =
+    "0fa7a4061c333d5dc8a590880b9e1781433be3b66384151557807d813ddbedfb";
+const SORTING_4_V1: &[u8] = include_bytes!("../../../assets/robustness/sorting-4-v1.json");
+pub const SORTING_4_V1_SHA256: &str =
+    "4809f129b2ade01e2bcfa5471fc40548f52ea513eb2a0b7f881b6712c3d4cf73";
+const SORTING_6_V1: &[u8] = include_bytes!("../../../assets/robustness/sorting-6-v1.json");
+pub const SORTING_6_V1_SHA256: &str =
+    "84bb6f21295803670bab37acdad380dc11cec6ce1c484015ce9fbfd8178f4187";
+const STACKING_V1: &[u8] = include_bytes!("../../../assets/robustness/stacking-v1.json");
+pub const STACKING_V1_SHA256: &str =
+    "3375e506bb82483372920291f61607c1ff5ad10bf2aa466d0d2b837494bc1be9";
+const INSERTING_V1: &[u8] = include_bytes!("../../../assets/robustness/inserting-v1.json");
+pub const INSERTING_V1_SHA256: &str =
+    "eb9ecdd0f7b94c1c0c60040a93161850f4383d43cd18049ae73618effdfeff40";
+
+/// Every committed suite: (task, observation type, file name, bytes,
+/// expected sha256), oldest first: a task's last one of an observation type
+/// is its current suite (what `d3il eval --suite robustness` runs), the
+/// older ones stay for replays of older results.
+pub(super) const SUITES: &[(TaskId, ObsType, &str, &[u8], &str)] = &[
+    (
+        TaskId::Aligning,
+        ObsType::State,
+        "aligning-v1.json",
+        ALIGNING_V1,
+        ALIGNING_V1_SHA256,
+    ),
+    (
+        TaskId::Pushing,
+        ObsType::State,
+        "pushing-v1.json",
+        PUSHING_V1,
+        PUSHING_V1_SHA256,
+    ),
+    (
+        TaskId::Aligning,
+        ObsType::State,
+        "aligning-v2.json",
+        ALIGNING_V2,
+        ALIGNING_V2_SHA256,
+    ),
+    (
+        TaskId::Pushing,
+        ObsType::State,
+        "pushing-v2.json",
+        PUSHING_V2,
+        PUSHING_V2_SHA256,
+    ),
+    (
+        TaskId::Aligning,
+        ObsType::Image,
+        "aligning-image-v1.json",
+        ALIGNING_IMAGE_V1,
+        ALIGNING_IMAGE_V1_SHA256,
+    ),
+    (
+        TaskId::Avoiding,
+        ObsType::State,
+        "avoiding-v1.json",
+        AVOIDING_V1,
+        AVOIDING_V1_SHA256,
+    ),
+    (
+        TaskId::Sorting2,
+        ObsType::State,
+        "sorting-2-v1.json",
+        SORTING_2_V1,
+        SORTING_2_V1_SHA256,
+    ),
+    (
+        TaskId::Sorting4,
+        ObsType::State,
+        "sorting-4-v1.json",
+        SORTING_4_V1,
+        SORTING_4_V1_SHA256,
+    ),
+    (
+        TaskId::Sorting6,
+        ObsType::State,
+        "sorting-6-v1.json",
+        SORTING_6_V1,
+        SORTING_6_V1_SHA256,
+    ),
+    (
+        TaskId::Stacking,
+        ObsType::State,
+        "stacking-v1.json",
+        STACKING_V1,
+        STACKING_V1_SHA256,
+    ),
+    (
+        TaskId::Inserting,
+        ObsType::State,
+        "inserting-v1.json",
+        INSERTING_V1,
+        INSERTING_V1_SHA256,
+    ),
+];
