@@ -25,37 +25,38 @@ fn a_robustness_submission_is_evaluated_stored_and_served() {
     let server = Server::start(&db, &["--workers", "1"]);
     let client = server.client(Some(&token));
 
-    // Refused for a task without a suite, by the server (field `suite`) and
-    // by `d3il submit` before anything is uploaded.
-    let fields = |task: &str, suite: &str| {
+    // Refused for a task and observation type without a suite (every task
+    // has a state suite; Stacking's image variant has none yet), by the
+    // server (field `suite`) and by `d3il submit` before anything is
+    // uploaded.
+    let fields = |suite: &str| {
         vec![
             ("method", "Robust-MLP".to_string()),
-            ("task", task.to_string()),
+            ("task", "stacking".to_string()),
+            ("obs_type", "image".to_string()),
             ("training_seed", "0".to_string()),
             ("protocol", "quick".to_string()),
             ("suite", suite.to_string()),
             (
                 "manifest",
-                std::fs::read_to_string(fixture("avoiding_path.json")).unwrap(),
+                r#"{"task": "stacking", "obs_type": "image", "history": 1, "horizon": 1, "execute": 1}"#
+                    .to_string(),
             ),
         ]
     };
+    let onnx = fixture("aligning_image.onnx");
     let err = client
-        .submit(
-            &fields("avoiding", "robustness"),
-            Some(&fixture("avoiding_path.onnx")),
-        )
-        .expect_err("avoiding has no suite");
+        .submit(&fields("robustness"), Some(&onnx))
+        .expect_err("stacking's image variant has no suite");
     let msg = err.to_string();
     assert!(
-        msg.contains("no robustness suite") && msg.contains("aligning"),
+        msg.contains("no robustness suite")
+            && msg.contains("image observations: aligning")
+            && msg.contains("state observations: avoiding, aligning, pushing, sorting-2"),
         "{msg}"
     );
     let err = client
-        .submit(
-            &fields("avoiding", "sturdiness"),
-            Some(&fixture("avoiding_path.onnx")),
-        )
+        .submit(&fields("sturdiness"), Some(&onnx))
         .expect_err("unknown suite");
     assert!(
         err.to_string().contains("the one suite is `robustness`"),
@@ -68,12 +69,14 @@ fn a_robustness_submission_is_evaluated_stored_and_served() {
             "--method",
             "X",
             "--task",
-            "avoiding",
+            "stacking",
+            "--obs-type",
+            "image",
             "--training-seed",
             "0",
         ])
         .args(["--suite", "robustness", "--onnx"])
-        .arg(fixture("avoiding_path.onnx"))
+        .arg(&onnx)
         .output()
         .unwrap();
     assert!(!out.status.success());

@@ -33,8 +33,8 @@ pub struct Args {
     #[arg(long, default_value = "paper")]
     pub protocol: String,
     /// `robustness`: evaluate the task's perturbation suite too (level 0 is
-    /// the plain result; docs/robustness.md). Aligning and Pushing, state
-    /// policies.
+    /// the plain result; docs/robustness.md). Every task for state
+    /// policies, Aligning for image policies.
     #[arg(long)]
     pub suite: Option<String>,
     /// ONNX policy file.

@@ -45,11 +45,14 @@ def test_suites_are_checked(client: Client) -> None:
             training_seed=1,
             suite="sturdy",
         )
+    # Every task has a state suite; Stacking's image variant has none yet.
     with pytest.raises(errors.BadRequest) as e:
         client.submit(
-            onnx=FIXTURES / "avoiding_path.onnx",
+            onnx=FIXTURES / "aligning_image.onnx",
+            manifest={"task": "stacking", "obs_type": "image", "history": 1, "horizon": 1, "execute": 1},
             method="pytest-robust",
-            task="avoiding",
+            task="stacking",
+            obs_type="image",
             training_seed=1,
             protocol="quick",
             suite="robustness",
