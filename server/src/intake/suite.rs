@@ -98,3 +98,40 @@ pub fn suite_evaluations(
         .sum();
     Some(1 + levels)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Every task has a state suite in the repository's assets, so a
+    /// submission with `suite=robustness` is accepted for each, with its
+    /// number of evaluations (level 0 and every level of the file); an
+    /// image variant without an image suite (Stacking's) is refused, the
+    /// message listing the tasks that have one.
+    #[test]
+    fn every_task_has_a_state_suite_and_stackings_image_variant_none() {
+        let assets = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../assets");
+        for task in TaskId::ALL {
+            check_suite_available(&assets, task, ObsType::State).unwrap();
+            let n = suite_evaluations(&assets, task, ObsType::State).unwrap();
+            // Avoiding: noise and latency, three levels each; the others
+            // at least four axes of three levels.
+            assert!(
+                if task == TaskId::Avoiding {
+                    n == 7
+                } else {
+                    n >= 13
+                },
+                "{task}: {n} evaluations"
+            );
+        }
+        check_suite_available(&assets, TaskId::Aligning, ObsType::Image).unwrap();
+        let e = check_suite_available(&assets, TaskId::Stacking, ObsType::Image)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("no robustness suite") && e.contains("image observations: aligning;"),
+            "{e}"
+        );
+    }
+}
