@@ -4,14 +4,36 @@
 //! rollout index. These tests run each protocol both ways and compare every
 //! rollout record and metric: state policies on a contact task (Aligning:
 //! the box is pushed, where a last-bit difference grows) and on Avoiding
-//! (paths recorded), and an image policy. A policy with a `noise` input is
+//! (paths recorded), an image policy and a one-variant scripted expert. A
+//! policy with a `noise` input, or a script of several variants, is
 //! simulated rollout by rollout.
 
 use d3il_evaluator::eval::{evaluate, sha256_hex, EvalOptions, PolicyInfo, Timing};
+use d3il_evaluator::scripted::ScriptedPolicy;
 use d3il_evaluator::tasks::LoadedTask;
 use d3il_policy::{OnnxPolicy, Policy};
 use d3il_protocol::{EvalResult, ObsType, ProtocolKind, RobotLook, TaskId};
 use d3il_test_support::{fixture_manifest, fixtures_dir};
+
+/// A policy by name: an ONNX fixture, or `scripted:<name>`.
+fn load(task: &LoadedTask, name: &str) -> (Box<dyn Policy>, PolicyInfo) {
+    let obs_type = task.obs_type;
+    if let Some(script) = name.strip_prefix("scripted:") {
+        let p = ScriptedPolicy::from_name(script, task.spec()).unwrap();
+        let info = PolicyInfo {
+            sha256: "scripted".into(),
+            obs_type,
+        };
+        return (Box::new(p), info);
+    }
+    let bytes = std::fs::read(fixtures_dir().join(format!("{name}.onnx"))).unwrap();
+    let policy = OnnxPolicy::load(&bytes, &fixture_manifest(name), &task.spec(), 0).unwrap();
+    let info = PolicyInfo {
+        sha256: sha256_hex(&bytes),
+        obs_type,
+    };
+    (Box::new(policy), info)
+}
 
 fn evaluate_fixture(
     task: TaskId,
@@ -20,12 +42,7 @@ fn evaluate_fixture(
     every_rollout: bool,
 ) -> (EvalResult, Timing) {
     let task = LoadedTask::load_obs(task, obs_type).unwrap();
-    let bytes = std::fs::read(fixtures_dir().join(format!("{name}.onnx"))).unwrap();
-    let mut policy = OnnxPolicy::load(&bytes, &fixture_manifest(name), &task.spec(), 0).unwrap();
-    let info = PolicyInfo {
-        sha256: sha256_hex(&bytes),
-        obs_type,
-    };
+    let (mut policy, info) = load(&task, name);
     let opts = EvalOptions {
         protocol: ProtocolKind::Quick,
         bootstrap_resamples: 200,
@@ -33,7 +50,7 @@ fn evaluate_fixture(
         simulate_every_rollout: every_rollout,
         ..EvalOptions::default()
     };
-    evaluate(&task, &mut policy, &info, &opts, &mut |_, _| {}).unwrap()
+    evaluate(&task, policy.as_mut(), &info, &opts, &mut |_, _| {}).unwrap()
 }
 
 /// Everything but the measured inference time and the manifest's record of
@@ -139,4 +156,21 @@ fn a_policy_with_noise_is_simulated_rollout_by_rollout() {
     assert!(!r.manifest.simulated_once);
     // Its rollouts of the one initial state differ.
     assert!(r.metrics.conditional_entropy.value > 0.0, "{:?}", r.metrics);
+}
+
+/// A script is a function of its observations: with one variant the
+/// engine simulates each initial state once, with the same results; with
+/// several (chosen by rollout id) rollout by rollout.
+#[test]
+fn a_one_variant_script_is_simulated_once_and_a_script_of_several_variants_rollout_by_rollout() {
+    let r = same_both_ways(TaskId::Aligning, ObsType::State, "scripted:aligning:inside");
+    assert!(r.rollouts.iter().any(|x| x.success), "{:?}", r.rollouts);
+    let (r, t) = evaluate_fixture(
+        TaskId::Aligning,
+        ObsType::State,
+        "scripted:aligning:both",
+        false,
+    );
+    assert_eq!(t.rollouts_simulated, r.rollouts.len());
+    assert!(!r.manifest.simulated_once);
 }

@@ -79,9 +79,14 @@ const EXPERTS: &[(TaskId, &str, Option<usize>)] = &[
     (TaskId::Inserting, "inserting:box=g", Some(30)),
 ];
 
+/// The tests' options with a step cap. A one-variant script is
+/// deterministic (simulated once per initial state, `tests/identical_rollouts.rs`);
+/// these tests read every rollout's own trace and policy queries, so every
+/// rollout is simulated.
 fn capped(cap: Option<usize>) -> EvalOptions {
     EvalOptions {
         step_cap: cap,
+        simulate_every_rollout: true,
         ..opts()
     }
 }
@@ -462,16 +467,21 @@ fn the_cli_runs_the_suite_and_its_rollouts_replay() {
     );
     let first = stdout.lines().next().unwrap();
     // The current suite (v2); quick protocol: 3 states × 2 rollouts a level.
-    let n_levels = Suite::for_task(TaskId::Aligning)
-        .unwrap()
-        .perturbations()
-        .len();
+    // The one-variant script is deterministic: each state simulated once,
+    // but every rollout under observation noise.
+    let perturbations = Suite::for_task(TaskId::Aligning).unwrap().perturbations();
+    let n_levels = perturbations.len();
+    let noisy = perturbations
+        .iter()
+        .filter(|p| p.axis == Axis::ObsNoise)
+        .count();
     let rollouts = 6 * (n_levels + 1);
+    let simulated = 6 * noisy + 3 * (n_levels + 1 - noisy);
     assert!(
         first.contains(&format!(
             "level 0 and {n_levels} perturbed levels on 4 axes"
         )) && first.contains(&format!(
-            "{rollouts} rollouts recorded, {rollouts} simulated"
+            "{rollouts} rollouts recorded, {simulated} simulated"
         )),
         "{first}"
     );

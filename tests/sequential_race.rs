@@ -176,9 +176,11 @@ fn a_race_of_two_policies_decides_early() {
         "{r:?}"
     );
     assert!(r.e_value > 1.0 && r.p_value < 1.0, "{r:?}");
-    // A (scripted) simulates all 8 rollouts of a state, B (deterministic
-    // ONNX) one; 8 at once each, so at most a wave more than used.
-    assert!(r.rollouts_simulated < 9 * (r.states_used + 8), "{r:?}");
+    // A (a one-variant script) and B (an ONNX graph without noise) are
+    // deterministic: at most one simulation per state each, fewer than the
+    // rollouts the race used, and it stopped before every state ran.
+    assert!(r.rollouts_simulated < r.rollouts_used, "{r:?}");
+    assert!(r.rollouts_simulated < 2 * r.states_full, "{r:?}");
     // The untrained fixture never succeeds: every discordant pair is A's.
     assert_eq!(r.discordant.1, 0);
     assert!(r.fixed_pairs_for_power_90.is_some());

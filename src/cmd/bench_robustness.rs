@@ -30,9 +30,13 @@ pub fn run(protocol: ProtocolKind, step_cap: Option<usize>) -> anyhow::Result<()
         sha256: "scripted".into(),
         obs_type: ObsType::State,
     };
+    // A one-variant script is deterministic: without this the engine would
+    // simulate one rollout per state and the bench would not measure the
+    // cost per rollout.
     let opts = EvalOptions {
         protocol,
         step_cap,
+        simulate_every_rollout: true,
         ..EvalOptions::default()
     };
     let mut policy = ScriptedPolicy::from_name("aligning:inside", task.spec())?;
