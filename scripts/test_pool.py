@@ -27,30 +27,32 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-# Wall seconds of the slowest binaries on an idle 2-core machine (./dev test of
-# 2026-11-28), so that they start first; others count as short. Only the order
-# depends on these.
+# Wall seconds of the slowest binaries on an idle 2-core machine (clean-clone
+# .ci/run of 2026-11-29, three at a time), so that they start first; others
+# count as short. Only the order depends on these.
 KNOWN_SECONDS = {
-    "closed_loop": 413,
-    "replay_records": 268,
-    "robustness": 258,
-    "sequential_race": 189,
-    "agents_torch": 183,
-    "bench_smoke": 169,
-    "eval_engine": 130,
-    "robustness_shard": 122,
-    "python_client": 83,
-    "cancel_live": 73,
-    "robustness_server": 46,
-    "container_image": 46,
-    "agents_cli": 45,
-    "verify": 39,
-    "remote_image": 38,
-    "fidelity_chromium": 38,
-    "fidelity_first_minute": 37,
-    "identical_rollouts": 35,
-    "replay_cli": 34,
-    "agent_server": 32,
+    "replay_records": 419,
+    "robustness": 363,
+    "closed_loop": 304,
+    "bench_smoke": 231,
+    "agents_torch": 221,
+    "robustness_server_shards": 213,
+    "race_server": 142,
+    "container_image": 141,
+    "eval_engine": 128,
+    "python_client": 115,
+    "robustness_shard": 112,
+    "cancel_live": 92,
+    "agents_cli": 74,
+    "sequential_race": 71,
+    "identical_rollouts": 56,
+    "robustness_server": 56,
+    "remote_image": 54,
+    "fidelity_chromium": 50,
+    "verify": 40,
+    "replay_cli": 40,
+    "fidelity_first_minute": 39,
+    "rollouts_e2e": 30,
 }
 
 
