@@ -185,12 +185,15 @@ fn scripted_rollouts_of_every_task_replay_bit_for_bit() {
         let dir = scratch(&format!("scripted-{task}"));
         eval_quick(&dir, task, policy, &[], "r.json");
         // Sorting-6, Stacking and Inserting run 1000-2000 steps: their
-        // first and last rollouts.
+        // first and last rollouts; an edited record (replayed to its end)
+        // on the shorter tasks only (the check does not depend on the task).
         let long = ["sorting-6", "stacking", "inserting"].contains(&task);
         let doc = rollouts_replay(&dir, "r.json", if long { 1 } else { usize::MAX });
         let steps = doc["rollouts"][0]["steps"].as_u64().unwrap() as usize;
         assert!(steps > 20, "{task}: {steps} steps");
-        nudged_record_names_its_step(&dir, &doc, 0, 10);
+        if !long {
+            nudged_record_names_its_step(&dir, &doc, 0, 10);
+        }
     }
 }
 
