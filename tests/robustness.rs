@@ -508,28 +508,33 @@ fn the_cli_runs_the_suite_and_its_rollouts_replay() {
     let levels = read(&doc)["levels"].as_array().unwrap().len();
     assert_eq!(levels, n_levels);
     for level in ["dynamics/4", "start_shift/3", "latency/0", "latency/1"] {
-        let out = Command::new(d3il)
-            .args(["replay", "--result"])
-            .arg(&doc)
-            .args(["--level", level, "--rollout", "3"])
-            .output()
-            .unwrap();
-        assert!(
-            out.status.success(),
-            "{level}: {}{}",
-            String::from_utf8_lossy(&out.stdout),
-            String::from_utf8_lossy(&out.stderr)
-        );
+        replays(&doc, level, 3);
     }
-    let out = Command::new(d3il)
-        .args(["replay", "--result"])
-        .arg(&doc)
-        .args(["--level", "latency/9", "--rollout", "0"])
-        .output()
-        .unwrap();
+    let out = replay_level(&doc, "latency/9", 0);
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("no level 9 of latency"));
     std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// `d3il replay --result FILE --level LEVEL --rollout N`.
+fn replay_level(file: &std::path::Path, level: &str, rollout: usize) -> std::process::Output {
+    std::process::Command::new(env!("CARGO_BIN_EXE_d3il"))
+        .args(["replay", "--result"])
+        .arg(file)
+        .args(["--level", level, "--rollout", &rollout.to_string()])
+        .output()
+        .unwrap()
+}
+
+/// Rollout `rollout` of `level` in `file` replays bit for bit.
+fn replays(file: &std::path::Path, level: &str, rollout: usize) {
+    let out = replay_level(file, level, rollout);
+    assert!(
+        out.status.success(),
+        "{level}: {}{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
 }
 
 struct Quiet;
@@ -543,7 +548,6 @@ impl SuiteObserver for Quiet {
 /// bit with `d3il replay --level`.
 #[test]
 fn a_sorting_suite_runs_and_its_perturbed_rollouts_replay_on_the_command_line() {
-    use std::process::Command;
     let task = LoadedTask::load(TaskId::Sorting2).unwrap();
     let mut policy = scripted(&task, "sorting-2:all-orders");
     let suite = Suite::for_task(TaskId::Sorting2).unwrap();
@@ -560,18 +564,7 @@ fn a_sorting_suite_runs_and_its_perturbed_rollouts_replay_on_the_command_line() 
         format!("{axis}/{}", a.unwrap().levels.len())
     };
     for level in ["start_shift", "dynamics", "latency", "obs_noise"].map(top) {
-        let out = Command::new(env!("CARGO_BIN_EXE_d3il"))
-            .args(["replay", "--result"])
-            .arg(&file)
-            .args(["--level", &level, "--rollout", "1"])
-            .output()
-            .unwrap();
-        assert!(
-            out.status.success(),
-            "{level}: {}{}",
-            String::from_utf8_lossy(&out.stdout),
-            String::from_utf8_lossy(&out.stderr)
-        );
+        replays(&file, &level, 1);
     }
     std::fs::remove_dir_all(&dir).unwrap();
 }
