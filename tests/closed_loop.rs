@@ -24,7 +24,8 @@
 
 use d3il_evaluator::fidelity::closed_loop::{compare_sampled, TCP_TOLERANCE_M};
 use d3il_protocol::fidelity::{FidelityMode, PolicyFidelity};
-use serde_json::{json, Value};
+use serde_json::Value;
+use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
 
@@ -61,31 +62,47 @@ fn floor_path() -> PathBuf {
     data().join("closed-loop-floor.json")
 }
 
-/// Today's figures as the floor file.
+/// One policy's floors, in the file's order.
+#[derive(serde::Serialize)]
+struct Floor {
+    success_agreement: f64,
+    behaviour_agreement: f64,
+    /// By initial state, in numeric order.
+    steps_within: BTreeMap<usize, usize>,
+}
+
+/// The floor file: `about`, then the policies by name.
+#[derive(serde::Serialize)]
+struct FloorFile {
+    about: &'static str,
+    #[serde(flatten)]
+    policies: BTreeMap<String, Floor>,
+}
+
+/// Today's figures as the floor file (serialized straight from the typed
+/// file, so its keys keep this order: a rewrite changes only what moved).
 fn write_floor(r: &[PolicyFidelity]) {
-    let mut doc = serde_json::Map::new();
-    doc.insert(
-        "about".into(),
-        json!("Floors of tests/closed_loop.rs: per policy, the per-state agreement with the original (shares of our rollouts with the original's success / behaviour in the same initial state) and, per initial state, the env steps during which the original's actions replayed open-loop here keep our TCP within 1e-9 m of the original's. Written by D3IL_WRITE_CLOSED_LOOP_FLOOR=1 cargo test --test closed_loop."),
-    );
-    for p in r {
-        let within: serde_json::Map<String, Value> = p
-            .open_loop
+    let file = FloorFile {
+        about: "Floors of tests/closed_loop.rs: per policy, the per-state agreement with the original (shares of our rollouts with the original's success / behaviour in the same initial state) and, per initial state, the env steps during which the original's actions replayed open-loop here keep our TCP within 1e-9 m of the original's. Written by D3IL_WRITE_CLOSED_LOOP_FLOOR=1 cargo test --test closed_loop.",
+        policies: r
             .iter()
-            .map(|e| (e.context.to_string(), json!(e.steps_within)))
-            .collect();
-        doc.insert(
-            p.name.clone(),
-            json!({
-                "success_agreement": p.success_agreement,
-                "behaviour_agreement": p.behaviour_agreement,
-                "steps_within": within,
-            }),
-        );
-    }
+            .map(|p| {
+                let floor = Floor {
+                    success_agreement: p.success_agreement,
+                    behaviour_agreement: p.behaviour_agreement,
+                    steps_within: p
+                        .open_loop
+                        .iter()
+                        .map(|e| (e.context, e.steps_within))
+                        .collect(),
+                };
+                (p.name.clone(), floor)
+            })
+            .collect(),
+    };
     std::fs::write(
         floor_path(),
-        serde_json::to_string_pretty(&Value::Object(doc)).unwrap() + "\n",
+        serde_json::to_string_pretty(&file).unwrap() + "\n",
     )
     .unwrap();
     eprintln!("wrote {}", floor_path().display());
