@@ -7,7 +7,8 @@
 //! level 0 and every level on its block of states; the last one merges, and
 //! the stored document is the one `d3il eval --suite robustness` gives
 //! unsharded, bit for bit (but for the measured inference times), as is
-//! the one `d3il eval --suite robustness --sandbox` gives. Progress sums
+//! the one `d3il eval --suite robustness --sandbox` gives, and the merge
+//! (`d3il merge`) of its two sandboxed shards `--shard 1/2`, `2/2`. Progress sums
 //! the shards' rollouts over every level, and a cancelled sharded suite
 //! stops both workers and stores nothing.
 
@@ -109,6 +110,34 @@ fn a_sharded_robustness_submission_stores_the_unsharded_document_and_sandbox_run
     assert_eq!(
         sandboxed, plain,
         "--sandbox gives another robustness document"
+    );
+    // Sandboxed shards, merged by `d3il merge`, give the same document.
+    for k in 1..=2 {
+        let shard = format!("{k}/2");
+        cli_suite(
+            dir.path(),
+            &format!("part{k}.json"),
+            &["--sandbox", "--shard", &shard],
+        );
+    }
+    let out = Command::new(EXE)
+        .arg("merge")
+        .args(["part1.json", "part2.json", "--json", "merged.json"])
+        .current_dir(dir.path())
+        .output()
+        .expect("run d3il merge");
+    assert!(
+        out.status.success(),
+        "d3il merge of the sandboxed suite parts: {}{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let merged: Value =
+        serde_json::from_slice(&std::fs::read(dir.path().join("merged.json")).unwrap()).unwrap();
+    assert_eq!(
+        timeless(merged),
+        plain,
+        "sandboxed shards merge into another robustness document"
     );
     // Quick protocol: 3 states × 2 rollouts at level 0 and 13 levels.
     let levels = plain["levels"].as_array().unwrap().len();
