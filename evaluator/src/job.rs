@@ -7,6 +7,7 @@ use crate::eval::{
     EvalOptions, PolicyInfo,
 };
 use crate::scripted::ScriptedPolicy;
+use crate::suite_shard::SuiteRun;
 use crate::tasks::{LoadedTask, TaskError};
 use d3il_policy::{OnnxPolicy, Policy, RemotePolicy};
 use d3il_protocol::{
@@ -158,39 +159,33 @@ pub fn run_job_or_shard(
         let plan =
             crate::robustness::plan(&task, policy.as_ref(), &opts, &suite).map_err(to_worker)?;
         let mut counts = |d: usize, t: usize| on_progress(&Progress::counts(d, t));
-        if let Some(shard) = job.shard {
-            // The same block of whole initial states at level 0 and at
-            // every level (`d3il eval --suite robustness --shard K/N`).
-            let states = shard
-                .contexts(plan.n_contexts)
-                .map_err(|e| to_worker(EvalError::Setup(e.to_string())))?
-                .len();
-            let recorded = states * plan.rollouts_per_context * (plan.levels.len() + 1);
-            let mut observer = crate::robustness::Cumulative::new(&mut counts, recorded);
-            return crate::suite_shard::evaluate_suite_shard(
-                &task,
-                policy.as_mut(),
-                &info,
-                &opts,
-                &suite,
-                &plan,
-                shard,
-                &mut observer,
-            )
-            .map(|part| Evaluated::SuitePart(Box::new(part)))
-            .map_err(to_worker);
-        }
-        let mut observer = crate::robustness::Cumulative::new(&mut counts, plan.recorded);
-        return crate::robustness::evaluate_suite(
+        // With a shard, the same block of whole initial states at level 0
+        // and at every level (`d3il eval --suite robustness --shard K/N`).
+        let recorded = match job.shard {
+            Some(shard) => {
+                let states = shard
+                    .contexts(plan.n_contexts)
+                    .map_err(|e| to_worker(EvalError::Setup(e.to_string())))?
+                    .len();
+                states * plan.rollouts_per_context * (plan.levels.len() + 1)
+            }
+            None => plan.recorded,
+        };
+        let mut observer = crate::robustness::Cumulative::new(&mut counts, recorded);
+        return crate::suite_shard::evaluate_suite_or_shard(
             &task,
             policy.as_mut(),
             &info,
             &opts,
             &suite,
             &plan,
+            job.shard,
             &mut observer,
         )
-        .map(|doc| Evaluated::Robustness(Box::new(doc)))
+        .map(|run| match run {
+            SuiteRun::Part(part) => Evaluated::SuitePart(part),
+            SuiteRun::Whole(doc) => Evaluated::Robustness(doc),
+        })
         .map_err(to_worker);
     }
     match job.shard {

@@ -57,6 +57,36 @@ pub fn evaluate_suite_shard(
     })
 }
 
+/// What a robustness run gives: the document, or with a shard its part.
+pub enum SuiteRun {
+    Whole(Box<RobustnessResult>),
+    Part(Box<RobustnessPart>),
+}
+
+/// The whole suite ([`crate::robustness::evaluate_suite`]) or, with `shard`,
+/// its block of states ([`evaluate_suite_shard`]): what a worker's suite job
+/// and `d3il eval --suite` run.
+#[allow(clippy::too_many_arguments)]
+pub fn evaluate_suite_or_shard(
+    task: &LoadedTask,
+    policy: &mut dyn Policy,
+    info: &PolicyInfo,
+    opts: &EvalOptions,
+    suite: &Suite,
+    plan: &SuitePlan,
+    shard: Option<Shard>,
+    observer: &mut dyn SuiteObserver,
+) -> Result<SuiteRun, EvalError> {
+    Ok(match shard {
+        Some(shard) => SuiteRun::Part(Box::new(evaluate_suite_shard(
+            task, policy, info, opts, suite, plan, shard, observer,
+        )?)),
+        None => SuiteRun::Whole(Box::new(crate::robustness::evaluate_suite(
+            task, policy, info, opts, suite, plan, observer,
+        )?)),
+    })
+}
+
 /// Joins the parts (`(file name, part)`, any order) of one sharded
 /// robustness evaluation into its document, with the levels of this
 /// build's suite file of the parts' name, whose sha256 must be theirs.

@@ -10,6 +10,7 @@ use anyhow::{bail, Context};
 use d3il_evaluator::eval::EvalOptions;
 use d3il_evaluator::perturb::Suite;
 use d3il_evaluator::robustness;
+use d3il_evaluator::suite_shard::SuiteRun;
 use d3il_evaluator::tasks::LoadedTask;
 use d3il_protocol::perturbation::{Axis, Perturbation};
 use d3il_protocol::robustness::{RobustnessPart, RobustnessResult};
@@ -27,29 +28,19 @@ pub fn run(args: &Args, suite_name: &str) -> anyhow::Result<()> {
     let mut printer = Printer {
         progress: Box::new(super::eval::progress_printer()),
     };
-    if let Some(shard) = args.shard {
-        let part = d3il_evaluator::suite_shard::evaluate_suite_shard(
-            &task,
-            policy.as_mut(),
-            &info,
-            &opts,
-            &suite,
-            &plan,
-            shard,
-            &mut printer,
-        )?;
-        return write_part(args, &part, &plan);
-    }
-    let doc = robustness::evaluate_suite(
+    match d3il_evaluator::suite_shard::evaluate_suite_or_shard(
         &task,
         policy.as_mut(),
         &info,
         &opts,
         &suite,
         &plan,
+        args.shard,
         &mut printer,
-    )?;
-    write_document(args, &doc)
+    )? {
+        SuiteRun::Part(part) => write_part(args, &part, &plan),
+        SuiteRun::Whole(doc) => write_document(args, &doc),
+    }
 }
 
 /// `--suite robustness --sandbox`: the whole suite (or its shard) in one
