@@ -43,6 +43,22 @@ const INSERTING_V1: &[u8] = include_bytes!("../../../assets/robustness/inserting
 pub const INSERTING_V1_SHA256: &str =
     "eb9ecdd0f7b94c1c0c60040a93161850f4383d43cd18049ae73618effdfeff40";
 
+// The image suites of Sorting-4/6 and Stacking: the state suite v1's
+// start_shift, latency and dynamics levels and Aligning's image levels
+// (docs/robustness.md, "Image suites of Sorting and Stacking").
+const SORTING_4_IMAGE_V1: &[u8] =
+    include_bytes!("../../../assets/robustness/sorting-4-image-v1.json");
+pub const SORTING_4_IMAGE_V1_SHA256: &str =
+    "58f9435e2e20478da98e6dd29fd0dd4bf406a12b8e46f81dfc4a817c7d0ef263";
+const SORTING_6_IMAGE_V1: &[u8] =
+    include_bytes!("../../../assets/robustness/sorting-6-image-v1.json");
+pub const SORTING_6_IMAGE_V1_SHA256: &str =
+    "e2ec11f786fec4be6d1cd2a510b88fa7b7bf625e3494844b23932dabd1e10433";
+const STACKING_IMAGE_V1: &[u8] =
+    include_bytes!("../../../assets/robustness/stacking-image-v1.json");
+pub const STACKING_IMAGE_V1_SHA256: &str =
+    "2e21033d0094cdda83b21b922e690278d451189aa9dd06f511e956545c0f9e59";
+
 /// Every committed suite: (task, observation type, file name, bytes,
 /// expected sha256), oldest first: a task's last one of an observation type
 /// is its current suite (what `d3il eval --suite robustness` runs), the
@@ -124,5 +140,34 @@ pub(super) const SUITES: &[(TaskId, ObsType, &str, &[u8], &str)] = &[
         "inserting-v1.json",
         INSERTING_V1,
         INSERTING_V1_SHA256,
+    ),
+    // PROBE ROW, NOT TO BE COMMITTED (helper A, stacking latency probe)
+    (
+        TaskId::Stacking,
+        ObsType::State,
+        "stacking-probe3.json",
+        include_bytes!("/tmp/stacking-probe3.json"),
+        "bc670d5d452d33c67f64add5ff8eb9d6f981b6e1dd4773135305c6faec1cdf38",
+    ),
+    (
+        TaskId::Sorting4,
+        ObsType::Image,
+        "sorting-4-image-v1.json",
+        SORTING_4_IMAGE_V1,
+        SORTING_4_IMAGE_V1_SHA256,
+    ),
+    (
+        TaskId::Sorting6,
+        ObsType::Image,
+        "sorting-6-image-v1.json",
+        SORTING_6_IMAGE_V1,
+        SORTING_6_IMAGE_V1_SHA256,
+    ),
+    (
+        TaskId::Stacking,
+        ObsType::Image,
+        "stacking-image-v1.json",
+        STACKING_IMAGE_V1,
+        STACKING_IMAGE_V1_SHA256,
     ),
 ];
