@@ -28,10 +28,13 @@ pub struct Progress {
 
 /// Estimated seconds until the result of submission `s`'s job.
 ///
-/// Past runs of the same [`JobKind`] (task, observation type, protocol, and
-/// whether each initial state is simulated once) are the only basis: without them
-/// (and without progress to extrapolate from) there is no estimate, never a
-/// guess and never "0 s". A queued job waits for the jobs ahead of it (each
+/// Past runs of the same [`JobKind`] (task, observation type, protocol,
+/// whether each initial state is simulated once, and the perturbation suite)
+/// are the only basis: without them (and without progress to extrapolate
+/// from) there is no estimate, never a guess and never "0 s". A suite run
+/// without history of its own counts as its plain kind's mean times the
+/// suite's number of evaluations (level 0 and every level), the factor its
+/// worker's limits are scaled by (`runner::suite_limits`). A queued job waits for the jobs ahead of it (each
 /// at its own kind's mean, spread over the slots: this front end's, or as
 /// many as jobs are running when worker hosts run more), then runs; a queued quick
 /// job has the pool's quick slot and waits only for quick jobs ahead of it.
@@ -63,14 +66,16 @@ pub async fn progress(
         .into_iter()
         .map(|(k, m)| (k, m.max(1.0)))
         .collect();
-    let own = means
-        .get(&JobKind::new(
+    let mean_of = |k: &JobKind| kind_mean(&means, k, &state.cfg.assets_dir);
+    let own = mean_of(
+        &JobKind::new(
             s.task.slug().to_string(),
             s.obs_type.as_str().to_string(),
             protocol_str(protocol).to_string(),
             s.simulated_once,
-        ))
-        .copied();
+        )
+        .with_suite(s.suite.clone()),
+    );
     let workers = state.cfg.workers.max(1) as f64;
     let eta = match (job.state, &ahead) {
         (JobState::Queued, Some(ahead)) => match own {
@@ -80,7 +85,7 @@ pub async fn progress(
                 let waits: Vec<f64> = ahead
                     .iter()
                     .filter(|k| !quick_slot || k.protocol == protocol_str(ProtocolKind::Quick))
-                    .map(|k| means.get(k).copied().unwrap_or(own))
+                    .map(|k| mean_of(k).unwrap_or(own))
                     .collect();
                 // While jobs wait, every slot that exists is busy: worker
                 // hosts (`d3il workers`) run as many jobs as there are
@@ -115,6 +120,23 @@ pub async fn progress(
         // Under a second left is "no estimate", not "0 s".
         eta_seconds: eta.filter(|e| *e >= 1.0).map(|e| e.round() as i64),
     })
+}
+
+/// The mean duration of a kind's past runs; for a suite kind without runs of
+/// its own, its plain kind's mean times the suite's evaluations.
+fn kind_mean(
+    means: &HashMap<JobKind, f64>,
+    k: &JobKind,
+    assets_dir: &std::path::Path,
+) -> Option<f64> {
+    if let Some(m) = means.get(k) {
+        return Some(*m);
+    }
+    k.suite.as_ref()?;
+    let task: TaskId = k.task.parse().ok()?;
+    let obs: ObsType = k.obs_type.parse().ok()?;
+    let evaluations = crate::intake::suite_evaluations(assets_dir, task, obs)?;
+    Some(means.get(&k.plain())? * evaluations as f64)
 }
 
 /// A submission: status, progress, queue position, ETA and result.

@@ -101,22 +101,37 @@ async fn submit_full(
     protocol: &str,
     history: usize,
 ) -> i64 {
+    submit_fields(app, method, task, obs, protocol, history, &[]).await
+}
+
+/// A state Aligning quick submission asking for the robustness suite.
+async fn submit_suite(app: &TestApp, method: &str) -> i64 {
+    let suite = [("suite", "robustness")];
+    submit_fields(app, method, "aligning", "state", "quick", 1, &suite).await
+}
+
+async fn submit_fields(
+    app: &TestApp,
+    method: &str,
+    task: &str,
+    obs: &str,
+    protocol: &str,
+    history: usize,
+    extra: &[(&str, &str)],
+) -> i64 {
     let m = manifest(task)
         .replace(r#""obs_type": "state""#, &format!(r#""obs_type": "{obs}""#))
         .replace(r#""history": 1"#, &format!(r#""history": {history}"#));
-    let r = app
-        .submit(
-            &[
-                ("method", method),
-                ("task", task),
-                ("obs_type", obs),
-                ("training_seed", "0"),
-                ("protocol", protocol),
-                ("manifest", m.as_str()),
-            ],
-            Some(fake_onnx()),
-        )
-        .await;
+    let mut fields = vec![
+        ("method", method),
+        ("task", task),
+        ("obs_type", obs),
+        ("training_seed", "0"),
+        ("protocol", protocol),
+        ("manifest", m.as_str()),
+    ];
+    fields.extend_from_slice(extra);
+    let r = app.submit(&fields, Some(fake_onnx())).await;
     let status = r.status();
     let v = r.json::<Value>().await.unwrap();
     assert_eq!(status, 201, "{v}");
@@ -315,7 +330,60 @@ async fn etas_keep_once_simulated_runs_apart(b: Backend) {
     assert_eq!(kind(status(&app, stochastic).await), Value::Bool(false));
 }
 
+/// A robustness suite run is level 0 and every level of its suite, each a
+/// whole evaluation (issue 40): a plain run's time is not its estimate, nor
+/// the reverse. Without suite runs of its own, its kind counts as the plain
+/// kind's mean times the suite's evaluations (14 for Aligning's v2: level 0
+/// and 13 levels).
+async fn etas_scale_suite_runs_by_their_evaluations(b: Backend) {
+    let app = spawn_app_with(Options {
+        backend: b,
+        ..Default::default()
+    })
+    .await; // no worker slots: jobs stay queued
+    let evaluations = d3il_server::intake::suite_evaluations(
+        &app.state.cfg.assets_dir,
+        TaskId::Aligning,
+        ObsType::State,
+    )
+    .unwrap();
+    assert_eq!(evaluations, 14);
+    // No plain history either: no estimate.
+    let early = submit_suite(&app, "Early").await;
+    assert_eq!(status(&app, early).await["eta_seconds"], Value::Null);
+    let plain = submit(&app, "Plain", "aligning", "quick").await;
+    let store = &app.state.store;
+    let c = store.claim_job("test", 60).await.unwrap().unwrap();
+    assert_eq!(c.submission.id, early);
+    store
+        .fail_attempt(
+            c.job.id,
+            "test",
+            &WorkerError {
+                kind: ErrorKind::BadModel,
+                message: "x".into(),
+            },
+            false,
+        )
+        .await
+        .unwrap();
+    complete_next(&app, plain).await;
+    // One plain run of 1 s: the suite run is estimated at 14 s; the plain
+    // run queued behind it waits for those and takes its own 1 s.
+    let suite = submit_suite(&app, "Suite").await;
+    let v = status(&app, suite).await;
+    assert_eq!(v["eta_seconds"], 14, "{v}");
+    let behind = submit(&app, "Behind", "aligning", "quick").await;
+    assert_eq!(status(&app, behind).await["eta_seconds"], 15);
+    let kinds = store.queued_ahead(i64::MAX).await.unwrap();
+    assert_eq!(
+        kinds.iter().map(|k| k.suite.as_deref()).collect::<Vec<_>>(),
+        [Some("robustness"), None]
+    );
+}
+
 common::on_both_backends!(
+    etas_scale_suite_runs_by_their_evaluations,
     a_quick_job_runs_on_its_own_slot_while_paper_runs_hold_every_other_slot,
     etas_come_from_past_runs_of_the_same_task_and_protocol,
     etas_keep_state_and_image_runs_apart,

@@ -192,14 +192,17 @@ pub struct ClaimedJob {
 }
 
 /// What an evaluation's duration depends on, for queue estimates: task slug,
-/// observation type, protocol, and whether each initial state's rollouts are
-/// simulated once (a deterministic policy; unknown counts as not).
+/// observation type, protocol, whether each initial state's rollouts are
+/// simulated once (a deterministic policy; unknown counts as not), and the
+/// perturbation suite asked for (issue 40: a suite run is level 0 and every
+/// level, each a whole evaluation).
 #[derive(Debug, Clone, PartialEq, Eq, Hash)]
 pub struct JobKind {
     pub task: String,
     pub obs_type: String,
     pub protocol: String,
     pub simulated_once: bool,
+    pub suite: Option<String>,
 }
 
 impl JobKind {
@@ -214,7 +217,22 @@ impl JobKind {
             obs_type,
             protocol,
             simulated_once: simulated_once.unwrap_or(false),
+            suite: None,
         }
+    }
+
+    /// The same kind with perturbation suite `suite` (None: a plain run).
+    pub fn with_suite(self, suite: Option<String>) -> Self {
+        JobKind {
+            suite: suite.filter(|s| !s.is_empty()),
+            ..self
+        }
+    }
+
+    /// The plain evaluation of the same task, observation type, protocol
+    /// and policy kind.
+    pub fn plain(&self) -> Self {
+        self.clone().with_suite(None)
     }
 }
 
@@ -506,23 +524,27 @@ impl Store {
     /// cameras at every step, and a deterministic policy's evaluation
     /// simulates one rollout per initial state).
     pub async fn mean_job_seconds_by_kind(&self) -> Result<Vec<(JobKind, f64)>, StoreError> {
-        let rows: Vec<(String, String, String, bool, f64)> = on_db!(&self.db, pool => sqlx::query_as(
-            "SELECT task, obs_type, protocol, once, AVG(d) FROM (SELECT s.task AS task, \
+        let rows: Vec<(String, String, String, bool, String, f64)> = on_db!(&self.db, pool => sqlx::query_as(
+            "SELECT task, obs_type, protocol, once, suite, AVG(d) FROM (SELECT s.task AS task, \
              s.obs_type AS obs_type, s.protocol AS protocol, COALESCE(s.simulated_once, FALSE) AS once, \
+             COALESCE(s.suite, '') AS suite, \
              CAST(MAX(j.finished_at) - MIN(j.started_at) AS DOUBLE PRECISION) AS d, \
-             ROW_NUMBER() OVER (PARTITION BY s.task, s.obs_type, s.protocol, COALESCE(s.simulated_once, FALSE) \
-             ORDER BY MAX(j.finished_at) DESC) AS n \
+             ROW_NUMBER() OVER (PARTITION BY s.task, s.obs_type, s.protocol, COALESCE(s.simulated_once, FALSE), \
+             COALESCE(s.suite, '') ORDER BY MAX(j.finished_at) DESC) AS n \
              FROM jobs j JOIN submissions s ON s.id = j.submission_id \
              WHERE s.status = 'completed' AND j.started_at IS NOT NULL AND j.finished_at IS NOT NULL \
-             GROUP BY s.id, s.task, s.obs_type, s.protocol, s.simulated_once) AS recent \
-             WHERE n <= 20 GROUP BY task, obs_type, protocol, once",
+             GROUP BY s.id, s.task, s.obs_type, s.protocol, s.simulated_once, s.suite) AS recent \
+             WHERE n <= 20 GROUP BY task, obs_type, protocol, once, suite",
         )
         .fetch_all(pool)
         .await)?;
         Ok(rows
             .into_iter()
-            .map(|(task, obs_type, protocol, once, d)| {
-                (JobKind::new(task, obs_type, protocol, Some(once)), d)
+            .map(|(task, obs_type, protocol, once, suite, d)| {
+                (
+                    JobKind::new(task, obs_type, protocol, Some(once)).with_suite(Some(suite)),
+                    d,
+                )
             })
             .collect())
     }
@@ -530,8 +552,8 @@ impl Store {
     /// The kinds of the submissions with queued work ahead of job `job_id`
     /// (one entry per submission, however many shards), oldest first.
     pub async fn queued_ahead(&self, job_id: i64) -> Result<Vec<JobKind>, StoreError> {
-        let rows: Vec<(String, String, String, Option<bool>)> = on_db!(&self.db, pool => sqlx::query_as(
-            "SELECT s.task, s.obs_type, s.protocol, s.simulated_once FROM submissions s WHERE s.id IN \
+        let rows: Vec<(String, String, String, Option<bool>, Option<String>)> = on_db!(&self.db, pool => sqlx::query_as(
+            "SELECT s.task, s.obs_type, s.protocol, s.simulated_once, s.suite FROM submissions s WHERE s.id IN \
              (SELECT submission_id FROM jobs WHERE state = 'queued' AND id < $1) ORDER BY s.id",
         )
         .bind(job_id)
@@ -539,7 +561,9 @@ impl Store {
         .await)?;
         Ok(rows
             .into_iter()
-            .map(|(task, obs_type, protocol, once)| JobKind::new(task, obs_type, protocol, once))
+            .map(|(task, obs_type, protocol, once, suite)| {
+                JobKind::new(task, obs_type, protocol, once).with_suite(suite)
+            })
             .collect())
     }
 
