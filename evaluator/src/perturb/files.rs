@@ -141,14 +141,6 @@ pub(super) const SUITES: &[(TaskId, ObsType, &str, &[u8], &str)] = &[
         INSERTING_V1,
         INSERTING_V1_SHA256,
     ),
-    // PROBE ROW, NOT TO BE COMMITTED (helper A, stacking latency probe)
-    (
-        TaskId::Stacking,
-        ObsType::State,
-        "stacking-probe3.json",
-        include_bytes!("/tmp/stacking-probe3.json"),
-        "bc670d5d452d33c67f64add5ff8eb9d6f981b6e1dd4773135305c6faec1cdf38",
-    ),
     (
         TaskId::Sorting4,
         ObsType::Image,
