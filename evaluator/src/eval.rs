@@ -544,15 +544,12 @@ fn step_slot(s: &mut Slot, record_paths: bool, every_frame: bool) -> Result<bool
                 Some(i) => s.in_flight[i].clone(),
                 None => p.hold.clone(),
             };
-            let mut action = late(p.latency);
-            let keep = if p.late_fraction > 0.0 {
-                let f = p.late_fraction;
-                for (a, b) in action.iter_mut().zip(late(p.latency + 1)) {
-                    *a = (1.0 - f) * *a + f * b;
-                }
-                p.latency + 1
+            let (action, keep) = if p.late_fraction > 0.0 {
+                let (newer, older) = (late(p.latency), late(p.latency + 1));
+                let blend = p.command.blend_late(&newer, &older, p.late_fraction);
+                (blend, p.latency + 1)
             } else {
-                p.latency
+                (late(p.latency), p.latency)
             };
             while s.in_flight.len() > keep {
                 s.in_flight.pop_front();

@@ -21,7 +21,10 @@
 //!   t + L; the first L steps apply the hold action (a zero delta: stay at
 //!   the previous command). A fractional L = n + f (suites v2) applies the
 //!   blend `(1 − f)·a(t − n) + f·a(t − n − 1)`: latency interpolated between
-//!   n and n + 1 steps. The record holds what the environment received.
+//!   n and n + 1 steps (`CommandKind::blend_late`: Stacking's absolute
+//!   gripper value is not blended but taken whole from the action of the
+//!   larger share, the older on a tie). The record holds what the
+//!   environment received.
 //! * `dynamics`: the boxes' mass and inertia scaled, and the box–table
 //!   sliding friction scaled: MuJoCo takes a contact's friction from the geom
 //!   of higher priority (the larger of the two at equal priority), so the
@@ -292,13 +295,9 @@ impl Suite {
                         l.position_m.is_some_and(|v| v >= 0.0)
                             && l.angle_rad.is_some_and(|v| v >= 0.0)
                     }
-                    // A fraction blends two actions: meaningless for
-                    // Stacking's absolute gripper value (open above 0.075).
                     Axis::Latency => {
                         let f = l.fraction.unwrap_or(0.0);
-                        (0.0..1.0).contains(&f)
-                            && l.steps.unwrap_or(0) as f64 + f > 0.0
-                            && (f == 0.0 || def.command_kind() != CommandKind::JointDelta)
+                        (0.0..1.0).contains(&f) && l.steps.unwrap_or(0) as f64 + f > 0.0
                     }
                     Axis::Dynamics => {
                         l.mass.is_some_and(|m| m > 0.0) && l.friction.is_some_and(|f| f > 0.0)
@@ -310,7 +309,7 @@ impl Suite {
                 };
                 if !ok {
                     return Err(format!(
-                        "level {} of axis {} does not give what the axis needs (start_shift: widen > 0; obs_noise: position_m and angle_rad ≥ 0; latency: steps + fraction > 0 with 0 ≤ fraction < 1, no fraction on a joint-command task (Stacking); dynamics: mass and friction > 0; camera: camera_shift_m and camera_turn_deg; lighting: light_scale > 0 and light_tilt_deg)",
+                        "level {} of axis {} does not give what the axis needs (start_shift: widen > 0; obs_noise: position_m and angle_rad ≥ 0; latency: steps + fraction > 0 with 0 ≤ fraction < 1; dynamics: mass and friction > 0; camera: camera_shift_m and camera_turn_deg; lighting: light_scale > 0 and light_tilt_deg)",
                         i + 1,
                         a.axis
                     ));
@@ -346,10 +345,13 @@ pub struct Active {
     /// Env steps by which actions are late (0: none).
     pub latency: usize,
     /// A further fraction of a step (0: none): the environment gets the
-    /// blend `(1 − f)·a(t − latency) + f·a(t − latency − 1)`.
+    /// blend `(1 − f)·a(t − latency) + f·a(t − latency − 1)` of the task's
+    /// command convention (`CommandKind::blend_late`).
     pub late_fraction: f32,
     /// What the environment receives while the first actions are in flight.
     pub hold: Vec<f32>,
+    /// The task's command convention, which says how two late actions blend.
+    pub command: CommandKind,
     pub noise: Option<ObsNoise>,
 }
 
@@ -385,6 +387,7 @@ impl Active {
                 _ => 0.0,
             },
             hold: def.command_kind().hold(),
+            command: def.command_kind(),
             noise,
             perturbation: perturbation.clone(),
             suite,

@@ -43,6 +43,12 @@ const INSERTING_V1: &[u8] = include_bytes!("../../../assets/robustness/inserting
 pub const INSERTING_V1_SHA256: &str =
     "eb9ecdd0f7b94c1c0c60040a93161850f4383d43cd18049ae73618effdfeff40";
 
+// Stacking v2: v1 with a latency axis of fractional steps, calibrated on
+// the scripted expert (docs/robustness.md, "The other six tasks").
+const STACKING_V2: &[u8] = include_bytes!("../../../assets/robustness/stacking-v2.json");
+pub const STACKING_V2_SHA256: &str =
+    "791f8fb4f7d44286588c7289b82d2ecae729851e4f1466fc8010b45eac859a82";
+
 // The image suites of Sorting-4/6 and Stacking: the state suite v1's
 // start_shift, latency and dynamics levels and Aligning's image levels
 // (docs/robustness.md, "Image suites of Sorting and Stacking").
@@ -161,5 +167,12 @@ pub(super) const SUITES: &[(TaskId, ObsType, &str, &[u8], &str)] = &[
         "stacking-image-v1.json",
         STACKING_IMAGE_V1,
         STACKING_IMAGE_V1_SHA256,
+    ),
+    (
+        TaskId::Stacking,
+        ObsType::State,
+        "stacking-v2.json",
+        STACKING_V2,
+        STACKING_V2_SHA256,
     ),
 ];

@@ -5,7 +5,7 @@ fn committed_suites_load_and_a_changed_byte_is_refused_naming_the_hash() {
     for task in TaskId::ALL {
         let current = Suite::for_task(task).unwrap().name;
         let version = match task {
-            TaskId::Aligning | TaskId::Pushing => "v2",
+            TaskId::Aligning | TaskId::Pushing | TaskId::Stacking => "v2",
             _ => "v1",
         };
         assert_eq!(
@@ -148,8 +148,9 @@ fn start_shift_moves_sortings_permuted_poses_about_their_own_region() {
 
 /// A suite file's axes need what they act on: start_shift its fields or
 /// regions, dynamics its bodies and table geom (a suite without those
-/// axes, like Avoiding's, loads); latency on Stacking whole steps only (a
-/// fraction would blend its absolute gripper value).
+/// axes, like Avoiding's, loads); latency takes whole and fractional steps
+/// on every task (Stacking too: `CommandKind::blend_late` takes its
+/// gripper value whole), but not a fraction of a step or more.
 #[test]
 fn an_axis_without_what_it_acts_on_is_refused_and_a_suite_without_it_loads() {
     let load = |task: TaskId, axis: &str, mut level: serde_json::Value| {
@@ -186,14 +187,20 @@ fn an_axis_without_what_it_acts_on_is_refused_and_a_suite_without_it_loads() {
         "{e}"
     );
     load(TaskId::Stacking, "latency", serde_json::json!({"steps": 2})).unwrap();
+    load(
+        TaskId::Stacking,
+        "latency",
+        serde_json::json!({"steps": 0, "fraction": 0.25}),
+    )
+    .unwrap();
     let e = load(
         TaskId::Stacking,
         "latency",
-        serde_json::json!({"steps": 1, "fraction": 0.5}),
+        serde_json::json!({"steps": 1, "fraction": 1.0}),
     )
     .unwrap_err()
     .to_string();
-    assert!(e.contains("no fraction on a joint-command task"), "{e}");
+    assert!(e.contains("0 ≤ fraction < 1"), "{e}");
     load(
         TaskId::Sorting2,
         "latency",

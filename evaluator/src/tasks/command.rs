@@ -62,6 +62,32 @@ impl CommandKind {
         hold
     }
 
+    /// What the environment receives under a fractional latency `L = n +
+    /// f` (0 < f < 1, the robustness track's `latency`, `crate::perturb`):
+    /// `newer` is the action issued `n` steps ago, `older` the one issued
+    /// `n + 1` steps ago (either is [`CommandKind::hold`] while it has not
+    /// arrived). Deltas are blended, `(1 − f)·newer + f·older`: over a run
+    /// the blended increments add up to the issued ones, only later, so the
+    /// command arrives on average `L` steps late. Stacking's gripper is an
+    /// absolute width (open above 0.075), and a blend of an open and a
+    /// closed command is a half-closed width no policy asked for: it is
+    /// taken whole from the action with the larger share, the older one on
+    /// a tie (f = 0.5). So the gripper is late by `L` rounded to the
+    /// nearest step, half up: never earlier than the arm's blended command
+    /// says, and with a whole-step latency the gripper and the arm stay in
+    /// step as before.
+    pub fn blend_late(self, newer: &[f32], older: &[f32], f: f32) -> Vec<f32> {
+        let mut action: Vec<f32> = newer
+            .iter()
+            .zip(older)
+            .map(|(&a, &b)| (1.0 - f) * a + f * b)
+            .collect();
+        if self == CommandKind::JointDelta {
+            action[7] = if f < 0.5 { newer[7] } else { older[7] };
+        }
+        action
+    }
+
     /// The first "previous command" after reset.
     pub fn initial(self, sim: &Sim) -> Vec<f64> {
         match self {
@@ -158,6 +184,42 @@ mod tests {
         assert!(matches!(cmd, Command::Joint { gripper, .. } if gripper > 0.075));
         for k in [CommandKind::XyDelta, CommandKind::XyzDelta] {
             assert_eq!(k.hold(), vec![0.0; k.dim()], "{k:?}");
+        }
+    }
+
+    /// A fractional latency on Stacking: the joint increments are the
+    /// blend, the gripper value whole from the action of the larger share
+    /// (the older on a tie), the hold action's open gripper before the
+    /// older action has arrived. The Cartesian conventions blend every entry.
+    #[test]
+    fn a_late_blend_mixes_the_joint_increments_and_takes_the_gripper_whole() {
+        let k = CommandKind::JointDelta;
+        let newer = [0.04f32, -0.02, 0.0, 0.01, 0.0, 0.0, 0.03, 0.0];
+        let older = [0.0f32, 0.02, 0.01, 0.0, 0.0, -0.04, 0.0, 0.08];
+        for (f, gripper) in [(0.25f32, 0.0), (0.5, 0.08), (0.75, 0.08)] {
+            let a = k.blend_late(&newer, &older, f);
+            let blend: Vec<f32> = newer
+                .iter()
+                .zip(&older)
+                .map(|(n, o)| (1.0 - f) * n + f * o)
+                .collect();
+            assert_eq!(a[..7], blend[..7], "f {f}: the joint increments");
+            assert_eq!(a[7], gripper, "f {f}: the gripper of the larger share");
+        }
+        // Nothing older has arrived yet: the hold action's zero deltas and
+        // open gripper (the reset's), where the newer action closes it.
+        let a = k.blend_late(&newer, &k.hold(), 0.5);
+        assert_eq!(
+            a[..7],
+            newer[..7].iter().map(|v| 0.5 * v).collect::<Vec<_>>()[..]
+        );
+        assert!(a[7] > 0.075, "the hold action's gripper is open: {}", a[7]);
+        let a = k.blend_late(&newer, &k.hold(), 0.25);
+        assert_eq!(a[7], 0.0, "the newer action has the larger share");
+        for k in [CommandKind::XyDelta, CommandKind::XyzDelta] {
+            let (newer, older) = (vec![0.01f32; k.dim()], vec![-0.03f32; k.dim()]);
+            let a = k.blend_late(&newer, &older, 0.25);
+            assert_eq!(a, vec![0.75 * 0.01f32 + 0.25 * -0.03f32; k.dim()], "{k:?}");
         }
     }
 
