@@ -191,3 +191,54 @@ fn eval_and_submit_find_the_manifest_next_to_the_onnx_file_the_same_way() {
     assert_eq!(once, every);
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// `--rollouts-per-state N`: the protocol's initial states with N rollouts
+/// each (a sample for measurements), recorded in the manifest; the same
+/// records as the first N of the protocol's for a deterministic policy; the
+/// robustness suite's count up front follows it.
+#[test]
+fn rollouts_per_state_samples_the_protocol_and_the_suite_counts_it() {
+    let dir = std::env::temp_dir().join(format!("d3il-cli-sample-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let onnx = fixture("avoiding_path.onnx");
+    let json = |extra: &[&str], out: &str| {
+        let path = dir.join(out);
+        let o = eval_quick(
+            "avoiding",
+            &onnx,
+            &[extra, &["--json", path.to_str().unwrap()]].concat(),
+        );
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let v: serde_json::Value = serde_json::from_slice(&std::fs::read(&path).unwrap()).unwrap();
+        (v, String::from_utf8_lossy(&o.stdout).into_owned())
+    };
+    let (full, _) = json(&[], "full.json");
+    let (sample, _) = json(&["--rollouts-per-state", "3"], "sample.json");
+    assert_eq!(full["manifest"]["rollouts_per_context"], 8);
+    assert_eq!(sample["manifest"]["rollouts_per_context"], 3);
+    let rollouts = |v: &serde_json::Value| v["rollouts"].as_array().unwrap().clone();
+    assert_eq!(rollouts(&sample).len(), 3);
+    assert_eq!(rollouts(&sample)[..], rollouts(&full)[..3]);
+    // The suite: level 0 and 6 levels (Avoiding v1: noise and latency, three
+    // levels each) of one state with 1 rollout each.
+    let (doc, stdout) = json(
+        &["--rollouts-per-state", "1", "--suite", "robustness"],
+        "suite.json",
+    );
+    assert!(
+        stdout.contains("each 1 initial states × 1 rollouts (quick protocol): 7 rollouts recorded"),
+        "{stdout}"
+    );
+    assert_eq!(doc["control"]["rollouts"].as_array().unwrap().len(), 1);
+    // Bad values are refused, naming the flag.
+    for (extra, says) in [
+        (&["--rollouts-per-state", "0"][..], "--rollouts-per-state"),
+        (&["--rollouts-per-state", "2", "--sandbox"][..], "--sandbox"),
+    ] {
+        let o = eval_quick("avoiding", &onnx, extra);
+        assert!(!o.status.success());
+        let stderr = String::from_utf8_lossy(&o.stderr);
+        assert!(stderr.contains(says), "{stderr}");
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
+}

@@ -64,6 +64,16 @@ pub fn protocol_size(task: &LoadedTask, protocol: ProtocolKind, n_set: usize) ->
     task.def.id().protocol_size(protocol, set_len)
 }
 
+/// What an evaluation under `opts` runs: the protocol's initial states, and
+/// its rollouts per state or [`EvalOptions::rollouts_per_state`] of them.
+pub fn run_size(task: &LoadedTask, opts: &EvalOptions, n_set: usize) -> (usize, usize) {
+    let (n_ctx, per_ctx) = protocol_size(task, opts.protocol, n_set);
+    let per_ctx = opts
+        .rollouts_per_state
+        .map_or(per_ctx, |n| n.clamp(1, per_ctx));
+    (n_ctx, per_ctx)
+}
+
 /// Knobs of one evaluation.
 #[derive(Debug, Clone)]
 pub struct EvalOptions {
@@ -378,10 +388,7 @@ fn prepare(
     perturb: Option<&std::sync::Arc<Active>>,
 ) -> Result<Prepared, EvalError> {
     let set = task.def.context_set()?;
-    let (n_ctx, per_ctx) = protocol_size(task, opts.protocol, set.len());
-    let per_ctx = opts
-        .rollouts_per_state
-        .map_or(per_ctx, |n| n.clamp(1, per_ctx));
+    let (n_ctx, per_ctx) = run_size(task, opts, set.len());
     let ctx_range = match shard {
         Some(s) => s
             .contexts(n_ctx)

@@ -82,7 +82,7 @@ pub fn plan_for(
 ) -> Result<SuitePlan, EvalError> {
     let levels = suite.perturbations();
     let set = task.def.context_set()?;
-    let (n_ctx, per_ctx) = eval::protocol_size(task, opts.protocol, set.len());
+    let (n_ctx, per_ctx) = eval::run_size(task, opts, set.len());
     let per_level = n_ctx * per_ctx;
     let simulated = |noisy: bool| {
         if once && !noisy {

@@ -44,6 +44,13 @@ pub struct Args {
     /// same results; for checking that (in process, not with --sandbox).
     #[arg(long, conflicts_with = "sandbox")]
     pub every_rollout: bool,
+    /// Run N rollouts of each initial state instead of the protocol's (at
+    /// most its number; numbered as a protocol of N rollouts numbers them):
+    /// a sample of the protocol at a fraction of its cost, for measurements.
+    /// The result's manifest records N; it is not the paper protocol. In
+    /// process, not with --sandbox.
+    #[arg(long, value_name = "N", conflicts_with = "sandbox", value_parser = clap::value_parser!(u32).range(1..))]
+    pub rollouts_per_state: Option<u32>,
     /// Observation type of a remote endpoint (`state` or `image`); an ONNX
     /// policy's manifest says it itself.
     #[arg(long, default_value = "state")]
@@ -125,6 +132,7 @@ pub fn load_in_process(
         max_live: args.max_live,
         simulate_every_rollout: args.every_rollout,
         build: job.build.clone(),
+        rollouts_per_state: args.rollouts_per_state.map(|n| n as usize),
         ..EvalOptions::default()
     };
     Ok((task, policy, info, opts))
