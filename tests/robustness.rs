@@ -3,7 +3,8 @@
 //! rollouts replay bit for bit, suites are hash-checked, observation noise
 //! reaches the policy's observation (and only its environment part) and
 //! latency delays the actions the environment receives by exactly the set
-//! number of steps.
+//! number of steps, a fractional one blending them (`latency.rs`: on
+//! Stacking the joint increments, the gripper value taken whole).
 
 use d3il_evaluator::eval::{evaluate, evaluate_perturbed, sha256_hex, EvalOptions, PolicyInfo};
 use d3il_evaluator::perturb::{Active, Suite};
@@ -17,6 +18,9 @@ use d3il_protocol::{EvalResult, ObsType, ProtocolKind, TaskId};
 use d3il_test_support::{fixture_manifest, fixtures_dir};
 use std::collections::BTreeMap;
 use std::sync::{Arc, Mutex};
+
+#[path = "robustness/latency.rs"]
+mod latency;
 
 /// What a policy was asked and answered: (rollout id, step) -> (observation
 /// row, first action).
@@ -374,64 +378,6 @@ fn observation_noise_reaches_the_policy_and_only_the_environment_part() {
     );
 }
 
-/// Latency: the environment receives the action the policy issued L steps
-/// earlier, and the hold action before the first one arrives (a zero delta;
-/// on Stacking zero joint deltas and an open gripper, as the reset left
-/// it), for L = 1, 2, 4.
-#[test]
-fn a_scripted_expert_under_latency_acts_late_by_exactly_the_set_steps() {
-    for (id, name, cap) in [
-        (TaskId::Aligning, "aligning:inside", None),
-        (TaskId::Pushing, "pushing:mode=1", None),
-        (TaskId::Stacking, "stacking:order=r", Some(20)),
-    ] {
-        let task = LoadedTask::load(id).unwrap();
-        for latency in [1usize, 2, 4] {
-            let log: Log = Default::default();
-            let mut policy = Recorder {
-                inner: scripted(&task, name),
-                log: log.clone(),
-            };
-            let p = perturbation(
-                id,
-                Axis::Latency,
-                LevelSetting {
-                    steps: Some(latency),
-                    ..Default::default()
-                },
-            );
-            let (r, _) = evaluate_perturbed(
-                &task,
-                &mut policy,
-                &info(),
-                &capped(cap),
-                &p,
-                &mut |_, _| {},
-            )
-            .unwrap();
-            let hold = Active::new(&p, id).unwrap().hold;
-            let log = log.lock().unwrap();
-            for record in &r.rollouts {
-                let id_ = (record.context_index * r.manifest.rollouts_per_context
-                    + record.rollout_index) as u64;
-                let applied = r.trace_of(record).unwrap().unpack().unwrap().actions;
-                assert!(applied.len() > latency + 10);
-                for (t, a) in applied.iter().enumerate() {
-                    let expected = if t < latency {
-                        hold.clone()
-                    } else {
-                        log[&(id_, (t - latency) as u64)].1.clone()
-                    };
-                    assert_eq!(
-                        a, &expected,
-                        "{id} latency {latency}, rollout {id_}, step {t}"
-                    );
-                }
-            }
-        }
-    }
-}
-
 /// The command line: `d3il eval --suite robustness` says up front how many
 /// rollouts it runs, prints a table per axis with paired drops, writes a
 /// document whose level 0 is `d3il eval --json`'s result bit for bit (but
@@ -542,29 +488,77 @@ impl SuiteObserver for Quiet {
     fn progress(&mut self, _: usize, _: usize) {}
 }
 
+/// Runs `task`'s whole current suite through `evaluate_suite` (every rollout
+/// capped at `cap` steps), writes the document and replays rollout 1 of each
+/// of `levels` (`AXIS/N`; `AXIS/top` is the axis's last level) with
+/// `d3il replay --level`.
+fn suite_replays_on_the_command_line(id: TaskId, script: &str, cap: usize, levels: &[&str]) {
+    let task = LoadedTask::load(id).unwrap();
+    let mut policy = scripted(&task, script);
+    let suite = Suite::for_task(id).unwrap();
+    let o = capped(Some(cap));
+    let plan = plan(&task, &policy, &o, &suite).unwrap();
+    let doc = evaluate_suite(&task, &mut policy, &info(), &o, &suite, &plan, &mut Quiet).unwrap();
+    assert_eq!(doc.levels.len(), suite.perturbations().len());
+    let dir = std::env::temp_dir().join(format!(
+        "d3il-robustness-{}-{}",
+        id.slug(),
+        std::process::id()
+    ));
+    std::fs::create_dir_all(&dir).unwrap();
+    let file = dir.join("r.json");
+    std::fs::write(&file, serde_json::to_vec(&doc).unwrap()).unwrap();
+    for level in levels {
+        let level = match level.strip_suffix("/top") {
+            Some(axis) => {
+                let a = suite.file.axes.iter().find(|a| a.axis.to_string() == axis);
+                format!("{axis}/{}", a.unwrap().levels.len())
+            }
+            None => level.to_string(),
+        };
+        replays(&file, &level, 1);
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
 /// A new task's suite end to end: Sorting-2's whole suite (v1; a step cap)
 /// through `evaluate_suite`, and its perturbed rollouts (start shift of the
 /// permuted poses, the platform's friction, latency, noise) replay bit for
 /// bit with `d3il replay --level`.
 #[test]
 fn a_sorting_suite_runs_and_its_perturbed_rollouts_replay_on_the_command_line() {
-    let task = LoadedTask::load(TaskId::Sorting2).unwrap();
-    let mut policy = scripted(&task, "sorting-2:all-orders");
-    let suite = Suite::for_task(TaskId::Sorting2).unwrap();
-    let o = capped(Some(30));
-    let plan = plan(&task, &policy, &o, &suite).unwrap();
-    let doc = evaluate_suite(&task, &mut policy, &info(), &o, &suite, &plan, &mut Quiet).unwrap();
-    assert_eq!(doc.levels.len(), suite.perturbations().len());
-    let dir = std::env::temp_dir().join(format!("d3il-robustness-sorting-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    let file = dir.join("r.json");
-    std::fs::write(&file, serde_json::to_vec(&doc).unwrap()).unwrap();
-    let top = |axis: &str| {
-        let a = suite.file.axes.iter().find(|a| a.axis.to_string() == axis);
-        format!("{axis}/{}", a.unwrap().levels.len())
-    };
-    for level in ["start_shift", "dynamics", "latency", "obs_noise"].map(top) {
-        replays(&file, &level, 1);
-    }
-    std::fs::remove_dir_all(&dir).unwrap();
+    suite_replays_on_the_command_line(
+        TaskId::Sorting2,
+        "sorting-2:all-orders",
+        30,
+        &[
+            "start_shift/top",
+            "dynamics/top",
+            "latency/top",
+            "obs_noise/top",
+        ],
+    );
+}
+
+/// Stacking's suite (v2) end to end, a few steps a rollout: its fractional
+/// latency levels (0.5 and 0.9 steps: the joint increments blended, the
+/// gripper value whole) and its last one (1.5 steps) replay bit for bit with
+/// `d3il replay --level`.
+#[test]
+fn stackings_fractional_latency_levels_replay_on_the_command_line() {
+    let suite = Suite::for_task(TaskId::Stacking).unwrap();
+    let latency = suite.file.axes.iter().find(|a| a.axis == Axis::Latency);
+    let fractional = latency
+        .unwrap()
+        .levels
+        .iter()
+        .filter(|l| l.fraction.is_some())
+        .count();
+    assert!(fractional >= 2, "{}: fractional latency levels", suite.name);
+    suite_replays_on_the_command_line(
+        TaskId::Stacking,
+        "stacking:all-orders",
+        12,
+        &["latency/1", "latency/2", "latency/top"],
+    );
 }
