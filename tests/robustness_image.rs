@@ -195,10 +195,9 @@ fn every_image_variant_has_a_suite_of_its_state_levels_and_the_shared_image_leve
             ],
             "{id}: no obs_noise"
         );
-        // The state suite the levels came from: Aligning v2, the others v1
-        // (Stacking's latency: whole steps, docs/robustness.md).
-        let version = if id == TaskId::Aligning { "v2" } else { "v1" };
-        let state = Suite::named(id, &format!("{}-{version}.json", id.slug())).unwrap();
+        // The levels of the task's current state suite (Aligning and
+        // Stacking v2, Sorting v1).
+        let state = Suite::for_task(id).unwrap();
         for axis in [Axis::StartShift, Axis::Latency, Axis::Dynamics] {
             assert_eq!(
                 axis_levels(&s, axis),
@@ -458,7 +457,8 @@ fn a_perturbed_image_rollout_replays_on_the_command_line() {
 
 /// The other image tasks: a perturbed result of the large camera level
 /// (with its video), the large lighting level and the second latency level
-/// (Stacking's joints held for two steps, `CommandKind::hold`) each replays
+/// (Sorting 1 step; Stacking 0.9 steps, its joint increments blended,
+/// `CommandKind::blend_late`) each replays
 /// from its own manifest's perturbation. Level by level rather than the
 /// whole suite: each evaluation costs a scene compile and a renderer,
 /// whatever its steps, and the `--level` path is Aligning's above.
