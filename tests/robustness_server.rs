@@ -5,7 +5,10 @@
 //! plain result (level 0) on the ordinary board, the robustness document
 //! through the API (whole and without records), the OpenAPI document, the
 //! Robustness view, and a perturbed rollout of the served document replaying
-//! with `d3il replay --level`. Tasks without a suite are refused up front.
+//! with `d3il replay --level`. Every image variant's suite is accepted
+//! (Sorting-4/6 and Stacking by HTTP and by `d3il submit`), and a task and
+//! observation type without a suite file in the server's assets is refused
+//! up front.
 
 mod server_support;
 use server_support::*;
@@ -24,67 +27,6 @@ fn a_robustness_submission_is_evaluated_stored_and_served() {
     let token = create_token(&db, "robustness-tester");
     let server = Server::start(&db, &["--workers", "1"]);
     let client = server.client(Some(&token));
-
-    // Refused for a task and observation type without a suite (every task
-    // has a state suite; Stacking's image variant has none yet), by the
-    // server (field `suite`) and by `d3il submit` before anything is
-    // uploaded.
-    let fields = |suite: &str| {
-        vec![
-            ("method", "Robust-MLP".to_string()),
-            ("task", "stacking".to_string()),
-            ("obs_type", "image".to_string()),
-            ("training_seed", "0".to_string()),
-            ("protocol", "quick".to_string()),
-            ("suite", suite.to_string()),
-            (
-                "manifest",
-                r#"{"task": "stacking", "obs_type": "image", "history": 1, "horizon": 1, "execute": 1}"#
-                    .to_string(),
-            ),
-        ]
-    };
-    let onnx = fixture("aligning_image.onnx");
-    let err = client
-        .submit(&fields("robustness"), Some(&onnx))
-        .expect_err("stacking's image variant has no suite");
-    let msg = err.to_string();
-    assert!(
-        msg.contains("no robustness suite")
-            && msg.contains("image observations: aligning")
-            && msg.contains("state observations: avoiding, aligning, pushing, sorting-2"),
-        "{msg}"
-    );
-    let err = client
-        .submit(&fields("sturdiness"), Some(&onnx))
-        .expect_err("unknown suite");
-    assert!(
-        err.to_string().contains("the one suite is `robustness`"),
-        "{err}"
-    );
-    let out = Command::new(EXE)
-        .arg("submit")
-        .args(["--server", &server.base, "--token", &token])
-        .args([
-            "--method",
-            "X",
-            "--task",
-            "stacking",
-            "--obs-type",
-            "image",
-            "--training-seed",
-            "0",
-        ])
-        .args(["--suite", "robustness", "--onnx"])
-        .arg(&onnx)
-        .output()
-        .unwrap();
-    assert!(!out.status.success());
-    assert!(
-        String::from_utf8_lossy(&out.stderr).contains("--suite robustness"),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
 
     // The suite, quick protocol, through a real worker.
     let out = Command::new(EXE)
@@ -197,5 +139,167 @@ fn a_robustness_submission_is_evaluated_stored_and_served() {
     assert!(view.contains("smoke test"), "quick runs are labelled");
     let (_, page) = server.get_text(&format!("/submissions/{id}"));
     assert!(page.contains(&format!("/api/v1/submissions/{id}/robustness")));
+    server.kill();
+}
+
+/// `d3il submit --suite robustness` to `server` of Aligning's image fixture
+/// with a manifest (written in `dir`) for `task` and `obs` observations.
+fn submit_cli(
+    server: &Server,
+    token: &str,
+    dir: &std::path::Path,
+    task: &str,
+    obs: &str,
+) -> std::process::Output {
+    let manifest = dir.join(format!("{task}-{obs}.json"));
+    let text = format!(
+        r#"{{"task": "{task}", "obs_type": "{obs}", "history": 1, "horizon": 1, "execute": 1}}"#
+    );
+    std::fs::write(&manifest, text).unwrap();
+    Command::new(EXE)
+        .arg("submit")
+        .args(["--server", &server.base, "--token", token])
+        .args([
+            "--method",
+            "Robust-Image",
+            "--task",
+            task,
+            "--obs-type",
+            obs,
+        ])
+        .args(["--training-seed", "0", "--protocol", "quick"])
+        .args(["--suite", "robustness", "--manifest"])
+        .arg(&manifest)
+        .arg("--onnx")
+        .arg(fixture("aligning_image.onnx"))
+        .output()
+        .unwrap()
+}
+
+/// The image variants' suites through the server, up to the queued job: the
+/// server finds each task's `<task>-image-v<N>.json` in its assets and
+/// queues the suite job (level 0 and every level); a server whose assets
+/// lack a task's image suite refuses it by the field `suite`, naming the
+/// tasks that have one, and `d3il submit` refuses a task without an image
+/// variant before uploading. The image suites' evaluation itself is
+/// `tests/robustness_image.rs` (the worker runs the same
+/// `evaluate_suite`); here no worker runs (`--workers 0`) and the upload's
+/// dry run is off, so the stand-in model (Aligning's image fixture with
+/// each task's manifest) is only stored.
+#[test]
+fn image_suites_are_accepted_and_a_missing_suite_file_is_refused() {
+    let dir = TempDir::new("robustness-image-intake");
+    let db = dir.path().join("lb.sqlite");
+    let token = create_token(&db, "robustness-tester");
+    let server = Server::start(&db, &["--workers", "0", "--no-upload-dry-run"]);
+    let client = server.client(Some(&token));
+    let fields = |task: &str, seed: &str| {
+        vec![
+            ("method", "Robust-Image".to_string()),
+            ("task", task.to_string()),
+            ("obs_type", "image".to_string()),
+            ("training_seed", seed.to_string()),
+            ("protocol", "quick".to_string()),
+            ("suite", "robustness".to_string()),
+            (
+                "manifest",
+                format!(
+                    r#"{{"task": "{task}", "obs_type": "image", "history": 1, "horizon": 1, "execute": 1}}"#
+                ),
+            ),
+        ]
+    };
+    let onnx = fixture("aligning_image.onnx");
+    for task in ["sorting-4", "sorting-6"] {
+        let v = client
+            .submit(&fields(task, "0"), Some(&onnx))
+            .unwrap_or_else(|e| panic!("{task}: {e}"));
+        let id = v["id"].as_i64().expect("submission id");
+        let s = client.get(&format!("/api/v1/submissions/{id}")).unwrap();
+        assert_eq!(
+            (&s["status"], &s["task"], &s["obs_type"]),
+            (&"queued".into(), &task.into(), &"image".into()),
+            "{s}"
+        );
+        let (_, page) = server.get_text(&format!("/submissions/{id}"));
+        assert!(
+            page.contains("Evaluated with the robustness suite"),
+            "{task}"
+        );
+    }
+    // Stacking through `d3il submit`, which checks the suite locally first.
+    let out = submit_cli(&server, &token, dir.path(), "stacking", "image");
+    assert!(
+        out.status.success(),
+        "{}{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(String::from_utf8_lossy(&out.stdout).contains("submission 3 accepted"));
+    let out = submit_cli(&server, &token, dir.path(), "pushing", "image");
+    assert!(!out.status.success());
+    assert!(
+        String::from_utf8_lossy(&out.stderr).contains("--suite robustness"),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    server.kill();
+
+    // A server whose assets have no `stacking-image-v*.json`.
+    let assets = dir.path().join("assets");
+    let repo_assets = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("assets");
+    std::fs::create_dir_all(assets.join("robustness")).unwrap();
+    for e in std::fs::read_dir(&repo_assets).unwrap().flatten() {
+        if e.file_name() != "robustness" {
+            std::os::unix::fs::symlink(e.path(), assets.join(e.file_name())).unwrap();
+        }
+    }
+    for e in std::fs::read_dir(repo_assets.join("robustness"))
+        .unwrap()
+        .flatten()
+    {
+        if !e
+            .file_name()
+            .to_string_lossy()
+            .starts_with("stacking-image-v")
+        {
+            std::fs::copy(e.path(), assets.join("robustness").join(e.file_name())).unwrap();
+        }
+    }
+    let db = dir.path().join("lb2.sqlite");
+    let token = create_token(&db, "robustness-tester");
+    let assets_arg = assets.to_str().unwrap();
+    let server = Server::start(
+        &db,
+        &[
+            "--workers",
+            "0",
+            "--no-upload-dry-run",
+            "--assets",
+            assets_arg,
+        ],
+    );
+    let err = server
+        .client(Some(&token))
+        .submit(&fields("stacking", "1"), Some(&onnx))
+        .expect_err("this server has no image suite for stacking");
+    let msg = err.to_string();
+    assert!(
+        msg.contains("no robustness suite")
+            && msg.contains("image observations: aligning, sorting-4, sorting-6;")
+            && msg.contains("state observations: avoiding, aligning, pushing, sorting-2"),
+        "{msg}"
+    );
+    let mut unknown = fields("sorting-4", "1");
+    unknown.retain(|(k, _)| *k != "suite");
+    unknown.push(("suite", "sturdiness".to_string()));
+    let err = server
+        .client(Some(&token))
+        .submit(&unknown, Some(&onnx))
+        .expect_err("unknown suite");
+    assert!(
+        err.to_string().contains("the one suite is `robustness`"),
+        "{err}"
+    );
     server.kill();
 }

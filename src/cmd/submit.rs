@@ -34,7 +34,7 @@ pub struct Args {
     pub protocol: String,
     /// `robustness`: evaluate the task's perturbation suite too (level 0 is
     /// the plain result; docs/robustness.md). Every task for state
-    /// policies, Aligning for image policies.
+    /// policies; Aligning, Sorting-4/6 and Stacking for image policies.
     #[arg(long)]
     pub suite: Option<String>,
     /// ONNX policy file.

@@ -103,13 +103,14 @@ pub fn suite_evaluations(
 mod tests {
     use super::*;
 
-    /// Every task has a state suite in the repository's assets, so a
-    /// submission with `suite=robustness` is accepted for each, with its
-    /// number of evaluations (level 0 and every level of the file); an
-    /// image variant without an image suite (Stacking's) is refused, the
-    /// message listing the tasks that have one.
+    /// Every task has a state suite in the repository's assets, and every
+    /// image variant an image suite, so a submission with
+    /// `suite=robustness` is accepted for each, with its number of
+    /// evaluations (level 0 and every level of the file); assets without a
+    /// task's image suite refuse it, the message listing the tasks that
+    /// have one.
     #[test]
-    fn every_task_has_a_state_suite_and_stackings_image_variant_none() {
+    fn every_task_has_a_state_suite_and_every_image_variant_an_image_suite() {
         let assets = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../assets");
         for task in TaskId::ALL {
             check_suite_available(&assets, task, ObsType::State).unwrap();
@@ -124,13 +125,35 @@ mod tests {
                 },
                 "{task}: {n} evaluations"
             );
+            if task.has_image_variant() {
+                check_suite_available(&assets, task, ObsType::Image).unwrap();
+                // start_shift 3, latency 3 (Stacking 4), dynamics 4,
+                // camera 3, lighting 3.
+                let n = suite_evaluations(&assets, task, ObsType::Image);
+                let latency = if task == TaskId::Stacking { 4 } else { 3 };
+                assert_eq!(n, Some(14 + latency), "{task}");
+            }
         }
-        check_suite_available(&assets, TaskId::Aligning, ObsType::Image).unwrap();
-        let e = check_suite_available(&assets, TaskId::Stacking, ObsType::Image)
+        let partial = std::env::temp_dir().join(format!("d3il-suites-{}", std::process::id()));
+        std::fs::create_dir_all(partial.join("robustness")).unwrap();
+        for name in ["aligning-image-v1.json", "sorting-4-v1.json"] {
+            std::fs::copy(
+                assets.join("robustness").join(name),
+                partial.join("robustness").join(name),
+            )
+            .unwrap();
+        }
+        let e = check_suite_available(&partial, TaskId::Stacking, ObsType::Image)
             .unwrap_err()
             .to_string();
+        assert_eq!(
+            suite_evaluations(&partial, TaskId::Stacking, ObsType::Image),
+            None
+        );
+        std::fs::remove_dir_all(&partial).unwrap();
         assert!(
-            e.contains("no robustness suite") && e.contains("image observations: aligning;"),
+            e.contains("no robustness suite")
+                && e.contains("state observations: sorting-4; image observations: aligning;"),
             "{e}"
         );
     }
