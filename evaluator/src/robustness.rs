@@ -33,10 +33,9 @@ pub fn check_suite_name(name: &str) -> Result<(), EvalError> {
 }
 
 /// The suite a job or `d3il eval --suite NAME` asks for, for `task` and
-/// `obs`: every task has a state suite, and Aligning an image suite (with
-/// the camera and lighting axes); Sorting's and Stacking's image variants
-/// have none yet. The server checks the same before queueing,
-/// docs/robustness.md.
+/// `obs`: every task has a state suite, and every image variant (Aligning,
+/// Sorting-4/6, Stacking) an image suite with the camera and lighting
+/// axes. The server checks the same before queueing, docs/robustness.md.
 pub fn suite_for(name: &str, task: TaskId, obs: ObsType) -> Result<Suite, EvalError> {
     check_suite_name(name)?;
     Suite::current(task, obs).map_err(|e| EvalError::Setup(e.to_string()))
