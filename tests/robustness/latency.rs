@@ -80,7 +80,7 @@ impl<P: Policy> Policy for BlinkingGripper<P> {
         let per_row = out.horizon * out.act_dim;
         for (r, &step) in q.steps.iter().enumerate() {
             for h in 0..out.horizon {
-                let open = (step as usize + h) % 2 == 0;
+                let open = (step as usize + h).is_multiple_of(2);
                 out.data[r * per_row + h * out.act_dim + 7] = if open { 0.08 } else { 0.0 };
             }
         }
@@ -151,5 +151,64 @@ fn stacking_under_a_fractional_latency_blends_the_joints_and_keeps_the_gripper_w
             }
             assert_eq!(grippers.len(), 2, "the gripper did not blink");
         }
+    }
+}
+
+/// Stacking's v1 suite (whole steps only) stays loadable after v2: a result
+/// of its top latency level (4 steps) holds the hold action for the first 4
+/// steps and then what the policy issued 4 steps earlier, and its rollouts
+/// replay bit for bit against v1 (the manifest names v1 and its sha256).
+#[test]
+fn stacking_v1_latency_results_still_run_and_replay() {
+    let id = TaskId::Stacking;
+    let task = LoadedTask::load(id).unwrap();
+    let v1 = Suite::named(id, "stacking-v1.json").unwrap();
+    assert_ne!(
+        Suite::for_task(id).unwrap().name,
+        v1.name,
+        "v1 is not current"
+    );
+    let p = v1
+        .perturbations()
+        .into_iter()
+        .rev()
+        .find(|p| p.axis == Axis::Latency)
+        .unwrap();
+    assert_eq!((p.setting.steps, p.setting.fraction), (Some(4), None));
+    let log: Log = Default::default();
+    let mut policy = Recorder {
+        inner: scripted(&task, "stacking:order=g"),
+        log: log.clone(),
+    };
+    let (r, _) = evaluate_perturbed(
+        &task,
+        &mut policy,
+        &info(),
+        &capped(Some(12)),
+        &p,
+        &mut |_, _| {},
+    )
+    .unwrap();
+    assert_eq!(r.manifest.perturbation.as_ref(), Some(&p));
+    let hold = Active::new(&p, id).unwrap().hold;
+    let log = log.lock().unwrap();
+    let replay_task = load_task(&r.manifest).unwrap();
+    for record in &r.rollouts {
+        let rollout =
+            (record.context_index * r.manifest.rollouts_per_context + record.rollout_index) as u64;
+        let trace = r.trace_of(record).unwrap();
+        for (t, a) in trace.unpack().unwrap().actions.iter().enumerate() {
+            let expected = match t.checked_sub(4) {
+                Some(s) => &log[&(rollout, s as u64)].1,
+                None => &hold,
+            };
+            assert_eq!(a, expected, "rollout {rollout}, step {t}");
+        }
+        let check = replay(&replay_task, &r.manifest, record, trace, &mut |_| Ok(())).unwrap();
+        assert!(
+            check.replays(),
+            "rollout {rollout}: {:?}",
+            check.differences
+        );
     }
 }
