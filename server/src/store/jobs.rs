@@ -184,6 +184,10 @@ impl JobRow {
     }
 }
 
+/// A queued submission's kind as [`Store::queued_ahead`] reads it: task,
+/// observation type, protocol, simulated once, suite.
+type QueuedKind = (String, String, String, Option<bool>, Option<String>);
+
 /// A job handed to a worker slot.
 #[derive(Debug, Clone)]
 pub struct ClaimedJob {
@@ -552,7 +556,7 @@ impl Store {
     /// The kinds of the submissions with queued work ahead of job `job_id`
     /// (one entry per submission, however many shards), oldest first.
     pub async fn queued_ahead(&self, job_id: i64) -> Result<Vec<JobKind>, StoreError> {
-        let rows: Vec<(String, String, String, Option<bool>, Option<String>)> = on_db!(&self.db, pool => sqlx::query_as(
+        let rows: Vec<QueuedKind> = on_db!(&self.db, pool => sqlx::query_as(
             "SELECT s.task, s.obs_type, s.protocol, s.simulated_once, s.suite FROM submissions s WHERE s.id IN \
              (SELECT submission_id FROM jobs WHERE state = 'queued' AND id < $1) ORDER BY s.id",
         )
