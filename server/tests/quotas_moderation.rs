@@ -1,8 +1,9 @@
 //! Quotas and moderation (issue 42) over HTTP on 127.0.0.1, on SQLite and
 //! PostgreSQL: submissions counted, the refusal with the time of the next
 //! one, admission refusals not counted, admin tokens exempt, overrides;
-//! a withdrawn submission hidden from the board JSON and page with its
-//! reason on its page, a baseline marked, a revoked token refused, and every
+//! a withdrawn submission hidden from the board JSON and page and from the
+//! public lists (API and pages), with its reason on its page and listed on
+//! `/admin`, a baseline marked, a revoked token refused, and every
 //! admin action in the audit log on `/admin`.
 
 mod common;
@@ -97,6 +98,37 @@ async fn admin_post(
     }
     let r = req.send().await.unwrap();
     (r.status().as_u16(), r.json().await.unwrap())
+}
+
+/// Whether submission `id` of `method` is listed by the public lists: the
+/// API list (unfiltered and filtered by method), `/submissions`, the home
+/// page's latest and the method's page.
+async fn publicly_listed(app: &TestApp, id: i64, method: &str) -> [bool; 5] {
+    let api = |v: Value| {
+        v["submissions"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .any(|s| s["id"] == id)
+    };
+    let link = format!("href=\"/submissions/{id}\"");
+    let (s, all) = app.get_json("/api/v1/submissions").await;
+    assert_eq!(s, 200, "{all}");
+    let (_, of_method) = app
+        .get_json(&format!("/api/v1/submissions?method={method}"))
+        .await;
+    let (s, list) = app.get_text("/submissions").await;
+    assert_eq!(s, 200);
+    let (_, home) = app.get_text("/").await;
+    let (s, method_page) = app.get_text(&format!("/methods/{method}")).await;
+    assert_eq!(s, 200, "the method keeps its page");
+    [
+        api(all),
+        api(of_method),
+        list.contains(&link),
+        home.contains(&link),
+        method_page.contains(&link),
+    ]
 }
 
 async fn counted_refused_with_the_time_and_admin_exempt(b: Backend) {
@@ -280,6 +312,13 @@ async fn moderation_and_the_audit_log(b: Backend) {
         "{body}"
     );
 
+    assert_eq!(publicly_listed(&app, gone, "GoneMethod").await, [true; 5]);
+    let (_, page) = app.get_admin_text("/admin").await;
+    assert!(
+        page.contains("id=\"withdrawn-empty\""),
+        "nothing withdrawn yet"
+    );
+
     // Fetch the completed submission once so that its document is cached.
     let (s, doc) = app.get_json(&format!("/api/v1/submissions/{gone}")).await;
     assert_eq!((s, doc["withdrawn"].is_null()), (200, true), "{doc}");
@@ -322,6 +361,26 @@ async fn moderation_and_the_audit_log(b: Backend) {
     let (_, doc) = app.get_json(&format!("/api/v1/submissions/{gone}")).await;
     assert_eq!(doc["withdrawn"]["reason"], reason, "{doc}");
     assert_eq!(doc["status"], "completed");
+    // Left out of the public lists, API and pages alike; the other stays.
+    assert_eq!(publicly_listed(&app, gone, "GoneMethod").await, [false; 5]);
+    assert_eq!(publicly_listed(&app, kept, "KeptMethod").await, [true; 5]);
+    // An operator finds it on /admin, with who, why and a link.
+    let (_, page) = app.get_admin_text("/admin").await;
+    let table = page
+        .split("<table class=\"board\" id=\"withdrawn\">")
+        .nth(1)
+        .and_then(|t| t.split("</table>").next())
+        .expect("the withdrawn table on /admin");
+    let rows: Vec<&str> = table.split("<tr data-withdrawn=").skip(1).collect();
+    assert_eq!(rows.len(), 1, "{table}");
+    for part in [
+        format!(
+            "\"{gone}\"><td><a href=\"/submissions/{gone}\">#{gone}</a></td><td>GoneMethod</td>"
+        ),
+        "<td>moderator</td><td>trained on the test contexts &#60;see #4&#62;</td>".into(),
+    ] {
+        assert!(rows[0].contains(&part), "{part} in {}", rows[0]);
+    }
 
     // A baseline is marked on the board, JSON and page.
     let (s, done) = admin_post(
@@ -443,7 +502,9 @@ async fn moderation_and_the_audit_log(b: Backend) {
         methods(&after).contains(&"GoneMethod".to_string()),
         "{after}"
     );
-    let _ = kept;
+    assert_eq!(publicly_listed(&app, gone, "GoneMethod").await, [true; 5]);
+    let (_, page) = app.get_admin_text("/admin").await;
+    assert!(page.contains("id=\"withdrawn-empty\""), "reinstated");
 }
 
 on_both_backends!(

@@ -515,7 +515,10 @@ class Client:
         status: Optional[str] = None,
         submitter: Optional[str] = None,
     ) -> List[SubmissionSummary]:
-        """Submissions, newest first (at most 500), filtered by exact task, method, status, submitter."""
+        """Submissions, newest first (at most 500), filtered by exact task, method, status, submitter.
+
+        Withdrawn submissions are left out (as of the boards); ``submission(id)`` still finds one.
+        """
         doc = self._get_json(
             "/api/v1/submissions", {"task": task, "method": method, "status": status, "submitter": submitter}
         )

@@ -70,7 +70,9 @@ pub use shards::ShardPart;
 /// Re-exported so that callers reading the rows themselves (`d3il bench
 /// chaos` checks what a run left behind) need no own dependency.
 pub use sqlx;
-pub use submissions::{NewPolicy, NewSubmission, SeedKey, SubmissionFilter, SubmissionRow};
+pub use submissions::{
+    NewPolicy, NewSubmission, SeedKey, SubmissionFilter, SubmissionRow, WithdrawnSubmission,
+};
 pub use tokens::{token_hash, Revoked, Submitter, LAST_USED_RESOLUTION_S, TOKEN_PREFIX_LEN};
 pub use types::{JobState, PolicyKind, SubmissionStatus};
 

@@ -132,10 +132,30 @@ pub enum NewPolicy {
     },
 }
 
-const SUBMISSION_SELECT: &str = "SELECT s.id, s.method_id, m.name AS method, sub.name AS submitter, s.task, s.obs_type, \
-     s.training_seed, s.data_fraction, s.protocol, s.policy_kind, s.onnx_sha256, s.onnx_bytes, s.onnx_path, \
-     s.endpoint_url, s.manifest_json, s.status, s.error_kind, s.error_message, s.created_at, s.updated_at, \
-     s.simulated_once, s.suite FROM submissions s JOIN methods m ON m.id = s.method_id LEFT JOIN submitters sub ON sub.id = s.submitter_id";
+/// The SELECT of a [`SubmissionRow`], with `$extra` columns after its own.
+macro_rules! submission_select {
+    ($extra:literal) => {
+        concat!(
+            "SELECT s.id, s.method_id, m.name AS method, sub.name AS submitter, s.task, s.obs_type, \
+             s.training_seed, s.data_fraction, s.protocol, s.policy_kind, s.onnx_sha256, s.onnx_bytes, s.onnx_path, \
+             s.endpoint_url, s.manifest_json, s.status, s.error_kind, s.error_message, s.created_at, s.updated_at, \
+             s.simulated_once, s.suite",
+            $extra,
+            " FROM submissions s JOIN methods m ON m.id = s.method_id LEFT JOIN submitters sub ON sub.id = s.submitter_id"
+        )
+    };
+}
+const SUBMISSION_SELECT: &str = submission_select!("");
+
+/// A withdrawn submission and why (the list on `/admin`).
+#[derive(Debug, Clone, FromRow)]
+pub struct WithdrawnSubmission {
+    #[sqlx(flatten)]
+    pub submission: SubmissionRow,
+    pub withdrawn_at: i64,
+    pub withdrawn_reason: Option<String>,
+    pub withdrawn_by: Option<String>,
+}
 
 impl Store {
     /// The submission that already holds this seed, if any (checked before an
@@ -287,13 +307,15 @@ impl Store {
         .ok_or_else(|| StoreError::NotFound(format!("submission {id}")))
     }
 
+    /// The method's submissions for its public page, newest first; withdrawn
+    /// ones are left out (see [`Store::list_submissions`]).
     pub async fn submissions_of_method(
         &self,
         method_id: i64,
     ) -> Result<Vec<SubmissionRow>, StoreError> {
         Ok(
             on_db!(&self.db, pool => sqlx::query_as(sqlx::AssertSqlSafe(format!(
-            "{SUBMISSION_SELECT} WHERE s.method_id = $1 ORDER BY s.id DESC"
+            "{SUBMISSION_SELECT} WHERE s.method_id = $1 AND s.withdrawn_at IS NULL ORDER BY s.id DESC"
         )))
         .bind(method_id)
         .fetch_all(pool)
@@ -301,7 +323,12 @@ impl Store {
         )
     }
 
-    /// Submissions matching every given filter, newest first, at most `limit`.
+    /// Submissions matching every given filter, newest first, at most `limit`:
+    /// the public list (`/submissions`, `GET /api/v1/submissions`). Withdrawn
+    /// submissions are left out, as they are of every board: a withdrawal
+    /// (spam, an offensive name, a leak of the test contexts) takes them out of
+    /// what a visitor browses; each stays reachable by its id, with the reason,
+    /// and `/admin` lists them ([`Store::withdrawn_submissions`]).
     pub async fn list_submissions(
         &self,
         f: &SubmissionFilter,
@@ -309,8 +336,9 @@ impl Store {
     ) -> Result<Vec<SubmissionRow>, StoreError> {
         // A filter not given is a NULL parameter that matches every row.
         let sql = format!(
-            "{SUBMISSION_SELECT} WHERE ($1 IS NULL OR s.task = $1) AND ($2 IS NULL OR m.name = $2) \
-             AND ($3 IS NULL OR s.status = $3) AND ($4 IS NULL OR sub.name = $4) ORDER BY s.id DESC LIMIT $5"
+            "{SUBMISSION_SELECT} WHERE s.withdrawn_at IS NULL AND ($1 IS NULL OR s.task = $1) \
+             AND ($2 IS NULL OR m.name = $2) AND ($3 IS NULL OR s.status = $3) AND ($4 IS NULL OR sub.name = $4) \
+             ORDER BY s.id DESC LIMIT $5"
         );
         Ok(
             on_db!(&self.db, pool => sqlx::query_as(sqlx::AssertSqlSafe(sql.as_str()))
@@ -324,10 +352,28 @@ impl Store {
         )
     }
 
+    /// Withdrawn submissions, the most recently withdrawn first, at most
+    /// `limit`: what the public lists leave out, for `/admin`.
+    pub async fn withdrawn_submissions(
+        &self,
+        limit: i64,
+    ) -> Result<Vec<WithdrawnSubmission>, StoreError> {
+        const SQL: &str = concat!(
+            submission_select!(", s.withdrawn_at, s.withdrawn_reason, s.withdrawn_by"),
+            " WHERE s.withdrawn_at IS NOT NULL ORDER BY s.withdrawn_at DESC, s.id DESC LIMIT $1"
+        );
+        Ok(on_db!(&self.db, pool => sqlx::query_as(SQL)
+            .bind(limit)
+            .fetch_all(pool)
+            .await)?)
+    }
+
+    /// The newest `limit` submissions for the home page; withdrawn ones are
+    /// left out (see [`Store::list_submissions`]).
     pub async fn latest_submissions(&self, limit: i64) -> Result<Vec<SubmissionRow>, StoreError> {
         Ok(
             on_db!(&self.db, pool => sqlx::query_as(sqlx::AssertSqlSafe(format!(
-            "{SUBMISSION_SELECT} ORDER BY s.id DESC LIMIT $1"
+            "{SUBMISSION_SELECT} WHERE s.withdrawn_at IS NULL ORDER BY s.id DESC LIMIT $1"
         )))
         .bind(limit)
         .fetch_all(pool)

@@ -314,7 +314,7 @@ async fn get_leaderboard_csv(
 }
 
 #[utoipa::path(get, path = "/submissions", tag = "submissions",
-    summary = "List submissions (newest first, at most 500), filtered by task, method, status, submitter",
+    summary = "List submissions (newest first, at most 500; withdrawn ones left out), filtered by task, method, status, submitter",
     params(crate::views::SubmissionListQuery),
     responses(
         (status = 200, description = "Matching submissions", body = crate::views::SubmissionList),

@@ -417,6 +417,9 @@ struct AdminPage {
     server_limits: Vec<(&'static str, String)>,
     /// The newest admin actions (issue 42), with their time shown.
     audit: Vec<(String, crate::store::AuditEntry)>,
+    /// Withdrawn submissions (the public lists leave them out), with the
+    /// time they were withdrawn.
+    withdrawn: Vec<(String, crate::store::WithdrawnSubmission)>,
 }
 
 /// Operators' view: the sandbox mechanisms in force on this host (what
@@ -485,6 +488,13 @@ pub(super) async fn admin_page(
             .await?
             .into_iter()
             .map(|e| (fmt_time(e.at), e))
+            .collect(),
+        withdrawn: state
+            .store
+            .withdrawn_submissions(200)
+            .await?
+            .into_iter()
+            .map(|w| (fmt_time(w.withdrawn_at), w))
             .collect(),
     })
 }
