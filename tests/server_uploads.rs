@@ -382,3 +382,82 @@ fn an_upload_that_cannot_run_is_refused_at_submission() {
         .expect("a model with a noise input that runs is accepted");
     assert_eq!(created["policy"]["simulated_once"], false, "{created}");
 }
+
+/// A submitter out of quota who uploads a large file with `d3il submit`
+/// reads the server's refusal (429 `quota_exceeded`, saying when the next
+/// submission is possible), not a broken connection: the server answers
+/// before it reads the file and reads the rest of the body on, so its answer
+/// is not lost to a reset (server/src/linger.rs). A wrong token likewise.
+#[test]
+fn a_quota_refusal_reaches_d3il_submit_during_a_large_upload() {
+    let dir = TempDir::new("upload-quota");
+    let db = dir.path().join("lb.sqlite");
+    let token = create_token(&db, "alice");
+    let server = Server::start(
+        &db,
+        &[
+            "--workers",
+            "0",
+            "--no-upload-dry-run",
+            "--max-upload-mb",
+            "64",
+            "--quota-per-day",
+            "1",
+        ],
+    );
+    // Well past what the socket buffers of 127.0.0.1 absorb (a few MiB):
+    // most of it is still to be sent when the refusal comes.
+    let onnx = dir.path().join("big.onnx");
+    std::fs::write(&onnx, filler().repeat(32 << 10)).unwrap();
+    std::fs::write(
+        dir.path().join("big.json"),
+        r#"{"task": "aligning", "obs_type": "state", "history": 1, "horizon": 1, "execute": 1}"#,
+    )
+    .unwrap();
+    let submit_as = |token: &str, seed: &str| {
+        std::process::Command::new(EXE)
+            .args(["submit", "--server", &server.base, "--token", token])
+            .args([
+                "--method",
+                "Big",
+                "--task",
+                "aligning",
+                "--protocol",
+                "quick",
+            ])
+            .args(["--training-seed", seed, "--onnx"])
+            .arg(&onnx)
+            .output()
+            .expect("run d3il submit")
+    };
+    let submit = |seed: &str| submit_as(&token, seed);
+    let first = submit("1");
+    let err = String::from_utf8_lossy(&first.stderr);
+    assert!(first.status.success(), "{err}");
+    assert!(
+        err.contains("quota: 0 of 1 submissions left today"),
+        "{err}"
+    );
+    let policies = policies_dir(&db);
+    assert_eq!(files_in(&policies).len(), 1);
+    for _ in 0..3 {
+        let second = submit("2");
+        let err = String::from_utf8_lossy(&second.stderr);
+        assert!(!second.status.success(), "{err}");
+        assert!(
+            err.contains("the server refused the request (429, quota_exceeded): daily submission quota reached: 1 submissions in the last 24 hours (limit 1); the next submission is possible in "),
+            "{err}"
+        );
+        assert_eq!(
+            files_in(&policies).len(),
+            1,
+            "the refused upload left no file"
+        );
+    }
+    // Any early answer does the same: a wrong token, refused before the body.
+    let wrong = submit_as("d3il_0000000000000000000000000000", "3");
+    let err = String::from_utf8_lossy(&wrong.stderr);
+    assert!(err.contains("the server refused the request (401"), "{err}");
+    // The server still serves.
+    assert_eq!(server.get_text("/healthz").0, 200);
+}

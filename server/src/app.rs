@@ -1,6 +1,7 @@
 //! The router and `serve`: opens the store, starts the worker pool, listens.
 
 pub use crate::config::{default_assets_dir, ServerConfig};
+use crate::linger::LingeringBody;
 use crate::queue::{start_pool, JobRunner, PoolConfig, QueueSignal};
 use crate::ratelimit::RateLimiter;
 use crate::sandbox_status::SandboxStatus;
@@ -283,6 +284,11 @@ pub async fn serve_listener(listener: tokio::net::TcpListener, state: AppState) 
     use std::collections::HashMap;
     use std::sync::Mutex;
     let limits = state.cfg.connections.clone();
+    // An unread body is read on up to the upload limit (with the multipart
+    // framing's slack, as the submissions route allows), while the client
+    // keeps sending within the keep-alive idle timeout.
+    let linger_cap = state.cfg.max_upload_bytes as u64 + (1 << 20);
+    let idle = limits.header_read_timeout;
     let app = router(state);
     let total = Arc::new(tokio::sync::Semaphore::new(limits.max_connections));
     let per_client: Arc<Mutex<HashMap<std::net::IpAddr, usize>>> = Arc::default();
@@ -310,13 +316,17 @@ pub async fn serve_listener(listener: tokio::net::TcpListener, state: AppState) 
             }
             *n += 1;
         }
-        // Handlers and the per-address rate limits see the peer address.
+        // Handlers and the per-address rate limits see the peer address. A
+        // body left unread by an early answer is read on (crate::linger), so
+        // the client gets the answer rather than a reset connection.
         let app = tower::ServiceExt::map_request(
             app.clone(),
-            move |mut req: axum::http::Request<hyper::body::Incoming>| {
-                req.extensions_mut()
-                    .insert(axum::extract::ConnectInfo(peer));
-                req
+            move |req: axum::http::Request<hyper::body::Incoming>| {
+                let linger = LingeringBody::may_linger(&req);
+                let (mut parts, body) = req.into_parts();
+                parts.extensions.insert(axum::extract::ConnectInfo(peer));
+                let body = LingeringBody::new(body, linger, linger_cap, idle);
+                axum::http::Request::from_parts(parts, body)
             },
         );
         let per_client = per_client.clone();

@@ -14,9 +14,11 @@
 //!
 //! [`app`] wires it together (router, `serve`); [`cli`] and [`client`] are what
 //! the `d3il` binary calls. [`cache`] keeps finished submissions' results
-//! documents in memory. [`rollouts`] shows what a policy did (the failure
-//! browser's filters, one rollout's record and trace, the pictures drawn
-//! from traces) and [`videos`] renders rollout videos through `d3il replay`.
+//! documents in memory; [`linger`] reads on a request body an early answer
+//! left unread, so the client gets the answer. [`rollouts`] shows what a
+//! policy did (the failure browser's filters, one rollout's record and trace,
+//! the pictures drawn from traces) and [`videos`] renders rollout videos
+//! through `d3il replay`.
 
 #![forbid(unsafe_code)]
 
@@ -36,6 +38,7 @@ pub mod fidelity;
 pub mod http;
 pub mod intake;
 pub mod leaderboard;
+pub mod linger;
 pub mod live;
 pub mod queue;
 pub mod quota;

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import io
 import json
+import shutil
 from pathlib import Path
 from typing import Any
 
@@ -280,6 +281,15 @@ def test_quota_left_and_a_refusal_that_says_when(tmp_path: Path) -> None:
         assert e.status == 429 and e.code == "quota_exceeded", e
         assert e.next_submission_at is not None and e.next_submission_at > first.created_at, e
         assert isinstance(e, errors.RateLimited)
+        # A large file: the server refuses before reading it and reads on while
+        # the client sends it, so the refusal arrives rather than a reset.
+        big = tmp_path / "big.onnx"
+        big.write_bytes(bytes(range(256)) * (32 << 12))
+        shutil.copy(FIXTURES / "avoiding_path.json", tmp_path / "big.json")
+        with pytest.raises(errors.QuotaExceeded) as refused:
+            c.submit(onnx=big, method="q", task="avoiding", training_seed=2, protocol="quick")
+        assert refused.value.next_submission_at == e.next_submission_at, refused.value
+        assert "daily submission quota reached" in str(refused.value), refused.value
 
 
 def test_race_returns_a_typed_comparison_and_refuses_a_submission_against_itself(

@@ -3,7 +3,9 @@
 //! with a running SHA-256 and never held whole. Before the first byte of the
 //! file is read the caller is known (bearer token, or the form's `token`
 //! field) and the fields sent before it are checked (method ownership, task,
-//! manifest, seed, disk quota), so a refused request costs no upload.
+//! manifest, seed, disk quota), so a refused request stores nothing (the
+//! rest of its body is read on and discarded, [`crate::linger`], so that the
+//! client reads the refusal).
 
 use super::{precheck, too_large};
 use crate::error::AppError;
