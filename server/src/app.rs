@@ -1,5 +1,6 @@
 //! The router and `serve`: opens the store, starts the worker pool, listens.
 
+use crate::client_addr::ClientAddr;
 pub use crate::config::{default_assets_dir, ServerConfig};
 use crate::linger::LingeringBody;
 use crate::queue::{start_pool, JobRunner, PoolConfig, QueueSignal};
@@ -120,7 +121,8 @@ async fn security_headers(mut resp: axum::response::Response) -> axum::response:
     resp
 }
 
-/// Per-address rate limits (issue 17). A request without credentials (no
+/// Per-address rate limits (issue 17), keyed on the client address (behind
+/// a trusted proxy, from X-Forwarded-For). A request without credentials (no
 /// `Authorization` header, not a POST) counts against the anonymous limit;
 /// one with credentials is refused while its address is over the limit of
 /// failed token checks, and counts as a failure when it ends in 401. API
@@ -134,8 +136,8 @@ async fn client_rate_limits(
     use axum::response::IntoResponse;
     let Some(ip) = req
         .extensions()
-        .get::<axum::extract::ConnectInfo<SocketAddr>>()
-        .map(|c| client_key(c.0.ip()))
+        .get::<ClientAddr>()
+        .map(|c| client_key(c.0))
     else {
         return next.run(req).await;
     };
@@ -276,9 +278,10 @@ pub async fn run_workers(
 }
 
 /// Accepts connections until the process ends, with the connection limits of
-/// `state.cfg.connections`: a connection past the server's or its client
-/// address's cap is closed at once; one whose request header does not arrive
-/// within the header-read timeout (also the keep-alive idle timeout) is closed.
+/// `state.cfg.connections`: a connection past the server's or its peer
+/// address's cap (none for a trusted proxy) is closed at once; one whose
+/// request header does not arrive within the header-read timeout (also the
+/// keep-alive idle timeout) is closed.
 pub async fn serve_listener(listener: tokio::net::TcpListener, state: AppState) {
     use hyper_util::rt::{TokioIo, TokioTimer};
     use std::collections::HashMap;
@@ -307,7 +310,9 @@ pub async fn serve_listener(listener: tokio::net::TcpListener, state: AppState) 
             continue;
         };
         let ip = peer.ip();
-        {
+        // A trusted proxy carries many clients: only the server's cap applies.
+        let proxy = limits.trusted_proxies.contains(ip);
+        if !proxy {
             let mut m = per_client.lock().unwrap_or_else(|e| e.into_inner());
             let n = m.entry(ip).or_insert(0);
             if *n >= limits.max_connections_per_client {
@@ -316,14 +321,19 @@ pub async fn serve_listener(listener: tokio::net::TcpListener, state: AppState) 
             }
             *n += 1;
         }
-        // Handlers and the per-address rate limits see the peer address. A
-        // body left unread by an early answer is read on (crate::linger), so
-        // the client gets the answer rather than a reset connection.
+        // Handlers and the per-address rate limits see the client address:
+        // the peer's, or behind a trusted proxy X-Forwarded-For's
+        // (crate::client_addr). A body left unread by an early answer is read
+        // on (crate::linger), so the client gets the answer rather than a
+        // reset connection.
+        let trusted = limits.trusted_proxies.clone();
         let app = tower::ServiceExt::map_request(
             app.clone(),
             move |req: axum::http::Request<hyper::body::Incoming>| {
                 let linger = LingeringBody::may_linger(&req);
                 let (mut parts, body) = req.into_parts();
+                let client = trusted.client_addr(peer.ip(), &parts.headers);
+                parts.extensions.insert(ClientAddr(client));
                 parts.extensions.insert(axum::extract::ConnectInfo(peer));
                 let body = LingeringBody::new(body, linger, linger_cap, idle);
                 axum::http::Request::from_parts(parts, body)
@@ -341,11 +351,13 @@ pub async fn serve_listener(listener: tokio::net::TcpListener, state: AppState) 
             if let Err(e) = conn.await {
                 tracing::debug!("connection from {peer}: {e}");
             }
-            let mut m = per_client.lock().unwrap_or_else(|e| e.into_inner());
-            if let Some(n) = m.get_mut(&ip) {
-                *n -= 1;
-                if *n == 0 {
-                    m.remove(&ip);
+            if !proxy {
+                let mut m = per_client.lock().unwrap_or_else(|e| e.into_inner());
+                if let Some(n) = m.get_mut(&ip) {
+                    *n -= 1;
+                    if *n == 0 {
+                        m.remove(&ip);
+                    }
                 }
             }
             drop(permit);

@@ -104,8 +104,12 @@ pub struct ConnectionLimits {
     pub header_read_timeout: Duration,
     /// Open connections of the whole server; past it new ones are closed at once.
     pub max_connections: usize,
-    /// Open connections from one client address.
+    /// Open connections from one client address (a trusted proxy's are not
+    /// capped: it carries many clients).
     pub max_connections_per_client: usize,
+    /// Reverse proxies whose `X-Forwarded-For` names the client
+    /// (`--trusted-proxy`; `crate::client_addr`); empty: the header is ignored.
+    pub trusted_proxies: crate::client_addr::TrustedProxies,
 }
 
 impl Default for ConnectionLimits {
@@ -114,6 +118,7 @@ impl Default for ConnectionLimits {
             header_read_timeout: Duration::from_secs(20),
             max_connections: 2048,
             max_connections_per_client: 128,
+            trusted_proxies: Default::default(),
         }
     }
 }

@@ -31,6 +31,7 @@ pub mod canary;
 pub mod cancel;
 pub mod cli;
 pub mod client;
+pub mod client_addr;
 pub mod comparison;
 pub mod config;
 pub mod error;

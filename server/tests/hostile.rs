@@ -159,6 +159,7 @@ async fn half_open_connections_are_capped_and_dropped_after_the_header_timeout()
             header_read_timeout: std::time::Duration::from_secs(2),
             max_connections: n + 100,
             max_connections_per_client: 500,
+            trusted_proxies: Default::default(),
         }),
         ..Options::default()
     })

@@ -1,6 +1,7 @@
 //! Fair use under hostile load (issue 17), against a real server on
 //! 127.0.0.1/127.0.0.2 with a fresh SQLite file: per-address rate limits for
-//! anonymous requests and failed token checks, endpoint dry-runs that share
+//! anonymous requests and failed token checks (behind a trusted proxy, per
+//! X-Forwarded-For client), endpoint dry-runs that share
 //! the worker slots, and a busy database answered with 503 + Retry-After
 //! rather than 500.
 
@@ -160,6 +161,106 @@ async fn failed_token_checks_are_limited_per_client_address() {
     assert_eq!(r.status(), 200);
 }
 
+/// The status of a GET of `url` from `c`, with `X-Forwarded-For: xff` (if
+/// given) and a bearer `token` (if given).
+async fn status_of(c: &reqwest::Client, url: &str, xff: Option<&str>, token: Option<&str>) -> u16 {
+    let mut rb = c.get(url);
+    if let Some(x) = xff {
+        rb = rb.header("x-forwarded-for", x);
+    }
+    if let Some(t) = token {
+        rb = rb.bearer_auth(t);
+    }
+    rb.send().await.unwrap().status().as_u16()
+}
+
+/// Behind a trusted reverse proxy (`--trusted-proxy`, here 127.0.0.2) the
+/// per-address limits key on the client that X-Forwarded-For names (its
+/// right-most entry that is not a trusted proxy), never on what a client
+/// wrote left of it; from any other peer (127.0.0.1) the header is ignored;
+/// the proxy's connections are not capped per address.
+#[tokio::test]
+async fn behind_a_trusted_proxy_the_limits_key_on_the_forwarded_client() {
+    let app = spawn(
+        |c| {
+            c.anonymous_rate_limit_per_minute = 3;
+            c.failed_auth_per_minute = 2;
+            c.connections.max_connections_per_client = 2;
+            c.connections.trusted_proxies = ["127.0.0.2".parse().unwrap()].into_iter().collect();
+        },
+        idle_runner(),
+    )
+    .await;
+    let token = app.state.store.create_token("alice").await.unwrap();
+    let board = app.url("/api/v1/leaderboards");
+    let whoami = app.url("/api/v1/whoami");
+    let proxy = client_from("127.0.0.2");
+    // Client A through the proxy: its own budget of 3, which a spoofed
+    // entry left of the proxy's does not escape.
+    for xff in ["203.0.113.7", "203.0.113.7", "6.6.6.6, 203.0.113.7"] {
+        assert_eq!(
+            status_of(&proxy, &board, Some(xff), None).await,
+            200,
+            "{xff}"
+        );
+    }
+    let spoofed = Some("198.51.100.99, 203.0.113.7");
+    assert_eq!(status_of(&proxy, &board, spoofed, None).await, 429);
+    // Client B has its own, also through a second trusted hop.
+    for xff in ["203.0.113.8", "203.0.113.8, 127.0.0.2", "203.0.113.8"] {
+        assert_eq!(
+            status_of(&proxy, &board, Some(xff), None).await,
+            200,
+            "{xff}"
+        );
+    }
+    let two_hops = Some("203.0.113.8, 127.0.0.2");
+    assert_eq!(status_of(&proxy, &board, two_hops, None).await, 429);
+    // The proxy's own requests (no header) are one more client.
+    assert_eq!(status_of(&proxy, &board, None, None).await, 200);
+    // A peer that is not a trusted proxy cannot pick its address.
+    let direct = client_from("127.0.0.1");
+    for i in 1..=3 {
+        let xff = format!("198.51.100.{i}");
+        assert_eq!(status_of(&direct, &board, Some(&xff), None).await, 200);
+    }
+    let fresh = Some("198.51.100.4");
+    assert_eq!(
+        status_of(&direct, &board, fresh, None).await,
+        429,
+        "the header is ignored"
+    );
+    // Failed token checks are counted per forwarded client too.
+    let c = Some("203.0.113.20");
+    for guess in ["d3il_guess1", "d3il_guess2"] {
+        assert_eq!(status_of(&proxy, &whoami, c, Some(guess)).await, 401);
+    }
+    assert_eq!(status_of(&proxy, &whoami, c, Some(&token)).await, 429);
+    let d = Some("203.0.113.21");
+    assert_eq!(status_of(&proxy, &whoami, d, Some(&token)).await, 200);
+    // Three connections at once from the proxy, past the per-address cap of
+    // 2, are all served (each a fresh client).
+    let mut conns = Vec::new();
+    for _ in 0..3 {
+        let sock = tokio::net::TcpSocket::new_v4().unwrap();
+        sock.bind("127.0.0.2:0".parse().unwrap()).unwrap();
+        conns.push(sock.connect(app.addr).await.unwrap());
+    }
+    for (i, conn) in conns.iter_mut().enumerate() {
+        use tokio::io::{AsyncReadExt, AsyncWriteExt};
+        let req = format!(
+            "GET /healthz HTTP/1.1\r\nHost: x\r\nX-Forwarded-For: 192.0.2.{i}\r\nConnection: close\r\n\r\n"
+        );
+        conn.write_all(req.as_bytes()).await.unwrap();
+        let mut answer = String::new();
+        conn.read_to_string(&mut answer).await.unwrap();
+        assert!(
+            answer.starts_with("HTTP/1.1 200"),
+            "connection {i}: {answer:?}"
+        );
+    }
+}
+
 /// Six concurrent endpoint submissions on a one-worker server (one general
 /// slot plus the quick slot) run at most two dry-runs at a time (they used
 /// to start a worker process each, without bound).
@@ -280,6 +381,9 @@ async fn the_admin_page_shows_the_configured_limits() {
             c.connections.header_read_timeout = Duration::from_secs(13);
             c.connections.max_connections = 999;
             c.connections.max_connections_per_client = 42;
+            c.connections.trusted_proxies = ["10.0.0.0/8".parse().unwrap(), "::1".parse().unwrap()]
+                .into_iter()
+                .collect();
         },
         idle_runner(),
     )
@@ -321,6 +425,10 @@ async fn the_admin_page_shows_the_configured_limits() {
         ("--max-connections)", "999"),
         ("--max-connections-per-client", "42"),
         ("--max-attempts", "5"),
+        (
+            "--trusted-proxy",
+            "10.0.0.0/8, ::1: their X-Forwarded-For names the client",
+        ),
     ] {
         assert!(
             row(flag).contains(&format!("<td>{value}</td>")),

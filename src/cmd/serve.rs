@@ -62,9 +62,21 @@ pub struct Args {
     /// Open connections of the whole server; more are closed at once.
     #[arg(long, default_value_t = 2048)]
     pub max_connections: usize,
-    /// Open connections from one client address; more are closed at once.
+    /// Open connections from one client address; more are closed at once
+    /// (a trusted proxy's are not capped).
     #[arg(long, default_value_t = 128)]
     pub max_connections_per_client: usize,
+    /// A reverse proxy in front of this server (an address, `10.0.0.5`, or a
+    /// network, `10.0.0.0/8`; repeat it or separate with commas). Only for
+    /// requests from these, the client address the per-address limits use
+    /// is read from X-Forwarded-For: its right-most entry that is not a
+    /// trusted proxy. Without it the header is ignored (docs/ops.md).
+    #[arg(
+        long = "trusted-proxy",
+        value_name = "ADDR|CIDR",
+        value_delimiter = ','
+    )]
+    pub trusted_proxies: Vec<d3il_server::client_addr::TrustedProxy>,
     /// Submissions one submitter may make in any 24 hours (admission
     /// refusals do not count; admin tokens have no quota; per-submitter
     /// overrides: `d3il token set-quota`); 0: no limit.
@@ -186,6 +198,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         header_read_timeout: std::time::Duration::from_secs(args.header_timeout),
         max_connections: args.max_connections,
         max_connections_per_client: args.max_connections_per_client,
+        trusted_proxies: args.trusted_proxies.into_iter().collect(),
     };
     cfg.fidelity.mode = match args.fidelity {
         FidelityArg::Full => Some(d3il_protocol::fidelity::FidelityMode::Full),

@@ -555,6 +555,17 @@ fn server_limits(c: &crate::config::ServerConfig) -> Vec<(&'static str, String)>
             c.connections.max_connections_per_client.to_string(),
         ),
         (
+            "Trusted proxies (--trusted-proxy)",
+            if c.connections.trusted_proxies.is_empty() {
+                "none: X-Forwarded-For is ignored, the peer is the client".to_string()
+            } else {
+                format!(
+                    "{}: their X-Forwarded-For names the client",
+                    c.connections.trusted_proxies.describe().join(", ")
+                )
+            },
+        ),
+        (
             "Attempts per job (--max-attempts)",
             c.max_attempts.to_string(),
         ),
