@@ -274,7 +274,7 @@ fn a_race_on_the_server_reports_what_the_cli_race_reports_and_refuses_wrong_requ
         &format!("a=x&b={b}&token={token}"),
     );
     assert_eq!(status, 400, "{answer}");
-    assert!(answer.contains("is not a submission id"), "{answer}");
+    assert!(answer.contains("`a` must be a submission id"), "{answer}");
     let (status, _) = post_form(
         &server.base,
         "/comparisons",

@@ -143,6 +143,31 @@ async fn compare_page_shows_paired_differences_contexts_and_behaviours() {
     assert!(page.contains("`b` must be a submission id"));
     let (s, page) = app.get_text(&format!("/compare?a={a}&b=99999")).await;
     assert_eq!(s, 404, "{page}");
+    // The race form reads its ids with the same parser: the same message
+    // for a bad one, and `#N` as the pages show ids accepted by both.
+    let race = |a: String, b: String| {
+        let form = [
+            ("a", a),
+            ("b", b),
+            ("protocol", "quick".into()),
+            ("token", app.token.clone()),
+        ];
+        app.http.post(app.url("/comparisons")).form(&form).send()
+    };
+    let r = race(a.to_string(), "x".into()).await.unwrap();
+    assert_eq!(r.status(), 400);
+    let page = r.text().await.unwrap();
+    assert!(
+        page.contains(
+            "`b` must be a submission id (an integer, the number shown as #N on its page), got `x`"
+        ),
+        "{page}"
+    );
+    let (s, page) = app.get_text(&format!("/compare?a=%23{a}&b={b}")).await;
+    assert_eq!(s, 200, "{page}");
+    let r = race(format!("#{a}"), format!(" #{b} ")).await.unwrap();
+    assert_eq!(r.status(), 200, "followed to the race's page");
+    assert!(r.url().path().starts_with("/comparisons/"), "{}", r.url());
     // Unfinished.
     let q = submit(&app, "Gamma", "pushing", "paper").await;
     let (s, page) = app.get_text(&format!("/compare?a={a}&b={q}")).await;

@@ -135,12 +135,18 @@ fn diff_line(name: &'static str, d: &PairedDifference) -> DiffLine {
     }
 }
 
-/// Parses one submission id of the query (`field` names it in the error).
-fn parse_id(field: &str, v: &str) -> Result<i64, AppError> {
-    v.trim().parse().map_err(|_| {
+/// Parses one submission id typed or sent by a page (`field` names it in the
+/// error): this page's query and the "Race them sequentially" form
+/// (`race::race_post`). A leading `#`, as the pages show ids, is allowed.
+pub(super) fn parse_id(field: &str, v: &str) -> Result<i64, AppError> {
+    let digits = v.trim();
+    let digits = digits.strip_prefix('#').unwrap_or(digits);
+    digits.trim().parse().map_err(|_| {
         AppError::invalid(
             field,
-            format!("`{field}` must be a submission id (an integer), got `{v}`"),
+            format!(
+                "`{field}` must be a submission id (an integer, the number shown as #N on its page), got `{v}`"
+            ),
         )
     })
 }

@@ -4,6 +4,7 @@
 //! the decision when reached and the rollouts used against the fixed-size
 //! test. Refreshes every 2 seconds while queued or running.
 
+use super::compare::parse_id;
 use super::render;
 use crate::error::PageError;
 use crate::http::extract::Param;
@@ -128,17 +129,9 @@ pub(super) async fn race_post(
 ) -> Result<axum::response::Response, PageError> {
     use axum::response::IntoResponse;
     let who = crate::auth::authenticate_token(&state, f.token.trim()).await?;
-    let id = |field: &str, v: &str| {
-        v.trim().parse::<i64>().map_err(|_| {
-            crate::error::AppError::invalid(
-                field,
-                format!("`{v}` is not a submission id: give the number shown as #N on its page"),
-            )
-        })
-    };
     let req = crate::races::ComparisonRequest {
-        a: id("a", &f.a)?,
-        b: id("b", &f.b)?,
+        a: parse_id("a", &f.a)?,
+        b: parse_id("b", &f.b)?,
         task: None,
         alpha: None,
         delta: None,
