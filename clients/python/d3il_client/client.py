@@ -408,8 +408,9 @@ class Client:
         ``history``, ``backbone``, ``prediction``, ``diversity``, ``code_url``,
         ``paper_url`` and ``description`` describe the method (its page, its
         group in the paper's tables). ``suite="robustness"`` evaluates the
-        task's perturbation suite too (every task for state policies, and the image variants of Aligning, Sorting-4/6 and Stacking;
-        level 0 is the plain result, :meth:`robustness` has the rest). Returns the queued
+        task's perturbation suite too (every task for state policies, and the
+        image variants of Aligning, Sorting-4/6 and Stacking; level 0 is the
+        plain result, :meth:`robustness` has the rest). Returns the queued
         :class:`~d3il_client.models.Submission`; follow it with :meth:`wait`.
         """
         if not method or len(method) > 64:
