@@ -21,6 +21,28 @@ fn eval_quick(
         .unwrap()
 }
 
+/// A quick Avoiding evaluation of `onnx` with `extra` flags, run to success
+/// with `--json dir/out`: the result (inference times blanked), stdout and
+/// stderr.
+fn eval_json(
+    dir: &std::path::Path,
+    onnx: &std::path::Path,
+    extra: &[&str],
+    out: &str,
+) -> (serde_json::Value, String, String) {
+    let path = dir.join(out);
+    let o = eval_quick(
+        "avoiding",
+        onnx,
+        &[extra, &["--json", path.to_str().unwrap()]].concat(),
+    );
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let mut v: serde_json::Value = serde_json::from_slice(&std::fs::read(&path).unwrap()).unwrap();
+    v["metrics"]["inference_ms"] = serde_json::Value::Null;
+    let text = |b: &[u8]| String::from_utf8_lossy(b).into_owned();
+    (v, text(&o.stdout), text(&o.stderr))
+}
+
 fn fixture(name: &str) -> std::path::PathBuf {
     std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
         .join("assets/fixtures")
@@ -153,17 +175,8 @@ fn eval_and_submit_find_the_manifest_next_to_the_onnx_file_the_same_way() {
     // --every-rollout simulates all 8 and gets the same records and metrics;
     // only the manifest says how the rollouts were produced.
     let run_json = |extra: &[&str], out: &str| {
-        let path = dir.join(out);
-        let o = eval_quick(
-            "avoiding",
-            &onnx,
-            &[extra, &["--json", path.to_str().unwrap()]].concat(),
-        );
-        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-        let mut v: serde_json::Value =
-            serde_json::from_slice(&std::fs::read(&path).unwrap()).unwrap();
-        v["metrics"]["inference_ms"] = serde_json::Value::Null;
-        (v, String::from_utf8_lossy(&o.stderr).into_owned())
+        let (v, _, stderr) = eval_json(&dir, &onnx, extra, out);
+        (v, stderr)
     };
     let (mut once, _) = run_json(&[], "once.json");
     let (every, stderr) = run_json(&["--every-rollout"], "every.json");
@@ -202,15 +215,8 @@ fn rollouts_per_state_samples_the_protocol_and_the_suite_counts_it() {
     std::fs::create_dir_all(&dir).unwrap();
     let onnx = fixture("avoiding_path.onnx");
     let json = |extra: &[&str], out: &str| {
-        let path = dir.join(out);
-        let o = eval_quick(
-            "avoiding",
-            &onnx,
-            &[extra, &["--json", path.to_str().unwrap()]].concat(),
-        );
-        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-        let v: serde_json::Value = serde_json::from_slice(&std::fs::read(&path).unwrap()).unwrap();
-        (v, String::from_utf8_lossy(&o.stdout).into_owned())
+        let (v, stdout, _) = eval_json(&dir, &onnx, extra, out);
+        (v, stdout)
     };
     let (full, _) = json(&[], "full.json");
     let (sample, _) = json(&["--rollouts-per-state", "3"], "sample.json");

@@ -155,6 +155,22 @@ async fn complete_next_once(app: &TestApp, id: i64, once: bool) {
     store.complete_job(c.job.id, id, &r, &[]).await.unwrap();
 }
 
+/// Claims the next queued job, which must be submission `id`'s, and fails
+/// it for good (a bad model: not retried).
+async fn fail_next(app: &TestApp, id: i64) {
+    let store = &app.state.store;
+    let c = store.claim_job("test", 60).await.unwrap().unwrap();
+    assert_eq!(c.submission.id, id);
+    let e = WorkerError {
+        kind: ErrorKind::BadModel,
+        message: "x".into(),
+    };
+    store
+        .fail_attempt(c.job.id, "test", &e, false)
+        .await
+        .unwrap();
+}
+
 async fn status(app: &TestApp, id: i64) -> Value {
     app.get_json(&format!("/api/v1/submissions/{id}")).await.1
 }
@@ -218,20 +234,7 @@ async fn etas_come_from_past_runs_of_the_same_task_and_protocol(b: Backend) {
     assert!(!page.contains("Attempt 0"));
     // One finished Pushing paper run (it took under a second: counted as 1 s).
     let store = &app.state.store;
-    let c = store.claim_job("test", 60).await.unwrap().unwrap();
-    assert_eq!(c.submission.id, first);
-    store
-        .fail_attempt(
-            c.job.id,
-            "test",
-            &WorkerError {
-                kind: ErrorKind::BadModel,
-                message: "x".into(),
-            },
-            false,
-        )
-        .await
-        .unwrap();
+    fail_next(&app, first).await;
     let means = store.mean_job_seconds_by_kind().await.unwrap();
     assert!(means.is_empty(), "a failed job is no basis: {means:?}");
     let second = submit(&app, "Second", "pushing", "paper").await;
@@ -353,20 +356,7 @@ async fn etas_scale_suite_runs_by_their_evaluations(b: Backend) {
     assert_eq!(status(&app, early).await["eta_seconds"], Value::Null);
     let plain = submit(&app, "Plain", "aligning", "quick").await;
     let store = &app.state.store;
-    let c = store.claim_job("test", 60).await.unwrap().unwrap();
-    assert_eq!(c.submission.id, early);
-    store
-        .fail_attempt(
-            c.job.id,
-            "test",
-            &WorkerError {
-                kind: ErrorKind::BadModel,
-                message: "x".into(),
-            },
-            false,
-        )
-        .await
-        .unwrap();
+    fail_next(&app, early).await;
     complete_next(&app, plain).await;
     // One plain run of 1 s: the suite run is estimated at 14 s; the plain
     // run queued behind it waits for those and takes its own 1 s.
