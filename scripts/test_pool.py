@@ -48,6 +48,7 @@ KNOWN_SECONDS = {
     "identical_rollouts": 56,
     "robustness_server": 56,
     "remote_image": 54,
+    "robustness_image": 48,
     "fidelity_chromium": 50,
     "verify": 40,
     "replay_cli": 40,
