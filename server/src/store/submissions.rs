@@ -152,9 +152,8 @@ const SUBMISSION_SELECT: &str = submission_select!("");
 pub struct WithdrawnSubmission {
     #[sqlx(flatten)]
     pub submission: SubmissionRow,
-    pub withdrawn_at: i64,
-    pub withdrawn_reason: Option<String>,
-    pub withdrawn_by: Option<String>,
+    #[sqlx(flatten)]
+    pub withdrawal: super::Withdrawal,
 }
 
 impl Store {
@@ -359,7 +358,10 @@ impl Store {
         limit: i64,
     ) -> Result<Vec<WithdrawnSubmission>, StoreError> {
         const SQL: &str = concat!(
-            submission_select!(", s.withdrawn_at, s.withdrawn_reason, s.withdrawn_by"),
+            submission_select!(
+                ", s.withdrawn_at AS at, COALESCE(s.withdrawn_reason, '') AS reason, \
+                 COALESCE(s.withdrawn_by, '') AS \"by\""
+            ),
             " WHERE s.withdrawn_at IS NOT NULL ORDER BY s.withdrawn_at DESC, s.id DESC LIMIT $1"
         );
         Ok(on_db!(&self.db, pool => sqlx::query_as(SQL)

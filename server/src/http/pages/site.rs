@@ -494,7 +494,7 @@ pub(super) async fn admin_page(
             .withdrawn_submissions(200)
             .await?
             .into_iter()
-            .map(|w| (fmt_time(w.withdrawn_at), w))
+            .map(|w| (fmt_time(w.withdrawal.at), w))
             .collect(),
     })
 }
