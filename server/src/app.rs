@@ -334,7 +334,6 @@ pub async fn serve_listener(listener: tokio::net::TcpListener, state: AppState) 
                 let (mut parts, body) = req.into_parts();
                 let client = trusted.client_addr(peer.ip(), &parts.headers);
                 parts.extensions.insert(ClientAddr(client));
-                parts.extensions.insert(axum::extract::ConnectInfo(peer));
                 let body = LingeringBody::new(body, linger, linger_cap, idle);
                 axum::http::Request::from_parts(parts, body)
             },
