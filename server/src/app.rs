@@ -287,10 +287,9 @@ pub async fn serve_listener(listener: tokio::net::TcpListener, state: AppState) 
     use std::collections::HashMap;
     use std::sync::Mutex;
     let limits = state.cfg.connections.clone();
-    // An unread body is read on up to the upload limit (with the multipart
-    // framing's slack, as the submissions route allows), while the client
-    // keeps sending within the keep-alive idle timeout.
-    let linger_cap = state.cfg.max_upload_bytes as u64 + (1 << 20);
+    // An unread body is read on up to what the upload routes allow, while
+    // the client keeps sending within the keep-alive idle timeout.
+    let linger_cap = crate::http::upload_body_limit(state.cfg.max_upload_bytes) as u64;
     let idle = limits.header_read_timeout;
     let app = router(state);
     let total = Arc::new(tokio::sync::Semaphore::new(limits.max_connections));

@@ -16,6 +16,14 @@ pub mod plots;
 use crate::state::AppState;
 use axum::Router;
 
+/// The largest request body an upload route reads: the policy file's limit
+/// (`--max-upload-mb`) plus 1 MiB for the multipart framing and the other
+/// fields. The upload routes and the lingering read of an unread body
+/// (`crate::linger`) use it.
+pub fn upload_body_limit(max_upload: usize) -> usize {
+    max_upload + (1 << 20)
+}
+
 pub fn router(max_upload: usize) -> Router<AppState> {
     Router::new()
         .merge(pages::router(max_upload))

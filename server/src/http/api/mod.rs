@@ -42,7 +42,9 @@ pub fn router(max_upload: usize) -> Router<AppState> {
             post(create_submission)
                 .get(list_submissions)
                 // The multipart reader refuses bodies past the limit as they stream in.
-                .layer(DefaultBodyLimit::max(max_upload + (1 << 20))),
+                .layer(DefaultBodyLimit::max(crate::http::upload_body_limit(
+                    max_upload,
+                ))),
         )
         .route("/submissions/{id}", get(get_submission))
         .route("/submissions/{id}/cancel", post(cancel::cancel_submission))

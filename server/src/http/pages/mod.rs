@@ -58,7 +58,9 @@ pub fn router(max_upload: usize) -> Router<AppState> {
             "/submit",
             get(submit_form)
                 .post(submit_post)
-                .layer(DefaultBodyLimit::max(max_upload + (1 << 20))),
+                .layer(DefaultBodyLimit::max(crate::http::upload_body_limit(
+                    max_upload,
+                ))),
         )
         .route("/fidelity", get(fidelity::fidelity_page))
         .route("/fidelity/json", get(fidelity::fidelity_json))
