@@ -59,23 +59,24 @@ pub async fn progress(
         _ => None,
     };
     let pos = ahead.as_ref().map(|a| a.len() as i64);
-    let means: HashMap<JobKind, f64> = state
+    let mut means: HashMap<JobKind, f64> = state
         .store
         .mean_job_seconds_by_kind()
         .await?
         .into_iter()
         .map(|(k, m)| (k, m.max(1.0)))
         .collect();
-    let mean_of = |k: &JobKind| kind_mean(&means, k, &state.cfg.assets_dir);
-    let own = mean_of(
-        &JobKind::new(
-            s.task.slug().to_string(),
-            s.obs_type.as_str().to_string(),
-            protocol_str(protocol).to_string(),
-            s.simulated_once,
-        )
-        .with_suite(s.suite.clone()),
-    );
+    let own_kind = JobKind::new(
+        s.task.slug().to_string(),
+        s.obs_type.as_str().to_string(),
+        protocol_str(protocol).to_string(),
+        s.simulated_once,
+    )
+    .with_suite(s.suite.clone());
+    let kinds = std::iter::once(&own_kind).chain(ahead.iter().flatten());
+    add_suite_means(&mut means, kinds, &state.cfg.assets_dir);
+    let mean_of = |k: &JobKind| means.get(k).copied();
+    let own = mean_of(&own_kind);
     let workers = state.cfg.workers.max(1) as f64;
     let eta = match (job.state, &ahead) {
         (JobState::Queued, Some(ahead)) => match own {
@@ -122,21 +123,29 @@ pub async fn progress(
     })
 }
 
-/// The mean duration of a kind's past runs; for a suite kind without runs of
-/// its own, its plain kind's mean times the suite's evaluations.
-fn kind_mean(
-    means: &HashMap<JobKind, f64>,
-    k: &JobKind,
+/// Adds to `means` (the mean duration of each kind's past runs) every suite
+/// kind of `kinds` without runs of its own: its plain kind's mean times the
+/// suite's evaluations (the suite file is read once per kind, not per job).
+fn add_suite_means<'a>(
+    means: &mut HashMap<JobKind, f64>,
+    kinds: impl Iterator<Item = &'a JobKind>,
     assets_dir: &std::path::Path,
-) -> Option<f64> {
-    if let Some(m) = means.get(k) {
-        return Some(*m);
+) {
+    let mut tried = std::collections::HashSet::new();
+    for k in kinds {
+        if k.suite.is_none() || means.contains_key(k) || !tried.insert(k) {
+            continue;
+        }
+        let derived = (|| {
+            let task: TaskId = k.task.parse().ok()?;
+            let obs: ObsType = k.obs_type.parse().ok()?;
+            let evaluations = crate::intake::suite_evaluations(assets_dir, task, obs)?;
+            Some(means.get(&k.plain())? * evaluations as f64)
+        })();
+        if let Some(m) = derived {
+            means.insert(k.clone(), m);
+        }
     }
-    k.suite.as_ref()?;
-    let task: TaskId = k.task.parse().ok()?;
-    let obs: ObsType = k.obs_type.parse().ok()?;
-    let evaluations = crate::intake::suite_evaluations(assets_dir, task, obs)?;
-    Some(means.get(&k.plain())? * evaluations as f64)
 }
 
 /// A submission: status, progress, queue position, ETA and result.
