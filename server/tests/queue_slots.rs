@@ -85,23 +85,12 @@ async fn submit(app: &TestApp, method: &str, task: &str, protocol: &str) -> i64 
 }
 
 async fn submit_obs(app: &TestApp, method: &str, task: &str, obs: &str, protocol: &str) -> i64 {
-    submit_full(app, method, task, obs, protocol, 1).await
+    submit_fields(app, method, task, obs, protocol, 1, &[]).await
 }
 
 /// A state Aligning quick submission whose manifest declares `history`.
 async fn submit_history(app: &TestApp, method: &str, history: usize) -> i64 {
-    submit_full(app, method, "aligning", "state", "quick", history).await
-}
-
-async fn submit_full(
-    app: &TestApp,
-    method: &str,
-    task: &str,
-    obs: &str,
-    protocol: &str,
-    history: usize,
-) -> i64 {
-    submit_fields(app, method, task, obs, protocol, history, &[]).await
+    submit_fields(app, method, "aligning", "state", "quick", history, &[]).await
 }
 
 /// A state Aligning quick submission asking for the robustness suite.
@@ -110,6 +99,8 @@ async fn submit_suite(app: &TestApp, method: &str) -> i64 {
     submit_fields(app, method, "aligning", "state", "quick", 1, &suite).await
 }
 
+/// A submission of `task` with the manifest declaring `history`, and the
+/// form fields `extra` besides the usual ones.
 async fn submit_fields(
     app: &TestApp,
     method: &str,
