@@ -182,6 +182,8 @@ class Recorder:
     def log(self, data, *args, **kwargs):
         for k, v in dict(data).items():
             try:
+                if hasattr(v, "detach"):
+                    v = v.detach()
                 self.logs[self.epoch][k].append(float(v))
             except (TypeError, ValueError):
                 pass
@@ -523,9 +525,11 @@ def complete(out: Path) -> bool:
     if not p.is_file():
         return False
     try:
-        return json.loads(p.read_text()).get("complete") is True
+        if json.loads(p.read_text()).get("complete") is not True:
+            return False
     except ValueError:
         return False
+    return all((out / n).is_file() for n in ("policy.onnx", "policy.json", "result.json", "checkpoint.pth"))
 
 
 def run_stage(name, fn, a, work: Path, shadow: Path):
@@ -571,6 +575,7 @@ def main(argv=None):
     if complete(a.out):
         print(f"[zoo] {a.out}: complete, skipped", flush=True)
         return 0
+    demos_info(a.demos)  # refuses a directory without manifest.json before any training
     os.environ.setdefault("OMP_NUM_THREADS", str(a.threads))
     os.environ["D3IL_BIN"] = a.d3il
     a.work.mkdir(parents=True, exist_ok=True)
