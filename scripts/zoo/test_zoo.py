@@ -1,0 +1,74 @@
+"""Smoke test of the zoo driver on a tiny synthetic demonstration set (docs/zoo.md).
+
+    D3IL_REFERENCE=/work/d3il-ref PYTHONPATH=clients/python \
+        ~/.cache/d3il/venvs/torch/bin/python -m pytest scripts/zoo/test_zoo.py -q
+
+Needs a work-tree checkout of ALRhub/d3il (D3IL_REFERENCE; skipped without one) and the
+torch virtualenv with scripts/zoo/requirements.txt. With a d3il binary (D3IL_BIN or
+target/release/d3il) the cell runs to its provenance record at the quick protocol;
+without one it stops after training. One BC cell, 2 epochs: a few seconds of training.
+"""
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE))
+import grid  # noqa: E402
+import synth_demos  # noqa: E402
+import train_cell  # noqa: E402
+
+REFERENCE = os.environ.get("D3IL_REFERENCE")
+D3IL = os.environ.get("D3IL_BIN") or str(HERE.parent.parent / "target" / "release" / "d3il")
+pytestmark = pytest.mark.skipif(not REFERENCE or not Path(REFERENCE, "configs").is_dir(),
+                                reason="set D3IL_REFERENCE to a work-tree checkout of ALRhub/d3il")
+
+
+def test_script_overrides_are_read_from_the_checkout():
+    got = train_cell.script_overrides(Path(REFERENCE), "avoiding", "beso")
+    assert "agents=beso_agent" in got and "window_size=5" in got and "agents.num_sampling_steps=4" in got
+    assert not any(w.startswith("seed=") or w.startswith("--") for w in got)
+
+
+def test_mirror_points_the_data_dir_at_the_demos_and_leaves_the_checkout_alone(tmp_path):
+    demos = synth_demos.write("aligning", 4, 20, tmp_path / "demos")
+    before = subprocess.run(["git", "-C", REFERENCE, "status", "--porcelain"], capture_output=True, text=True).stdout
+    m = train_cell.mirror(Path(REFERENCE), demos, "aligning", tmp_path / "ref")
+    data = m / "environments" / "dataset" / "data"
+    assert (data / "aligning").resolve() == demos.resolve()
+    assert (data / "pushing").resolve() == (Path(REFERENCE) / "environments/dataset/data/pushing").resolve()
+    assert (m / "environments" / "dataset" / "aligning_dataset.py").is_file()
+    after = subprocess.run(["git", "-C", REFERENCE, "status", "--porcelain"], capture_output=True, text=True).stdout
+    assert before == after
+
+
+def test_one_cell_end_to_end_and_the_grid_skips_it(tmp_path):
+    demos_root = tmp_path / "demos"
+    synth_demos.write("avoiding", 6, 40, demos_root / "avoiding")
+    have_d3il = Path(D3IL).is_file()
+    out = tmp_path / "zoo" / "avoiding" / "bc-s0"
+    work = tmp_path / "work" / "avoiding" / "bc-s0"
+    args = ["--reference", REFERENCE, "--demos", str(demos_root / "avoiding"), "--task", "avoiding",
+            "--method", "bc", "--seed", "0", "--out", str(out), "--work", str(work), "--epochs", "2",
+            "--protocol", "quick", "--d3il", D3IL]
+    if not have_d3il:
+        args += ["--until", "train"]
+    assert train_cell.main(args) == 0
+    if not have_d3il:
+        train = json.loads((work / "train" / "train.json").read_text())
+        assert train["epochs"] == 2 and len(train["loss_curve"]) == 2
+        assert "agents=bc_agent" in train["overrides"] and "device=cpu" in train["overrides"]
+        pytest.skip(f"no d3il binary at {D3IL}: stopped after training")
+    prov = json.loads((out / "provenance.json").read_text())
+    assert prov["complete"] and prov["method"]["paper_name"] == "BC-MLP"
+    assert prov["demonstrations"]["synthetic"] is True
+    assert len(prov["training"]["loss_curve"]) == 2
+    assert prov["files"]["policy.onnx"]["sha256"] == train_cell.sha256(out / "policy.onnx")
+    assert not work.exists()
+    assert grid.main(["--reference", REFERENCE, "--demos-root", str(demos_root), "--out", str(tmp_path / "zoo"),
+                      "--tasks", "avoiding", "--methods", "bc", "--seeds", "0"]) == 0
