@@ -375,7 +375,7 @@ def rebuild_agent(a, work: Path, shadow: Path, tmp: Path):
 
 
 def stage_export(a, work: Path, shadow: Path, tmp: Path):
-    from d3il_client.agents import export_agent
+    from d3il_client.agents.export import export_agent
 
     agent = rebuild_agent(a, work, shadow, tmp)
     t0 = time.perf_counter()
