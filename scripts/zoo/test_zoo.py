@@ -66,7 +66,7 @@ def test_one_cell_end_to_end_and_the_grid_skips_it(tmp_path):
         pytest.skip(f"no d3il binary at {D3IL}: stopped after training")
     prov = json.loads((out / "provenance.json").read_text())
     assert prov["complete"] and prov["method"]["paper_name"] == "BC-MLP"
-    assert prov["demonstrations"]["synthetic"] is True
+    assert prov["demonstrations"]["manifest"]["synthetic"] is True
     assert len(prov["training"]["loss_curve"]) == 2
     assert prov["files"]["policy.onnx"]["sha256"] == train_cell.sha256(out / "policy.onnx")
     assert not work.exists()

@@ -147,19 +147,18 @@ def demos_info(demos: Path) -> dict:
         raise SystemExit(f"{demos}: no manifest.json (write the demonstrations with `d3il demos`)")
     doc = json.loads(manifest.read_text())
     info = {"path": str(demos.resolve()), "manifest_sha256": sha256(manifest)}
-    for key in ("version", "format_version", "recorder", "expert", "task", "episodes", "seed", "synthetic",
-                "d3il_version", "evaluator_version"):
-        if key in doc:
-            info[key] = doc[key]
-    for name in ("train_files.pkl", "eval_files.pkl"):
-        p = demos / name
-        if p.is_file():
-            import pickle
+    # the manifest's small top-level entries (version, command, commit, options, counts,
+    # histogram, ...); per-file hashes and per-episode rows stay in the manifest itself
+    for key, value in doc.items():
+        if len(json.dumps(value)) <= 2000:
+            info.setdefault("manifest", {})[key] = value
+    import pickle
 
-            with open(p, "rb") as f:
-                info[name.replace(".pkl", "")] = len(pickle.load(f))
-    if (demos / "data").is_dir() and "train_files" not in info:
-        info["files_in_data"] = sum(1 for _ in (demos / "data").iterdir())
+    for p in sorted(demos.glob("*_files.pkl")):  # train_files.pkl, eval_files.pkl, 2_boxes_train_files.pkl
+        with open(p, "rb") as f:
+            info.setdefault("episodes_listed", {})[p.name] = len(pickle.load(f))
+    if (demos / "data").is_dir():  # Avoiding: the dataset reads every file of data/
+        info["episodes_in_data_dir"] = sum(1 for _ in (demos / "data").iterdir())
     return info
 
 
