@@ -286,7 +286,7 @@ def stage_train(a, work: Path, shadow: Path, tmp: Path):
     epochs = a.epochs if a.epochs is not None else int(cell["epoch"])
     batch = a.batch_size if a.batch_size is not None else int(cell["train_batch_size"])
     paper = budgets["paper"]
-    eval_every = max(1, round(epochs * paper["eval_every_n_epochs"] / paper["epoch"]))
+    eval_every = a.eval_every or max(1, round(epochs * paper["eval_every_n_epochs"] / paper["epoch"]))
     script = script_overrides(a.reference, a.task, a.method)
     ours = [
         f"seed={a.seed}",
@@ -558,6 +558,8 @@ def parse(argv=None):
     ap.add_argument("--budgets", type=Path, default=HERE / "budgets.json")
     ap.add_argument("--epochs", type=int, default=None, help="override the budget's epochs")
     ap.add_argument("--batch-size", type=int, default=None, help="override the budget's train_batch_size")
+    ap.add_argument("--eval-every", type=int, default=None,
+                    help="eval_every_n_epochs (default: the paper's 50 of 500 scaled to the epochs, at least 1)")
     ap.add_argument("--threads", type=int, default=2, help="torch threads")
     ap.add_argument("--d3il", default=os.environ.get("D3IL_BIN") or str(PROJECT / "target" / "release" / "d3il"))
     ap.add_argument("--protocol", default="paper")
