@@ -57,6 +57,8 @@ enum Command {
     Worker(cmd::worker::Args),
     /// Run a worker host: only the worker pool, on a PostgreSQL queue shared with `d3il serve` (docs/cluster.md).
     Workers(cmd::workers::Args),
+    /// The zoo: check its cells against their provenance, or re-evaluate them with this build and write what moved (docs/zoo.md).
+    Zoo(cmd::zoo::Args),
 }
 
 fn main() -> anyhow::Result<()> {
@@ -93,6 +95,7 @@ fn main() -> anyhow::Result<()> {
         },
         Command::Worker(a) => cmd::worker::run(a),
         Command::Workers(a) => cmd::workers::run(a),
+        Command::Zoo(a) => cmd::zoo::run(a),
     }
 }
 

@@ -371,6 +371,10 @@ pub async fn prepare(
     let store = Store::connect(&cfg.db, cfg.policy_store.as_deref()).await?;
     // Temporary uploads of a crashed run, files of failed submissions.
     store.clean_policy_files().await?;
+    // The zoo's cells, like the paper's rows, on every start (idempotent).
+    if let Some(zoo) = &cfg.zoo {
+        crate::zoo::load(&store, zoo).await?;
+    }
     // Pool jobs and dry-runs share the worker slots: the pool's `workers`
     // general slots plus its quick-protocol slot (`queue::start_pool`).
     let pool_slots = if cfg.workers > 0 { cfg.workers + 1 } else { 0 };

@@ -24,6 +24,10 @@ pub struct CanaryConfig {
     pub git_commit: String,
     /// A canary run taking longer is stopped and reported.
     pub timeout: Duration,
+    /// This build's physics fingerprint when the caller already knows it
+    /// and the canary is not run (`run` false): rows of other builds (the
+    /// zoo's among them) say so against it.
+    pub fingerprint: Option<String>,
 }
 
 impl CanaryConfig {
@@ -33,6 +37,7 @@ impl CanaryConfig {
             run: false,
             git_commit: "unknown".into(),
             timeout: Duration::from_secs(1800),
+            fingerprint: None,
         }
     }
 }
@@ -43,6 +48,10 @@ impl CanaryConfig {
 pub enum CanaryState {
     /// Not run on this server.
     Off,
+    /// Not run on this server, which was given its build's fingerprint.
+    Given {
+        fingerprint: String,
+    },
     Running,
     /// Every canary outcome matches the committed one.
     Passed {
@@ -62,9 +71,9 @@ pub enum CanaryState {
 impl CanaryState {
     pub fn fingerprint(&self) -> Option<&str> {
         match self {
-            CanaryState::Passed { fingerprint } | CanaryState::Drifted { fingerprint, .. } => {
-                Some(fingerprint)
-            }
+            CanaryState::Passed { fingerprint }
+            | CanaryState::Drifted { fingerprint, .. }
+            | CanaryState::Given { fingerprint } => Some(fingerprint),
             _ => None,
         }
     }
@@ -73,6 +82,9 @@ impl CanaryState {
     pub fn summary(&self) -> String {
         match self {
             CanaryState::Off => "drift canary not run on this server".into(),
+            CanaryState::Given { fingerprint } => format!(
+                "drift canary not run on this server; physics fingerprint {fingerprint} (given)"
+            ),
             CanaryState::Running => "drift canary running (d3il verify)".into(),
             CanaryState::Passed { fingerprint } => {
                 format!("drift canary passed: physics fingerprint {fingerprint}")
@@ -114,10 +126,12 @@ impl Canary {
     pub fn new(cfg: CanaryConfig) -> Self {
         let (done, _) = watch::channel(!cfg.run);
         Canary {
-            state: RwLock::new(if cfg.run {
-                CanaryState::Running
-            } else {
-                CanaryState::Off
+            state: RwLock::new(match (cfg.run, &cfg.fingerprint) {
+                (true, _) => CanaryState::Running,
+                (false, Some(f)) => CanaryState::Given {
+                    fingerprint: f.clone(),
+                },
+                (false, None) => CanaryState::Off,
             }),
             cfg,
             done,

@@ -59,6 +59,10 @@ pub struct ServerConfig {
     pub canary: crate::canary::CanaryConfig,
     /// Submission quotas per submitter (issue 42; `crate::quota`).
     pub quotas: QuotaLimits,
+    /// The zoo loaded at every start (issue 50, `crate::zoo`): `d3il serve`
+    /// loads `<assets>/zoo` unless told `--zoo none`; servers built in code
+    /// (tests) load none unless asked.
+    pub zoo: Option<PathBuf>,
 }
 
 /// How rollout videos are made: the `d3il` binary replays the stored record
@@ -162,6 +166,7 @@ impl ServerConfig {
             limits,
             connections: ConnectionLimits::default(),
             quotas: QuotaLimits::NONE,
+            zoo: None,
         }
     }
 }

@@ -61,6 +61,10 @@ pub struct BoardRow {
     /// (null before builds were identified); rows of different fingerprints
     /// are never merged or ranked together.
     pub physics_fingerprint: Option<String>,
+    /// Evaluated rows of the zoo (issue 50): where the training data came
+    /// from ("trained here on d3il demos v1"); null for submitted rows.
+    /// Rows of different data sources are never merged or ranked together.
+    pub data_source: Option<String>,
     /// An operator marked the method as a baseline (issue 42): the boards
     /// say so on its rows.
     pub baseline: bool,
@@ -185,6 +189,8 @@ pub struct EvaluatedSeed {
     pub robot_look: Option<RobotLook>,
     /// The build's physics fingerprint (None before builds were identified).
     pub physics_fingerprint: Option<String>,
+    /// The zoo's data source (None: a submitted policy).
+    pub data_source: Option<String>,
 }
 
 impl EvaluatedSeed {
@@ -239,6 +245,7 @@ pub fn evaluated_rows(seeds: &[EvaluatedSeed]) -> Result<Vec<BoardRow>, MetricsE
         String,
         Option<RobotLook>,
         Option<String>,
+        Option<String>,
     );
     struct Group<'a> {
         first: &'a EvaluatedSeed,
@@ -263,6 +270,7 @@ pub fn evaluated_rows(seeds: &[EvaluatedSeed]) -> Result<Vec<BoardRow>, MetricsE
                 s.initial_states.clone(),
                 s.robot_look,
                 s.physics_fingerprint.clone(),
+                s.data_source.clone(),
             );
             let i = *index.entry(key).or_insert_with(|| {
                 groups.push(Group {
@@ -323,6 +331,7 @@ pub fn evaluated_rows(seeds: &[EvaluatedSeed]) -> Result<Vec<BoardRow>, MetricsE
                 ),
                 robot_look: f.robot_look,
                 physics_fingerprint: f.physics_fingerprint.clone(),
+                data_source: f.data_source.clone(),
             })
         })
         .collect()
@@ -420,6 +429,9 @@ pub enum RankGroup {
     /// and, for image rows, with the robot drawn one way (None: as the
     /// original draws it).
     Evaluated(String, Option<RobotLookNote>, Option<String>),
+    /// The zoo (issue 50): evaluated like the above, trained here on the
+    /// data source named first; never ranked with submitted or paper rows.
+    Zoo(String, String, Option<RobotLookNote>, Option<String>),
     /// Reported in the D3IL paper.
     Reported,
     /// Quick-protocol smoke tests: below the board, unranked, off the Pareto front.
@@ -431,6 +443,12 @@ impl RankGroup {
         match (r.source, r.protocol) {
             (Source::Reported, _) => RankGroup::Reported,
             (Source::Evaluated, Some(ProtocolKind::Quick)) => RankGroup::Smoke,
+            (Source::Evaluated, _) if r.data_source.is_some() => RankGroup::Zoo(
+                r.data_source.clone().unwrap_or_default(),
+                r.initial_states.clone().unwrap_or_default(),
+                r.robot_look_note(),
+                r.physics_fingerprint.clone(),
+            ),
             (Source::Evaluated, _) => RankGroup::Evaluated(
                 r.initial_states.clone().unwrap_or_default(),
                 r.robot_look_note(),
@@ -453,6 +471,19 @@ impl RankGroup {
                 notes.extend(look.as_ref().map(|l| l.badge.to_string()));
                 notes.extend(other_build_note(fingerprint.as_deref(), current));
                 format!("Evaluated here ({})", notes.join("; "))
+            }
+            RankGroup::Zoo(source, set, look, fingerprint) => {
+                let mut notes = vec![format!("initial states {set}")];
+                notes.extend(look.as_ref().map(|l| l.badge.to_string()));
+                notes.extend(other_build_note(fingerprint.as_deref(), current));
+                let mut c = source.chars();
+                let s: String = c
+                    .next()
+                    .into_iter()
+                    .flat_map(char::to_uppercase)
+                    .chain(c)
+                    .collect();
+                format!("{s}: the zoo ({})", notes.join("; "))
             }
             RankGroup::Reported => "Reported in the D3IL paper".into(),
             RankGroup::Smoke => "Smoke tests (quick protocol, not ranked)".into(),
@@ -538,6 +569,7 @@ mod tests {
             initial_states: "pushing-v2.json".into(),
             robot_look: None,
             physics_fingerprint: None,
+            data_source: None,
         }
     }
 

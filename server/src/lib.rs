@@ -18,7 +18,8 @@
 //! left unread, so the client gets the answer. [`rollouts`] shows what a
 //! policy did (the failure browser's filters, one rollout's record and trace,
 //! the pictures drawn from traces) and [`videos`] renders rollout videos
-//! through `d3il replay`.
+//! through `d3il replay`. [`zoo`] reads the zoo's cells (issue 50) from disk
+//! and loads them into the store at start.
 
 #![forbid(unsafe_code)]
 
@@ -54,3 +55,4 @@ pub mod store;
 pub mod telemetry;
 pub mod videos;
 pub mod views;
+pub mod zoo;

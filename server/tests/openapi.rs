@@ -35,6 +35,7 @@ fn the_document_names_every_route_and_its_schemas() {
             "/submissions",
             "/submissions/{id}",
             "/submissions/{id}/cancel",
+            "/submissions/{id}/provenance",
             "/submissions/{id}/results",
             "/submissions/{id}/robustness",
             "/submissions/{id}/rollouts",

@@ -29,6 +29,7 @@ pub mod token;
 pub mod verify;
 pub mod worker;
 pub mod workers;
+pub mod zoo;
 
 /// The assets directory (MJCF, context sets, fixtures): `$D3IL_ASSETS` or the
 /// repository's `assets/`.

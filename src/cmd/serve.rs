@@ -111,6 +111,10 @@ pub struct Args {
     /// Worker executable (default: this binary, run as `d3il worker`).
     #[arg(long, hide = true)]
     pub worker_exe: Option<PathBuf>,
+    /// The zoo loaded at every start (issue 50, docs/zoo.md): its cells
+    /// show as evaluated rows marked with their data source.
+    #[command(flatten)]
+    pub zoo: super::zoo::ZooArg,
 }
 
 /// `d3il serve --fidelity`.
@@ -209,6 +213,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     cfg.canary.run = !args.no_verify;
     cfg.canary.git_commit = super::verify::GIT_COMMIT.to_string();
     cfg.videos.renders = args.video_renders.max(1);
+    cfg.zoo = args.zoo.dir_in(&cfg.assets_dir);
     d3il_server::cli::serve_blocking(cfg).context("d3il serve failed")?;
     Ok(())
 }

@@ -11,8 +11,10 @@ use std::path::PathBuf;
 #[derive(clap::Args, Debug)]
 #[command(group(clap::ArgGroup::new("what").required(true).args(["table", "figure"])))]
 pub struct Args {
-    /// Table to regenerate: main, datasize, posvel, prelim, or robustness
-    /// (methods × axes of the robustness track, by suite version).
+    /// Table to regenerate: main, datasize, posvel, prelim, robustness
+    /// (methods × axes of the robustness track, by suite version) or zoo
+    /// (the paper's methods trained here on our demonstrations: a table of
+    /// their own, never ranked with the paper's rows).
     #[arg(long)]
     pub table: Option<TableArg>,
     /// Figure to draw as SVG: datasize, pareto, avoiding-paths.
@@ -35,6 +37,10 @@ pub struct Args {
     /// Submission whose Avoiding rollouts to draw (for --figure avoiding-paths).
     #[arg(long)]
     pub submission: Option<i64>,
+    /// `--table zoo` loads this zoo into the database first, as `d3il
+    /// serve` does at start.
+    #[command(flatten)]
+    pub zoo: super::zoo::ZooArg,
 }
 
 /// `--table`: one of the paper's tables, or the robustness table.
@@ -42,6 +48,7 @@ pub struct Args {
 pub enum TableArg {
     Paper(TableKind),
     Robustness,
+    Zoo,
 }
 
 impl std::str::FromStr for TableArg {
@@ -50,9 +57,12 @@ impl std::str::FromStr for TableArg {
         if s.trim().eq_ignore_ascii_case("robustness") {
             return Ok(TableArg::Robustness);
         }
+        if s.trim().eq_ignore_ascii_case("zoo") {
+            return Ok(TableArg::Zoo);
+        }
         s.parse()
             .map(TableArg::Paper)
-            .map_err(|e: d3il_tables::TablesError| format!("{e}, robustness"))
+            .map_err(|e: d3il_tables::TablesError| format!("{e}, robustness, zoo"))
     }
 }
 
@@ -110,6 +120,20 @@ async fn render(args: &Args) -> anyhow::Result<String> {
     let methods = store.method_infos().await.context("reading methods")?;
     match (args.table, args.figure) {
         (Some(TableArg::Robustness), _) => robustness_table(&store, args).await,
+        (Some(TableArg::Zoo), _) => {
+            if let Some(dir) = args.zoo.dir() {
+                let report = d3il_server::zoo::load(&store, &dir)
+                    .await
+                    .with_context(|| format!("loading the zoo at {}", dir.display()))?;
+                for (cell, why) in &report.skipped {
+                    eprintln!("zoo cell {} skipped: {why}", cell.display());
+                }
+            }
+            let rows = d3il_server::zoo::table_rows(&store)
+                .await
+                .context("reading the zoo's rows")?;
+            Ok(d3il_tables::zoo::render_zoo(&rows, args.format)?)
+        }
         (Some(TableArg::Paper(kind)), _) => Ok(d3il_tables::render_table_with(
             &cells,
             kind,
@@ -172,6 +196,7 @@ mod tests {
             },
             out: Some(out),
             submission: None,
+            zoo: super::super::zoo::ZooArg { zoo: None },
         }
     }
 

@@ -25,6 +25,7 @@ pub mod plot;
 pub mod robustness;
 pub mod rollouts;
 pub mod summary;
+pub mod zoo;
 
 use d3il_protocol::{ObsType, ResultCell, Source};
 use std::collections::BTreeMap;

@@ -2,8 +2,8 @@
 //! by several hosts, `--db postgres://…`): schema (migrations/sqlite and
 //! migrations/postgres, kept in step), one module per resource: the
 //! paper's reported results ([`paper`]), [`methods`], API [`tokens`],
-//! [`submissions`], the durable job queue ([`jobs`]) and evaluation
-//! [`results`]. Column types are in [`types`]: states, statuses and kinds are
+//! [`submissions`], the durable job queue ([`jobs`]), evaluation
+//! [`results`] and the [`zoo`]'s cells. Column types are in [`types`]: states, statuses and kinds are
 //! enums and JSON columns are `sqlx::types::Json`, so a row holding bad data
 //! fails to decode (a `StoreError::Db` naming the column) rather than being
 //! read as an empty value.
@@ -57,6 +57,7 @@ mod shards;
 mod submissions;
 mod tokens;
 pub mod types;
+mod zoo;
 
 pub use comparisons::{ComparisonRow, NewComparison};
 pub use files::{PolicyFilesGuard, TMP_MARKER};
@@ -75,6 +76,7 @@ pub use submissions::{
 };
 pub use tokens::{token_hash, Revoked, Submitter, LAST_USED_RESOLUTION_S, TOKEN_PREFIX_LEN};
 pub use types::{JobState, PolicyKind, SubmissionStatus};
+pub use zoo::{NewZooCell, ZooCellRow, ZooLoad, ZOO_SUBMITTER};
 
 use sqlx::postgres::PgPoolOptions;
 use sqlx::sqlite::{SqliteConnectOptions, SqliteJournalMode, SqlitePoolOptions, SqliteSynchronous};

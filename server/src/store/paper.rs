@@ -138,6 +138,7 @@ impl Store {
                     initial_states_label: None,
                     robot_look: None,
                     physics_fingerprint: None,
+                    data_source: None,
                 }
             })
             .collect())

@@ -168,6 +168,8 @@ struct SeedDbRow {
     robot_look: Option<Stored<RobotLook>>,
     /// The manifest's `build.physics_fingerprint` (NULL before builds were identified).
     physics_fingerprint: Option<String>,
+    /// The zoo's data source (NULL: a submitted policy).
+    data_source: Option<String>,
 }
 
 impl SeedDbRow {
@@ -193,6 +195,7 @@ impl SeedDbRow {
             ),
             robot_look: self.robot_look.map(|l| l.0),
             physics_fingerprint: self.physics_fingerprint,
+            data_source: self.data_source,
         }
     }
 }
@@ -201,13 +204,15 @@ impl Store {
     /// Reported rows (as the paper printed them) and evaluated rows aggregated
     /// over training seeds (mean, sample std, n_seeds), for `d3il tables`.
     /// Only paper-protocol evaluations are included: quick-protocol runs are
-    /// smoke tests and do not belong in the paper's tables. `current`: the
+    /// smoke tests and do not belong in the paper's tables, nor does the zoo
+    /// (its own table: `d3il tables --table zoo`). `current`: the
     /// physics fingerprint of the build showing them (rows of others say so).
     pub async fn result_cells(&self, current: Option<&str>) -> Result<Vec<ResultCell>, StoreError> {
         Ok(self
             .board_rows()
             .await?
             .iter()
+            .filter(|r| r.data_source.is_none())
             .filter(|r| r.source == Source::Reported || r.protocol == Some(ProtocolKind::Paper))
             .map(|r| r.to_cell(current))
             .collect())
@@ -246,7 +251,7 @@ impl Store {
             "SELECT s.id AS submission_id, m.name AS method, m.id AS method_id, s.task, s.obs_type, s.training_seed, \
              s.data_fraction, s.protocol, r.success_rate, r.behaviour_entropy, r.conditional_entropy, r.stacking_json, \
              r.stacking_levels_json, r.inference_ms, {initial_states} AS initial_states, {robot_look} AS robot_look, \
-             {fingerprint} AS physics_fingerprint \
+             {fingerprint} AS physics_fingerprint, s.data_source \
              FROM submissions s JOIN results r ON r.submission_id = s.id \
              JOIN methods m ON m.id = s.method_id WHERE s.status = $1 AND s.withdrawn_at IS NULL ORDER BY s.id"
         );
@@ -367,19 +372,21 @@ impl Store {
     }
 
     /// Every training seed of the leaderboard row `s` belongs to (same method,
-    /// task, observation type, data fraction and protocol), `s` included, with
-    /// its success rate once evaluated: one query.
+    /// task, observation type, data fraction, protocol and data source), `s`
+    /// included, with its success rate once evaluated: one query.
     pub async fn sibling_seeds(&self, s: &SubmissionRow) -> Result<Vec<SeedSummary>, StoreError> {
         Ok(on_db!(&self.db, pool => sqlx::query_as(
             "SELECT s.id, s.training_seed, s.status, r.success_rate FROM submissions s \
              LEFT JOIN results r ON r.submission_id = s.id WHERE s.method_id = $1 AND s.task = $2 \
-             AND s.obs_type = $3 AND s.data_fraction = $4 AND s.protocol = $5 ORDER BY s.training_seed, s.id",
+             AND s.obs_type = $3 AND s.data_fraction = $4 AND s.protocol = $5 \
+             AND COALESCE(s.data_source, '') = COALESCE($6, '') ORDER BY s.training_seed, s.id",
         )
         .bind(s.method_id)
         .bind(s.task.slug())
         .bind(s.obs_type.as_str())
         .bind(s.data_fraction)
         .bind(protocol_str(s.protocol))
+        .bind(s.data_source.as_deref())
         .fetch_all(pool)
         .await)?)
     }

@@ -16,7 +16,7 @@ macro_rules! duplicate_seed {
         let s: &SeedKey = $s;
         let id: Option<i64> = sqlx::query_scalar(
             "SELECT id FROM submissions WHERE method_id = $1 AND task = $2 AND obs_type = $3 AND data_fraction = $4 \
-             AND protocol = $5 AND training_seed = $6 AND status != 'failed'",
+             AND protocol = $5 AND training_seed = $6 AND status != 'failed' AND data_source IS NULL",
         )
         .bind(s.method_id)
         .bind(s.task.slug())
@@ -65,6 +65,11 @@ pub struct SubmissionRow {
     /// 40), None for a plain evaluation.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub suite: Option<String>,
+    /// Where the policy's training data came from, for the zoo's
+    /// submissions ("trained here on d3il demos v1", issue 50); None for
+    /// what submitters send.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub data_source: Option<String>,
 }
 
 /// What a new submission needs; validated by the HTTP layer before it gets here.
@@ -139,7 +144,7 @@ macro_rules! submission_select {
             "SELECT s.id, s.method_id, m.name AS method, sub.name AS submitter, s.task, s.obs_type, \
              s.training_seed, s.data_fraction, s.protocol, s.policy_kind, s.onnx_sha256, s.onnx_bytes, s.onnx_path, \
              s.endpoint_url, s.manifest_json, s.status, s.error_kind, s.error_message, s.created_at, s.updated_at, \
-             s.simulated_once, s.suite",
+             s.simulated_once, s.suite, s.data_source",
             $extra,
             " FROM submissions s JOIN methods m ON m.id = s.method_id LEFT JOIN submitters sub ON sub.id = s.submitter_id"
         )

@@ -51,7 +51,10 @@ impl Report {
             },
         };
         let canary = Check {
-            ok: matches!(p.canary, CanaryState::Passed { .. } | CanaryState::Off),
+            ok: matches!(
+                p.canary,
+                CanaryState::Passed { .. } | CanaryState::Off | CanaryState::Given { .. }
+            ),
             detail: p.canary.summary(),
         };
         // The pool runs `workers` general slots plus one for quick jobs.

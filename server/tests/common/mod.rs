@@ -96,6 +96,11 @@ pub struct Options {
     /// script taking the same arguments), and how many at once.
     pub video_exe: Option<PathBuf>,
     pub video_renders: usize,
+    /// The zoo loaded at start (issue 50); default none.
+    pub zoo: Option<PathBuf>,
+    /// This build's physics fingerprint as the server is told it (its
+    /// canary is not run in tests); default unknown.
+    pub canary_fingerprint: Option<String>,
 }
 
 impl Default for Options {
@@ -111,6 +116,8 @@ impl Default for Options {
             dry_run_uploads: false,
             video_exe: None,
             video_renders: 1,
+            zoo: None,
+            canary_fingerprint: None,
         }
     }
 }
@@ -149,6 +156,8 @@ pub async fn spawn_app_with(o: Options) -> TestApp {
         cfg.videos.args = vec![];
     }
     cfg.videos.renders = o.video_renders;
+    cfg.zoo = o.zoo.clone();
+    cfg.canary.fingerprint = o.canary_fingerprint.clone();
     cfg.worker.wall_clock = std::time::Duration::from_secs(60);
     // The production runner: the sandbox supervisor.
     let runner: Arc<dyn JobRunner> = d3il_server::runner::production_runner(&cfg.worker);

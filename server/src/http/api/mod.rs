@@ -9,6 +9,7 @@ pub mod comparisons;
 pub mod openapi;
 pub mod robustness;
 pub mod rollouts;
+pub mod zoo;
 
 use crate::auth::Authed;
 use crate::cache::Rendered;
@@ -53,6 +54,7 @@ pub fn router(max_upload: usize) -> Router<AppState> {
             "/submissions/{id}/robustness",
             get(robustness::get_robustness),
         )
+        .route("/submissions/{id}/provenance", get(zoo::get_provenance))
         .route("/submissions/{id}/rollouts", get(rollouts::list_rollouts))
         .route("/submissions/{id}/rollouts/{n}", get(rollouts::get_rollout))
         .route(

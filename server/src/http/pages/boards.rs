@@ -45,11 +45,17 @@ pub struct RowView {
     pub look_note: &'static str,
     /// An operator marked the method as a baseline (issue 42).
     pub baseline: bool,
+    /// The zoo's rows: their data source (empty otherwise).
+    pub data_source: String,
+    /// Zoo rows made by another build than this one: why (empty otherwise).
+    pub drift: String,
 }
 
-fn row_view(rank: Option<usize>, r: &BoardRow) -> RowView {
+fn row_view(rank: Option<usize>, r: &BoardRow, current: Option<&str>) -> RowView {
     let look = r.robot_look_note();
     RowView {
+        data_source: r.data_source.clone().unwrap_or_default(),
+        drift: crate::zoo::drift_note(r, current).unwrap_or_default(),
         rank: rank.map(|n| n.to_string()).unwrap_or_default(),
         method: r.method.clone(),
         method_url: method_url(&r.method),
@@ -218,13 +224,14 @@ pub(super) async fn leaderboard(
                     heading: g.heading(current.as_deref()),
                     kind: match g {
                         RankGroup::Evaluated(..) => "evaluated",
+                        RankGroup::Zoo(..) => "zoo",
                         RankGroup::Reported => "reported",
                         RankGroup::Smoke => "smoke",
                     },
                     rows: rs
                         .iter()
                         .enumerate()
-                        .map(|(i, r)| row_view(g.ranked().then_some(i + 1), r))
+                        .map(|(i, r)| row_view(g.ranked().then_some(i + 1), r, current.as_deref()))
                         .collect(),
                 }
             })
@@ -403,6 +410,11 @@ struct MethodResult {
     success: String,
     entropy: String,
     seeds: String,
+    /// The zoo's rows: their data source, and (zoo rows of another build)
+    /// why they may have moved; empty otherwise.
+    data_source: String,
+    drift: String,
+    submissions: Vec<i64>,
 }
 
 #[derive(Template)]
@@ -423,6 +435,7 @@ pub(super) async fn method_page(
         .method_by_name(&name)
         .await?
         .ok_or_else(|| AppError::NotFound(format!("method `{name}` not found")))?;
+    let current = state.canary.fingerprint();
     let results = state
         .store
         .board_rows()
@@ -430,6 +443,13 @@ pub(super) async fn method_page(
         .into_iter()
         .filter(|r| r.method_id == m.id)
         .map(|r| MethodResult {
+            data_source: r.data_source.clone().unwrap_or_default(),
+            drift: crate::zoo::drift_note(&r, current.as_deref()).unwrap_or_default(),
+            submissions: if r.data_source.is_some() {
+                r.submission_ids.clone()
+            } else {
+                vec![]
+            },
             task_url: r
                 .task
                 .map(|t| crate::leaderboard::section_url(t, &r.task_title, r.obs))

@@ -13,6 +13,7 @@ mod robustness;
 mod rollouts;
 mod site;
 mod submission;
+mod zoo;
 
 use crate::error::{AppError, PageError};
 use crate::state::AppState;
@@ -42,6 +43,7 @@ pub fn router(max_upload: usize) -> Router<AppState> {
         .route("/submissions", get(submissions_page))
         .route("/submissions/{id}", get(submission_page))
         .route("/submissions/{id}/json", get(submission_download))
+        .route("/submissions/{id}/provenance", get(zoo::provenance_page))
         .route(
             "/submissions/{id}/cancel",
             axum::routing::post(cancel::cancel_post),

@@ -1,0 +1,301 @@
+//! Issue 50: the zoo (the paper's methods trained here on our own
+//! demonstrations) is on the board from the first start: each cell a
+//! finished submission of the `zoo` submitter, marked with its data source,
+//! linked to its provenance, never ranked with the paper's rows; a restart
+//! does not duplicate it, a tampered cell is skipped, and a row made by
+//! another build than this one says so.
+//!
+//! The fixture cell (tests/fixtures/zoo/avoiding/bc-mlp-s0) is a real
+//! `d3il eval --protocol paper --json` of assets/fixtures/avoiding_path.onnx
+//! with a provenance record written by hand.
+
+mod common;
+use common::*;
+use serde_json::Value;
+use sha2::{Digest, Sha256};
+use std::path::{Path, PathBuf};
+
+const SOURCE: &str = "trained here on d3il demos v1";
+const CELL: &str = "avoiding/bc-mlp-s0";
+
+fn fixture() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/zoo")
+}
+
+/// A copy of the fixture zoo to edit.
+fn zoo_copy() -> tempfile::TempDir {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let cell = dir.path().join(CELL);
+    std::fs::create_dir_all(&cell).unwrap();
+    for e in std::fs::read_dir(fixture().join(CELL)).unwrap() {
+        let p = e.unwrap().path();
+        std::fs::copy(&p, cell.join(p.file_name().unwrap())).unwrap();
+    }
+    dir
+}
+
+fn sha256(path: &Path) -> String {
+    hex::encode(Sha256::digest(std::fs::read(path).unwrap()))
+}
+
+/// Rewrites the copy's result document with `edit` and its provenance's
+/// hash of it (a cell regenerated, not tampered with).
+fn regenerate_result(zoo: &Path, edit: impl FnOnce(&mut Value)) {
+    let cell = zoo.join(CELL);
+    let rpath = cell.join("result.json");
+    let mut r: Value = serde_json::from_slice(&std::fs::read(&rpath).unwrap()).unwrap();
+    edit(&mut r);
+    std::fs::write(&rpath, serde_json::to_vec_pretty(&r).unwrap()).unwrap();
+    let ppath = cell.join("provenance.json");
+    let mut p: Value = serde_json::from_slice(&std::fs::read(&ppath).unwrap()).unwrap();
+    p["sha256"]["result"] = Value::from(sha256(&rpath));
+    std::fs::write(&ppath, serde_json::to_vec_pretty(&p).unwrap()).unwrap();
+}
+
+/// The recorded physics fingerprint of the fixture's result.
+fn recorded_fingerprint() -> String {
+    let r: Value =
+        serde_json::from_slice(&std::fs::read(fixture().join(CELL).join("result.json")).unwrap())
+            .unwrap();
+    r["manifest"]["build"]["physics_fingerprint"]
+        .as_str()
+        .expect("the fixture's result records its build")
+        .to_string()
+}
+
+async fn zoo_app(zoo: &Path, db: Option<PathBuf>, fingerprint: Option<&str>) -> TestApp {
+    spawn_app_with(Options {
+        zoo: Some(zoo.to_path_buf()),
+        db,
+        canary_fingerprint: fingerprint.map(str::to_string),
+        ..Options::default()
+    })
+    .await
+}
+
+/// The board's rows of the zoo on Avoiding (API).
+async fn zoo_rows(app: &TestApp) -> Vec<Value> {
+    let (s, board) = app.get_json("/api/v1/leaderboards/avoiding").await;
+    assert_eq!(s, 200, "{board}");
+    board["rows"]
+        .as_array()
+        .expect("rows")
+        .iter()
+        .filter(|r| !r["data_source"].is_null())
+        .cloned()
+        .collect()
+}
+
+#[tokio::test]
+async fn a_fresh_server_shows_the_zoo_marked_with_its_provenance_and_a_restart_does_not_duplicate()
+{
+    let zoo = zoo_copy();
+    let dbdir = tempfile::tempdir().unwrap();
+    let db = dbdir.path().join("lb.sqlite");
+    let app = zoo_app(zoo.path(), Some(db.clone()), None).await;
+
+    let rows = zoo_rows(&app).await;
+    assert_eq!(rows.len(), 1, "{rows:?}");
+    let row = &rows[0];
+    assert_eq!(row["data_source"], SOURCE);
+    assert_eq!(row["method"], "BC-MLP");
+    assert_eq!(row["source"], "evaluated");
+    assert_eq!(row["n_seeds"], 1);
+    let id = row["submission_ids"][0].as_i64().expect("a submission");
+
+    // A finished submission of the built-in submitter, with its data source.
+    let (s, sub) = app.get_json(&format!("/api/v1/submissions/{id}")).await;
+    assert_eq!(s, 200, "{sub}");
+    assert_eq!(sub["status"], "completed", "{sub}");
+    let stored = app.state.store.submission(id).await.unwrap();
+    assert_eq!(stored.submitter.as_deref(), Some("zoo"));
+    assert_eq!(stored.data_source.as_deref(), Some(SOURCE));
+    // Its ONNX is in the policy store.
+    let onnx = std::path::PathBuf::from(stored.onnx_path.expect("an ONNX path"));
+    assert!(onnx.starts_with(app.state.store.policies_dir()), "{onnx:?}");
+    assert_eq!(
+        sha256(&onnx),
+        sha256(&fixture().join(CELL).join("policy.onnx"))
+    );
+
+    // The task board: a group of its own, the mark and the provenance link.
+    let (s, page) = app.get_text("/tasks/avoiding").await;
+    assert_eq!(s, 200);
+    assert!(page.contains("data-group=\"zoo\""), "the zoo's own table");
+    assert!(page.contains("class=\"badge badge-zoo\""), "the mark");
+    assert!(page.contains(SOURCE));
+    assert!(
+        page.contains(&format!("href=\"/submissions/{id}/provenance\"")),
+        "the provenance link"
+    );
+    assert!(page.contains("Trained here on d3il demos v1: the zoo"));
+    assert!(
+        !page.contains("badge-drift"),
+        "no drift without this build's fingerprint"
+    );
+
+    // The method page shows it, marked.
+    let (s, page) = app.get_text("/methods/BC-MLP").await;
+    assert_eq!(s, 200);
+    assert!(
+        page.contains("badge-zoo") && page.contains(SOURCE),
+        "{page}"
+    );
+
+    // The provenance, as a page and as JSON.
+    let (s, page) = app.get_text(&format!("/submissions/{id}/provenance")).await;
+    assert_eq!(s, 200, "{page}");
+    assert!(
+        page.contains("zoo_version") && page.contains(CELL),
+        "{page}"
+    );
+    let (s, prov) = app
+        .get_json(&format!("/api/v1/submissions/{id}/provenance"))
+        .await;
+    assert_eq!(s, 200, "{prov}");
+    assert_eq!(prov["cell"], CELL);
+    assert_eq!(prov["data_source"], SOURCE);
+    assert_eq!(prov["provenance"]["zoo_version"], "v1");
+    assert_eq!(prov["provenance"]["reference"]["repo"], "ALRhub/d3il");
+    assert!(prov["drift"].is_null(), "{prov}");
+    // A submitted policy has none.
+    let (s, _) = app.get_json("/api/v1/submissions/999999/provenance").await;
+    assert_eq!(s, 404);
+
+    // Its result page and rollouts work as any evaluation's.
+    let (s, page) = app.get_text(&format!("/submissions/{id}")).await;
+    assert_eq!(s, 200);
+    assert!(
+        page.contains("id=\"data-source\""),
+        "the submission page says so"
+    );
+    let (s, list) = app
+        .get_json(&format!("/api/v1/submissions/{id}/rollouts"))
+        .await;
+    assert_eq!(s, 200, "{list}");
+    let (s, one) = app
+        .get_json(&format!("/api/v1/submissions/{id}/rollouts/0"))
+        .await;
+    assert_eq!(s, 200, "{one}");
+
+    // Never in the paper's tables: the result cells leave it out.
+    let cells = app.state.store.result_cells(None).await.unwrap();
+    assert!(
+        cells
+            .iter()
+            .all(|c| !(c.method == "BC-MLP" && c.source == d3il_protocol::Source::Evaluated)),
+        "the zoo is not mixed into the paper's tables"
+    );
+    drop(app);
+
+    // A restart on the same database: the same one submission.
+    let again = zoo_app(zoo.path(), Some(db.clone()), None).await;
+    let rows = zoo_rows(&again).await;
+    assert_eq!(rows.len(), 1, "{rows:?}");
+    assert_eq!(rows[0]["submission_ids"], serde_json::json!([id]));
+    let zoo_subs = again
+        .state
+        .store
+        .list_submissions(
+            &d3il_server::store::SubmissionFilter {
+                submitter: Some("zoo".into()),
+                ..Default::default()
+            },
+            100,
+        )
+        .await
+        .unwrap();
+    assert_eq!(zoo_subs.len(), 1);
+    drop(again);
+
+    // A regenerated cell (new result document) replaces the old result in
+    // the same submission.
+    regenerate_result(zoo.path(), |r| {
+        r["metrics"]["success_rate"]["value"] = Value::from(0.25)
+    });
+    let third = zoo_app(zoo.path(), Some(db), None).await;
+    let rows = zoo_rows(&third).await;
+    assert_eq!(rows.len(), 1, "{rows:?}");
+    assert_eq!(rows[0]["submission_ids"], serde_json::json!([id]));
+    assert_eq!(rows[0]["success"]["mean"], 0.25);
+}
+
+#[tokio::test]
+async fn a_tampered_cell_is_skipped_and_the_start_goes_on() {
+    let zoo = zoo_copy();
+    let onnx = zoo.path().join(CELL).join("policy.onnx");
+    let mut bytes = std::fs::read(&onnx).unwrap();
+    bytes.push(0);
+    std::fs::write(&onnx, bytes).unwrap();
+
+    // What the start logs: the cell, the file and why.
+    let dir = tempfile::tempdir().unwrap();
+    let store = d3il_server::store::Store::open(&dir.path().join("s.sqlite"))
+        .await
+        .unwrap();
+    let report = d3il_server::zoo::load(&store, zoo.path()).await.unwrap();
+    assert!(report.loaded.is_empty(), "{report:?}");
+    assert_eq!(report.skipped.len(), 1, "{report:?}");
+    let why = &report.skipped[0].1;
+    assert!(
+        why.contains("policy.onnx") && why.contains("provenance.json lists"),
+        "{why}"
+    );
+
+    // The server starts and shows no zoo row.
+    let app = zoo_app(zoo.path(), None, None).await;
+    assert!(zoo_rows(&app).await.is_empty());
+    let (s, page) = app.get_text("/tasks/avoiding").await;
+    assert_eq!(s, 200);
+    assert!(!page.contains("badge-zoo"));
+}
+
+#[tokio::test]
+async fn a_zoo_row_of_another_build_says_so() {
+    let recorded = recorded_fingerprint();
+    let zoo = zoo_copy();
+
+    // This build is the one that made the result: no drift.
+    let app = zoo_app(zoo.path(), None, Some(&recorded)).await;
+    let (_, page) = app.get_text("/tasks/avoiding").await;
+    assert!(page.contains("badge-zoo"));
+    assert!(!page.contains("badge-drift"), "same build, no drift");
+    drop(app);
+
+    // Another build: the row, its method page and its provenance say so.
+    let other = "0123456789abcdef";
+    assert_ne!(other, recorded);
+    let app = zoo_app(zoo.path(), None, Some(other)).await;
+    let (_, page) = app.get_text("/tasks/avoiding").await;
+    assert!(page.contains("badge-drift"), "the drift mark");
+    // (askama escapes the apostrophe of "build's")
+    let named = format!("other build: physics fingerprint {recorded}, this build");
+    assert!(
+        page.contains(&named) && page.contains(&format!("s is {other}")),
+        "the row names both fingerprints"
+    );
+    let (_, page) = app.get_text("/methods/BC-MLP").await;
+    assert!(page.contains("badge-drift"));
+    let id = zoo_rows(&app).await[0]["submission_ids"][0]
+        .as_i64()
+        .unwrap();
+    let (_, prov) = app
+        .get_json(&format!("/api/v1/submissions/{id}/provenance"))
+        .await;
+    assert_eq!(prov["physics_fingerprint"], recorded.as_str());
+    assert_eq!(prov["this_build"], other);
+    assert!(
+        prov["drift"].as_str().unwrap_or("").contains(&recorded),
+        "{prov}"
+    );
+    drop(app);
+
+    // The copy's result edited to this build's fingerprint: no drift.
+    regenerate_result(zoo.path(), |r| {
+        r["manifest"]["build"]["physics_fingerprint"] = Value::from(other)
+    });
+    let app = zoo_app(zoo.path(), None, Some(other)).await;
+    let (_, page) = app.get_text("/tasks/avoiding").await;
+    assert!(page.contains("badge-zoo"));
+    assert!(!page.contains("badge-drift"));
+}

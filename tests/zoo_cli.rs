@@ -1,0 +1,137 @@
+//! Issue 50: the zoo in the `d3il` command. `d3il tables --table zoo` loads
+//! the zoo into the database (as `d3il serve` does at start) and prints its
+//! own table in every format, never one of the paper's; `d3il zoo check`
+//! reads every cell against its provenance; `d3il zoo reeval` evaluates every
+//! cell again with this build and writes the version-drift table.
+//! The fixture cell is server/tests/fixtures/zoo/avoiding/bc-mlp-s0.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+const EXE: &str = env!("CARGO_BIN_EXE_d3il");
+const CELL: &str = "avoiding/bc-mlp-s0";
+
+fn fixture() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("server/tests/fixtures/zoo")
+}
+
+fn scratch(name: &str) -> PathBuf {
+    let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join(format!("zoo-cli-{name}"));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+fn d3il(args: &[&str]) -> Output {
+    Command::new(EXE)
+        .args(args)
+        .env("RUST_BACKTRACE", "0")
+        .output()
+        .expect("run d3il")
+}
+
+fn stdout(o: &Output) -> String {
+    assert!(
+        o.status.success(),
+        "{}\n{}",
+        String::from_utf8_lossy(&o.stdout),
+        String::from_utf8_lossy(&o.stderr)
+    );
+    String::from_utf8_lossy(&o.stdout).into_owned()
+}
+
+#[test]
+fn tables_prints_the_zoo_in_a_table_of_its_own() {
+    let dir = scratch("tables");
+    let db = dir.join("lb.sqlite");
+    let (db, zoo) = (db.to_str().unwrap(), fixture());
+    let zoo = zoo.to_str().unwrap();
+    let md = stdout(&d3il(&[
+        "tables", "--table", "zoo", "--format", "markdown", "--db", db, "--zoo", zoo,
+    ]));
+    assert!(
+        md.contains("D3IL zoo: trained here on d3il demos v1"),
+        "{md}"
+    );
+    assert!(md.contains("| Avoiding (T1) | BC-MLP |"), "{md}");
+    // Twice: loaded once, the same table.
+    let again = stdout(&d3il(&[
+        "tables", "--table", "zoo", "--format", "markdown", "--db", db, "--zoo", zoo,
+    ]));
+    assert_eq!(md, again);
+    let csv = stdout(&d3il(&[
+        "tables", "--table", "zoo", "--format", "csv", "--db", db, "--zoo", zoo,
+    ]));
+    assert_eq!(csv.lines().count(), 2, "{csv}");
+    assert!(csv.contains("trained here on d3il demos v1,Avoiding (T1),BC-MLP,paper"));
+    let tex = stdout(&d3il(&[
+        "tables", "--table", "zoo", "--format", "latex", "--db", db, "--zoo", zoo,
+    ]));
+    assert!(tex.contains("\\caption{D3IL zoo: trained here on d3il demos v1."));
+
+    // The paper's main table is the paper's alone: no zoo row in it.
+    let main = stdout(&d3il(&[
+        "tables", "--table", "main", "--format", "csv", "--db", db,
+    ]));
+    assert!(main.contains(",BC-MLP,reported,"), "{main}");
+    assert!(!main.contains(",evaluated,"), "{main}");
+}
+
+#[test]
+fn check_reads_every_cell_and_names_a_tampered_one() {
+    let ok = stdout(&d3il(&[
+        "zoo",
+        "check",
+        "--zoo",
+        fixture().to_str().unwrap(),
+    ]));
+    assert!(
+        ok.contains(&format!("ok      {CELL}: BC-MLP seed 0")),
+        "{ok}"
+    );
+
+    let dir = scratch("check");
+    let cell = dir.join(CELL);
+    std::fs::create_dir_all(&cell).unwrap();
+    for e in std::fs::read_dir(fixture().join(CELL)).unwrap() {
+        let p = e.unwrap().path();
+        std::fs::copy(&p, cell.join(p.file_name().unwrap())).unwrap();
+    }
+    let mut r = std::fs::read(cell.join("result.json")).unwrap();
+    r.push(b'\n');
+    std::fs::write(cell.join("result.json"), r).unwrap();
+    let bad = d3il(&["zoo", "check", "--zoo", dir.to_str().unwrap()]);
+    assert!(!bad.status.success());
+    let text = String::from_utf8_lossy(&bad.stdout);
+    assert!(
+        text.contains("skipped") && text.contains("result.json"),
+        "{text}"
+    );
+}
+
+#[test]
+fn reeval_writes_what_moved() {
+    let dir = scratch("reeval");
+    let out = dir.join("drift.md");
+    let o = d3il(&[
+        "zoo",
+        "reeval",
+        "--zoo",
+        fixture().to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    stdout(&o);
+    let md = std::fs::read_to_string(&out).unwrap();
+    assert!(md.starts_with("# Zoo version drift"), "{md}");
+    let line = md
+        .lines()
+        .find(|l| l.starts_with(&format!("| {CELL} | BC-MLP |")))
+        .unwrap_or_else(|| panic!("no row of the cell in\n{md}"));
+    // The same deterministic policy on the same states, by the build that
+    // made the result: nothing moved (another build may move it).
+    if line.contains("(this build)") {
+        assert!(line.ends_with("| no |"), "{line}");
+    }
+    assert!(md.contains("1 cells re-evaluated"), "{md}");
+}
