@@ -92,10 +92,27 @@ def now() -> str:
 
 
 def load_budgets(path: Path, task: str, method: str) -> dict:
+    """The cell's budget: budgets.json's default, then its entry for the method, then
+    for the (task, method) cell, each overriding the one before."""
     doc = json.loads(path.read_text())
     cell = dict(doc["default"])
+    cell.update(doc.get("methods", {}).get(method, {}))
     cell.update(doc.get("cells", {}).get(task, {}).get(method, {}))
     return {"paper": doc["paper"], "cell": cell}
+
+
+def budget_epochs(cell: dict, train_samples: int) -> tuple[int, str]:
+    """Epochs of a budget: given as "epoch", or as "samples" (training samples seen,
+    i.e. epochs x the training set's windows), which fixes the compute whatever the
+    number of demonstrations and, unlike a time budget, gives the same epochs on any
+    machine."""
+    if "epoch" in cell:
+        return int(cell["epoch"]), f"epoch {cell['epoch']} (budgets.json)"
+    want = float(cell["samples"])
+    lo, hi = int(cell.get("min_epochs", 1)), int(cell.get("max_epochs", 500))
+    e = max(lo, min(hi, round(want / max(train_samples, 1))))
+    return e, (f"samples {want:.0f} / {train_samples} training windows = {want / max(train_samples, 1):.1f}, "
+               f"rounded and kept in [{lo}, {hi}]: {e} epochs")
 
 
 # ---------------------------------------------------------------- reference setup
@@ -281,23 +298,25 @@ def stage_train(a, work: Path, shadow: Path, tmp: Path):
 
     from d3il_client.agents.loading import save_scaler
 
+    import hydra
+
     budgets = load_budgets(a.budgets, a.task, a.method)
     cell = budgets["cell"]
-    epochs = a.epochs if a.epochs is not None else int(cell["epoch"])
-    batch = a.batch_size if a.batch_size is not None else int(cell["train_batch_size"])
     paper = budgets["paper"]
-    eval_every = a.eval_every or max(1, round(epochs * paper["eval_every_n_epochs"] / paper["epoch"]))
+    batch = a.batch_size if a.batch_size is not None else int(cell["train_batch_size"])
     script = script_overrides(a.reference, a.task, a.method)
-    ours = [
-        f"seed={a.seed}",
-        "device=cpu",
-        "num_workers=1",
-        f"epoch={epochs}",
-        f"eval_every_n_epochs={eval_every}",
-        f"train_batch_size={batch}",
-    ]
-    overrides = script + ours
+    base = [f"seed={a.seed}", "device=cpu", "num_workers=1", f"train_batch_size={batch}"]
     recorder = reference_env(shadow, a.threads)
+    if a.epochs is not None:
+        epochs, why = a.epochs, f"--epochs {a.epochs}"
+        windows = None
+    else:
+        # the training set's size (windows of window_size steps) decides a samples budget
+        windows = len(hydra.utils.instantiate(compose(shadow, a.task, script + base).trainset))
+        epochs, why = budget_epochs(cell, windows)
+    eval_every = a.eval_every or max(1, round(epochs * paper["eval_every_n_epochs"] / paper["epoch"]))
+    ours = base + [f"epoch={epochs}", f"eval_every_n_epochs={eval_every}"]
+    overrides = script + ours
     cfg = compose(shadow, a.task, overrides)
     set_seed_everywhere(a.seed)
     t0 = time.perf_counter()
@@ -324,6 +343,8 @@ def stage_train(a, work: Path, shadow: Path, tmp: Path):
         "our_overrides": ours,
         "config": OmegaConf.to_container(cfg, resolve=True),
         "epochs": epochs,
+        "epochs_from": why,
+        "budget": cell,
         "train_batch_size": batch,
         "eval_every_n_epochs": eval_every,
         "train_samples": samples,
@@ -405,6 +426,21 @@ def stage_eval(a, work: Path, shadow: Path, tmp: Path):
     print(f"[zoo] evaluated {a.task}/{a.method} s{a.seed} in {seconds:.1f} s", flush=True)
 
 
+def paper_demos(reference: Path, task: str, demos: Path) -> list[str]:
+    """How many training demonstrations the reference's own file list for the task
+    names (the paper's data), against ours."""
+    import pickle
+
+    out = []
+    for ours in sorted(demos.glob("*train_files.pkl")):
+        theirs = reference / "environments" / "dataset" / "data" / TASKS[task][2] / ours.name
+        if theirs.is_file():
+            with open(theirs, "rb") as f, open(ours, "rb") as g:
+                out.append(f"{len(pickle.load(g))} training demonstrations in {ours.name} "
+                           f"(the reference's list of the paper's data names {len(pickle.load(f))})")
+    return out
+
+
 def headline(result: dict) -> dict:
     m = result.get("metrics", {})
     out = {}
@@ -460,6 +496,8 @@ def finish(a, work: Path, out: Path):
         "config": train["config"],
         "budget": {
             "epoch": train["epochs"],
+            "epochs_from": train["epochs_from"],
+            "budgets_json": train["budget"],
             "train_batch_size": train["train_batch_size"],
             "eval_every_n_epochs": train["eval_every_n_epochs"],
             "paper": paper,
@@ -469,6 +507,9 @@ def finish(a, work: Path, out: Path):
                 "(scaled with the epochs so that the checkpoint best on the evaluation split exists)",
                 *([f"train_batch_size {train['train_batch_size']} instead of {paper['train_batch_size']}"]
                   if train["train_batch_size"] != paper["train_batch_size"] else []),
+                f"{train['train_samples']} training windows x {train['epochs']} epochs = "
+                f"{train['train_samples'] * train['epochs']} samples seen",
+                *paper_demos(a.reference, a.task, a.demos),
                 "device cpu and num_workers 1 (the loaders need >= 1)",
                 "demonstrations recorded from our tasks by `d3il demos` (see demonstrations), "
                 "not the paper's recorded data",
