@@ -486,7 +486,9 @@ def finish(a, work: Path, out: Path):
             "repository": "https://github.com/ALRhub/d3il",
             "checkout": str(a.reference.resolve()),
             "commit": git(a.reference, "rev-parse", "HEAD"),
-            "modified": bool(git(a.reference, "status", "--porcelain", "--untracked-files=no")),
+            # tracked files changed in the checkout (a clone without the large media blobs
+            # shows them deleted: textures, camera meshes, the README gif; training reads none)
+            "changed_files": git(a.reference, "status", "--porcelain", "--untracked-files=no").splitlines(),
         },
         "task": a.task,
         "method": {"paper_name": paper_name, "key": a.method, "reference_agent": agent_name,
