@@ -41,7 +41,8 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--reference", required=True, type=Path)
     ap.add_argument("--demos-root", required=True, type=Path, help="holds <task>/manifest.json per task")
-    ap.add_argument("--out", required=True, type=Path, help="zoo root: <out>/<task>/<method>-s<seed>/")
+    ap.add_argument("--out", required=True, type=Path,
+                    help="zoo root: <out>/<task>/<method-slug>-s<seed>/ (bc-mlp, vae-state, bet-mlp, ddpm-mlp, beso)")
     ap.add_argument("--tasks", default="avoiding,aligning,pushing")
     ap.add_argument("--methods", default="bc,cvae,bet_mlp,ddpm,beso")
     ap.add_argument("--seeds", default="0")
@@ -65,8 +66,8 @@ def main(argv=None):
     failed, done, ran = [], [], []
     t_grid = time.perf_counter()
     for task, method, seed in cells(tasks, methods, seeds):
-        name = f"{task}/{method}-s{seed}"
-        out = a.out / task / f"{method}-s{seed}"
+        name = f"{task}/{train_cell.method_slug(method)}-s{seed}"
+        out = a.out / task / f"{train_cell.method_slug(method)}-s{seed}"
         work = a.work_root / task / f"{method}-s{seed}"
         if train_cell.complete(out):
             print(f"[grid] {name}: complete", flush=True)

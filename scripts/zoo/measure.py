@@ -18,6 +18,7 @@ import json
 import math
 import os
 import statistics
+import subprocess
 import sys
 import tempfile
 from pathlib import Path
@@ -44,9 +45,11 @@ def main(argv=None):
         for method in [m for m in a.methods.split(",") if m]:
             with tempfile.TemporaryDirectory(prefix="zoo-measure-") as tmp:
                 work = Path(tmp) / "work"
-                train_cell.main(["--reference", a.reference, "--demos", str(a.demos_root / task), "--task", task,
-                                 "--method", method, "--out", str(Path(tmp) / "out"), "--work", str(work),
-                                 "--epochs", str(a.epochs), "--eval-every", str(a.epochs + 1), "--until", "train"])
+                # one process per cell: the reference's modules are imported from the cell's mirror
+                subprocess.run([sys.executable, str(HERE / "train_cell.py"), "--reference", a.reference,
+                                "--demos", str(a.demos_root / task), "--task", task, "--method", method,
+                                "--out", str(Path(tmp) / "out"), "--work", str(work), "--epochs", str(a.epochs),
+                                "--eval-every", str(a.epochs + 1), "--until", "train"], check=True)
                 doc = json.loads((work / "train" / "train.json").read_text())
             secs = [r["seconds"] for r in doc["loss_curve"] if "seconds" in r]
             per_epoch = statistics.median(secs[1:] or secs)

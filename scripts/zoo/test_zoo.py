@@ -51,7 +51,7 @@ def test_one_cell_end_to_end_and_the_grid_skips_it(tmp_path):
     demos_root = tmp_path / "demos"
     synth_demos.write("avoiding", 6, 40, demos_root / "avoiding")
     have_d3il = Path(D3IL).is_file()
-    out = tmp_path / "zoo" / "avoiding" / "bc-s0"
+    out = tmp_path / "zoo" / "avoiding" / "bc-mlp-s0"
     work = tmp_path / "work" / "avoiding" / "bc-s0"
     args = ["--reference", REFERENCE, "--demos", str(demos_root / "avoiding"), "--task", "avoiding",
             "--method", "bc", "--seed", "0", "--out", str(out), "--work", str(work), "--epochs", "2",
@@ -65,10 +65,14 @@ def test_one_cell_end_to_end_and_the_grid_skips_it(tmp_path):
         assert "agents=bc_agent" in train["overrides"] and "device=cpu" in train["overrides"]
         pytest.skip(f"no d3il binary at {D3IL}: stopped after training")
     prov = json.loads((out / "provenance.json").read_text())
-    assert prov["complete"] and prov["method"]["paper_name"] == "BC-MLP"
-    assert prov["demonstrations"]["manifest"]["synthetic"] is True
+    # the fields server/src/zoo.rs reads
+    assert prov["zoo_version"] == "v1" and prov["task"] == "avoiding" and prov["method"] == "BC-MLP"
+    assert prov["seed"] == 0 and prov["demos"]["version"] == "synthetic-1"
+    assert prov["complete"] and prov["demos"]["manifest"]["synthetic"] is True
     assert len(prov["training"]["loss_curve"]) == 2
-    assert prov["files"]["policy.onnx"]["sha256"] == train_cell.sha256(out / "policy.onnx")
+    for kind, name in (("onnx", "policy.onnx"), ("result", "result.json"), ("manifest", "policy.json"),
+                       ("checkpoint", "checkpoint.pt")):
+        assert prov["sha256"][kind] == train_cell.sha256(out / name)
     assert not work.exists()
     assert grid.main(["--reference", REFERENCE, "--demos-root", str(demos_root), "--out", str(tmp_path / "zoo"),
                       "--tasks", "avoiding", "--methods", "bc", "--seeds", "0"]) == 0

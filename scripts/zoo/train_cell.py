@@ -4,7 +4,7 @@ provenance record (docs/zoo.md).
 
     PYTHONPATH=clients/python ~/.cache/d3il/venvs/torch/bin/python scripts/zoo/train_cell.py \
         --reference /work/d3il-ref --demos /work/demos/aligning \
-        --task aligning --method bc --seed 0 --out assets/zoo/aligning/bc-s0
+        --task aligning --method bc --seed 0 --out assets/zoo/aligning/bc-mlp-s0
 
 The reference code is run, never copied: the configuration is composed with Hydra from
 the checkout's configs/<task>_config.yaml, agents=<name>_agent and the overrides of the
@@ -452,9 +452,23 @@ def headline(result: dict) -> dict:
     return out
 
 
+#: provenance.json's schema version; server/src/zoo.rs reads zoo_version, task, method
+#: (the paper's name), seed, demos.version and the sha256 map (onnx, result, manifest,
+#: checkpoint) and keeps everything else as shipped
+ZOO_VERSION = "v1"
+
+
+def method_slug(method: str) -> str:
+    """The cell directory's method part: the paper's name in lower case (BC-MLP ->
+    bc-mlp), as server/src/zoo.rs names cells (aligning/bc-mlp-s0)."""
+    return METHODS[method][0].lower()
+
+
 def finish(a, work: Path, out: Path):
     """The cell directory: files copied from the stages, provenance.json last, renamed
     into place."""
+    import onnx
+    import onnxruntime
     import torch
 
     train = json.loads((work / "train" / "train.json").read_text())
@@ -464,44 +478,53 @@ def finish(a, work: Path, out: Path):
     if tmp.exists():
         shutil.rmtree(tmp)
     tmp.mkdir(parents=True)
-    for stage, name in (("train", "checkpoint.pth"), ("train", "scaler.npz"), ("train", "config.yaml"),
-                        ("export", "policy.onnx"), ("export", "policy.json"), ("eval", "result.json")):
-        shutil.copyfile(work / stage / name, tmp / name)
+    for stage, src, name in (("train", "checkpoint.pth", "checkpoint.pt"), ("train", "scaler.npz", "scaler.npz"),
+                             ("train", "config.yaml", "config.yaml"), ("export", "policy.onnx", "policy.onnx"),
+                             ("export", "policy.json", "policy.json"), ("eval", "result.json", "result.json")):
+        shutil.copyfile(work / stage / src, tmp / name)
     result = json.loads((tmp / "result.json").read_text())
-    budgets = load_budgets(a.budgets, a.task, a.method)
-    paper = budgets["paper"]
+    paper = load_budgets(a.budgets, a.task, a.method)["paper"]
     try:
         ours_commit = git(PROJECT, "rev-parse", "HEAD")
         ours_dirty = bool(git(PROJECT, "status", "--porcelain", "--untracked-files=no"))
     except Exception:  # noqa: BLE001 - provenance says what it could not read
         ours_commit, ours_dirty = None, None
-    import onnx
-    import onnxruntime
-
+    demos = demos_info(a.demos)
+    manifest = demos.get("manifest", {})
     paper_name, agent_name = METHODS[a.method]
     prov = {
+        "zoo_version": ZOO_VERSION,
+        "task": a.task,
+        "method": paper_name,
+        "reference_agent": agent_name,
+        "seed": a.seed,
         "complete": True,
         "written": now(),
+        "method_detail": {"key": a.method, "reference_config": f"configs/agents/{agent_name}.yaml",
+                          "reference_class": train["config"]["agents"]["_target_"],
+                          "benchmark_script": f"scripts/{TASKS[a.task][1]}/{a.method}_benchmark.sh"},
+        "demos": {
+            "version": str(manifest.get("demos_version", manifest.get("version", "unknown"))),
+            "manifest_sha256": demos["manifest_sha256"],
+            **{k: v for k, v in demos.items() if k not in ("manifest_sha256",)},
+        },
         "reference": {
-            "repository": "https://github.com/ALRhub/d3il",
-            "checkout": str(a.reference.resolve()),
+            "repo": "ALRhub/d3il",
             "commit": git(a.reference, "rev-parse", "HEAD"),
+            "checkout": str(a.reference.resolve()),
             # tracked files changed in the checkout (a clone without the large media blobs
             # shows them deleted: textures, camera meshes, the README gif; training reads none)
             "changed_files": git(a.reference, "status", "--porcelain", "--untracked-files=no").splitlines(),
         },
-        "task": a.task,
-        "method": {"paper_name": paper_name, "key": a.method, "reference_agent": agent_name,
-                   "reference_class": train["config"]["agents"]["_target_"]},
-        "seed": a.seed,
         "overrides": train["overrides"],
         "config": train["config"],
         "budget": {
-            "epoch": train["epochs"],
+            "epochs": train["epochs"],
             "epochs_from": train["epochs_from"],
             "budgets_json": train["budget"],
             "train_batch_size": train["train_batch_size"],
             "eval_every_n_epochs": train["eval_every_n_epochs"],
+            "samples_seen": train["train_samples"] * train["epochs"],
             "paper": paper,
             "changes": [
                 f"epoch {train['epochs']} instead of the paper's {paper['epoch']}",
@@ -513,34 +536,36 @@ def finish(a, work: Path, out: Path):
                 f"{train['train_samples'] * train['epochs']} samples seen",
                 *paper_demos(a.reference, a.task, a.demos),
                 "device cpu and num_workers 1 (the loaders need >= 1)",
-                "demonstrations recorded from our tasks by `d3il demos` (see demonstrations), "
+                "demonstrations recorded from our tasks by `d3il demos` (see demos), "
                 "not the paper's recorded data",
             ],
         },
-        "demonstrations": demos_info(a.demos),
         "training": {
-            "wall_seconds": train["train_seconds"],
-            "setup_seconds": train["setup_seconds"],
+            "wall_s": train["train_seconds"],
+            "setup_s": train["setup_seconds"],
             "seconds_per_epoch": train["seconds_per_epoch"],
             "train_samples": train["train_samples"],
             "val_samples": train["val_samples"],
             "batches_per_epoch": train["batches_per_epoch"],
             "torch_threads": train["torch_threads"],
+            "checkpoint": train["checkpoint"],
             "loss_curve": [{"epoch": r["epoch"], "loss": r.get("train_loss")} for r in train["loss_curve"]],
             "logged_per_epoch": train["loss_curve"],
         },
-        "files": {
-            "checkpoint.pth": {**train["checkpoint"], "sha256": sha256(tmp / "checkpoint.pth")},
-            "scaler.npz": {"sha256": sha256(tmp / "scaler.npz")},
-            "config.yaml": {"sha256": sha256(tmp / "config.yaml")},
-            "policy.onnx": {"sha256": sha256(tmp / "policy.onnx"), "bytes": (tmp / "policy.onnx").stat().st_size},
-            "policy.json": {"sha256": sha256(tmp / "policy.json"), "manifest": json.loads((tmp / "policy.json").read_text())},
-            "result.json": {"sha256": sha256(tmp / "result.json"), "bytes": (tmp / "result.json").stat().st_size},
+        "sha256": {
+            "onnx": sha256(tmp / "policy.onnx"),
+            "result": sha256(tmp / "result.json"),
+            "manifest": sha256(tmp / "policy.json"),
+            "checkpoint": sha256(tmp / "checkpoint.pt"),
+            "scaler": sha256(tmp / "scaler.npz"),
+            "config": sha256(tmp / "config.yaml"),
         },
+        "bytes": {p.name: p.stat().st_size for p in sorted(tmp.iterdir())},
+        "policy_manifest": json.loads((tmp / "policy.json").read_text()),
         "export": export,
         "evaluation": {
             "command": ev["command"],
-            "seconds": ev["seconds"],
+            "wall_s": ev["seconds"],
             "protocol": a.protocol,
             "metrics": headline(result),
             "protocol_manifest": result.get("manifest"),
@@ -550,7 +575,7 @@ def finish(a, work: Path, out: Path):
             "onnx": onnx.__version__,
             "onnxruntime": onnxruntime.__version__,
             "python": platform.python_version(),
-            "ours": {"repository": "d3il leaderboard", "commit": ours_commit, "dirty": ours_dirty},
+            "ours": {"commit": ours_commit, "dirty": ours_dirty},
             "machine": {"cpus": os.cpu_count(), "platform": platform.platform()},
         },
     }
@@ -571,7 +596,7 @@ def complete(out: Path) -> bool:
             return False
     except ValueError:
         return False
-    return all((out / n).is_file() for n in ("policy.onnx", "policy.json", "result.json", "checkpoint.pth"))
+    return all((out / n).is_file() for n in ("policy.onnx", "policy.json", "result.json"))
 
 
 def run_stage(name, fn, a, work: Path, shadow: Path):
