@@ -35,6 +35,8 @@ pub fn fraction_series(rows: &[BoardRow]) -> Vec<FractionSeries> {
             (Source::Evaluated, Some(ProtocolKind::Quick)) => {
                 format!("{} (evaluated, quick)", r.method)
             }
+            // The zoo's rows are a line of their own (issue 50).
+            (Source::Evaluated, _) if r.data_source.is_some() => format!("{} (zoo)", r.method),
             (Source::Evaluated, _) => format!("{} (evaluated)", r.method),
         };
         by.entry((r.task_title.clone(), label))

@@ -198,8 +198,8 @@ async fn image_rows_say_how_the_robot_was_drawn_and_are_ranked_apart() {
         .lines()
         .next()
         .unwrap()
-        .ends_with(",initial_states,robot_look"));
-    assert!(csv.contains(",aligning-v2.json,primitives\n"), "{csv}");
+        .ends_with(",initial_states,robot_look,data_source"));
+    assert!(csv.contains(",aligning-v2.json,primitives,\n"), "{csv}");
 
     // Each submission page says how its frames were drawn.
     for (id, says) in [

@@ -299,3 +299,55 @@ async fn a_zoo_row_of_another_build_says_so() {
     assert!(page.contains("badge-zoo"));
     assert!(!page.contains("badge-drift"));
 }
+
+/// The store's side on both backends: a second load changes nothing, and
+/// the zoo's seed does not block a submitter's own seed of the same method.
+async fn loading_is_idempotent_and_apart_from_submitted_seeds(b: Backend) {
+    use d3il_protocol::{ObsType, ProtocolKind, TaskId};
+    use d3il_server::store::{NewPolicy, NewSubmission, ZooLoad};
+    let db = TestDb::new(b);
+    let store = db.open().await;
+    let first = d3il_server::zoo::load(&store, &fixture()).await.unwrap();
+    let id = match first.loaded.as_slice() {
+        [(cell, ZooLoad::Inserted(id))] if cell == CELL => *id,
+        other => panic!("{other:?}"),
+    };
+    let again = db.open().await;
+    let second = d3il_server::zoo::load(&again, &fixture()).await.unwrap();
+    assert_eq!(
+        second.loaded,
+        vec![(CELL.to_string(), ZooLoad::Unchanged(id))]
+    );
+    let stored = again.eval_result(id).await.unwrap().expect("the result");
+    assert_eq!(stored.rollouts.len(), 2);
+    assert_eq!(again.zoo_cells().await.unwrap().len(), 1);
+
+    let m = again.method_by_name("BC-MLP").await.unwrap().unwrap();
+    let mine = again
+        .create_submission(
+            &NewSubmission {
+                method_id: m.id,
+                submitter_id: None,
+                task: TaskId::Avoiding,
+                obs_type: ObsType::State,
+                training_seed: 0,
+                data_fraction: 1.0,
+                protocol: ProtocolKind::Paper,
+                policy: NewPolicy::Remote {
+                    url: "ws://127.0.0.1:1/".into(),
+                },
+                manifest_json: "{}".into(),
+                simulated_once: None,
+            },
+            3,
+        )
+        .await
+        .expect("a submitter's BC-MLP seed 0 beside the zoo's");
+    assert_ne!(mine, id);
+    // Each row's seeds are its own source's.
+    let zoo_sub = again.submission(id).await.unwrap();
+    let seeds = again.sibling_seeds(&zoo_sub).await.unwrap();
+    assert_eq!(seeds.iter().map(|s| s.id).collect::<Vec<_>>(), vec![id]);
+}
+
+on_both_backends!(loading_is_idempotent_and_apart_from_submitted_seeds);

@@ -29,7 +29,7 @@ fn num(v: f64) -> String {
     }
 }
 
-const HEADER: [&str; 17] = [
+const HEADER: [&str; 18] = [
     "task",
     "obs_type",
     "method",
@@ -49,6 +49,9 @@ const HEADER: [&str; 17] = [
     // different robot looks, are different rows.
     "initial_states",
     "robot_look",
+    // The zoo's rows (issue 50): "trained here on d3il demos v1"; empty
+    // for submitted and reported rows.
+    "data_source",
 ];
 
 /// CSV of leaderboard rows (one header line, one line per row), written by
@@ -78,6 +81,7 @@ pub fn board_csv(rows: &[BoardRow]) -> Result<String, AppError> {
                 r.inference_ms.map(num).unwrap_or_default(),
                 r.initial_states.clone().unwrap_or_default(),
                 r.robot_look.map(|l| l.as_str()).unwrap_or("").to_string(),
+                r.data_source.clone().unwrap_or_default(),
             ]
         }),
     )

@@ -355,6 +355,10 @@ pub(super) async fn data_fraction(
             // A quick smoke run is its own row, never a cell of the paper-protocol row.
             label.push_str(" (quick protocol)");
         }
+        if let Some(source) = &r.data_source {
+            // The zoo's rows too (issue 50).
+            label.push_str(&format!(" ({source})"));
+        }
         let row = match table
             .iter_mut()
             .position(|t| t.method == label && t.reported == key.1)
