@@ -29,7 +29,8 @@ impl Server {
     /// Test servers skip the background work of a real start unless asked:
     /// the drift canary (`--no-verify`; [`Server::start_with_canary`] runs
     /// it) and the fidelity report (`--fidelity off` unless EXTRA sets it),
-    /// and have no submission quota unless EXTRA sets a `--quota-*` flag.
+    /// and have no submission quota unless EXTRA sets a `--quota-*` flag,
+    /// and load no zoo (`--zoo none`) unless EXTRA names one.
     pub fn start_on(db: &std::ffi::OsStr, extra: &[&str]) -> Server {
         let mut args = vec!["--no-verify"];
         args.extend_from_slice(extra);
@@ -45,6 +46,11 @@ impl Server {
         let mut args: Vec<&str> = extra.to_vec();
         if !extra.contains(&"--fidelity") {
             args.extend(["--fidelity", "off"]);
+        }
+        // The zoo (issue 50) only where a test asks for it: the boards of
+        // the other tests hold their own submissions and the paper's rows.
+        if !extra.contains(&"--zoo") {
+            args.extend(["--zoo", "none"]);
         }
         // No submission quota (issue 42) unless asked: tests submit many
         // evaluations with one token to measure other things.

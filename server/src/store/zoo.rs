@@ -95,7 +95,17 @@ impl Store {
         }
         let onnx_path = self.store_zoo_onnx(c).await?;
         let existing_id = existing.map(|e| e.submission_id);
-        super::retry_busy(|| self.load_zoo_cell_once(c, &onnx_path, existing_id)).await
+        match super::retry_busy(|| self.load_zoo_cell_once(c, &onnx_path, existing_id)).await {
+            // Front ends starting together on one PostgreSQL: another one
+            // stored the same cell first.
+            Err(StoreError::Conflict(m)) => match self.zoo_cell(&c.cell).await? {
+                Some(e) if e.result_sha256 == c.result_sha256 => {
+                    Ok(ZooLoad::Unchanged(e.submission_id))
+                }
+                _ => Err(StoreError::Conflict(m)),
+            },
+            r => r,
+        }
     }
 
     /// Copies the cell's ONNX to `<policies>/<sha256>.onnx` (kept if there).

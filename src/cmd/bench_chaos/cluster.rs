@@ -159,7 +159,7 @@ impl Cluster {
             .arg(&self.store)
             .args(["--workers", "0", "--shards", SHARDS, "--bind"])
             .arg(format!("127.0.0.1:{}", self.ports[i]))
-            .args(["--no-verify", "--fidelity", "off"])
+            .args(["--no-verify", "--fidelity", "off", "--zoo", "none"])
             .args(["--rate-limit", "100000", "--anonymous-rate-limit", "100000"])
             // One token submits the whole load: no submission quota.
             .args([

@@ -78,6 +78,9 @@ struct HomePage {
     /// The drift canary's outcome on this server (`d3il verify`).
     canary: String,
     build: String,
+    /// The zoo's boards (issue 50): data source, then (task title, board
+    /// URL, rows) of each task with zoo rows of `obs` policies.
+    zoo: Vec<(String, Vec<(&'static str, String, usize)>)>,
 }
 
 #[derive(Debug, serde::Deserialize, Default)]
@@ -237,7 +240,30 @@ pub(super) async fn home(
         .map(SubmissionLine::from)
         .collect();
     let (queued, running) = state.store.submission_counts().await?;
+    // Not in the paper's table (they are not its numbers): where they are.
+    let mut zoo: Vec<(String, Vec<(&'static str, String, usize)>)> = vec![];
+    for r in state.store.board_rows().await? {
+        let (Some(source), Some(task)) = (r.data_source, r.task) else {
+            continue;
+        };
+        if r.obs != obs {
+            continue;
+        }
+        let i = match zoo.iter().position(|(s, _)| *s == source) {
+            Some(i) => i,
+            None => {
+                zoo.push((source, vec![]));
+                zoo.len() - 1
+            }
+        };
+        let tasks = &mut zoo[i].1;
+        match tasks.iter_mut().find(|t| t.0 == task.title()) {
+            Some(t) => t.2 += 1,
+            None => tasks.push((task.title(), format!("/tasks/{}?obs={obs}", task.slug()), 1)),
+        }
+    }
     render(&HomePage {
+        zoo,
         obs: obs.as_str(),
         tabs,
         blocks,
