@@ -135,3 +135,46 @@ fn reeval_writes_what_moved() {
     }
     assert!(md.contains("1 cells re-evaluated"), "{md}");
 }
+
+/// Issue 50, "a sampled zoo rollout replays bit for bit": one rollout of
+/// every shipped zoo cell (assets/zoo) and of the fixture, chosen by the
+/// cell's name, replays from its record (`d3il replay` checks every step's
+/// physics state, the outcome and the final poses).
+#[test]
+fn a_sampled_rollout_of_every_zoo_cell_replays_bit_for_bit() {
+    let assets = Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/zoo");
+    let mut cells = d3il_server::zoo::cell_dirs(&fixture());
+    cells.extend(d3il_server::zoo::cell_dirs(&assets));
+    assert!(!cells.is_empty());
+    for cell in cells {
+        let result = cell.join("result.json");
+        let doc: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(&result).unwrap()).unwrap();
+        let n = doc["rollouts"].as_array().map_or(0, Vec::len);
+        assert!(n > 0, "{}: no rollouts", cell.display());
+        // A fixed choice per cell (FNV-1a of `<task>/<dir>`).
+        let name = cell
+            .iter()
+            .rev()
+            .take(2)
+            .map(|c| c.to_string_lossy().into_owned())
+            .collect::<Vec<_>>()
+            .join("/");
+        let h = name.bytes().fold(0xcbf29ce484222325u64, |h, b| {
+            (h ^ b as u64).wrapping_mul(0x100000001b3)
+        });
+        let k = (h % n as u64).to_string();
+        let out = stdout(&d3il(&[
+            "replay",
+            "--result",
+            result.to_str().unwrap(),
+            "--rollout",
+            &k,
+        ]));
+        assert!(
+            out.contains("replays bit for bit"),
+            "{}: rollout {k}: {out}",
+            cell.display()
+        );
+    }
+}

@@ -188,6 +188,10 @@ pub struct SubmissionView {
     /// Set when an admin withdrew the submission (issue 42): it is kept but
     /// shown on no board or table.
     pub withdrawn: Option<crate::store::Withdrawal>,
+    /// The zoo's submissions (issue 50): where the training data came from
+    /// ("trained here on d3il demos v1"; the provenance is at
+    /// `/submissions/{id}/provenance`); null for what submitters send.
+    pub data_source: Option<String>,
     /// The result once completed.
     pub result: Option<ResultsView>,
 }
@@ -353,6 +357,7 @@ pub async fn submission_view(state: &AppState, id: i64) -> Result<SubmissionView
         created_at: s.created_at,
         updated_at: s.updated_at,
         withdrawn: state.store.withdrawal(id).await?,
+        data_source: s.data_source.clone(),
         result,
     })
 }

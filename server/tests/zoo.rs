@@ -107,6 +107,7 @@ async fn a_fresh_server_shows_the_zoo_marked_with_its_provenance_and_a_restart_d
     let (s, sub) = app.get_json(&format!("/api/v1/submissions/{id}")).await;
     assert_eq!(s, 200, "{sub}");
     assert_eq!(sub["status"], "completed", "{sub}");
+    assert_eq!(sub["data_source"], SOURCE, "{sub}");
     let stored = app.state.store.submission(id).await.unwrap();
     assert_eq!(stored.submitter.as_deref(), Some("zoo"));
     assert_eq!(stored.data_source.as_deref(), Some(SOURCE));
