@@ -16,12 +16,15 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 /// The files of a cell, as the provenance's `sha256` map names them. The
-/// checkpoint is not shipped: its hash is checked when the file is there.
-const HASHED_FILES: [(&str, &str); 4] = [
-    ("onnx", "policy.onnx"),
-    ("result", "result.json"),
-    ("manifest", "policy.json"),
-    ("checkpoint", "checkpoint.pt"),
+/// ONNX, the result and the policy manifest must be there; the training
+/// files (checkpoint, scaler, config) are checked when they are shipped.
+const HASHED_FILES: [(&str, &str, bool); 6] = [
+    ("onnx", "policy.onnx", true),
+    ("result", "result.json", true),
+    ("manifest", "policy.json", true),
+    ("checkpoint", "checkpoint.pt", false),
+    ("scaler", "scaler.npz", false),
+    ("config", "config.yaml", false),
 ];
 
 /// The fields of `provenance.json` the service reads; everything else is
@@ -33,6 +36,9 @@ pub struct Provenance {
     /// The paper's method name (`BC-MLP`).
     pub method: String,
     pub seed: i64,
+    /// `false` while the training command is still writing the cell.
+    #[serde(default)]
+    pub complete: Option<bool>,
     pub demos: Demos,
     /// File kind (`onnx`, `result`, `checkpoint`, ...) -> sha256.
     pub sha256: BTreeMap<String, String>,
@@ -140,12 +146,15 @@ pub fn read_cell(dir: &Path) -> Result<ZooCell, ZooError> {
         }
     }
     let mut files: BTreeMap<&str, (String, Vec<u8>)> = BTreeMap::new();
-    for (kind, file) in HASHED_FILES {
+    if provenance.complete == Some(false) {
+        return Err(invalid(&ppath, "the record says the cell is not complete"));
+    }
+    for (kind, file, required) in HASHED_FILES {
         let path = dir.join(file);
         let Some(expected) = provenance.sha256.get(kind) else {
             continue;
         };
-        if kind == "checkpoint" && !path.exists() {
+        if !required && !path.exists() {
             continue;
         }
         let (actual, bytes) = sha256_file(&path)?;
@@ -227,7 +236,13 @@ pub fn cell_dirs(zoo: &Path) -> Vec<PathBuf> {
     sorted(zoo)
         .iter()
         .flat_map(|task| sorted(task))
-        .filter(|cell| cell.join("provenance.json").is_file())
+        // A cell being written (`.<dir>.tmp`) is not one yet.
+        .filter(|cell| {
+            !cell
+                .file_name()
+                .is_some_and(|n| n.to_string_lossy().starts_with('.'))
+                && cell.join("provenance.json").is_file()
+        })
         .collect()
 }
 

@@ -358,3 +358,26 @@ async fn loading_is_idempotent_and_apart_from_submitted_seeds(b: Backend) {
 }
 
 on_both_backends!(loading_is_idempotent_and_apart_from_submitted_seeds);
+
+/// A cell the training command is still writing (`.<dir>.tmp`, or a record
+/// saying `"complete": false`) is not loaded.
+#[test]
+fn cells_being_written_are_not_loaded() {
+    let zoo = zoo_copy();
+    let tmp = zoo.path().join("avoiding/.bc-mlp-s1.tmp");
+    std::fs::create_dir_all(&tmp).unwrap();
+    for e in std::fs::read_dir(zoo.path().join(CELL)).unwrap() {
+        let p = e.unwrap().path();
+        std::fs::copy(&p, tmp.join(p.file_name().unwrap())).unwrap();
+    }
+    assert_eq!(
+        d3il_server::zoo::cell_dirs(zoo.path()),
+        vec![zoo.path().join(CELL)]
+    );
+    let ppath = zoo.path().join(CELL).join("provenance.json");
+    let mut p: Value = serde_json::from_slice(&std::fs::read(&ppath).unwrap()).unwrap();
+    p["complete"] = Value::from(false);
+    std::fs::write(&ppath, serde_json::to_vec(&p).unwrap()).unwrap();
+    let e = d3il_server::zoo::read_cell(&zoo.path().join(CELL)).unwrap_err();
+    assert!(e.to_string().contains("not complete"), "{e}");
+}
