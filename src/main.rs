@@ -30,6 +30,8 @@ enum Command {
     Contexts(cmd::contexts::Args),
     /// Back up, restore and check the leaderboard's database and policy files (docs/ops.md).
     Db(cmd::db::Args),
+    /// Record the scripted experts on training initial states in the D3IL reference code's dataset format (docs/demos.md).
+    Demos(cmd::demos::Args),
     /// Evaluate a policy (ONNX file, ws:// or wss:// endpoint, or scripted) on a task and print the D3IL metrics.
     Eval(cmd::eval::Args),
     /// How closely this simulator follows the original D3IL one: the fidelity report (Markdown or JSON).
@@ -74,6 +76,7 @@ fn main() -> anyhow::Result<()> {
         },
         Command::Contexts(a) => cmd::contexts::run(a),
         Command::Db(a) => cmd::db::run(a),
+        Command::Demos(a) => cmd::demos::run(a),
         Command::Infer(a) => cmd::infer::run(a),
         Command::Merge(a) => cmd::merge::run(a),
         Command::Render(a) => cmd::render::run(a),

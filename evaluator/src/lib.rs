@@ -10,6 +10,8 @@ pub mod camera;
 #[cfg(feature = "engine")]
 pub mod canary;
 #[cfg(feature = "engine")]
+pub mod demos;
+#[cfg(feature = "engine")]
 pub mod eval;
 #[cfg(feature = "engine")]
 pub mod fidelity;

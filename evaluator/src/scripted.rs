@@ -254,6 +254,13 @@ impl ScriptedPolicy {
         self.variants.len()
     }
 
+    /// A fresh instance of variant `v` (modulo the number of variants),
+    /// in its start state: for recorders that drive a script themselves
+    /// (`crate::demos`).
+    pub fn script(&self, v: usize) -> Box<dyn Script> {
+        (self.variants[v % self.variants.len()])()
+    }
+
     fn fresh(&self, rollout_id: u64) -> Box<dyn Script> {
         (self.variants[rollout_id as usize % self.variants.len()])()
     }

@@ -11,6 +11,7 @@ pub mod bench_video;
 pub mod compare;
 pub mod contexts;
 pub mod db;
+pub mod demos;
 pub mod eval;
 pub mod fidelity;
 pub mod fixtures;

@@ -400,6 +400,12 @@ impl Env {
         self.cameras.map(|_| self.last_images.as_slice())
     }
 
+    /// The previous command as the controller holds it (float64; the
+    /// policy observation starts with it rounded to float32).
+    pub fn prev_command(&self) -> &[f64] {
+        &self.prev_cmd
+    }
+
     pub fn fixed_z(&self) -> f64 {
         self.fixed_z
     }
