@@ -78,10 +78,13 @@ struct HomePage {
     /// The drift canary's outcome on this server (`d3il verify`).
     canary: String,
     build: String,
-    /// The zoo's boards (issue 50): data source, then (task title, board
-    /// URL, rows) of each task with zoo rows of `obs` policies.
-    zoo: Vec<(String, Vec<(&'static str, String, usize)>)>,
+    /// The zoo's boards (issue 50): data source, then each task with zoo
+    /// rows of `obs` policies.
+    zoo: Vec<(String, Vec<ZooBoard>)>,
 }
+
+/// (task title, board URL, zoo rows) on the home page.
+type ZooBoard = (&'static str, String, usize);
 
 #[derive(Debug, serde::Deserialize, Default)]
 pub(super) struct HomeQuery {
@@ -241,7 +244,7 @@ pub(super) async fn home(
         .collect();
     let (queued, running) = state.store.submission_counts().await?;
     // Not in the paper's table (they are not its numbers): where they are.
-    let mut zoo: Vec<(String, Vec<(&'static str, String, usize)>)> = vec![];
+    let mut zoo: Vec<(String, Vec<ZooBoard>)> = vec![];
     for r in state.store.board_rows().await? {
         let (Some(source), Some(task)) = (r.data_source, r.task) else {
             continue;
