@@ -315,7 +315,9 @@ def stage_train(a, work: Path, shadow: Path, tmp: Path):
         windows = len(hydra.utils.instantiate(compose(shadow, a.task, script + base).trainset))
         epochs, why = budget_epochs(cell, windows)
     eval_every = a.eval_every or max(1, round(epochs * paper["eval_every_n_epochs"] / paper["epoch"]))
-    ours = base + [f"epoch={epochs}", f"eval_every_n_epochs={eval_every}"]
+    # budgets.json may add overrides of its own to a cell (e.g. fewer sampling steps
+    # where the method's own would not evaluate within the session; recorded)
+    ours = base + [f"epoch={epochs}", f"eval_every_n_epochs={eval_every}"] + list(cell.get("overrides", []))
     overrides = script + ours
     cfg = compose(shadow, a.task, overrides)
     set_seed_everywhere(a.seed)
@@ -338,6 +340,7 @@ def stage_train(a, work: Path, shadow: Path, tmp: Path):
     best_epochs = [r["best_model_epochs"] for r in curve if "best_model_epochs" in r]
     doc = {
         "started": now(),
+        "demos_manifest_sha256": sha256(a.demos / "manifest.json"),
         "overrides": overrides,
         "script_overrides": script,
         "our_overrides": ours,
@@ -490,6 +493,10 @@ def finish(a, work: Path, out: Path):
     except Exception:  # noqa: BLE001 - provenance says what it could not read
         ours_commit, ours_dirty = None, None
     demos = demos_info(a.demos)
+    if train.get("demos_manifest_sha256") not in (None, demos["manifest_sha256"]):
+        raise SystemExit(f"{a.demos}/manifest.json changed since this cell was trained "
+                         f"({train['demos_manifest_sha256']} then, {demos['manifest_sha256']} now): "
+                         f"delete {work} and train again")
     manifest = demos.get("manifest", {})
     paper_name, agent_name = METHODS[a.method]
     prov = {
