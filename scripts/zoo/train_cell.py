@@ -188,11 +188,21 @@ class Recorder:
         self.epoch_seconds = {}
 
     def tqdm(self, iterable, *args, **kwargs):
+        """Replaces the agent module's tqdm around its epoch loop: records the epoch
+        and its time, and prints progress about every 30 s."""
+        total = len(iterable) if hasattr(iterable, "__len__") else None
+        start = last = time.perf_counter()
         for item in iterable:
             self.epoch = item
             t0 = time.perf_counter()
             yield item
-            self.epoch_seconds[item] = time.perf_counter() - t0
+            t1 = time.perf_counter()
+            self.epoch_seconds[item] = t1 - t0
+            if t1 - last >= 30:
+                last = t1
+                vs = self.logs[item].get("loss", self.logs[item].get("total_loss", []))
+                loss = f", loss {sum(vs) / len(vs):.4g}" if vs else ""
+                print(f"[zoo]   epoch {item + 1}/{total or '?'}{loss}, {t1 - start:.0f} s", flush=True)
         self.epoch = None
 
     def log(self, data, *args, **kwargs):
