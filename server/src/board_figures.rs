@@ -14,7 +14,11 @@ pub fn pareto_points(rows: &[BoardRow]) -> Vec<ParetoPoint> {
     rows.iter()
         .filter(|r| RankGroup::of(r) != RankGroup::Smoke)
         .map(|r| ParetoPoint {
-            label: r.method.clone(),
+            // The zoo's points are told apart from the paper's (issue 50).
+            label: match r.data_source {
+                Some(_) => format!("{} (zoo)", r.method),
+                None => r.method.clone(),
+            },
             method: r.method.clone(),
             entropy: Est::new(r.entropy.mean, r.entropy.std, r.n_seeds),
             success: Est::new(r.success.mean, r.success.std, r.n_seeds),
