@@ -139,7 +139,7 @@ async fn a_fresh_server_shows_the_zoo_marked_with_its_provenance_and_a_restart_d
     let (s, page) = app.get_text("/").await;
     assert_eq!(s, 200);
     assert!(page.contains("zoo-note") && page.contains(SOURCE), "{page}");
-    assert!(page.contains("href=\"/tasks/avoiding?obs=state\">Avoiding (T1)</a> (1 rows)"));
+    assert!(page.contains("href=\"/tasks/avoiding?obs=state\">Avoiding (T1)</a> (1 row)"));
 
     // The method page shows it, marked.
     let (s, page) = app.get_text("/methods/BC-MLP").await;

@@ -265,6 +265,10 @@ pub(super) async fn home(
             None => tasks.push((task.title(), format!("/tasks/{}?obs={obs}", task.slug()), 1)),
         }
     }
+    let order = |title: &str| TaskId::ALL.iter().position(|t| t.title() == title);
+    for (_, tasks) in &mut zoo {
+        tasks.sort_by_key(|t| order(t.0));
+    }
     render(&HomePage {
         zoo,
         obs: obs.as_str(),
