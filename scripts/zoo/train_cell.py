@@ -314,7 +314,11 @@ def stage_train(a, work: Path, shadow: Path, tmp: Path):
     cell = budgets["cell"]
     paper = budgets["paper"]
     batch = a.batch_size if a.batch_size is not None else int(cell["train_batch_size"])
+    # budgets.json may add overrides of its own to a cell (e.g. fewer sampling steps where
+    # the method's own would not evaluate within the session; "why" says so): applied after
+    # the benchmark script's (before the training set is sized), listed in budget.changes
     script = script_overrides(a.reference, a.task, a.method)
+    extra = list(cell.get("overrides", []))
     base = [f"seed={a.seed}", "device=cpu", "num_workers=1", f"train_batch_size={batch}"]
     recorder = reference_env(shadow, a.threads)
     if a.epochs is not None:
@@ -322,13 +326,11 @@ def stage_train(a, work: Path, shadow: Path, tmp: Path):
         windows = None
     else:
         # the training set's size (windows of window_size steps) decides a samples budget
-        windows = len(hydra.utils.instantiate(compose(shadow, a.task, script + base).trainset))
+        windows = len(hydra.utils.instantiate(compose(shadow, a.task, script + extra + base).trainset))
         epochs, why = budget_epochs(cell, windows)
     eval_every = a.eval_every or max(1, round(epochs * paper["eval_every_n_epochs"] / paper["epoch"]))
-    # budgets.json may add overrides of its own to a cell (e.g. fewer sampling steps
-    # where the method's own would not evaluate within the session; recorded)
-    ours = base + [f"epoch={epochs}", f"eval_every_n_epochs={eval_every}"] + list(cell.get("overrides", []))
-    overrides = script + ours
+    ours = base + [f"epoch={epochs}", f"eval_every_n_epochs={eval_every}"]
+    overrides = script + extra + ours
     cfg = compose(shadow, a.task, overrides)
     set_seed_everywhere(a.seed)
     t0 = time.perf_counter()
@@ -353,6 +355,7 @@ def stage_train(a, work: Path, shadow: Path, tmp: Path):
         "demos_manifest_sha256": sha256(a.demos / "manifest.json"),
         "overrides": overrides,
         "script_overrides": script,
+        "budget_overrides": extra,
         "our_overrides": ours,
         "config": OmegaConf.to_container(cfg, resolve=True),
         "epochs": epochs,
@@ -552,6 +555,8 @@ def finish(a, work: Path, out: Path):
                 f"{train['train_samples']} training windows x {train['epochs']} epochs = "
                 f"{train['train_samples'] * train['epochs']} samples seen",
                 *paper_demos(a.reference, a.task, a.demos),
+                *[f"{o} (budgets.json: {train['budget'].get('why', 'no reason given')})"
+                  for o in train["budget"].get("overrides", [])],
                 "device cpu and num_workers 1 (the loaders need >= 1)",
                 "demonstrations recorded from our tasks by `d3il demos` (see demos), "
                 "not the paper's recorded data",
