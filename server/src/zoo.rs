@@ -10,6 +10,7 @@
 
 use crate::leaderboard::BoardRow;
 use crate::store::{NewZooCell, Store, StoreError, ZooLoad};
+use d3il_protocol::robustness::RobustnessResult;
 use d3il_protocol::{EvalResult, PolicyManifest, TaskId};
 use sha2::{Digest, Sha256};
 use std::collections::BTreeMap;
@@ -18,13 +19,15 @@ use std::path::{Path, PathBuf};
 /// The files of a cell, as the provenance's `sha256` map names them. The
 /// ONNX, the result and the policy manifest must be there; the training
 /// files (checkpoint, scaler, config) are checked when they are shipped.
-const HASHED_FILES: [(&str, &str, bool); 6] = [
+const HASHED_FILES: [(&str, &str, bool); 7] = [
     ("onnx", "policy.onnx", true),
     ("result", "result.json", true),
     ("manifest", "policy.json", true),
     ("checkpoint", "checkpoint.pt", false),
     ("scaler", "scaler.npz", false),
     ("config", "config.yaml", false),
+    // The robustness suite's document (`scripts/zoo/suites.py`), when run.
+    ("robustness", "robustness.json", false),
 ];
 
 /// The fields of `provenance.json` the service reads; everything else is
@@ -64,6 +67,9 @@ pub struct ZooCell {
     pub manifest_json: String,
     pub onnx_sha256: String,
     pub onnx_bytes: i64,
+    /// `robustness.json` (`d3il eval --suite robustness --json`), when the
+    /// cell has one: the task's Robustness view shows it.
+    pub robustness: Option<RobustnessResult>,
 }
 
 /// Why a cell is skipped.
@@ -167,6 +173,21 @@ pub fn read_cell(dir: &Path) -> Result<ZooCell, ZooError> {
         }
         files.insert(kind, (actual, bytes));
     }
+    let robustness = match files.remove("robustness") {
+        None => None,
+        Some((_, bytes)) => {
+            let path = dir.join("robustness.json");
+            let doc: RobustnessResult =
+                serde_json::from_slice(&bytes).map_err(|e| invalid(&path, e.to_string()))?;
+            if doc.task != provenance.task {
+                return Err(invalid(
+                    &path,
+                    format!("its task is {}, the cell's {}", doc.task, provenance.task),
+                ));
+            }
+            Some(doc)
+        }
+    };
     let (result_sha256, rbytes) = files.remove("result").unwrap_or_default();
     let (onnx_sha256, obytes) = files.remove("onnx").unwrap_or_default();
     let rpath = dir.join("result.json");
@@ -215,6 +236,7 @@ pub fn read_cell(dir: &Path) -> Result<ZooCell, ZooError> {
         manifest_json,
         onnx_sha256,
         onnx_bytes: obytes.len() as i64,
+        robustness,
     })
 }
 
@@ -306,6 +328,7 @@ pub async fn load(store: &Store, zoo: &Path) -> Result<ZooReport, StoreError> {
             onnx_bytes: cell.onnx_bytes,
             provenance_json: cell.provenance_json,
             result: cell.result,
+            robustness: cell.robustness,
         };
         match store.load_zoo_cell(&new).await {
             Ok(l) => report.loaded.push((new.cell, l)),

@@ -381,3 +381,77 @@ fn cells_being_written_are_not_loaded() {
     let e = d3il_server::zoo::read_cell(&zoo.path().join(CELL)).unwrap_err();
     assert!(e.to_string().contains("not complete"), "{e}");
 }
+
+/// A cell with a robustness document (`scripts/zoo/suites.py`) is on its
+/// task's Robustness view, named apart from submitted methods, linked to
+/// the method's page.
+#[tokio::test]
+async fn a_cells_robustness_document_is_on_the_robustness_view() {
+    let zoo = zoo_copy();
+    let app = zoo_app(zoo.path(), None, None).await;
+    let (s, page) = app.get_text("/tasks/avoiding/robustness").await;
+    assert_eq!(s, 200);
+    assert!(page.contains("BC-MLP (zoo)"), "{page}");
+    assert!(page.contains("href=\"/methods/BC-MLP\""), "{page}");
+    let id = zoo_rows(&app).await[0]["submission_ids"][0]
+        .as_i64()
+        .unwrap();
+    let (s, doc) = app
+        .get_json(&format!(
+            "/api/v1/submissions/{id}/robustness?rollouts=false"
+        ))
+        .await;
+    assert_eq!(s, 200);
+    assert_eq!(doc["task"], "avoiding");
+    let (_, page) = app.get_text(&format!("/submissions/{id}")).await;
+    assert!(page.contains("id=\"robustness\""), "the page links it");
+    // Queue ETAs are made from this server's own runs only.
+    assert!(app
+        .state
+        .store
+        .mean_job_seconds_by_kind()
+        .await
+        .unwrap()
+        .is_empty());
+}
+
+/// The suites run after the cell was made (`scripts/zoo/suites.py` adds
+/// `robustness.json` and its hash to the provenance): the next start loads
+/// the document into the submission already there.
+#[tokio::test]
+async fn a_robustness_document_run_later_is_loaded_at_the_next_start() {
+    let zoo = zoo_copy();
+    let cell = zoo.path().join(CELL);
+    let (rpath, ppath) = (cell.join("robustness.json"), cell.join("provenance.json"));
+    let (doc, full) = (
+        std::fs::read(&rpath).unwrap(),
+        std::fs::read(&ppath).unwrap(),
+    );
+    std::fs::remove_file(&rpath).unwrap();
+    let mut p: Value = serde_json::from_slice(&full).unwrap();
+    p["sha256"].as_object_mut().unwrap().remove("robustness");
+    p.as_object_mut().unwrap().remove("robustness");
+    std::fs::write(&ppath, serde_json::to_vec_pretty(&p).unwrap()).unwrap();
+
+    let dir = tempfile::tempdir().unwrap();
+    let store = d3il_server::store::Store::open(&dir.path().join("s.sqlite"))
+        .await
+        .unwrap();
+    let first = d3il_server::zoo::load(&store, zoo.path()).await.unwrap();
+    assert_eq!(first.loaded.len(), 1, "{first:?}");
+    assert!(store.robustness_rows(None).await.unwrap().is_empty());
+
+    std::fs::write(&rpath, doc).unwrap();
+    std::fs::write(&ppath, full).unwrap();
+    let second = d3il_server::zoo::load(&store, zoo.path()).await.unwrap();
+    assert!(
+        matches!(
+            second.loaded.as_slice(),
+            [(_, d3il_server::store::ZooLoad::Unchanged(_))]
+        ),
+        "{second:?}"
+    );
+    let rows = store.robustness_rows(None).await.unwrap();
+    assert_eq!(rows.len(), 1);
+    assert_eq!(rows[0].method, "BC-MLP (zoo)");
+}

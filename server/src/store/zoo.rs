@@ -9,6 +9,7 @@
 use super::types::{JobState, SubmissionStatus};
 use super::{io_err, now, to_json, Store, StoreError};
 use crate::leaderboard::protocol_str;
+use d3il_protocol::robustness::RobustnessResult;
 use d3il_protocol::EvalResult;
 use std::path::PathBuf;
 
@@ -35,6 +36,9 @@ pub struct NewZooCell {
     pub onnx_bytes: i64,
     /// `provenance.json` as shipped (kept verbatim, shown as pretty JSON).
     pub provenance_json: String,
+    /// The cell's robustness document, if it has one (its sha256 is in
+    /// the provenance: a new or changed document changes the provenance).
+    pub robustness: Option<RobustnessResult>,
 }
 
 /// What loading a cell did.
@@ -83,6 +87,10 @@ impl Store {
         if let Some(e) = &existing {
             if e.result_sha256 == c.result_sha256 {
                 if e.provenance_json != c.provenance_json {
+                    // A robustness document run since (or again) is in the
+                    // provenance's hashes.
+                    self.store_zoo_robustness(e.submission_id, c.robustness.as_ref())
+                        .await?;
                     on_db!(&self.db, pool => sqlx::query("UPDATE zoo_cells SET provenance_json = $1 WHERE cell = $2")
                         .bind(&c.provenance_json)
                         .bind(&c.cell)
@@ -95,17 +103,50 @@ impl Store {
         }
         let onnx_path = self.store_zoo_onnx(c).await?;
         let existing_id = existing.map(|e| e.submission_id);
-        match super::retry_busy(|| self.load_zoo_cell_once(c, &onnx_path, existing_id)).await {
-            // Front ends starting together on one PostgreSQL: another one
-            // stored the same cell first.
-            Err(StoreError::Conflict(m)) => match self.zoo_cell(&c.cell).await? {
-                Some(e) if e.result_sha256 == c.result_sha256 => {
-                    Ok(ZooLoad::Unchanged(e.submission_id))
-                }
-                _ => Err(StoreError::Conflict(m)),
-            },
-            r => r,
+        let loaded =
+            match super::retry_busy(|| self.load_zoo_cell_once(c, &onnx_path, existing_id)).await {
+                // Front ends starting together on one PostgreSQL: another one
+                // stored the same cell first.
+                Err(StoreError::Conflict(m)) => match self.zoo_cell(&c.cell).await? {
+                    Some(e) if e.result_sha256 == c.result_sha256 => {
+                        Ok(ZooLoad::Unchanged(e.submission_id))
+                    }
+                    _ => Err(StoreError::Conflict(m)),
+                },
+                r => r,
+            }?;
+        if !matches!(loaded, ZooLoad::Unchanged(_)) {
+            self.store_zoo_robustness(loaded.submission_id(), c.robustness.as_ref())
+                .await?;
         }
+        Ok(loaded)
+    }
+
+    /// Replaces the zoo submission's robustness document with `doc` (none:
+    /// removes it); the submission is one with the `robustness` suite while
+    /// it has one (its API document and page link it).
+    async fn store_zoo_robustness(
+        &self,
+        submission_id: i64,
+        doc: Option<&RobustnessResult>,
+    ) -> Result<(), StoreError> {
+        on_db!(&self.db, pool => {
+            let mut tx = begin_write!(self, pool);
+            sqlx::query("DELETE FROM robustness_results WHERE submission_id = $1")
+                .bind(submission_id)
+                .execute(&mut *tx)
+                .await?;
+            if let Some(doc) = doc {
+                insert_robustness!(&mut *tx, submission_id, doc);
+            }
+            sqlx::query("UPDATE submissions SET suite = $1 WHERE id = $2")
+                .bind(doc.map(|_| "robustness"))
+                .bind(submission_id)
+                .execute(&mut *tx)
+                .await?;
+            tx.commit().await?;
+        });
+        Ok(())
     }
 
     /// Copies the cell's ONNX to `<policies>/<sha256>.onnx` (kept if there).
@@ -213,9 +254,11 @@ impl Store {
             })?,
         };
         let total = c.result.rollouts.len() as i64;
+        // No start time: the evaluation ran elsewhere (`d3il eval`), and
+        // queue ETAs are made from this server's own runs only.
         sqlx::query(
             "INSERT INTO jobs (submission_id, state, attempts, max_attempts, rollouts_done, rollouts_total, created_at, \
-             started_at, finished_at, shard_index, shard_count) VALUES ($1, $2, 1, 1, $3, $3, $4, $4, $4, 0, 1)",
+             finished_at, shard_index, shard_count) VALUES ($1, $2, 1, 1, $3, $3, $4, $4, 0, 1)",
         )
         .bind(id)
         .bind(JobState::Done)

@@ -86,7 +86,8 @@ pub(super) async fn robustness_page(
             .map(|(rank, e)| Row {
                 rank: rank + 1,
                 method: e.method.clone(),
-                method_url: method_url(&e.method),
+                // The zoo's rows are named `METHOD (zoo)` (`Store::robustness_rows`).
+                method_url: method_url(e.method.strip_suffix(" (zoo)").unwrap_or(&e.method)),
                 seed: e.training_seed,
                 submission: e.submission_id,
                 control: interval_text(&Some(e.doc.control.metrics.success_rate)),
