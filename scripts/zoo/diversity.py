@@ -149,12 +149,50 @@ def analyse(cells, resamples=2000, seed=0):
     }
 
 
+PAPER_TASK = {"avoiding": "Avoiding (T1)", "aligning": "Aligning (T2)", "pushing": "Pushing (T3)"}
+
+
+def entropy_order(zoo: Path, task: str):
+    """The zoo's methods by conditional entropy (paper protocol) next to the paper's
+    reported entropy of the same methods (main table, state, all data): a sanity
+    check of our entropy on real methods (the paper: BC-MLP 0, VAE-State low, the
+    diffusion methods high)."""
+    paper = json.loads((zoo.parent / "paper-results.json").read_text())
+    reported = {
+        r["method"]: r["entropy"]["mean"]
+        for r in paper["results"]
+        if r["table"] == "main" and r["obs"] == "state" and r["task"] == PAPER_TASK.get(task)
+        and r["data_fraction"] == 1.0
+    }
+    rows = []
+    for d in sorted((zoo / task).glob("*")):
+        if not (d / "result.json").is_file():
+            continue
+        prov = json.loads((d / "provenance.json").read_text())
+        m = json.loads((d / "result.json").read_text())["metrics"]
+        rows.append((prov["method"], m["success_rate"]["value"], m["conditional_entropy"]["value"],
+                     reported.get(prov["method"])))
+    return rows
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--zoo", type=Path, default=Path(__file__).resolve().parents[2] / "assets" / "zoo")
     ap.add_argument("--tasks", default="aligning,pushing")
     ap.add_argument("--json", action="store_true")
+    ap.add_argument("--entropy-order", action="store_true",
+                    help="print each task's methods by conditional entropy, ours and the paper's")
     a = ap.parse_args()
+    if a.entropy_order:
+        for task in a.tasks.split(","):
+            rows = entropy_order(a.zoo, task)
+            print(f"\n### {task}\n\n| method | success (zoo) | conditional entropy (zoo) | entropy (paper) |\n|---|---|---|---|")
+            for m, sr, ce, pe in sorted(rows, key=lambda r: r[2]):
+                print(f"| {m} | {sr:.3f} | {ce:.3f} | {'-' if pe is None else f'{pe:.2f}'} |")
+            ours = [r[0] for r in sorted(rows, key=lambda r: r[2])]
+            paper = [r[0] for r in sorted((r for r in rows if r[3] is not None), key=lambda r: r[3])]
+            print(f"\nzoo order: {' < '.join(ours)}\npaper order: {' < '.join(paper)}")
+        return
     out = {}
     for task in a.tasks.split(","):
         cells = load(a.zoo, task)
