@@ -372,9 +372,10 @@ pub async fn prepare(
     // Temporary uploads of a crashed run, files of failed submissions.
     store.clean_policy_files().await?;
     // The zoo's cells, like the paper's rows, on every start (idempotent).
-    if let Some(zoo) = &cfg.zoo {
-        crate::zoo::load(&store, zoo).await?;
-    }
+    let zoo = match &cfg.zoo {
+        Some(dir) => crate::zoo::load(&store, dir).await?,
+        None => Default::default(),
+    };
     // Pool jobs and dry-runs share the worker slots: the pool's `workers`
     // general slots plus its quick-protocol slot (`queue::start_pool`).
     let pool_slots = if cfg.workers > 0 { cfg.workers + 1 } else { 0 };
@@ -417,6 +418,10 @@ pub async fn prepare(
         failed: Telemetry::counter(&telemetry.video_renders, &[("outcome", "failed")]),
         cache_hits: telemetry.video_cache_hits.clone(),
     };
+    // Videos of a zoo cell's old result (loaded again with a new one).
+    for id in zoo.replaced() {
+        videos.forget(id);
+    }
     let refusals = |limit| Telemetry::counter(&telemetry.rate_limit_refusals, &[("limit", limit)]);
     let mut limiter = RateLimiter::new(cfg.rate_limit_per_minute);
     limiter.refusals = refusals("token");

@@ -119,6 +119,21 @@ impl Videos {
         self.started.load(Ordering::SeqCst)
     }
 
+    /// Removes the cached videos of a submission whose result was replaced
+    /// (a zoo cell loaded again, `crate::zoo`): they showed the old rollouts.
+    pub fn forget(&self, submission_id: i64) {
+        let prefix = format!("{submission_id}-");
+        let Ok(entries) = std::fs::read_dir(&self.dir) else {
+            return;
+        };
+        for e in entries.flatten() {
+            let name = e.file_name().to_string_lossy().into_owned();
+            if name.starts_with(&prefix) && name.ends_with(".mp4") {
+                let _ = std::fs::remove_file(e.path());
+            }
+        }
+    }
+
     /// The cache file of `job`.
     pub fn path_of(&self, job: &VideoJob) -> PathBuf {
         let scene: String = job

@@ -288,6 +288,16 @@ pub struct ZooReport {
     pub skipped: Vec<(PathBuf, String)>,
 }
 
+impl ZooReport {
+    /// The submissions whose result was replaced by a cell's new one.
+    pub fn replaced(&self) -> impl Iterator<Item = i64> + '_ {
+        self.loaded.iter().filter_map(|(_, l)| match l {
+            ZooLoad::Replaced(id) => Some(*id),
+            _ => None,
+        })
+    }
+}
+
 /// Loads every cell of the zoo at `zoo` into `store` (at every start; see
 /// the module docs). A cell that fails its checks, or that the store
 /// refuses, is skipped with a log line; only a store that cannot be written

@@ -220,7 +220,18 @@ async fn a_fresh_server_shows_the_zoo_marked_with_its_provenance_and_a_restart_d
     regenerate_result(zoo.path(), |r| {
         r["metrics"]["success_rate"]["value"] = Value::from(0.25)
     });
+    // A video cached from the old result goes; another submission's stays.
+    let videos = d3il_server::store::sqlite_data_dir(&db).join("videos");
+    std::fs::create_dir_all(&videos).unwrap();
+    let (old, other) = (
+        videos.join(format!("{id}-3-0.4.0-abc.mp4")),
+        videos.join(format!("{}-3-0.4.0-abc.mp4", id + 1000)),
+    );
+    std::fs::write(&old, b"old").unwrap();
+    std::fs::write(&other, b"other").unwrap();
     let third = zoo_app(zoo.path(), Some(db), None).await;
+    assert!(!old.exists(), "the old result's video is gone");
+    assert!(other.exists());
     let rows = zoo_rows(&third).await;
     assert_eq!(rows.len(), 1, "{rows:?}");
     assert_eq!(rows[0]["submission_ids"], serde_json::json!([id]));
