@@ -26,6 +26,8 @@
 mod bootstrap;
 pub mod compare;
 pub mod horizon;
+pub mod interval_sim;
+pub mod intervals;
 pub mod order;
 pub mod robustness;
 pub mod sequential;
@@ -470,3 +472,6 @@ mod tests;
 
 #[cfg(test)]
 mod interval_tests;
+
+#[cfg(test)]
+mod intervals_tests;
