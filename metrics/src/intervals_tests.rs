@@ -57,15 +57,24 @@ fn sign_flip_interval_agrees_with_its_p_value_on_random_paired_data() {
                         p0 <= alpha,
                         "case {case} at {confidence}: {i:?} but p(0) = {p0}, d = {d:?}"
                     );
-                    if i.method != Method::SignFlipConstant {
-                        // The ends are the last shifts the test keeps.
-                        assert!(test.p_value(i.low) > alpha && test.p_value(i.high) > alpha);
-                        assert!(test.p_value(i.low - 1e-9) <= alpha, "case {case}");
-                        assert!(test.p_value(i.high + 1e-9) <= alpha, "case {case}");
-                    }
+                    // The ends are the last shifts the test keeps.
+                    assert!(test.p_value(i.low) > alpha && test.p_value(i.high) > alpha);
+                    assert!(test.p_value(i.low - 1e-9) <= alpha, "case {case}");
+                    assert!(test.p_value(i.high + 1e-9) <= alpha, "case {case}");
                 }
                 Err(NoInterval::TestCannotReject { smallest_p, .. }) => {
                     assert!(smallest_p > alpha && p0 > alpha, "case {case}");
+                }
+                Err(NoInterval::NoSpread { difference, .. }) => {
+                    // Every d_s the same: 0 is rejected exactly when it is not
+                    // that difference (and the test can reject at all).
+                    assert!(d.iter().all(|x| (x - difference).abs() < 1e-9));
+                    let can_reject = 2.0 / (1u64 << d.len().min(60)) as f64 <= alpha;
+                    let rejects =
+                        difference.abs() > 1e-9 && (can_reject || d.len() > EXACT_MAX_STATES);
+                    if d.len() <= EXACT_MAX_STATES {
+                        assert_eq!(p0 <= alpha, rejects, "case {case}: {d:?} p {p0}");
+                    }
                 }
                 Err(e) => panic!("case {case}: {e}"),
             }
@@ -270,11 +279,16 @@ fn intervals_contain_their_estimate_and_have_width_on_non_degenerate_data() {
 
         let (d, _) = paired(&mut rng);
         let test = SignFlip::new(&d, 999, case);
-        if let Ok(i) = test.interval(0.95) {
-            assert!(i.contains(i.estimate), "case {case}: {i:?}");
-            let constant = d.iter().all(|x| (x - d[0]).abs() < 1e-12);
-            assert_eq!(i.width() > 0.0, !constant, "case {case}: {i:?} from {d:?}");
-            assert_eq!(i.method == Method::SignFlipConstant, constant);
+        let constant = d.iter().all(|x| (x - d[0]).abs() < 1e-12);
+        match test.interval(0.95) {
+            Ok(i) => {
+                assert!(i.contains(i.estimate), "case {case}: {i:?}");
+                assert!(i.width() > 0.0, "case {case}: {i:?} from {d:?}");
+                assert!(!constant);
+            }
+            Err(NoInterval::NoSpread { .. }) => assert!(constant, "case {case}"),
+            Err(NoInterval::TestCannotReject { states, .. }) => assert!(states <= 5),
+            Err(e) => panic!("case {case}: {e}"),
         }
     }
 }
@@ -291,12 +305,12 @@ fn methods_switch_by_the_documented_rule() {
         Method::ClopperPearsonAllEqual
     );
     assert_eq!(method(&st(&[3, 5, 8, 0, 4, 6], 8)), Method::KornGraubard);
-    let many: Vec<u32> = (0..40).map(|i| (i % 9) as u32).collect();
+    let many: Vec<u32> = (0..BOOTSTRAP_MIN_STATES).map(|i| (i % 9) as u32).collect();
     assert_eq!(method(&st(&many, 8)), Method::ClusterBootstrap);
-    let many: Vec<u32> = (0..39).map(|i| (i % 9) as u32).collect();
+    let many: Vec<u32> = (1..BOOTSTRAP_MIN_STATES).map(|i| (i % 9) as u32).collect();
     assert_eq!(method(&st(&many, 8)), Method::KornGraubard);
-    // Rare successes at 60 states stay with Korn–Graubard.
-    let mut rare = vec![0u32; 60];
+    // Rare successes at many states stay with Korn–Graubard.
+    let mut rare = vec![0u32; 2 * BOOTSTRAP_MIN_STATES];
     rare[3] = 1;
     rare[40] = 2;
     assert_eq!(method(&st(&rare, 8)), Method::KornGraubard);
