@@ -147,9 +147,12 @@ fn a_sampled_rollout_of_every_zoo_cell_replays_bit_for_bit() {
     cells.extend(d3il_server::zoo::cell_dirs(&assets));
     assert!(!cells.is_empty());
     for cell in cells {
-        let result = cell.join("result.json");
-        let doc: serde_json::Value =
-            serde_json::from_slice(&std::fs::read(&result).unwrap()).unwrap();
+        // `d3il replay --result` reads plain JSON; a shipped cell's may be gzipped.
+        let text = d3il_server::zoo::read_document(&cell, "result.json").unwrap();
+        let tmp = d3il_test_support::TempDir::new("zoo-replay");
+        let result = tmp.path().join("result.json");
+        std::fs::write(&result, &text).unwrap();
+        let doc: serde_json::Value = serde_json::from_slice(&text).unwrap();
         let n = doc["rollouts"].as_array().map_or(0, Vec::len);
         assert!(n > 0, "{}: no rollouts", cell.display());
         // A fixed choice per cell (FNV-1a of `<task>/<dir>`).

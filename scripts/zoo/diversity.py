@@ -25,6 +25,7 @@ and reports Spearman's rank correlation of x and y across methods with
 from __future__ import annotations
 
 import argparse
+import gzip
 import itertools
 import json
 import math
@@ -83,14 +84,22 @@ def cond_entropy(result, picks):
     return sum(pcs[s]["conditional_entropy"] for s in picks) / len(picks)
 
 
+def doc(cell: Path, name: str):
+    """A cell document, plain or gzipped by scripts/zoo/pack.py (None if absent)."""
+    if (cell / name).is_file():
+        return json.loads((cell / name).read_bytes())
+    if (cell / f"{name}.gz").is_file():
+        return json.loads(gzip.decompress((cell / f"{name}.gz").read_bytes()))
+    return None
+
+
 def load(zoo: Path, task: str):
     cells = []
     for d in sorted((zoo / task).glob("*")):
-        if not (d / "robustness.json").is_file() or not (d / "result.json").is_file():
+        result, robust = doc(d, "result.json"), doc(d, "robustness.json")
+        if result is None or robust is None:
             continue
         prov = json.loads((d / "provenance.json").read_text())
-        result = json.loads((d / "result.json").read_text())
-        robust = json.loads((d / "robustness.json").read_text())
         cells.append({"cell": d.name, "method": prov["method"], "result": result, "robust": robust})
     return cells
 
@@ -166,10 +175,11 @@ def entropy_order(zoo: Path, task: str):
     }
     rows = []
     for d in sorted((zoo / task).glob("*")):
-        if not (d / "result.json").is_file():
+        result = doc(d, "result.json")
+        if result is None:
             continue
         prov = json.loads((d / "provenance.json").read_text())
-        m = json.loads((d / "result.json").read_text())["metrics"]
+        m = result["metrics"]
         rows.append((prov["method"], m["success_rate"]["value"], m["conditional_entropy"]["value"],
                      reported.get(prov["method"])))
     return rows

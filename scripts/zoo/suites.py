@@ -47,7 +47,9 @@ def sha256(path: Path) -> str:
 
 
 def run_cell(d3il: str, cell: Path, task: str, per_state: int) -> None:
-    result = json.loads((cell / "result.json").read_text())
+    from pack import read_json_doc
+
+    result = read_json_doc(cell, "result.json")
     seed = result["manifest"].get("seed", 0)
     tmp = cell / ".robustness.json.tmp"
     cmd = [d3il, "eval", "--task", task, "--policy", str(cell / "policy.onnx"), "--suite", "robustness",
@@ -79,12 +81,23 @@ def main() -> None:
     ap.add_argument("--tasks", default="aligning,pushing")
     ap.add_argument("--methods", default="bc,cvae,bet_mlp,ddpm,beso")
     ap.add_argument("--rollouts-per-state", type=int, default=1)
+    ap.add_argument("--min-success", type=float, default=0.05,
+                    help="skip cells whose paper-protocol success is below this: a suite measures what "
+                    "success is retained, and a policy that almost never succeeds runs every rollout to "
+                    "the step limit at every level (the most expensive suite) to retain nothing")
     ap.add_argument("--d3il", default=os.environ.get("D3IL_BIN", str(PROJECT / "target" / "release" / "d3il")))
     a = ap.parse_args()
     for method in a.methods.split(","):
         for task in a.tasks.split(","):
             for cell in sorted((a.zoo / task).glob(f"{SLUGS[method]}-s*")):
-                if not (cell / "provenance.json").is_file() or (cell / "robustness.json").is_file():
+                done = (cell / "robustness.json").is_file() or (cell / "robustness.json.gz").is_file()
+                if not (cell / "provenance.json").is_file() or done:
+                    continue
+                from pack import read_json_doc
+
+                sr = read_json_doc(cell, "result.json")["metrics"]["success_rate"]["value"]
+                if sr < a.min_success:
+                    print(f"[suites] {task}/{cell.name}: skipped, success {sr:.3f} < {a.min_success}", flush=True)
                     continue
                 run_cell(a.d3il, cell, task, a.rollouts_per_state)
 

@@ -111,6 +111,43 @@ pub fn drift_note(row: &BoardRow, current: Option<&str>) -> Option<String> {
     row.build_note(current)
 }
 
+/// Where a cell keeps `file`: the file itself, or, for the two JSON
+/// documents (result, robustness), `file.gz` when only that is shipped. The
+/// zoo gzips them (`scripts/zoo/pack.py`): a paper-protocol result with its
+/// rollout records is 2–7 MB of JSON and about a fifth of that gzipped. The
+/// provenance's sha256 is the shipped file's.
+pub fn shipped(dir: &Path, file: &str) -> PathBuf {
+    let plain = dir.join(file);
+    let gz = dir.join(format!("{file}.gz"));
+    if !plain.exists() && file.ends_with(".json") && gz.exists() {
+        gz
+    } else {
+        plain
+    }
+}
+
+/// The JSON text of a gzipped cell document.
+fn gunzip(path: &Path, bytes: &[u8]) -> Result<Vec<u8>, ZooError> {
+    use std::io::Read;
+    let mut out = Vec::new();
+    flate2::read::GzDecoder::new(bytes)
+        .read_to_end(&mut out)
+        .map_err(|e| invalid(path, format!("not a gzip file: {e}")))?;
+    Ok(out)
+}
+
+/// A cell document's JSON text (`result.json` or `robustness.json`, gzipped
+/// or not), for the commands that read one outside the loader.
+pub fn read_document(dir: &Path, file: &str) -> Result<Vec<u8>, ZooError> {
+    let path = shipped(dir, file);
+    let (_, bytes) = sha256_file(&path)?;
+    if path.extension().is_some_and(|e| e == "gz") {
+        gunzip(&path, &bytes)
+    } else {
+        Ok(bytes)
+    }
+}
+
 fn sha256_file(path: &Path) -> Result<(String, Vec<u8>), ZooError> {
     let bytes = std::fs::read(path).map_err(|source| ZooError::Io {
         path: path.to_path_buf(),
@@ -156,7 +193,7 @@ pub fn read_cell(dir: &Path) -> Result<ZooCell, ZooError> {
         return Err(invalid(&ppath, "the record says the cell is not complete"));
     }
     for (kind, file, required) in HASHED_FILES {
-        let path = dir.join(file);
+        let path = shipped(dir, file);
         let Some(expected) = provenance.sha256.get(kind) else {
             continue;
         };
@@ -171,12 +208,17 @@ pub fn read_cell(dir: &Path) -> Result<ZooCell, ZooError> {
                 actual,
             });
         }
+        let bytes = if path.extension().is_some_and(|e| e == "gz") {
+            gunzip(&path, &bytes)?
+        } else {
+            bytes
+        };
         files.insert(kind, (actual, bytes));
     }
     let robustness = match files.remove("robustness") {
         None => None,
         Some((_, bytes)) => {
-            let path = dir.join("robustness.json");
+            let path = shipped(dir, "robustness.json");
             let doc: RobustnessResult =
                 serde_json::from_slice(&bytes).map_err(|e| invalid(&path, e.to_string()))?;
             if doc.task != provenance.task {
@@ -190,7 +232,7 @@ pub fn read_cell(dir: &Path) -> Result<ZooCell, ZooError> {
     };
     let (result_sha256, rbytes) = files.remove("result").unwrap_or_default();
     let (onnx_sha256, obytes) = files.remove("onnx").unwrap_or_default();
-    let rpath = dir.join("result.json");
+    let rpath = shipped(dir, "result.json");
     let result: EvalResult =
         serde_json::from_slice(&rbytes).map_err(|e| invalid(&rpath, e.to_string()))?;
     let mpath = dir.join("policy.json");

@@ -466,3 +466,55 @@ async fn a_robustness_document_run_later_is_loaded_at_the_next_start() {
     assert_eq!(rows.len(), 1);
     assert_eq!(rows[0].method, "BC-MLP (zoo)");
 }
+
+/// A cell shipped with its documents gzipped (scripts/zoo/pack.py: the
+/// provenance hashes the `.gz` files) loads as the plain one does, robustness
+/// document included; a damaged `.gz` whose hash still matches is refused
+/// with the file named.
+#[tokio::test]
+async fn a_cell_with_gzipped_documents_loads_like_a_plain_one() {
+    use std::io::Write;
+    let zoo = zoo_copy();
+    let cell = zoo.path().join(CELL);
+    let ppath = cell.join("provenance.json");
+    let mut p: Value = serde_json::from_slice(&std::fs::read(&ppath).unwrap()).unwrap();
+    for (kind, name) in [("result", "result.json"), ("robustness", "robustness.json")] {
+        let plain = cell.join(name);
+        if !plain.exists() {
+            continue;
+        }
+        let mut gz = flate2::write::GzEncoder::new(Vec::new(), flate2::Compression::best());
+        gz.write_all(&std::fs::read(&plain).unwrap()).unwrap();
+        let packed = cell.join(format!("{name}.gz"));
+        std::fs::write(&packed, gz.finish().unwrap()).unwrap();
+        std::fs::remove_file(&plain).unwrap();
+        p["sha256"][kind] = Value::from(sha256(&packed));
+    }
+    std::fs::write(&ppath, serde_json::to_vec_pretty(&p).unwrap()).unwrap();
+
+    let dir = tempfile::tempdir().unwrap();
+    let store = d3il_server::store::Store::open(&dir.path().join("s.sqlite"))
+        .await
+        .unwrap();
+    let report = d3il_server::zoo::load(&store, zoo.path()).await.unwrap();
+    assert_eq!(report.loaded.len(), 1, "{report:?}");
+    assert!(report.skipped.is_empty(), "{report:?}");
+    let app = zoo_app(zoo.path(), None, None).await;
+    assert_eq!(zoo_rows(&app).await.len(), 1);
+
+    // Not gzip at all, but listed with its own hash: refused, named.
+    let packed = cell.join("result.json.gz");
+    std::fs::write(&packed, b"{\"not\": \"gzip\"}").unwrap();
+    p["sha256"]["result"] = Value::from(sha256(&packed));
+    std::fs::write(&ppath, serde_json::to_vec_pretty(&p).unwrap()).unwrap();
+    let store2 = d3il_server::store::Store::open(&dir.path().join("s2.sqlite"))
+        .await
+        .unwrap();
+    let report = d3il_server::zoo::load(&store2, zoo.path()).await.unwrap();
+    assert_eq!(report.skipped.len(), 1, "{report:?}");
+    let why = &report.skipped[0].1;
+    assert!(
+        why.contains("result.json.gz") && why.contains("not a gzip file"),
+        "{why}"
+    );
+}

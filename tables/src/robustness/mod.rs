@@ -65,6 +65,9 @@ pub struct SuiteGroup<'a> {
     pub suite: String,
     pub suite_sha256: String,
     pub protocol: ProtocolKind,
+    /// Rollouts per initial state the documents ran (`d3il eval
+    /// --rollouts-per-state`): a sampled protocol is a group of its own.
+    pub rollouts_per_state: usize,
     /// The suite's axes in its order.
     pub axes: Vec<Axis>,
     /// Ranked: overall score, highest first (rows without one last).
@@ -80,9 +83,16 @@ impl SuiteGroup<'_> {
             &self.suite_sha256[..self.suite_sha256.len().min(12)],
             self.protocol.as_str(),
             if self.protocol == ProtocolKind::Quick {
-                " (smoke test: 3 initial states × 2 rollouts per level)"
+                " (smoke test: 3 initial states × 2 rollouts per level)".to_string()
+            } else if self.rollouts_per_state < self.task.paper_protocol().rollouts {
+                format!(
+                    " sampled: its initial states, {} rollout{} of each per level (of {})",
+                    self.rollouts_per_state,
+                    if self.rollouts_per_state == 1 { "" } else { "s" },
+                    self.task.paper_protocol().rollouts
+                )
             } else {
-                ""
+                String::new()
             }
         )
     }
@@ -223,6 +233,7 @@ pub fn group_by_suite(entries: &[RobustnessEntry]) -> Vec<SuiteGroup<'_>> {
                 && g.suite == e.doc.suite
                 && g.suite_sha256 == e.doc.suite_sha256
                 && g.protocol == e.protocol
+                && g.rollouts_per_state == e.doc.control.manifest.rollouts_per_context
         };
         match groups.iter_mut().find(|g| key(g)) {
             Some(g) => g.entries.push(e),
@@ -231,6 +242,7 @@ pub fn group_by_suite(entries: &[RobustnessEntry]) -> Vec<SuiteGroup<'_>> {
                 suite: e.doc.suite.clone(),
                 suite_sha256: e.doc.suite_sha256.clone(),
                 protocol: e.protocol,
+                rollouts_per_state: e.doc.control.manifest.rollouts_per_context,
                 axes: e.doc.axes.iter().map(|a| a.axis).collect(),
                 entries: vec![e],
             }),
@@ -253,6 +265,7 @@ pub fn group_by_suite(entries: &[RobustnessEntry]) -> Vec<SuiteGroup<'_>> {
             .cmp(&(b.task, b.protocol != ProtocolKind::Paper))
             .then(b.suite.cmp(&a.suite))
             .then(a.suite_sha256.cmp(&b.suite_sha256))
+            .then(b.rollouts_per_state.cmp(&a.rollouts_per_state))
     });
     groups
 }
