@@ -618,7 +618,9 @@ def complete(out: Path) -> bool:
             return False
     except ValueError:
         return False
-    return all((out / n).is_file() for n in ("policy.onnx", "policy.json", "result.json"))
+    packed = (out / "result.json.gz").is_file()  # scripts/zoo/pack.py
+    return all((out / n).is_file() for n in ("policy.onnx", "policy.json")) and (
+        packed or (out / "result.json").is_file())
 
 
 def run_stage(name, fn, a, work: Path, shadow: Path):
