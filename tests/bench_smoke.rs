@@ -12,7 +12,7 @@
 
 use std::process::Command;
 
-const BENCHES: [&str; 12] = [
+const BENCHES: [&str; 13] = [
     "physics",
     "eval",
     "render",
@@ -25,6 +25,7 @@ const BENCHES: [&str; 12] = [
     "sequential",
     "served-agent",
     "robustness",
+    "intervals",
 ];
 
 fn d3il() -> Command {

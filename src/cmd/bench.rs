@@ -14,7 +14,7 @@ use std::time::Instant;
 
 #[derive(clap::Args)]
 pub struct Args {
-    /// Which benchmark: `physics`, `eval`, `render`, `agents`, `serve`, `scale`, `video`, `scripts`, `chaos`, `sequential`, `served-agent` or `robustness`.
+    /// Which benchmark: `physics`, `eval`, `render`, `agents`, `serve`, `scale`, `video`, `scripts`, `chaos`, `sequential`, `served-agent`, `robustness` or `intervals`.
     pub which: String,
     /// A short run that only shows the bench still works (seconds, not
     /// minutes; its numbers mean little). `tests/bench_smoke.rs` runs every
@@ -79,6 +79,7 @@ pub fn run(mut args: Args) -> anyhow::Result<()> {
         "robustness" => {
             super::bench_robustness::run(args.protocol, args.smoke.then_some(SMOKE_EVAL_STEPS))
         }
+        "intervals" => super::bench_intervals::run(args.smoke),
         other => {
             bail!(
                 "unknown benchmark `{other}`; available: {}",
@@ -89,7 +90,7 @@ pub fn run(mut args: Args) -> anyhow::Result<()> {
 }
 
 /// Every bench `d3il bench` runs.
-pub const BENCHES: [&str; 12] = [
+pub const BENCHES: [&str; 13] = [
     "physics",
     "eval",
     "render",
@@ -102,6 +103,7 @@ pub const BENCHES: [&str; 12] = [
     "sequential",
     "served-agent",
     "robustness",
+    "intervals",
 ];
 
 /// Runs a policy one row at a time: the "unbatched" evaluation, with a model

@@ -1,5 +1,6 @@
 pub mod bench;
 pub mod bench_chaos;
+pub mod bench_intervals;
 pub mod bench_procs;
 pub mod bench_robustness;
 pub mod bench_scale;
