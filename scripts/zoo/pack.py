@@ -5,6 +5,13 @@ provenance.json gets the shipped files' sha256 (`sha256.result`,
 `sha256.robustness`; the plain file's sha256 is kept under `sha256_unpacked`).
 The server and `d3il zoo` read either form. Idempotent.
 
+A robustness document ships without the traces of its perturbed levels' rollouts
+(`--keep-suite-traces` keeps them): they are 97 % of its bytes (about 6 MB gzipped for
+an Aligning suite, already-deflated data that gzip cannot shrink), the Robustness view
+and the scores do not read them, and the provenance's command re-runs the suite to
+the same document (same seed). The control arm keeps its traces; the sha256 of the
+document as the suite wrote it stays in `sha256_unpacked.robustness`.
+
     python3 scripts/zoo/pack.py [--zoo assets/zoo]
 """
 
@@ -29,7 +36,16 @@ def read_json_doc(cell: Path, name: str):
     return None
 
 
-def pack_cell(cell: Path) -> int:
+def strip_suite_traces(raw: bytes) -> bytes:
+    doc = json.loads(raw)
+    for level in doc["levels"]:
+        for r in level["result"]["rollouts"]:
+            r.pop("trace", None)
+    doc["traces_stripped"] = "perturbed levels' rollout traces removed for shipping (scripts/zoo/pack.py)"
+    return json.dumps(doc, separators=(",", ":")).encode()
+
+
+def pack_cell(cell: Path, keep_suite_traces: bool = False) -> int:
     prov_path = cell / "provenance.json"
     prov = json.loads(prov_path.read_text())
     saved = 0
@@ -40,7 +56,8 @@ def pack_cell(cell: Path) -> int:
         raw = plain.read_bytes()
         if hashlib.sha256(raw).hexdigest() != prov["sha256"].get(kind):
             raise SystemExit(f"{plain}: sha256 differs from its provenance; not packing a changed file")
-        packed = gzip.compress(raw, compresslevel=9, mtime=0)
+        body = raw if kind == "result" or keep_suite_traces else strip_suite_traces(raw)
+        packed = gzip.compress(body, compresslevel=9, mtime=0)
         tmp = cell / f".{name}.gz.tmp"
         tmp.write_bytes(packed)
         os.replace(tmp, cell / f"{name}.gz")
@@ -57,10 +74,11 @@ def pack_cell(cell: Path) -> int:
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--zoo", type=Path, default=PROJECT / "assets" / "zoo")
+    ap.add_argument("--keep-suite-traces", action="store_true")
     a = ap.parse_args()
     total = 0
     for prov in sorted(a.zoo.glob("*/*/provenance.json")):
-        total += pack_cell(prov.parent)
+        total += pack_cell(prov.parent, a.keep_suite_traces)
     size = sum(f.stat().st_size for f in a.zoo.rglob("*") if f.is_file())
     print(f"packed: {total / 1e6:.1f} MB saved; the zoo is {size / 1e6:.1f} MB")
 
