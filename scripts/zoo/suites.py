@@ -81,7 +81,7 @@ def main() -> None:
     ap.add_argument("--tasks", default="aligning,pushing")
     ap.add_argument("--methods", default="bc,cvae,bet_mlp,ddpm,beso")
     ap.add_argument("--rollouts-per-state", type=int, default=1)
-    ap.add_argument("--min-success", type=float, default=0.05,
+    ap.add_argument("--min-success", type=float, default=0.03,
                     help="skip cells whose paper-protocol success is below this: a suite measures what "
                     "success is retained, and a policy that almost never succeeds runs every rollout to "
                     "the step limit at every level (the most expensive suite) to retain nothing")
