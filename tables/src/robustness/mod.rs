@@ -88,7 +88,11 @@ impl SuiteGroup<'_> {
                 format!(
                     " sampled: its initial states, {} rollout{} of each per level (of {})",
                     self.rollouts_per_state,
-                    if self.rollouts_per_state == 1 { "" } else { "s" },
+                    if self.rollouts_per_state == 1 {
+                        ""
+                    } else {
+                        "s"
+                    },
                     self.task.paper_protocol().rollouts
                 )
             } else {
