@@ -147,3 +147,33 @@ fn bad_requests_say_what_to_fix_and_write_nothing() {
     assert!(String::from_utf8_lossy(&o.stderr).contains("does not write inserting"));
     assert!(!tmp.path().join("ins").exists());
 }
+
+/// The zoo's demonstrations are reproducible: `d3il demos` with the command a
+/// shipped manifest records (assets/demos, the ones the zoo was trained on;
+/// each cell's provenance holds its manifest's sha256) writes the same files,
+/// byte for byte. Avoiding's set (120 episodes, about 40 s); Aligning's and
+/// Pushing's are the same code path and take minutes.
+#[test]
+fn the_zoos_avoiding_demonstrations_regenerate_byte_for_byte() {
+    let shipped: Value = serde_json::from_slice(
+        &std::fs::read(
+            Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/demos/avoiding-v1.manifest.json"),
+        )
+        .unwrap(),
+    )
+    .unwrap();
+    let tmp = d3il_test_support::TempDir::new("demos-zoo");
+    let out = tmp.path().join("avoiding");
+    let episodes = shipped["episodes"].as_u64().unwrap() as usize;
+    let seed = shipped["options"]["seed"].as_u64().unwrap();
+    assert_eq!(
+        shipped["generator"]["command"],
+        format!("d3il demos --task avoiding --episodes {episodes} --seed {seed} --noise 0.15 --speed-spread 0.15")
+    );
+    demos("avoiding", episodes, seed, &out);
+    let now: Value =
+        serde_json::from_slice(&std::fs::read(out.join("manifest.json")).unwrap()).unwrap();
+    assert_eq!(now["files"], shipped["files"], "the files' sha256s moved");
+    assert_eq!(now["behaviours"], shipped["behaviours"]);
+    assert_eq!(now["episode_list"], shipped["episode_list"]);
+}
