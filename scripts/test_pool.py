@@ -37,6 +37,7 @@ KNOWN_SECONDS = {
     "bench_smoke": 231,
     "agents_torch": 221,
     "robustness_server_shards": 213,
+    "demos": 150,
     "race_server": 142,
     "container_image": 141,
     "eval_engine": 128,
