@@ -25,12 +25,13 @@ and reports Spearman's rank correlation of x and y across methods with
 from __future__ import annotations
 
 import argparse
-import gzip
 import itertools
 import json
 import math
 import random
 from pathlib import Path
+
+from pack import read_json_doc as doc
 
 
 def ranks(v):
@@ -82,15 +83,6 @@ def scores(robust, picks):
 def cond_entropy(result, picks):
     pcs = by_state(result["per_context"])
     return sum(pcs[s]["conditional_entropy"] for s in picks) / len(picks)
-
-
-def doc(cell: Path, name: str):
-    """A cell document, plain or gzipped by scripts/zoo/pack.py (None if absent)."""
-    if (cell / name).is_file():
-        return json.loads((cell / name).read_bytes())
-    if (cell / f"{name}.gz").is_file():
-        return json.loads(gzip.decompress((cell / f"{name}.gz").read_bytes()))
-    return None
 
 
 def load(zoo: Path, task: str):

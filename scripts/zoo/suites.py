@@ -25,6 +25,8 @@ import subprocess
 import time
 from pathlib import Path
 
+from pack import read_json_doc
+
 PROJECT = Path(__file__).resolve().parents[2]
 # cell directory prefixes of the methods (train_cell.py names cells <paper-name-slug>-s<seed>)
 SLUGS = {
@@ -47,8 +49,6 @@ def sha256(path: Path) -> str:
 
 
 def run_cell(d3il: str, cell: Path, task: str, per_state: int) -> None:
-    from pack import read_json_doc
-
     result = read_json_doc(cell, "result.json")
     seed = result["manifest"].get("seed", 0)
     tmp = cell / ".robustness.json.tmp"
@@ -93,8 +93,6 @@ def main() -> None:
                 done = (cell / "robustness.json").is_file() or (cell / "robustness.json.gz").is_file()
                 if not (cell / "provenance.json").is_file() or done:
                     continue
-                from pack import read_json_doc
-
                 sr = read_json_doc(cell, "result.json")["metrics"]["success_rate"]["value"]
                 if sr < a.min_success:
                     print(f"[suites] {task}/{cell.name}: skipped, success {sr:.3f} < {a.min_success}", flush=True)

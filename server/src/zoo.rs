@@ -126,11 +126,15 @@ pub fn shipped(dir: &Path, file: &str) -> PathBuf {
     }
 }
 
-/// The JSON text of a gzipped cell document.
-fn gunzip(path: &Path, bytes: &[u8]) -> Result<Vec<u8>, ZooError> {
+/// The JSON text of a cell document read from `path`: gunzipped when it is
+/// the `.gz` form ([`shipped`]).
+fn unpacked(path: &Path, bytes: Vec<u8>) -> Result<Vec<u8>, ZooError> {
+    if path.extension().is_none_or(|e| e != "gz") {
+        return Ok(bytes);
+    }
     use std::io::Read;
     let mut out = Vec::new();
-    flate2::read::GzDecoder::new(bytes)
+    flate2::read::GzDecoder::new(bytes.as_slice())
         .read_to_end(&mut out)
         .map_err(|e| invalid(path, format!("not a gzip file: {e}")))?;
     Ok(out)
@@ -141,11 +145,7 @@ fn gunzip(path: &Path, bytes: &[u8]) -> Result<Vec<u8>, ZooError> {
 pub fn read_document(dir: &Path, file: &str) -> Result<Vec<u8>, ZooError> {
     let path = shipped(dir, file);
     let (_, bytes) = sha256_file(&path)?;
-    if path.extension().is_some_and(|e| e == "gz") {
-        gunzip(&path, &bytes)
-    } else {
-        Ok(bytes)
-    }
+    unpacked(&path, bytes)
 }
 
 fn sha256_file(path: &Path) -> Result<(String, Vec<u8>), ZooError> {
@@ -208,11 +208,7 @@ pub fn read_cell(dir: &Path) -> Result<ZooCell, ZooError> {
                 actual,
             });
         }
-        let bytes = if path.extension().is_some_and(|e| e == "gz") {
-            gunzip(&path, &bytes)?
-        } else {
-            bytes
-        };
+        let bytes = unpacked(&path, bytes)?;
         files.insert(kind, (actual, bytes));
     }
     let robustness = match files.remove("robustness") {

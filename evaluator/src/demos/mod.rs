@@ -108,7 +108,7 @@ pub enum ObsField {
 /// The reference's layout for `task` (docs/zoo.md; read from
 /// ALRhub/d3il's `environments/dataset/*_dataset.py` and `configs/*`).
 pub fn layout(task: TaskId) -> Result<Layout, DemoError> {
-    let c = task_cmd_dim(task);
+    let c = crate::tasks::task_def(task)?.cmd_dim();
     let boxes = |names: &[&str]| -> Vec<(String, ObsField)> {
         names
             .iter()
@@ -186,15 +186,6 @@ pub fn layout(task: TaskId) -> Result<Layout, DemoError> {
             )))
         }
     })
-}
-
-/// Width of the previous command in the policy observation.
-fn task_cmd_dim(task: TaskId) -> usize {
-    match task {
-        TaskId::Aligning => 3,
-        TaskId::Stacking | TaskId::Inserting => 8,
-        _ => 2,
-    }
 }
 
 /// The expert whose variants cover every behaviour the task counts.
@@ -369,10 +360,7 @@ pub fn record(
     let id = task.def.id();
     let expert = expert_name(id)?;
     let max_len = layout(id)?.max_len_data;
-    let test_set: Vec<Value> = {
-        let set = task.def.context_set()?;
-        (0..set.len()).filter_map(|i| set.get(i).cloned()).collect()
-    };
+    let test_set = task.def.context_set()?.file.contexts;
     let results: Vec<Result<(Option<Episode>, Attempts), DemoError>> = (0..opts.episodes)
         .into_par_iter()
         .map(|index| {
@@ -410,8 +398,8 @@ pub fn record(
 /// as the reference's dataset class reads it.
 pub fn episode_pickle(task: TaskId, ep: &Episode) -> Result<Vec<u8>, DemoError> {
     let lay = layout(task)?;
-    let c = task_cmd_dim(task);
     let rows = ep.steps + 1;
+    let c = ep.des.len() / rows;
     let obs_dim = ep.obs.len() / rows;
     let o = |t: usize, i: usize| ep.obs[t * obs_dim + i] as f64;
     let array = |cols: usize, f: &dyn Fn(usize, usize) -> f64| Py::Array {
