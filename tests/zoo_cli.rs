@@ -181,3 +181,34 @@ fn a_sampled_rollout_of_every_zoo_cell_replays_bit_for_bit() {
         );
     }
 }
+
+/// A robustness document replayed without `--level` says to name a level
+/// and lists the document's levels (not serde's "missing field `manifest`");
+/// with `--level AXIS/0` its control rollout replays bit for bit.
+#[test]
+fn replay_of_a_robustness_document_asks_for_a_level() {
+    let cell = Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/zoo/aligning/bc-mlp-s0");
+    let text = d3il_server::zoo::read_document(&cell, "robustness.json").unwrap();
+    let tmp = d3il_test_support::TempDir::new("zoo-replay-level");
+    let doc = tmp.path().join("robustness.json");
+    std::fs::write(&doc, &text).unwrap();
+    let doc = doc.to_str().unwrap();
+    let out = d3il(&["replay", "--result", doc, "--rollout", "0"]);
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("--level AXIS/LEVEL") && err.contains("latency/1"),
+        "{err}"
+    );
+    assert!(!err.contains("missing field"), "{err}");
+    let out = stdout(&d3il(&[
+        "replay",
+        "--result",
+        doc,
+        "--level",
+        "latency/0",
+        "--rollout",
+        "0",
+    ]));
+    assert!(out.contains("replays bit for bit"), "{out}");
+}

@@ -14,6 +14,8 @@ use serde_json::Value;
 pub enum ReplayInputError {
     #[error("the result must be a JSON object with `manifest` and `rollouts` as `d3il eval --json` writes it: {0}")]
     NotAResult(serde_json::Error),
+    #[error("this is a robustness document (`d3il eval --suite robustness --json`): name the level whose rollout to replay with --level AXIS/LEVEL; it has levels {levels}")]
+    NeedsLevel { levels: String },
     #[error("the result has no rollout {number}; it has {have}")]
     NoSuchRollout { number: usize, have: String },
     #[error("rollout {0} has no trace: the result was made before rollouts were recorded for replay (evaluate it again to replay it)")]
@@ -30,6 +32,25 @@ pub enum ReplayInputError {
     },
 }
 
+/// The levels (`axis/level`, comma-separated) of a robustness document: an
+/// object whose `levels` are objects with an `axis` and a `level`, the shape
+/// `d3il eval --suite robustness --json` writes. `None` for anything else.
+fn robustness_levels(text: &str) -> Option<String> {
+    let doc: Value = serde_json::from_str(text).ok()?;
+    let levels = doc.get("levels")?.as_array()?;
+    let names: Option<Vec<String>> = levels
+        .iter()
+        .map(|l| {
+            Some(format!(
+                "{}/{}",
+                l.get("axis")?.as_str()?,
+                l.get("level")?.as_u64()?
+            ))
+        })
+        .collect();
+    names.filter(|n| !n.is_empty()).map(|n| n.join(", "))
+}
+
 /// What `--result` reads: the manifest and the rollouts of any result-like
 /// document (other fields are ignored).
 #[derive(Debug, Deserialize)]
@@ -40,7 +61,10 @@ pub struct ReplayDoc {
 
 impl ReplayDoc {
     pub fn parse(text: &str) -> Result<ReplayDoc, ReplayInputError> {
-        serde_json::from_str(text).map_err(ReplayInputError::NotAResult)
+        serde_json::from_str(text).map_err(|e| match robustness_levels(text) {
+            Some(levels) => ReplayInputError::NeedsLevel { levels },
+            None => ReplayInputError::NotAResult(e),
+        })
     }
 
     /// Rollout `number` (initial state × rollouts per state + index) and its
