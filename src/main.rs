@@ -36,6 +36,8 @@ enum Command {
     Eval(cmd::eval::Args),
     /// How closely this simulator follows the original D3IL one: the fidelity report (Markdown or JSON).
     Fidelity(cmd::fidelity::Args),
+    /// Recompute the intervals of result or robustness documents made before 0.5.0 and print what moved (docs/intervals.md).
+    Intervals(cmd::intervals::Args),
     /// Run an ONNX policy on given inputs after the evaluator's admission and print its raw actions as JSON (an exporter's check).
     Infer(cmd::infer::Args),
     /// Merge the part files of a sharded `d3il eval --shard K/N` into one result (docs/cluster.md).
@@ -78,6 +80,7 @@ fn main() -> anyhow::Result<()> {
         Command::Db(a) => cmd::db::run(a),
         Command::Demos(a) => cmd::demos::run(a),
         Command::Infer(a) => cmd::infer::run(a),
+        Command::Intervals(a) => cmd::intervals::run(a),
         Command::Merge(a) => cmd::merge::run(a),
         Command::Render(a) => cmd::render::run(a),
         Command::Replay(a) => cmd::replay::run(a),

@@ -196,6 +196,21 @@ fn upgrade_from_every_level(pg: bool, dir: &Path) {
                 result["success_rate"].as_f64(),
                 "level {k}: {api}"
             );
+            // The start recomputed every result made under earlier interval
+            // rules from its rollout records (issue 51): each names its
+            // method or why it has none (these have 3 initial states).
+            let sr = &api["result"]["metrics"]["success_rate"];
+            assert_eq!(
+                sr["no_interval"]["reason"], "too_few_states",
+                "level {k}: submission {id}: {sr}"
+            );
+            assert!(
+                sr["interval"]
+                    .as_str()
+                    .unwrap()
+                    .contains("3 initial states"),
+                "level {k}: {sr}"
+            );
             let withdrawn = sub.get("withdrawn_at").is_some_and(|w| !w.is_null());
             let method = after["methods"][&sub["method_id"].to_string()]["name"]
                 .as_str()
@@ -214,6 +229,14 @@ fn upgrade_from_every_level(pg: bool, dir: &Path) {
             shown += 1;
         }
         assert!(shown >= 1, "level {k}: a completed result to show");
+        // Recomputed once: the rows now record this build's rules.
+        for (key, r) in &all_rows(&target_s)["results"] {
+            assert_eq!(
+                r["intervals_rules"].as_i64(),
+                Some(d3il_metrics::recompute::RULES_VERSION),
+                "level {k}: result {key} not recomputed"
+            );
+        }
     }
 }
 

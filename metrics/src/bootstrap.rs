@@ -7,7 +7,7 @@ use crate::{
     behaviour_entropy, by_context, conditional_entropy, entropy_of_counts, pooled_entropy,
     success_rate, EmptyContexts, EntropyConvention, MetricsError, Outcome,
 };
-use d3il_protocol::Estimate;
+use d3il_protocol::{Estimate, IntervalMethod, NoInterval};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use std::collections::BTreeMap;
@@ -167,21 +167,25 @@ impl Tally {
     }
 }
 
-/// Bootstrap intervals of the success rate, the behaviour entropy and the
-/// conditional entropy (in that order) from one set of resamples.
+/// The success rate, the behaviour entropy and the conditional entropy (in
+/// that order), each with its interval.
 ///
-/// **Resampling** follows how the data arose (two stages): the initial states
-/// are drawn with replacement (a state drawn twice counts as two states), then
-/// within each drawn state its rollouts are drawn with replacement. With a
-/// single initial state (Avoiding) only the second stage varies. Deterministic
-/// for a given seed (ChaCha8, portable).
+/// **Success rate**: [`crate::intervals::success_rate_estimate`] (issue 51:
+/// no interval under 5 initial states, Clopper–Pearson, Korn–Graubard or the
+/// percentile cluster bootstrap by the rule documented there).
 ///
-/// **What the interval is for**: each statistic's expected value under the
-/// protocol, i.e. what the same policy would score on average over fresh
-/// initial states and rollout noise at this protocol's size. For an entropy
-/// that is what the reference's plug-in formula gives at 8–18 rollouts per
-/// state (the quantity the paper's numbers estimate as well), which lies below
-/// the entropy of the behaviour distribution itself.
+/// **Entropies**: a two-stage bootstrap. Resampling follows how the data
+/// arose: the initial states are drawn with replacement (a state drawn twice
+/// counts as two states), then within each drawn state its rollouts are drawn
+/// with replacement. With a single initial state (Avoiding) only the second
+/// stage varies. Deterministic for a given seed (ChaCha8, portable).
+///
+/// **What the entropy interval is for**: the statistic's expected value
+/// under the protocol, i.e. what the same policy's plug-in entropy would be
+/// on average over fresh initial states and rollout noise at this protocol's
+/// size (8–18 rollouts per state, the quantity the paper's numbers estimate
+/// as well), which lies below the entropy of the behaviour distribution
+/// itself. It is not an interval for that entropy.
 ///
 /// **Interval**: resampling rollouts makes the plug-in entropies lower still
 /// (a resample of n rollouts from n observed ones shows fewer distinct
@@ -189,13 +193,16 @@ impl Tally {
 /// plain percentiles can exclude it (Avoiding's quick protocol printed 0.654
 /// with 0.340–0.600). We use the bias-corrected percentile interval: the
 /// percentiles of the resampled statistic moved by the bootstrap's estimate of
-/// that bias, `[q(α/2) − b, q(1 − α/2) − b]` with `b = mean(θ*) − θ̂` (for
-/// the success rate `b ≈ 0` and it is the percentile interval). It is
+/// that bias, `[q(α/2) − b, q(1 − α/2) − b]` with `b = mean(θ*) − θ̂`. It is
 /// widened to include the estimate should Monte Carlo noise leave it just
-/// outside, and clipped to the statistic's range [0, 1] (rates, and entropies in log
-/// base `n_behaviours`). Coverage on known distributions (≥ 93 % for a 95 % interval, every
-/// statistic, Aligning/Pushing/Sorting/Avoiding-like designs) and the
-/// paired comparison's level are tested in `interval_tests.rs`.
+/// outside, and clipped to [0, 1] (entropies in log base `n_behaviours`).
+/// **Where it does not hold**: with few initial states (a percentile
+/// bootstrap over 3 states cannot cover; the success rate gives no interval
+/// there, the entropies still print one, labelled by its method) and where
+/// every resample shows one behaviour (width 0: a deterministic policy's
+/// entropy is 0 by definition). Coverage on known distributions (≥ 93 % for a
+/// 95 % interval, Aligning/Pushing/Sorting/Avoiding-like designs) is tested
+/// in `interval_tests.rs`.
 pub fn bootstrap_all(
     outcomes: &[Outcome],
     cfg: &Bootstrap,
@@ -206,17 +213,22 @@ pub fn bootstrap_all(
     }
     cfg.check()?;
     conv.check()?;
+    // The success rate's interval is `intervals::success_rate_estimate`'s
+    // (issue 51); the entropies keep the two-stage bootstrap below.
+    let success = crate::intervals::success_rate_estimate(
+        &crate::intervals::state_counts(outcomes.iter().map(|o| (o.context_index, o.success))),
+        cfg.confidence,
+        cfg.resamples,
+        cfg.seed,
+    );
+    debug_assert_eq!(success.value, success_rate(outcomes));
     let values = [
-        success_rate(outcomes),
         behaviour_entropy(outcomes, conv.n_behaviours)?,
         conditional_entropy(outcomes, conv)?,
     ];
     if cfg.resamples == 0 {
-        return Ok(values.map(|v| Estimate {
-            value: v,
-            ci_low: v,
-            ci_high: v,
-        }));
+        let [b, c] = values.map(|v| Estimate::without_interval(v, NoInterval::NoResamples));
+        return Ok([success, b, c]);
     }
     let data = Compact::new(outcomes);
     let mut rng = ChaCha8Rng::seed_from_u64(cfg.seed);
@@ -238,20 +250,18 @@ pub fn bootstrap_all(
             s.push(v);
         }
     }
-    // Every statistic lies in [0, 1]: a rate, and entropies in log base
-    // `n_behaviours` (at most 1 while the labels are the task's behaviours;
-    // the clip never excludes the estimate itself). The bias correction can
-    // push an upper end past 1 (Aligning's quick protocol printed 0.492-1.492).
-    let bounds = [(0.0, 1.0); 3];
-    let mut out = [Estimate {
-        value: 0.0,
-        ci_low: 0.0,
-        ci_high: 0.0,
-    }; 3];
-    for i in 0..3 {
-        out[i] = bias_corrected_interval(values[i], &mut stats[i], cfg.confidence, bounds[i]);
-    }
-    Ok(out)
+    // Both entropies lie in [0, 1] (log base `n_behaviours`, at most 1 while
+    // the labels are the task's behaviours; the clip never excludes the
+    // estimate itself). The bias correction can push an upper end past 1
+    // (Aligning's quick protocol printed 0.492-1.492). The success rate's
+    // resamples (`stats[0]`) are drawn to keep the entropies' stream as it
+    // was, and not used.
+    let [_, mut sb, mut sc] = stats;
+    Ok([
+        success,
+        bias_corrected_interval(values[0], &mut sb, cfg.confidence, (0.0, 1.0)),
+        bias_corrected_interval(values[1], &mut sc, cfg.confidence, (0.0, 1.0)),
+    ])
 }
 
 /// Bootstrap interval of one statistic; see [`bootstrap_all`] for the method.
@@ -292,22 +302,19 @@ pub(crate) fn bias_corrected_interval(
     bounds: (f64, f64),
 ) -> Estimate {
     if stats.is_empty() {
-        return Estimate {
-            value,
-            ci_low: value,
-            ci_high: value,
-        };
+        return Estimate::without_interval(value, NoInterval::NoResamples);
     }
     stats.sort_by(f64::total_cmp);
     let alpha = (1.0 - confidence) / 2.0;
     let bias = stats.iter().sum::<f64>() / stats.len() as f64 - value;
     let lo = percentile(stats, alpha) - bias;
     let hi = percentile(stats, 1.0 - alpha) - bias;
-    Estimate {
+    Estimate::with_interval(
         value,
-        ci_low: lo.min(value).max(bounds.0.min(value)),
-        ci_high: hi.max(value).min(bounds.1.max(value)),
-    }
+        lo.min(value).max(bounds.0.min(value)),
+        hi.max(value).min(bounds.1.max(value)),
+        IntervalMethod::BiasCorrectedBootstrap,
+    )
 }
 
 /// Linear-interpolation percentile of sorted data (numpy's default method).

@@ -5,14 +5,21 @@
 //! entropy) is a mean over states of per-state differences, and the
 //! state-to-state variation that dominates an unpaired comparison cancels.
 //!
-//! * **Interval**: paired bootstrap over initial states (the same resampled
+//! * **Success rate** (and the conditional entropy of tasks that count a
+//!   state without a labelled success as 0: Avoiding, Aligning, Pushing):
+//!   the paired randomisation test, A and B swapped within each state (the
+//!   per-state difference sign-flipped), and its inversion as the interval
+//!   ([`crate::intervals::SignFlip`]): the p-value printed is the one of the
+//!   test whose inversion is the interval, so "0 outside" and "p < α" agree
+//!   by construction. No interval with 5 states or fewer (the test cannot
+//!   reject) or when every state shows the same difference.
+//! * **Conditional entropy of Sorting, Stacking, Inserting** (states without
+//!   a labelled success dropped, so the statistic is not a mean of per-state
+//!   differences): paired bootstrap over initial states (the same resampled
 //!   states for A and B), bias-corrected percentile interval as in
-//!   [`crate::bootstrap_all`].
-//! * **p-value**: a randomisation test paired by initial state: under "no
-//!   difference" A's and B's rollouts of a state are exchangeable, so A and B
-//!   are swapped within each state with probability ½ and the difference
-//!   recomputed; `p = (1 + #{|d_swapped| ≥ |d|}) / (1 + R)`. It is exact at
-//!   its nominal level whatever the per-state distributions.
+//!   [`crate::bootstrap_all`], and the swap test's p-value,
+//!   `p = (1 + #{|d_swapped| ≥ |d|}) / (1 + R)`; the two can disagree and
+//!   the interval's method ([`IntervalMethod::PairedBootstrap`]) says so.
 //! * **Minimum detectable difference**: `(z_{1−α/2} + z_{0.8}) · se`, with the
 //!   paired bootstrap standard error `se` at this protocol's size (states ×
 //!   rollouts): the smallest true difference the comparison finds with 80 %
@@ -20,7 +27,8 @@
 
 use crate::{bias_corrected_interval, Bootstrap, EmptyContexts, EntropyConvention, MetricsError};
 use d3il_protocol::{
-    Comparison, ContextResult, EvalResult, ObsType, PairedDifference, ProtocolManifest, RobotLook,
+    Comparison, ContextResult, Estimate, EvalResult, IntervalMethod, ObsType, PairedDifference,
+    ProtocolManifest, RobotLook,
 };
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -122,28 +130,75 @@ pub fn compare_states(
         }
     }
     let z = normal_quantile(1.0 - (1.0 - cfg.confidence) / 2.0) + normal_quantile(0.8);
-    let out = |k: usize, bounds: (f64, f64), boot: &mut Vec<f64>| {
+    let se = |boot: &[f64]| {
         let r = boot.len();
-        let se = if r > 1 {
+        if r > 1 {
             let m = boot.iter().sum::<f64>() / r as f64;
             (boot.iter().map(|x| (x - m).powi(2)).sum::<f64>() / (r - 1) as f64).sqrt()
         } else {
             0.0
-        };
-        PairedDifference {
-            a: sa[k],
-            b: sb[k],
-            difference: bias_corrected_interval(d[k], boot, cfg.confidence, bounds),
-            p_value: (1 + extreme[k]) as f64 / (1 + cfg.resamples) as f64,
-            min_detectable: z * se,
         }
     };
-    let [mut b0, mut b1] = boot;
-    Ok([
-        out(0, (-1.0, 1.0), &mut b0),
+    // Per-state values whose mean is the statistic and whose sign-flip is
+    // the swap of A and B within a state: the success rates always, the
+    // entropies when states without a labelled success count as 0.
+    let paired = |value: fn(&ContextSummary) -> f64| {
+        let da: Vec<f64> = a.iter().map(value).collect();
+        let db: Vec<f64> = b.iter().map(value).collect();
+        crate::intervals::paired_difference_interval(
+            &da,
+            &db,
+            cfg.confidence,
+            cfg.resamples,
+            cfg.seed,
+        )
+    };
+    let [b0, mut b1] = boot;
+    let rates = paired(|s| s.success_rate);
+    let success_rate = PairedDifference {
+        a: sa[0],
+        b: sb[0],
+        difference: Estimate {
+            value: d[0],
+            ..rates.to_estimate()
+        },
+        p_value: rates.p_value,
+        min_detectable: z * se(&b0),
+    };
+    let conditional_entropy = if empty == EmptyContexts::CountAsZero {
+        let h = paired(|s| s.entropy.unwrap_or(0.0));
+        PairedDifference {
+            a: sa[1],
+            b: sb[1],
+            difference: Estimate {
+                value: d[1],
+                ..h.to_estimate()
+            },
+            p_value: h.p_value,
+            min_detectable: z * se(&b1),
+        }
+    } else {
+        // The mean over states with a labelled success is not a mean of
+        // per-state differences: the swap test above (`extreme`) and a
+        // paired bootstrap, which can disagree (the method says so).
+        let se1 = se(&b1);
         // Both entropies lie in [0, 1] (see `bootstrap_all`), so does |A − B|.
-        out(1, (-1.0, 1.0), &mut b1),
-    ])
+        let e = bias_corrected_interval(d[1], &mut b1, cfg.confidence, (-1.0, 1.0));
+        PairedDifference {
+            a: sa[1],
+            b: sb[1],
+            difference: Estimate {
+                method: e
+                    .no_interval
+                    .is_none()
+                    .then_some(IntervalMethod::PairedBootstrap),
+                ..e
+            },
+            p_value: (1 + extreme[1]) as f64 / (1 + cfg.resamples) as f64,
+            min_detectable: z * se1,
+        }
+    };
+    Ok([success_rate, conditional_entropy])
 }
 
 /// Paired comparison of two evaluation results (A − B): same task, protocol,

@@ -105,9 +105,9 @@
 //!   test (e.g. an exact test on the discordant states).
 
 use crate::compare::normal_quantile;
+use d3il_protocol::{Estimate, TaskId};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-use std::fmt;
 
 /// Fewest initial states a success-rate interval is given for.
 pub const MIN_STATES: usize = 5;
@@ -122,35 +122,10 @@ pub const EXACT_MAX_STATES: usize = 14;
 /// tolerance as `crate::compare`'s randomisation test).
 const TIE: f64 = 1e-12;
 
-/// Which method made an [`Interval`].
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Method {
-    /// Rule 2: one rollout per state, exact binomial.
-    ClopperPearson,
-    /// Rule 3: every state at 0 (or at 1); each state one trial.
-    ClopperPearsonAllEqual,
-    /// Rule 4: percentile bootstrap over states.
-    ClusterBootstrap,
-    /// Rule 5: Clopper–Pearson at an effective sample size.
-    KornGraubard,
-    /// Inverted sign-flip test, all `2^n` sign vectors.
-    SignFlipExact,
-    /// Inverted sign-flip test, Monte Carlo over sign vectors.
-    SignFlipMonteCarlo,
-}
-
-impl Method {
-    pub fn name(self) -> &'static str {
-        match self {
-            Method::ClopperPearson => "Clopper-Pearson (one rollout per state)",
-            Method::ClopperPearsonAllEqual => "Clopper-Pearson on states (all states equal)",
-            Method::ClusterBootstrap => "percentile cluster bootstrap",
-            Method::KornGraubard => "Korn-Graubard (Clopper-Pearson, effective size)",
-            Method::SignFlipExact => "inverted sign-flip test (exact)",
-            Method::SignFlipMonteCarlo => "inverted sign-flip test (Monte Carlo)",
-        }
-    }
-}
+/// Which method made an [`Interval`] (the names pages print are
+/// [`Method::name`]; the type lives in `d3il_protocol` so that every
+/// document can carry it).
+pub use d3il_protocol::IntervalMethod as Method;
 
 /// A two-sided interval and the method that made it.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -162,6 +137,10 @@ pub struct Interval {
 }
 
 impl Interval {
+    /// The interval as a result document carries it.
+    pub fn to_estimate(self) -> Estimate {
+        Estimate::with_interval(self.estimate, self.low, self.high, self.method)
+    }
     pub fn contains(&self, x: f64) -> bool {
         self.low <= x && x <= self.high
     }
@@ -170,40 +149,8 @@ impl Interval {
     }
 }
 
-/// Why no interval is given.
-#[derive(Debug, Clone, PartialEq)]
-pub enum NoInterval {
-    /// No states, or a state without rollouts.
-    NoData,
-    /// Fewer states than [`MIN_STATES`].
-    TooFewStates { states: usize, min: usize },
-    /// The paired test cannot reject any shift at this level: its smallest
-    /// attainable p-value is above α.
-    TestCannotReject { states: usize, smallest_p: f64 },
-    /// Every state shows the same paired difference: no spread for the
-    /// test to resample.
-    NoSpread { states: usize, difference: f64 },
-}
-
-impl fmt::Display for NoInterval {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        match self {
-            NoInterval::NoData => write!(f, "no interval: no rollouts"),
-            NoInterval::TooFewStates { states, min } => write!(
-                f,
-                "no interval: {states} initial states cannot show how much states differ (an interval needs at least {min})"
-            ),
-            NoInterval::TestCannotReject { states, smallest_p } => write!(
-                f,
-                "no interval: with {states} initial states the paired test's smallest possible p-value is {smallest_p:.3}, so it cannot exclude any difference"
-            ),
-            NoInterval::NoSpread { states, difference } => write!(
-                f,
-                "no interval: all {states} initial states show the same difference {difference:+.3}, so there is no spread to measure its uncertainty from"
-            ),
-        }
-    }
-}
+/// Why no interval is given (its sentence is its `Display`).
+pub use d3il_protocol::NoInterval;
 
 /// Successes and rollouts of one initial state.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -315,6 +262,70 @@ pub fn success_rate_interval(
     let n_df = n_eff * (z / t).powi(2);
     let (lo, hi) = clopper_pearson(p * n_df, n_df, alpha);
     out(lo, hi, Method::KornGraubard)
+}
+
+/// [`success_rate_interval`] as a result document carries it: the estimate
+/// (the mean of the state rates) with its interval, or without one and why.
+pub fn success_rate_estimate(
+    states: &[StateCount],
+    confidence: f64,
+    resamples: usize,
+    seed: u64,
+) -> Estimate {
+    // The value printed is the pooled rate, bit for bit the one results
+    // carried before 0.5.0 (`crate::success_rate`); with the same number of
+    // rollouts on every state it is the interval's mean of state rates up to
+    // the last bit, and the interval is widened to contain it.
+    let rollouts: u32 = states.iter().map(|s| s.rollouts).sum();
+    let successes: u32 = states.iter().map(|s| s.successes).sum();
+    let value = if rollouts == 0 {
+        0.0
+    } else {
+        successes as f64 / rollouts as f64
+    };
+    match success_rate_interval(states, confidence, resamples, seed) {
+        Ok(i) => Estimate::with_interval(value, i.low.min(value), i.high.max(value), i.method),
+        Err(why) => Estimate::without_interval(value, why),
+    }
+}
+
+/// The success-rate estimate of an evaluation of `task`: on a task with one
+/// fixed initial state (Avoiding) the rollouts are independent trials of the
+/// rate itself, and the interval is Clopper–Pearson on all of them (exact);
+/// on every other task [`success_rate_estimate`]'s rule over states.
+pub fn task_success_estimate(
+    task: TaskId,
+    states: &[StateCount],
+    confidence: f64,
+    resamples: usize,
+    seed: u64,
+) -> Estimate {
+    match states {
+        [one] if task.paper_protocol().contexts == 1 && one.rollouts > 0 => {
+            let (k, n) = (one.successes as f64, one.rollouts as f64);
+            let (lo, hi) = clopper_pearson(k, n, 1.0 - confidence);
+            let value = k / n;
+            Estimate::with_interval(
+                value,
+                lo.min(value),
+                hi.max(value),
+                Method::ClopperPearsonRollouts,
+            )
+        }
+        _ => success_rate_estimate(states, confidence, resamples, seed),
+    }
+}
+
+/// Successes and rollouts of each initial state (ascending state index) of
+/// `(state index, success)` pairs, one a rollout.
+pub fn state_counts(rollouts: impl IntoIterator<Item = (usize, bool)>) -> Vec<StateCount> {
+    let mut by_state: std::collections::BTreeMap<usize, StateCount> = Default::default();
+    for (state, success) in rollouts {
+        let c = by_state.entry(state).or_insert(StateCount::new(0, 0));
+        c.rollouts += 1;
+        c.successes += success as u32;
+    }
+    by_state.into_values().collect()
 }
 
 /// Clopper–Pearson bounds of `k` successes in `n` trials (real-valued, as
@@ -498,6 +509,16 @@ pub struct PairedInterval {
     pub estimate: f64,
     pub p_value: f64,
     pub interval: Result<Interval, NoInterval>,
+}
+
+impl PairedInterval {
+    /// The difference as a result document carries it.
+    pub fn to_estimate(&self) -> Estimate {
+        match self.interval {
+            Ok(i) => i.to_estimate(),
+            Err(why) => Estimate::without_interval(self.estimate, why),
+        }
+    }
 }
 
 /// [`PairedInterval`] of per-state rates `a[i]`, `b[i]` (same state i).

@@ -128,42 +128,107 @@ fn sign_flip_segments_match_the_test_statistic_computed_directly() {
 }
 
 #[test]
-fn sign_flip_p_value_is_the_comparisons_randomisation_test() {
-    // The exact p-value against compare_states' Monte-Carlo one (20 000
-    // swaps; its Monte-Carlo error is below 0.004).
+fn a_comparison_prints_the_p_value_of_the_test_whose_inversion_is_its_interval() {
+    // `compare_states` (d3il compare, the server's comparisons, every
+    // robustness drop): its success-rate difference is `SignFlip`'s estimate,
+    // p-value and interval, exact up to 14 states and Monte Carlo above; so
+    // the interval excludes 0 exactly when p < 0.05. The same for the
+    // conditional entropy where states without a success count as 0.
     let mut rng = ChaCha8Rng::seed_from_u64(11);
-    for case in 0..12 {
-        let n = rng.random_range(6..=12usize);
+    let (mut given, mut excluding) = (0, 0);
+    for case in 0..60u64 {
+        let n = rng.random_range(3..=40usize);
         let a: Vec<u32> = rates(&mut rng, n, 8, 0.6, 0.3);
         let b: Vec<u32> = rates(&mut rng, n, 8, 0.45, 0.3);
         let ra: Vec<f64> = a.iter().map(|&k| k as f64 / 8.0).collect();
         let rb: Vec<f64> = b.iter().map(|&k| k as f64 / 8.0).collect();
-        let new = paired_difference_interval(&ra, &rb, 0.95, 1000, 0);
-        let summary = |r: &[f64]| -> Vec<ContextSummary> {
+        let summary = |r: &[f64], flip: bool| -> Vec<ContextSummary> {
             r.iter()
-                .map(|&x| ContextSummary {
+                .enumerate()
+                .map(|(i, &x)| ContextSummary {
                     success_rate: x,
-                    entropy: None,
+                    entropy: (flip == (i % 2 == 0)).then_some(x / 2.0),
                 })
                 .collect()
         };
         let cfg = Bootstrap {
-            resamples: 20_000,
+            resamples: 999,
             confidence: 0.95,
             seed: case,
         };
-        let [old, _] = compare_states(
-            &summary(&ra),
-            &summary(&rb),
-            EmptyContexts::CountAsZero,
-            &cfg,
-        )
-        .unwrap();
+        let (sa, sb) = (summary(&ra, false), summary(&rb, true));
+        let [sr, h] = compare_states(&sa, &sb, EmptyContexts::CountAsZero, &cfg).unwrap();
+        let d: Vec<f64> = ra.iter().zip(&rb).map(|(x, y)| x - y).collect();
+        let test = SignFlip::new(&d, cfg.resamples, cfg.seed);
+        assert_eq!(sr.p_value, test.p_value(0.0), "case {case}");
+        match test.interval(0.95) {
+            Ok(i) => {
+                assert_eq!(
+                    sr.difference.interval(),
+                    Some((i.low, i.high)),
+                    "case {case}"
+                );
+                assert_eq!(sr.difference.method, Some(i.method));
+                given += 1;
+            }
+            Err(why) => assert_eq!(sr.difference.no_interval, Some(why), "case {case}"),
+        }
+        for x in [&sr, &h] {
+            match x.difference.interval() {
+                Some((lo, hi)) => {
+                    let outside = lo > 0.0 || hi < 0.0;
+                    assert_eq!(outside, x.p_value <= 0.05, "case {case}: {x:?}");
+                    excluding += outside as usize;
+                    assert!(hi > lo, "case {case}: width 0: {x:?}");
+                }
+                None => assert!(n <= 5 || x.difference.no_interval.is_some()),
+            }
+        }
+    }
+    assert!(given > 40 && excluding > 5, "{given} {excluding}");
+}
+
+#[test]
+fn the_issues_four_drops_through_the_comparison_get_no_interval_and_say_why() {
+    // Issue 51: a Pushing BC policy, quick protocol suite, 3 states × 2
+    // rollouts. Per-state rates of level 0 and of the level; the service
+    // printed, e.g., `start_shift 2: drop +1.000, 95% CI +1.000 – +1.000,
+    // p 0.2319`. Now: no interval, the reason, and the exact p-value.
+    let s = |r: [f64; 3]| -> Vec<ContextSummary> {
+        r.iter()
+            .map(|&x| ContextSummary {
+                success_rate: x,
+                entropy: None,
+            })
+            .collect()
+    };
+    let cfg = Bootstrap {
+        resamples: 2000,
+        confidence: 0.95,
+        seed: 0,
+    };
+    for (name, control, level, drop) in [
+        ("latency 3", [0.5, 1.0, 0.5], [0.0, 1.0, 0.0], 1.0 / 3.0),
+        ("dynamics 1", [0.5, 1.0, 0.5], [0.5, 0.5, 0.0], 1.0 / 3.0),
+        ("start_shift 2", [1.0, 1.0, 1.0], [0.0, 0.0, 0.0], 1.0),
+        ("obs_noise 1", [1.0, 0.5, 1.0], [0.5, 0.0, 0.5], 0.5),
+    ] {
+        let [d, _] =
+            compare_states(&s(control), &s(level), EmptyContexts::CountAsZero, &cfg).unwrap();
+        assert!((d.difference.value - drop).abs() < 1e-12, "{name}: {d:?}");
+        assert_eq!(d.difference.interval(), None, "{name}: {d:?}");
         assert!(
-            (old.p_value - new.p_value).abs() < 0.015,
-            "case {case}: compare {} exact {}",
-            old.p_value,
-            new.p_value
+            matches!(
+                d.difference.no_interval,
+                Some(NoInterval::TestCannotReject { states: 3, .. })
+            ),
+            "{name}: {d:?}"
+        );
+        assert!(d.p_value >= 0.25, "{name}: {d:?}");
+        assert!(
+            d.interval_note().contains("with 3 initial states"),
+            "{name}: {}",
+            d.interval_note()
         );
     }
 }

@@ -29,6 +29,7 @@ pub mod horizon;
 pub mod interval_sim;
 pub mod intervals;
 pub mod order;
+pub mod recompute;
 pub mod robustness;
 pub mod sequential;
 pub mod sequential_sim;
@@ -43,7 +44,7 @@ pub use compare::{
     compare, compare_parts, compare_states, normal_quantile, wilson_interval, ContextSummary,
 };
 pub use d3il_protocol::StackingLevel;
-use d3il_protocol::{ContextResult, Metrics, Stat, TaskId};
+use d3il_protocol::{ContextResult, Estimate, Metrics, Stat, TaskId};
 use std::collections::BTreeMap;
 
 /// What one rollout produced, as the metrics need it.
@@ -250,7 +251,20 @@ fn entropy_of_counts(
             })
             .sum()
     };
-    Some(h / ln_b)
+    Some(exact_zero(h / ln_b))
+}
+
+/// A context with one behaviour has entropy 0 by definition; the reference's
+/// 1e-12 guards leave about -p ln(p + 1e-12) ≈ 1e-12 · ln 1 + ... ≈ 5e-17
+/// there (issue 51, item 5). Values that small are that residue, never an
+/// entropy (the smallest non-zero entropy, one rollout of another behaviour
+/// is above 0.001 for every task), and are reported as 0.
+pub(crate) fn exact_zero(h: f64) -> f64 {
+    if h.abs() < 1e-12 {
+        0.0
+    } else {
+        h
+    }
 }
 
 /// Outcomes grouped by context index (ascending).
@@ -411,6 +425,7 @@ pub fn evaluate(
             };
             let [success_rate, behaviour_entropy, conditional_entropy] =
                 bootstrap_all(lv, &c(0), conv)?;
+            let success_rate = task_success(task, lv, &c(0)).unwrap_or(success_rate);
             out.push(StackingLevel {
                 success_rate,
                 conditional_entropy,
@@ -438,6 +453,7 @@ pub fn evaluate(
     let conv = EntropyConvention::for_task(task);
     let [success_rate, behaviour_entropy, conditional_entropy] =
         bootstrap_all(outcomes, cfg, &conv)?;
+    let success_rate = task_success(task, outcomes, cfg).unwrap_or(success_rate);
     Ok(Evaluation {
         metrics: Metrics {
             success_rate,
@@ -448,6 +464,21 @@ pub fn evaluate(
             inference_ms,
         },
         per_context: per_context(outcomes, &conv)?,
+    })
+}
+
+/// The success rate's estimate when `task` has one fixed initial state
+/// ([`intervals::task_success_estimate`]); `None`: [`bootstrap_all`]'s
+/// rule over states is the task's.
+fn task_success(task: TaskId, outcomes: &[Outcome], cfg: &Bootstrap) -> Option<Estimate> {
+    (task.paper_protocol().contexts == 1).then(|| {
+        intervals::task_success_estimate(
+            task,
+            &intervals::state_counts(outcomes.iter().map(|o| (o.context_index, o.success))),
+            cfg.confidence,
+            cfg.resamples,
+            cfg.seed,
+        )
     })
 }
 

@@ -327,12 +327,24 @@ fn bootstrap_is_seeded_and_brackets_the_estimate() {
     assert!(a.ci_low < a.value && a.value < a.ci_high, "{a:?}");
     // The spread of per-context rates (0..1) gives a wide interval, inside [0, 1].
     assert!(a.ci_low > 0.2 && a.ci_high < 0.8, "{a:?}");
+    // 10 states: Korn-Graubard, which draws nothing at random.
+    assert_eq!(a.method, Some(d3il_protocol::IntervalMethod::KornGraubard));
     let c = bootstrap(&v, &Bootstrap { seed: 8, ..cfg }, Statistic::SuccessRate).unwrap();
-    assert_ne!((a.ci_low, a.ci_high), (c.ci_low, c.ci_high));
-    // Everything succeeded → a degenerate interval at 1.
-    let all: Vec<Outcome> = (0..20).map(|i| o(i % 4, true, Some("0"))).collect();
+    assert_eq!(a, c);
+    // Everything succeeded on 5 states: Clopper-Pearson counting each state
+    // once, [(α/2)^(1/5), 1], never width 0.
+    let all: Vec<Outcome> = (0..20).map(|i| o(i % 5, true, Some("0"))).collect();
     let e = bootstrap(&all, &cfg, Statistic::SuccessRate).unwrap();
-    assert_eq!((e.value, e.ci_low, e.ci_high), (1.0, 1.0, 1.0));
+    assert_eq!((e.value, e.ci_high), (1.0, 1.0));
+    assert!(close(e.ci_low, 0.05f64.powf(0.2)), "{e:?}");
+    // On 4 states there is none, and the estimate says why.
+    let four: Vec<Outcome> = (0..20).map(|i| o(i % 4, true, Some("0"))).collect();
+    let e = bootstrap(&four, &cfg, Statistic::SuccessRate).unwrap();
+    assert_eq!(e.interval(), None);
+    assert_eq!(
+        e.no_interval,
+        Some(d3il_protocol::NoInterval::TooFewStates { states: 4, min: 5 })
+    );
     assert_eq!(
         bootstrap(
             &all,
@@ -358,6 +370,13 @@ fn bootstrap_over_rollouts_for_single_start() {
         s.ci_low < 0.48 && s.ci_high > 0.52 && s.ci_low > 0.4 && s.ci_high < 0.6,
         "{s:?}"
     );
+    // One fixed start: the rollouts are trials of the rate itself.
+    assert_eq!(
+        s.method,
+        Some(d3il_protocol::IntervalMethod::ClopperPearsonRollouts)
+    );
+    let (lo, hi) = intervals::clopper_pearson(240.0, 480.0, 0.05);
+    assert_eq!((s.ci_low, s.ci_high), (lo, hi));
     assert_eq!(ev.per_context.len(), 1);
     assert!(ev.metrics.stacking.is_none());
 }
@@ -376,4 +395,21 @@ fn a_single_behaviour_has_entropy_plus_zero() {
     let h = behaviour_entropy(&v, 24).unwrap();
     assert_eq!(h, 0.0);
     assert!(h.is_sign_positive(), "printed as -0.000 otherwise");
+}
+
+#[test]
+fn a_deterministic_policys_conditional_entropy_is_exactly_zero() {
+    // Pushing-like: every state's two successes share one behaviour. The
+    // reference's 1e-12 guards left about 5e-17 here (issue 51, item 5).
+    let v: Vec<Outcome> = (0..12).map(|i| o(i / 2, true, Some("1"))).collect();
+    let conv = EntropyConvention::for_task(TaskId::Pushing);
+    assert_eq!(conditional_entropy(&v, &conv).unwrap(), 0.0);
+    let ev = evaluate(TaskId::Pushing, &v, 0.0, &Bootstrap::default()).unwrap();
+    let c = ev.metrics.conditional_entropy;
+    assert_eq!((c.value, c.ci_low, c.ci_high), (0.0, 0.0, 0.0), "{c:?}");
+    assert!(ev.per_context.iter().all(|p| p.conditional_entropy == 0.0));
+    // A real mixture is untouched: one of each of two behaviours → ln 2 / ln |B|.
+    let mixed = [o(0, true, Some("0")), o(0, true, Some("1"))];
+    let want = 2f64.ln() / (conv.n_behaviours as f64).ln();
+    assert!((conditional_entropy(&mixed, &conv).unwrap() - want).abs() < 1e-9);
 }

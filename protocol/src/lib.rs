@@ -6,6 +6,7 @@
 pub mod address;
 pub mod behaviour;
 pub mod fidelity;
+pub mod interval;
 pub mod job;
 pub mod paper;
 pub mod perturbation;
@@ -18,6 +19,7 @@ pub mod shard;
 pub mod task;
 
 pub use behaviour::{behaviour_name, sorting_order};
+pub use interval::{IntervalMethod, NoInterval};
 pub use job::*;
 pub use progress::{Progress, StateOutcome};
 pub use results::*;

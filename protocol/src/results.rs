@@ -1,5 +1,6 @@
 //! Results of one evaluation, and aggregated table cells.
 
+use crate::interval::{IntervalMethod, NoInterval};
 use crate::task::{robot_look_note, ObsType, ProtocolKind, RobotLook, RobotLookNote, TaskId};
 use serde::{Deserialize, Serialize};
 
@@ -148,12 +149,72 @@ impl ProtocolManifest {
     }
 }
 
-/// A value with a bootstrap confidence interval.
+/// A value with its confidence interval, the method that made it, or why
+/// there is none (issue 51; docs/intervals.md).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct Estimate {
     pub value: f64,
+    /// The interval's ends; both equal to `value` when `no_interval` says
+    /// why there is none (read them through [`Estimate::interval`]).
     pub ci_low: f64,
     pub ci_high: f64,
+    /// The method of the interval; absent in documents written before 0.5.0,
+    /// whose intervals were all the bias-corrected bootstrap.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub method: Option<IntervalMethod>,
+    /// Why no interval is given (e.g. 3 initial states).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub no_interval: Option<NoInterval>,
+}
+
+impl Estimate {
+    /// A value with an interval made by `method`.
+    pub fn with_interval(value: f64, ci_low: f64, ci_high: f64, method: IntervalMethod) -> Self {
+        Estimate {
+            value,
+            ci_low,
+            ci_high,
+            method: Some(method),
+            no_interval: None,
+        }
+    }
+
+    /// A value without an interval, and why.
+    pub fn without_interval(value: f64, why: NoInterval) -> Self {
+        Estimate {
+            value,
+            ci_low: value,
+            ci_high: value,
+            method: None,
+            no_interval: Some(why),
+        }
+    }
+
+    /// The interval's ends, or `None` when there is none.
+    pub fn interval(&self) -> Option<(f64, f64)> {
+        match self.no_interval {
+            Some(_) => None,
+            None => Some((self.ci_low, self.ci_high)),
+        }
+    }
+
+    /// `0.300–0.500` (at `digits` decimals), or the short reason there is no interval.
+    pub fn interval_text(&self, digits: usize) -> String {
+        match &self.no_interval {
+            Some(why) => why.short(),
+            None => format!("{:.digits$}–{:.digits$}", self.ci_low, self.ci_high),
+        }
+    }
+
+    /// What the interval is: its method's name, the reason there is none,
+    /// or for documents written before 0.5.0 the method they all had.
+    pub fn interval_note(&self) -> String {
+        match (&self.no_interval, self.method) {
+            (Some(why), _) => why.to_string(),
+            (None, Some(m)) => m.name().to_string(),
+            (None, None) => "bias-corrected bootstrap (before 0.5.0)".to_string(),
+        }
+    }
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -257,6 +318,9 @@ pub struct EvalResult {
     pub manifest: ProtocolManifest,
     pub metrics: Metrics,
     pub per_context: Vec<ContextResult>,
+    /// Empty (or absent) in summaries that leave the records out (a stored
+    /// robustness summary, docs/measurements).
+    #[serde(default)]
     pub rollouts: Vec<RolloutRecord>,
     /// Rollouts ended as failures because the simulation became unstable
     /// (their records carry `failure.reason = sim_unstable`).
@@ -392,6 +456,25 @@ pub struct PairedDifference {
     pub min_detectable: f64,
 }
 
+impl PairedDifference {
+    /// What the difference's interval and p-value are, in a sentence (the
+    /// CLI and the pages print it).
+    pub fn interval_note(&self) -> String {
+        match (self.difference.no_interval, self.difference.method) {
+            (Some(why), _) => format!("{why}; p from the paired randomisation test"),
+            (None, Some(m)) if m.agrees_with_p_value() => format!(
+                "interval: the {}, the test whose p-value is shown: 0 is outside it exactly when p < 0.05",
+                m.name()
+            ),
+            (None, Some(m)) => format!(
+                "interval: {}; p from the paired randomisation test (the two can disagree)",
+                m.name()
+            ),
+            (None, None) => format!("interval: {}", self.difference.interval_note()),
+        }
+    }
+}
+
 /// A paired comparison of two results on the same task, protocol and initial
 /// states (`d3il compare`, `GET /api/v1/compare`).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -499,11 +582,13 @@ mod tests {
         assert_eq!(m.stacking, Some([0.9, 0.7, 0.4]));
         assert_eq!(m.stacking_levels, None);
         // And the levels round-trip when present.
-        let e = |v| Estimate {
-            value: v,
-            ci_low: v,
-            ci_high: v,
-        };
+        assert_eq!(m.success_rate.method, None);
+        assert_eq!(m.success_rate.interval(), Some((0.3, 0.5)));
+        assert_eq!(
+            m.success_rate.interval_note(),
+            "bias-corrected bootstrap (before 0.5.0)"
+        );
+        let e = |v| Estimate::with_interval(v, v / 2.0, v, IntervalMethod::KornGraubard);
         let level = |s, b, c| StackingLevel {
             success_rate: e(s),
             behaviour_entropy: e(b),
@@ -519,6 +604,30 @@ mod tests {
         };
         let back: Metrics = serde_json::from_str(&serde_json::to_string(&m).unwrap()).unwrap();
         assert_eq!(back, m);
+    }
+
+    #[test]
+    fn an_estimate_without_an_interval_says_why_in_json_and_text() {
+        let e =
+            Estimate::without_interval(2.0 / 3.0, NoInterval::TooFewStates { states: 3, min: 5 });
+        let json = serde_json::to_string(&e).unwrap();
+        assert!(
+            json.contains(r#""no_interval":{"reason":"too_few_states","states":3,"min":5}"#),
+            "{json}"
+        );
+        assert!(!json.contains("method"), "{json}");
+        let back: Estimate = serde_json::from_str(&json).unwrap();
+        assert_eq!(back, e);
+        assert_eq!(back.interval(), None);
+        assert_eq!(back.interval_text(3), "no interval (3 states)");
+        assert!(back
+            .interval_note()
+            .contains("3 initial states cannot show"));
+        let with = Estimate::with_interval(0.5, 0.25, 0.75, IntervalMethod::SignFlipExact);
+        let json = serde_json::to_string(&with).unwrap();
+        assert!(json.contains(r#""method":"sign_flip_exact""#), "{json}");
+        assert_eq!(with.interval_text(2), "0.25–0.75");
+        assert_eq!(with.interval_note(), "inverted sign-flip test (exact)");
     }
 
     /// Results travel worker → JSON line → server → JSON in SQLite; every f64
@@ -537,11 +646,7 @@ mod tests {
             values.push((x >> 11) as f64 / (1u64 << 53) as f64);
         }
         for v in values {
-            let e = Estimate {
-                value: v,
-                ci_low: v / 3.0,
-                ci_high: v * 7.0,
-            };
+            let e = Estimate::with_interval(v, v / 3.0, v * 7.0, IntervalMethod::ClusterBootstrap);
             let back: Estimate = serde_json::from_str(&serde_json::to_string(&e).unwrap()).unwrap();
             for (a, b) in [
                 (back.value, e.value),

@@ -260,11 +260,7 @@ pub fn probes(assets_dir: &Path) -> Vec<SandboxMechanism> {
 /// A result that is obviously a self-test (evaluator version `selftest`), so it
 /// can never be mistaken for a measurement.
 fn fake_result(job: &Job) -> EvalResult {
-    let zero = Estimate {
-        value: 0.0,
-        ci_low: 0.0,
-        ci_high: 0.0,
-    };
+    let zero = Estimate::without_interval(0.0, d3il_protocol::NoInterval::NoData);
     EvalResult {
         manifest: ProtocolManifest {
             task: job.task,

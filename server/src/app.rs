@@ -376,6 +376,9 @@ pub async fn prepare(
         Some(dir) => crate::zoo::load(&store, dir).await?,
         None => Default::default(),
     };
+    // Results stored under earlier interval rules (the zoo's included),
+    // recomputed from their rollout records (issue 51).
+    crate::upgrade::recompute_stored_intervals(&store).await?;
     // Pool jobs and dry-runs share the worker slots: the pool's `workers`
     // general slots plus its quick-protocol slot (`queue::start_pool`).
     let pool_slots = if cfg.workers > 0 { cfg.workers + 1 } else { 0 };

@@ -53,6 +53,7 @@ pub mod schema;
 pub mod state;
 pub mod store;
 pub mod telemetry;
+pub mod upgrade;
 pub mod videos;
 pub mod views;
 pub mod zoo;

@@ -11,7 +11,8 @@ use crate::store::{
     now, JobKind, JobRow, JobState, PolicyKind, ResultRow, SubmissionRow, SubmissionStatus,
 };
 use d3il_protocol::{
-    ContextResult, ObsType, ProtocolKind, SandboxMechanism, StackingLevel, TaskId,
+    ContextResult, Estimate, IntervalMethod, NoInterval, ObsType, ProtocolKind, SandboxMechanism,
+    StackingLevel, TaskId,
 };
 use serde::Serialize;
 use serde_json::Value;
@@ -261,12 +262,38 @@ pub struct ResultsView {
     pub mostly_unstable: bool,
 }
 
-/// A metric with its bootstrap confidence interval.
+/// A metric with its 95 % confidence interval and the interval's method, or
+/// why there is none (issue 51).
 #[derive(Debug, Serialize, ToSchema)]
 pub struct EstimateView {
     pub value: f64,
+    /// Equal to `value` when `no_interval` is given.
     pub ci_low: f64,
     pub ci_high: f64,
+    /// The interval's method (`korn_graubard`, `sign_flip_exact`, ...);
+    /// absent for results made before 0.5.0 and when there is no interval.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    #[schema(value_type = Option<String>)]
+    pub method: Option<IntervalMethod>,
+    /// Why there is no interval (`{"reason": "too_few_states", "states": 3, "min": 5}`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    #[schema(value_type = Option<Object>)]
+    pub no_interval: Option<NoInterval>,
+    /// The method's name, or the reason there is no interval, in words.
+    pub interval: String,
+}
+
+impl From<Estimate> for EstimateView {
+    fn from(e: Estimate) -> Self {
+        EstimateView {
+            value: e.value,
+            ci_low: e.ci_low,
+            ci_high: e.ci_high,
+            method: e.method,
+            no_interval: e.no_interval,
+            interval: e.interval_note(),
+        }
+    }
 }
 
 #[derive(Debug, Serialize, ToSchema)]
@@ -366,11 +393,7 @@ pub async fn submission_view(state: &AppState, id: i64) -> Result<SubmissionView
 pub async fn results_view(state: &AppState, r: ResultRow) -> Result<ResultsView, AppError> {
     let rollouts = state.store.rollouts_for(r.submission_id).await?;
     let job = state.store.job_for(r.submission_id).await?;
-    let est = |value, ci_low, ci_high| EstimateView {
-        value,
-        ci_low,
-        ci_high,
-    };
+    let m = r.metrics();
     let manifest = r.manifest();
     let n_rollouts = rollouts.len() as i64;
     Ok(ResultsView {
@@ -386,13 +409,9 @@ pub async fn results_view(state: &AppState, r: ResultRow) -> Result<ResultsView,
         mostly_unstable: 2 * r.rollouts_ended_unstable > n_rollouts,
         submission_id: r.submission_id,
         metrics: MetricsView {
-            success_rate: est(r.success_rate, r.success_ci_low, r.success_ci_high),
-            behaviour_entropy: est(r.behaviour_entropy, r.behaviour_ci_low, r.behaviour_ci_high),
-            conditional_entropy: est(
-                r.conditional_entropy,
-                r.conditional_ci_low,
-                r.conditional_ci_high,
-            ),
+            success_rate: m.success_rate.into(),
+            behaviour_entropy: m.behaviour_entropy.into(),
+            conditional_entropy: m.conditional_entropy.into(),
             stacking: r.stacking_json.map(|j| j.0),
             stacking_levels: r.stacking_levels_json.map(|j| j.0),
             inference_ms: r.inference_ms,

@@ -96,6 +96,13 @@ async fn compare_page_shows_paired_differences_contexts_and_behaviours() {
         page.contains("&#60; 0.001"),
         "p-value of a clear difference: {page}"
     );
+    // The interval names its method: the p-value's own test inverted
+    // (30 states: Monte Carlo over sign vectors).
+    assert_eq!(d["difference"]["method"], "sign_flip_monte_carlo", "{api}");
+    assert!(
+        page.contains("Success rate: interval: the inverted sign-flip test (Monte Carlo), the test whose p-value is shown: 0 is outside it exactly when p &#60; 0.05."),
+        "{page}"
+    );
     // Thirty initial states side by side, and the behaviour counts of both.
     let contexts = &page[page.find("id=\"contexts\"").unwrap()..];
     assert_eq!(contexts.matches("<tr><td class=\"num\">").count(), 30);

@@ -27,10 +27,13 @@ async fn evaluated(
     let store = &app.state.store;
     let id = queued_submission(store, method, task, ProtocolKind::Paper, training_seed, 1).await;
     let job = store.job_for(id).await.expect("job");
-    let est = |v: f64| Estimate {
-        value: v,
-        ci_low: v - 0.05,
-        ci_high: v + 0.05,
+    let est = |v: f64| {
+        d3il_protocol::Estimate::with_interval(
+            v,
+            v - 0.05,
+            v + 0.05,
+            d3il_protocol::IntervalMethod::KornGraubard,
+        )
     };
     let result = EvalResult {
         manifest: ProtocolManifest {

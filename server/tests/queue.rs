@@ -19,10 +19,13 @@ fn script(dir: &Path, name: &str, body: &str) -> PathBuf {
 }
 
 fn result_line(task: TaskId) -> String {
-    let est = |v: f64| Estimate {
-        value: v,
-        ci_low: v - 0.05,
-        ci_high: v + 0.05,
+    let est = |v: f64| {
+        d3il_protocol::Estimate::with_interval(
+            v,
+            v - 0.05,
+            v + 0.05,
+            d3il_protocol::IntervalMethod::KornGraubard,
+        )
     };
     let r = EvalResult {
         manifest: ProtocolManifest {

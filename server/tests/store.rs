@@ -15,10 +15,13 @@ fn eval_result(task: TaskId, success: f64, cond: f64, paths: bool) -> EvalResult
         rollouts_per_context: 2,
         ..d3il_test_support::test_manifest(task, ProtocolKind::Paper)
     };
-    let est = |v| Estimate {
-        value: v,
-        ci_low: v - 0.1,
-        ci_high: v + 0.1,
+    let est = |v| {
+        d3il_protocol::Estimate::with_interval(
+            v,
+            v - 0.1,
+            v + 0.1,
+            d3il_protocol::IntervalMethod::KornGraubard,
+        )
     };
     let rollouts = (0..4)
         .map(|i| RolloutRecord {

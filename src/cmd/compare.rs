@@ -90,17 +90,16 @@ pub fn render(c: &Comparison) -> String {
         c.task, c.protocol.as_str(), c.n_contexts, c.rollouts_per_context, c.initial_states, c.initial_states_sha256
     );
     s += &format!(
-        "{:<22} {:>7} {:>7} {:>8} {:>21} {:>8} {:>9}\n",
+        "{:<22} {:>7} {:>7} {:>8}   {:<30} {:>8} {:>9}\n",
         "metric", "A", "B", "A − B", "95% CI", "p", "min. det."
     );
     let row = |name: &str, d: &PairedDifference| {
         format!(
-            "{name:<22} {:>7.3} {:>7.3} {:>+8.3} {:>+9.3} – {:<+9.3} {:>8.4} {:>9.3}\n",
+            "{name:<22} {:>7.3} {:>7.3} {:>+8.3}   {:<30} {:>8.4} {:>9.3}\n",
             d.a,
             d.b,
             d.difference.value,
-            d.difference.ci_low,
-            d.difference.ci_high,
+            paired_interval_text(&d.difference),
             d.p_value,
             d.min_detectable
         )
@@ -110,11 +109,23 @@ pub fn render(c: &Comparison) -> String {
     for caveat in &c.caveats {
         s += &format!("note: {caveat}\n");
     }
-    s += &format!(
-        "p: randomisation test paired by initial state ({} permutations); min. det.: the difference detected with 80 % power at the 5 % level at this size\n",
-        c.resamples
-    );
+    for (name, d) in [
+        ("success rate", &c.success_rate),
+        ("conditional entropy", &c.conditional_entropy),
+    ] {
+        s += &format!("{name}: {}\n", d.interval_note());
+    }
+    s += "min. det.: the difference detected with 80 % power at the 5 % level at this size\n";
     s
+}
+
+/// A paired difference's interval as `+0.100 – +0.300` (signed), or the
+/// short reason there is none.
+pub fn paired_interval_text(e: &d3il_protocol::Estimate) -> String {
+    match e.interval() {
+        Some((lo, hi)) => format!("{lo:+.3} – {hi:+.3}"),
+        None => e.interval_text(3),
+    }
 }
 
 fn sequential(a: &EvalResult, b: &EvalResult, args: &Args) -> anyhow::Result<()> {

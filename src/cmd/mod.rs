@@ -17,6 +17,7 @@ pub mod eval;
 pub mod fidelity;
 pub mod fixtures;
 pub mod infer;
+pub mod intervals;
 pub mod limits;
 pub mod merge;
 pub mod race;

@@ -169,7 +169,10 @@ impl robustness::SuiteObserver for Printer {
 
 fn interval(e: &Option<Estimate>) -> String {
     match e {
-        Some(e) => format!("{:.3} [{:.3}, {:.3}]", e.value, e.ci_low, e.ci_high),
+        Some(e) => match e.interval() {
+            Some((lo, hi)) => format!("{:.3} [{lo:.3}, {hi:.3}]", e.value),
+            None => format!("{:.3} ({})", e.value, e.interval_text(3)),
+        },
         None => "— (no success at level 0)".into(),
     }
 }
@@ -189,14 +192,14 @@ pub fn render(doc: &RobustnessResult) -> String {
         doc.suite_sha256
     );
     let head = format!(
-        "{:<18} {:>7} {:>8} {:>19} {:>8} {:>7} {:>7} {:>8}\n",
+        "{:<18} {:>7} {:>8}   {:<30} {:>8} {:>7} {:>7} {:>8}\n",
         "level", "success", "drop", "95% CI", "p", "H", "H|s0", "retained"
     );
     for a in &doc.axes {
         s += &format!("\n{}: score {}\n", a.axis, interval(&a.score));
         s += &head;
         s += &format!(
-            "{:<18} {:>7.3} {:>8} {:>19} {:>8} {:>7.3} {:>7.3} {:>8}\n",
+            "{:<18} {:>7.3} {:>8}   {:<30} {:>8} {:>7.3} {:>7.3} {:>8}\n",
             "0 (standard)",
             c.metrics.success_rate.value,
             "",
@@ -209,12 +212,11 @@ pub fn render(doc: &RobustnessResult) -> String {
         for l in doc.levels.iter().filter(|l| l.axis == a.axis) {
             let d = &l.paired.success_rate;
             s += &format!(
-                "{:<18} {:>7.3} {:>+8.3} {:>+8.3} – {:<+8.3} {:>8.4} {:>7.3} {:>7.3} {:>8}\n",
+                "{:<18} {:>7.3} {:>+8.3}   {:<30} {:>8.4} {:>7.3} {:>7.3} {:>8}\n",
                 format!("{} ({})", l.level, l.setting.label),
                 l.result.metrics.success_rate.value,
                 d.difference.value,
-                d.difference.ci_low,
-                d.difference.ci_high,
+                super::compare::paired_interval_text(&d.difference),
                 d.p_value,
                 l.result.metrics.behaviour_entropy.value,
                 l.result.metrics.conditional_entropy.value,
@@ -225,8 +227,18 @@ pub fn render(doc: &RobustnessResult) -> String {
         }
     }
     s += &format!("\noverall robustness score: {}\n", interval(&doc.overall));
+    let mut notes: Vec<String> = doc
+        .levels
+        .iter()
+        .map(|l| l.paired.success_rate.interval_note())
+        .collect();
+    notes.sort();
+    notes.dedup();
+    for n in notes {
+        s += &format!("drop: {n}\n");
+    }
     s += &format!(
-        "drop: level 0 − level, paired by initial state (`d3il compare`: bootstrap interval, randomisation-test p, {} resamples); H: behaviour entropy; H|s0: conditional behaviour entropy; retained: share of level 0's successes kept, paired by initial state (Σ min(p0, p) / Σ p0, at most 1); score: retained averaged over the axis's levels (overall: over the axes), {:.0} % paired bootstrap interval\n",
+        "drop: level 0 − level, paired by initial state (`d3il compare`, {} resamples); H: behaviour entropy; H|s0: conditional behaviour entropy; retained: share of level 0's successes kept, paired by initial state (Σ min(p0, p) / Σ p0, at most 1); score: retained averaged over the axis's levels (overall: over the axes), {:.0} % paired bootstrap interval (bias-corrected; for the score's expected value at this size, approximate, and not to be trusted with few initial states)\n",
         doc.resamples,
         doc.confidence * 100.0
     );

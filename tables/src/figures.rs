@@ -69,8 +69,9 @@ impl FromStr for FigureKind {
 }
 
 /// Colour `i` of `n` evenly spaced hues (HSL with s = 0.65, l = 0.45), for
-/// behaviours (methods use [`method_colour`]).
-fn hue(i: usize, n: usize) -> RGBColor {
+/// behaviours (methods use [`method_colour`]): the paper figures' and the
+/// rollout figures' (`rollouts::draw`).
+pub(crate) fn hue(i: usize, n: usize) -> RGBColor {
     let h = (i as f64 / n.max(1) as f64) * 6.0;
     let (s, l) = (0.65, 0.45);
     let c = (1.0 - (2.0 * l - 1.0_f64).abs()) * s;

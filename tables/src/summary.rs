@@ -46,12 +46,26 @@ pub fn metrics_table(result: &EvalResult) -> String {
     if let Some(note) = man.robot_look_note() {
         let _ = writeln!(out, "note: {}", note.text);
     }
-    let _ = writeln!(out, "{:<28} {:>8} {:>20}", "metric", "value", "95% CI");
-    let line = |out: &mut String, name: &str, e: Estimate| {
+    let _ = writeln!(
+        out,
+        "{:<28} {:>8}   {:<30} interval",
+        "metric", "value", "95% CI"
+    );
+    let mut reasons: Vec<(String, String)> = Vec::new();
+    let mut line = |out: &mut String, name: &str, e: Estimate| {
+        let method = match (e.no_interval, e.method) {
+            (Some(why), _) => {
+                reasons.push((name.to_string(), why.to_string()));
+                String::new()
+            }
+            (None, Some(m)) => m.name().to_string(),
+            (None, None) => e.interval_note(),
+        };
         let _ = writeln!(
             out,
-            "{name:<28} {:>8.3} {:>9.3} – {:<8.3}",
-            e.value, e.ci_low, e.ci_high
+            "{name:<28} {:>8.3}   {:<30} {method}",
+            e.value,
+            e.interval_text(3)
         );
     };
     for (name, e) in [
@@ -83,6 +97,9 @@ pub fn metrics_table(result: &EvalResult) -> String {
         "{:<28} {:>8.3}",
         "inference ms per call", m.inference_ms
     );
+    for (name, why) in reasons {
+        let _ = writeln!(out, "{name}: {why}");
+    }
     let _ = writeln!(
         out,
         "initial states: {} ({}), sha256 {}",

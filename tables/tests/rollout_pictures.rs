@@ -417,11 +417,7 @@ fn the_start_map_has_a_point_per_initial_state_darker_where_more_succeeded() {
 
 #[test]
 fn start_states_come_from_each_initial_states_first_trace() {
-    let est = Estimate {
-        value: 0.5,
-        ci_low: 0.0,
-        ci_high: 1.0,
-    };
+    let est = Estimate::with_interval(0.5, 0.0, 1.0, d3il_protocol::IntervalMethod::KornGraubard);
     let traces: Vec<RolloutTrace> = (0..2).map(|c| trace(10 + c, 3, true)).collect();
     let mut rollouts = Vec::new();
     for (c, t) in traces.iter().enumerate() {

@@ -19,8 +19,9 @@ macro_rules! insert_result {
             "INSERT INTO results (submission_id, success_rate, success_ci_low, success_ci_high, behaviour_entropy, \
              behaviour_ci_low, behaviour_ci_high, conditional_entropy, conditional_ci_low, conditional_ci_high, \
              stacking_json, stacking_levels_json, inference_ms, manifest_json, per_context_json, created_at, \
-             rollouts_ended_unstable) \
-             VALUES ($1, $2, $3, $4, $5, $6, $7, $8, $9, $10, $11, $12, $13, $14, $15, $16, $17) ON CONFLICT(submission_id) DO NOTHING",
+             rollouts_ended_unstable, intervals_json, intervals_rules) \
+             VALUES ($1, $2, $3, $4, $5, $6, $7, $8, $9, $10, $11, $12, $13, $14, $15, $16, $17, $18, $19) \
+             ON CONFLICT(submission_id) DO NOTHING",
         )
         .bind(submission_id)
         .bind(m.success_rate.value)
@@ -39,6 +40,8 @@ macro_rules! insert_result {
         .bind(to_json(&result.per_context))
         .bind(t)
         .bind(result.rollouts_ended_unstable as i64)
+        .bind(to_json(&$crate::store::IntervalNotes::of(m)))
+        .bind(d3il_metrics::recompute::rules_of(m))
         .execute($tx)
         .await?;
         for r in &result.rollouts {

@@ -44,6 +44,7 @@ macro_rules! begin_write {
 
 mod comparisons;
 mod files;
+mod intervals;
 #[macro_use]
 mod jobs;
 mod live;
@@ -65,7 +66,7 @@ pub use jobs::{ClaimedJob, JobKind, JobRow};
 pub use live::{CancelOutcome, Cancelled, StateOutcome, CANCELLED_KIND};
 pub use methods::{MethodRow, NewMethod};
 pub use moderation::{AuditEntry, QuotaOverrides, QuotaUsage, Withdrawal, DAY_S};
-pub use results::{ResultRow, RolloutRow, SeedSummary};
+pub use results::{IntervalNote, IntervalNotes, ResultRow, RolloutRow, SeedSummary};
 pub use robustness::{summary_of, RobustnessRow};
 pub use shards::ShardPart;
 /// Re-exported so that callers reading the rows themselves (`d3il bench

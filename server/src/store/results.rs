@@ -8,9 +8,9 @@ use super::types::{Stored, SubmissionStatus};
 use super::{Store, StoreError};
 use crate::leaderboard::{evaluated_rows, protocol_str, BoardRow, EvaluatedSeed};
 use d3il_protocol::{
-    ContextResult, Ending, Estimate, EvalResult, Metrics, ObsType, ProtocolKind, ProtocolManifest,
-    ResultCell, RobotLook, RolloutFailure, RolloutRecord, RolloutTrace, Source, StackingLevel,
-    TaskId,
+    ContextResult, Ending, Estimate, EvalResult, IntervalMethod, Metrics, NoInterval, ObsType,
+    ProtocolKind, ProtocolManifest, ResultCell, RobotLook, RolloutFailure, RolloutRecord,
+    RolloutTrace, Source, StackingLevel, TaskId,
 };
 use sqlx::FromRow;
 
@@ -37,6 +37,43 @@ pub struct ResultRow {
     pub created_at: i64,
     /// Rollouts ended as failures because the simulation became unstable.
     pub rollouts_ended_unstable: i64,
+    /// How each estimate's interval was made (migration 0014); NULL for
+    /// results stored before 0.5.0 until the start-up recomputation.
+    pub intervals_json: Option<Json<IntervalNotes>>,
+    /// The interval rules the row was computed under
+    /// (`d3il_metrics::recompute::RULES_VERSION`); NULL before 0.5.0.
+    pub intervals_rules: Option<i64>,
+}
+
+/// What an [`Estimate`] says about its interval besides its ends.
+#[derive(Debug, Clone, Copy, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct IntervalNote {
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub method: Option<IntervalMethod>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub no_interval: Option<NoInterval>,
+}
+
+/// The three estimates' [`IntervalNote`]s (`results.intervals_json`).
+#[derive(Debug, Clone, Copy, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct IntervalNotes {
+    pub success_rate: IntervalNote,
+    pub behaviour_entropy: IntervalNote,
+    pub conditional_entropy: IntervalNote,
+}
+
+impl IntervalNotes {
+    pub fn of(m: &Metrics) -> IntervalNotes {
+        let note = |e: &Estimate| IntervalNote {
+            method: e.method,
+            no_interval: e.no_interval,
+        };
+        IntervalNotes {
+            success_rate: note(&m.success_rate),
+            behaviour_entropy: note(&m.behaviour_entropy),
+            conditional_entropy: note(&m.conditional_entropy),
+        }
+    }
 }
 
 impl ResultRow {
@@ -47,22 +84,36 @@ impl ResultRow {
 
     /// The metrics as the worker (or the merge of its shards) made them.
     pub fn metrics(&self) -> Metrics {
-        let est = |value, ci_low, ci_high| Estimate {
+        let notes = self
+            .intervals_json
+            .as_ref()
+            .map(|j| j.0)
+            .unwrap_or_default();
+        let est = |value, ci_low, ci_high, note: IntervalNote| Estimate {
             value,
             ci_low,
             ci_high,
+            method: note.method,
+            no_interval: note.no_interval,
         };
         Metrics {
-            success_rate: est(self.success_rate, self.success_ci_low, self.success_ci_high),
+            success_rate: est(
+                self.success_rate,
+                self.success_ci_low,
+                self.success_ci_high,
+                notes.success_rate,
+            ),
             behaviour_entropy: est(
                 self.behaviour_entropy,
                 self.behaviour_ci_low,
                 self.behaviour_ci_high,
+                notes.behaviour_entropy,
             ),
             conditional_entropy: est(
                 self.conditional_entropy,
                 self.conditional_ci_low,
                 self.conditional_ci_high,
+                notes.conditional_entropy,
             ),
             stacking: self.stacking_json.as_ref().map(|j| j.0),
             stacking_levels: self.stacking_levels_json.as_ref().map(|j| j.0),
@@ -283,8 +334,8 @@ impl Store {
         Ok(on_db!(&self.db, pool => sqlx::query_as(
             "SELECT submission_id, success_rate, success_ci_low, success_ci_high, behaviour_entropy, behaviour_ci_low, \
              behaviour_ci_high, conditional_entropy, conditional_ci_low, conditional_ci_high, stacking_json, \
-             stacking_levels_json, inference_ms, manifest_json, per_context_json, created_at, rollouts_ended_unstable \
-             FROM results WHERE submission_id = $1",
+             stacking_levels_json, inference_ms, manifest_json, per_context_json, created_at, rollouts_ended_unstable, \
+             intervals_json, intervals_rules FROM results WHERE submission_id = $1",
         )
         .bind(submission_id)
         .fetch_optional(pool)

@@ -26,8 +26,8 @@ macro_rules! insert_robustness {
         })?;
         sqlx::query(
             "INSERT INTO robustness_results (submission_id, suite, suite_sha256, overall, overall_ci_low, \
-             overall_ci_high, summary_json, document_json, created_at) VALUES ($1, $2, $3, $4, $5, $6, $7, $8, $9) \
-             ON CONFLICT (submission_id) DO NOTHING",
+             overall_ci_high, summary_json, document_json, created_at, intervals_rules) \
+             VALUES ($1, $2, $3, $4, $5, $6, $7, $8, $9, $10) ON CONFLICT (submission_id) DO NOTHING",
         )
         .bind(submission_id)
         .bind(&doc.suite)
@@ -38,6 +38,7 @@ macro_rules! insert_robustness {
         .bind(summary)
         .bind(document)
         .bind($crate::store::now())
+        .bind(d3il_metrics::recompute::rules_of(&doc.control.metrics))
         .execute($exec)
         .await?;
     }};

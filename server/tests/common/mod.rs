@@ -379,10 +379,13 @@ pub fn aligning_result(
     cond: f64,
     initial_states: &str,
 ) -> d3il_protocol::EvalResult {
-    let est = |v: f64| d3il_protocol::Estimate {
-        value: v,
-        ci_low: v - 0.05,
-        ci_high: v + 0.05,
+    let est = |v: f64| {
+        d3il_protocol::Estimate::with_interval(
+            v,
+            v - 0.05,
+            v + 0.05,
+            d3il_protocol::IntervalMethod::KornGraubard,
+        )
     };
     d3il_protocol::EvalResult {
         manifest: d3il_protocol::ProtocolManifest {

@@ -79,7 +79,10 @@ pub fn degradation_svg(group: &SuiteGroup<'_>, axis: Axis) -> Result<String, Tab
             let line: Vec<(f64, f64)> = c.iter().map(|(l, s)| px(*l as f64, s.value)).collect();
             ov.polyline("lines", &line, colour, 2.0, false);
             for (l, s) in c {
-                ov.error_bar(px(*l as f64, s.ci_low), px(*l as f64, s.ci_high), colour);
+                // No bar where there is no interval (e.g. 3 initial states).
+                if let Some((lo, hi)) = s.interval() {
+                    ov.error_bar(px(*l as f64, lo), px(*l as f64, hi), colour);
+                }
                 ov.marker("points", px(*l as f64, s.value), shape(true), 3.5, colour);
             }
         }
@@ -142,8 +145,12 @@ pub fn score_vs_entropy_svg(group: &SuiteGroup<'_>) -> Result<String, TablesErro
             let Some(o) = e.doc.overall else { continue };
             let c = method_colour(&e.method);
             let x = h(e);
-            ov.error_bar(px(x.value, o.ci_low), px(x.value, o.ci_high), c);
-            ov.error_bar(px(x.ci_low, o.value), px(x.ci_high, o.value), c);
+            if let Some((lo, hi)) = o.interval() {
+                ov.error_bar(px(x.value, lo), px(x.value, hi), c);
+            }
+            if let Some((lo, hi)) = x.interval() {
+                ov.error_bar(px(lo, o.value), px(hi, o.value), c);
+            }
             let at = px(x.value, o.value);
             ov.marker("points", at, shape(true), POINT_R, c);
             anchors.push(at);

@@ -274,21 +274,33 @@ pub fn group_by_suite(entries: &[RobustnessEntry]) -> Vec<SuiteGroup<'_>> {
     groups
 }
 
-/// `value [low, high]`, or `–` when there is none.
+/// `value [low, high]`, `value (no interval (3 states))` when the estimate
+/// has no interval, or `–` when there is no estimate.
 pub fn interval_text(e: &Option<Estimate>) -> String {
     match e {
-        Some(e) => format!(
-            "{} [{}, {}]",
-            three_decimals(e.value),
-            three_decimals(e.ci_low),
-            three_decimals(e.ci_high)
-        ),
+        Some(e) => match e.interval() {
+            Some((lo, hi)) => format!(
+                "{} [{}, {}]",
+                three_decimals(e.value),
+                three_decimals(lo),
+                three_decimals(hi)
+            ),
+            None => format!("{} ({})", three_decimals(e.value), e.interval_text(3)),
+        },
         None => "–".into(),
     }
 }
 
+/// An interval's ends as CSV cells: empty when there is none.
+fn ci_cells(e: &Estimate) -> [String; 2] {
+    match e.interval() {
+        Some((lo, hi)) => [format!("{lo}"), format!("{hi}")],
+        None => [String::new(), String::new()],
+    }
+}
+
 /// What the scores mean (every format prints it).
-pub const NOTE: &str = "Score: success retained (a level's success rate over level 0's), averaged over an axis's levels; overall: the mean of the axes' scores; 95 % paired bootstrap intervals over initial states. Methods: mean ± sample standard deviation over training seeds, as on the boards; the rows per seed (with intervals) follow. Level 0 is the plain evaluation (the control arm); every level runs on the same initial states, seed and rollout ids. Rows of different suite files or protocols are never ranked together. – : no success at level 0 (nothing to retain).";
+pub const NOTE: &str = "Score: success retained (a level's success rate over level 0's), averaged over an axis's levels; overall: the mean of the axes' scores; scores carry 95 % paired bootstrap intervals over initial states (bias-corrected percentile: approximate, for the score's expected value at this size, unreliable with few initial states); success rates and drops the intervals of docs/intervals.md (none with fewer than 5 initial states, and the reason instead). Methods: mean ± sample standard deviation over training seeds, as on the boards; the rows per seed (with intervals) follow. Level 0 is the plain evaluation (the control arm); every level runs on the same initial states, seed and rollout ids. Rows of different suite files or protocols are never ranked together. – : no success at level 0 (nothing to retain).";
 
 fn header(g: &SuiteGroup<'_>) -> Vec<String> {
     let mut h = vec![
@@ -538,8 +550,8 @@ fn csv(groups: &[SuiteGroup<'_>]) -> Result<String, TablesError> {
                 "0".into(),
                 "standard protocol".into(),
                 f(s0.value),
-                f(s0.ci_low),
-                f(s0.ci_high),
+                ci_cells(&s0)[0].clone(),
+                ci_cells(&s0)[1].clone(),
                 String::new(),
                 String::new(),
                 String::new(),
@@ -557,11 +569,11 @@ fn csv(groups: &[SuiteGroup<'_>]) -> Result<String, TablesError> {
                     l.level.to_string(),
                     l.setting.label.clone(),
                     f(s.value),
-                    f(s.ci_low),
-                    f(s.ci_high),
+                    ci_cells(&s)[0].clone(),
+                    ci_cells(&s)[1].clone(),
                     f(d.difference.value),
-                    f(d.difference.ci_low),
-                    f(d.difference.ci_high),
+                    ci_cells(&d.difference)[0].clone(),
+                    ci_cells(&d.difference)[1].clone(),
                     f(d.p_value),
                     l.retained.map(f).unwrap_or_default(),
                 ]);
@@ -576,7 +588,10 @@ fn csv(groups: &[SuiteGroup<'_>]) -> Result<String, TablesError> {
             for (axis, level, score) in scores {
                 let mut r = base.clone();
                 let (v, lo, hi) = match score {
-                    Some(s) => (f(s.value), f(s.ci_low), f(s.ci_high)),
+                    Some(s) => {
+                        let [lo, hi] = ci_cells(&s);
+                        (f(s.value), lo, hi)
+                    }
                     None => Default::default(),
                 };
                 r.extend([

@@ -339,24 +339,31 @@ pub(super) fn sequential(t: f64) -> RGBColor {
     RGBColor(mix(a.0, b.0), mix(a.1, b.1), mix(a.2, b.2))
 }
 
-/// Colour `i` of `n` evenly spaced hues, the behaviour colours of the paper
-/// figures (`render_avoiding_paths`: HSL with s = 0.65, l = 0.45).
-pub(super) fn hue(i: usize, n: usize) -> RGBColor {
-    let h = (i as f64 / n.max(1) as f64) * 6.0;
-    let (s, l) = (0.65, 0.45);
-    let c = (1.0 - (2.0 * l - 1.0_f64).abs()) * s;
-    let x = c * (1.0 - (h % 2.0 - 1.0).abs());
-    let (r, g, b) = match h as u32 {
-        0 => (c, x, 0.0),
-        1 => (x, c, 0.0),
-        2 => (0.0, c, x),
-        3 => (0.0, x, c),
-        4 => (x, 0.0, c),
-        _ => (c, 0.0, x),
-    };
-    let m = l - c / 2.0;
-    let to = |v: f64| ((v + m) * 255.0).round().clamp(0.0, 255.0) as u8;
-    RGBColor(to(r), to(g), to(b))
+pub(super) use crate::figures::hue;
+
+/// One figure: a white SVG canvas of `width` × `height` points on which
+/// `body` draws with plotters (`root`) and writes the groups of `layer` and
+/// the `ov` overlay (text, legends), spliced into one document in that order.
+pub(super) fn figure(
+    width: f64,
+    height: f64,
+    body: impl FnOnce(
+        &DrawingArea<SVGBackend<'_>, Shift>,
+        &mut Layer,
+        &mut Overlay,
+    ) -> Result<(), TablesError>,
+) -> Result<String, TablesError> {
+    let mut layer = Layer::default();
+    let mut ov = Overlay::default();
+    let mut buf = String::new();
+    {
+        let root =
+            SVGBackend::with_string(&mut buf, (width as u32, height as u32)).into_drawing_area();
+        root.fill(&WHITE).map_err(pe)?;
+        body(&root, &mut layer, &mut ov)?;
+        root.present().map_err(pe)?;
+    }
+    Ok(layer.finish(buf, ov))
 }
 
 /// Indices of at most `max` of `n` points, evenly spaced, first and last kept.

@@ -4,11 +4,11 @@
 
 use super::draw::{
     caption_lines, colour_bar, colour_bar_width, draw_caption, draw_title, hue, sequential, Group,
-    Layer, CAPTION_ROW, COLOUR_BAR_H, GREY, TITLE_H,
+    CAPTION_ROW, COLOUR_BAR_H, GREY, TITLE_H,
 };
 use super::scene::{self, world, View, ORIENTATION};
 use super::{is_target, StartState};
-use crate::plot::{esc, hex, legend, legend_size, pe, text_width, LegendEntry, Overlay, Shape};
+use crate::plot::{esc, hex, legend, legend_size, text_width, LegendEntry, Shape};
 use crate::TablesError;
 use d3il_protocol::TaskId;
 use plotters::prelude::*;
@@ -211,13 +211,7 @@ pub fn start_map_svg(task: TaskId, contexts: &[StartState]) -> Result<String, Ta
     let top_h = f64::from(TITLE_H + HEADING_H + ch).max(column_h);
     let height = (top_h + 8.0 + CAPTION_ROW * lines.len() as f64 + 8.0).ceil();
 
-    let mut layer = Layer::default();
-    let mut ov = Overlay::default();
-    let mut buf = String::new();
-    {
-        let root =
-            SVGBackend::with_string(&mut buf, (width as u32, height as u32)).into_drawing_area();
-        root.fill(&WHITE).map_err(pe)?;
+    super::draw::figure(width, height, |root, layer, ov| {
         let headings = [
             ("success", "Success rate"),
             ("behaviour", "Dominant behaviour"),
@@ -234,7 +228,7 @@ pub fn start_map_svg(task: TaskId, contexts: &[StartState]) -> Result<String, Ta
                     "middle",
                     heading,
                 );
-            scene::frame_group(&mut layer, &f, view);
+            scene::frame_group(layer, &f, view);
             let clip = layer.clip_to(&f);
             let g = layer.group("points", &[("data-panel", key.to_string()), clip]);
             for (c, k, p) in &points {
@@ -256,13 +250,13 @@ pub fn start_map_svg(task: TaskId, contexts: &[StartState]) -> Result<String, Ta
         }
         let column_x = f64::from(2 * cw) + 6.0;
         let mut y = colour_bar(
-            &mut layer,
+            layer,
             (column_x, f64::from(TITLE_H + HEADING_H) + 8.0),
             BAR_TITLE,
             &bar_labels,
         );
         y = legend(
-            &mut ov,
+            ov,
             (column_x, y + 4.0),
             Some(BEHAVIOUR_TITLE),
             &behaviour_entries,
@@ -270,15 +264,14 @@ pub fn start_map_svg(task: TaskId, contexts: &[StartState]) -> Result<String, Ta
         .y1;
         if !object_entries.is_empty() {
             legend(
-                &mut ov,
+                ov,
                 (column_x, y + 16.0),
                 Some(OBJECT_TITLE),
                 &object_entries,
             );
         }
-        draw_caption(&mut layer, (10.0, top_h + 8.0), &lines);
-        draw_title(&mut layer, width, &title);
-        root.present().map_err(pe)?;
-    }
-    Ok(layer.finish(buf, ov))
+        draw_caption(layer, (10.0, top_h + 8.0), &lines);
+        draw_title(layer, width, &title);
+        Ok(())
+    })
 }

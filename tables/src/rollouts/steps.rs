@@ -2,12 +2,12 @@
 //! objects' distances to the targets, in stacked panels on one time axis.
 
 use super::draw::{
-    self, caption_lines, draw_caption, draw_title, envelope, hue, sequential, Layer, CAPTION_ROW,
+    self, caption_lines, draw_caption, draw_title, envelope, hue, sequential, CAPTION_ROW,
     MAX_POINTS, TITLE_H, X_LABEL_AREA,
 };
 use super::top_down::{ending_text, seconds};
 use super::{finite_prefix, is_target, rollout_name, unpack};
-use crate::plot::{hex, legend, legend_size, pe, text_width, LegendEntry, Overlay};
+use crate::plot::{hex, legend, legend_size, text_width, LegendEntry};
 use crate::TablesError;
 use d3il_protocol::{LandmarkKind, RolloutRecord, RolloutTrace, TaskId};
 use plotters::prelude::*;
@@ -222,13 +222,7 @@ pub fn step_plots_svg(
     let top_h = f64::from(TITLE_H + plots_h);
     let height = (top_h + 8.0 + CAPTION_ROW * lines.len() as f64 + 8.0).ceil();
 
-    let mut layer = Layer::default();
-    let mut ov = Overlay::default();
-    let mut buf = String::new();
-    {
-        let root =
-            SVGBackend::with_string(&mut buf, (width as u32, height as u32)).into_drawing_area();
-        root.fill(&WHITE).map_err(pe)?;
+    draw::figure(width, height, |root, layer, ov| {
         let x_ticks = draw::tick(duration);
         let mut y = TITLE_H;
         for (i, (p, h)) in panels.iter().zip(&heights).enumerate() {
@@ -273,7 +267,7 @@ pub fn step_plots_svg(
             }
             if p.key == "distance" {
                 legend(
-                    &mut ov,
+                    ov,
                     (f64::from(CHART_W) + 6.0, f64::from(y + HEADING_H)),
                     Some(LEGEND_TITLE),
                     &distance_entries,
@@ -281,9 +275,8 @@ pub fn step_plots_svg(
             }
             y += HEADING_H + h;
         }
-        draw_caption(&mut layer, (10.0, top_h + 8.0), &lines);
-        draw_title(&mut layer, width, &title);
-        root.present().map_err(pe)?;
-    }
-    Ok(layer.finish(buf, ov))
+        draw_caption(layer, (10.0, top_h + 8.0), &lines);
+        draw_title(layer, width, &title);
+        Ok(())
+    })
 }

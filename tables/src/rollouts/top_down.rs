@@ -8,8 +8,7 @@ use super::draw::{
 use super::scene::{self, world, View, ORIENTATION};
 use super::{finite_prefix, is_target, rollout_name, unpack};
 use crate::plot::{
-    draw_labels, hex, legend, legend_size, pe, place_labels, text_width, LegendEntry, Overlay,
-    Shape,
+    draw_labels, hex, legend, legend_size, place_labels, text_width, LegendEntry, Shape,
 };
 use crate::TablesError;
 use d3il_protocol::{LandmarkKind, RolloutRecord, RolloutTrace, TaskId};
@@ -253,26 +252,20 @@ pub fn top_down_svg(
     let top_h = f64::from(TITLE_H + ch).max(column_h);
     let height = (top_h + 8.0 + CAPTION_ROW * lines.len() as f64 + 8.0).ceil();
 
-    let mut layer = Layer::default();
-    let mut ov = Overlay::default();
-    let mut buf = String::new();
-    {
-        let root =
-            SVGBackend::with_string(&mut buf, (width as u32, height as u32)).into_drawing_area();
-        root.fill(&WHITE).map_err(pe)?;
+    draw::figure(width, height, |root, layer, ov| {
         let area = root.clone().shrink((0, TITLE_H), (cw, ch));
         let f = scene::axes(&area, view)?;
-        scene::frame_group(&mut layer, &f, view);
+        scene::frame_group(layer, &f, view);
         let clip = layer.clip_to(&f);
-        scene::draw_landmarks(&mut layer, &f, &trace.landmarks);
+        scene::draw_landmarks(layer, &f, &trace.landmarks);
         for (name, at) in &targets {
-            scene::draw_target_object(&mut layer, &f, name, *at);
+            scene::draw_target_object(layer, &f, name, *at);
         }
         let mut ends = Vec::new();
         for (name, p) in &moving {
             let attrs = vec![("data-object", name.to_string()), clip.clone()];
             if let Some(e) = time_path(
-                &mut layer,
+                layer,
                 &f,
                 "object-path",
                 attrs,
@@ -284,7 +277,7 @@ pub fn top_down_svg(
             }
         }
         if let Some(e) = time_path(
-            &mut layer,
+            layer,
             &f,
             "tcp-path",
             vec![clip.clone()],
@@ -295,7 +288,7 @@ pub fn top_down_svg(
             ends.push(("tcp".to_string(), e));
         }
         for (name, e) in &ends {
-            marks(&mut layer, name, *e, &clip);
+            marks(layer, name, *e, &clip);
         }
         // Names at the objects' starts and the targets.
         let mut anchors = Vec::new();
@@ -318,15 +311,10 @@ pub fn top_down_svg(
         }
         let placed = place_labels(&anchors, &texts, LABEL_FONT, 7.0, f.rect());
         let colours = vec![RGBColor(0x55, 0x55, 0x55); anchors.len()];
-        draw_labels(&mut ov, &anchors, &texts, &colours, &placed, LABEL_FONT);
+        draw_labels(ov, &anchors, &texts, &colours, &placed, LABEL_FONT);
 
         let column_x = f64::from(cw) + 6.0;
-        let frame = legend(
-            &mut ov,
-            (column_x, f64::from(TITLE_H) + 8.0),
-            None,
-            &entries,
-        );
+        let frame = legend(ov, (column_x, f64::from(TITLE_H) + 8.0), None, &entries);
         let cy = frame.y0 + 5.0 + LEGEND_ROW * end_row as f64 + LEGEND_ROW / 2.0;
         ov.line(
             "legend",
@@ -342,17 +330,11 @@ pub fn top_down_svg(
             BLACK,
             2.0,
         );
-        colour_bar(
-            &mut layer,
-            (column_x, frame.y1 + 16.0),
-            BAR_TITLE,
-            &bar_labels,
-        );
-        draw_caption(&mut layer, (10.0, top_h + 8.0), &lines);
-        draw_title(&mut layer, width, &title);
-        root.present().map_err(pe)?;
-    }
-    Ok(layer.finish(buf, ov))
+        colour_bar(layer, (column_x, frame.y1 + 16.0), BAR_TITLE, &bar_labels);
+        draw_caption(layer, (10.0, top_h + 8.0), &lines);
+        draw_title(layer, width, &title);
+        Ok(())
+    })
 }
 
 /// Every rollout's TCP path of one submission overlaid (the paper's figure
@@ -449,18 +431,12 @@ pub fn overlay_svg(
     let top_h = f64::from(TITLE_H + ch).max(f64::from(TITLE_H) + 16.0 + lh);
     let height = (top_h + 8.0 + CAPTION_ROW * lines.len() as f64 + 8.0).ceil();
 
-    let mut layer = Layer::default();
-    let mut ov = Overlay::default();
-    let mut buf = String::new();
-    {
-        let root =
-            SVGBackend::with_string(&mut buf, (width as u32, height as u32)).into_drawing_area();
-        root.fill(&WHITE).map_err(pe)?;
+    draw::figure(width, height, |root, layer, ov| {
         let area = root.clone().shrink((0, TITLE_H), (cw, ch));
         let f = scene::axes(&area, view)?;
-        scene::frame_group(&mut layer, &f, view);
+        scene::frame_group(layer, &f, view);
         let clip = layer.clip_to(&f);
-        scene::draw_landmarks(&mut layer, &f, landmarks);
+        scene::draw_landmarks(layer, &f, landmarks);
         // Failed rollouts underneath, then the successful ones.
         for pass in [false, true] {
             for (r, label, p) in paths.iter().filter(|p| p.0.success == pass) {
@@ -489,14 +465,13 @@ pub fn overlay_svg(
             }
         }
         legend(
-            &mut ov,
+            ov,
             (f64::from(cw) + 6.0, f64::from(TITLE_H) + 8.0),
             Some(LEGEND_TITLE),
             &entries,
         );
-        draw_caption(&mut layer, (10.0, top_h + 8.0), &lines);
-        draw_title(&mut layer, width, &title);
-        root.present().map_err(pe)?;
-    }
-    Ok(layer.finish(buf, ov))
+        draw_caption(layer, (10.0, top_h + 8.0), &lines);
+        draw_title(layer, width, &title);
+        Ok(())
+    })
 }

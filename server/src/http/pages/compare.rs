@@ -40,6 +40,9 @@ struct DiffLine {
     min_detectable: String,
     /// The interval excludes zero.
     clear: bool,
+    /// The interval's method and how it relates to the p-value, or why
+    /// there is no interval.
+    note: String,
 }
 
 struct ContextPair {
@@ -124,14 +127,17 @@ fn diff_line(name: &'static str, d: &PairedDifference) -> DiffLine {
         a: fmt_num(d.a),
         b: fmt_num(d.b),
         diff: signed(d.difference.value),
-        ci: format!(
-            "[{}, {}]",
-            signed(d.difference.ci_low),
-            signed(d.difference.ci_high)
-        ),
+        ci: match d.difference.interval() {
+            Some((lo, hi)) => format!("[{}, {}]", signed(lo), signed(hi)),
+            None => "no interval".into(),
+        },
         p: p_text(d.p_value),
         min_detectable: fmt_num(d.min_detectable),
-        clear: d.difference.ci_low > 0.0 || d.difference.ci_high < 0.0,
+        clear: d
+            .difference
+            .interval()
+            .is_some_and(|(lo, hi)| lo > 0.0 || hi < 0.0),
+        note: d.interval_note(),
     }
 }
 

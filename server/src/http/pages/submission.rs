@@ -38,6 +38,8 @@ struct MetricLine {
     name: &'static str,
     value: String,
     ci: String,
+    /// The interval's method, or why there is none (issue 51).
+    method: String,
 }
 
 #[derive(Template)]
@@ -137,27 +139,25 @@ pub(super) async fn submission_page(
     let mut browser = None;
     let mut bad_query = false;
     if let Some(r) = &result {
-        let ci = |lo: f64, hi: f64| format!("[{}, {}]", fmt_num(lo), fmt_num(hi));
+        let m = r.metrics();
+        let line = |name, e: d3il_protocol::Estimate| MetricLine {
+            name,
+            value: fmt_num(e.value),
+            ci: match e.interval() {
+                Some((lo, hi)) => format!("[{}, {}]", fmt_num(lo), fmt_num(hi)),
+                None => "no interval".into(),
+            },
+            method: e.interval_note(),
+        };
         metrics = vec![
-            MetricLine {
-                name: "Success rate",
-                value: fmt_num(r.success_rate),
-                ci: ci(r.success_ci_low, r.success_ci_high),
-            },
-            MetricLine {
-                name: "Conditional behaviour entropy",
-                value: fmt_num(r.conditional_entropy),
-                ci: ci(r.conditional_ci_low, r.conditional_ci_high),
-            },
-            MetricLine {
-                name: "Behaviour entropy H(π(β))",
-                value: fmt_num(r.behaviour_entropy),
-                ci: ci(r.behaviour_ci_low, r.behaviour_ci_high),
-            },
+            line("Success rate", m.success_rate),
+            line("Conditional behaviour entropy", m.conditional_entropy),
+            line("Behaviour entropy H(π(β))", m.behaviour_entropy),
             MetricLine {
                 name: "Inference time per query (ms)",
                 value: format!("{:.2}", r.inference_ms),
                 ci: String::new(),
+                method: String::new(),
             },
         ];
         let levels = r.stacking_levels_json.as_ref().map(|j| j.0);
@@ -184,11 +184,7 @@ pub(super) async fn submission_page(
                     .into_iter()
                     .zip(names)
                 {
-                    metrics.push(MetricLine {
-                        name,
-                        value: fmt_num(e.value),
-                        ci: ci(e.ci_low, e.ci_high),
-                    });
+                    metrics.push(line(name, e));
                 }
             }
         } else if let Some(st) = r.stacking_json.as_ref().map(|j| j.0) {
@@ -205,6 +201,7 @@ pub(super) async fn submission_page(
                     name,
                     value: fmt_num(st[k]),
                     ci: String::new(),
+                    method: String::new(),
                 });
             }
         }

@@ -1,0 +1,164 @@
+//! Results made before 0.5.0 brought to this version's intervals (issue 51)
+//! from what they keep: per-rollout records (success, and for Stacking the
+//! registration order) and the per-state breakdown. What the server runs on
+//! every stored result at start-up and `d3il intervals recompute` runs on
+//! documents.
+//!
+//! * success rates (Stacking: each level's) get [`crate::intervals`]'s
+//!   interval from the records, seeded as the evaluation was (the manifest's
+//!   seed; the resamples only matter at 100 states or more);
+//! * entropies keep their values and bootstrap intervals, with the one
+//!   change 0.5.0 made there: residues below 1e-12 of the reference's
+//!   guards are exact zeros (`exact_zero`), and the method is named;
+//! * paired drops of a robustness document are computed again from the
+//!   recomputed level results, as [`crate::suite_shard::document`] makes
+//!   them, and with them the scores.
+//!
+//! The values of success rates and entropies above 1e-12 do not move;
+//! intervals and p-values do.
+
+use crate::intervals::{state_counts, task_success_estimate, StateCount};
+use crate::suite_shard::{document, SuiteLevels};
+use crate::MetricsError;
+use d3il_protocol::perturbation::Perturbation;
+use d3il_protocol::robustness::RobustnessResult;
+use d3il_protocol::{Estimate, EvalResult, IntervalMethod, TaskId};
+
+/// The bootstrap resamples evaluations run with (`d3il eval`'s default);
+/// used by the success-rate rule only at 100 states or more.
+pub const RESAMPLES: usize = 1000;
+
+/// This version's interval rules (issue 51); stored next to results so that
+/// the server recomputes those made under an earlier rule.
+pub const RULES_VERSION: i64 = 1;
+
+/// The interval rules `m` was computed under, as far as it says: builds
+/// from 0.5.0 on name the success rate's method or why it has none
+/// ([`RULES_VERSION`]); earlier ones never did (`None`: recompute).
+pub fn rules_of(m: &d3il_protocol::Metrics) -> Option<i64> {
+    (m.success_rate.method.is_some() || m.success_rate.no_interval.is_some())
+        .then_some(RULES_VERSION)
+}
+
+fn entropy(e: &mut Estimate) {
+    for x in [&mut e.value, &mut e.ci_low, &mut e.ci_high] {
+        *x = crate::exact_zero(*x);
+    }
+    if e.method.is_none() && e.no_interval.is_none() {
+        e.method = Some(IntervalMethod::BiasCorrectedBootstrap);
+    }
+}
+
+/// `r`'s intervals as this version computes them (see the module docs).
+pub fn recompute_intervals(r: &mut EvalResult) -> Result<(), MetricsError> {
+    let task = r.manifest.task;
+    let seed = r.manifest.seed;
+    if r.rollouts.is_empty() {
+        // A summary without records: the per-state breakdown holds each
+        // state's rate of its `rollouts_per_context` rollouts (Stacking:
+        // Stacking-3's only).
+        if task == TaskId::Stacking || r.per_context.is_empty() {
+            return Err(MetricsError::Records(
+                "the document has no rollout records to recompute its intervals from".into(),
+            ));
+        }
+        let m = r.manifest.rollouts_per_context.max(1) as u32;
+        let states: Vec<StateCount> = r
+            .per_context
+            .iter()
+            .map(|c| StateCount::new((c.success_rate * m as f64).round() as u32, m))
+            .collect();
+        let e = task_success_estimate(task, &states, 0.95, RESAMPLES, seed);
+        // The value stays the stored one (bit for bit).
+        let v = r.metrics.success_rate.value;
+        r.metrics.success_rate = Estimate {
+            value: v,
+            ci_low: e.ci_low.min(v),
+            ci_high: e.ci_high.max(v),
+            ..e
+        };
+        if e.no_interval.is_some() {
+            r.metrics.success_rate.ci_low = v;
+            r.metrics.success_rate.ci_high = v;
+        }
+        finish_entropies(r);
+        return Ok(());
+    }
+    let success = |level: &dyn Fn(&d3il_protocol::RolloutRecord) -> bool, seed: u64| -> Estimate {
+        let states = state_counts(r.rollouts.iter().map(|x| (x.context_index, level(x))));
+        task_success_estimate(task, &states, 0.95, RESAMPLES, seed)
+    };
+    let m = &mut r.metrics;
+    if task == TaskId::Stacking {
+        // Level X (1, 2) succeeds when X boxes registered: the order string's
+        // length (`crate::stacking_levels`); level 3 on the full stack.
+        let order_len = |x: &d3il_protocol::RolloutRecord| -> Result<usize, MetricsError> {
+            x.behaviour.as_str().map(str::len).ok_or_else(|| {
+                MetricsError::Records(format!(
+                    "Stacking rollout {} of initial state {} has behaviour {} where a registration order string was expected",
+                    x.rollout_index, x.context_index, x.behaviour
+                ))
+            })
+        };
+        for x in &r.rollouts {
+            order_len(x)?;
+        }
+        let rates: [Estimate; 3] = [
+            // The seeds `evaluate` gives the levels.
+            success(&|x| order_len(x).unwrap_or(0) >= 1, seed),
+            success(&|x| order_len(x).unwrap_or(0) >= 2, seed.wrapping_add(10)),
+            success(&|x| x.success, seed.wrapping_add(20)),
+        ];
+        if let Some(levels) = m.stacking_levels.as_mut() {
+            for (l, rate) in levels.iter_mut().zip(rates) {
+                l.success_rate = rate;
+                entropy(&mut l.behaviour_entropy);
+                entropy(&mut l.conditional_entropy);
+            }
+        }
+        m.success_rate = rates[2];
+    } else {
+        m.success_rate = success(&|x| x.success, seed);
+    }
+    finish_entropies(r);
+    Ok(())
+}
+
+fn finish_entropies(r: &mut EvalResult) {
+    entropy(&mut r.metrics.behaviour_entropy);
+    entropy(&mut r.metrics.conditional_entropy);
+    for c in &mut r.per_context {
+        c.conditional_entropy = crate::exact_zero(c.conditional_entropy);
+    }
+}
+
+/// A robustness document's results, drops and scores as this version
+/// computes them.
+pub fn recompute_robustness(doc: &mut RobustnessResult) -> Result<(), MetricsError> {
+    let mut control = doc.control.clone();
+    recompute_intervals(&mut control)?;
+    let suite = SuiteLevels {
+        name: doc.suite.clone(),
+        sha256: doc.suite_sha256.clone(),
+        axes: doc.axes.iter().map(|a| a.axis).collect(),
+        levels: Vec::new(),
+    };
+    let mut results = Vec::with_capacity(doc.levels.len());
+    for l in &doc.levels {
+        let mut r = l.result.clone();
+        recompute_intervals(&mut r)?;
+        let p = Perturbation {
+            suite: doc.suite.clone(),
+            suite_sha256: doc.suite_sha256.clone(),
+            axis: l.axis,
+            level: l.level,
+            setting: l.setting.clone(),
+        };
+        results.push((p, r));
+    }
+    let seed = control.manifest.seed;
+    let mut fresh = document(&suite, control, results, seed)?;
+    fresh.format = doc.format.clone();
+    *doc = fresh;
+    Ok(())
+}
