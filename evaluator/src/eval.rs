@@ -436,7 +436,7 @@ fn prepare(
             })
             .collect(),
         ctx_range: ctx_range.clone(),
-        // The evaluation's random order of its states (issue 41): any prefix
+        // The evaluation's random order of its states: any prefix
         // of what has finished is a fair sample. The records are stored by
         // rollout id, so the result does not depend on it.
         order: d3il_metrics::order::state_order(n_ctx, opts.seed)

@@ -1,4 +1,4 @@
-//! The robustness track's perturbations (issue 40, docs/robustness.md): the
+//! The robustness track's perturbations (docs/robustness.md): the
 //! fixed, versioned suite files (`assets/robustness/<task>-v<N>.json`, sha256
 //! checked at load like the initial-state sets) and what each axis does.
 //!

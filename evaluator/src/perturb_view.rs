@@ -1,4 +1,4 @@
-//! The image axes of the robustness suites (issue 40, docs/robustness.md):
+//! The image axes of the robustness suites (docs/robustness.md):
 //! what `camera` and `lighting` change in a freshly compiled scene, before
 //! any renderer is made from it (a renderer copies its model, and the
 //! engine's renderer is keyed by the model it draws).

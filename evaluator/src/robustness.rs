@@ -1,4 +1,4 @@
-//! A robustness evaluation (issue 40, docs/robustness.md): level 0 (the plain
+//! A robustness evaluation (docs/robustness.md): level 0 (the plain
 //! evaluation, the control arm) and every level of the task's perturbation
 //! suite on the same initial states, seed and rollout ids, with each level's
 //! paired drop against level 0 (`d3il compare`'s machinery) and the

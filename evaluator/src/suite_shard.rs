@@ -1,4 +1,4 @@
-//! A robustness evaluation in shards (issue 40, item 5; docs/robustness.md):
+//! A robustness evaluation in shards (docs/robustness.md):
 //! `d3il eval --suite robustness --shard K/N` and a worker's suite job with
 //! a shard run the same block of whole initial states at level 0 and at
 //! every level of the suite ([`evaluate_suite_shard`]); `d3il merge` joins

@@ -291,7 +291,7 @@ pub struct Job {
     /// `d3il eval` know the fingerprint; a sandboxed worker cannot compute it).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub build: Option<crate::results::BuildIdentity>,
-    /// Evaluate the task's perturbation suite (`"robustness"`, issue 40):
+    /// Evaluate the task's perturbation suite (`"robustness"`):
     /// level 0 (the plain evaluation) and every level, answered with a
     /// [`crate::robustness::RobustnessResult`]; with [`Job::shard`] too, the
     /// shard's part of level 0 and of every level
@@ -299,7 +299,7 @@ pub struct Job {
     /// checks that the suite exists, then runs as without it.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub suite: Option<String>,
-    /// A sequential race (issue 41): this job's policy is A, the race's is
+    /// A sequential race: this job's policy is A, the race's is
     /// B; answered with a [`crate::race::RaceReport`].
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub race: Option<crate::race::RaceJob>,

@@ -1,4 +1,4 @@
-//! What an evaluation reports while it runs (issue 41): the rollouts done,
+//! What an evaluation reports while it runs: the rollouts done,
 //! and the outcomes of the initial states finished so far **in the
 //! evaluation's random order** (`d3il_metrics::order::state_order` of the
 //! protocol's initial states under the manifest's seed), so that every
@@ -19,7 +19,7 @@ pub struct Progress {
     /// prefix of the order. Empty when nothing new is complete.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub states: Vec<StateOutcome>,
-    /// A race job's progress (issue 41): where the paired test stands after
+    /// A race job's progress: where the paired test stands after
     /// the latest pair; one report per pair.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub race: Option<Box<crate::race::RaceProgress>>,

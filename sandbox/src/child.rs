@@ -90,7 +90,7 @@ where
             return exit_code::BAD_JOB;
         }
     };
-    // A race job's second policy is read too (issue 41).
+    // A race job's second policy is read too.
     let policy_files: Vec<&Path> = std::iter::once(&job.policy)
         .chain(job.race.as_ref().map(|r| &r.policy_b))
         .filter_map(|p| match p {

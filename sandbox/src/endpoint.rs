@@ -1,4 +1,4 @@
-//! Remote endpoint URL validation against server-side request forgery (issue 6):
+//! Remote endpoint URL validation against server-side request forgery:
 //! only ws/wss, a real host, and unless the job allows it no address in the
 //! loopback, link-local, private, shared (CGNAT) or otherwise special ranges.
 //! The host is resolved first and *every* address is checked, so a name that

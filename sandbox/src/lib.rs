@@ -1,5 +1,5 @@
 //! d3il-sandbox: everything that keeps an untrusted submission from hurting the
-//! host (issue 6, docs/sandbox.md).
+//! host (docs/sandbox.md).
 //!
 //! Two sides:
 //! - the **child** (`d3il worker`): [`confine`] applies rlimits, a fresh network

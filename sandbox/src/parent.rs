@@ -1,5 +1,5 @@
 //! Parent side: run one `d3il worker` process and turn however it ends into a
-//! typed [`Outcome`] (issue 6). Used by the server's worker pool and by
+//! typed [`Outcome`]. Used by the server's worker pool and by
 //! `d3il eval --sandbox`.
 //!
 //! The worker runs in its own process group (so a kill reaches everything it may
@@ -143,7 +143,7 @@ pub fn run_worker_cancellable(
 
 /// [`run_worker_cancellable`] whose `on_progress` gets every progress line
 /// whole: the counts and the initial states newly finished in the
-/// evaluation's random order ([`Progress::states`], issue 41), from which a
+/// evaluation's random order ([`Progress::states`]), from which a
 /// live confidence sequence of the success rate is computed.
 pub fn run_worker_reporting(
     cmd: &WorkerCommand,

@@ -1,5 +1,5 @@
 //! `d3il bench robustness`: what a robustness evaluation costs per rollout
-//! against a plain one (issue 40, item 5). The scripted Aligning expert
+//! against a plain one. The scripted Aligning expert
 //! (every rollout simulated) runs the plain protocol, then the whole suite
 //! (level 0 and every level, `d3il_evaluator::robustness::evaluate_suite`);
 //! the cost is compared per env step simulated, since perturbed rollouts that

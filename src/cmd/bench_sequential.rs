@@ -1,7 +1,7 @@
 //! `d3il bench sequential`: how many rollouts the sequential paired test
 //! (d3il_metrics::sequential) saves against the fixed-size paired test of
 //! equal power, and that it keeps its type-I error, by Monte Carlo over a
-//! grid of success-rate pairs (issue 41). The protocol view (the last line)
+//! grid of success-rate pairs. The protocol view (the last line)
 //! runs the test as a comparison does, deciding by the boundary calibrated
 //! to the protocol's horizon (d3il_metrics::horizon); the anytime e-value
 //! rule is measured beside it, and alone in the design view (which needs

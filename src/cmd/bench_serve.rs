@@ -1,5 +1,5 @@
 //! `d3il bench serve`: latency of a normal request while the server is under
-//! attack (issue 17). The server runs in this process on its own runtime
+//! attack. The server runs in this process on its own runtime
 //! (two threads) with a temporary database holding a finished 480-rollout
 //! Pushing submission; a load generator on another runtime drives the
 //! Pushing leaderboard page with closed-loop keep-alive clients, first quiet,

@@ -1,4 +1,4 @@
-//! `d3il bench served-agent` (issue 39, item 3): a served BESO-sized reference agent
+//! `d3il bench served-agent`: a served BESO-sized reference agent
 //! against the Aligning paper protocol. It runs clients/python/bench_served_agent.py,
 //! which serves the reference's Aligning BESO in size and settings (random weights)
 //! batched over the remote protocol on 127.0.0.1, times requests of the evaluator's

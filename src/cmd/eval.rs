@@ -177,7 +177,7 @@ pub fn read_manifest(
 
 /// The job `args` describe, with everything about them checked that can be
 /// checked without a simulation, a model load or this build's physics
-/// fingerprint (issue 43: a wrong name or file is refused at once, not after
+/// fingerprint (a wrong name or file is refused at once, not after
 /// a minute of fingerprinting): the scripted name, the endpoint URL, the ONNX
 /// file and its manifest against the task, the shard and the output path.
 /// `build` is left empty: [`run`] fills it in after the policy has loaded.

@@ -1,5 +1,5 @@
 //! `d3il tables`: regenerates the D3IL paper's result tables (LaTeX, Markdown,
-//! CSV) and figures (SVG) from the leaderboard database (issue 8). The
+//! CSV) and figures (SVG) from the leaderboard database. The
 //! rendering lives in the `d3il-tables` crate; this file reads the store.
 
 use anyhow::Context;

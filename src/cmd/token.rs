@@ -1,7 +1,7 @@
 //! `d3il token create --name NAME [--admin]`: mint an API token (printed once;
 //! only its hash is stored). `d3il token revoke TOKEN_OR_PREFIX`: revoke one.
 //! `d3il token set-quota --name NAME --per-day N ...`: a submitter's quota
-//! overrides (issue 42). Revocations and quota changes go to the audit log.
+//! overrides. Revocations and quota changes go to the audit log.
 
 use anyhow::Context;
 

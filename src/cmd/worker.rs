@@ -1,4 +1,4 @@
-//! `d3il worker`: evaluate one job inside the sandbox (issue 6, docs/sandbox.md).
+//! `d3il worker`: evaluate one job inside the sandbox (docs/sandbox.md).
 //!
 //! Reads one JSON job on stdin, confines itself (rlimits, network namespace,
 //! landlock, seccomp) before anything from the submission is parsed, prints JSON

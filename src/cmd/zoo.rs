@@ -1,4 +1,4 @@
-//! `d3il zoo`: the zoo (issue 50), the paper's methods trained here with the
+//! `d3il zoo`: the zoo, the paper's methods trained here with the
 //! reference code on demonstrations recorded from our tasks
 //! (`assets/zoo/<task>/<method-slug>-s<seed>/`, docs/zoo.md). `check` reads
 //! every cell and checks its files against its provenance record (what

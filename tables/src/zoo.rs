@@ -1,4 +1,4 @@
-//! The zoo's table (issue 50; `d3il tables --table zoo`): the paper's
+//! The zoo's table (`d3il tables --table zoo`): the paper's
 //! methods trained here with the reference code on demonstrations recorded
 //! from our tasks, evaluated here. A table of its own, one per data source:
 //! these are not the paper's numbers, so they are never mixed or ranked

@@ -1,4 +1,4 @@
-//! A sequential race of two policies (issue 41 item 2): both run on the
+//! A sequential race of two policies: both run on the
 //! same initial states in the same random order, with the same seed and
 //! rollout ids (hence the same noise seeds), interleaved turn by turn; as a
 //! state completes for both, its paired outcomes go to the sequential

@@ -1,4 +1,4 @@
-//! The fidelity report (issue 32, docs/fidelity.md): this simulator against
+//! The fidelity report (docs/fidelity.md): this simulator against
 //! the data recorded in the original D3IL simulator, computed from the
 //! project's reference data (`tests/data/`):
 //!

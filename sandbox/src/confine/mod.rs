@@ -11,7 +11,7 @@
 //! 5. seccomp last, because it forbids `unshare` and friends used above.
 //!
 //! Each step reports a [`SandboxMechanism`]; a mechanism the kernel lacks is
-//! reported inactive with the reason, never silently skipped (issue 6).
+//! reported inactive with the reason, never silently skipped.
 //!
 //! One file per mechanism: [`rlimits`], [`netns`], [`capabilities`],
 //! [`landlock`] and [`seccomp`]; the system calls they make are the reason
@@ -116,7 +116,7 @@ pub fn confine(job: &Job, policy_files: &[&Path]) -> Result<Vec<SandboxMechanism
             source,
         })?;
     }
-    // A race job (issue 41) has a second policy: B's endpoint needs the
+    // A race job has a second policy: B's endpoint needs the
     // network as A's would.
     let policies: Vec<&PolicySource> = std::iter::once(&job.policy)
         .chain(job.race.as_ref().map(|r| &r.policy_b))

@@ -1,4 +1,4 @@
-//! The robustness track's tables (issue 40, docs/robustness.md): methods ×
+//! The robustness track's tables (docs/robustness.md): methods ×
 //! axes with retained-success scores and their intervals, grouped by suite
 //! version. `d3il tables --table robustness` prints them (LaTeX, Markdown,
 //! CSV) and the leaderboard's Robustness view shows the same groups with the
