@@ -7,5 +7,5 @@
 -- stored before 0.5.0. The server recomputes every row below the current
 -- rules from its rollout records when it starts.
 ALTER TABLE results ADD COLUMN intervals_json TEXT;
-ALTER TABLE results ADD COLUMN intervals_rules INTEGER;
-ALTER TABLE robustness_results ADD COLUMN intervals_rules INTEGER;
+ALTER TABLE results ADD COLUMN intervals_rules BIGINT;
+ALTER TABLE robustness_results ADD COLUMN intervals_rules BIGINT;
