@@ -12,10 +12,44 @@ use d3il_protocol::{ObsType, PolicyManifest, ProtocolKind, TaskId};
 use serde_json::Value;
 use std::time::Instant;
 
+/// Every benchmark `d3il bench` runs (its name on the command line is the
+/// variant's in kebab case: `served-agent`). `tests/bench_smoke.rs` reads
+/// this list from the binary and runs each one's smoke mode.
+#[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Bench {
+    /// Controlled env stepping against raw `mj_step` (Avoiding scene).
+    Physics,
+    /// A protocol's state evaluation with a BC-MLP-sized policy, batched and row by row.
+    Eval,
+    /// The two cameras' frames, and an image-based evaluation through the engine.
+    Render,
+    /// Every agent fixture (one per method family) at the evaluator's batch.
+    Agents,
+    /// The server under keep-alive readers while half-open connections attack it.
+    Serve,
+    /// A sharded paper-protocol evaluation on worker hosts and PostgreSQL.
+    Scale,
+    /// What replayable rollouts cost: traces' size, replay and video time.
+    Video,
+    /// Every scripted expert once per initial state of its task's fixed set.
+    Scripts,
+    /// The whole service under faults (workers and front ends killed).
+    Chaos,
+    /// The anytime-valid sequential paired test against the fixed-size one.
+    Sequential,
+    /// A reference agent served over the remote-endpoint protocol.
+    ServedAgent,
+    /// A robustness suite's cost per env step against a plain evaluation's.
+    Robustness,
+    /// Simulated coverage of every interval the service prints.
+    Intervals,
+}
+
 #[derive(clap::Args)]
 pub struct Args {
-    /// Which benchmark: `physics`, `eval`, `render`, `agents`, `serve`, `scale`, `video`, `scripts`, `chaos`, `sequential`, `served-agent`, `robustness` or `intervals`.
-    pub which: String,
+    /// Which benchmark.
+    #[arg(value_enum)]
+    pub which: Bench,
     /// A short run that only shows the bench still works (seconds, not
     /// minutes; its numbers mean little). `tests/bench_smoke.rs` runs every
     /// bench this way.
@@ -54,57 +88,34 @@ pub fn run(mut args: Args) -> anyhow::Result<()> {
         args.render_protocol = ProtocolKind::Quick;
         args.shards = args.hosts;
     }
-    match args.which.as_str() {
-        "physics" => physics(args.steps),
-        "eval" => eval_bench(
+    match args.which {
+        Bench::Physics => physics(args.steps),
+        Bench::Eval => eval_bench(
             args.protocol,
             args.max_live,
             args.smoke.then_some(SMOKE_EVAL_STEPS),
         ),
-        "render" => render_bench(
+        Bench::Render => render_bench(
             args.steps,
             args.render_protocol,
             args.max_live,
             args.look,
             args.smoke,
         ),
-        "agents" => agents_bench(args.max_live, args.smoke),
-        "serve" => super::bench_serve::run(args.smoke),
-        "scale" => super::bench_scale::run(args.protocol, args.hosts, args.shards),
-        "video" => super::bench_video::run(args.protocol),
-        "scripts" => super::bench_scripts::run(args.smoke),
-        "chaos" => super::bench_chaos::run(args.smoke),
-        "sequential" => super::bench_sequential::run(args.smoke),
-        "served-agent" => super::bench_served_agent::run(args.smoke, args.max_live),
-        "robustness" => {
+        Bench::Agents => agents_bench(args.max_live, args.smoke),
+        Bench::Serve => super::bench_serve::run(args.smoke),
+        Bench::Scale => super::bench_scale::run(args.protocol, args.hosts, args.shards),
+        Bench::Video => super::bench_video::run(args.protocol),
+        Bench::Scripts => super::bench_scripts::run(args.smoke),
+        Bench::Chaos => super::bench_chaos::run(args.smoke),
+        Bench::Sequential => super::bench_sequential::run(args.smoke),
+        Bench::ServedAgent => super::bench_served_agent::run(args.smoke, args.max_live),
+        Bench::Robustness => {
             super::bench_robustness::run(args.protocol, args.smoke.then_some(SMOKE_EVAL_STEPS))
         }
-        "intervals" => super::bench_intervals::run(args.smoke),
-        other => {
-            bail!(
-                "unknown benchmark `{other}`; available: {}",
-                BENCHES.join(", ")
-            )
-        }
+        Bench::Intervals => super::bench_intervals::run(args.smoke),
     }
 }
-
-/// Every bench `d3il bench` runs.
-pub const BENCHES: [&str; 13] = [
-    "physics",
-    "eval",
-    "render",
-    "agents",
-    "serve",
-    "scale",
-    "video",
-    "scripts",
-    "chaos",
-    "sequential",
-    "served-agent",
-    "robustness",
-    "intervals",
-];
 
 /// Runs a policy one row at a time: the "unbatched" evaluation, with a model
 /// exported for a fixed batch of 1.
