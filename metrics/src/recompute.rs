@@ -14,8 +14,8 @@
 //!   recomputed level results, as [`crate::suite_shard::document`] makes
 //!   them, and with them the scores.
 //!
-//! The values of success rates and entropies above 1e-12 do not move;
-//! intervals and p-values do.
+//! The values of success rates and entropies above 1e-12 are kept as
+//! stored; intervals and p-values move.
 
 use crate::intervals::{state_counts, task_success_estimate, StateCount};
 use crate::suite_shard::{document, SuiteLevels};
@@ -69,18 +69,7 @@ pub fn recompute_intervals(r: &mut EvalResult) -> Result<(), MetricsError> {
             .map(|c| StateCount::new((c.success_rate * m as f64).round() as u32, m))
             .collect();
         let e = task_success_estimate(task, &states, 0.95, RESAMPLES, seed);
-        // The value stays the stored one (bit for bit).
-        let v = r.metrics.success_rate.value;
-        r.metrics.success_rate = Estimate {
-            value: v,
-            ci_low: e.ci_low.min(v),
-            ci_high: e.ci_high.max(v),
-            ..e
-        };
-        if e.no_interval.is_some() {
-            r.metrics.success_rate.ci_low = v;
-            r.metrics.success_rate.ci_high = v;
-        }
+        r.metrics.success_rate = keep_value(e, r.metrics.success_rate.value);
         finish_entropies(r);
         return Ok(());
     }
@@ -111,17 +100,37 @@ pub fn recompute_intervals(r: &mut EvalResult) -> Result<(), MetricsError> {
         ];
         if let Some(levels) = m.stacking_levels.as_mut() {
             for (l, rate) in levels.iter_mut().zip(rates) {
-                l.success_rate = rate;
+                l.success_rate = keep_value(rate, l.success_rate.value);
                 entropy(&mut l.behaviour_entropy);
                 entropy(&mut l.conditional_entropy);
             }
         }
-        m.success_rate = rates[2];
+        m.success_rate = keep_value(rates[2], m.success_rate.value);
     } else {
-        m.success_rate = success(&|x| x.success, seed);
+        m.success_rate = keep_value(success(&|x| x.success, seed), m.success_rate.value);
     }
     finish_entropies(r);
     Ok(())
+}
+
+/// `new`'s interval (or reason) around the stored value: intervals are
+/// recomputed, values are not (the records give the same value for every
+/// result an evaluation made).
+fn keep_value(new: Estimate, stored: f64) -> Estimate {
+    match new.interval() {
+        Some((lo, hi)) => Estimate {
+            value: stored,
+            ci_low: lo.min(stored),
+            ci_high: hi.max(stored),
+            ..new
+        },
+        None => Estimate {
+            value: stored,
+            ci_low: stored,
+            ci_high: stored,
+            ..new
+        },
+    }
 }
 
 fn finish_entropies(r: &mut EvalResult) {
@@ -161,4 +170,93 @@ pub fn recompute_robustness(doc: &mut RobustnessResult) -> Result<(), MetricsErr
     fresh.format = doc.format.clone();
     *doc = fresh;
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use d3il_protocol::NoInterval;
+
+    fn read<T: serde::de::DeserializeOwned>(path: &str) -> T {
+        let p = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("..")
+            .join(path);
+        serde_json::from_slice(&std::fs::read(&p).unwrap()).unwrap()
+    }
+
+    #[test]
+    fn a_robustness_document_of_0_4_gets_this_versions_intervals_and_keeps_its_values() {
+        // Pushing BC under the paper protocol (30 states × 2 rollouts a
+        // level), stored without rollout records: rates from the per-state
+        // breakdown. Issue 51 quoted its start_shift +50 % drop: interval
+        // [0.001, 0.351] beside p 0.064.
+        let old: RobustnessResult =
+            read("docs/measurements/robustness-2026-11-29/pushing-v2_push_bc_noise_paper-2-per-state.json");
+        assert_eq!(rules_of(&old.control.metrics), None);
+        let mut doc = old.clone();
+        recompute_robustness(&mut doc).unwrap();
+        assert_eq!(rules_of(&doc.control.metrics), Some(RULES_VERSION));
+        assert_eq!(
+            doc.control.metrics.success_rate.method,
+            Some(IntervalMethod::KornGraubard)
+        );
+        for (a, b) in old.levels.iter().zip(&doc.levels) {
+            let (x, y) = (&a.paired.success_rate, &b.paired.success_rate);
+            assert_eq!(x.difference.value, y.difference.value);
+            assert_eq!(
+                a.result.metrics.success_rate.value,
+                b.result.metrics.success_rate.value
+            );
+            let (lo, hi) = y.difference.interval().expect("30 states: an interval");
+            assert_eq!(lo > 0.0 || hi < 0.0, y.p_value <= 0.05, "{:?}", b.setting);
+            assert!(hi > lo);
+        }
+        let shift = doc
+            .levels
+            .iter()
+            .find(|l| l.axis.to_string() == "start_shift" && l.level == 1)
+            .unwrap();
+        let d = &shift.paired.success_rate;
+        assert!(
+            d.p_value > 0.05 && d.difference.interval().unwrap().0 <= 0.0,
+            "{d:?}"
+        );
+    }
+
+    #[test]
+    fn a_result_keeps_its_values_and_gets_its_interval_from_its_records() {
+        // Avoiding BC (one initial state, its rollouts all succeed): the
+        // old interval was [1, 1]; now Clopper-Pearson on the rollouts.
+        let old: EvalResult = read("server/tests/fixtures/zoo/avoiding/bc-mlp-s0/result.json");
+        let mut r = old.clone();
+        recompute_intervals(&mut r).unwrap();
+        let (a, b) = (&old.metrics, &r.metrics);
+        assert_eq!(a.success_rate.value, b.success_rate.value);
+        assert_eq!(
+            b.success_rate.method,
+            Some(IntervalMethod::ClopperPearsonRollouts)
+        );
+        let n = r.rollouts.len() as f64;
+        let k = r.rollouts.iter().filter(|x| x.success).count() as f64;
+        let (lo, hi) = crate::intervals::clopper_pearson(k, n, 0.05);
+        assert_eq!(
+            b.success_rate.interval(),
+            Some((lo.min(k / n), hi.max(k / n)))
+        );
+        assert_eq!(b.behaviour_entropy.value, a.behaviour_entropy.value);
+        assert_eq!(
+            b.behaviour_entropy.method,
+            Some(IntervalMethod::BiasCorrectedBootstrap)
+        );
+        // Its suite's drops: one initial state, no paired test, and it says so.
+        let mut doc: RobustnessResult =
+            read("server/tests/fixtures/zoo/avoiding/bc-mlp-s0/robustness.json");
+        recompute_robustness(&mut doc).unwrap();
+        for l in &doc.levels {
+            assert!(matches!(
+                l.paired.success_rate.difference.no_interval,
+                Some(NoInterval::TestCannotReject { states: 1, .. })
+            ));
+        }
+    }
 }

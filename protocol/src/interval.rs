@@ -101,6 +101,10 @@ impl fmt::Display for NoInterval {
                 f,
                 "no interval: {states} initial states cannot show how much states differ (an interval needs at least {min})"
             ),
+            NoInterval::TestCannotReject { states: 1, .. } => write!(
+                f,
+                "no interval: a paired test over initial states needs more than one initial state (this protocol has one; its rollouts are not paired)"
+            ),
             NoInterval::TestCannotReject { states, smallest_p } => write!(
                 f,
                 "no interval: with {states} initial states the paired test's smallest possible p-value is {smallest_p:.3}, so it cannot exclude any difference"
@@ -124,6 +128,9 @@ impl NoInterval {
             NoInterval::NoData => "no interval (no rollouts)".into(),
             NoInterval::TooFewStates { states, .. } => {
                 format!("no interval ({states} states)")
+            }
+            NoInterval::TestCannotReject { states: 1, .. } => {
+                "no interval (one initial state)".into()
             }
             NoInterval::TestCannotReject { states, .. } => {
                 format!("no interval (test cannot reject at {states} states)")
