@@ -303,6 +303,35 @@ pub fn rule_line(alpha: f64, horizon: usize) -> String {
     }
 }
 
+/// The rule a comparison of at most `horizon` pairs at `alpha`
+/// (`SequentialComparison::with_horizon`) decides by, and its guarantee, in
+/// words; with `decision` (what it decided: "A better", "B better", "no
+/// difference larger than δ"), which of its rules decided.
+pub fn decided_by(alpha: f64, horizon: usize, decision: Option<&str>) -> String {
+    let calibrated = (1..=MAX_HORIZON).contains(&horizon);
+    let boundary = || {
+        format!(
+            "the {} (docs/sequential.md): its exact type-I error is at most {alpha} for a comparison of at most {horizon} pairs, wherever it stops; the e-value and anytime-valid p-value are reported beside it and did not decide (they do not know the horizon, so a decision can come with a p-value above α)",
+            CalibratedBoundary::new(alpha, horizon)
+        )
+    };
+    let e_value = || {
+        format!(
+            "the e-value reaching 1/α = {:.0}: anytime-valid, P(it ever does under equal rates) ≤ {alpha} for any number of pairs and any stop",
+            1.0 / alpha
+        )
+    };
+    match decision {
+        Some(d) if d.starts_with("no difference") => format!(
+            "Decided by the confidence sequence of rate(A) − rate(B) lying inside (−δ, δ): it misses the true difference at some time with probability at most {alpha}"
+        ),
+        Some(_) if calibrated => format!("Decided by {}", boundary()),
+        Some(_) => format!("Decided by {}", e_value()),
+        None if calibrated => format!("Decides by {}", boundary()),
+        None => format!("Decides by {}", e_value()),
+    }
+}
+
 #[cfg(test)]
 #[path = "horizon_tests.rs"]
 mod tests;

@@ -230,3 +230,21 @@ fn reports_say_which_rule_decides() {
     assert!(line.contains("anytime-valid"), "{line}");
     assert_eq!(rule_line(0.05, 0), "rule: the e-value reaching 1/α = 20");
 }
+
+#[test]
+fn the_deciding_rule_is_named_with_its_guarantee() {
+    let s = decided_by(0.05, 30, Some("A better"));
+    assert!(
+        s.starts_with("Decided by the boundary calibrated to 30 pairs"),
+        "{s}"
+    );
+    assert!(s.contains("did not decide"), "{s}");
+    let s = decided_by(0.05, MAX_HORIZON + 1, Some("B better"));
+    assert!(
+        s.starts_with("Decided by the e-value reaching 1/α = 20"),
+        "{s}"
+    );
+    let s = decided_by(0.05, 30, Some("no difference larger than 0.1"));
+    assert!(s.contains("confidence sequence"), "{s}");
+    assert!(decided_by(0.05, 30, None).starts_with("Decides by the boundary"));
+}

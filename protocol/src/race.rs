@@ -92,4 +92,35 @@ pub struct RaceReport {
     /// Wall-clock seconds and batched policy calls of both.
     pub seconds: f64,
     pub policy_calls: usize,
+    /// The pairs in the order the test saw them, one [`pair_code`] each
+    /// (the race page draws its walk from them). Empty in reports made
+    /// before it was recorded.
+    #[serde(default, skip_serializing_if = "String::is_empty")]
+    pub outcomes: String,
+}
+
+/// One pair as a character: `a` only A succeeded, `b` only B, `1` both,
+/// `0` neither.
+pub fn pair_code(a: bool, b: bool) -> char {
+    match (a, b) {
+        (true, false) => 'a',
+        (false, true) => 'b',
+        (true, true) => '1',
+        (false, false) => '0',
+    }
+}
+
+/// The pairs `(A succeeded, B succeeded)` of a string of [`pair_code`]s, or
+/// the first character that is none.
+pub fn pairs_of(codes: &str) -> Result<Vec<(bool, bool)>, char> {
+    codes
+        .chars()
+        .map(|c| match c {
+            'a' => Ok((true, false)),
+            'b' => Ok((false, true)),
+            '1' => Ok((true, true)),
+            '0' => Ok((false, false)),
+            other => Err(other),
+        })
+        .collect()
 }

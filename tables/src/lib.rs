@@ -22,6 +22,7 @@ mod model;
 mod numfmt;
 mod panels;
 pub mod plot;
+pub mod race;
 pub mod robustness;
 pub mod rollouts;
 pub mod summary;

@@ -97,6 +97,7 @@ pub fn race(
     let mut test = SequentialComparison::with_horizon(race_opts.alpha, race_opts.delta, n_ctx);
     let (mut paired, mut wins) = (0usize, (0u64, 0u64));
     let (mut successes_a, mut successes_b) = (0usize, 0usize);
+    let mut outcomes = String::new();
     'race: while la.live() || lb.live() {
         if la.live() {
             la.advance(a.policy, &mut timing)?;
@@ -116,6 +117,7 @@ pub fn race(
             wins.0 += (x && !y) as u64;
             wins.1 += (y && !x) as u64;
             test.observe(x, y);
+            outcomes.push(d3il_protocol::race::pair_code(x, y));
             let e = test.eprocess();
             on_pair(&RaceProgress {
                 states: paired,
@@ -170,5 +172,6 @@ pub fn race(
         fixed_pairs_for_power_90: fixed.pairs_for_power(hi, lo, 0.9, 100_000),
         seconds: t0.elapsed().as_secs_f64(),
         policy_calls: timing.policy_calls,
+        outcomes,
     })
 }
