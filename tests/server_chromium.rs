@@ -34,19 +34,7 @@ fn chromium_renders_the_leaderboard_table_and_plot() {
         11,
         "eleven reported rows"
     );
-    for m in [
-        "BC-MLP",
-        "VAE-State",
-        "BeT-MLP",
-        "IBC",
-        "DDPM-MLP",
-        "VAE-ACT",
-        "BC-GPT",
-        "BeT",
-        "DDPM-GPT",
-        "BESO",
-        "DDPM-ACT",
-    ] {
+    for m in d3il_protocol::paper::PAPER_METHOD_ORDER {
         assert!(table.contains(&format!(">{m}</a>")), "{m} in the table");
     }
     assert!(table.contains("badge-reported"));
