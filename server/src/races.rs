@@ -60,6 +60,10 @@ pub struct RaceLive {
     pub p_value: f64,
     /// Set once decided: "A better", "B better" or "no difference larger than δ".
     pub decision: Option<String>,
+    /// The pairs so far in the test's order, one `race::pair_code` each
+    /// (the race page draws the walk from them).
+    #[serde(default)]
+    pub outcomes: String,
 }
 
 impl RaceLive {
@@ -73,6 +77,7 @@ impl RaceLive {
             (false, true) => self.only_b += 1,
             (false, false) => self.neither += 1,
         }
+        self.outcomes.push(d3il_protocol::race::pair_code(x, y));
         self.states = p.states as u64;
         self.states_total = p.states_total as u64;
         self.pairs = p.pairs;

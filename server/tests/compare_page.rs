@@ -286,3 +286,125 @@ async fn home_page_shows_evaluated_rows_next_to_reported_ones_but_not_quick_runs
     let (s, page) = app.get_text("/?obs=depth").await;
     assert_eq!(s, 400, "{page}");
 }
+
+/// A race row as the race slot leaves it (written directly: the test app's
+/// worker is /bin/false, so the slot itself would fail any race it ran).
+async fn race_row(
+    app: &TestApp,
+    a: i64,
+    b: i64,
+    status: &str,
+    live: &Value,
+    report: Option<&Value>,
+) -> i64 {
+    let pool = app
+        .state
+        .store
+        .sqlite_pool()
+        .expect("the test app is on SQLite");
+    let (id,): (i64,) = sqlx::query_as(
+        "INSERT INTO comparisons (submission_a, submission_b, task, protocol, seed, alpha, status, live_json, \
+         report_json, created_at, updated_at) VALUES ($1, $2, 'pushing', 'paper', 0, 0.05, $3, $4, $5, 1, 1) RETURNING id",
+    )
+    .bind(a)
+    .bind(b)
+    .bind(status)
+    .bind(live.to_string())
+    .bind(report.map(|r| r.to_string()))
+    .fetch_one(pool)
+    .await
+    .unwrap();
+    id
+}
+
+#[tokio::test]
+async fn the_race_page_names_the_rule_that_decided_and_draws_the_walk() {
+    // Issue 51: a Pushing race decided at pair 17 of 30 said "as soon as
+    // the anytime-valid paired test decides" beside an anytime p-value of
+    // 0.0625; the decision came from the horizon-calibrated boundary.
+    let app = spawn_app().await;
+    let a = submit(&app, "Alpha", "pushing", "paper").await;
+    let b = submit(&app, "Beta", "pushing", "paper").await;
+    complete(&app, &result(ProtocolKind::Paper, |_| 12, 6)).await;
+    complete(&app, &result(ProtocolKind::Paper, |c| c % 9, 2)).await;
+    let codes = "a1a0aab1aa0aaa1aab0aaaa1aaaaaa";
+    let pairs = race::pairs_of(codes).unwrap();
+    let mut test = d3il_metrics::sequential::SequentialComparison::with_horizon(0.05, None, 30);
+    for &p in &pairs {
+        test.observe_pair(p);
+    }
+    let at = test.decided_at().unwrap() as usize;
+    let seen = &codes[..at];
+    let e = test.eprocess();
+    let live = serde_json::json!({
+        "states": at, "states_total": 30, "pairs": at,
+        "both": seen.matches('1').count(), "only_a": seen.matches('a').count(),
+        "only_b": seen.matches('b').count(), "neither": seen.matches('0').count(),
+        "e_value": e.e_value(), "p_value": e.p_value(), "decision": null,
+        "outcomes": &codes[..at - 1],
+    });
+    // While it runs: the rule that will decide, and the walk so far.
+    let running = race_row(&app, a, b, "running", &live, None).await;
+    let (s, page) = app.get_text(&format!("/comparisons/{running}")).await;
+    assert_eq!(s, 200, "{page}");
+    assert!(
+        page.contains("Decides by the boundary calibrated to 30 pairs"),
+        "{page}"
+    );
+    let fig = &page[page.find("id=\"race-walk\"").expect("the walk is drawn")..];
+    assert!(fig.contains("<svg") && fig.contains("<polyline"), "{fig}");
+    assert!(
+        page.contains("http-equiv=\"refresh\""),
+        "refreshed while it runs"
+    );
+    // Finished: which rule decided, and its guarantee.
+    let report = race::RaceReport {
+        task: TaskId::Pushing,
+        protocol: ProtocolKind::Paper,
+        seed: 0,
+        alpha: 0.05,
+        delta: None,
+        pair: "initial state (its rollout 0)".into(),
+        decision: Some("A better".into()),
+        decided_at: Some(at as u64),
+        e_value: e.e_value(),
+        p_value: e.p_value(),
+        discordant: e.discordant(),
+        difference_interval: None,
+        rate_a: 0.75,
+        rate_b: 0.23,
+        pairs_used: at as u64,
+        pairs_full: 30,
+        states_used: at,
+        states_full: 30,
+        rollouts_used: 2 * at * 16,
+        rollouts_full: 960,
+        rollouts_simulated: 2 * at * 16,
+        fixed_p_value: 0.001,
+        fixed_pairs_for_power_90: None,
+        seconds: 1.0,
+        policy_calls: 1,
+        outcomes: seen.into(),
+    };
+    let done = race_row(
+        &app,
+        a,
+        b,
+        "completed",
+        &live,
+        Some(&serde_json::to_value(&report).unwrap()),
+    )
+    .await;
+    let (s, page) = app.get_text(&format!("/comparisons/{done}")).await;
+    assert_eq!(s, 200, "{page}");
+    assert!(
+        page.contains("Decided by the boundary calibrated to 30 pairs")
+            && page.contains(
+                "exact type-I error is at most 0.05 for a comparison of at most 30 pairs"
+            )
+            && page.contains("did not decide"),
+        "{page}"
+    );
+    assert!(page.contains("id=\"race-walk\""), "{page}");
+    assert!(!page.contains("http-equiv=\"refresh\""));
+}

@@ -69,7 +69,9 @@ const EVALUE: RGBColor = RGBColor(44, 160, 44);
 pub fn race_svg(pairs: &[(bool, bool)], alpha: f64, horizon: usize) -> Result<String, TablesError> {
     let steps = race_steps(pairs, alpha, horizon);
     let n = steps.len();
-    let x_max = (n.max(horizon.min(n.max(10)))).max(1) as f64;
+    // The axis runs to the horizon (where the last look is), or to the
+    // pairs seen beyond it.
+    let x_max = n.max(horizon.min(5_000)).max(1) as f64;
     let reach = steps
         .iter()
         .map(|s| (s.walk.unsigned_abs()).max(s.bound.unwrap_or(0)))

@@ -48,6 +48,10 @@ struct RacePage {
     p_value: String,
     finished: Option<Finished>,
     error: Option<String>,
+    /// Which rule decides (or decided) and what it guarantees.
+    rule: String,
+    /// The walk against its boundary and the e-value's path, pair by pair.
+    walk_svg: Option<String>,
 }
 
 pub(super) async fn race_page(
@@ -83,6 +87,32 @@ pub(super) async fn race_page(
         rate_a: format!("{:.3}", r.rate_a),
         rate_b: format!("{:.3}", r.rate_b),
     });
+    // The pairs in the test's order: the report's once finished, else the
+    // live record's (both absent for races run before they were kept).
+    let report = view.race_report();
+    let outcomes = report
+        .as_ref()
+        .map(|r| r.outcomes.clone())
+        .filter(|o| !o.is_empty())
+        .or_else(|| view.live.as_ref().map(|l| l.outcomes.clone()))
+        .unwrap_or_default();
+    let horizon = report
+        .as_ref()
+        .map(|r| r.pairs_full as usize)
+        .or_else(|| view.live.as_ref().map(|l| l.states_total as usize))
+        .unwrap_or(0);
+    let decision = report
+        .as_ref()
+        .and_then(|r| r.decision.clone())
+        .or_else(|| view.live.as_ref().and_then(|l| l.decision.clone()));
+    let rule = d3il_metrics::horizon::decided_by(view.alpha, horizon, decision.as_deref());
+    let walk_svg = match d3il_protocol::race::pairs_of(&outcomes) {
+        Ok(pairs) if !pairs.is_empty() => Some(
+            d3il_tables::race::race_svg(&pairs, view.alpha, horizon)
+                .map_err(|e| PageError(crate::error::AppError::Internal(e.to_string())))?,
+        ),
+        _ => None,
+    };
     let (e_value, p_value) = match (&view.live, view.race_report()) {
         (_, Some(r)) => (format!("{:.3}", r.e_value), format!("{:.4}", r.p_value)),
         (Some(l), None) => (format!("{:.3}", l.e_value), format!("{:.4}", l.p_value)),
@@ -106,6 +136,8 @@ pub(super) async fn race_page(
         p_value,
         finished,
         error: view.error.clone(),
+        rule,
+        walk_svg,
     })
 }
 
