@@ -391,3 +391,98 @@ fn cli_race(extra: &[&str], a: &std::path::Path, b: &std::path::Path) -> Value {
     );
     serde_json::from_slice(&out.stdout).unwrap()
 }
+
+/// Issue 52: races wait in the durable queue, one at a time in the race
+/// slot, and a restart resumes what the queue says, nothing more. Three
+/// paper-protocol races of two untrained policies (which run to the full
+/// size): the first runs, the second waits, the third is cancelled by its
+/// starter with `d3il submit --cancel-race`; the server is killed
+/// (SIGKILL) and restarted: the first runs again from its first pair, the
+/// second still waits, the third stays cancelled and never ran. An admin
+/// then cancels the running one, whose worker stops, and the waiting one
+/// runs next.
+#[test]
+fn races_wait_in_the_queue_are_cancelled_and_a_restart_resumes_what_the_queue_says() {
+    let dir = TempDir::new("race-queue");
+    let db = dir.path().join("lb.sqlite");
+    let token = create_token(&db, "racer");
+    let admin = create_admin_token(&db, "op");
+    let server = Server::start(&db, &["--workers", "0"]);
+    let client = server.client(Some(&token));
+    let a = submit(&client, "aligning_mlp", "aligning", 0);
+    let b = submit(&client, "aligning_mlp_noise", "aligning", 1);
+    let race = |c: &d3il_server::client::Client| {
+        c.race(&json!({"a": a, "b": b, "protocol": "paper"}))
+            .expect("race accepted")["id"]
+            .as_i64()
+            .unwrap()
+    };
+    let (first, second, third) = (race(&client), race(&client), race(&client));
+    let status = |c: &d3il_server::client::Client, id: i64| c.comparison(id).unwrap();
+    let running_with_pairs = |c: &d3il_server::client::Client| {
+        wait_for(Duration::from_secs(300), || {
+            let v = status(c, first);
+            (v["status"] == "running" && v["live"]["pairs"].as_u64() > Some(0)).then_some(v)
+        })
+        .expect("the first race runs")
+    };
+    running_with_pairs(&client);
+    assert_eq!(status(&client, second)["status"], "queued");
+    // `d3il submit --cancel-race`: its starter cancels the third.
+    let out = Command::new(EXE)
+        .args(["submit", "--server", &server.base, "--token", &token])
+        .args(["--cancel-race", &third.to_string()])
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(
+        String::from_utf8_lossy(&out.stdout)
+            .contains(&format!("comparison {third} cancelled: status cancelled")),
+        "{}",
+        String::from_utf8_lossy(&out.stdout)
+    );
+
+    // SIGKILL and restart on the same database.
+    server.kill();
+    let server = Server::start(&db, &["--workers", "0"]);
+    let client = server.client(Some(&token));
+    let again = running_with_pairs(&client);
+    assert_eq!(again["status"], "running", "{again}");
+    assert_eq!(status(&client, second)["status"], "queued");
+    let cancelled = status(&client, third);
+    assert_eq!(
+        (
+            cancelled["status"].as_str(),
+            cancelled["cancelled_by"].as_str()
+        ),
+        (Some("cancelled"), Some("racer")),
+        "{cancelled}"
+    );
+    assert!(cancelled["live"].is_null(), "it never ran: {cancelled}");
+
+    // An admin cancels the running race (the page's button and the API
+    // share the rule); the waiting one runs next.
+    let op = server.client(Some(&admin));
+    let v = op.cancel_race(first).expect("an admin cancels");
+    assert_eq!(v["cancelled_by"], "op", "{v}");
+    wait_for(Duration::from_secs(120), || {
+        (status(&client, second)["status"] == "running").then_some(())
+    })
+    .expect("the waiting race runs once the slot is free");
+    assert_eq!(status(&client, first)["status"], "cancelled");
+    // Another submitter may not cancel it.
+    let other = create_token(&db, "someone-else");
+    let err = server.client(Some(&other)).cancel_race(second).unwrap_err();
+    assert!(
+        matches!(
+            err,
+            d3il_server::client::ClientError::Api { status: 403, .. }
+        ),
+        "{err:?}"
+    );
+    op.cancel_race(second).unwrap();
+}

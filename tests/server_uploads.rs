@@ -435,7 +435,7 @@ fn a_quota_refusal_reaches_d3il_submit_during_a_large_upload() {
     let err = String::from_utf8_lossy(&first.stderr);
     assert!(first.status.success(), "{err}");
     assert!(
-        err.contains("quota: 0 of 1 submissions left today"),
+        err.contains("quota: 0 of 1 evaluations left today"),
         "{err}"
     );
     let policies = policies_dir(&db);
@@ -445,7 +445,7 @@ fn a_quota_refusal_reaches_d3il_submit_during_a_large_upload() {
         let err = String::from_utf8_lossy(&second.stderr);
         assert!(!second.status.success(), "{err}");
         assert!(
-            err.contains("the server refused the request (429, quota_exceeded): daily submission quota reached: 1 submissions in the last 24 hours (limit 1); the next submission is possible in "),
+            err.contains("the server refused the request (429, quota_exceeded): daily evaluation quota reached: 1 evaluations in the last 24 hours (limit 1, --quota-per-day) and a plain evaluation counts 1; it is possible in "),
             "{err}"
         );
         assert_eq!(

@@ -122,14 +122,19 @@ async fn security_headers(mut resp: axum::response::Response) -> axum::response:
 }
 
 /// Per-address rate limits (issue 17), keyed on the client address (behind
-/// a trusted proxy, from X-Forwarded-For). A request without credentials (no
-/// `Authorization` header, not a POST) counts against the anonymous limit;
-/// one with credentials is refused while its address is over the limit of
-/// failed token checks, and counts as a failure when it ends in 401. API
-/// requests get the JSON error, pages the HTML error page.
+/// a trusted proxy, from X-Forwarded-For). Only a valid token lifts the
+/// anonymous limit (issue 52): a request with an `Authorization` header is
+/// refused while its address is over the limit of failed token checks, and
+/// its token is checked here: a valid one passes (the handler counts it
+/// against the token's own limit, `auth::Verified`), any other is a 401
+/// that counts as a failed check. A request without one counts against the
+/// anonymous limit, unless it is a POST (forms carry their token in the
+/// body), which is refused while over the failed-check limit and counts as
+/// a failure when it ends in 401. API requests get the JSON error, pages the
+/// HTML error page.
 async fn client_rate_limits(
     axum::extract::State(state): axum::extract::State<AppState>,
-    req: axum::extract::Request,
+    mut req: axum::extract::Request,
     next: axum::middleware::Next,
 ) -> axum::response::Response {
     use axum::http::{header, Method, StatusCode};
@@ -141,28 +146,43 @@ async fn client_rate_limits(
     else {
         return next.run(req).await;
     };
-    let limits = &state.client_limits;
-    let credentialed =
-        req.headers().contains_key(header::AUTHORIZATION) || req.method() == Method::POST;
-    let over = if credentialed {
-        limits.failed_auth.peek(ip)
-    } else {
-        limits.anonymous.check(ip)
-    };
-    if let Err(retry_after) = over {
-        let e = crate::error::AppError::RateLimited { retry_after };
-        if req.uri().path().starts_with("/api/") {
+    let api = req.uri().path().starts_with("/api/");
+    let refuse = |e: crate::error::AppError| {
+        if api {
             return e.into_response();
         }
-        let mut resp = (
-            e.status(),
-            axum::response::Html(crate::error::error_page(&e)),
-        )
-            .into_response();
-        if let Ok(v) = header::HeaderValue::from_str(&retry_after.to_string()) {
-            resp.headers_mut().insert(header::RETRY_AFTER, v);
+        crate::error::PageError(e).into_response()
+    };
+    let limits = &state.client_limits;
+    let has_token = req.headers().contains_key(header::AUTHORIZATION);
+    let credentialed = has_token || req.method() == Method::POST;
+    let over = if credentialed {
+        limits
+            .failed_auth
+            .peek(ip)
+            .map_err(|r| (r, crate::error::RATE_LIMIT_FAILED_AUTH))
+    } else {
+        limits
+            .anonymous
+            .check(ip)
+            .map_err(|r| (r, crate::error::RATE_LIMIT_ANONYMOUS))
+    };
+    if let Err((retry_after, limit)) = over {
+        return refuse(crate::error::AppError::RateLimited { retry_after, limit });
+    }
+    if has_token {
+        match crate::auth::verify_header(&state, req.headers()).await {
+            Ok(Some(who)) => {
+                req.extensions_mut().insert(crate::auth::Verified(who));
+            }
+            Ok(None) => {}
+            Err(e) => {
+                if e.status() == StatusCode::UNAUTHORIZED {
+                    limits.failed_auth.record(ip);
+                }
+                return refuse(e);
+            }
         }
-        return resp;
     }
     let resp = next.run(req).await;
     if credentialed && resp.status() == StatusCode::UNAUTHORIZED {
@@ -278,19 +298,28 @@ pub async fn run_workers(
 }
 
 /// Accepts connections until the process ends, with the connection limits of
-/// `state.cfg.connections`: a connection past the server's or its peer
-/// address's cap (none for a trusted proxy) is closed at once; one whose
-/// request header does not arrive within the header-read timeout (also the
-/// keep-alive idle timeout) is closed.
+/// `state.cfg.connections`: a connection past the server's or its client's
+/// cap (keyed as the rate limits: an IPv6 client by its /64; none for a
+/// trusted proxy) is closed at once; one whose request header does not
+/// arrive within the header-read timeout (also the keep-alive idle timeout)
+/// is closed. A connection whose unread body is drained (`crate::linger`)
+/// keeps its place under both caps until the drain ends.
 pub async fn serve_listener(listener: tokio::net::TcpListener, state: AppState) {
     use hyper_util::rt::{TokioIo, TokioTimer};
     use std::collections::HashMap;
     use std::sync::Mutex;
     let limits = state.cfg.connections.clone();
     // An unread body is read on up to what the upload routes allow, while
-    // the client keeps sending within the keep-alive idle timeout.
-    let linger_cap = crate::http::upload_body_limit(state.cfg.max_upload_bytes) as u64;
-    let idle = limits.header_read_timeout;
+    // the client keeps sending within the keep-alive idle timeout, and for
+    // at most the linger deadline in all (issue 52: a trickle cannot hold it).
+    let cut = |limit| Telemetry::counter(&state.telemetry.rate_limit_refusals, &[("limit", limit)]);
+    let linger = crate::linger::LingerLimits {
+        cap: crate::http::upload_body_limit(state.cfg.max_upload_bytes) as u64,
+        idle: limits.header_read_timeout,
+        deadline: limits.linger_deadline,
+        cut: cut("linger_deadline"),
+    };
+    let (over_total, over_client) = (cut("connections"), cut("client_connections"));
     let app = router(state);
     let total = Arc::new(tokio::sync::Semaphore::new(limits.max_connections));
     let per_client: Arc<Mutex<HashMap<std::net::IpAddr, usize>>> = Arc::default();
@@ -305,16 +334,19 @@ pub async fn serve_listener(listener: tokio::net::TcpListener, state: AppState) 
             }
         };
         let Ok(permit) = total.clone().try_acquire_owned() else {
+            over_total.inc();
             drop(stream);
             continue;
         };
-        let ip = peer.ip();
+        // Keyed as the rate limits are (an IPv6 client by its /64, issue 52).
+        let ip = client_key(peer.ip());
         // A trusted proxy carries many clients: only the server's cap applies.
-        let proxy = limits.trusted_proxies.contains(ip);
+        let proxy = limits.trusted_proxies.contains(peer.ip());
         if !proxy {
             let mut m = per_client.lock().unwrap_or_else(|e| e.into_inner());
             let n = m.entry(ip).or_insert(0);
             if *n >= limits.max_connections_per_client {
+                over_client.inc();
                 drop(stream);
                 continue;
             }
@@ -326,14 +358,16 @@ pub async fn serve_listener(listener: tokio::net::TcpListener, state: AppState) 
         // on (crate::linger), so the client gets the answer rather than a
         // reset connection.
         let trusted = limits.trusted_proxies.clone();
+        let linger = linger.clone();
         let app = tower::ServiceExt::map_request(
             app.clone(),
             move |req: axum::http::Request<hyper::body::Incoming>| {
+                let linger_limits = linger.clone();
                 let linger = LingeringBody::may_linger(&req);
                 let (mut parts, body) = req.into_parts();
                 let client = trusted.client_addr(peer.ip(), &parts.headers);
                 parts.extensions.insert(ClientAddr(client));
-                let body = LingeringBody::new(body, linger, linger_cap, idle);
+                let body = LingeringBody::new(body, linger, linger_limits);
                 axum::http::Request::from_parts(parts, body)
             },
         );
@@ -380,7 +414,10 @@ pub async fn prepare(
     // recomputed from their rollout records (issue 51).
     crate::upgrade::recompute_stored_intervals(&store).await?;
     // Pool jobs and dry-runs share the worker slots: the pool's `workers`
-    // general slots plus its quick-protocol slot (`queue::start_pool`).
+    // general slots plus its quick-protocol slot (`queue::start_pool`). The
+    // race slot (`races`) runs one race at a time in a worker of its own, so
+    // that a running race never delays the pool's jobs nor a dry run.
+    let race_runner = runner.clone();
     let pool_slots = if cfg.workers > 0 { cfg.workers + 1 } else { 0 };
     let runner = crate::runner::SharedSlots::wrap(runner, pool_slots);
     let listener = tokio::net::TcpListener::bind(cfg.bind)
@@ -459,8 +496,9 @@ pub async fn prepare(
         canary,
         telemetry,
     };
-    // Comparisons a stopped server left unfinished race again (issue 41).
-    crate::races::resume(&state).await;
+    // Races wait in the durable queue; the race slot runs them, and those a
+    // stopped server left running race again from their first pair.
+    crate::races::start_race_slot(state.clone(), race_runner).await?;
     Ok((
         listener,
         Running {

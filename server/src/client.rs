@@ -144,12 +144,21 @@ impl Client {
         Self::decode(self.auth(rb).send()?)
     }
 
+    /// Cancels a queued or running race (`POST
+    /// /api/v1/comparisons/{id}/cancel`, issue 52): its starter or an admin.
+    pub fn cancel_race(&self, id: i64) -> Result<Value, ClientError> {
+        let rb = self
+            .http
+            .post(format!("{}/api/v1/comparisons/{id}/cancel", self.base));
+        Self::decode(self.auth(rb).send()?)
+    }
+
     /// A comparison (`GET /api/v1/comparisons/{id}`).
     pub fn comparison(&self, id: i64) -> Result<Value, ClientError> {
         self.get(&format!("/api/v1/comparisons/{id}"))
     }
 
-    /// Polls a comparison until it is completed or failed.
+    /// Polls a comparison until it is completed, failed or cancelled.
     pub fn wait_comparison(
         &self,
         id: i64,
@@ -161,7 +170,8 @@ impl Client {
         self.poll_until_done(&path, &what, timeout, Duration::from_millis(300), on_update)
     }
 
-    /// GETs `path` every `every` until its `status` is completed or failed.
+    /// GETs `path` every `every` until its `status` is completed, failed
+    /// or (a race) cancelled.
     fn poll_until_done(
         &self,
         path: &str,
@@ -174,7 +184,10 @@ impl Client {
         loop {
             let v = self.get(path)?;
             on_update(&v);
-            if matches!(v["status"].as_str(), Some("completed") | Some("failed")) {
+            if matches!(
+                v["status"].as_str(),
+                Some("completed") | Some("failed") | Some("cancelled")
+            ) {
                 return Ok(v);
             }
             if start.elapsed() > timeout {

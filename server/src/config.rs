@@ -114,6 +114,9 @@ pub struct ConnectionLimits {
     /// Reverse proxies whose `X-Forwarded-For` names the client
     /// (`--trusted-proxy`; `crate::client_addr`); empty: the header is ignored.
     pub trusted_proxies: crate::client_addr::TrustedProxies,
+    /// How long in all a request body left unread by an early answer is
+    /// read on (`crate::linger`; issue 52), however it trickles in.
+    pub linger_deadline: Duration,
 }
 
 impl Default for ConnectionLimits {
@@ -123,6 +126,7 @@ impl Default for ConnectionLimits {
             max_connections: 2048,
             max_connections_per_client: 128,
             trusted_proxies: Default::default(),
+            linger_deadline: Duration::from_secs(60),
         }
     }
 }
@@ -189,26 +193,33 @@ pub fn default_assets_dir() -> PathBuf {
         .unwrap_or_else(|| PathBuf::from("assets"))
 }
 
-/// A server's quota for each submitter; 0 is no limit.
+/// A server's quota for each submitter, in evaluations (a plain submission
+/// is one, a robustness suite its level 0 and every level, a race the two
+/// evaluations it may run; issue 52); 0 is no limit.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct QuotaLimits {
     pub per_day: i64,
     pub total: i64,
     pub concurrent: i64,
+    /// Races queued or running at once per submitter (not overridable).
+    pub races: i64,
 }
 
 impl QuotaLimits {
     /// `d3il serve`'s defaults (its `--quota-*` flags).
+    /// Enough for a suite of the largest (18 evaluations) at once, two a day.
     pub const SERVE_DEFAULT: QuotaLimits = QuotaLimits {
-        per_day: 10,
-        total: 500,
-        concurrent: 2,
+        per_day: 40,
+        total: 2000,
+        concurrent: 20,
+        races: 2,
     };
     /// No quota (the library default, for embedded and test servers).
     pub const NONE: QuotaLimits = QuotaLimits {
         per_day: 0,
         total: 0,
         concurrent: 0,
+        races: 0,
     };
 
     /// These limits with a submitter's overrides in place.
@@ -217,6 +228,7 @@ impl QuotaLimits {
             per_day: o.per_day.unwrap_or(self.per_day),
             total: o.total.unwrap_or(self.total),
             concurrent: o.concurrent.unwrap_or(self.concurrent),
+            races: self.races,
         }
     }
 }

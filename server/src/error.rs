@@ -32,8 +32,13 @@ pub enum AppError {
     },
     #[error("{0}")]
     PayloadTooLarge(String),
-    #[error("rate limit exceeded; retry in {retry_after} s")]
-    RateLimited { retry_after: u64 },
+    /// A rate limit refused the request; `limit` names it (issue 52:
+    /// every refusal names its limit): one of the `RATE_LIMIT_*` texts.
+    #[error("rate limit exceeded: {limit}; retry in {retry_after} s")]
+    RateLimited {
+        retry_after: u64,
+        limit: &'static str,
+    },
     /// The submitter's submission quota allows no submission now
     /// (`crate::quota`): the message says why and when the next is possible.
     #[error("{message}")]
@@ -62,6 +67,13 @@ pub enum AppError {
     #[error("internal error")]
     Internal(String),
 }
+
+/// The rate limits as refusals name them.
+pub const RATE_LIMIT_TOKEN: &str = "requests per token per minute (--rate-limit)";
+pub const RATE_LIMIT_ANONYMOUS: &str =
+    "requests without a valid token per client address per minute (--anonymous-rate-limit)";
+pub const RATE_LIMIT_FAILED_AUTH: &str =
+    "failed token checks per client address per minute (--failed-auth-limit)";
 
 impl AppError {
     pub fn invalid(field: &str, message: impl Into<String>) -> Self {
@@ -138,7 +150,7 @@ impl AppError {
 
     fn headers(&self, resp: &mut Response) {
         match self {
-            AppError::RateLimited { retry_after }
+            AppError::RateLimited { retry_after, .. }
             | AppError::Busy { retry_after, .. }
             | AppError::QuotaExceeded {
                 retry_after: Some(retry_after),
@@ -296,7 +308,10 @@ mod tests {
                 message: String::new(),
             },
             AppError::PayloadTooLarge(String::new()),
-            AppError::RateLimited { retry_after: 1 },
+            AppError::RateLimited {
+                retry_after: 1,
+                limit: RATE_LIMIT_TOKEN,
+            },
             AppError::QuotaExceeded {
                 message: String::new(),
                 retry_after: None,

@@ -12,7 +12,11 @@
 //! connection stays usable.
 //!
 //! Bounded: at most `cap` bytes (the upload limit; a body declared longer is
-//! not read at all), and it stops when the client sends nothing for `idle`.
+//! not read at all), and it stops when the client sends nothing for `idle`
+//! or, sending or not, when `deadline` has passed since the drain began
+//! (issue 52: a client trickling a byte now and then holds the connection no
+//! longer than that). Until it stops, the connection keeps its place under
+//! the server's and its client's connection caps (`app::serve_listener`).
 //! A request with `Expect: 100-continue` is not read on: its client sends
 //! the body only when asked, and an early answer tells it not to.
 
@@ -21,22 +25,37 @@ use std::pin::Pin;
 use std::task::{Context, Poll};
 use std::time::Duration;
 
+/// How far a drain reads on.
+#[derive(Debug, Clone)]
+pub struct LingerLimits {
+    /// Bytes at most.
+    pub cap: u64,
+    /// Stop when nothing arrives for this long.
+    pub idle: Duration,
+    /// Stop this long after the drain began, whatever arrives.
+    pub deadline: Duration,
+    /// Counts the drains cut off at `deadline` (`/metrics`:
+    /// `d3il_rate_limit_refusals_total{limit="linger_deadline"}`).
+    pub cut: prometheus_client::metrics::counter::Counter,
+}
+
 /// A request body that, when dropped before its end, is drained in the
 /// background (see the module documentation).
 pub struct LingeringBody {
     inner: Option<Incoming>,
-    cap: u64,
-    idle: Duration,
+    limits: LingerLimits,
 }
 
 impl LingeringBody {
     /// Wraps the body of a request; `linger` false (the request asked
     /// `Expect: 100-continue`) drops an unread body as hyper does.
-    pub fn new(inner: Incoming, linger: bool, cap: u64, idle: Duration) -> LingeringBody {
+    pub fn new(inner: Incoming, linger: bool, limits: LingerLimits) -> LingeringBody {
         LingeringBody {
             inner: Some(inner),
-            cap: if linger { cap } else { 0 },
-            idle,
+            limits: LingerLimits {
+                cap: if linger { limits.cap } else { 0 },
+                ..limits
+            },
         }
     }
 
@@ -80,23 +99,38 @@ impl Drop for LingeringBody {
         let Some(body) = self.inner.take() else {
             return;
         };
-        if body.is_end_stream() || self.cap == 0 || body.size_hint().lower() > self.cap {
+        let cap = self.limits.cap;
+        if body.is_end_stream() || cap == 0 || body.size_hint().lower() > cap {
             return;
         }
         // Dropped outside a runtime (never in the server): nothing to linger on.
         if let Ok(rt) = tokio::runtime::Handle::try_current() {
-            rt.spawn(drain(body, self.cap, self.idle));
+            rt.spawn(drain(body, self.limits.clone()));
         }
     }
 }
 
-/// Reads `body` to its end, discarding it, unless it passes `cap` bytes or
-/// nothing arrives for `idle`; then drops it (hyper closes the connection).
-async fn drain(mut body: Incoming, cap: u64, idle: Duration) {
+/// Reads `body` to its end, discarding it, unless it passes `cap` bytes,
+/// nothing arrives for `idle` or `deadline` passes; then drops it (hyper
+/// closes the connection).
+async fn drain(mut body: Incoming, limits: LingerLimits) {
+    let LingerLimits {
+        cap,
+        idle,
+        deadline,
+        cut,
+    } = limits;
+    let end = tokio::time::Instant::now() + deadline;
     let mut read = 0u64;
     loop {
         let frame = std::future::poll_fn(|cx| Pin::new(&mut body).poll_frame(cx));
-        match tokio::time::timeout(idle, frame).await {
+        let wait = idle.min(end.saturating_duration_since(tokio::time::Instant::now()));
+        if wait.is_zero() {
+            tracing::debug!("stopped reading an unread request body after {deadline:?} in all");
+            cut.inc();
+            return;
+        }
+        match tokio::time::timeout(wait, frame).await {
             Ok(Some(Ok(f))) => {
                 read += f.data_ref().map_or(0, |d| d.len() as u64);
                 if read > cap {
@@ -106,7 +140,12 @@ async fn drain(mut body: Incoming, cap: u64, idle: Duration) {
             }
             Ok(None) | Ok(Some(Err(_))) => return,
             Err(_) => {
-                tracing::debug!("stopped reading an unread request body idle for {idle:?}");
+                tracing::debug!(
+                    "stopped reading an unread request body (idle for {idle:?}, or {deadline:?} in all)"
+                );
+                if tokio::time::Instant::now() >= end {
+                    cut.inc();
+                }
                 return;
             }
         }

@@ -141,13 +141,23 @@ pub fn job_from_claim(
     })
 }
 
-/// Handle to wake the pool when a job was queued.
+/// Handle to wake the pool when a job was queued, and the race slot when a
+/// race was.
 #[derive(Clone, Default)]
-pub struct QueueSignal(Arc<Notify>);
+pub struct QueueSignal(Arc<Notify>, Arc<Notify>);
 
 impl QueueSignal {
     pub fn job_queued(&self) {
         self.0.notify_waiters();
+    }
+
+    pub fn race_queued(&self) {
+        self.1.notify_waiters();
+    }
+
+    /// Completes at the next [`QueueSignal::race_queued`] after this call.
+    pub fn race_notified(&self) -> tokio::sync::futures::Notified<'_> {
+        self.1.notified()
     }
 }
 

@@ -1,15 +1,23 @@
 //! Sequential comparisons on the server (issue 41): `POST /api/v1/comparisons`
-//! races two submissions' policies in one race job (`d3il_protocol::race`),
-//! run by the app's job runner (a sandboxed `d3il worker`, through the same
-//! slots as every job) on a background task; the comparison's row holds its
-//! live state while it runs and the race's report when it ends. The rule is
-//! `d3il_evaluator::eval::race` (the same as `d3il compare --sequential
-//! --task`); docs/sequential.md.
+//! races two submissions' policies in one race job (`d3il_protocol::race`);
+//! the comparison's row holds its live state while it runs and the race's
+//! report when it ends. The rule is `d3il_evaluator::eval::race` (the same
+//! as `d3il compare --sequential --task`); docs/sequential.md.
+//!
+//! Issue 52: a race is metered work. It needs one of the racer's own
+//! submissions (against any public one), counts [`crate::quota::RACE_EVALUATIONS`]
+//! against the quota, and a submitter has at most `--max-queued-races`
+//! queued or running. It waits in the durable queue (the comparisons table)
+//! holding nothing: the front end's race slot ([`start_race_slot`]) leases
+//! the oldest one, runs it in a sandboxed `d3il worker` through the shared
+//! worker slots, heartbeats, and stops its worker when the race is
+//! cancelled ([`cancel_as`]: its starter or an admin). A restart resumes
+//! what the queue says.
 
 use crate::error::AppError;
 use crate::queue::policy_of;
 use crate::state::AppState;
-use crate::store::{ComparisonRow, NewComparison, SubmissionStatus, Submitter};
+use crate::store::{ComparisonRow, NewComparison, RaceCancel, SubmissionStatus, Submitter};
 use d3il_protocol::race::{RaceJob, RaceProgress, RaceReport};
 use d3il_protocol::{Evaluated, Job, ProtocolKind};
 use serde::{Deserialize, Serialize};
@@ -98,8 +106,10 @@ pub struct ComparisonView {
     pub seed: i64,
     pub alpha: f64,
     pub delta: Option<f64>,
-    /// queued | running | completed | failed
+    /// queued | running | completed | failed | cancelled
     pub status: String,
+    /// Who cancelled it (its starter or an admin).
+    pub cancelled_by: Option<String>,
     /// The race so far (null until its first pair).
     pub live: Option<RaceLive>,
     /// The finished race: the same document as `d3il compare --sequential
@@ -129,6 +139,7 @@ impl ComparisonView {
             alpha: row.alpha,
             delta: row.delta,
             status: row.status.clone(),
+            cancelled_by: row.cancelled_by.clone(),
             live: parse(&row.live_json),
             report: parse(&row.report_json),
             error: row.error_message.clone(),
@@ -145,9 +156,10 @@ impl ComparisonView {
     }
 }
 
-/// Checks a request (a 400 naming the field for each problem), records the
-/// comparison and starts its race. Admitted like a submission (a submitter
-/// out of quota is refused) but not counted against the quota.
+/// Checks a request (a 400 naming the field for each problem), meters it
+/// (one of `a` and `b` must be the racer's own, the other public; the race
+/// counts [`crate::quota::RACE_EVALUATIONS`] and must fit the quota and the
+/// cap on races at once: else 429 naming the limit and when) and queues it.
 pub async fn create(
     state: &AppState,
     who: &Submitter,
@@ -230,7 +242,42 @@ pub async fn create(
             ),
         ));
     }
-    crate::quota::admit(state, who).await?;
+    if !who.is_admin {
+        let own =
+            |s: &crate::store::SubmissionRow| s.submitter.as_deref() == Some(who.name.as_str());
+        if !own(&a) && !own(&b) {
+            return Err(AppError::QuotaExceeded {
+                message: format!(
+                    "a race needs one of your own submissions: neither submission {} (`a`) nor {} (`b`) is yours; \
+                     race a policy you submitted against any public one (POST /api/v1/submissions first)",
+                    a.id, b.id
+                ),
+                retry_after: None,
+                next_at: None,
+            });
+        }
+        for (field, s) in [("a", &a), ("b", &b)] {
+            if !own(s) && state.store.withdrawal(s.id).await?.is_some() {
+                return Err(AppError::invalid(
+                    field,
+                    format!(
+                        "submission {} (`{field}`) was withdrawn; race against a public submission",
+                        s.id
+                    ),
+                ));
+            }
+        }
+    }
+    let quota = crate::quota::admit(
+        state,
+        who,
+        crate::quota::RACE_EVALUATIONS,
+        "a race (both policies up to the protocol's full size)",
+    )
+    .await?;
+    if let Some(e) = quota.race_refusal() {
+        return Err(e);
+    }
     let id = state
         .store
         .create_comparison(&NewComparison {
@@ -244,27 +291,42 @@ pub async fn create(
             delta: req.delta,
         })
         .await?;
-    spawn(state.clone(), id);
+    state.signal.race_queued();
     Ok(id)
 }
 
-/// Starts the races of comparisons left queued or running (a restart):
-/// each runs again from its first pair.
-pub async fn resume(state: &AppState) {
-    match state.store.unfinished_comparisons().await {
-        Ok(ids) => ids.into_iter().for_each(|id| spawn(state.clone(), id)),
-        Err(e) => tracing::warn!("unfinished comparisons not resumed: {e}"),
+/// Cancels race `id` as `who`: its starter or an admin may (the one rule
+/// for the API and the race page's button). Audited in the same
+/// transaction; a running race's worker is stopped by its slot.
+pub async fn cancel_as(state: &AppState, id: i64, who: &Submitter) -> Result<(), AppError> {
+    let row = state.store.comparison(id).await?;
+    let starter = row.submitter_id == Some(who.id);
+    if !who.is_admin && !starter {
+        return Err(AppError::Forbidden(format!(
+            "comparison {id} was started by another submitter; only its starter or an admin may cancel it"
+        )));
     }
-}
-
-/// Runs comparison `id`'s race on a background task.
-pub fn spawn(state: AppState, id: i64) {
-    tokio::spawn(async move {
-        if let Err(e) = run(&state, id).await {
-            tracing::warn!("comparison {id}: {e}");
-            let _ = state.store.comparison_failed(id, &e).await;
+    let target = format!("comparison {id}");
+    let detail = format!("cancelled a {} race", row.status);
+    let audit = Some((
+        who.name.as_str(),
+        "cancel_race",
+        target.as_str(),
+        detail.as_str(),
+    ));
+    match state.store.cancel_race(id, &who.name, audit).await? {
+        RaceCancel::Cancelled => {
+            tracing::info!("comparison {id} cancelled by {}", who.name);
+            Ok(())
         }
-    });
+        RaceCancel::AlreadyFinished => Err(AppError::Conflict {
+            field: None,
+            message: format!(
+                "comparison {id} is {} already; only a queued or running race can be cancelled",
+                row.status
+            ),
+        }),
+    }
 }
 
 async fn job_of(state: &AppState, row: &ComparisonRow) -> Result<Job, String> {
@@ -306,21 +368,66 @@ async fn job_of(state: &AppState, row: &ComparisonRow) -> Result<Job, String> {
     })
 }
 
-async fn run(state: &AppState, id: i64) -> Result<(), String> {
-    let row = state
-        .store
-        .comparison(id)
-        .await
-        .map_err(|e| e.to_string())?;
+/// Starts the race slot: requeues the races this server's slots held
+/// before a restart (SQLite; on PostgreSQL an abandoned lease expires and is
+/// taken over), then runs queued races one after the other, oldest first,
+/// each in a worker of `runner` (one at a time: the slot's own worker, apart
+/// from the pool's slots and dry runs). A waiting race holds no thread: it
+/// is a row until the slot claims it.
+pub async fn start_race_slot(
+    state: AppState,
+    runner: std::sync::Arc<dyn crate::queue::JobRunner>,
+) -> Result<(), crate::store::StoreError> {
+    if !state.store.is_postgres() {
+        let n = state.store.requeue_abandoned_races().await?;
+        if n > 0 {
+            tracing::info!("requeued {n} race(s) interrupted by the previous shutdown");
+        }
+    }
+    let owner = format!("{}-{}-race", crate::queue::owner_host(), std::process::id());
+    // Races record no build fingerprint: they do not wait for the canary.
+    tokio::spawn(async move {
+        loop {
+            let notified = state.signal.race_notified();
+            match state
+                .store
+                .claim_race(&owner, state.cfg.lease_seconds)
+                .await
+            {
+                Ok(Some(row)) => {
+                    let id = row.id;
+                    if let Err(e) = run(&state, &runner, &owner, row).await {
+                        tracing::warn!("comparison {id}: {e}");
+                        let _ = state.store.comparison_failed(id, &e).await;
+                    }
+                }
+                Ok(None) => {
+                    // Also poll: an expired lease becomes runnable unannounced.
+                    let _ = tokio::time::timeout(std::time::Duration::from_secs(2), notified).await;
+                }
+                Err(e) => {
+                    tracing::error!("race slot: cannot claim a race: {e}");
+                    tokio::time::sleep(std::time::Duration::from_secs(2)).await;
+                }
+            }
+        }
+    });
+    Ok(())
+}
+
+async fn run(
+    state: &AppState,
+    runner: &std::sync::Arc<dyn crate::queue::JobRunner>,
+    owner: &str,
+    row: ComparisonRow,
+) -> Result<(), String> {
+    let id = row.id;
     let job = job_of(state, &row).await?;
-    state
-        .store
-        .comparison_running(id)
-        .await
-        .map_err(|e| e.to_string())?;
     let (tx, mut rx) = tokio::sync::mpsc::unbounded_channel::<RaceLive>();
-    let runner = state.runner.clone();
-    let run = tokio::task::spawn_blocking(move || {
+    let runner = runner.clone();
+    let cancel = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+    let stop = cancel.clone();
+    let mut run = tokio::task::spawn_blocking(move || {
         let mut live = RaceLive::default();
         runner.run_cancellable(
             &job,
@@ -330,25 +437,41 @@ async fn run(state: &AppState, id: i64) -> Result<(), String> {
                     let _ = tx.send(live.clone());
                 }
             },
-            &std::sync::atomic::AtomicBool::new(false),
+            &stop,
         )
     });
-    let store = state.store.clone();
-    let writer = tokio::spawn(async move {
-        while let Some(mut live) = rx.recv().await {
-            // Only the newest state matters.
-            while let Ok(newer) = rx.try_recv() {
-                live = newer;
+    let lease = state.cfg.lease_seconds;
+    let mut ticker =
+        tokio::time::interval(std::time::Duration::from_secs((lease / 3).max(1) as u64));
+    let report = loop {
+        tokio::select! {
+            res = &mut run => break res,
+            Some(mut live) = rx.recv() => {
+                // Only the newest state matters.
+                while let Ok(newer) = rx.try_recv() {
+                    live = newer;
+                }
+                if let Ok(j) = serde_json::to_string(&live) {
+                    if let Err(e) = state.store.comparison_live(id, &j).await {
+                        tracing::warn!("comparison {id}: live state not written: {e}");
+                    }
+                }
             }
-            if let Ok(j) = serde_json::to_string(&live) {
-                if let Err(e) = store.comparison_live(id, &j).await {
-                    tracing::warn!("comparison {id}: live state not written: {e}");
+            _ = ticker.tick() => {
+                // A lost lease: the race was cancelled (or taken over after
+                // this slot stalled): its worker stops, its report is dropped.
+                if let Ok(false) = state.store.race_heartbeat(id, owner, lease).await {
+                    if !cancel.swap(true, std::sync::atomic::Ordering::Relaxed) {
+                        tracing::info!("comparison {id}: lease lost (cancelled); stopping its worker");
+                    }
                 }
             }
         }
-    });
-    let report = run.await.map_err(|e| format!("the race panicked: {e}"))?;
-    let _ = writer.await;
+    };
+    let report = report.map_err(|e| format!("the race panicked: {e}"))?;
+    if cancel.load(std::sync::atomic::Ordering::Relaxed) {
+        return Ok(());
+    }
     match report.outcome {
         Ok(Evaluated::Race(r)) => {
             let j = serde_json::to_string(&r).map_err(|e| e.to_string())?;

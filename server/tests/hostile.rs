@@ -160,6 +160,7 @@ async fn half_open_connections_are_capped_and_dropped_after_the_header_timeout()
             max_connections: n + 100,
             max_connections_per_client: 500,
             trusted_proxies: Default::default(),
+            ..Default::default()
         }),
         ..Options::default()
     })

@@ -529,3 +529,203 @@ async fn concurrent_uploads_are_capped() {
     assert!(answer.starts_with("HTTP/1.1 201"), "{answer}");
     assert_eq!(temp_uploads(&app), 0);
 }
+
+/// Issue 52: only a valid token lifts the anonymous limit. A made-up token
+/// on a public GET (which needs none) is a 401 that counts as a failed token
+/// check, not a free pass past the anonymous limit; a valid one still
+/// browses past it.
+#[tokio::test]
+async fn only_a_valid_token_lifts_the_anonymous_limit() {
+    let app = spawn(
+        |c| {
+            c.anonymous_rate_limit_per_minute = 3;
+            c.failed_auth_per_minute = 3;
+        },
+        idle_runner(),
+    )
+    .await;
+    let token = app.state.store.create_token("alice").await.unwrap();
+    let a = client_from("127.0.0.3");
+    for _ in 0..3 {
+        assert_eq!(
+            status_of(&a, &app.url("/api/v1/leaderboards"), None, None).await,
+            200
+        );
+    }
+    assert_eq!(
+        status_of(&a, &app.url("/api/v1/leaderboards"), None, None).await,
+        429
+    );
+    // A bogus token does not get past it: 401 (saying what to do), counted.
+    let r = a
+        .get(app.url("/api/v1/leaderboards"))
+        .bearer_auth("d3il_made_up")
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status(), 401);
+    let body: serde_json::Value = r.json().await.unwrap();
+    assert!(
+        body["error"]["message"]
+            .as_str()
+            .unwrap()
+            .contains("leave the Authorization header out"),
+        "{body}"
+    );
+    // A page too, and a header that is no bearer token.
+    let r = a
+        .get(app.url("/"))
+        .bearer_auth("d3il_made_up")
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status(), 401);
+    let r = a
+        .get(app.url("/api/v1/leaderboards"))
+        .header("authorization", "Token abc")
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status(), 401);
+    // Three failed checks: the failed-check limit refuses the address now.
+    let r = a
+        .get(app.url("/api/v1/leaderboards"))
+        .bearer_auth("d3il_another")
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status(), 429);
+    // A valid token from an address past its anonymous limit browses on.
+    let b = client_from("127.0.0.4");
+    for _ in 0..3 {
+        assert_eq!(
+            status_of(&b, &app.url("/api/v1/leaderboards"), None, None).await,
+            200
+        );
+    }
+    assert_eq!(
+        status_of(&b, &app.url("/api/v1/leaderboards"), None, None).await,
+        429
+    );
+    for _ in 0..5 {
+        assert_eq!(
+            status_of(&b, &app.url("/api/v1/leaderboards"), None, Some(&token)).await,
+            200
+        );
+    }
+    assert_eq!(
+        status_of(&b, &app.url("/api/v1/whoami"), None, Some(&token)).await,
+        200
+    );
+}
+
+/// Issue 52: the body of a refused upload is read on so its client gets
+/// the answer, but a client trickling that body a byte at a time (never idle
+/// for the idle timeout) is cut off at the linger deadline, and while it is
+/// read on, its connection counts against its client's connection cap.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_trickled_unread_body_is_cut_off_at_the_linger_deadline() {
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+    let app = spawn(
+        |c| {
+            c.connections.header_read_timeout = Duration::from_secs(2);
+            c.connections.linger_deadline = Duration::from_secs(3);
+            c.connections.max_connections_per_client = 2;
+        },
+        idle_runner(),
+    )
+    .await;
+    let connect = |ip: &'static str| async move {
+        let sock = tokio::net::TcpSocket::new_v4().unwrap();
+        sock.bind(format!("{ip}:0").parse().unwrap()).unwrap();
+        sock.connect(app.addr).await.unwrap()
+    };
+    // Two uploads without a token, 1 MB declared: answered 401 at once.
+    let mut trickling = Vec::new();
+    for _ in 0..2 {
+        let mut s = connect("127.0.0.5").await;
+        s.write_all(
+            b"POST /api/v1/submissions HTTP/1.1\r\nHost: x\r\nContent-Type: multipart/form-data; boundary=b\r\nContent-Length: 1000000\r\n\r\n--b\r\n",
+        )
+        .await
+        .unwrap();
+        let mut head = [0u8; 12];
+        tokio::time::timeout(Duration::from_secs(10), s.read_exact(&mut head))
+            .await
+            .expect("the answer comes before the body")
+            .unwrap();
+        assert_eq!(&head, b"HTTP/1.1 401", "{}", String::from_utf8_lossy(&head));
+        trickling.push(s);
+    }
+    let began = std::time::Instant::now();
+    // While both are read on, a third connection from that client is
+    // closed at once (the cap is 2); another client is served.
+    let mut third = connect("127.0.0.5").await;
+    let _ = third
+        .write_all(b"GET /healthz HTTP/1.1\r\nHost: x\r\n\r\n")
+        .await;
+    let mut buf = [0u8; 64];
+    let n = tokio::time::timeout(Duration::from_secs(10), third.read(&mut buf))
+        .await
+        .expect("closed, not held")
+        .unwrap_or(0);
+    assert_eq!(n, 0, "past the cap: {}", String::from_utf8_lossy(&buf[..n]));
+    let r = client_from("127.0.0.6")
+        .get(app.url("/healthz"))
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status(), 200);
+    // Trickle a byte every 500 ms (never idle for 2 s): the server stops
+    // reading at the 3 s deadline and closes both; then the client may
+    // connect again. The bound of 20 s is a liveness bound, not a timing.
+    let mut closed = [false, false];
+    while closed.iter().any(|c| !c) {
+        assert!(
+            began.elapsed() < Duration::from_secs(20),
+            "a trickled body held its connection past the deadline"
+        );
+        for (i, s) in trickling.iter_mut().enumerate() {
+            if closed[i] {
+                continue;
+            }
+            if s.write_all(b"x").await.is_err() {
+                closed[i] = true;
+                continue;
+            }
+            let mut rest = [0u8; 4096];
+            match tokio::time::timeout(Duration::from_millis(250), s.read(&mut rest)).await {
+                Ok(Ok(0)) | Ok(Err(_)) => closed[i] = true,
+                _ => {}
+            }
+        }
+        tokio::time::sleep(Duration::from_millis(250)).await;
+    }
+    assert!(
+        began.elapsed() >= Duration::from_secs(2),
+        "read on for a while first"
+    );
+    // The operator sees both limits at work in /metrics.
+    let metrics = app.state.telemetry.scrape().await;
+    for want in [
+        "d3il_rate_limit_refusals_total{limit=\"linger_deadline\"} 2",
+        "d3il_rate_limit_refusals_total{limit=\"client_connections\"} 1",
+    ] {
+        assert!(metrics.contains(want), "{want} not in {metrics}");
+    }
+    let mut again = connect("127.0.0.5").await;
+    again
+        .write_all(b"GET /healthz HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n")
+        .await
+        .unwrap();
+    let mut answer = Vec::new();
+    tokio::time::timeout(Duration::from_secs(10), again.read_to_end(&mut answer))
+        .await
+        .unwrap()
+        .unwrap();
+    assert!(
+        answer.starts_with(b"HTTP/1.1 200"),
+        "{}",
+        String::from_utf8_lossy(&answer)
+    );
+}

@@ -28,6 +28,7 @@ fn the_document_names_every_route_and_its_schemas() {
             "/compare",
             "/comparisons",
             "/comparisons/{id}",
+            "/comparisons/{id}/cancel",
             "/leaderboards",
             "/leaderboards/{task}",
             "/leaderboards/{task}/csv",

@@ -426,6 +426,36 @@ async fn a_cells_robustness_document_is_on_the_robustness_view() {
         .is_empty());
 }
 
+/// Issue 52: a withdrawn submission leaves the Robustness view and the
+/// rows `d3il tables` draws its robustness tables from, as it leaves every
+/// other public list (the one rule: `store::PUBLIC`); reinstated, it is back.
+#[tokio::test]
+async fn a_withdrawn_submission_leaves_the_robustness_view_and_its_tables() {
+    let zoo = zoo_copy();
+    let app = zoo_app(zoo.path(), None, None).await;
+    let store = &app.state.store;
+    let id = zoo_rows(&app).await[0]["submission_ids"][0]
+        .as_i64()
+        .unwrap();
+    assert_eq!(store.robustness_rows(None).await.unwrap().len(), 1);
+    store
+        .withdraw_submission(id, "test: hidden", "op")
+        .await
+        .unwrap();
+    let (s, page) = app.get_text("/tasks/avoiding/robustness").await;
+    assert_eq!(s, 200);
+    assert!(!page.contains("BC-MLP (zoo)"), "{page}");
+    assert!(store.robustness_rows(None).await.unwrap().is_empty());
+    assert!(store
+        .robustness_rows(Some(d3il_protocol::TaskId::Avoiding))
+        .await
+        .unwrap()
+        .is_empty());
+    store.reinstate_submission(id, "op").await.unwrap();
+    let (_, page) = app.get_text("/tasks/avoiding/robustness").await;
+    assert!(page.contains("BC-MLP (zoo)"), "{page}");
+}
+
 /// The suites run after the cell was made (`scripts/zoo/suites.py` adds
 /// `robustness.json` and its hash to the provenance): the next start loads
 /// the document into the submission already there.

@@ -62,7 +62,8 @@ pub fn run(a: &Args, client: &Client, id_a: i64, id_b: i64) -> anyhow::Result<()
     }
     if done["status"] != "completed" {
         anyhow::bail!(
-            "comparison {id} failed: {}",
+            "comparison {id} {}: {}",
+            done["status"].as_str().unwrap_or("failed"),
             done["error"].as_str().unwrap_or("no reason given")
         );
     }

@@ -62,6 +62,11 @@ pub struct Args {
     /// Open connections of the whole server; more are closed at once.
     #[arg(long, default_value_t = 2048)]
     pub max_connections: usize,
+    /// Seconds in all that a request body left unread by an early answer
+    /// (a refused upload) is read on, so its client gets the answer; then
+    /// the connection is closed however the body trickles in.
+    #[arg(long, default_value_t = 60)]
+    pub linger_timeout: u64,
     /// Open connections from one client address; more are closed at once
     /// (a trusted proxy's are not capped).
     #[arg(long, default_value_t = 128)]
@@ -77,17 +82,24 @@ pub struct Args {
         value_delimiter = ','
     )]
     pub trusted_proxies: Vec<d3il_server::client_addr::TrustedProxy>,
-    /// Submissions one submitter may make in any 24 hours (admission
-    /// refusals do not count; admin tokens have no quota; per-submitter
-    /// overrides: `d3il token set-quota`); 0: no limit.
+    /// Evaluations one submitter may start in any 24 hours: a plain
+    /// submission is one, a robustness suite its level 0 and every level
+    /// (7-18), a race two (admission refusals do not count; admin tokens
+    /// have no quota; per-submitter overrides: `d3il token set-quota`);
+    /// 0: no limit.
     #[arg(long, default_value_t = d3il_server::config::QuotaLimits::SERVE_DEFAULT.per_day)]
     pub quota_per_day: i64,
-    /// Submissions one submitter may make in total; 0: no limit.
+    /// Evaluations one submitter may start in total; 0: no limit.
     #[arg(long, default_value_t = d3il_server::config::QuotaLimits::SERVE_DEFAULT.total)]
     pub quota_total: i64,
-    /// Evaluations of one submitter queued or running at once; 0: no limit.
+    /// Evaluations of one submitter queued or running at once (a suite
+    /// counts as its evaluations, a race as two); 0: no limit.
     #[arg(long, default_value_t = d3il_server::config::QuotaLimits::SERVE_DEFAULT.concurrent)]
     pub quota_concurrent: i64,
+    /// Races (`POST /api/v1/comparisons`) one submitter may have queued or
+    /// running at once; 0: no limit.
+    #[arg(long, default_value_t = d3il_server::config::QuotaLimits::SERVE_DEFAULT.races)]
+    pub max_queued_races: i64,
     #[command(flatten)]
     pub limits: super::limits::LimitArgs,
     #[command(flatten)]
@@ -184,25 +196,31 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     cfg.shards = args.shards.max(1);
     cfg.dry_run_uploads = !args.no_upload_dry_run;
     anyhow::ensure!(
-        args.quota_per_day >= 0 && args.quota_total >= 0 && args.quota_concurrent >= 0,
-        "--quota-per-day, --quota-total and --quota-concurrent must be 0 (no limit) or more"
+        args.quota_per_day >= 0
+            && args.quota_total >= 0
+            && args.quota_concurrent >= 0
+            && args.max_queued_races >= 0,
+        "--quota-per-day, --quota-total, --quota-concurrent and --max-queued-races must be 0 (no limit) or more"
     );
     cfg.quotas = d3il_server::config::QuotaLimits {
         per_day: args.quota_per_day,
         total: args.quota_total,
         concurrent: args.quota_concurrent,
+        races: args.max_queued_races,
     };
     anyhow::ensure!(
         args.header_timeout >= 1
             && args.max_connections >= 1
-            && args.max_connections_per_client >= 1,
-        "--header-timeout, --max-connections and --max-connections-per-client must be at least 1"
+            && args.max_connections_per_client >= 1
+            && args.linger_timeout >= 1,
+        "--header-timeout, --max-connections, --max-connections-per-client and --linger-timeout must be at least 1"
     );
     cfg.connections = d3il_server::config::ConnectionLimits {
         header_read_timeout: std::time::Duration::from_secs(args.header_timeout),
         max_connections: args.max_connections,
         max_connections_per_client: args.max_connections_per_client,
         trusted_proxies: args.trusted_proxies.into_iter().collect(),
+        linger_deadline: std::time::Duration::from_secs(args.linger_timeout),
     };
     cfg.fidelity.mode = match args.fidelity {
         FidelityArg::Full => Some(d3il_protocol::fidelity::FidelityMode::Full),

@@ -13,17 +13,17 @@ pub struct Args {
     #[arg(long)]
     pub token: Option<String>,
     /// Method name.
-    #[arg(long, required_unless_present_any = ["cancel", "race"])]
+    #[arg(long, required_unless_present_any = ["cancel", "cancel_race", "race"])]
     pub method: Option<String>,
     /// Task slug (avoiding, aligning, pushing, sorting-2/4/6, stacking, inserting).
-    #[arg(long, required_unless_present_any = ["cancel", "race"])]
+    #[arg(long, required_unless_present_any = ["cancel", "cancel_race", "race"])]
     pub task: Option<String>,
     /// Observation type: `state` or `image` (must match the manifest).
     #[arg(long, default_value = "state")]
     pub obs_type: String,
     /// Training seed of this policy (0, 1, ...): the seeds of one method,
     /// task and setting are aggregated into one leaderboard row (mean ± std).
-    #[arg(long, required_unless_present_any = ["cancel", "race"])]
+    #[arg(long, required_unless_present_any = ["cancel", "cancel_race", "race"])]
     pub training_seed: Option<i64>,
     /// Fraction of the demonstrations the policy was trained on (0 < f ≤ 1;
     /// below 1 it shows in the data-fraction view).
@@ -84,6 +84,11 @@ pub struct Args {
     /// /api/v1/submissions/{id}/cancel`): what ran is kept, marked partial.
     #[arg(long, value_name = "ID", conflicts_with_all = ["race", "onnx", "endpoint"])]
     pub cancel: Option<i64>,
+    /// Cancel the queued or running race ID (`POST
+    /// /api/v1/comparisons/{id}/cancel`; its starter or an admin): its
+    /// worker is stopped.
+    #[arg(long, value_name = "ID", conflicts_with_all = ["cancel", "race", "onnx", "endpoint"])]
+    pub cancel_race: Option<i64>,
     /// Race submissions A and B sequentially on the server (`POST
     /// /api/v1/comparisons`): both policies on the same initial states in
     /// the same random order, stopping when the anytime-valid paired test
@@ -174,10 +179,18 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         );
         return Ok(());
     }
+    if let Some(id) = a.cancel_race {
+        let v = client_of(&a)?.cancel_race(id)?;
+        println!(
+            "comparison {id} cancelled: status {}",
+            v["status"].as_str().unwrap_or("?")
+        );
+        return Ok(());
+    }
     let (Some(method), Some(task), Some(training_seed)) =
         (a.method.clone(), a.task.clone(), a.training_seed)
     else {
-        anyhow::bail!("give --method, --task and --training-seed (or --cancel ID, or --race A B)");
+        anyhow::bail!("give --method, --task and --training-seed (or --cancel ID, --cancel-race ID, or --race A B)");
     };
     anyhow::ensure!(
         a.onnx.is_some() || a.endpoint.is_some(),

@@ -62,6 +62,8 @@ impl Server {
                 "0",
                 "--quota-concurrent",
                 "0",
+                "--max-queued-races",
+                "0",
             ]);
         }
         let mut child = Command::new(EXE)

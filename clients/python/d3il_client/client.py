@@ -19,6 +19,7 @@ from typing import (
     Sequence,
     Tuple,
     Union,
+    overload,
 )
 
 import requests
@@ -498,15 +499,34 @@ class Client:
         """A submission and how its evaluation stands."""
         return from_json(Submission, self._get_json(f"/api/v1/submissions/{_id(submission)}"))
 
-    def cancel(self, submission: SubmissionRef) -> Submission:
-        """Cancel a queued or running evaluation (its submitter or an admin may).
+    @overload
+    def cancel(self, work: RaceComparison) -> RaceComparison: ...
 
-        What ran is kept as a partial result (``progress.live``, ``partial``
-        true), never ranked; the submission is then ``failed`` with error kind
-        ``cancelled``.
+    @overload
+    def cancel(self, work: SubmissionRef) -> Submission: ...
+
+    def cancel(self, work: Union[SubmissionRef, RaceComparison]) -> Union[Submission, RaceComparison]:
+        """Cancel a queued or running evaluation or race (its submitter or an admin may).
+
+        An evaluation: what ran is kept as a partial result (``progress.live``,
+        ``partial`` true), never ranked; the submission is then ``failed``
+        with error kind ``cancelled``. A race (a :class:`RaceComparison`, as
+        :meth:`race` returns it): ``cancelled``, its worker stopped
+        (:meth:`cancel_race` takes its id).
         """
-        resp = self._send("POST", f"/api/v1/submissions/{_id(submission)}/cancel", auth=True)
+        if isinstance(work, RaceComparison):
+            return self.cancel_race(work.id)
+        resp = self._send("POST", f"/api/v1/submissions/{_id(work)}/cancel", auth=True)
         return from_json(Submission, _json(resp))
+
+    def cancel_race(self, comparison: int) -> RaceComparison:
+        """Cancel a queued or running race (``POST /api/v1/comparisons/{id}/cancel``; its starter or an admin).
+
+        The race ends ``cancelled`` (``cancelled_by`` says who) and its
+        worker is stopped; a race that has ended is a 409 ``ServerError``.
+        """
+        resp = self._send("POST", f"/api/v1/comparisons/{int(comparison)}/cancel", auth=True)
+        return from_json(RaceComparison, _json(resp))
 
     def submissions(
         self,
@@ -775,8 +795,8 @@ class Client:
                 on_update(race)
             if race.status == "completed":
                 return race
-            if race.status == "failed":
-                raise RuntimeError(f"comparison {race.id} failed: {race.error}")
+            if race.status in ("failed", "cancelled"):
+                raise RuntimeError(f"comparison {race.id} {race.status}: {race.error}")
             if time.monotonic() >= deadline:
                 raise errors.WaitTimeout(
                     f"comparison {race.id} is still {race.status} after {timeout:.0f} s; "

@@ -709,6 +709,7 @@ class RaceComparison:
     live: Optional[RaceLive] = None
     report: Optional[Dict[str, Any]] = None
     error: Optional[str] = None
+    cancelled_by: Optional[str] = None
     raw: Dict[str, Any] = _raw()
 
     @property

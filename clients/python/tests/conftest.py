@@ -69,7 +69,7 @@ class Server:
     log: list[str]
 
 
-NO_QUOTA = ["--quota-per-day", "0", "--quota-total", "0", "--quota-concurrent", "0"]
+NO_QUOTA = ["--quota-per-day", "0", "--quota-total", "0", "--quota-concurrent", "0", "--max-queued-races", "0"]
 
 
 @contextlib.contextmanager

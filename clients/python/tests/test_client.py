@@ -289,7 +289,7 @@ def test_quota_left_and_a_refusal_that_says_when(tmp_path: Path) -> None:
         with pytest.raises(errors.QuotaExceeded) as refused:
             c.submit(onnx=big, method="q", task="avoiding", training_seed=2, protocol="quick")
         assert refused.value.next_submission_at == e.next_submission_at, refused.value
-        assert "daily submission quota reached" in str(refused.value), refused.value
+        assert "daily evaluation quota reached" in str(refused.value), refused.value
 
 
 def test_race_returns_a_typed_comparison_and_refuses_a_submission_against_itself(

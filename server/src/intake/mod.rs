@@ -133,8 +133,13 @@ pub async fn precheck(
     raw: &RawSubmission,
     who: &Submitter,
 ) -> Result<Quota, AppError> {
-    // A submitter out of quota is refused before any of the file is read.
-    crate::quota::admit(state, who).await?;
+    // A submitter out of quota is refused before any of the file is read
+    // (a suite by its evaluations when the fields say which).
+    let (cost, what) = match (opt(raw, "suite"), task_fields(raw)) {
+        (Some(_), Ok((task, obs))) => work_of(state, true, task, obs),
+        _ => (1, "a plain evaluation".to_string()),
+    };
+    crate::quota::admit(state, who, cost, &what).await?;
     if opt(raw, "endpoint_url").is_some() {
         return Err(AppError::invalid(
             "endpoint_url",
@@ -539,6 +544,25 @@ pub async fn dry_run(
     })
 }
 
+/// What a submission costs the quota, in evaluations, and how a refusal
+/// names it.
+fn work_of(state: &AppState, suite: bool, task: TaskId, obs: ObsType) -> (i64, String) {
+    let n = crate::quota::submission_evaluations(&state.cfg.assets_dir, task, obs, suite);
+    if suite {
+        (
+            n,
+            format!(
+                "the robustness suite of {} ({} observations: level 0 and {} levels)",
+                task.slug(),
+                obs.as_str(),
+                n - 1
+            ),
+        )
+    } else {
+        (1, "a plain evaluation".to_string())
+    }
+}
+
 /// Stores a validated submission and queues its job; returns the submission id
 /// once it is durable.
 pub async fn accept(
@@ -547,7 +571,8 @@ pub async fn accept(
     who: &Submitter,
 ) -> Result<i64, AppError> {
     let store = &state.store;
-    crate::quota::admit(state, who).await?;
+    let (cost, what) = work_of(state, v.suite.is_some(), v.task, v.obs_type);
+    crate::quota::admit(state, who, cost, &what).await?;
     // A duplicate seed is refused before an endpoint's dry-run (which can
     // take minutes) or an ONNX write; create_submission checks again under
     // the write lock. A new method cannot hold the seed yet.
@@ -590,7 +615,7 @@ pub async fn accept(
     let files = store.lock_policy_files().await?;
     // Again under the lock: concurrent submissions of one submitter (on
     // this host) are counted one after the other.
-    crate::quota::admit(state, who).await?;
+    crate::quota::admit(state, who, cost, &what).await?;
     let policy = match &mut v.policy {
         ValidPolicy::Onnx(file) => {
             if let Some(cap) = state.cfg.max_disk_bytes_per_submitter {

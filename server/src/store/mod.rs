@@ -60,12 +60,14 @@ mod tokens;
 pub mod types;
 mod zoo;
 
-pub use comparisons::{ComparisonRow, NewComparison};
+pub use comparisons::{ComparisonRow, NewComparison, RaceCancel};
 pub use files::{PolicyFilesGuard, TMP_MARKER};
 pub use jobs::{ClaimedJob, JobKind, JobRow};
 pub use live::{CancelOutcome, Cancelled, StateOutcome, CANCELLED_KIND};
 pub use methods::{MethodRow, NewMethod};
-pub use moderation::{AuditEntry, QuotaOverrides, QuotaUsage, Withdrawal, DAY_S};
+pub use moderation::{
+    AuditEntry, QuotaOverrides, QuotaUsage, QuotaWork, Withdrawal, WorkKind, DAY_S,
+};
 pub use results::{IntervalNote, IntervalNotes, ResultRow, RolloutRow, SeedSummary};
 pub use robustness::{summary_of, RobustnessRow};
 pub use shards::ShardPart;

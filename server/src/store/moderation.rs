@@ -16,16 +16,41 @@ pub struct QuotaOverrides {
     pub concurrent: Option<i64>,
 }
 
-/// What a submitter has used: accepted submissions (refused ones never get
-/// a row) in the last 24 hours and ever, and those still queued or running.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+/// What a submitter has used, in evaluations (issue 52; `crate::quota`
+/// counts them): accepted work (refused requests never get a row) in the
+/// last 24 hours and ever, and the work still queued or running.
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
 pub struct QuotaUsage {
     pub last_day: i64,
     pub total: i64,
     pub active: i64,
-    /// When the oldest submission of the last 24 hours was made (it leaves
-    /// the window 24 hours later).
-    pub oldest_in_day: Option<i64>,
+    /// Races queued or running.
+    pub races: i64,
+    /// The work of the last 24 hours: when each was accepted and its
+    /// evaluations (each leaves the window 24 hours later), oldest first.
+    pub day: Vec<(i64, i64)>,
+}
+
+/// A unit of metered work as stored: a submission (its task, observation
+/// type and whether it runs a suite) or a race.
+#[derive(Debug, Clone, PartialEq, Eq, Hash)]
+pub enum WorkKind {
+    Submission {
+        task: String,
+        obs_type: String,
+        suite: bool,
+    },
+    Race,
+}
+
+/// A submitter's work as [`Store::quota_work`] reads it.
+#[derive(Debug, Clone, Default)]
+pub struct QuotaWork {
+    /// Work accepted in the last 24 hours or still queued or running:
+    /// (accepted at, queued or running, kind).
+    pub recent: Vec<(i64, bool, WorkKind)>,
+    /// All work ever accepted, counted by kind.
+    pub totals: Vec<(WorkKind, i64)>,
 }
 
 /// Why and when a submission was withdrawn.
@@ -118,24 +143,47 @@ impl Store {
             .await
     }
 
-    /// What submitter `id` has used of its quota at time `t`.
-    pub async fn quota_usage(&self, submitter_id: i64, t: i64) -> Result<QuotaUsage, StoreError> {
-        let (last_day, total, active, oldest): (i64, i64, i64, Option<i64>) = on_db!(&self.db, pool => sqlx::query_as(
-            "SELECT CAST(COALESCE(SUM(CASE WHEN created_at > $2 THEN 1 ELSE 0 END), 0) AS BIGINT), \
-             CAST(COUNT(*) AS BIGINT), \
-             CAST(COALESCE(SUM(CASE WHEN status IN ('queued', 'running') THEN 1 ELSE 0 END), 0) AS BIGINT), \
-             MIN(CASE WHEN created_at > $2 THEN created_at END) \
-             FROM submissions WHERE submitter_id = $1",
+    /// Submitter `id`'s submissions and races at time `t`, for the quota.
+    pub async fn quota_work(&self, submitter_id: i64, t: i64) -> Result<QuotaWork, StoreError> {
+        type Row = (i64, bool, Option<String>, Option<String>, bool);
+        let since = t - DAY_S;
+        let recent: Vec<Row> = on_db!(&self.db, pool => sqlx::query_as(
+            "SELECT created_at, status IN ('queued', 'running'), task, obs_type, suite IS NOT NULL \
+             FROM submissions WHERE submitter_id = $1 AND (created_at > $2 OR status IN ('queued', 'running')) \
+             UNION ALL SELECT created_at, status IN ('queued', 'running'), NULL, NULL, FALSE \
+             FROM comparisons WHERE submitter_id = $1 AND (created_at > $2 OR status IN ('queued', 'running')) \
+             ORDER BY 1",
         )
         .bind(submitter_id)
-        .bind(t - DAY_S)
-        .fetch_one(pool)
+        .bind(since)
+        .fetch_all(pool)
         .await)?;
-        Ok(QuotaUsage {
-            last_day,
-            total,
-            active,
-            oldest_in_day: oldest,
+        let totals: Vec<(Option<String>, Option<String>, bool, i64)> = on_db!(&self.db, pool => sqlx::query_as(
+            "SELECT task, obs_type, suite IS NOT NULL, CAST(COUNT(*) AS BIGINT) FROM submissions \
+             WHERE submitter_id = $1 GROUP BY task, obs_type, suite IS NOT NULL \
+             UNION ALL SELECT NULL, NULL, FALSE, CAST(COUNT(*) AS BIGINT) FROM comparisons WHERE submitter_id = $1",
+        )
+        .bind(submitter_id)
+        .fetch_all(pool)
+        .await)?;
+        let kind = |task: Option<String>, obs: Option<String>, suite: bool| match (task, obs) {
+            (Some(task), Some(obs_type)) => WorkKind::Submission {
+                task,
+                obs_type,
+                suite,
+            },
+            _ => WorkKind::Race,
+        };
+        Ok(QuotaWork {
+            recent: recent
+                .into_iter()
+                .map(|(at, active, task, obs, suite)| (at, active, kind(task, obs, suite)))
+                .collect(),
+            totals: totals
+                .into_iter()
+                .filter(|r| r.3 > 0)
+                .map(|(task, obs, suite, n)| (kind(task, obs, suite), n))
+                .collect(),
         })
     }
 

@@ -304,7 +304,8 @@ impl Store {
              r.stacking_levels_json, r.inference_ms, {initial_states} AS initial_states, {robot_look} AS robot_look, \
              {fingerprint} AS physics_fingerprint, s.data_source \
              FROM submissions s JOIN results r ON r.submission_id = s.id \
-             JOIN methods m ON m.id = s.method_id WHERE s.status = $1 AND s.withdrawn_at IS NULL ORDER BY s.id"
+             JOIN methods m ON m.id = s.method_id WHERE s.status = $1 AND {PUBLIC} ORDER BY s.id",
+            PUBLIC = super::submissions::PUBLIC
         );
         let db: Vec<SeedDbRow> = on_db!(&self.db, pool => sqlx::query_as(sqlx::AssertSqlSafe(sql.as_str()))
         .bind(SubmissionStatus::Completed)

@@ -129,21 +129,27 @@ impl Store {
         Ok(j.map(|j| j.0))
     }
 
-    /// Every completed submission's robustness for `task` (all tasks when
-    /// None), oldest first. The zoo's methods are named `METHOD (zoo)`:
+    /// Every completed public submission's robustness for `task` (all tasks
+    /// when None), oldest first. The zoo's methods are named `METHOD (zoo)`:
     /// never grouped with a submitted method of the same name.
     pub async fn robustness_rows(
         &self,
         task: Option<TaskId>,
     ) -> Result<Vec<RobustnessRow>, StoreError> {
-        Ok(on_db!(&self.db, pool => sqlx::query_as(
+        // Public rows only: a withdrawn submission leaves this view and the
+        // tables drawn from it (issue 52).
+        let sql = format!(
             "SELECT r.submission_id, CASE WHEN s.data_source IS NULL THEN m.name ELSE m.name || ' (zoo)' END AS method, s.task, s.obs_type, s.protocol, s.training_seed, \
              s.data_fraction, r.suite, r.suite_sha256, r.summary_json FROM robustness_results r \
              JOIN submissions s ON s.id = r.submission_id JOIN methods m ON m.id = s.method_id \
-             WHERE s.status = 'completed' AND ($1 IS NULL OR s.task = $1) ORDER BY r.submission_id",
-        )
+             WHERE s.status = 'completed' AND {} AND ($1 IS NULL OR s.task = $1) ORDER BY r.submission_id",
+            super::submissions::PUBLIC
+        );
+        Ok(
+            on_db!(&self.db, pool => sqlx::query_as(sqlx::AssertSqlSafe(sql.as_str()))
         .bind(task.map(|t| t.slug()))
         .fetch_all(pool)
-        .await)?)
+        .await)?,
+        )
     }
 }

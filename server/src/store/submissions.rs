@@ -152,6 +152,11 @@ macro_rules! submission_select {
 }
 const SUBMISSION_SELECT: &str = submission_select!("");
 
+/// What the public sees (issue 52), the one rule every list, board, view
+/// and table applies to the submissions it shows (alias `s`): a submission
+/// not withdrawn. Its own page and document still show it, with the reason.
+pub(crate) const PUBLIC: &str = "s.withdrawn_at IS NULL";
+
 /// A withdrawn submission and why (the list on `/admin`).
 #[derive(Debug, Clone, FromRow)]
 pub struct WithdrawnSubmission {
@@ -319,7 +324,7 @@ impl Store {
     ) -> Result<Vec<SubmissionRow>, StoreError> {
         Ok(
             on_db!(&self.db, pool => sqlx::query_as(sqlx::AssertSqlSafe(format!(
-            "{SUBMISSION_SELECT} WHERE s.method_id = $1 AND s.withdrawn_at IS NULL ORDER BY s.id DESC"
+            "{SUBMISSION_SELECT} WHERE s.method_id = $1 AND {PUBLIC} ORDER BY s.id DESC"
         )))
         .bind(method_id)
         .fetch_all(pool)
@@ -340,7 +345,7 @@ impl Store {
     ) -> Result<Vec<SubmissionRow>, StoreError> {
         // A filter not given is a NULL parameter that matches every row.
         let sql = format!(
-            "{SUBMISSION_SELECT} WHERE s.withdrawn_at IS NULL AND ($1 IS NULL OR s.task = $1) \
+            "{SUBMISSION_SELECT} WHERE {PUBLIC} AND ($1 IS NULL OR s.task = $1) \
              AND ($2 IS NULL OR m.name = $2) AND ($3 IS NULL OR s.status = $3) AND ($4 IS NULL OR sub.name = $4) \
              ORDER BY s.id DESC LIMIT $5"
         );
@@ -380,7 +385,7 @@ impl Store {
     pub async fn latest_submissions(&self, limit: i64) -> Result<Vec<SubmissionRow>, StoreError> {
         Ok(
             on_db!(&self.db, pool => sqlx::query_as(sqlx::AssertSqlSafe(format!(
-            "{SUBMISSION_SELECT} WHERE s.withdrawn_at IS NULL ORDER BY s.id DESC LIMIT $1"
+            "{SUBMISSION_SELECT} WHERE {PUBLIC} ORDER BY s.id DESC LIMIT $1"
         )))
         .bind(limit)
         .fetch_all(pool)

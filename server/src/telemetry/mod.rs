@@ -208,7 +208,8 @@ impl Telemetry {
         );
         r.register(
             "d3il_rate_limit_refusals",
-            "Requests refused by a rate limit, by limit (token, anonymous, failed_auth)",
+            "Requests refused by a rate limit, and connections cut by a connection limit, by limit \
+             (token, anonymous, failed_auth; connections, client_connections, linger_deadline)",
             t.rate_limit_refusals.clone(),
         );
         r.register(

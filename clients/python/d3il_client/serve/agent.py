@@ -413,7 +413,7 @@ def agent_server(agent: Any, **kwargs: Any) -> PolicyServer:
 
 def serve_agent(
     agent: Any,
-    host: str = "0.0.0.0",
+    host: str = "127.0.0.1",
     port: int = 8765,
     certfile: Optional[str] = None,
     keyfile: Optional[str] = None,

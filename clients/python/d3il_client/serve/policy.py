@@ -10,7 +10,7 @@ Serve any Python callable to the evaluator over a WebSocket with msgpack frames:
         # .images (image policies), .spec (the task spec the evaluator sent)
         return np.zeros((obs.shape[0], 1, request.spec["act_dim"]), np.float32)
 
-    serve(policy, host="0.0.0.0", port=8765, history=1, horizon=1, execute=1)
+    serve(policy, host="127.0.0.1", port=8765, history=1, horizon=1, execute=1)
 
 The callable returns float32 actions [B, H, act_dim] (or [B, act_dim] when H = 1).
 An optional `reset(rollout_ids)` callable is told when episodes start.
@@ -204,7 +204,7 @@ def tls_context(certfile: str, keyfile: Optional[str] = None) -> ssl_module.SSLC
 
 def serve(
     policy: Policy,
-    host: str = "0.0.0.0",
+    host: str = "127.0.0.1",
     port: int = 8765,
     certfile: Optional[str] = None,
     keyfile: Optional[str] = None,

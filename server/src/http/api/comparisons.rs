@@ -1,6 +1,6 @@
 //! `POST /api/v1/comparisons` and `GET /api/v1/comparisons/{id}` (issue 41):
 //! a sequential race of two submissions' policies on the server
-//! ([`crate::races`]).
+//! ([`crate::races`]); `POST /api/v1/comparisons/{id}/cancel` (issue 52).
 
 use super::admin::json_body;
 use crate::auth::Authed;
@@ -19,9 +19,9 @@ use axum::Json;
     request_body = ComparisonRequest,
     responses(
         (status = 202, description = "Queued: poll GET /comparisons/{id} (or watch /comparisons/{id})", body = ComparisonView),
-        (status = 400, description = "A field is wrong (`field` names it): unknown or failed submission, a and b the same, different tasks or observation types, alpha or delta out of range, unknown protocol", body = ErrorBody),
+        (status = 400, description = "A field is wrong (`field` names it): unknown, failed or withdrawn submission, a and b the same, different tasks or observation types, alpha or delta out of range, unknown protocol", body = ErrorBody),
         (status = 401, description = "Missing or wrong token", body = ErrorBody),
-        (status = 429, description = "Rate limit or quota exceeded", body = ErrorBody)))]
+        (status = 429, description = "Rate limit or quota exceeded (`quota_exceeded`: neither submission is the racer's own, the race's 2 evaluations do not fit the quota, or the racer's races at once are at `--max-queued-races`; the message names the limit and when, with Retry-After)", body = ErrorBody)))]
 pub async fn create_comparison(
     State(state): State<AppState>,
     Authed(who): Authed,
@@ -43,6 +43,26 @@ pub async fn get_comparison(
     State(state): State<AppState>,
     Param(id): Param<i64>,
 ) -> Result<Json<ComparisonView>, AppError> {
+    let row = state.store.comparison(id).await?;
+    Ok(Json(ComparisonView::of(&row)))
+}
+
+#[utoipa::path(post, path = "/comparisons/{id}/cancel", tag = "comparisons",
+    summary = "Cancel a queued or running race (its starter or an admin; audited): a running race's worker is stopped",
+    security(("bearer" = [])),
+    params(("id" = i64, Path, description = "Comparison id")),
+    responses(
+        (status = 200, description = "Cancelled: status `cancelled`, `cancelled_by` set", body = ComparisonView),
+        (status = 401, description = "Missing or wrong token", body = ErrorBody),
+        (status = 403, description = "Not the race's starter nor an admin", body = ErrorBody),
+        (status = 404, description = "No such comparison", body = ErrorBody),
+        (status = 409, description = "The race has ended already", body = ErrorBody)))]
+pub async fn cancel_comparison(
+    State(state): State<AppState>,
+    Param(id): Param<i64>,
+    Authed(who): Authed,
+) -> Result<Json<ComparisonView>, AppError> {
+    races::cancel_as(&state, id, &who).await?;
     let row = state.store.comparison(id).await?;
     Ok(Json(ComparisonView::of(&row)))
 }

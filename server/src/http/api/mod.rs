@@ -72,6 +72,10 @@ pub fn router(max_upload: usize) -> Router<AppState> {
         .route("/compare", get(compare::compare))
         .route("/comparisons", post(comparisons::create_comparison))
         .route("/comparisons/{id}", get(comparisons::get_comparison))
+        .route(
+            "/comparisons/{id}/cancel",
+            post(comparisons::cancel_comparison),
+        )
         .route("/whoami", get(whoami))
         .nest("/admin", admin::router())
         .route("/build", get(get_build))

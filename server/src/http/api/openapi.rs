@@ -43,6 +43,7 @@ use utoipa::{Modify, OpenApi};
         super::compare::compare,
         super::comparisons::create_comparison,
         super::comparisons::get_comparison,
+        super::comparisons::cancel_comparison,
         super::rollouts::list_rollouts,
         super::rollouts::get_rollout,
         super::rollouts::get_video,

@@ -12,10 +12,11 @@ use axum::response::{IntoResponse, Redirect, Response};
 use axum::Form;
 use serde::Deserialize;
 
+/// A Cancel button's form (the submission page's and the race page's).
 #[derive(Deserialize)]
 pub(super) struct CancelForm {
     #[serde(default)]
-    token: String,
+    pub(super) token: String,
 }
 
 pub(super) async fn cancel_post(

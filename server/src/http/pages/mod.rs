@@ -40,6 +40,10 @@ pub fn router(max_upload: usize) -> Router<AppState> {
         .route("/compare", get(compare_page))
         .route("/comparisons", axum::routing::post(race::race_post))
         .route("/comparisons/{id}", get(race::race_page))
+        .route(
+            "/comparisons/{id}/cancel",
+            axum::routing::post(race::race_cancel_post),
+        )
         .route("/submissions", get(submissions_page))
         .route("/submissions/{id}", get(submission_page))
         .route("/submissions/{id}/json", get(submission_download))

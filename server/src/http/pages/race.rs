@@ -2,7 +2,8 @@
 //! (`POST /api/v1/comparisons`, [`crate::races`]) as it runs: the two
 //! policies, the paired counts so far, the e-value and anytime-valid p-value,
 //! the decision when reached and the rollouts used against the fixed-size
-//! test. Refreshes every 2 seconds while queued or running.
+//! test. Refreshes every 2 seconds while queued or running, with a Cancel
+//! button (issue 52: its starter's or an admin's token).
 
 use super::compare::parse_id;
 use super::render;
@@ -172,4 +173,18 @@ pub(super) async fn race_post(
     };
     let race = crate::races::create(&state, &who, &req).await?;
     Ok(axum::response::Redirect::to(&format!("/comparisons/{race}")).into_response())
+}
+
+/// The race page's Cancel button: `POST /comparisons/{id}/cancel` with the
+/// starter's (or an admin's) token (`races::cancel_as`, the API's rule),
+/// then back to the page.
+pub(super) async fn race_cancel_post(
+    State(state): State<AppState>,
+    Param(id): Param<i64>,
+    axum::Form(f): axum::Form<super::cancel::CancelForm>,
+) -> Result<axum::response::Response, PageError> {
+    use axum::response::IntoResponse;
+    let who = crate::auth::authenticate_token(&state, f.token.trim()).await?;
+    crate::races::cancel_as(&state, id, &who).await?;
+    Ok(axum::response::Redirect::to(&format!("/comparisons/{id}")).into_response())
 }

@@ -373,7 +373,7 @@ pub(super) async fn submit_post(
             match page.render() {
                 Ok(html) => {
                     let mut resp = (status, Html(html)).into_response();
-                    if let AppError::RateLimited { retry_after } = e {
+                    if let AppError::RateLimited { retry_after, .. } = e {
                         if let Ok(v) = header::HeaderValue::from_str(&retry_after.to_string()) {
                             resp.headers_mut().insert(header::RETRY_AFTER, v);
                         }

@@ -1,0 +1,5 @@
+-- Upgrade fixture, level 13 (0013_metered_races.sql): rows valid at this schema version,
+-- read by tests/db_upgrade.rs (both backends). Adds: a race of the two level-10 submissions
+-- cancelled while queued by its starter (issue 52), and one leased by a race slot.
+INSERT INTO comparisons (id, submission_a, submission_b, submitter_id, task, protocol, seed, alpha, delta, status, live_json, report_json, error_message, created_at, updated_at, lease_owner, lease_expires_at, cancelled_by) VALUES (2, 1100, 1101, 1, 'aligning', 'quick', 0, 0.05, NULL, 'cancelled', NULL, NULL, 'cancelled by upgrade-alice', 1700000500, 1700000510, NULL, NULL, 'upgrade-alice');
+INSERT INTO comparisons (id, submission_a, submission_b, submitter_id, task, protocol, seed, alpha, delta, status, live_json, report_json, error_message, created_at, updated_at, lease_owner, lease_expires_at, cancelled_by) VALUES (3, 1100, 1101, 1, 'aligning', 'paper', 0, 0.05, NULL, 'running', NULL, NULL, NULL, 1700000600, 1700000610, 'host-1-race', 1700000700, NULL);
