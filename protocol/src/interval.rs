@@ -132,10 +132,10 @@ impl NoInterval {
             NoInterval::TestCannotReject { states: 1, .. } => {
                 "no interval (one initial state)".into()
             }
-            NoInterval::TestCannotReject { states, .. } => {
-                format!("no interval (test cannot reject at {states} states)")
+            NoInterval::TestCannotReject { states, smallest_p } => {
+                format!("no interval ({states} states, p ≥ {smallest_p:.2})")
             }
-            NoInterval::NoSpread { .. } => "no interval (same difference on every state)".into(),
+            NoInterval::NoSpread { .. } => "no interval (no spread)".into(),
             NoInterval::NoResamples => "no interval (no resamples)".into(),
         }
     }

@@ -90,12 +90,12 @@ pub fn render(c: &Comparison) -> String {
         c.task, c.protocol.as_str(), c.n_contexts, c.rollouts_per_context, c.initial_states, c.initial_states_sha256
     );
     s += &format!(
-        "{:<22} {:>7} {:>7} {:>8}   {:<30} {:>8} {:>9}\n",
+        "{:<22} {:>7} {:>7} {:>8}   {:<32} {:>8} {:>9}\n",
         "metric", "A", "B", "A − B", "95% CI", "p", "min. det."
     );
     let row = |name: &str, d: &PairedDifference| {
         format!(
-            "{name:<22} {:>7.3} {:>7.3} {:>+8.3}   {:<30} {:>8.4} {:>9.3}\n",
+            "{name:<22} {:>7.3} {:>7.3} {:>+8.3}   {:<32} {:>8.4} {:>9.3}\n",
             d.a,
             d.b,
             d.difference.value,

@@ -192,14 +192,14 @@ pub fn render(doc: &RobustnessResult) -> String {
         doc.suite_sha256
     );
     let head = format!(
-        "{:<18} {:>7} {:>8}   {:<30} {:>8} {:>7} {:>7} {:>8}\n",
+        "{:<18} {:>7} {:>8}   {:<32} {:>8} {:>7} {:>7} {:>8}\n",
         "level", "success", "drop", "95% CI", "p", "H", "H|s0", "retained"
     );
     for a in &doc.axes {
         s += &format!("\n{}: score {}\n", a.axis, interval(&a.score));
         s += &head;
         s += &format!(
-            "{:<18} {:>7.3} {:>8}   {:<30} {:>8} {:>7.3} {:>7.3} {:>8}\n",
+            "{:<18} {:>7.3} {:>8}   {:<32} {:>8} {:>7.3} {:>7.3} {:>8}\n",
             "0 (standard)",
             c.metrics.success_rate.value,
             "",
@@ -212,7 +212,7 @@ pub fn render(doc: &RobustnessResult) -> String {
         for l in doc.levels.iter().filter(|l| l.axis == a.axis) {
             let d = &l.paired.success_rate;
             s += &format!(
-                "{:<18} {:>7.3} {:>+8.3}   {:<30} {:>8.4} {:>7.3} {:>7.3} {:>8}\n",
+                "{:<18} {:>7.3} {:>+8.3}   {:<32} {:>8.4} {:>7.3} {:>7.3} {:>8}\n",
                 format!("{} ({})", l.level, l.setting.label),
                 l.result.metrics.success_rate.value,
                 d.difference.value,

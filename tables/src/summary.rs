@@ -48,7 +48,7 @@ pub fn metrics_table(result: &EvalResult) -> String {
     }
     let _ = writeln!(
         out,
-        "{:<28} {:>8}   {:<30} interval",
+        "{:<28} {:>8}   {:<32} interval",
         "metric", "value", "95% CI"
     );
     let mut reasons: Vec<(String, String)> = Vec::new();
@@ -63,7 +63,7 @@ pub fn metrics_table(result: &EvalResult) -> String {
         };
         let _ = writeln!(
             out,
-            "{name:<28} {:>8.3}   {:<30} {method}",
+            "{name:<28} {:>8.3}   {:<32} {method}",
             e.value,
             e.interval_text(3)
         );
