@@ -190,6 +190,8 @@ pub fn render_sequential(r: &d3il_metrics::sequential::Replay) -> String {
     );
     s += &d3il_metrics::horizon::rule_line(r.alpha, r.pairs_total as usize);
     s.push('\n');
+    s += &d3il_metrics::horizon::decided_by(r.alpha, r.pairs_total as usize, r.decision.as_deref());
+    s += ".\n";
     if let Some((lo, hi)) = r.difference_interval {
         s += &format!("confidence sequence of A − B: {lo:+.3} – {hi:+.3}\n");
     }

@@ -122,6 +122,8 @@ pub fn render(r: &RaceReport, a: &std::path::Path, b: &std::path::Path) -> Strin
     );
     s += &d3il_metrics::horizon::rule_line(r.alpha, r.pairs_full as usize);
     s.push('\n');
+    s += &d3il_metrics::horizon::decided_by(r.alpha, r.pairs_full as usize, r.decision.as_deref());
+    s += ".\n";
     s += &format!(
         "success rate on the states used: A {:.3}, B {:.3}\n",
         r.rate_a, r.rate_b
