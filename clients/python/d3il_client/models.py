@@ -157,13 +157,26 @@ class SubmissionError:
 
 @dataclasses.dataclass(frozen=True)
 class Estimate:
-    """A metric with its 95 % bootstrap confidence interval."""
+    """A metric with its 95 % confidence interval, or why it has none (docs/intervals.md)."""
 
     SCHEMA: ClassVar[str] = "EstimateView"
     value: float
+    #: Equal to ``value`` when ``no_interval`` is set: not an interval then (see :meth:`bounds`).
     ci_low: float
     ci_high: float
+    #: The interval's method (``korn_graubard``, ``sign_flip_exact``, ...); None from servers before 0.5.0.
+    method: Optional[str] = None
+    #: Why there is no interval, e.g. ``{"reason": "too_few_states", "states": 3, "min": 5}``.
+    no_interval: Optional[Dict[str, Any]] = None
+    #: The method's name, or the reason there is no interval, in words.
+    interval: Optional[str] = None
     raw: Dict[str, Any] = _raw()
+
+    def bounds(self) -> Tuple[Optional[float], Optional[float]]:
+        """``(ci_low, ci_high)``, or ``(None, None)`` when there is no interval."""
+        if self.no_interval is not None:
+            return (None, None)
+        return (self.ci_low, self.ci_high)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -247,7 +260,7 @@ class Results:
         """One row per metric: ``metric``, ``value``, ``ci_low``, ``ci_high``."""
         m = self.metrics
         rows = [
-            {"metric": name, "value": e.value, "ci_low": e.ci_low, "ci_high": e.ci_high}
+            {"metric": name, "value": e.value, "ci_low": e.bounds()[0], "ci_high": e.bounds()[1]}
             for name, e in (
                 ("success_rate", m.success_rate),
                 ("conditional_entropy", m.conditional_entropy),
@@ -261,7 +274,12 @@ class Results:
                 ("behaviour_entropy", level.behaviour_entropy),
             ):
                 rows.append(
-                    {"metric": f"stacking-{i + 1} {name}", "value": e.value, "ci_low": e.ci_low, "ci_high": e.ci_high}
+                    {
+                        "metric": f"stacking-{i + 1} {name}",
+                        "value": e.value,
+                        "ci_low": e.bounds()[0],
+                        "ci_high": e.bounds()[1],
+                    }
                 )
         rows.append({"metric": "inference_ms", "value": m.inference_ms, "ci_low": None, "ci_high": None})
         return _frame(rows, ["metric", "value", "ci_low", "ci_high"])
@@ -514,8 +532,8 @@ class Comparison:
                 "a": d.a,
                 "b": d.b,
                 "difference": d.difference.value,
-                "ci_low": d.difference.ci_low,
-                "ci_high": d.difference.ci_high,
+                "ci_low": d.difference.bounds()[0],
+                "ci_high": d.difference.bounds()[1],
                 "p_value": d.p_value,
                 "min_detectable": d.min_detectable,
             }
