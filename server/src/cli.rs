@@ -87,15 +87,8 @@ pub fn revoke_token_blocking(
     })?;
     rt.block_on(async {
         let store = Store::connect(db, policy_store).await?;
-        let revoked = store.revoke_token(token_or_prefix).await?;
-        if !revoked.prefixes.is_empty() {
-            let detail = format!("revoked {}", revoked.prefixes.join(", "));
-            let target = format!("token {}", revoked.prefixes.join(", "));
-            store
-                .audit(&cli_actor(), "revoke_token", &target, &detail)
-                .await?;
-        }
-        Ok(revoked)
+        // The audit entry is written with the revocation (one transaction).
+        store.revoke_token(token_or_prefix, &cli_actor()).await
     })
 }
 

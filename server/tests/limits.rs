@@ -729,3 +729,49 @@ async fn a_trickled_unread_body_is_cut_off_at_the_linger_deadline() {
         String::from_utf8_lossy(&answer)
     );
 }
+
+/// Issue 52: the public `/readyz` says whether each check passed and names
+/// the failing ones, but its detail (a database's error text, hosts) only
+/// to an admin token; the metrics listener shows it (tests/ops_metrics.rs).
+#[tokio::test]
+async fn public_readyz_shows_its_detail_only_to_an_admin() {
+    let app = spawn(|_| {}, idle_runner()).await;
+    let admin = app
+        .state
+        .store
+        .create_token_with("ready-op", true)
+        .await
+        .unwrap();
+    let user = app.state.store.create_token("ready-user").await.unwrap();
+    let c = reqwest::Client::new();
+    let get = |token: Option<String>| {
+        let mut r = c.get(app.url("/readyz"));
+        if let Some(t) = token {
+            r = r.bearer_auth(t);
+        }
+        async move {
+            r.send()
+                .await
+                .unwrap()
+                .json::<serde_json::Value>()
+                .await
+                .unwrap()
+        }
+    };
+    let hidden = "on the metrics listener (--metrics-bind) or with an admin token";
+    for v in [get(None).await, get(Some(user)).await] {
+        for check in ["database", "canary", "workers"] {
+            assert_eq!(v[check]["detail"], hidden, "{v}");
+            assert!(v[check]["ok"].is_boolean(), "{v}");
+        }
+        assert!(v["not_ready"].is_array(), "{v}");
+    }
+    let v = get(Some(admin)).await;
+    assert!(
+        v["workers"]["detail"]
+            .as_str()
+            .unwrap()
+            .contains("worker slot"),
+        "{v}"
+    );
+}

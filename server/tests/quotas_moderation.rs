@@ -96,9 +96,11 @@ async fn admin_post(
     body: Option<Value>,
 ) -> (u16, Value) {
     let mut req = app.http.request(method, app.url(path)).bearer_auth(admin);
-    if let Some(b) = body {
-        req = req.json(&b);
-    }
+    req = match body {
+        Some(b) => req.json(&b),
+        // Admin actions say they send JSON even without a body (issue 52).
+        None => req.header("content-type", "application/json"),
+    };
     let r = req.send().await.unwrap();
     (r.status().as_u16(), r.json().await.unwrap())
 }
@@ -800,3 +802,86 @@ on_both_backends!(
     dry_run_refusals_are_not_counted,
     moderation_and_the_audit_log,
 );
+
+/// Issue 52: a revoke prefix that names several live tokens revokes none
+/// and names them; the whole token revokes its one.
+#[tokio::test]
+async fn an_ambiguous_revoke_prefix_is_refused_naming_the_matches() {
+    use sqlx::{ConnectOptions, Executor};
+    let app = spawn_app().await;
+    let store = &app.state.store;
+    let first = store.create_token("ann").await.unwrap();
+    let second = store.create_token("bob").await.unwrap();
+    let prefix = &first[..13];
+    // Two live tokens sharing a prefix (13 characters: rare, possible).
+    let mut db = sqlx::sqlite::SqliteConnectOptions::new()
+        .filename(&app.db)
+        .connect()
+        .await
+        .unwrap();
+    db.execute(
+        sqlx::query("UPDATE api_tokens SET prefix = $1 WHERE prefix = $2")
+            .bind(prefix)
+            .bind(&second[..13]),
+    )
+    .await
+    .unwrap();
+    let e = store
+        .revoke_token(prefix, "op")
+        .await
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("names 2 live tokens"), "{e}");
+    assert!(e.contains("ann's") && e.contains("bob's"), "{e}");
+    assert!(e.contains("give the whole token"), "{e}");
+    assert!(store.authenticate(&first).await.unwrap().is_some());
+    assert!(store.authenticate(&second).await.unwrap().is_some());
+    let done = store.revoke_token(&second, "op").await.unwrap();
+    assert_eq!(done.prefixes.len(), 1);
+    assert!(store.authenticate(&second).await.unwrap().is_none());
+    assert!(store.authenticate(&first).await.unwrap().is_some());
+}
+
+/// Issue 52: an admin action without `Content-Type: application/json` (what
+/// a cross-site form sends with a browser's Basic credentials) is refused,
+/// and does nothing.
+#[tokio::test]
+async fn admin_actions_need_a_json_content_type() {
+    let app = spawn_app().await;
+    let store = &app.state.store;
+    let admin = store.create_token_with("csrf-op", true).await.unwrap();
+    let victim = store.create_token("victim").await.unwrap();
+    let prefix = &victim[..13];
+    let r = app
+        .http
+        .post(app.url(&format!("/api/v1/admin/tokens/{prefix}/revoke")))
+        .bearer_auth(&admin)
+        .header("content-type", "application/x-www-form-urlencoded")
+        .body("x=1")
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status(), 400);
+    let body: Value = r.json().await.unwrap();
+    assert!(
+        body["error"]["message"]
+            .as_str()
+            .unwrap()
+            .contains("Content-Type: application/json"),
+        "{body}"
+    );
+    assert!(
+        store.authenticate(&victim).await.unwrap().is_some(),
+        "not revoked"
+    );
+    let (s, done) = admin_post(
+        &app,
+        &admin,
+        reqwest::Method::POST,
+        &format!("/api/v1/admin/tokens/{prefix}/revoke"),
+        None,
+    )
+    .await;
+    assert_eq!(s, 200, "{done}");
+    assert!(store.authenticate(&victim).await.unwrap().is_none());
+}

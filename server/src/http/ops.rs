@@ -28,7 +28,16 @@ pub fn router() -> Router<AppState> {
         .route("/healthz", get(healthz))
         .route(
             "/readyz",
-            get(|State(s): State<AppState>| async move { readyz(&s.telemetry).await }),
+            get(
+                |State(s): State<AppState>,
+                 who: Option<axum::Extension<crate::auth::Verified>>| async move {
+                    // The checks' detail (a database's error text, hosts)
+                    // only for an admin here (issue 52); the private
+                    // listener shows it to its scraper.
+                    let admin = who.is_some_and(|w| w.0 .0.is_admin);
+                    readyz(&s.telemetry, admin).await
+                },
+            ),
         )
         .route(
             "/metrics",
@@ -42,7 +51,7 @@ pub fn private_router(t: Arc<Telemetry>) -> Router {
         .route("/healthz", get(healthz))
         .route(
             "/readyz",
-            get(|State(t): State<Arc<Telemetry>>| async move { readyz(&t).await }),
+            get(|State(t): State<Arc<Telemetry>>| async move { readyz(&t, true).await }),
         )
         .route(
             "/metrics",
@@ -68,14 +77,27 @@ async fn healthz() -> Response {
         .into_response()
 }
 
-async fn readyz(t: &Telemetry) -> Response {
+/// The readiness report; without `detail` each check says only whether it
+/// is ok (and `not_ready` names the failing ones).
+async fn readyz(t: &Telemetry, detail: bool) -> Response {
     let report = t.readiness().await;
     let status = if report.ready {
         StatusCode::OK
     } else {
         StatusCode::SERVICE_UNAVAILABLE
     };
-    (status, [(header::CACHE_CONTROL, "no-store")], Json(report)).into_response()
+    let mut body = serde_json::to_value(&report).unwrap_or_default();
+    if !detail {
+        for check in ["database", "canary", "workers"] {
+            if let Some(c) = body.get_mut(check).and_then(|c| c.as_object_mut()) {
+                c.insert(
+                    "detail".into(),
+                    "on the metrics listener (--metrics-bind) or with an admin token".into(),
+                );
+            }
+        }
+    }
+    (status, [(header::CACHE_CONTROL, "no-store")], Json(body)).into_response()
 }
 
 async fn metrics(t: &Telemetry) -> Response {

@@ -81,6 +81,25 @@ pub struct AuditEntry {
 /// The 24 hours of the per-day quota.
 pub const DAY_S: i64 = 86_400;
 
+/// Appends an audit entry inside the caller's transaction (issue 52: the
+/// entry and the action commit together or not at all); its entry.
+macro_rules! audit_in {
+    ($tx:expr, $actor:expr, $action:expr, $target:expr, $detail:expr) => {{
+        let e: AuditEntry = sqlx::query_as(
+            "INSERT INTO audit_log (at, actor, action, target, detail) VALUES ($1, $2, $3, $4, $5) \
+             RETURNING id, at, actor, action, target, detail",
+        )
+        .bind(now())
+        .bind($actor)
+        .bind($action)
+        .bind($target)
+        .bind($detail)
+        .fetch_one($tx)
+        .await?;
+        e
+    }};
+}
+
 impl Store {
     /// The quota overrides of submitter `id` (all None if it has none).
     pub async fn quota_overrides(&self, submitter_id: i64) -> Result<QuotaOverrides, StoreError> {
@@ -95,39 +114,15 @@ impl Store {
     }
 
     /// Sets submitter `name`'s overrides (None: back to the server's
-    /// default). `NotFound` if no token was ever made for that name.
-    pub async fn set_quota_overrides(
-        &self,
-        name: &str,
-        q: QuotaOverrides,
-    ) -> Result<(), StoreError> {
-        let n = on_db!(&self.db, pool => sqlx::query(
-            "UPDATE submitters SET quota_per_day = $1, quota_total = $2, quota_concurrent = $3 WHERE name = $4",
-        )
-        .bind(q.per_day)
-        .bind(q.total)
-        .bind(q.concurrent)
-        .bind(name)
-        .execute(pool)
-        .await
-        .map(|r| r.rows_affected()))?;
-        if n == 0 {
-            return Err(StoreError::NotFound(format!(
-                "a submitter `{name}` (tokens name one: `d3il token create --name {name}`)"
-            )));
-        }
-        Ok(())
-    }
-
-    /// Sets `name`'s overrides and writes the audit entry: the one way the
-    /// admin API and `d3il token set-quota` do it.
+    /// default) and writes the audit entry in the same transaction: the one
+    /// way the admin API and `d3il token set-quota` do it. `NotFound` if no
+    /// token was ever made for that name.
     pub async fn set_quota(
         &self,
         name: &str,
         q: QuotaOverrides,
         actor: &str,
     ) -> Result<AuditEntry, StoreError> {
-        self.set_quota_overrides(name, q).await?;
         let show = |v: Option<i64>| match v {
             None => "default".to_string(),
             Some(0) => "no limit".to_string(),
@@ -139,8 +134,27 @@ impl Store {
             show(q.total),
             show(q.concurrent)
         );
-        self.audit(actor, "set_quota", &format!("submitter {name}"), &detail)
-            .await
+        on_db!(&self.db, pool => {
+            let mut tx = begin_write!(self, pool);
+            let n = sqlx::query(
+                "UPDATE submitters SET quota_per_day = $1, quota_total = $2, quota_concurrent = $3 WHERE name = $4",
+            )
+            .bind(q.per_day)
+            .bind(q.total)
+            .bind(q.concurrent)
+            .bind(name)
+            .execute(&mut *tx)
+            .await?
+            .rows_affected();
+            if n == 0 {
+                return Err(StoreError::NotFound(format!(
+                    "a submitter `{name}` (tokens name one: `d3il token create --name {name}`)"
+                )));
+            }
+            let e = audit_in!(&mut *tx, actor, "set_quota", format!("submitter {name}"), &detail);
+            tx.commit().await?;
+            Ok(e)
+        })
     }
 
     /// Submitter `id`'s submissions and races at time `t`, for the quota.
@@ -196,21 +210,25 @@ impl Store {
         actor: &str,
     ) -> Result<AuditEntry, StoreError> {
         let t = now();
-        let n = on_db!(&self.db, pool => sqlx::query(
-            "UPDATE submissions SET withdrawn_at = $1, withdrawn_reason = $2, withdrawn_by = $3 WHERE id = $4",
-        )
-        .bind(t)
-        .bind(reason)
-        .bind(actor)
-        .bind(id)
-        .execute(pool)
-        .await
-        .map(|r| r.rows_affected()))?;
-        if n == 0 {
-            return Err(StoreError::NotFound(format!("submission {id}")));
-        }
-        self.audit(actor, "withdraw", &format!("submission {id}"), reason)
-            .await
+        on_db!(&self.db, pool => {
+            let mut tx = begin_write!(self, pool);
+            let n = sqlx::query(
+                "UPDATE submissions SET withdrawn_at = $1, withdrawn_reason = $2, withdrawn_by = $3 WHERE id = $4",
+            )
+            .bind(t)
+            .bind(reason)
+            .bind(actor)
+            .bind(id)
+            .execute(&mut *tx)
+            .await?
+            .rows_affected();
+            if n == 0 {
+                return Err(StoreError::NotFound(format!("submission {id}")));
+            }
+            let e = audit_in!(&mut *tx, actor, "withdraw", format!("submission {id}"), reason);
+            tx.commit().await?;
+            Ok(e)
+        })
     }
 
     /// Puts a withdrawn submission back on the boards.
@@ -219,18 +237,22 @@ impl Store {
         id: i64,
         actor: &str,
     ) -> Result<AuditEntry, StoreError> {
-        let n = on_db!(&self.db, pool => sqlx::query(
-            "UPDATE submissions SET withdrawn_at = NULL, withdrawn_reason = NULL, withdrawn_by = NULL WHERE id = $1",
-        )
-        .bind(id)
-        .execute(pool)
-        .await
-        .map(|r| r.rows_affected()))?;
-        if n == 0 {
-            return Err(StoreError::NotFound(format!("submission {id}")));
-        }
-        self.audit(actor, "reinstate", &format!("submission {id}"), "")
-            .await
+        on_db!(&self.db, pool => {
+            let mut tx = begin_write!(self, pool);
+            let n = sqlx::query(
+                "UPDATE submissions SET withdrawn_at = NULL, withdrawn_reason = NULL, withdrawn_by = NULL WHERE id = $1",
+            )
+            .bind(id)
+            .execute(&mut *tx)
+            .await?
+            .rows_affected();
+            if n == 0 {
+                return Err(StoreError::NotFound(format!("submission {id}")));
+            }
+            let e = audit_in!(&mut *tx, actor, "reinstate", format!("submission {id}"), "");
+            tx.commit().await?;
+            Ok(e)
+        })
     }
 
     /// Why submission `id` was withdrawn, if it was.
@@ -259,18 +281,22 @@ impl Store {
         baseline: bool,
         actor: &str,
     ) -> Result<AuditEntry, StoreError> {
-        let n = on_db!(&self.db, pool => sqlx::query("UPDATE methods SET baseline = $1 WHERE name = $2")
-            .bind(baseline)
-            .bind(name)
-            .execute(pool)
-            .await
-            .map(|r| r.rows_affected()))?;
-        if n == 0 {
-            return Err(StoreError::NotFound(format!("method `{name}`")));
-        }
         let action = if baseline { "baseline" } else { "unbaseline" };
-        self.audit(actor, action, &format!("method {name}"), "")
-            .await
+        on_db!(&self.db, pool => {
+            let mut tx = begin_write!(self, pool);
+            let n = sqlx::query("UPDATE methods SET baseline = $1 WHERE name = $2")
+                .bind(baseline)
+                .bind(name)
+                .execute(&mut *tx)
+                .await?
+                .rows_affected();
+            if n == 0 {
+                return Err(StoreError::NotFound(format!("method `{name}`")));
+            }
+            let e = audit_in!(&mut *tx, actor, action, format!("method {name}"), "");
+            tx.commit().await?;
+            Ok(e)
+        })
     }
 
     /// Ids of the methods marked as baselines.

@@ -25,6 +25,8 @@ pub const LAST_USED_RESOLUTION_S: i64 = 60;
 pub struct Revoked {
     /// Prefixes of the tokens revoked now.
     pub prefixes: Vec<String>,
+    /// The audit entry written with it.
+    pub audit: super::AuditEntry,
 }
 
 impl Store {
@@ -122,7 +124,11 @@ impl Store {
     /// Revokes a token, given either the whole token or its stored prefix
     /// (the first 13 characters, as `d3il token create` prints them). Tokens
     /// revoked before are not counted again; an unknown one is `NotFound`.
-    pub async fn revoke_token(&self, token_or_prefix: &str) -> Result<Revoked, StoreError> {
+    pub async fn revoke_token(
+        &self,
+        token_or_prefix: &str,
+        actor: &str,
+    ) -> Result<Revoked, StoreError> {
         let t = token_or_prefix.trim();
         let rows: Vec<(i64, String, Option<i64>)> = if t.len() > TOKEN_PREFIX_LEN {
             on_db!(&self.db, pool => sqlx::query_as("SELECT id, prefix, revoked_at FROM api_tokens WHERE token_sha256 = $1")
@@ -130,6 +136,27 @@ impl Store {
                 .fetch_all(pool)
                 .await)?
         } else {
+            // A prefix that names more than one live token is refused (issue
+            // 52: it used to revoke them all), naming them, so the operator
+            // can give the whole token instead.
+            let live: Vec<(String, i64)> = on_db!(&self.db, pool => sqlx::query_as(
+                "SELECT s.name, t.created_at FROM api_tokens t JOIN submitters s ON s.id = t.submitter_id \
+                 WHERE t.prefix = $1 AND t.revoked_at IS NULL ORDER BY t.id",
+            )
+            .bind(t)
+            .fetch_all(pool)
+            .await)?;
+            if live.len() > 1 {
+                let names: Vec<String> = live
+                    .iter()
+                    .map(|(name, at)| format!("{name}'s (created at unix {at})"))
+                    .collect();
+                return Err(StoreError::Conflict(format!(
+                    "the prefix `{t}` names {} live tokens: {}; give the whole token to revoke one",
+                    live.len(),
+                    names.join(", ")
+                )));
+            }
             on_db!(&self.db, pool => sqlx::query_as("SELECT id, prefix, revoked_at FROM api_tokens WHERE prefix = $1")
                 .bind(t)
                 .fetch_all(pool)
@@ -140,21 +167,46 @@ impl Store {
                 "a token `{t}` (give the whole token or the 13-character prefix `d3il_…` shown when it was created)"
             )));
         }
-        let mut prefixes = vec![];
-        for (id, prefix, revoked) in rows {
-            if revoked.is_none() {
-                on_db!(&self.db, pool => sqlx::query(
-                    "UPDATE api_tokens SET revoked_at = $1 WHERE id = $2 AND revoked_at IS NULL",
-                )
-                .bind(now())
-                .bind(id)
-                .execute(pool)
-                .await
-                .map(|r| r.rows_affected()))?;
-                prefixes.push(prefix);
+        // The revocation and its audit entry commit together (issue 52).
+        let live: Vec<(i64, String)> = rows
+            .into_iter()
+            .filter(|r| r.2.is_none())
+            .map(|(id, prefix, _)| (id, prefix))
+            .collect();
+        let prefixes: Vec<String> = live.iter().map(|r| r.1.clone()).collect();
+        let detail = if prefixes.is_empty() {
+            "already revoked".to_string()
+        } else {
+            format!("revoked {}", prefixes.join(", "))
+        };
+        // Never the whole token: its first characters name it.
+        let target = format!(
+            "token {}",
+            t.chars().take(TOKEN_PREFIX_LEN).collect::<String>()
+        );
+        let audit = on_db!(&self.db, pool => {
+            let mut tx = begin_write!(self, pool);
+            for (id, _) in &live {
+                sqlx::query("UPDATE api_tokens SET revoked_at = $1 WHERE id = $2 AND revoked_at IS NULL")
+                    .bind(now())
+                    .bind(id)
+                    .execute(&mut *tx)
+                    .await?;
             }
-        }
-        Ok(Revoked { prefixes })
+            let e: super::AuditEntry = sqlx::query_as(
+                "INSERT INTO audit_log (at, actor, action, target, detail) VALUES ($1, $2, 'revoke_token', $3, $4) \
+                 RETURNING id, at, actor, action, target, detail",
+            )
+            .bind(now())
+            .bind(actor)
+            .bind(&target)
+            .bind(&detail)
+            .fetch_one(&mut *tx)
+            .await?;
+            tx.commit().await?;
+            e
+        });
+        Ok(Revoked { prefixes, audit })
     }
 }
 

@@ -22,6 +22,35 @@ pub fn router() -> Router<AppState> {
         .route("/tokens/{prefix}/revoke", post(revoke))
         .route("/submitters/{name}/quota", put(set_quota))
         .route("/audit", get(audit))
+        .layer(axum::middleware::from_fn(json_only))
+}
+
+/// Every admin action (anything but a GET) must say `Content-Type:
+/// application/json` (issue 52): a browser holding an admin's Basic
+/// credentials sends them with any cross-site form, but a form cannot send
+/// that content type, so no other site can act as the admin.
+async fn json_only(
+    req: axum::extract::Request,
+    next: axum::middleware::Next,
+) -> axum::response::Response {
+    use axum::response::IntoResponse;
+    let json = req
+        .headers()
+        .get(axum::http::header::CONTENT_TYPE)
+        .and_then(|v| v.to_str().ok())
+        .and_then(|v| v.split(';').next())
+        .is_some_and(|v| v.trim().eq_ignore_ascii_case("application/json"));
+    if req.method() != axum::http::Method::GET && !json {
+        return AppError::Invalid {
+            field: None,
+            message:
+                "admin actions need `Content-Type: application/json` (with a JSON body, `{}` when \
+                      the action takes none)"
+                    .into(),
+        }
+        .into_response();
+    }
+    next.run(req).await
 }
 
 /// A JSON request body, refused with the same error format as the rest.
@@ -148,22 +177,8 @@ pub async fn revoke(
     Admin(admin): Admin,
     Path(prefix): Path<String>,
 ) -> Result<Json<AdminDone>, AppError> {
-    let revoked = state.store.revoke_token(&prefix).await?;
-    let detail = if revoked.prefixes.is_empty() {
-        "already revoked".to_string()
-    } else {
-        format!("revoked {}", revoked.prefixes.join(", "))
-    };
-    let entry = state
-        .store
-        .audit(
-            &admin.name,
-            "revoke_token",
-            &format!("token {}", prefix.trim()),
-            &detail,
-        )
-        .await?;
-    Ok(done(entry))
+    let revoked = state.store.revoke_token(&prefix, &admin.name).await?;
+    Ok(done(revoked.audit))
 }
 
 /// `set_quota`'s body: each limit a number (0: no limit) or null (the
