@@ -404,6 +404,19 @@ async fn a_cells_robustness_document_is_on_the_robustness_view() {
     assert_eq!(s, 200);
     assert!(page.contains("BC-MLP (zoo)"), "{page}");
     assert!(page.contains("href=\"/methods/BC-MLP\""), "{page}");
+    // Every method link of the view (the methods table and the per-seed
+    // one) opens a method page: a zoo row is labelled `METHOD (zoo)` but
+    // its method is the paper's.
+    let links: std::collections::BTreeSet<&str> = page
+        .split("href=\"/methods/")
+        .skip(1)
+        .filter_map(|rest| rest.split('"').next())
+        .collect();
+    assert!(!links.is_empty(), "{page}");
+    for link in links {
+        let (s, _) = app.get_text(&format!("/methods/{link}")).await;
+        assert_eq!(s, 200, "/methods/{link} from the robustness view");
+    }
     let id = zoo_rows(&app).await[0]["submission_ids"][0]
         .as_i64()
         .unwrap();

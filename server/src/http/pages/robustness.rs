@@ -86,8 +86,7 @@ pub(super) async fn robustness_page(
             .map(|(rank, e)| Row {
                 rank: rank + 1,
                 method: e.method.clone(),
-                // The zoo's rows are named `METHOD (zoo)` (`Store::robustness_rows`).
-                method_url: method_url(e.method.strip_suffix(" (zoo)").unwrap_or(&e.method)),
+                method_url: method_link(&e.method),
                 seed: e.training_seed,
                 submission: e.submission_id,
                 control: interval_text(&Some(e.doc.control.metrics.success_rate)),
@@ -109,7 +108,7 @@ pub(super) async fn robustness_page(
                 MethodRow {
                     rank: rank + 1,
                     method: m.method.clone(),
-                    method_url: method_url(&m.method),
+                    method_url: method_link(&m.method),
                     seeds: m.seed_list(),
                     control: seed_text(&Some(m.control), n),
                     entropy: seed_text(&Some(m.entropy), n),
@@ -148,4 +147,11 @@ pub(super) async fn robustness_page(
         groups,
         note: NOTE,
     })
+}
+
+/// The method page of a row of this view. The zoo's rows are labelled
+/// `METHOD (zoo)` (`Store::robustness_rows`) to keep them apart from
+/// submitted methods; their page is the paper method's.
+fn method_link(label: &str) -> String {
+    method_url(label.strip_suffix(" (zoo)").unwrap_or(label))
 }
