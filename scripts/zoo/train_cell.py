@@ -134,6 +134,18 @@ def script_overrides(reference: Path, task: str, method: str) -> list[str]:
     return out
 
 
+def rename_keys(overrides: list[str], renames: dict) -> list[str]:
+    """The script's overrides with keys renamed as budgets.json's "script_renames"
+    says: for a benchmark script that names a key its own agent config does not
+    have at that path (Hydra refuses it), the key where the config has it. Every
+    rename is listed in the provenance's budget.changes with its reason."""
+    out = []
+    for o in overrides:
+        key, sep, value = o.partition("=")
+        out.append(f"{renames.get(key, key)}{sep}{value}" if sep else o)
+    return out
+
+
 def mirror(reference: Path, demos: Path, data_dir: str, dest: Path) -> Path:
     """A tree of symlinks to the checkout whose environments/dataset/data/<data_dir>
     is `demos` (sim_framework_path takes its root from the imported module's path,
@@ -317,7 +329,7 @@ def stage_train(a, work: Path, shadow: Path, tmp: Path):
     # budgets.json may add overrides of its own to a cell (e.g. fewer sampling steps where
     # the method's own would not evaluate within the session; "why" says so): applied after
     # the benchmark script's (before the training set is sized), listed in budget.changes
-    script = script_overrides(a.reference, a.task, a.method)
+    script = rename_keys(script_overrides(a.reference, a.task, a.method), cell.get("script_renames", {}))
     extra = list(cell.get("overrides", []))
     base = [f"seed={a.seed}", "device=cpu", "num_workers=1", f"train_batch_size={batch}"]
     recorder = reference_env(shadow, a.threads)
@@ -557,6 +569,9 @@ def finish(a, work: Path, out: Path):
                 *paper_demos(a.reference, a.task, a.demos),
                 *[f"{o} (budgets.json: {train['budget'].get('why', 'no reason given')})"
                   for o in train["budget"].get("overrides", [])],
+                *[f"the benchmark script's {old} applied as {new} "
+                  f"(budgets.json: {train['budget'].get('why', 'no reason given')})"
+                  for old, new in train["budget"].get("script_renames", {}).items()],
                 "device cpu and num_workers 1 (the loaders need >= 1)",
                 "demonstrations recorded from our tasks by `d3il demos` (see demos), "
                 "not the paper's recorded data",
