@@ -170,7 +170,7 @@ impl Tally {
 /// The success rate, the behaviour entropy and the conditional entropy (in
 /// that order), each with its interval.
 ///
-/// **Success rate**: [`crate::intervals::success_rate_estimate`] (issue 51:
+/// **Success rate**: [`crate::intervals::success_rate_estimate`] (
 /// no interval under 5 initial states, Clopper–Pearson, Korn–Graubard or the
 /// percentile cluster bootstrap by the rule documented there).
 ///
@@ -214,7 +214,7 @@ pub fn bootstrap_all(
     cfg.check()?;
     conv.check()?;
     // The success rate's interval is `intervals::success_rate_estimate`'s
-    // (issue 51); the entropies keep the two-stage bootstrap below.
+    // (docs/intervals.md); the entropies keep the two-stage bootstrap below.
     let success = crate::intervals::success_rate_estimate(
         &crate::intervals::state_counts(outcomes.iter().map(|o| (o.context_index, o.success))),
         cfg.confidence,

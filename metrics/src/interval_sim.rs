@@ -2,7 +2,7 @@
 //! (`crate::intervals`) next to the ones the service prints today
 //! (`crate::bootstrap`'s bias-corrected two-stage bootstrap and
 //! `crate::compare::compare_states`' paired bootstrap), for `d3il bench
-//! intervals` (issue 51).
+//! intervals`.
 //!
 //! **Model.** Initial states differ: half of them (at random) succeed with
 //! probability `p + h`, the others with `p − h`, `h = 0.8·min(p, 1 − p)`,

@@ -1,4 +1,4 @@
-//! Intervals chosen for their coverage (issue 51): one method per quantity.
+//! Intervals chosen for their coverage (docs/intervals.md): one method per quantity.
 //!
 //! * **Success rate over initial states** ([`success_rate_interval`]): the
 //!   data are clustered binary, `k_s` successes of `m_s` rollouts on each of
@@ -31,7 +31,7 @@
 //!      count the within-state variance twice), the interval the `α/2` and
 //!      `1 − α/2` percentiles of the resampled means, with **no bias shift**
 //!      (for a mean the bootstrap's bias is resampling noise; shifting by it
-//!      moved intervals off an atom, issue 51). Below 100 states the
+//!      moved intervals off an atom). Below 100 states the
 //!      percentile interval is too narrow (by about `√((n−1)/n)` and by
 //!      using normal rather than t quantiles, in effect) and skewed near 0
 //!      and 1: at 60 states × 8 rollouts it covered 92–93 % in `d3il bench

@@ -256,7 +256,7 @@ fn entropy_of_counts(
 
 /// A context with one behaviour has entropy 0 by definition; the reference's
 /// 1e-12 guards leave about -p ln(p + 1e-12) ≈ 1e-12 · ln 1 + ... ≈ 5e-17
-/// there (issue 51, item 5). Values that small are that residue, never an
+/// there. Values that small are that residue, never an
 /// entropy (the smallest non-zero entropy, one rollout of another behaviour
 /// is above 0.001 for every task), and are reported as 0.
 pub(crate) fn exact_zero(h: f64) -> f64 {

@@ -1,4 +1,4 @@
-//! Results made before 0.5.0 brought to this version's intervals (issue 51)
+//! Results made before 0.5.0 brought to this version's intervals (docs/intervals.md)
 //! from what they keep: per-rollout records (success, and for Stacking the
 //! registration order) and the per-state breakdown. What the server runs on
 //! every stored result at start-up and `d3il intervals recompute` runs on
@@ -28,7 +28,7 @@ use d3il_protocol::{Estimate, EvalResult, IntervalMethod, TaskId};
 /// used by the success-rate rule only at 100 states or more.
 pub const RESAMPLES: usize = 1000;
 
-/// This version's interval rules (issue 51); stored next to results so that
+/// This version's interval rules (docs/intervals.md); stored next to results so that
 /// the server recomputes those made under an earlier rule.
 pub const RULES_VERSION: i64 = 1;
 

@@ -1,5 +1,5 @@
 //! How an [`crate::Estimate`]'s interval was made, or why there is none
-//! (issue 51). The rules that choose between them live in
+//! (docs/intervals.md). The rules that choose between them live in
 //! `d3il_metrics::intervals` (which re-exports these types); the names and
 //! reasons are here, once, because every document, page and command that
 //! shows an estimate says them.

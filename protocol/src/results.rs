@@ -150,7 +150,7 @@ impl ProtocolManifest {
 }
 
 /// A value with its confidence interval, the method that made it, or why
-/// there is none (issue 51; docs/intervals.md).
+/// there is none (docs/intervals.md).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct Estimate {
     pub value: f64,

@@ -1,5 +1,5 @@
 //! What a start does to results stored by an earlier build, before serving
-//! (issue 51): every result and robustness document computed under interval
+//! (docs/intervals.md): every result and robustness document computed under interval
 //! rules older than this build's (`d3il_metrics::recompute::RULES_VERSION`)
 //! gets its intervals recomputed from its rollout records
 //! (`d3il_metrics::recompute`) and written back with the rules it now
@@ -62,7 +62,7 @@ pub async fn recompute_stored_intervals(store: &Store) -> Result<Recomputed, Sto
         tracing::info!(
             results = out.results,
             robustness = out.robustness,
-            "recomputed the intervals of results stored under earlier rules (issue 51, docs/intervals.md)"
+            "recomputed the intervals of results stored under earlier rules (docs/intervals.md)"
         );
     }
     for (id, why) in &out.failed {

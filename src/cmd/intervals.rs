@@ -1,5 +1,5 @@
 //! `d3il intervals`: a result or robustness document made before 0.5.0
-//! brought to this version's intervals (issue 51, docs/intervals.md), as the
+//! brought to this version's intervals (docs/intervals.md), as the
 //! server does with every stored result when it starts
 //! (`d3il_metrics::recompute`), and what moved.
 

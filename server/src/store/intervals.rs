@@ -1,4 +1,4 @@
-//! Results stored under earlier interval rules (issue 51, migration 0014):
+//! Results stored under earlier interval rules (migration 0014, docs/intervals.md):
 //! which ones, and writing back their recomputed intervals. The
 //! recomputation itself is `d3il_metrics::recompute`'s; the server runs it
 //! at start-up (`crate::upgrade`).
