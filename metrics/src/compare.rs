@@ -247,7 +247,16 @@ pub fn compare_parts(
         confidence: cfg.confidence,
         success_rate,
         conditional_entropy,
-        caveats: caveats(ma, mb),
+        caveats: {
+            let mut c = caveats(ma, mb);
+            c.extend(crate::intervals::sparse_paired_note(
+                ma.n_contexts,
+                ma.rollouts_per_context,
+                success_rate.a,
+                success_rate.b,
+            ));
+            c
+        },
     })
 }
 

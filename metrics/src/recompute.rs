@@ -224,6 +224,29 @@ mod tests {
     }
 
     #[test]
+    fn a_sparse_suites_drops_say_their_interval_covers_less() {
+        // The scripted Pushing expert, 30 states × 1 rollout a level, rates
+        // near 1: where the bench measured the sign-flip interval below 95 %.
+        let mut doc: RobustnessResult = read(
+            "docs/measurements/robustness-2026-11-29/pushing-v2_scripted-pushing-all-modes_paper-1-per-state.json",
+        );
+        recompute_robustness(&mut doc).unwrap();
+        let mut labelled = 0;
+        for l in &doc.levels {
+            let d = &l.paired.success_rate;
+            let sparse = d.a.min(d.b) >= 0.8 || d.a.max(d.b) <= 0.2;
+            let noted = l
+                .paired
+                .caveats
+                .iter()
+                .any(|c| c.contains("covers less than its nominal 95 %"));
+            assert_eq!(noted, sparse, "{:?} {d:?}", l.setting);
+            labelled += noted as usize;
+        }
+        assert!(labelled > 0);
+    }
+
+    #[test]
     fn a_result_keeps_its_values_and_gets_its_interval_from_its_records() {
         // Avoiding BC (one initial state, its rollouts all succeed): the
         // old interval was [1, 1]; now Clopper-Pearson on the rollouts.

@@ -237,6 +237,12 @@ pub fn render(doc: &RobustnessResult) -> String {
     for n in notes {
         s += &format!("drop: {n}\n");
     }
+    let mut caveats: Vec<&String> = doc.levels.iter().flat_map(|l| &l.paired.caveats).collect();
+    caveats.sort();
+    caveats.dedup();
+    for c in caveats {
+        s += &format!("drop: note: {c}\n");
+    }
     s += &format!(
         "drop: level 0 − level, paired by initial state (`d3il compare`, {} resamples); H: behaviour entropy; H|s0: conditional behaviour entropy; retained: share of level 0's successes kept, paired by initial state (Σ min(p0, p) / Σ p0, at most 1); score: retained averaged over the axis's levels (overall: over the axes), {:.0} % paired bootstrap interval (bias-corrected; for the score's expected value at this size, approximate, and not to be trusted with few initial states)\n",
         doc.resamples,
