@@ -203,6 +203,8 @@ pub struct PolicyView {
     /// SHA-256 of the uploaded ONNX file.
     pub sha256: Option<String>,
     pub bytes: Option<i64>,
+    /// A remote endpoint's URL: shown only to its submitter and admins
+    /// (issue 52: a published endpoint would serve anyone); null otherwise.
     pub endpoint_url: Option<String>,
     /// Whether the evaluation simulates each initial state's rollouts once
     /// and records that rollout under every index (a deterministic policy: an
@@ -337,9 +339,34 @@ pub struct RolloutView {
     pub ending: Option<d3il_protocol::Ending>,
 }
 
-/// The submission as the API (and the page's JSON download) shows it.
+/// Whether `who` may see submission `s`'s endpoint URL: its submitter or
+/// an admin (the one rule for every view).
+pub fn may_see_endpoint(
+    who: Option<&crate::store::Submitter>,
+    s: &crate::store::SubmissionRow,
+) -> bool {
+    who.is_some_and(|w| w.is_admin || s.submitter.as_deref() == Some(w.name.as_str()))
+}
+
+/// The submission as the API (and the page's JSON download) shows it to
+/// anyone: without a remote endpoint's URL.
 pub async fn submission_view(state: &AppState, id: i64) -> Result<SubmissionView, AppError> {
+    submission_view_for(state, id, None).await
+}
+
+/// [`submission_view`] as `who` sees it: its own (or, for an admin, any)
+/// remote endpoint's URL included.
+pub async fn submission_view_for(
+    state: &AppState,
+    id: i64,
+    who: Option<&crate::store::Submitter>,
+) -> Result<SubmissionView, AppError> {
     let s = state.store.submission(id).await?;
+    let endpoint_url = if may_see_endpoint(who, &s) {
+        s.endpoint_url.clone()
+    } else {
+        None
+    };
     let job = state.store.job_for(id).await?;
     let p = progress(state, &job, &s).await?;
     let cancelled = state.store.cancelled(id).await?;
@@ -363,7 +390,7 @@ pub async fn submission_view(state: &AppState, id: i64) -> Result<SubmissionView
             kind: s.policy_kind,
             sha256: s.onnx_sha256,
             bytes: s.onnx_bytes,
-            endpoint_url: s.endpoint_url,
+            endpoint_url,
             simulated_once: s.simulated_once,
         },
         manifest: s.manifest_json.0,

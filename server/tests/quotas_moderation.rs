@@ -885,3 +885,60 @@ async fn admin_actions_need_a_json_content_type() {
     assert_eq!(s, 200, "{done}");
     assert!(store.authenticate(&victim).await.unwrap().is_none());
 }
+
+/// Issue 52: a remote submission's endpoint URL is shown to its submitter
+/// and admins only: the public API document (cached once completed) and
+/// the page leave it out.
+#[tokio::test]
+async fn an_endpoint_url_is_shown_only_to_its_submitter_and_admins() {
+    use d3il_server::store::{NewMethod, NewPolicy, NewSubmission};
+    let app = spawn_app().await;
+    let store = &app.state.store;
+    let owner = store.create_token("endpoint-owner").await.unwrap();
+    let other = store.create_token("someone").await.unwrap();
+    let admin = store.create_token_with("endpoint-op", true).await.unwrap();
+    let who = store.authenticate(&owner).await.unwrap().unwrap();
+    let m = store
+        .ensure_method(
+            &NewMethod {
+                name: "RemoteSecret".into(),
+                ..Default::default()
+            },
+            Some(who.id),
+        )
+        .await
+        .unwrap();
+    let url = "wss://policy.example.org/secret-path";
+    let id = store
+        .create_submission_sharded(
+            &NewSubmission {
+                method_id: m.id,
+                submitter_id: Some(who.id),
+                task: d3il_protocol::TaskId::Aligning,
+                obs_type: d3il_protocol::ObsType::State,
+                training_seed: 0,
+                data_fraction: 1.0,
+                protocol: d3il_protocol::ProtocolKind::Quick,
+                policy: NewPolicy::Remote { url: url.into() },
+                manifest_json: "{}".into(),
+                simulated_once: None,
+            },
+            3,
+            1,
+        )
+        .await
+        .unwrap();
+    let path = format!("/api/v1/submissions/{id}");
+    let (s, public) = app.get_json(&path).await;
+    assert_eq!(s, 200);
+    assert!(public["policy"]["endpoint_url"].is_null(), "{public}");
+    let (_, v) = get_json_as(&app, &other, &path).await;
+    assert!(v["policy"]["endpoint_url"].is_null(), "{v}");
+    for token in [&owner, &admin] {
+        let (_, v) = get_json_as(&app, token, &path).await;
+        assert_eq!(v["policy"]["endpoint_url"], url, "{v}");
+    }
+    let (_, page) = app.get_text(&format!("/submissions/{id}")).await;
+    assert!(!page.contains("secret-path"), "{page}");
+    assert!(page.contains("Remote endpoint (its URL is shown to its submitter and admins"));
+}

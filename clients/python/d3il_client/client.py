@@ -496,8 +496,13 @@ class Client:
     # ---- following ------------------------------------------------------------
 
     def submission(self, submission: SubmissionRef) -> Submission:
-        """A submission and how its evaluation stands."""
-        return from_json(Submission, self._get_json(f"/api/v1/submissions/{_id(submission)}"))
+        """A submission and how its evaluation stands.
+
+        With a token, a remote endpoint's URL is there for its submitter (and
+        admins); the server shows it to nobody else.
+        """
+        resp = self._send("GET", f"/api/v1/submissions/{_id(submission)}", auth=self.token is not None)
+        return from_json(Submission, _json(resp))
 
     @overload
     def cancel(self, work: RaceComparison) -> RaceComparison: ...

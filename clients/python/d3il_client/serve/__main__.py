@@ -85,6 +85,7 @@ def main(argv: Optional[List[str]] = None) -> None:
             horizon=1,
             execute=1,
             reset=adapter.reset,
+            forget=adapter.forget,
         )
         return
     policy = load_object(a.policy) if a.policy else DEMOS[a.demo or "zeros"]

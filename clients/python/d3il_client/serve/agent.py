@@ -82,6 +82,11 @@ class AgentAdapter:
         for rid in rollout_ids:
             self._fresh(int(rid))
 
+    def forget(self, rollout_ids: np.ndarray) -> None:
+        """Ended episodes: their agent copies are freed."""
+        for rid in rollout_ids:
+            self.agents.pop(int(rid), None)
+
     def __call__(self, obs: np.ndarray, req: Request) -> np.ndarray:
         """One `predict` of each asking rollout's agent with its newest observation."""
         act_dim = int(req.spec["act_dim"])
@@ -165,6 +170,11 @@ class BatchedAgentAdapter:
         """New episodes: empty windows, action histories and queues."""
         for rid in rollout_ids:
             self._fresh(int(rid))
+
+    def forget(self, rollout_ids: np.ndarray) -> None:
+        """Ended episodes: their windows and queues are freed."""
+        for rid in rollout_ids:
+            self.rollouts.pop(int(rid), None)
 
     def window(self, r: _Rollout) -> Tuple[np.ndarray, Optional[np.ndarray]]:
         """The window [w, obs_dim] and previous actions [w - 1, act_dim] the module
@@ -408,7 +418,7 @@ def agent_server(agent: Any, **kwargs: Any) -> PolicyServer:
     (batched when its family is known, `make_adapter`).
     """
     adapter = make_adapter(agent, kwargs.pop("predict_kwargs", None), log=kwargs.get("log", sys.stderr))
-    return PolicyServer(adapter, history=1, horizon=1, execute=1, reset=adapter.reset, **kwargs)
+    return PolicyServer(adapter, history=1, horizon=1, execute=1, reset=adapter.reset, forget=adapter.forget, **kwargs)
 
 
 def serve_agent(
@@ -433,4 +443,5 @@ def serve_agent(
         horizon=1,
         execute=1,
         reset=adapter.reset,
+        forget=adapter.forget,
     )

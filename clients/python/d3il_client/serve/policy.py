@@ -27,7 +27,7 @@ import dataclasses
 import ssl as ssl_module
 import sys
 import traceback
-from typing import IO, Any, Callable, Dict, Optional
+from typing import IO, Any, Callable, Dict, Optional, Set
 
 import msgpack
 import numpy as np
@@ -100,16 +100,45 @@ class PolicyServer:
         horizon: int = 1,
         execute: int = 1,
         reset: Optional[Callable[[np.ndarray], None]] = None,
+        forget: Optional[Callable[[np.ndarray], None]] = None,
+        max_live_rollouts: int = 4096,
         max_frame_bytes: int = 64 << 20,
         log: IO[str] = sys.stderr,
     ) -> None:
         if not (1 <= execute <= horizon) or history < 1:
             raise ValueError("need history >= 1 and 1 <= execute <= horizon")
+        if max_live_rollouts < 1:
+            raise ValueError("need max_live_rollouts >= 1")
         self.policy = policy
         self.history, self.horizon, self.execute = history, horizon, execute
         self.reset_fn = reset
+        # What a policy keeps per rollout is freed when the rollout's episode
+        # ends: at the connection's next `reset` (a new episode batch) for the
+        # rollouts it no longer names, and when the connection closes.
+        self.forget_fn = forget
+        # A connection may keep at most this many rollouts live at once (a
+        # client naming ever new rollout ids cannot grow the server's memory).
+        self.max_live_rollouts = max_live_rollouts
         self.max_frame_bytes = max_frame_bytes
         self.log = log
+
+    def _live(self, state: Dict[str, Any], ids: np.ndarray, new_episode: bool) -> None:
+        """Track the connection's live rollouts; refuse past the cap, free ended ones."""
+        names = {int(i) for i in ids}
+        live: Set[int] = state.setdefault("live", set())
+        if new_episode:
+            ended = live - names
+            if ended and self.forget_fn is not None:
+                self.forget_fn(np.array(sorted(ended), dtype=np.uint64))
+            live = names
+        else:
+            live = live | names
+        if len(live) > self.max_live_rollouts:
+            raise ValueError(
+                f"{len(live)} live rollouts on this connection; this endpoint keeps at most "
+                f"{self.max_live_rollouts} (max_live_rollouts)"
+            )
+        state["live"] = live
 
     def hello(self) -> Dict[str, Any]:
         """The first message of a connection: protocol version and k/H/E."""
@@ -131,6 +160,7 @@ class PolicyServer:
             raise ValueError("the first message must be `spec`")
         if kind == "reset":
             ids = np.asarray(_key(msg, "rollout_ids"), dtype=np.uint64)
+            self._live(state, ids, new_episode=True)
             if self.reset_fn is not None:
                 await asyncio.to_thread(self.reset_fn, ids)
             return {"type": "ok"}
@@ -138,8 +168,10 @@ class PolicyServer:
             spec = state["spec"]
             obs = unpack_array(_key(msg, "obs")).astype(np.float32, copy=False)
             images = _key(msg, "images")
+            ids = np.asarray(_key(msg, "rollout_ids"), dtype=np.uint64)
+            self._live(state, ids, new_episode=False)
             req = Request(
-                rollout_ids=np.asarray(_key(msg, "rollout_ids"), dtype=np.uint64),
+                rollout_ids=ids,
                 steps=np.asarray(_key(msg, "steps"), dtype=np.uint64),
                 spec=spec,
                 images=unpack_array(images) if images is not None else None,
@@ -176,6 +208,10 @@ class PolicyServer:
                 await self.reply(ws, kind, reply)
         except ConnectionClosed:
             pass
+        finally:
+            live = state.get("live")
+            if live and self.forget_fn is not None:
+                self.forget_fn(np.array(sorted(live), dtype=np.uint64))
 
     async def run(
         self,
@@ -212,8 +248,9 @@ def serve(
 ) -> None:
     """Blocking: serve `policy` until interrupted. Prints the bound port.
 
-    With `certfile` (PEM chain, leaf first) and `keyfile` the server speaks TLS,
-    i.e. submit it as wss://host:port/.
+    Binds 127.0.0.1 unless `host` says otherwise (``host="0.0.0.0"`` publishes
+    it on every interface). With `certfile` (PEM chain, leaf first) and
+    `keyfile` the server speaks TLS, i.e. submit it as wss://host:port/.
     """
     server = PolicyServer(policy, **kwargs)
     ctx = tls_context(certfile, keyfile) if certfile else None

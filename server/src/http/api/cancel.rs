@@ -6,7 +6,7 @@ use crate::cancel::cancel_as;
 use crate::error::{AppError, ErrorBody};
 use crate::http::extract::Param;
 use crate::state::AppState;
-use crate::views::{submission_view, SubmissionView};
+use crate::views::SubmissionView;
 use axum::extract::State;
 use axum::Json;
 
@@ -27,5 +27,7 @@ pub async fn cancel_submission(
     Authed(who): Authed,
 ) -> Result<Json<SubmissionView>, AppError> {
     cancel_as(&state, id, &who).await?;
-    Ok(Json(submission_view(&state, id).await?))
+    Ok(Json(
+        crate::views::submission_view_for(&state, id, Some(&who)).await?,
+    ))
 }

@@ -155,7 +155,7 @@ async fn create_submission(
     let valid = intake::validate(raw, &state.cfg.limits)?;
     let id = intake::accept(&state, valid, &who).await?;
     let body = crate::views::CreatedView {
-        submission: submission_view(&state, id).await?,
+        submission: crate::views::submission_view_for(&state, id, Some(&who)).await?,
         quota: crate::quota::status(&state, &who).await?,
     };
     let mut resp = (StatusCode::CREATED, Json(body)).into_response();
@@ -174,7 +174,17 @@ async fn create_submission(
 async fn get_submission(
     State(state): State<AppState>,
     Param(id): Param<i64>,
+    who: Option<axum::Extension<crate::auth::Verified>>,
 ) -> Result<Response, AppError> {
+    // Its submitter and admins see a remote endpoint's URL (issue 52):
+    // rendered for them, never cached.
+    if let Some(axum::Extension(crate::auth::Verified(who))) = who {
+        let s = state.store.submission(id).await?;
+        if s.endpoint_url.is_some() && crate::views::may_see_endpoint(Some(&who), &s) {
+            let view = crate::views::submission_view_for(&state, id, Some(&who)).await?;
+            return Ok(Json(view).into_response());
+        }
+    }
     // A completed submission never changes (its progress, attempts and
     // embedded results are final): render it once, as its results.
     if let Some(body) = state.finished.get(Rendered::Submission, id) {

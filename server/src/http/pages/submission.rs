@@ -281,10 +281,11 @@ pub(super) async fn submission_page(
             s.onnx_bytes.unwrap_or(0),
             s.onnx_sha256.as_deref().unwrap_or("?")
         ),
-        PolicyKind::Remote => format!(
-            "Remote endpoint {}",
-            s.endpoint_url.as_deref().unwrap_or("?")
-        ),
+        // Its URL only to its submitter and admins, through the API (issue 52).
+        PolicyKind::Remote => {
+            "Remote endpoint (its URL is shown to its submitter and admins: GET /api/v1/submissions/{id} with their token)"
+                .to_string()
+        }
     };
     let withdrawn = store
         .withdrawal(id)
