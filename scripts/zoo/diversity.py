@@ -198,8 +198,13 @@ def main():
     out = {}
     for task in a.tasks.split(","):
         cells = load(a.zoo, task)
+        # a suite whose control level had no success retains nothing it could lose:
+        # no score (as the service says), so no rank
+        unscored = [c for c in cells
+                    if scores(c["robust"], sorted(by_state(c["robust"]["control"]["per_context"])))[0] is None]
+        cells = [c for c in cells if c not in unscored]
         if len(cells) < 3:
-            print(f"{task}: {len(cells)} cells with a robustness document; need 3 or more")
+            print(f"{task}: {len(cells)} cells with a robustness score; need 3 or more")
             continue
         res = analyse(cells)
         out[task] = res
@@ -211,6 +216,9 @@ def main():
         for r in sorted(res["rows"], key=lambda r: r["conditional_entropy"]):
             print(f"| {r['cell']} | {r['method']} | {r['success']:.3f} | {r['behaviour_entropy']:.3f} | "
                   f"{r['conditional_entropy']:.3f} | {r['retained']:.3f} | {r['ratio']:.3f} |")
+        if unscored:
+            print("\nNo score (no success at the suite's level 0): "
+                  + ", ".join(f"{c['method']} ({c['cell']})" for c in unscored))
         for k in ("retained", "ratio"):
             s = res[k]
             print(f"\nSpearman rho(conditional entropy, {k}) = {s['rho']:+.2f}, 95 % state-bootstrap interval "
