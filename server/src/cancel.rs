@@ -16,22 +16,19 @@ pub async fn cancel_as(state: &AppState, id: i64, who: &Submitter) -> Result<(),
             s.submitter.as_deref().unwrap_or("nobody")
         )));
     }
-    match state.store.cancel_submission(id, &who.name).await? {
+    // An admin stopping someone else's evaluation is moderation: it goes to
+    // the audit log like a withdrawal, in the cancel's own transaction.
+    let target = format!("submission {id}");
+    let moderation = who.is_admin && s.submitter.as_deref() != Some(who.name.as_str());
+    let audit = moderation.then_some((
+        who.name.as_str(),
+        "cancel",
+        target.as_str(),
+        "cancelled a queued or running evaluation",
+    ));
+    match state.store.cancel_submission(id, &who.name, audit).await? {
         CancelOutcome::Cancelled => {
             tracing::info!("submission {id} cancelled by {}", who.name);
-            // An admin stopping someone else's evaluation is moderation:
-            // it goes to the audit log like a withdrawal.
-            if who.is_admin && s.submitter.as_deref() != Some(who.name.as_str()) {
-                state
-                    .store
-                    .audit(
-                        &who.name,
-                        "cancel",
-                        &format!("submission {id}"),
-                        "cancelled a queued or running evaluation",
-                    )
-                    .await?;
-            }
             Ok(())
         }
         CancelOutcome::AlreadyFinished => Err(AppError::Conflict {

@@ -942,3 +942,32 @@ async fn an_endpoint_url_is_shown_only_to_its_submitter_and_admins() {
     assert!(!page.contains("secret-path"), "{page}");
     assert!(page.contains("Remote endpoint (its URL is shown to its submitter and admins"));
 }
+
+/// Issue 52: an admin cancelling another submitter's evaluation is in the
+/// audit log, written with the cancel; a submitter cancelling its own is not
+/// moderation.
+#[tokio::test]
+async fn an_admins_cancel_is_audited_with_the_cancel() {
+    let app = spawn_app().await;
+    let store = &app.state.store;
+    let owner = store.create_token("canceller").await.unwrap();
+    let admin = store.create_token_with("cancel-op", true).await.unwrap();
+    let (s, a, _) = submit_as(&app, &owner, &fields("CancelA", 0)).await;
+    assert_eq!(s, 201, "{a}");
+    let (s, b, _) = submit_as(&app, &owner, &fields("CancelA", 1)).await;
+    assert_eq!(s, 201, "{b}");
+    let cancel = |token: String, id: i64| {
+        let r = app
+            .http
+            .post(app.url(&format!("/api/v1/submissions/{id}/cancel")))
+            .bearer_auth(token);
+        async move { r.send().await.unwrap().status().as_u16() }
+    };
+    assert_eq!(cancel(owner.clone(), a["id"].as_i64().unwrap()).await, 200);
+    assert_eq!(cancel(admin.clone(), b["id"].as_i64().unwrap()).await, 200);
+    let log = store.audit_log(10).await.unwrap();
+    let cancels: Vec<_> = log.iter().filter(|e| e.action == "cancel").collect();
+    assert_eq!(cancels.len(), 1, "{log:?}");
+    assert_eq!(cancels[0].actor, "cancel-op");
+    assert_eq!(cancels[0].target, format!("submission {}", b["id"]));
+}

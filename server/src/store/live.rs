@@ -121,6 +121,7 @@ impl Store {
         &self,
         submission_id: i64,
         by: &str,
+        audit: Option<(&str, &str, &str, &str)>,
     ) -> Result<CancelOutcome, StoreError> {
         let t = now();
         let lock = if self.is_postgres() {
@@ -170,6 +171,20 @@ impl Store {
             .bind(submission_id)
             .execute(&mut *tx)
             .await?;
+            // The audit entry (an admin cancelling another's evaluation)
+            // commits with the cancel (issue 52).
+            if let Some((actor, action, target, detail)) = audit {
+                sqlx::query(
+                    "INSERT INTO audit_log (at, actor, action, target, detail) VALUES ($1, $2, $3, $4, $5)",
+                )
+                .bind(t)
+                .bind(actor)
+                .bind(action)
+                .bind(target)
+                .bind(detail)
+                .execute(&mut *tx)
+                .await?;
+            }
             tx.commit().await?;
             CancelOutcome::Cancelled
         });
