@@ -173,6 +173,10 @@ pub(super) fn write(
     Ok(manifest)
 }
 
+/// The largest manifest read (it lists every policy file: a few hundred
+/// bytes each).
+const MAX_MANIFEST_BYTES: u64 = 64 << 20;
+
 /// A name the archive may hold: the manifest, a database copy, or a plain
 /// file name under `policies/`.
 fn allowed(name: &str) -> bool {
@@ -200,6 +204,10 @@ pub(super) fn unpack_and_verify(input: &Path, work: &WorkDir) -> Result<Manifest
     let file = std::fs::File::open(input).map_err(io_err(input))?;
     let mut archive = tar::Archive::new(flate2::read::GzDecoder::new(file));
     let mut seen = vec![];
+    // The manifest comes first (`write`); every later entry is unpacked only
+    // up to the size the manifest declares for it, so an archive cannot
+    // fill the disk before it is found out (issue 52).
+    let mut declared: Option<Manifest> = None;
     for entry in archive.entries().map_err(|e| not_backup(e.to_string()))? {
         let mut entry = entry.map_err(|e| not_backup(e.to_string()))?;
         let name = entry
@@ -210,8 +218,43 @@ pub(super) fn unpack_and_verify(input: &Path, work: &WorkDir) -> Result<Manifest
         if !allowed(&name) || !entry.header().entry_type().is_file() {
             return Err(not_backup(format!("unexpected entry `{name}`")));
         }
+        let size = entry
+            .header()
+            .size()
+            .map_err(|e| not_backup(e.to_string()))?;
+        let cap = match (&declared, name.as_str()) {
+            (_, MANIFEST) => MAX_MANIFEST_BYTES,
+            (None, _) => return Err(not_backup(format!("`{name}` comes before manifest.json"))),
+            (Some(m), _) => std::iter::once(&m.database)
+                .chain(&m.policy_files)
+                .find(|f| f.path == name)
+                .map(|f| f.bytes)
+                .ok_or_else(|| not_backup(format!("`{name}` is not in its manifest")))?,
+        };
+        if size > cap {
+            return Err(BackupError::Refused(format!(
+                "{}: `{name}` is {size} bytes and {}; nothing was restored",
+                input.display(),
+                if name == MANIFEST {
+                    format!("a manifest is at most {MAX_MANIFEST_BYTES}")
+                } else {
+                    format!("the manifest says {cap}")
+                }
+            )));
+        }
+        // Written as the store writes its own files (its modes, not the
+        // archive's), and never past the size declared.
         let dest = work.path().join(&name);
-        entry.unpack(&dest).map_err(io_err(&dest))?;
+        let mut out = std::fs::File::create(&dest).map_err(io_err(&dest))?;
+        std::io::copy(&mut std::io::Read::take(&mut entry, cap), &mut out)
+            .map_err(io_err(&dest))?;
+        if name == MANIFEST {
+            let text = std::fs::read(&dest).map_err(io_err(&dest))?;
+            declared = Some(
+                serde_json::from_slice(&text)
+                    .map_err(|e| not_backup(format!("manifest.json: {e}")))?,
+            );
+        }
         seen.push(name);
     }
     let text = std::fs::read(work.path().join(MANIFEST))
@@ -288,4 +331,77 @@ pub(super) fn place_policy_files(
         }
     }
     Ok(manifest.policy_files.len())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::os::unix::fs::PermissionsExt;
+
+    /// An archive of a manifest declaring `declared` bytes for its database
+    /// and a database entry of `actual` bytes with mode `mode`.
+    fn archive(dir: &Path, declared: u64, actual: usize, mode: u32) -> PathBuf {
+        let db = vec![7u8; actual];
+        let manifest = Manifest {
+            format: FORMAT,
+            d3il_version: "test".into(),
+            created_at: 0,
+            postgres: false,
+            schema_version: 1,
+            tables: BTreeMap::new(),
+            database: PolicyFile {
+                path: SQLITE_DB.into(),
+                bytes: declared,
+                sha256: hex::encode(<sha2::Sha256 as sha2::Digest>::digest(&db)),
+            },
+            source_policies_dir: "/nowhere".into(),
+            policy_files: vec![],
+            missing_policy_files: vec![],
+        };
+        let path = dir.join("a.tar.gz");
+        let gz = flate2::write::GzEncoder::new(
+            std::fs::File::create(&path).unwrap(),
+            flate2::Compression::fast(),
+        );
+        let mut tar = tar::Builder::new(gz);
+        for (name, bytes, mode) in [
+            (MANIFEST, serde_json::to_vec(&manifest).unwrap(), 0o644),
+            (SQLITE_DB, db, mode),
+        ] {
+            let mut h = tar::Header::new_gnu();
+            h.set_size(bytes.len() as u64);
+            h.set_mode(mode);
+            h.set_cksum();
+            tar.append_data(&mut h, name, bytes.as_slice()).unwrap();
+        }
+        tar.into_inner().unwrap().finish().unwrap();
+        path
+    }
+
+    /// Issue 52: an entry larger than its manifest says is refused before
+    /// more than the declared bytes are written, and unpacked files get the
+    /// store's modes, not the archive's (no setuid, no world write).
+    #[test]
+    fn entries_are_capped_at_their_declared_size_and_get_the_stores_modes() {
+        let dir = tempfile::tempdir().unwrap();
+        let big = archive(dir.path(), 10, 1 << 20, 0o644);
+        let work = WorkDir::next_to(&dir.path().join("big.sqlite")).unwrap();
+        let e = unpack_and_verify(&big, &work).unwrap_err().to_string();
+        assert!(
+            e.contains("is 1048576 bytes and the manifest says 10"),
+            "{e}"
+        );
+        let written = std::fs::metadata(work.path().join(SQLITE_DB)).map_or(0, |m| m.len());
+        assert_eq!(written, 0, "nothing of it was unpacked");
+
+        let ok = archive(dir.path(), 100, 100, 0o6777);
+        let work = WorkDir::next_to(&dir.path().join("ok.sqlite")).unwrap();
+        unpack_and_verify(&ok, &work).unwrap();
+        let mode = std::fs::metadata(work.path().join(SQLITE_DB))
+            .unwrap()
+            .permissions()
+            .mode();
+        assert_eq!(mode & 0o7000, 0, "no setuid/setgid/sticky: {mode:o}");
+        assert_eq!(mode & 0o002, 0, "not world-writable: {mode:o}");
+    }
 }
