@@ -223,3 +223,46 @@ async fn half_open_connections_are_capped_and_dropped_after_the_header_timeout()
         String::from_utf8_lossy(&got)
     );
 }
+
+/// Issue 52: a stored policy path that climbs out of the policies directory
+/// (`<policies>/../x`, as a crafted backup could hold) or a symlink in it to
+/// a file elsewhere is resolved before anything is deleted, and kept.
+#[tokio::test]
+async fn a_policy_path_outside_the_store_is_never_deleted() {
+    let dir = tempfile::tempdir().unwrap();
+    let store = d3il_server::store::Store::open(&dir.path().join("s.sqlite"))
+        .await
+        .unwrap();
+    let policies = store.policies_dir();
+    std::fs::create_dir_all(&policies).unwrap();
+    let outside = dir.path().join("precious.txt");
+    std::fs::write(&outside, b"keep me").unwrap();
+    let climbing = policies
+        .join("..")
+        .join("..")
+        .join(dir.path().file_name().unwrap())
+        .join("precious.txt");
+    assert!(
+        climbing.starts_with(&policies),
+        "the old check let it through"
+    );
+    assert!(!store
+        .release_policy_file(&climbing.to_string_lossy())
+        .await
+        .unwrap());
+    let link = policies.join("link.onnx");
+    std::os::unix::fs::symlink(&outside, &link).unwrap();
+    assert!(!store
+        .release_policy_file(&link.to_string_lossy())
+        .await
+        .unwrap());
+    assert_eq!(std::fs::read(&outside).unwrap(), b"keep me");
+    // A file of the store itself is released as before.
+    let own = policies.join("own.onnx");
+    std::fs::write(&own, b"x").unwrap();
+    assert!(store
+        .release_policy_file(&own.to_string_lossy())
+        .await
+        .unwrap());
+    assert!(!own.exists());
+}

@@ -112,9 +112,11 @@ impl Store {
     /// failed still uses it. Returns whether it was deleted. Only files in
     /// this store's policies directory are ever deleted.
     pub async fn release_policy_file(&self, path: &str) -> Result<bool, StoreError> {
-        if !Path::new(path).starts_with(self.policies_dir()) {
+        // Resolved first (`..`, symlinks): a stored path such as
+        // `<policies>/../elsewhere` names a file outside (issue 52).
+        let Some(resolved) = self.in_policies_dir(path) else {
             return Ok(false);
-        }
+        };
         let _files = self.lock_policy_files().await?;
         let live: i64 = on_db!(&self.db, pool => sqlx::query_scalar(
             "SELECT COUNT(*) FROM submissions WHERE onnx_path = $1 AND status != 'failed'",
@@ -125,11 +127,19 @@ impl Store {
         if live > 0 {
             return Ok(false);
         }
-        match tokio::fs::remove_file(path).await {
+        match tokio::fs::remove_file(&resolved).await {
             Ok(()) => Ok(true),
             Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(false),
-            Err(e) => Err(io_err(Path::new(path))(e)),
+            Err(e) => Err(io_err(&resolved)(e)),
         }
+    }
+
+    /// `path` resolved (`..` and symlinks followed), if it is a file directly
+    /// in this store's policies directory; None otherwise (or if it is gone).
+    fn in_policies_dir(&self, path: &str) -> Option<PathBuf> {
+        let dir = std::fs::canonicalize(self.policies_dir()).ok()?;
+        let resolved = std::fs::canonicalize(path).ok()?;
+        (resolved.parent() == Some(dir.as_path()) && resolved.is_file()).then_some(resolved)
     }
 
     /// Holds off [`Store::release_policy_file`] while a policy file is placed
