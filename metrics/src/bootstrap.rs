@@ -3,6 +3,7 @@
 //! (interned labels, reusable tallies) that keeps a resample free of
 //! allocation.
 
+use crate::quantile::percentile;
 use crate::{
     behaviour_entropy, by_context, conditional_entropy, entropy_of_counts, pooled_entropy,
     success_rate, EmptyContexts, EntropyConvention, MetricsError, Outcome,
@@ -315,12 +316,4 @@ pub(crate) fn bias_corrected_interval(
         hi.max(value).min(bounds.1.max(value)),
         IntervalMethod::BiasCorrectedBootstrap,
     )
-}
-
-/// Linear-interpolation percentile of sorted data (numpy's default method).
-pub(crate) fn percentile(sorted: &[f64], q: f64) -> f64 {
-    let pos = q * (sorted.len() - 1) as f64;
-    let lo = pos.floor() as usize;
-    let hi = pos.ceil() as usize;
-    sorted[lo] + (sorted[hi] - sorted[lo]) * (pos - lo as f64)
 }

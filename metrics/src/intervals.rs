@@ -56,7 +56,7 @@
 //! * **Paired difference of success rates** ([`SignFlip`]): policy A and B
 //!   (or robustness level 0 and a level) on the same `n` states, state
 //!   differences `d_s = p̂_A,s − p̂_B,s`. The p-value is the paired
-//!   randomisation test of `crate::compare` (A and B swapped within each
+//!   randomisation test of the paired comparison, compare.rs (A and B swapped within each
 //!   state, i.e. `d_s` sign-flipped, statistic `|mean(d)|`; Fisher 1935,
 //!   Pitman 1937). The interval is that test **inverted** (Lehmann &
 //!   Romano, *Testing Statistical Hypotheses*, §3.5 and §5.9; Hartigan
@@ -75,7 +75,7 @@
 //!
 //!   Exact enumeration of the `2^n` sign vectors for `n ≤ EXACT_MAX_STATES`
 //!   (14); above, the identity plus `R` random sign vectors from a seeded
-//!   ChaCha8 (`p = (1 + #)/(1 + R)`, as `crate::compare` counts; the
+//!   ChaCha8 (`p = (1 + #)/(1 + R)`, as the paired comparison (compare.rs) counts; the
 //!   interval is then that of the Monte-Carlo test, exactly consistent
 //!   with its p-value, and both move by Monte-Carlo error of order
 //!   `√(α(1−α)/R)` in level). When the test cannot reject anything at
@@ -104,7 +104,7 @@
 //!   test of symmetry by construction shares this; a remedy needs another
 //!   test (e.g. an exact test on the discordant states).
 
-use crate::compare::normal_quantile;
+use crate::quantile::{normal_quantile, percentile};
 use d3il_protocol::{Estimate, TaskId};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -119,7 +119,7 @@ pub const BOOTSTRAP_MIN_EVENTS: f64 = 10.0;
 pub const EXACT_MAX_STATES: usize = 14;
 /// Tolerance on a sign vector's segment, so that float noise in a mean
 /// that ties the observed one does not make it "less extreme" (the same
-/// tolerance as `crate::compare`'s randomisation test).
+/// tolerance as the paired comparison's randomisation test).
 const TIE: f64 = 1e-12;
 
 /// Which method made an [`Interval`] (the names pages print are
@@ -252,8 +252,8 @@ pub fn success_rate_interval(
             })
             .collect();
         means.sort_by(f64::total_cmp);
-        let lo = crate::bootstrap::percentile(&means, alpha / 2.0);
-        let hi = crate::bootstrap::percentile(&means, 1.0 - alpha / 2.0);
+        let lo = percentile(&means, alpha / 2.0);
+        let hi = percentile(&means, 1.0 - alpha / 2.0);
         return out(lo, hi, Method::ClusterBootstrap);
     }
     // Rule 5.

@@ -29,6 +29,7 @@ pub mod horizon;
 pub mod interval_sim;
 pub mod intervals;
 pub mod order;
+mod quantile;
 pub mod recompute;
 pub mod robustness;
 pub mod sequential;

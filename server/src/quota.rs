@@ -3,7 +3,7 @@
 //! a cap on races queued or running. The unit is the evaluation, so that
 //! every kind of work is metered by what it costs the workers: a plain
 //! submission is one, a robustness suite its level 0 and every level
-//! ([`crate::intake::suite_evaluations`]), a race the two evaluations it may
+//! ([`suite_evaluations`]), a race the two evaluations it may
 //! run ([`RACE_EVALUATIONS`]). Only accepted work counts (a request refused at
 //! admission never gets a row). Admin tokens have none. A submitter's
 //! overrides (`d3il token set-quota`, `PUT /api/v1/admin/submitters/{name}/quota`)
@@ -27,7 +27,43 @@ pub fn submission_evaluations(assets_dir: &Path, task: TaskId, obs: ObsType, sui
     if !suite {
         return 1;
     }
-    crate::intake::suite_evaluations(assets_dir, task, obs).map_or(1, |n| n as i64)
+    suite_evaluations(assets_dir, task, obs).map_or(1, |n| n as i64)
+}
+
+/// How many evaluations a suite job of `task` with `obs` observations runs:
+/// level 0 and every level of the task's current suite file in
+/// `assets_dir/robustness/` (the newest `<task>-v<N>.json`, or
+/// `<task>-image-v<N>.json` for image policies). None without a readable
+/// suite file.
+pub fn suite_evaluations(
+    assets_dir: &std::path::Path,
+    task: TaskId,
+    obs: ObsType,
+) -> Option<usize> {
+    let prefix = match obs {
+        ObsType::State => format!("{}-v", task.slug()),
+        ObsType::Image => format!("{}-image-v", task.slug()),
+    };
+    let newest = std::fs::read_dir(assets_dir.join("robustness"))
+        .ok()?
+        .flatten()
+        .filter_map(|e| {
+            let name = e.file_name().to_string_lossy().into_owned();
+            let v: u32 = name
+                .strip_prefix(&prefix)?
+                .strip_suffix(".json")?
+                .parse()
+                .ok()?;
+            Some((v, e.path()))
+        })
+        .max_by_key(|(v, _)| *v)?;
+    let file: serde_json::Value = serde_json::from_slice(&std::fs::read(newest.1).ok()?).ok()?;
+    let levels: usize = file["axes"]
+        .as_array()?
+        .iter()
+        .map(|a| a["levels"].as_array().map_or(0, Vec::len))
+        .sum();
+    Some(1 + levels)
 }
 
 /// The evaluations a stored unit of work counts for.

@@ -6,6 +6,7 @@ mod upload;
 
 use crate::error::AppError;
 use crate::queue::JobRunner;
+pub use crate::quota::suite_evaluations;
 use crate::state::AppState;
 use crate::store::{NewMethod, NewPolicy, NewSubmission, SeedKey, Submitter};
 use axum::http::{header, HeaderMap};
@@ -15,7 +16,7 @@ use d3il_protocol::{
 use std::str::FromStr;
 use std::sync::Arc;
 use suite::suite_field;
-pub use suite::{check_suite_available, suite_evaluations, SUITE};
+pub use suite::{check_suite_available, SUITE};
 pub use upload::{
     disk_quota_error, read_multipart, Caller, Quota, RawSubmission, UploadedFile, TEXT_FIELDS,
 };

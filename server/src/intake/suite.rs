@@ -63,45 +63,10 @@ pub fn check_suite_available(
     ))
 }
 
-/// How many evaluations a suite job of `task` with `obs` observations runs:
-/// level 0 and every level of the task's current suite file in
-/// `assets_dir/robustness/` (the newest `<task>-v<N>.json`, or
-/// `<task>-image-v<N>.json` for image policies). None without a readable
-/// suite file.
-pub fn suite_evaluations(
-    assets_dir: &std::path::Path,
-    task: TaskId,
-    obs: ObsType,
-) -> Option<usize> {
-    let prefix = match obs {
-        ObsType::State => format!("{}-v", task.slug()),
-        ObsType::Image => format!("{}-image-v", task.slug()),
-    };
-    let newest = std::fs::read_dir(assets_dir.join("robustness"))
-        .ok()?
-        .flatten()
-        .filter_map(|e| {
-            let name = e.file_name().to_string_lossy().into_owned();
-            let v: u32 = name
-                .strip_prefix(&prefix)?
-                .strip_suffix(".json")?
-                .parse()
-                .ok()?;
-            Some((v, e.path()))
-        })
-        .max_by_key(|(v, _)| *v)?;
-    let file: serde_json::Value = serde_json::from_slice(&std::fs::read(newest.1).ok()?).ok()?;
-    let levels: usize = file["axes"]
-        .as_array()?
-        .iter()
-        .map(|a| a["levels"].as_array().map_or(0, Vec::len))
-        .sum();
-    Some(1 + levels)
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::quota::suite_evaluations;
 
     /// Every task has a state suite in the repository's assets, and every
     /// image variant an image suite, so a submission with

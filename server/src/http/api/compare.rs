@@ -83,6 +83,25 @@ pub struct ComparisonSchema {
     caveats: Option<Vec<String>>,
 }
 
+/// An estimate as a result document carries it (`d3il_protocol::Estimate`):
+/// the value, its interval and the interval's method, or why there is none.
+/// Unlike the result views' estimates it has no `interval` text.
+#[derive(utoipa::ToSchema)]
+#[schema(as = DocumentEstimate)]
+#[allow(dead_code)] // a schema only
+pub struct DocumentEstimateSchema {
+    value: f64,
+    /// Equal to `value` when `no_interval` is given.
+    ci_low: f64,
+    ci_high: f64,
+    /// The interval's method (`sign_flip_exact`, ...); absent when there is none.
+    #[schema(value_type = Option<String>)]
+    method: Option<String>,
+    /// Why there is no interval (`{"reason": "too_few_states", "states": 3, "min": 5}`).
+    #[schema(value_type = Option<Object>)]
+    no_interval: Option<serde_json::Value>,
+}
+
 /// One metric of a paired comparison.
 #[derive(utoipa::ToSchema)]
 #[schema(as = PairedDifference)]
@@ -92,8 +111,9 @@ pub struct PairedDifferenceSchema {
     a: f64,
     /// The metric of B.
     b: f64,
-    /// A − B with its paired bootstrap interval over initial states.
-    difference: crate::views::EstimateView,
+    /// A − B with its interval over initial states (the inverted paired
+    /// test whose p-value is `p_value`, or why there is none).
+    difference: DocumentEstimateSchema,
     /// Two-sided p-value of "no difference" (randomisation test paired by initial state).
     p_value: f64,
     /// The smallest true |A − B| detected with 80 % power at the 5 % level.
