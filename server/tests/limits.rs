@@ -5,85 +5,8 @@
 //! the worker slots, and a busy database answered with 503 + Retry-After
 //! rather than 500.
 
-use d3il_protocol::{ErrorKind, Job, WorkerError};
-use d3il_server::app::{prepare, ServerConfig};
-use d3il_server::queue::{JobRunner, RunReport};
-use std::net::SocketAddr;
-use std::sync::atomic::{AtomicUsize, Ordering};
-use std::sync::Arc;
-use std::time::Duration;
-
-struct App {
-    addr: SocketAddr,
-    state: d3il_server::app::AppState,
-    _dir: tempfile::TempDir,
-}
-
-impl App {
-    fn url(&self, path: &str) -> String {
-        format!("http://{}{path}", self.addr)
-    }
-}
-
-async fn spawn(cfg: impl FnOnce(&mut ServerConfig), runner: Arc<dyn JobRunner>) -> App {
-    let dir = tempfile::tempdir().unwrap();
-    let mut c = ServerConfig::new(
-        dir.path().join("t.sqlite"),
-        "127.0.0.1:0".parse().unwrap(),
-        "/bin/false".into(),
-    );
-    c.workers = 0;
-    // The runner here is a stub: uploads are not dry-run (root tests cover it).
-    c.dry_run_uploads = false;
-    cfg(&mut c);
-    let (listener, running) = prepare(c, runner).await.expect("server starts");
-    tokio::spawn(d3il_server::app::serve_listener(
-        listener,
-        running.state.clone(),
-    ));
-    App {
-        addr: running.addr,
-        state: running.state,
-        _dir: dir,
-    }
-}
-
-/// A client whose connections come from `ip` (127.0.0.0/8).
-fn client_from(ip: &str) -> reqwest::Client {
-    reqwest::Client::builder()
-        .local_address(Some(ip.parse().unwrap()))
-        .build()
-        .unwrap()
-}
-
-/// A runner that fails every job after a while, counting how many run at once.
-#[derive(Default)]
-struct Counting {
-    now: AtomicUsize,
-    max: AtomicUsize,
-    runs: AtomicUsize,
-}
-
-impl JobRunner for Counting {
-    fn run(&self, _job: &Job, _p: &mut dyn FnMut(usize, usize)) -> RunReport {
-        let n = self.now.fetch_add(1, Ordering::SeqCst) + 1;
-        self.max.fetch_max(n, Ordering::SeqCst);
-        std::thread::sleep(Duration::from_millis(300));
-        self.now.fetch_sub(1, Ordering::SeqCst);
-        self.runs.fetch_add(1, Ordering::SeqCst);
-        RunReport {
-            outcome: Err(WorkerError {
-                kind: ErrorKind::Remote,
-                message: "no endpoint here".into(),
-            }),
-            mechanisms: vec![],
-        }
-    }
-}
-
-fn idle_runner() -> Arc<dyn JobRunner> {
-    Arc::new(Counting::default())
-}
+mod limits_support;
+use limits_support::*;
 
 #[tokio::test]
 async fn anonymous_requests_are_limited_per_client_address() {
@@ -159,19 +82,6 @@ async fn failed_token_checks_are_limited_per_client_address() {
         .await
         .unwrap();
     assert_eq!(r.status(), 200);
-}
-
-/// The status of a GET of `url` from `c`, with `X-Forwarded-For: xff` (if
-/// given) and a bearer `token` (if given).
-async fn status_of(c: &reqwest::Client, url: &str, xff: Option<&str>, token: Option<&str>) -> u16 {
-    let mut rb = c.get(url);
-    if let Some(x) = xff {
-        rb = rb.header("x-forwarded-for", x);
-    }
-    if let Some(t) = token {
-        rb = rb.bearer_auth(t);
-    }
-    rb.send().await.unwrap().status().as_u16()
 }
 
 /// Behind a trusted reverse proxy (`--trusted-proxy`, here 127.0.0.2) the

@@ -1,6 +1,8 @@
 //! spawn_app(): the real server on 127.0.0.1 port 0 with a fresh SQLite file.
 #![allow(dead_code)]
 
+pub mod quotas;
+
 use d3il_server::app::{prepare, ServerConfig};
 use d3il_server::queue::JobRunner;
 use std::net::SocketAddr;
