@@ -63,7 +63,14 @@ fn server_killed_twice_mid_evaluation_finishes_it_after_restarts() {
                 .then_some(())
         })
         .expect("the evaluation started");
-        let workers = children(server.child.id());
+        // "running" is stored as the job is leased, a moment before its
+        // worker process is started: wait for it to appear.
+        let pid = server.child.id();
+        let workers = wait_for(Duration::from_secs(10), || {
+            let w = children(pid);
+            (!w.is_empty()).then_some(w)
+        })
+        .unwrap_or_default();
         assert_eq!(workers.len(), 1, "one worker process: {workers:?}");
         server.kill();
         // The orphaned worker dies with its server (PR_SET_PDEATHSIG), it does
