@@ -30,22 +30,7 @@ async fn app_with_endless_races(b: Backend, limits: QuotaLimits) -> (TestApp, te
         ..Options::default()
     })
     .await;
-    let mut cfg = (*app.state.cfg).clone();
-    cfg.quotas = limits;
-    let mut state = app.state.clone();
-    state.cfg = std::sync::Arc::new(cfg);
-    let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
-    let addr = listener.local_addr().unwrap();
-    tokio::spawn(d3il_server::app::serve_listener(listener, state.clone()));
-    (
-        TestApp {
-            addr,
-            base: format!("http://{addr}"),
-            state,
-            ..app
-        },
-        dir,
-    )
+    (with_quotas(app, limits).await, dir)
 }
 
 async fn race_as(app: &TestApp, token: &str, a: i64, b: i64) -> (u16, Value, Option<String>) {

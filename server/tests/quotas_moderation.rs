@@ -23,20 +23,7 @@ async fn app_with(b: Backend, limits: QuotaLimits, dry_run: bool) -> TestApp {
         ..Options::default()
     })
     .await;
-    // The config is shared by the handlers: set before any request.
-    let mut cfg = (*app.state.cfg).clone();
-    cfg.quotas = limits;
-    let mut state = app.state.clone();
-    state.cfg = std::sync::Arc::new(cfg);
-    let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
-    let addr = listener.local_addr().unwrap();
-    tokio::spawn(d3il_server::app::serve_listener(listener, state.clone()));
-    TestApp {
-        addr,
-        base: format!("http://{addr}"),
-        state,
-        ..app
-    }
+    with_quotas(app, limits).await
 }
 
 /// Whether submission `id` of `method` is listed by the public lists: the

@@ -70,3 +70,21 @@ pub async fn admin_post(
     let r = req.send().await.unwrap();
     (r.status().as_u16(), r.json().await.unwrap())
 }
+
+/// `app` served again on a new 127.0.0.1 port with quotas `limits` (the
+/// config is shared by the handlers: set before any request).
+pub async fn with_quotas(app: TestApp, limits: d3il_server::config::QuotaLimits) -> TestApp {
+    let mut cfg = (*app.state.cfg).clone();
+    cfg.quotas = limits;
+    let mut state = app.state.clone();
+    state.cfg = std::sync::Arc::new(cfg);
+    let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
+    let addr = listener.local_addr().unwrap();
+    tokio::spawn(d3il_server::app::serve_listener(listener, state.clone()));
+    TestApp {
+        addr,
+        base: format!("http://{addr}"),
+        state,
+        ..app
+    }
+}
