@@ -110,7 +110,7 @@ mod tests {
     use clap::CommandFactory;
 
     /// Every option and argument of every subcommand says what it is for in
-    /// `--help` (issue 18: `eval --protocol`, `submit --training-seed`, ...
+    /// `--help` (`eval --protocol`, `submit --training-seed`, ...
     /// had none).
     #[test]
     fn every_argument_has_help_text() {

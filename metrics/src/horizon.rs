@@ -1,5 +1,5 @@
 //! A rejection boundary for the paired sequential test calibrated exactly to
-//! the protocol's horizon (issue 41): when the most pairs a comparison can
+//! the protocol's horizon: when the most pairs a comparison can
 //! see is known (`N`, the protocol's initial states), the anytime-valid
 //! e-process's threshold `1/α` is conservative (its type-I error over 480
 //! pairs is 0.034 at α = 0.05), and a boundary whose exact type-I error over

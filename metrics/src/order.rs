@@ -1,4 +1,4 @@
-//! The one seeded random order of the crate (issue 41): an evaluation takes
+//! The one seeded random order of the crate: an evaluation takes
 //! its initial states in this order, so that every prefix of what has
 //! finished is a fair sample of the states, and `d3il compare --sequential`
 //! replays finished results in it.

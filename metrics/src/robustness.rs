@@ -1,4 +1,4 @@
-//! The robustness track's score (issue 40): success retained, averaged over
+//! The robustness track's score: success retained, averaged over
 //! an axis's levels (the axis's score) and over the axes (the overall
 //! score). Success retained is paired by initial state and bounded to
 //! [0, 1]: `Σ_s min(p0(s), pL(s)) / Σ_s p0(s)`, with `p0(s)` and `pL(s)`

@@ -1,5 +1,5 @@
 //! Anytime-valid statistics: answers that stay valid however often, and
-//! whenever, someone looks (issue 41). docs/sequential.md has the formulas.
+//! whenever, someone looks. docs/sequential.md has the formulas.
 //!
 //! * [`BettingCs`]: a confidence *sequence* for the mean of values in [0, 1]
 //!   (a success rate), by betting: the hedged capital process with

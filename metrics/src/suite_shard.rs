@@ -1,4 +1,4 @@
-//! A robustness evaluation's document (issue 40, docs/robustness.md) from
+//! A robustness evaluation's document (docs/robustness.md) from
 //! level 0 and every level's results ([`document`]), and the merge of a
 //! sharded robustness evaluation's parts into it ([`merge_suite`]): each
 //! level's parts through [`crate::shard::merge`], the plain evaluation's

@@ -400,7 +400,7 @@ fn a_single_behaviour_has_entropy_plus_zero() {
 #[test]
 fn a_deterministic_policys_conditional_entropy_is_exactly_zero() {
     // Pushing-like: every state's two successes share one behaviour. The
-    // reference's 1e-12 guards left about 5e-17 here (issue 51, item 5).
+    // reference's 1e-12 guards left about 5e-17 here (item 5).
     let v: Vec<Outcome> = (0..12).map(|i| o(i / 2, true, Some("1"))).collect();
     let conv = EntropyConvention::for_task(TaskId::Pushing);
     assert_eq!(conditional_entropy(&v, &conv).unwrap(), 0.0);

@@ -1,4 +1,4 @@
-//! The one private-address classifier (issue 21, issue 17 item 7), used by the
+//! The one private-address classifier, used by the
 //! server's intake, the sandboxed worker's endpoint check and the remote-policy
 //! client, so that all three refuse the same addresses.
 //!

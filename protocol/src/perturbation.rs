@@ -1,4 +1,4 @@
-//! The robustness track (issue 40): perturbation suites, the perturbation a
+//! The robustness track: perturbation suites, the perturbation a
 //! result was evaluated under (recorded in its protocol manifest, so that its
 //! rollouts replay); the document `d3il eval --suite` writes is
 //! [`crate::robustness`].

@@ -1,4 +1,4 @@
-//! A sequential race of two policies (issue 41): what a race reports while
+//! A sequential race of two policies: what a race reports while
 //! it runs and when it ends, and the race job a server sends a worker
 //! ([`crate::Job::race`]). The race itself is `d3il_evaluator::eval::race`;
 //! docs/sequential.md has the rule.

@@ -45,7 +45,7 @@ pub struct ProtocolManifest {
     pub build: Option<BuildIdentity>,
     /// The robustness track's perturbation this result ran under (suite file
     /// and sha256, axis, level, setting); absent for a plain evaluation,
-    /// which is every axis's level 0 (issue 40, docs/robustness.md).
+    /// which is every axis's level 0 (docs/robustness.md).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub perturbation: Option<crate::perturbation::Perturbation>,
 }

@@ -36,7 +36,7 @@ const FINISHED_CACHE_ENTRIES: usize = 256;
 /// Largest body given an ETag (pages, plots and JSON are far smaller).
 const ETAG_MAX_BODY: u64 = 8 << 20;
 
-/// Validators for what anyone may read (issue 17): a GET answered 200 with a
+/// Validators for what anyone may read: a GET answered 200 with a
 /// page, plot, CSV or JSON gets a weak `ETag` (a hash of its body) and
 /// `Cache-Control: no-cache`, so a client revalidates and a request with the
 /// matching `If-None-Match` is answered `304 Not Modified` without a body.
@@ -104,7 +104,7 @@ pub const CONTENT_SECURITY_POLICY: &str =
      style-src 'self' 'unsafe-inline'; img-src 'self' data:; base-uri 'none'; form-action 'self'; \
      frame-ancestors 'none'";
 
-/// Security headers on every response (issue 17), unless a handler set its own.
+/// Security headers on every response, unless a handler set its own.
 async fn security_headers(mut resp: axum::response::Response) -> axum::response::Response {
     use axum::http::{header, HeaderValue};
     let h = resp.headers_mut();
@@ -121,9 +121,9 @@ async fn security_headers(mut resp: axum::response::Response) -> axum::response:
     resp
 }
 
-/// Per-address rate limits (issue 17), keyed on the client address (behind
+/// Per-address rate limits, keyed on the client address (behind
 /// a trusted proxy, from X-Forwarded-For). Only a valid token lifts the
-/// anonymous limit (issue 52): a request with an `Authorization` header is
+/// anonymous limit: a request with an `Authorization` header is
 /// refused while its address is over the limit of failed token checks, and
 /// its token is checked here: a valid one passes (the handler counts it
 /// against the token's own limit, `auth::Verified`), any other is a 401
@@ -311,7 +311,7 @@ pub async fn serve_listener(listener: tokio::net::TcpListener, state: AppState) 
     let limits = state.cfg.connections.clone();
     // An unread body is read on up to what the upload routes allow, while
     // the client keeps sending within the keep-alive idle timeout, and for
-    // at most the linger deadline in all (issue 52: a trickle cannot hold it).
+    // at most the linger deadline in all (a trickle cannot hold it).
     let cut = |limit| Telemetry::counter(&state.telemetry.rate_limit_refusals, &[("limit", limit)]);
     let linger = crate::linger::LingerLimits {
         cap: crate::http::upload_body_limit(state.cfg.max_upload_bytes) as u64,
@@ -338,7 +338,7 @@ pub async fn serve_listener(listener: tokio::net::TcpListener, state: AppState) 
             drop(stream);
             continue;
         };
-        // Keyed as the rate limits are (an IPv6 client by its /64, issue 52).
+        // Keyed as the rate limits are (an IPv6 client by its /64).
         let ip = client_key(peer.ip());
         // A trusted proxy carries many clients: only the server's cap applies.
         let proxy = limits.trusted_proxies.contains(peer.ip());
@@ -411,7 +411,7 @@ pub async fn prepare(
         None => Default::default(),
     };
     // Results stored under earlier interval rules (the zoo's included),
-    // recomputed from their rollout records (issue 51).
+    // recomputed from their rollout records.
     crate::upgrade::recompute_stored_intervals(&store).await?;
     // Pool jobs and dry-runs share the worker slots: the pool's `workers`
     // general slots plus its quick-protocol slot (`queue::start_pool`). The

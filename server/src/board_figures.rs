@@ -14,7 +14,7 @@ pub fn pareto_points(rows: &[BoardRow]) -> Vec<ParetoPoint> {
     rows.iter()
         .filter(|r| RankGroup::of(r) != RankGroup::Smoke)
         .map(|r| ParetoPoint {
-            // The zoo's points are told apart from the paper's (issue 50).
+            // The zoo's points are told apart from the paper's.
             label: match r.data_source {
                 Some(_) => format!("{} (zoo)", r.method),
                 None => r.method.clone(),
@@ -39,7 +39,7 @@ pub fn fraction_series(rows: &[BoardRow]) -> Vec<FractionSeries> {
             (Source::Evaluated, Some(ProtocolKind::Quick)) => {
                 format!("{} (evaluated, quick)", r.method)
             }
-            // The zoo's rows are a line of their own (issue 50).
+            // The zoo's rows are a line of their own.
             (Source::Evaluated, _) if r.data_source.is_some() => format!("{} (zoo)", r.method),
             (Source::Evaluated, _) => format!("{} (evaluated)", r.method),
         };

@@ -1,5 +1,5 @@
 //! In-memory cache of the expensive read path of finished submissions
-//! (issue 17): a stored result never changes, so its results document (up to
+//!: a stored result never changes, so its results document (up to
 //! a few hundred kB with 480 rollouts and their paths) is rendered once and
 //! served from memory afterwards, as is the status document of a completed
 //! submission, which embeds it; the ETag layer in `app.rs` answers

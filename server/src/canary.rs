@@ -1,4 +1,4 @@
-//! The drift canary on a running server (issue 32): the server never runs
+//! The drift canary on a running server: the server never runs
 //! MuJoCo, so at start it runs `d3il verify --json --cached` (a build's
 //! report is kept per binary) as a subprocess of its
 //! own binary, in the background, and keeps the outcome: the page footer and

@@ -1,4 +1,4 @@
-//! Cancelling an evaluation (issue 41): the one rule the API
+//! Cancelling an evaluation: the one rule the API
 //! (`POST /api/v1/submissions/{id}/cancel`) and the submission page's
 //! button share.
 

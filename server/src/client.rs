@@ -134,7 +134,7 @@ impl Client {
     }
 
     /// Starts a sequential race of two submissions (`POST
-    /// /api/v1/comparisons`, issue 41); `body` is the request: `{"a", "b",
+    /// /api/v1/comparisons`); `body` is the request: `{"a", "b",
     /// "alpha"?, "delta"?, "protocol"?, "seed"?, "task"?}`.
     pub fn race(&self, body: &Value) -> Result<Value, ClientError> {
         let rb = self
@@ -145,7 +145,7 @@ impl Client {
     }
 
     /// Cancels a queued or running race (`POST
-    /// /api/v1/comparisons/{id}/cancel`, issue 52): its starter or an admin.
+    /// /api/v1/comparisons/{id}/cancel`): its starter or an admin.
     pub fn cancel_race(&self, id: i64) -> Result<Value, ClientError> {
         let rb = self
             .http

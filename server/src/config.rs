@@ -38,7 +38,7 @@ pub struct ServerConfig {
     pub max_attempts: i64,
     /// Shards a paper-protocol job is split into (whole initial states each,
     /// at most the protocol's number); 1: not split. Shards run on any worker
-    /// slot or host and are merged when all are done (issue 19).
+    /// slot or host and are merged when all are done.
     pub shards: usize,
     /// Uploaded models run a short sandboxed dry run before they are queued
     /// (`intake::dry_run`); off, a model that cannot run fails at its
@@ -49,17 +49,17 @@ pub struct ServerConfig {
     pub limits: Limits,
     /// The worker command (`d3il worker`).
     pub worker: WorkerProcess,
-    /// Connection hygiene (issue 17).
+    /// Connection hygiene.
     pub connections: ConnectionLimits,
-    /// Rollout videos, rendered on demand by `d3il replay` (issue 31).
+    /// Rollout videos, rendered on demand by `d3il replay`.
     pub videos: VideoConfig,
-    /// The fidelity report of `/fidelity`, made by `d3il fidelity` (issue 32).
+    /// The fidelity report of `/fidelity`, made by `d3il fidelity`.
     pub fidelity: crate::fidelity::FidelityConfig,
-    /// The drift canary run at start (`d3il verify`, issue 32).
+    /// The drift canary run at start (`d3il verify`).
     pub canary: crate::canary::CanaryConfig,
-    /// Submission quotas per submitter (issue 42; `crate::quota`).
+    /// Submission quotas per submitter (`crate::quota`).
     pub quotas: QuotaLimits,
-    /// The zoo loaded at every start (issue 50, `crate::zoo`): `d3il serve`
+    /// The zoo loaded at every start (`crate::zoo`): `d3il serve`
     /// loads `<assets>/zoo` unless told `--zoo none`; servers built in code
     /// (tests) load none unless asked.
     pub zoo: Option<PathBuf>,
@@ -115,7 +115,7 @@ pub struct ConnectionLimits {
     /// (`--trusted-proxy`; `crate::client_addr`); empty: the header is ignored.
     pub trusted_proxies: crate::client_addr::TrustedProxies,
     /// How long in all a request body left unread by an early answer is
-    /// read on (`crate::linger`; issue 52), however it trickles in.
+    /// read on (`crate::linger`), however it trickles in.
     pub linger_deadline: Duration,
 }
 
@@ -195,7 +195,7 @@ pub fn default_assets_dir() -> PathBuf {
 
 /// A server's quota for each submitter, in evaluations (a plain submission
 /// is one, a robustness suite its level 0 and every level, a race the two
-/// evaluations it may run; issue 52); 0 is no limit.
+/// evaluations it may run); 0 is no limit.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct QuotaLimits {
     pub per_day: i64,

@@ -32,7 +32,7 @@ pub enum AppError {
     },
     #[error("{0}")]
     PayloadTooLarge(String),
-    /// A rate limit refused the request; `limit` names it (issue 52:
+    /// A rate limit refused the request; `limit` names it (
     /// every refusal names its limit): one of the `RATE_LIMIT_*` texts.
     #[error("rate limit exceeded: {limit}; retry in {retry_after} s")]
     RateLimited {

@@ -1,4 +1,4 @@
-//! The fidelity report behind `/fidelity` (issue 32): the server never runs
+//! The fidelity report behind `/fidelity`: the server never runs
 //! MuJoCo, so at start it runs `d3il fidelity --format json` as a
 //! subprocess of its own binary, in the background: one process, one
 //! thread (`RAYON_NUM_THREADS=1`), at the lowest priority (`nice -n 19`),

@@ -61,11 +61,11 @@ pub struct BoardRow {
     /// (null before builds were identified); rows of different fingerprints
     /// are never merged or ranked together.
     pub physics_fingerprint: Option<String>,
-    /// Evaluated rows of the zoo (issue 50): where the training data came
+    /// Evaluated rows of the zoo: where the training data came
     /// from ("trained here on d3il demos v1"); null for submitted rows.
     /// Rows of different data sources are never merged or ranked together.
     pub data_source: Option<String>,
-    /// An operator marked the method as a baseline (issue 42): the boards
+    /// An operator marked the method as a baseline: the boards
     /// say so on its rows.
     pub baseline: bool,
 }
@@ -429,7 +429,7 @@ pub enum RankGroup {
     /// and, for image rows, with the robot drawn one way (None: as the
     /// original draws it).
     Evaluated(String, Option<RobotLookNote>, Option<String>),
-    /// The zoo (issue 50): evaluated like the above, trained here on the
+    /// The zoo: evaluated like the above, trained here on the
     /// data source named first; never ranked with submitted or paper rows.
     Zoo(String, String, Option<RobotLookNote>, Option<String>),
     /// Reported in the D3IL paper.

@@ -1,4 +1,4 @@
-//! d3il-server: the leaderboard service behind `d3il serve` (issue 7).
+//! d3il-server: the leaderboard service behind `d3il serve`.
 //!
 //! Dependencies point one way (a test, `tests/layout.rs`, refuses cycles):
 //!
@@ -18,7 +18,7 @@
 //! left unread, so the client gets the answer. [`rollouts`] shows what a
 //! policy did (the failure browser's filters, one rollout's record and trace,
 //! the pictures drawn from traces) and [`videos`] renders rollout videos
-//! through `d3il replay`. [`zoo`] reads the zoo's cells (issue 50) from disk
+//! through `d3il replay`. [`zoo`] reads the zoo's cells from disk
 //! and loads them into the store at start.
 
 #![forbid(unsafe_code)]

@@ -14,7 +14,7 @@
 //! Bounded: at most `cap` bytes (the upload limit; a body declared longer is
 //! not read at all), and it stops when the client sends nothing for `idle`
 //! or, sending or not, when `deadline` has passed since the drain began
-//! (issue 52: a client trickling a byte now and then holds the connection no
+//! (a client trickling a byte now and then holds the connection no
 //! longer than that). Until it stops, the connection keeps its place under
 //! the server's and its client's connection caps (`app::serve_listener`).
 //! A request with `Expect: 100-continue` is not read on: its client sends

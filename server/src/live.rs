@@ -1,4 +1,4 @@
-//! Issue 41: the success rate of an evaluation so far, with its confidence
+//! The success rate of an evaluation so far, with its confidence
 //! sequence (`d3il_metrics::sequential::BettingCs`), valid at every look:
 //! what the submission page, the API and the client show while an evaluation
 //! runs, and what a cancelled evaluation keeps.

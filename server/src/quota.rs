@@ -1,4 +1,4 @@
-//! Quotas (issues 42, 52): per submitter, evaluations started in the last
+//! Quotas: per submitter, evaluations started in the last
 //! 24 hours and in total, and evaluations queued or running at once, plus
 //! a cap on races queued or running. The unit is the evaluation, so that
 //! every kind of work is metered by what it costs the workers: a plain

@@ -184,7 +184,7 @@ impl Drop for SlotGuard<'_> {
 /// Every run of the pool's jobs and of submission dry-runs goes through the
 /// same slots (as many as the pool has): at most that many worker processes
 /// run at once, and a dry-run beyond them queues (its request waits) instead
-/// of starting another process (issue 17).
+/// of starting another process.
 pub struct SharedSlots {
     inner: Arc<dyn JobRunner>,
     slots: Slots,

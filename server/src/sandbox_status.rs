@@ -1,4 +1,4 @@
-//! The sandbox mechanisms in force on this host, for the admin page (issue 6):
+//! The sandbox mechanisms in force on this host, for the admin page:
 //! what `d3il worker --check-sandbox --json` reports, including mechanisms the
 //! kernel lacks. Checked once per server process (at start, or by the first
 //! admin page view if that comes first).

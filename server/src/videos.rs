@@ -1,4 +1,4 @@
-//! Rollout videos, made on demand (issue 31). DESIGN.md: what a policy did is
+//! Rollout videos, made on demand. DESIGN.md: what a policy did is
 //! kept as a record, and videos are made "by replaying the record in a
 //! process that has the simulator ..., never by the server itself, and
 //! cached". So the server writes a replay document (`{"manifest", "rollouts":

@@ -186,10 +186,10 @@ pub struct SubmissionView {
     pub cancelled: Option<CancelledView>,
     pub created_at: i64,
     pub updated_at: i64,
-    /// Set when an admin withdrew the submission (issue 42): it is kept but
+    /// Set when an admin withdrew the submission: it is kept but
     /// shown on no board or table.
     pub withdrawn: Option<crate::store::Withdrawal>,
-    /// The zoo's submissions (issue 50): where the training data came from
+    /// The zoo's submissions: where the training data came from
     /// ("trained here on d3il demos v1"; the provenance is at
     /// `/submissions/{id}/provenance`); null for what submitters send.
     pub data_source: Option<String>,
@@ -204,7 +204,7 @@ pub struct PolicyView {
     pub sha256: Option<String>,
     pub bytes: Option<i64>,
     /// A remote endpoint's URL: shown only to its submitter and admins
-    /// (issue 52: a published endpoint would serve anyone); null otherwise.
+    /// (a published endpoint would serve anyone); null otherwise.
     pub endpoint_url: Option<String>,
     /// Whether the evaluation simulates each initial state's rollouts once
     /// and records that rollout under every index (a deterministic policy: an
@@ -224,7 +224,7 @@ pub struct ProgressView {
     pub rollouts_done: i64,
     pub rollouts_total: i64,
     /// The success rate so far with its confidence sequence, valid at every
-    /// look (issue 41; docs/sequential.md); kept once the evaluation ends
+    /// look (docs/sequential.md); kept once the evaluation ends
     /// (a cancelled one's partial result). Null until the first initial
     /// state has finished.
     pub live: Option<crate::live::LiveEstimate>,
@@ -265,7 +265,7 @@ pub struct ResultsView {
 }
 
 /// A metric with its 95 % confidence interval and the interval's method, or
-/// why there is none (issue 51).
+/// why there is none.
 #[derive(Debug, Serialize, ToSchema)]
 pub struct EstimateView {
     pub value: f64,
@@ -467,7 +467,7 @@ pub async fn results_view(state: &AppState, r: ResultRow) -> Result<ResultsView,
 #[derive(Debug, Serialize, ToSchema)]
 pub struct WhoAmI {
     pub submitter: String,
-    /// What is left of the submission quota (issue 42).
+    /// What is left of the submission quota.
     pub quota: crate::quota::QuotaView,
 }
 
@@ -480,7 +480,7 @@ pub struct CreatedView {
     pub quota: crate::quota::QuotaView,
 }
 
-/// The build this server runs: what its results record (issue 32).
+/// The build this server runs: what its results record.
 #[derive(Debug, Serialize, ToSchema)]
 pub struct BuildView {
     /// The evaluator's version (CHANGELOG.md has the versioning rule).

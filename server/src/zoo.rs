@@ -1,4 +1,4 @@
-//! The zoo (issue 50): the paper's methods trained here with the D3IL
+//! The zoo: the paper's methods trained here with the D3IL
 //! reference code on demonstrations recorded from our tasks, shipped under
 //! `assets/zoo/<task>/<method-slug>-s<seed>/` (`policy.onnx`, `policy.json`,
 //! `result.json` made by `d3il eval --protocol paper --json`, and
@@ -98,7 +98,7 @@ pub fn data_source(version: &str) -> String {
     format!("trained here on d3il demos {version}")
 }
 
-/// Drift (issue 50): a zoo row whose result was made by a build other than
+/// Drift: a zoo row whose result was made by a build other than
 /// the one with the `current` physics fingerprint, and why; None when it is
 /// this build's, when this build's fingerprint is not known yet, or for rows
 /// that are not the zoo's.

@@ -43,7 +43,7 @@ pub fn assets_dir() -> std::path::PathBuf {
 /// Refuses an output path a command could not write at its end (no such
 /// directory, or a directory where the file should go), so that a long run
 /// is not lost to a typo: every command checks its outputs before the slow
-/// part (issue 43).
+/// part.
 pub fn check_output_path(path: &std::path::Path, flag: &str) -> anyhow::Result<()> {
     if path.is_dir() {
         anyhow::bail!(

@@ -1,5 +1,5 @@
 //! `d3il submit --race A B`: a sequential race of two submissions on the
-//! server (`POST /api/v1/comparisons`, issue 41). It talks to the server as
+//! server (`POST /api/v1/comparisons`). It talks to the server as
 //! `d3il submit` does (same --server, --token, --wait, --json); the race
 //! itself is `d3il_evaluator::eval::race`, run by a worker, the same rule as
 //! `d3il compare --sequential --task T A B`; the report prints the same way.

@@ -123,7 +123,7 @@ pub struct Args {
     /// Worker executable (default: this binary, run as `d3il worker`).
     #[arg(long, hide = true)]
     pub worker_exe: Option<PathBuf>,
-    /// The zoo loaded at every start (issue 50, docs/zoo.md): its cells
+    /// The zoo loaded at every start (docs/zoo.md): its cells
     /// show as evaluated rows marked with their data source.
     #[command(flatten)]
     pub zoo: super::zoo::ZooArg,

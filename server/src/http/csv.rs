@@ -49,7 +49,7 @@ const HEADER: [&str; 18] = [
     // different robot looks, are different rows.
     "initial_states",
     "robot_look",
-    // The zoo's rows (issue 50): "trained here on d3il demos v1"; empty
+    // The zoo's rows: "trained here on d3il demos v1"; empty
     // for submitted and reported rows.
     "data_source",
 ];

@@ -1,4 +1,4 @@
-//! What operators and their tools ask (issue 42 item 2): `/healthz` (the
+//! What operators and their tools ask: `/healthz` (the
 //! process serves: always 200), `/readyz` (200 when ready to take traffic,
 //! else 503 with a JSON body naming what is not ready; see
 //! [`crate::telemetry::readiness`]) and `/metrics` (Prometheus, OpenMetrics
@@ -32,7 +32,7 @@ pub fn router() -> Router<AppState> {
                 |State(s): State<AppState>,
                  who: Option<axum::Extension<crate::auth::Verified>>| async move {
                     // The checks' detail (a database's error text, hosts)
-                    // only for an admin here (issue 52); the private
+                    // only for an admin here; the private
                     // listener shows it to its scraper.
                     let admin = who.is_some_and(|w| w.0 .0.is_admin);
                     readyz(&s.telemetry, admin).await

@@ -1,4 +1,4 @@
-//! What a policy did, for people (issue 31): a submission's rollouts
+//! What a policy did, for people: a submission's rollouts
 //! filtered by outcome, behaviour and initial state and paged (the failure
 //! browser of the API and of the submission page), one rollout's record with
 //! its trace (the API's record, the rollout page, the video's replay

@@ -1,6 +1,6 @@
-//! Issue 41: sequential comparisons of two submissions (`comparisons`
+//! Sequential comparisons of two submissions (`comparisons`
 //! table, migration 0011): a race job's row, its live state while it runs
-//! and its report when it ends. Issue 52 (migration 0013): a race waits in
+//! and its report when it ends. (migration 0013): a race waits in
 //! this table as in a durable queue; a race slot leases it, heartbeats
 //! while it runs, and loses the lease when it is cancelled.
 

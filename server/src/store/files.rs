@@ -113,7 +113,7 @@ impl Store {
     /// this store's policies directory are ever deleted.
     pub async fn release_policy_file(&self, path: &str) -> Result<bool, StoreError> {
         // Resolved first (`..`, symlinks): a stored path such as
-        // `<policies>/../elsewhere` names a file outside (issue 52).
+        // `<policies>/../elsewhere` names a file outside.
         let Some(resolved) = self.in_policies_dir(path) else {
             return Ok(false);
         };

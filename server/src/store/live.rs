@@ -1,4 +1,4 @@
-//! Issue 41: the outcomes a running evaluation has reported so far (the
+//! The outcomes a running evaluation has reported so far (the
 //! basis of its live confidence sequence) and cancelling an evaluation.
 
 use super::{now, to_json, Store, StoreError};
@@ -172,7 +172,7 @@ impl Store {
             .execute(&mut *tx)
             .await?;
             // The audit entry (an admin cancelling another's evaluation)
-            // commits with the cancel (issue 52).
+            // commits with the cancel.
             if let Some((actor, action, target, detail)) = audit {
                 sqlx::query(
                     "INSERT INTO audit_log (at, actor, action, target, detail) VALUES ($1, $2, $3, $4, $5)",

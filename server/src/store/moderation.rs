@@ -1,4 +1,4 @@
-//! Quotas and moderation (issue 42): what a submitter has used of its
+//! Quotas and moderation: what a submitter has used of its
 //! quota, per-submitter quota overrides, withdrawn submissions, methods
 //! marked as baselines, and the audit log of every admin action.
 
@@ -16,7 +16,7 @@ pub struct QuotaOverrides {
     pub concurrent: Option<i64>,
 }
 
-/// What a submitter has used, in evaluations (issue 52; `crate::quota`
+/// What a submitter has used, in evaluations (`crate::quota`
 /// counts them): accepted work (refused requests never get a row) in the
 /// last 24 hours and ever, and the work still queued or running.
 #[derive(Debug, Clone, Default, PartialEq, Eq)]
@@ -81,7 +81,7 @@ pub struct AuditEntry {
 /// The 24 hours of the per-day quota.
 pub const DAY_S: i64 = 86_400;
 
-/// Appends an audit entry inside the caller's transaction (issue 52: the
+/// Appends an audit entry inside the caller's transaction (the
 /// entry and the action commit together or not at all); its entry.
 macro_rules! audit_in {
     ($tx:expr, $actor:expr, $action:expr, $target:expr, $detail:expr) => {{

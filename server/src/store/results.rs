@@ -272,7 +272,7 @@ impl Store {
     /// All leaderboard rows: reported first (paper order of insertion), then
     /// evaluated ones.
     /// Withdrawn submissions are left out; rows of methods marked as
-    /// baselines say so (issue 42).
+    /// baselines say so.
     pub async fn board_rows(&self) -> Result<Vec<BoardRow>, StoreError> {
         let mut rows = self.reported_rows().await?;
         rows.extend(self.evaluated_rows().await?);

@@ -2,7 +2,7 @@
 //! job row, and the last one to finish merges them all into the
 //! submission's result, in the same transaction. A plain evaluation's parts
 //! merge with `d3il_metrics::shard::merge` (as `d3il merge`); a robustness
-//! submission's (issue 40) with `d3il_metrics::suite_shard::merge_suite`
+//! submission's with `d3il_metrics::suite_shard::merge_suite`
 //! (as `d3il merge` of suite parts): level 0 becomes the plain result and the
 //! document goes to `robustness_results`, as an unsharded suite job stores
 //! them.

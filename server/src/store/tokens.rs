@@ -17,7 +17,7 @@ pub struct Submitter {
     pub last_used_at: Option<i64>,
 }
 
-/// `last_used_at` is written at most this often per token (issue 17).
+/// `last_used_at` is written at most this often per token.
 pub const LAST_USED_RESOLUTION_S: i64 = 60;
 
 /// What `d3il token revoke` did.
@@ -167,7 +167,7 @@ impl Store {
                 "a token `{t}` (give the whole token or the 13-character prefix `d3il_…` shown when it was created)"
             )));
         }
-        // The revocation and its audit entry commit together (issue 52).
+        // The revocation and its audit entry commit together.
         let live: Vec<(i64, String)> = rows
             .into_iter()
             .filter(|r| r.2.is_none())

@@ -1,4 +1,4 @@
-//! The zoo's cells (issue 50) as finished submissions of the built-in `zoo`
+//! The zoo's cells as finished submissions of the built-in `zoo`
 //! submitter: loaded at every start (idempotently: a cell whose result
 //! document is unchanged is left alone, a changed one is loaded again into
 //! the same submission), with their ONNX in the policy store, their result
@@ -186,7 +186,7 @@ impl Store {
             "INSERT INTO methods (name, description, submitter_id) VALUES ($1, $2, $3) ON CONFLICT(name) DO NOTHING",
         )
         .bind(&c.method)
-        .bind("Trained here for the zoo (issue 50).")
+        .bind("Trained here for the zoo (docs/zoo.md).")
         .bind(submitter)
         .execute(&mut *tx)
         .await?;

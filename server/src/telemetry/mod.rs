@@ -1,4 +1,4 @@
-//! What an operator watches (issue 42 item 2): the Prometheus metrics of
+//! What an operator watches: the Prometheus metrics of
 //! `/metrics` and the readiness of `/readyz` ([`readiness`]).
 //!
 //! Counters and histograms are counted where their events happen, once: the

@@ -1,4 +1,4 @@
-//! `/api/v1/admin/…` (issue 42): moderation and quota overrides, for admin
+//! `/api/v1/admin/…`: moderation and quota overrides, for admin
 //! tokens only. Every action is written to the audit log (`/admin` shows it).
 
 use crate::auth::Admin;
@@ -26,7 +26,7 @@ pub fn router() -> Router<AppState> {
 }
 
 /// Every admin action (anything but a GET) must say `Content-Type:
-/// application/json` (issue 52): a browser holding an admin's Basic
+/// application/json`: a browser holding an admin's Basic
 /// credentials sends them with any cross-site form, but a form cannot send
 /// that content type, so no other site can act as the admin.
 async fn json_only(

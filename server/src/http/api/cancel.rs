@@ -1,4 +1,4 @@
-//! `POST /api/v1/submissions/{id}/cancel` (issue 41): stop a queued or
+//! `POST /api/v1/submissions/{id}/cancel`: stop a queued or
 //! running evaluation, keeping what ran as a partial result.
 
 use crate::auth::Authed;

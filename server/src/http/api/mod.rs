@@ -176,7 +176,7 @@ async fn get_submission(
     Param(id): Param<i64>,
     who: Option<axum::Extension<crate::auth::Verified>>,
 ) -> Result<Response, AppError> {
-    // Its submitter and admins see a remote endpoint's URL (issue 52):
+    // Its submitter and admins see a remote endpoint's URL:
     // rendered for them, never cached.
     if let Some(axum::Extension(crate::auth::Verified(who))) = who {
         let s = state.store.submission(id).await?;

@@ -1,4 +1,4 @@
-//! A submission's robustness document (issue 40, docs/robustness.md): what
+//! A submission's robustness document (docs/robustness.md): what
 //! a submission with `suite=robustness` produced, level 0 and every level of
 //! the task's perturbation suite with paired drops and scores.
 

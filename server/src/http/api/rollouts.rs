@@ -1,4 +1,4 @@
-//! What a policy did (issue 31): a submission's rollouts filtered and paged,
+//! What a policy did: a submission's rollouts filtered and paged,
 //! one rollout's record with its trace (the document `d3il replay --result`
 //! reads), its video (MP4 made on demand, served with byte ranges) and its
 //! top-down picture.

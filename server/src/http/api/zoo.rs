@@ -1,4 +1,4 @@
-//! The zoo's provenance records (issue 50): what a zoo submission was
+//! The zoo's provenance records: what a zoo submission was
 //! trained from and with, as shipped in its cell's `provenance.json`.
 
 use crate::error::{AppError, ErrorBody};

@@ -43,7 +43,7 @@ pub struct RowView {
     /// badge and its explanation (empty otherwise).
     pub look_badge: &'static str,
     pub look_note: &'static str,
-    /// An operator marked the method as a baseline (issue 42).
+    /// An operator marked the method as a baseline.
     pub baseline: bool,
     /// The zoo's rows: their data source (empty otherwise).
     pub data_source: String,
@@ -356,7 +356,7 @@ pub(super) async fn data_fraction(
             label.push_str(" (quick protocol)");
         }
         if let Some(source) = &r.data_source {
-            // The zoo's rows too (issue 50).
+            // The zoo's rows too.
             label.push_str(&format!(" ({source})"));
         }
         let row = match table

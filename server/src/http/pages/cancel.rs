@@ -1,4 +1,4 @@
-//! The submission page's Cancel button (issue 41): `POST
+//! The submission page's Cancel button: `POST
 //! /submissions/{id}/cancel` with the submitter's (or an admin's) token, then
 //! back to the page, which shows the partial result.
 

@@ -1,4 +1,4 @@
-//! A task's Robustness view (issue 40, docs/robustness.md): per suite
+//! A task's Robustness view (docs/robustness.md): per suite
 //! version and protocol, methods × axes with retained-success scores and
 //! intervals, per-axis degradation curves and robustness against
 //! conditional behaviour entropy. A method's training seeds are aggregated

@@ -1,4 +1,4 @@
-//! What a policy did, as pages (issue 31): the submission page's failure
+//! What a policy did, as pages: the submission page's failure
 //! browser (rollouts filtered by outcome, behaviour and initial state with a
 //! plain GET form and links, no script), and a rollout's page: its video,
 //! the top-down picture, the per-step plots, how it ended and its record.

@@ -78,7 +78,7 @@ struct HomePage {
     /// The drift canary's outcome on this server (`d3il verify`).
     canary: String,
     build: String,
-    /// The zoo's boards (issue 50): data source, then each task with zoo
+    /// The zoo's boards: data source, then each task with zoo
     /// rows of `obs` policies.
     zoo: Vec<(String, Vec<ZooBoard>)>,
 }
@@ -448,7 +448,7 @@ struct AdminPage {
     workers: usize,
     limits: Vec<(&'static str, String)>,
     server_limits: Vec<(&'static str, String)>,
-    /// The newest admin actions (issue 42), with their time shown.
+    /// The newest admin actions, with their time shown.
     audit: Vec<(String, crate::store::AuditEntry)>,
     /// Withdrawn submissions (the public lists leave them out), with the
     /// time they were withdrawn.
@@ -458,7 +458,7 @@ struct AdminPage {
 /// Operators' view: the sandbox mechanisms in force on this host (what
 /// `d3il worker --check-sandbox` reports, including what the kernel lacks),
 /// the mechanisms the last finished job ran under, the queue and the limits.
-/// Only for admin tokens (issue 17: it shows host paths and the set-up).
+/// Only for admin tokens (it shows host paths and the set-up).
 pub(super) async fn admin_page(
     _admin: Result<crate::auth::Admin, AppError>,
     State(state): State<AppState>,
@@ -533,7 +533,7 @@ pub(super) async fn admin_page(
 }
 
 /// The connection, upload, rate and attempt limits `d3il serve` was started
-/// with (issue 17), each named with its flag.
+/// with, each named with its flag.
 fn server_limits(c: &crate::config::ServerConfig) -> Vec<(&'static str, String)> {
     let per_min = |n: u32| {
         if n == u32::MAX {

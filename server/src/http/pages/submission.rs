@@ -38,7 +38,7 @@ struct MetricLine {
     name: &'static str,
     value: String,
     ci: String,
-    /// The interval's method, or why there is none (issue 51).
+    /// The interval's method, or why there is none.
     method: String,
 }
 
@@ -79,11 +79,11 @@ struct SubmissionPage {
     mostly_unstable: bool,
     /// Sorting results carry the protocol caveat of docs/tasks.md.
     sorting: bool,
-    /// The success rate so far and its confidence sequence (issue 41).
+    /// The success rate so far and its confidence sequence.
     so_far: Option<SoFar>,
     /// Who cancelled the evaluation, when it was.
     cancelled_by: Option<String>,
-    /// (when, by whom, why) an admin withdrew it (issue 42).
+    /// (when, by whom, why) an admin withdrew it.
     withdrawn: Option<(String, String, String)>,
 }
 
@@ -281,7 +281,7 @@ pub(super) async fn submission_page(
             s.onnx_bytes.unwrap_or(0),
             s.onnx_sha256.as_deref().unwrap_or("?")
         ),
-        // Its URL only to its submitter and admins, through the API (issue 52).
+        // Its URL only to its submitter and admins, through the API.
         PolicyKind::Remote => {
             "Remote endpoint (its URL is shown to its submitter and admins: GET /api/v1/submissions/{id} with their token)"
                 .to_string()

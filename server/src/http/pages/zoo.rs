@@ -1,4 +1,4 @@
-//! A zoo submission's provenance page (issue 50): the record shipped with
+//! A zoo submission's provenance page: the record shipped with
 //! its cell, as pretty JSON, and whether this build made its result.
 
 use super::render;
