@@ -6,6 +6,47 @@
 use crate::{PolicyManifest, PolicySource, ProtocolKind, StateOutcome, TaskId};
 use serde::{Deserialize, Serialize};
 
+/// A race's level α when none is given.
+pub const DEFAULT_ALPHA: f64 = 0.05;
+
+/// A race parameter out of range: the parameter's name (`alpha`, `delta`)
+/// and what to fix.
+#[derive(Debug, Clone, PartialEq)]
+pub struct RaceParamError {
+    pub field: &'static str,
+    pub message: String,
+}
+
+impl std::fmt::Display for RaceParamError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.message)
+    }
+}
+
+impl std::error::Error for RaceParamError {}
+
+/// The one range check of a race's level α, in (0, 1), and margin δ, in
+/// (0, 2) (a difference of two success rates lies in [-1, 1], so a margin of
+/// 2 or more could never be left): the server's race requests, the worker's
+/// race and `d3il compare --sequential` all ask it.
+pub fn check_race_params(alpha: f64, delta: Option<f64>) -> Result<(), RaceParamError> {
+    if !(alpha > 0.0 && alpha < 1.0) {
+        return Err(RaceParamError {
+            field: "alpha",
+            message: format!("alpha {alpha} is not in (0, 1); use e.g. 0.05"),
+        });
+    }
+    match delta {
+        Some(d) if !(d > 0.0 && d < 2.0) => Err(RaceParamError {
+            field: "delta",
+            message: format!(
+                "delta {d} is not in (0, 2); use e.g. 0.1 (ten points of success rate)"
+            ),
+        }),
+        _ => Ok(()),
+    }
+}
+
 /// The second policy of a race job and the test's level and margin: the
 /// job's own policy is A, this one is B, run on the job's task, protocol and
 /// seed.
@@ -123,4 +164,25 @@ pub fn pairs_of(codes: &str) -> Result<Vec<(bool, bool)>, char> {
             other => Err(other),
         })
         .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn race_parameters_are_checked_once_with_what_to_fix() {
+        assert_eq!(check_race_params(DEFAULT_ALPHA, None), Ok(()));
+        assert_eq!(check_race_params(0.01, Some(0.1)), Ok(()));
+        for alpha in [0.0, 1.0, -0.1, f64::NAN] {
+            let e = check_race_params(alpha, None).unwrap_err();
+            assert_eq!(e.field, "alpha");
+            assert!(e.message.contains("is not in (0, 1); use e.g. 0.05"), "{e}");
+        }
+        for delta in [0.0, 2.0, -1.0, f64::NAN] {
+            let e = check_race_params(0.05, Some(delta)).unwrap_err();
+            assert_eq!(e.field, "delta");
+            assert!(e.message.contains("is not in (0, 2)"), "{e}");
+        }
+    }
 }

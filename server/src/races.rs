@@ -118,6 +118,9 @@ pub struct ComparisonView {
     /// fixed-size sign test's p-value and pairs for 90 % power).
     #[schema(value_type = Option<Object>)]
     pub report: Option<serde_json::Value>,
+    /// The finished race's pairs as a fixed-size comparison
+    /// ([`fixed_comparison`]); null until it finishes.
+    pub fixed_comparison: Option<FixedComparison>,
     /// Why it failed.
     pub error: Option<String>,
     pub created_at: i64,
@@ -142,6 +145,9 @@ impl ComparisonView {
             cancelled_by: row.cancelled_by.clone(),
             live: parse(&row.live_json),
             report: parse(&row.report_json),
+            fixed_comparison: parse::<RaceReport>(&row.report_json)
+                .as_ref()
+                .map(fixed_comparison),
             error: row.error_message.clone(),
             created_at: row.created_at,
             updated_at: row.updated_at,
@@ -156,6 +162,40 @@ impl ComparisonView {
     }
 }
 
+/// A finished race's pairs (one a state: its rollout 0) compared as if
+/// their number had been fixed in advance: the exact McNemar test on the
+/// discordant pairs (the report's `fixed_p_value`) and its inverted
+/// interval at the race's level (`d3il_metrics::rate_difference::ExactMcNemar`,
+/// docs/intervals.md), so 0 lies outside it exactly when p ≤ α. For
+/// reference only: the race stopped when its data said so, which neither
+/// allows for; the race's own decision is the sequential test's.
+#[derive(Debug, Clone, Serialize, ToSchema)]
+pub struct FixedComparison {
+    /// Pairs used.
+    pub pairs: u64,
+    /// A − B of the pairs' success rates, with its interval (`ci_low`,
+    /// `ci_high`, `method`: `mcnemar_exact`) or `no_interval`.
+    #[schema(value_type = Object)]
+    pub difference: d3il_protocol::Estimate,
+    /// The exact McNemar test's two-sided p-value.
+    pub p_value: f64,
+}
+
+/// [`FixedComparison`] of a race's report.
+pub fn fixed_comparison(r: &RaceReport) -> FixedComparison {
+    let (x, y) = r.discordant;
+    // A stored report's counts are the race's own; the max only keeps a
+    // corrupt one from asserting.
+    let pairs = r.pairs_used.max(x + y);
+    let test = d3il_metrics::rate_difference::ExactMcNemar::new(pairs as usize, x, y);
+    let paired = test.paired_interval(1.0 - r.alpha);
+    FixedComparison {
+        pairs,
+        difference: paired.to_estimate(),
+        p_value: paired.p_value,
+    }
+}
+
 /// Checks a request (a 400 naming the field for each problem), meters it
 /// (one of `a` and `b` must be the racer's own, the other public; the race
 /// counts [`crate::quota::RACE_EVALUATIONS`] and must fit the quota and the
@@ -165,21 +205,9 @@ pub async fn create(
     who: &Submitter,
     req: &ComparisonRequest,
 ) -> Result<i64, AppError> {
-    let alpha = req.alpha.unwrap_or(0.05);
-    if !(alpha > 0.0 && alpha < 1.0) {
-        return Err(AppError::invalid(
-            "alpha",
-            format!("alpha {alpha} is not in (0, 1); use e.g. 0.05"),
-        ));
-    }
-    if let Some(d) = req.delta {
-        if !(d > 0.0 && d < 2.0) {
-            return Err(AppError::invalid(
-                "delta",
-                format!("delta {d} is not in (0, 2); use e.g. 0.1 (ten points of success rate)"),
-            ));
-        }
-    }
+    let alpha = req.alpha.unwrap_or(d3il_protocol::race::DEFAULT_ALPHA);
+    d3il_protocol::race::check_race_params(alpha, req.delta)
+        .map_err(|e| AppError::invalid(e.field, e.message))?;
     let protocol: ProtocolKind = match req.protocol.as_deref() {
         None => ProtocolKind::default(),
         Some(p) => p.parse().map_err(|_| {

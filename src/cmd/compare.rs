@@ -129,16 +129,8 @@ pub fn paired_interval_text(e: &d3il_protocol::Estimate) -> String {
 }
 
 fn sequential(a: &EvalResult, b: &EvalResult, args: &Args) -> anyhow::Result<()> {
-    if !(args.alpha > 0.0 && args.alpha < 1.0) {
-        anyhow::bail!("--alpha {} is not in (0, 1); use e.g. 0.05", args.alpha);
-    }
-    if let Some(d) = args.delta {
-        if !(d > 0.0 && d < 2.0) {
-            anyhow::bail!(
-                "--delta {d} is not in (0, 2); use e.g. 0.1 (ten points of success rate)"
-            );
-        }
-    }
+    d3il_protocol::race::check_race_params(args.alpha, args.delta)
+        .map_err(|e| anyhow::anyhow!("--{}", e.message))?;
     let (pairs, per_state) = d3il_metrics::sequential::paired_outcomes_per_unit(a, b)?;
     let r = d3il_metrics::sequential::replay(&pairs, args.alpha, args.delta, args.seed);
     if args.json {

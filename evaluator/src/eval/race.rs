@@ -36,7 +36,7 @@ pub struct RaceOptions {
 impl Default for RaceOptions {
     fn default() -> Self {
         RaceOptions {
-            alpha: 0.05,
+            alpha: d3il_protocol::race::DEFAULT_ALPHA,
             delta: None,
         }
     }
@@ -45,20 +45,8 @@ impl Default for RaceOptions {
 impl RaceOptions {
     /// A clear error for a level or margin out of range.
     pub fn check(&self) -> Result<(), EvalError> {
-        if !(self.alpha > 0.0 && self.alpha < 1.0) {
-            return Err(EvalError::Setup(format!(
-                "alpha {} is not in (0, 1); use e.g. 0.05",
-                self.alpha
-            )));
-        }
-        if let Some(d) = self.delta {
-            if !(d > 0.0 && d < 2.0) {
-                return Err(EvalError::Setup(format!(
-                    "delta {d} is not in (0, 2); use e.g. 0.1 (ten points of success rate)"
-                )));
-            }
-        }
-        Ok(())
+        d3il_protocol::race::check_race_params(self.alpha, self.delta)
+            .map_err(|e| EvalError::Setup(e.message))
     }
 }
 
