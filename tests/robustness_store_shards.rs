@@ -105,6 +105,7 @@ async fn suite_submission(store: &Store, seed: i64) -> i64 {
         protocol: ProtocolKind::Quick,
         policy: NewPolicy::Remote {
             url: "ws://127.0.0.1:9/".into(),
+            secret: None,
         },
         manifest_json:
             r#"{"task": "aligning", "obs_type": "state", "history": 1, "horizon": 1, "execute": 1}"#

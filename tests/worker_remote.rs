@@ -91,6 +91,7 @@ fn run_against(mode: &str) -> d3il_sandbox::WorkerRun {
     let job = avoiding_job(
         PolicySource::Remote {
             url: format!("ws://127.0.0.1:{}/", server.port),
+            secret: None,
         },
         remote_limits(),
     );
@@ -221,6 +222,7 @@ fn private_endpoints_are_refused_by_default() {
     let job = avoiding_job(
         PolicySource::Remote {
             url: format!("ws://127.0.0.1:{}/", server.port),
+            secret: None,
         },
         Limits {
             allow_private_endpoints: false,
@@ -239,7 +241,13 @@ fn private_endpoints_are_refused_by_default() {
         e.message
     );
     for url in ["http://127.0.0.1/", "ws:///nohost", "ws://169.254.169.254/"] {
-        let job = avoiding_job(PolicySource::Remote { url: url.into() }, Limits::default());
+        let job = avoiding_job(
+            PolicySource::Remote {
+                url: url.into(),
+                secret: None,
+            },
+            Limits::default(),
+        );
         let (r, _) = run(&job, Duration::from_secs(120));
         assert_eq!(failure(&r).kind, ErrorKind::BadEndpoint, "{url}");
     }

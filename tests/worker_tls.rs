@@ -51,7 +51,7 @@ fn tls_limits(extra_ca: Option<&str>) -> Limits {
 }
 
 fn run_url(url: String, limits: Limits) -> WorkerRun {
-    let job = avoiding_job(PolicySource::Remote { url }, limits);
+    let job = avoiding_job(PolicySource::Remote { url, secret: None }, limits);
     run(&job, Duration::from_secs(300)).0
 }
 

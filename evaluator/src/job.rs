@@ -53,9 +53,15 @@ pub fn load_policy(
                 },
             ))
         }
-        PolicySource::Remote { url } => {
-            let p =
-                RemotePolicy::connect(url, &spec, job.manifest.obs_type, job.seed, &job.limits)?;
+        PolicySource::Remote { url, secret } => {
+            let p = RemotePolicy::connect(
+                url,
+                secret.as_ref(),
+                &spec,
+                job.manifest.obs_type,
+                job.seed,
+                &job.limits,
+            )?;
             Ok((
                 Box::new(p),
                 PolicyInfo {

@@ -58,6 +58,20 @@ pub enum PolicyError {
     /// submitter-facing message (names the host and what to fix).
     #[error("{reason}")]
     Tls { url: String, reason: String },
+    /// The policy server refused the evaluator in the WebSocket handshake
+    /// (HTTP 401 or 403): the endpoint's shared secret is missing or wrong.
+    #[error("the policy server at `{url}` refused the evaluator (HTTP {status}{answer}); {}", if *.sent_secret {
+        "the endpoint secret sent does not match the server's: submit the endpoint again with the secret its server was started with (`endpoint_secret`, docs/remote-protocol.md)"
+    } else {
+        "no endpoint secret was sent: if the server was started with a secret (--secret or $D3IL_ENDPOINT_SECRET), submit the endpoint with the same secret (`endpoint_secret`, docs/remote-protocol.md)"
+    })]
+    Unauthorized {
+        url: String,
+        status: u16,
+        /// ": " and the start of the server's answer, or empty.
+        answer: String,
+        sent_secret: bool,
+    },
     #[error("could not connect to the policy server at `{url}`: {reason}; check that the server is running and reachable")]
     Connect { url: String, reason: String },
     #[error("the policy server did not answer the {request} within {deadline_ms} ms; answer every request within the deadline (batch your inference, or ask for a larger deadline)")]
@@ -86,7 +100,8 @@ impl PolicyError {
             NonFinite { .. } | WrongShape { .. } | Inference { .. } => ErrorKind::BadAction,
             OutOfMemory { .. } => ErrorKind::MemoryLimit,
             // A certificate or ws/wss mismatch fails the same way on a retry.
-            BadEndpoint { .. } | Tls { .. } => ErrorKind::BadEndpoint,
+            // So does a refused secret.
+            BadEndpoint { .. } | Tls { .. } | Unauthorized { .. } => ErrorKind::BadEndpoint,
             Connect { .. }
             | Late { .. }
             | Oversized { .. }

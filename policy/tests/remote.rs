@@ -6,7 +6,7 @@ mod common;
 
 use common::{repo, spec};
 use d3il_policy::{validate_actions, Policy, PolicyError, Query, RemotePolicy};
-use d3il_protocol::{ErrorKind, Limits, ObsType, TaskId};
+use d3il_protocol::{EndpointSecret, ErrorKind, Limits, ObsType, TaskId};
 use std::io::{BufRead, BufReader};
 use std::process::{Child, Command, Stdio};
 
@@ -66,6 +66,7 @@ fn limits() -> Limits {
 fn connect(server: &Server) -> Result<RemotePolicy, PolicyError> {
     RemotePolicy::connect(
         &server.url,
+        None,
         &spec(TaskId::Avoiding),
         ObsType::State,
         7,
@@ -237,6 +238,7 @@ fn nothing_listening_is_a_connect_error() {
         .port();
     let e = RemotePolicy::connect(
         &format!("ws://127.0.0.1:{port}/"),
+        None,
         &spec(TaskId::Avoiding),
         ObsType::State,
         0,
@@ -244,4 +246,61 @@ fn nothing_listening_is_a_connect_error() {
     )
     .unwrap_err();
     assert!(matches!(e, PolicyError::Connect { .. }), "{e}");
+}
+
+/// A server started with a shared secret (`--secret`) serves the client
+/// that sends it in the handshake and refuses one without it, or with
+/// another, with a message that says which and what to do.
+#[test]
+fn a_server_with_a_secret_serves_only_the_client_that_sends_it() {
+    let secret = "correct-horse-battery-staple";
+    let s = start(
+        "d3il_client.serve",
+        &["--demo", "avoiding", "--port", "0", "--secret", secret],
+    );
+    let connect_with = |secret: Option<&str>| {
+        let secret = secret.map(|t| EndpointSecret::new(t).unwrap());
+        RemotePolicy::connect(
+            &s.url,
+            secret.as_ref(),
+            &spec(TaskId::Avoiding),
+            ObsType::State,
+            7,
+            &limits(),
+        )
+    };
+    let mut p = connect_with(Some(secret)).expect("the right secret is served");
+    assert_eq!(
+        query(&mut p).unwrap().data.len(),
+        4,
+        "two rollouts' xy actions"
+    );
+
+    let e = connect_with(None).unwrap_err();
+    assert!(
+        matches!(e, PolicyError::Unauthorized { status: 401, .. }),
+        "{e:?}"
+    );
+    assert_eq!(e.kind(), ErrorKind::BadEndpoint, "not retried");
+    let m = e.to_string();
+    assert!(
+        m.contains("refused the evaluator (HTTP 401: this endpoint needs its shared secret"),
+        "{m}"
+    );
+    assert!(m.contains("no endpoint secret was sent"), "{m}");
+
+    let e = connect_with(Some("not-the-right-secret")).unwrap_err();
+    let m = e.to_string();
+    assert!(
+        m.contains("the shared secret sent does not match this endpoint's"),
+        "{m}"
+    );
+    assert!(
+        m.contains("the endpoint secret sent does not match the server's"),
+        "{m}"
+    );
+    assert!(
+        !m.contains("not-the-right-secret") && !m.contains(secret),
+        "{m}"
+    );
 }

@@ -76,6 +76,7 @@ fn limits(extra_ca: Option<&str>) -> Limits {
 fn connect(url: &str, extra_ca: Option<&str>) -> Result<RemotePolicy, PolicyError> {
     RemotePolicy::connect(
         url,
+        None,
         &spec(TaskId::Avoiding),
         ObsType::State,
         3,

@@ -180,6 +180,66 @@ fn default_obs_type() -> ObsType {
     ObsType::State
 }
 
+/// The shared secret a remote endpoint expects from the evaluator
+/// (docs/remote-protocol.md, "Shared secret"). Its `Debug` and `Display` print
+/// no character of it, so a logged job or error cannot leak it; only
+/// [`EndpointSecret::expose`] gives the text, for the handshake header.
+#[derive(Clone, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(transparent)]
+pub struct EndpointSecret(String);
+
+impl EndpointSecret {
+    /// Shortest secret accepted: a guessable one would protect nothing.
+    pub const MIN_LEN: usize = 16;
+    /// Longest secret accepted (it travels in an HTTP header).
+    pub const MAX_LEN: usize = 256;
+
+    /// A secret of `MIN_LEN..=MAX_LEN` visible ASCII characters (no spaces
+    /// or control characters: it is sent as an HTTP header value).
+    pub fn new(text: &str) -> Result<Self, String> {
+        let n = text.chars().count();
+        if !(Self::MIN_LEN..=Self::MAX_LEN).contains(&n) {
+            return Err(format!(
+                "the endpoint secret has {n} characters; give {} to {} (e.g. `python3 -c 'import secrets; print(secrets.token_urlsafe(32))'`)",
+                Self::MIN_LEN,
+                Self::MAX_LEN
+            ));
+        }
+        if let Some(c) = text.chars().find(|c| !c.is_ascii_graphic()) {
+            return Err(format!(
+                "the endpoint secret contains {c:?}; use visible ASCII characters only (no spaces), e.g. `secrets.token_urlsafe(32)`"
+            ));
+        }
+        Ok(EndpointSecret(text.to_string()))
+    }
+
+    /// Environment variable holding an endpoint's secret: `d3il eval` sends
+    /// it to a `ws(s)://` policy, `d3il submit --endpoint` (and the Python
+    /// client's command line) submits it, the Python policy server expects it.
+    pub const ENV: &'static str = "D3IL_ENDPOINT_SECRET";
+
+    /// The secret in `$D3IL_ENDPOINT_SECRET`, if it is set and not empty.
+    pub fn from_env() -> Result<Option<Self>, String> {
+        match std::env::var(Self::ENV) {
+            Ok(text) if !text.is_empty() => Self::new(&text)
+                .map(Some)
+                .map_err(|e| format!("${}: {e}", Self::ENV)),
+            _ => Ok(None),
+        }
+    }
+
+    /// The secret's text, for the one place that sends it.
+    pub fn expose(&self) -> &str {
+        &self.0
+    }
+}
+
+impl std::fmt::Debug for EndpointSecret {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("EndpointSecret(<hidden>)")
+    }
+}
+
 /// Where the policy comes from.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "kind", rename_all = "lowercase")]
@@ -187,8 +247,14 @@ pub enum PolicySource {
     /// An ONNX file on disk that the worker may read (the only file it may read
     /// besides the assets).
     Onnx { path: String, sha256: String },
-    /// A remote endpoint speaking docs/remote-protocol.md.
-    Remote { url: String },
+    /// A remote endpoint speaking docs/remote-protocol.md; with `secret`, the
+    /// evaluator sends it in the WebSocket handshake (`Authorization: Bearer`)
+    /// so that a published endpoint can serve only the evaluator.
+    Remote {
+        url: String,
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        secret: Option<EndpointSecret>,
+    },
     /// A built-in scripted reference policy (sanity baselines), e.g. `avoiding:path=3`.
     Scripted { name: String },
 }
@@ -407,6 +473,33 @@ mod tests {
     fn manifest() -> PolicyManifest {
         serde_json::from_str(r#"{"task": "aligning", "history": 5, "horizon": 4, "execute": 4}"#)
             .unwrap()
+    }
+
+    #[test]
+    fn an_endpoint_secret_travels_in_the_job_but_never_prints() {
+        let secret = EndpointSecret::new("s3cret-s3cret-s3cret").unwrap();
+        let policy = PolicySource::Remote {
+            url: "ws://host:1/".into(),
+            secret: Some(secret.clone()),
+        };
+        let json = serde_json::to_string(&policy).unwrap();
+        assert_eq!(
+            json,
+            r#"{"kind":"remote","url":"ws://host:1/","secret":"s3cret-s3cret-s3cret"}"#
+        );
+        assert_eq!(serde_json::from_str::<PolicySource>(&json).unwrap(), policy);
+        assert!(!format!("{policy:?}").contains("s3cret"), "{policy:?}");
+        // Jobs without a secret read and write as before.
+        let plain: PolicySource =
+            serde_json::from_str(r#"{"kind":"remote","url":"ws://host:1/"}"#).unwrap();
+        assert_eq!(
+            serde_json::to_string(&plain).unwrap(),
+            r#"{"kind":"remote","url":"ws://host:1/"}"#
+        );
+        let e = EndpointSecret::new("short").unwrap_err();
+        assert!(e.contains("5 characters; give 16 to 256"), "{e}");
+        let e = EndpointSecret::new("with a space in the middle").unwrap_err();
+        assert!(e.contains("' '") && e.contains("no spaces"), "{e}");
     }
 
     #[test]

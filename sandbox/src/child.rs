@@ -131,7 +131,7 @@ where
         return exit_code::SANDBOX_FAILED;
     }
     for policy in std::iter::once(&job.policy).chain(job.race.as_ref().map(|r| &r.policy_b)) {
-        if let PolicySource::Remote { url } = policy {
+        if let PolicySource::Remote { url, .. } = policy {
             if let Err(e) = validate_endpoint(url, job.limits.allow_private_endpoints) {
                 out.send(&WorkerMessage::Error(e.into()));
                 return exit_code::JOB_FAILED;

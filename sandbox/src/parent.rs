@@ -101,7 +101,7 @@ fn failed(kind: ErrorKind, message: impl Into<String>) -> Outcome {
 /// extra CA already (other jobs are passed on unchanged).
 fn extra_ca_for(job: &Job) -> Result<Option<String>, String> {
     match &job.policy {
-        PolicySource::Remote { url }
+        PolicySource::Remote { url, .. }
             if job.limits.extra_ca_pem.is_none()
                 && url
                     .get(..6)

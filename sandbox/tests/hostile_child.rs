@@ -248,6 +248,7 @@ fn a_remote_policy_job_reaches_only_its_endpoint_port() {
     l.allow_private_endpoints = true;
     let remote = PolicySource::Remote {
         url: format!("ws://127.0.0.1:{ep}/policy"),
+        secret: None,
     };
     let m = probe(&format!("connect:{ep}"), remote.clone(), l.clone());
     assert!(m.ends_with("allowed"), "{m}");
@@ -265,6 +266,7 @@ fn a_remote_policy_job_reaches_only_its_endpoint_port() {
 fn private_endpoints_are_refused_unless_allowed() {
     let remote = PolicySource::Remote {
         url: "ws://127.0.0.1:9/policy".into(),
+        secret: None,
     };
     let (run, _) = run_mode("ok", &job(remote.clone(), limits()), WALL);
     let e = expect_failed(&run);
@@ -282,6 +284,7 @@ fn private_endpoints_are_refused_unless_allowed() {
     // files) and every address is checked.
     let by_name = PolicySource::Remote {
         url: "ws://localhost:9/policy".into(),
+        secret: None,
     };
     let (run, _) = run_mode("ok", &job(by_name.clone(), limits()), WALL);
     let e = expect_failed(&run);
@@ -308,6 +311,7 @@ fn private_endpoints_are_refused_unless_allowed() {
         &job(
             PolicySource::Remote {
                 url: "http://8.8.8.8/".into(),
+                secret: None,
             },
             limits(),
         ),

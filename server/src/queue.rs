@@ -108,6 +108,7 @@ pub fn policy_of(
                 .endpoint_url
                 .clone()
                 .ok_or("remote submission without a URL")?,
+            secret: s.endpoint_secret.as_ref().map(|s| s.0.clone()),
         },
     };
     Ok((policy, manifest))

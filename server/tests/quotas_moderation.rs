@@ -557,7 +557,10 @@ async fn an_endpoint_url_is_shown_only_to_its_submitter_and_admins() {
                 training_seed: 0,
                 data_fraction: 1.0,
                 protocol: d3il_protocol::ProtocolKind::Quick,
-                policy: NewPolicy::Remote { url: url.into() },
+                policy: NewPolicy::Remote {
+                    url: url.into(),
+                    secret: None,
+                },
                 manifest_json: "{}".into(),
                 simulated_once: None,
             },

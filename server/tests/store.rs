@@ -157,6 +157,7 @@ async fn duplicate_seed_is_refused_and_stacking_expands(b: Backend) {
                 protocol: ProtocolKind::Paper,
                 policy: NewPolicy::Remote {
                     url: "ws://127.0.0.1:1/".into(),
+                    secret: None,
                 },
                 manifest_json: "{}".into(),
                 simulated_once: None,

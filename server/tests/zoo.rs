@@ -353,6 +353,7 @@ async fn loading_is_idempotent_and_apart_from_submitted_seeds(b: Backend) {
                 protocol: ProtocolKind::Paper,
                 policy: NewPolicy::Remote {
                     url: "ws://127.0.0.1:1/".into(),
+                    secret: None,
                 },
                 manifest_json: "{}".into(),
                 simulated_once: None,

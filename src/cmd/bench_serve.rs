@@ -189,6 +189,7 @@ async fn seed_database(state: &d3il_server::app::AppState) -> anyhow::Result<Str
                 protocol: ProtocolKind::Paper,
                 policy: d3il_server::store::NewPolicy::Remote {
                     url: "wss://policy.example.org/".into(),
+                    secret: None,
                 },
                 manifest_json: serde_json::to_string(&manifest)?,
                 simulated_once: None,

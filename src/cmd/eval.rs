@@ -218,6 +218,8 @@ pub fn build_job(args: &Args) -> anyhow::Result<Job> {
         (
             PolicySource::Remote {
                 url: args.policy.clone(),
+                // A server started with a secret serves only who sends it.
+                secret: d3il_protocol::EndpointSecret::from_env().map_err(anyhow::Error::msg)?,
             },
             // k/H/E of a remote policy come from the server's hello.
             PolicyManifest {

@@ -44,7 +44,9 @@ pub struct Args {
     /// .json, as `d3il eval` finds it).
     #[arg(long)]
     pub manifest: Option<PathBuf>,
-    /// Remote policy endpoint URL (instead of --onnx).
+    /// Remote policy endpoint URL (instead of --onnx). With
+    /// $D3IL_ENDPOINT_SECRET set, the evaluator sends that shared secret to
+    /// the endpoint (docs/remote-protocol.md); the server never shows it.
     #[arg(long)]
     pub endpoint: Option<String>,
     /// Method metadata: observation history length k (1 = history-free;
@@ -219,6 +221,13 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     ] {
         if let Some(v) = v {
             fields.push((k, v));
+        }
+    }
+    if a.endpoint.is_some() {
+        if let Some(secret) =
+            d3il_protocol::EndpointSecret::from_env().map_err(anyhow::Error::msg)?
+        {
+            fields.push(("endpoint_secret", secret.expose().to_string()));
         }
     }
     if let Some(onnx) = &a.onnx {

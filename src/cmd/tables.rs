@@ -336,6 +336,7 @@ mod tests {
                         protocol: ProtocolKind::Paper,
                         policy: NewPolicy::Remote {
                             url: "ws://127.0.0.1:1/".into(),
+                            secret: None,
                         },
                         manifest_json: "{}".into(),
                         simulated_once: None,

@@ -90,6 +90,7 @@ pub fn seed(db: &std::path::Path, synths: &[Synth]) -> Vec<i64> {
                         protocol: ProtocolKind::Paper,
                         policy: NewPolicy::Remote {
                             url: "http://127.0.0.1:9/".into(),
+                            secret: None,
                         },
                         manifest_json: r#"{"task": "pushing", "obs_type": "state", "history": 1, "horizon": 1, "execute": 1}"#.into(),
                         simulated_once: None,

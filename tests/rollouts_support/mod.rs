@@ -88,6 +88,7 @@ pub fn store_finished(db: &Path, results: &[(&str, &EvalResult)]) -> Vec<i64> {
                         protocol: man.protocol,
                         policy: NewPolicy::Remote {
                             url: "ws://127.0.0.1:9/".into(),
+                            secret: None,
                         },
                         manifest_json: "{}".into(),
                         simulated_once: Some(man.simulated_once),

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 from typing import Any, List, Optional
 
@@ -51,7 +52,11 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--suite", help="robustness: evaluate the task's perturbation suite too (docs/robustness.md)")
     what = s.add_mutually_exclusive_group(required=True)
     what.add_argument("--onnx", help="ONNX policy file (its manifest next to it as FILE.json, or --manifest)")
-    what.add_argument("--endpoint", help="remote policy endpoint URL (ws://, wss://)")
+    what.add_argument(
+        "--endpoint",
+        help="remote policy endpoint URL (ws://, wss://); with $D3IL_ENDPOINT_SECRET set, the evaluator "
+        "sends that shared secret to it (docs/remote-protocol.md)",
+    )
     s.add_argument("--manifest", help="policy manifest JSON file for --onnx")
     s.add_argument("--history", type=int, help="method metadata: observation history length k")
     s.add_argument("--backbone", help="method metadata: network backbone (MLP, GPT, ...)")
@@ -113,6 +118,7 @@ def _submit(client: Client, a: argparse.Namespace) -> int:
         onnx=a.onnx,
         manifest=a.manifest,
         endpoint=a.endpoint,
+        endpoint_secret=(os.environ.get("D3IL_ENDPOINT_SECRET") or None) if a.endpoint else None,
         obs_type=a.obs_type,
         data_fraction=a.data_fraction,
         protocol=a.protocol,

@@ -383,6 +383,7 @@ class Client:
         onnx: Optional[PathLike] = None,
         manifest: Optional[ManifestArg] = None,
         endpoint: Optional[str] = None,
+        endpoint_secret: Optional[str] = None,
         obs_type: str = "state",
         data_fraction: float = 1.0,
         protocol: str = "paper",
@@ -411,7 +412,11 @@ class Client:
         group in the paper's tables). ``suite="robustness"`` evaluates the
         task's perturbation suite too (every task for state policies, and the
         image variants of Aligning, Sorting-4/6 and Stacking; level 0 is the
-        plain result, :meth:`robustness` has the rest). Returns the queued
+        plain result, :meth:`robustness` has the rest). ``endpoint_secret``
+        (with ``endpoint=``) is the shared secret the evaluator sends the
+        endpoint (its server started with the same ``--secret``,
+        docs/remote-protocol.md); the server stores it and never shows it again.
+        Returns the queued
         :class:`~d3il_client.models.Submission`; follow it with :meth:`wait`.
         """
         if not method or len(method) > 64:
@@ -429,6 +434,8 @@ class Client:
             raise errors.ManifestError(
                 "give onnx=FILE (its manifest next to it as FILE.json, or manifest=) or endpoint=URL, not both"
             )
+        if endpoint_secret is not None and endpoint is None:
+            raise errors.ManifestError("endpoint_secret goes with endpoint=URL", "endpoint_secret")
         fields: List[Tuple[str, str]] = [
             ("method", method),
             ("task", task),
@@ -471,6 +478,8 @@ class Client:
                     f"endpoint must be a ws://, wss://, http:// or https:// URL, got {endpoint!r}", "endpoint_url"
                 )
             fields.append(("endpoint_url", endpoint))
+            if endpoint_secret is not None:
+                fields.append(("endpoint_secret", endpoint_secret))
             if manifest is not None:
                 fields.append(("manifest", load_manifest(None, manifest)[1]))
         bar: Any = None
@@ -779,7 +788,9 @@ class Client:
         difference larger than δ"), or at the protocol's full size
         (``protocol``: ``paper``, the default, or ``quick``). With ``wait``
         (default) returns the finished comparison (``decision``,
-        ``report``), else the queued one; ``on_update`` sees every state
+        ``report``), else the queued one, whose ``raw["quota"]`` is what is
+        left of the quota after it (as :meth:`quota` shows it; a race counts
+        as two evaluations); ``on_update`` sees every state
         polled (``live``: pairs so far, paired counts, e-value, anytime
         p-value). Raises :class:`~d3il_client.errors.ServerError` (with the
         field) for a wrong request, ``RuntimeError`` (with the server's

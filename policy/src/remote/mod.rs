@@ -12,7 +12,7 @@ mod transport;
 
 use crate::wire;
 use crate::{ActionChunks, Policy, PolicyError, PolicyShape, Query, IMAGE_SHAPE};
-use d3il_protocol::{Limits, ObsType, TaskSpec};
+use d3il_protocol::{EndpointSecret, Limits, ObsType, TaskSpec};
 use rmpv::Value;
 use std::io::Write;
 use std::sync::Arc;
@@ -40,10 +40,12 @@ impl std::fmt::Debug for RemotePolicy {
 }
 
 impl RemotePolicy {
-    /// Connect, read the server's hello, send the task spec and wait until the
-    /// server is ready. Every step is bounded by `limits.remote_deadline_ms`.
+    /// Connect (sending `secret` in the handshake, if any), read the
+    /// server's hello, send the task spec and wait until the server is ready.
+    /// Every step is bounded by `limits.remote_deadline_ms`.
     pub fn connect(
         url: &str,
+        secret: Option<&EndpointSecret>,
         task: &TaskSpec,
         obs_type: ObsType,
         seed: u64,
@@ -60,7 +62,15 @@ impl RemotePolicy {
         } else {
             Transport::Plain(stream)
         };
-        let ws = session::open(url, stream, ep.tls, &first_byte, deadline, frame_limit)?;
+        let ws = session::open(
+            url,
+            secret,
+            stream,
+            ep.tls,
+            &first_byte,
+            deadline,
+            frame_limit,
+        )?;
         let mut p = RemotePolicy {
             ws,
             url: url.into(),
@@ -191,6 +201,7 @@ mod tests {
         };
         let e = RemotePolicy::connect(
             "ws://127.0.0.1:9/",
+            None,
             &spec,
             ObsType::State,
             0,
@@ -205,14 +216,15 @@ mod tests {
             "ws://[::127.0.0.1]:9/",
             "ws://[64:ff9b::7f00:1]:9/",
         ] {
-            let e =
-                RemotePolicy::connect(u, &spec, ObsType::State, 0, &Limits::default()).unwrap_err();
+            let e = RemotePolicy::connect(u, None, &spec, ObsType::State, 0, &Limits::default())
+                .unwrap_err();
             assert_eq!(e.kind(), d3il_protocol::ErrorKind::BadEndpoint, "{u}");
             assert!(e.to_string().contains("loopback/private"), "{u}: {e}");
         }
         // wss:// gets the same address checks before any TLS.
         let e = RemotePolicy::connect(
             "wss://127.0.0.1:9/",
+            None,
             &spec,
             ObsType::State,
             0,
@@ -221,8 +233,15 @@ mod tests {
         .unwrap_err();
         assert_eq!(e.kind(), d3il_protocol::ErrorKind::BadEndpoint);
         assert!(e.to_string().contains("loopback/private"), "{e}");
-        let e = RemotePolicy::connect("http://x/", &spec, ObsType::State, 0, &Limits::default())
-            .unwrap_err();
+        let e = RemotePolicy::connect(
+            "http://x/",
+            None,
+            &spec,
+            ObsType::State,
+            0,
+            &Limits::default(),
+        )
+        .unwrap_err();
         assert!(e.to_string().contains("use ws:// or wss://"), "{e}");
     }
 

@@ -7,11 +7,13 @@ use super::transport::Transport;
 use super::RemotePolicy;
 use crate::wire::{self, PROTOCOL_VERSION};
 use crate::{PolicyError, IMAGE_SHAPE};
-use d3il_protocol::{ObsType, TaskSpec};
+use d3il_protocol::{EndpointSecret, ObsType, TaskSpec};
 use rmpv::Value;
 use std::io;
 use std::sync::{Arc, OnceLock};
 use std::time::{Duration, Instant};
+use tungstenite::client::IntoClientRequest;
+use tungstenite::http::header::{HeaderValue, AUTHORIZATION};
 use tungstenite::protocol::WebSocketConfig;
 use tungstenite::{Message, WebSocket};
 
@@ -19,9 +21,12 @@ use tungstenite::{Message, WebSocket};
 const MAX_HISTORY: u64 = d3il_protocol::PolicyManifest::MAX_HISTORY as u64;
 const MAX_HORIZON: u64 = d3il_protocol::PolicyManifest::MAX_HORIZON as u64;
 
-/// The WebSocket opening handshake over `stream`, within the stream's deadline.
+/// The WebSocket opening handshake over `stream`, within the stream's
+/// deadline; with `secret`, the request carries `Authorization: Bearer
+/// <secret>` (docs/remote-protocol.md, "Shared secret").
 pub(super) fn open(
     url: &str,
+    secret: Option<&EndpointSecret>,
     stream: Transport,
     tls: bool,
     first_byte: &Arc<OnceLock<u8>>,
@@ -32,8 +37,33 @@ pub(super) fn open(
     let config = WebSocketConfig::default()
         .max_message_size(Some(limit))
         .max_frame_size(Some(limit));
-    let (ws, _resp) = tungstenite::client::client_with_config(url, stream, Some(config))
+    let mut request = url
+        .into_client_request()
+        .map_err(|e| PolicyError::BadEndpoint {
+            url: url.into(),
+            reason: format!("not a WebSocket URL ({e}); use ws://host:port/path"),
+        })?;
+    if let Some(secret) = secret {
+        let value = HeaderValue::from_str(&format!("Bearer {}", secret.expose())).map_err(|_| {
+            PolicyError::BadEndpoint {
+                url: url.into(),
+                reason: "the endpoint secret is not a valid header value; use visible ASCII characters only".into(),
+            }
+        })?;
+        request.headers_mut().insert(AUTHORIZATION, value);
+    }
+    let (ws, _resp) = tungstenite::client::client_with_config(request, stream, Some(config))
         .map_err(|e| match e {
+            tungstenite::HandshakeError::Failure(tungstenite::Error::Http(resp))
+                if matches!(resp.status().as_u16(), 401 | 403) =>
+            {
+                PolicyError::Unauthorized {
+                    url: url.into(),
+                    status: resp.status().as_u16(),
+                    answer: answer_text(resp.body().as_deref()),
+                    sent_secret: secret.is_some(),
+                }
+            }
             tungstenite::HandshakeError::Failure(_)
                 if !tls && looks_like_tls(first_byte.get().copied()) =>
             {
@@ -70,6 +100,26 @@ pub(super) fn open(
             },
         })?;
     Ok(ws)
+}
+
+/// ": " and the first line of a refusal's body (at most 200 characters,
+/// control characters dropped), or nothing when it has no text.
+fn answer_text(body: Option<&[u8]>) -> String {
+    let text = String::from_utf8_lossy(body.unwrap_or_default());
+    let line: String = text
+        .lines()
+        .next()
+        .unwrap_or_default()
+        .chars()
+        .filter(|c| !c.is_control())
+        .take(200)
+        .collect();
+    let line = line.trim();
+    if line.is_empty() {
+        String::new()
+    } else {
+        format!(": {line}")
+    }
 }
 
 /// A handshake that ended because the server closed the connection.

@@ -140,7 +140,7 @@ pub fn confine(job: &Job, policy_files: &[&Path]) -> Result<Vec<SandboxMechanism
     let connect_ports: Vec<u16> = policies
         .iter()
         .filter_map(|p| match p {
-            PolicySource::Remote { url } => endpoint_port(url),
+            PolicySource::Remote { url, .. } => endpoint_port(url),
             _ => None,
         })
         .collect();

@@ -11,7 +11,8 @@ use crate::state::AppState;
 use crate::store::{NewMethod, NewPolicy, NewSubmission, SeedKey, Submitter};
 use axum::http::{header, HeaderMap};
 use d3il_protocol::{
-    ErrorKind, Evaluated, Job, Limits, ObsType, PolicyManifest, PolicySource, ProtocolKind, TaskId,
+    EndpointSecret, ErrorKind, Evaluated, Job, Limits, ObsType, PolicyManifest, PolicySource,
+    ProtocolKind, TaskId,
 };
 use std::str::FromStr;
 use std::sync::Arc;
@@ -63,7 +64,8 @@ pub struct ValidSubmission {
 pub enum ValidPolicy {
     /// The streamed upload, still under its temporary name.
     Onnx(UploadedFile),
-    Remote(String),
+    /// An endpoint's URL and the shared secret the evaluator sends it, if any.
+    Remote(String, Option<EndpointSecret>),
 }
 
 fn opt(raw: &RawSubmission, k: &str) -> Option<String> {
@@ -431,6 +433,12 @@ fn policy_fields(raw: &mut RawSubmission, limits: &Limits) -> Result<ValidPolicy
             ))
         }
         (Some(file), None) => {
+            if opt(raw, "endpoint_secret").is_some() {
+                return Err(AppError::invalid(
+                    "endpoint_secret",
+                    "`endpoint_secret` goes with an `endpoint_url`; an ONNX upload has none",
+                ));
+            }
             if !has_manifest {
                 return Err(AppError::invalid(
                     "manifest",
@@ -449,9 +457,22 @@ fn policy_fields(raw: &mut RawSubmission, limits: &Limits) -> Result<ValidPolicy
         (None, Some(u)) => {
             let url = check_url("endpoint_url", &u, &["ws", "wss"])?;
             check_endpoint_host(&url, limits)?;
-            ValidPolicy::Remote(url.to_string())
+            ValidPolicy::Remote(url.to_string(), endpoint_secret_field(raw)?)
         }
     })
+}
+
+/// The optional `endpoint_secret` of a remote submission (docs/remote-protocol.md,
+/// "Shared secret"), taken out of the form so that nothing later holds it
+/// but the validated, `Debug`-hiding [`EndpointSecret`]. Not trimmed: the
+/// evaluator must send exactly what the endpoint's server was given.
+fn endpoint_secret_field(raw: &mut RawSubmission) -> Result<Option<EndpointSecret>, AppError> {
+    match raw.text.remove("endpoint_secret") {
+        None => Ok(None),
+        Some(text) => EndpointSecret::new(&text)
+            .map(Some)
+            .map_err(|e| AppError::invalid("endpoint_secret", e)),
+    }
 }
 
 /// Refuses an endpoint whose host is a loopback name or an address literal
@@ -590,7 +611,10 @@ pub async fn accept(
         check_suite_available(&state.cfg.assets_dir, v.task, v.obs_type)?;
     }
     let dry = match &v.policy {
-        ValidPolicy::Remote(url) => Some(PolicySource::Remote { url: url.clone() }),
+        ValidPolicy::Remote(url, secret) => Some(PolicySource::Remote {
+            url: url.clone(),
+            secret: secret.clone(),
+        }),
         ValidPolicy::Onnx(_) if !state.cfg.dry_run_uploads => None,
         ValidPolicy::Onnx(file) => Some(PolicySource::Onnx {
             path: file
@@ -641,7 +665,10 @@ pub async fn accept(
                 path,
             }
         }
-        ValidPolicy::Remote(url) => NewPolicy::Remote { url: url.clone() },
+        ValidPolicy::Remote(url, secret) => NewPolicy::Remote {
+            url: url.clone(),
+            secret: secret.clone(),
+        },
     };
     let manifest_json = serde_json::to_string(&v.manifest)
         .map_err(|e| AppError::Internal(format!("manifest encoding: {e}")))?;

@@ -37,6 +37,7 @@ pub const TEXT_FIELDS: &[&str] = &[
     "protocol",
     "manifest",
     "endpoint_url",
+    "endpoint_secret",
     "suite",
     "token",
 ];

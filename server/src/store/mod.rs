@@ -78,7 +78,7 @@ pub use submissions::{
     NewPolicy, NewSubmission, SeedKey, SubmissionFilter, SubmissionRow, WithdrawnSubmission,
 };
 pub use tokens::{token_hash, Revoked, Submitter, LAST_USED_RESOLUTION_S, TOKEN_PREFIX_LEN};
-pub use types::{JobState, PolicyKind, SubmissionStatus};
+pub use types::{JobState, PolicyKind, StoredSecret, SubmissionStatus};
 pub use zoo::{NewZooCell, ZooCellRow, ZooLoad, ZOO_SUBMITTER};
 
 use sqlx::postgres::PgPoolOptions;

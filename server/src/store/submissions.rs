@@ -2,10 +2,10 @@
 //! (written in one transaction), and the training-seed uniqueness rule.
 
 use super::types::Json;
-use super::types::{JobState, PolicyKind, Stored, SubmissionStatus};
+use super::types::{JobState, PolicyKind, Stored, StoredSecret, SubmissionStatus};
 use super::{now, Store, StoreError};
 use crate::leaderboard::protocol_str;
-use d3il_protocol::{ObsType, ProtocolKind, TaskId};
+use d3il_protocol::{EndpointSecret, ObsType, ProtocolKind, TaskId};
 use sqlx::FromRow;
 use std::path::PathBuf;
 
@@ -50,6 +50,10 @@ pub struct SubmissionRow {
     #[serde(skip)]
     pub onnx_path: Option<String>,
     pub endpoint_url: Option<String>,
+    /// The remote endpoint's shared secret, sent by the evaluator only: no
+    /// page or API answer carries it (not serialised; `Debug` hides it).
+    #[serde(skip)]
+    pub endpoint_secret: Option<StoredSecret>,
     /// The policy manifest as submitted.
     pub manifest_json: Json<serde_json::Value>,
     pub status: SubmissionStatus,
@@ -134,6 +138,7 @@ pub enum NewPolicy {
     },
     Remote {
         url: String,
+        secret: Option<EndpointSecret>,
     },
 }
 
@@ -143,7 +148,7 @@ macro_rules! submission_select {
         concat!(
             "SELECT s.id, s.method_id, m.name AS method, sub.name AS submitter, s.task, s.obs_type, \
              s.training_seed, s.data_fraction, s.protocol, s.policy_kind, s.onnx_sha256, s.onnx_bytes, s.onnx_path, \
-             s.endpoint_url, s.manifest_json, s.status, s.error_kind, s.error_message, s.created_at, s.updated_at, \
+             s.endpoint_url, s.endpoint_secret, s.manifest_json, s.status, s.error_kind, s.error_message, s.created_at, s.updated_at, \
              s.simulated_once, s.suite, s.data_source",
             $extra,
             " FROM submissions s JOIN methods m ON m.id = s.method_id LEFT JOIN submitters sub ON sub.id = s.submitter_id"
@@ -234,7 +239,7 @@ impl Store {
         if let Some(id) = duplicate_seed!(&mut *tx, &s.seed_key()) {
             return Err(duplicate_seed_error(s.training_seed, Some(id)));
         }
-        let (kind, sha, bytes, path, url) = match &s.policy {
+        let (kind, sha, bytes, path, url, secret) = match &s.policy {
             NewPolicy::Onnx {
                 sha256,
                 bytes,
@@ -245,14 +250,22 @@ impl Store {
                 Some(*bytes),
                 Some(path.to_string_lossy().into_owned()),
                 None,
+                None,
             ),
-            NewPolicy::Remote { url } => (PolicyKind::Remote, None, None, None, Some(url.clone())),
+            NewPolicy::Remote { url, secret } => (
+                PolicyKind::Remote,
+                None,
+                None,
+                None,
+                Some(url.clone()),
+                secret.as_ref().map(|s| s.expose().to_string()),
+            ),
         };
         let t = now();
         let id: i64 = sqlx::query_scalar(
             "INSERT INTO submissions (method_id, submitter_id, task, obs_type, training_seed, data_fraction, protocol, \
              policy_kind, onnx_sha256, onnx_bytes, onnx_path, endpoint_url, manifest_json, status, created_at, updated_at, \
-             simulated_once) VALUES ($1, $2, $3, $4, $5, $6, $7, $8, $9, $10, $11, $12, $13, $14, $15, $16, $17) RETURNING id",
+             simulated_once, endpoint_secret) VALUES ($1, $2, $3, $4, $5, $6, $7, $8, $9, $10, $11, $12, $13, $14, $15, $16, $17, $18) RETURNING id",
         )
         .bind(s.method_id)
         .bind(s.submitter_id)
@@ -271,6 +284,7 @@ impl Store {
         .bind(t)
         .bind(t)
         .bind(s.simulated_once)
+        .bind(secret)
         .fetch_one(&mut *tx)
         .await
         .map_err(|e| match &e {

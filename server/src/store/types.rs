@@ -8,7 +8,7 @@
 //! Every impl here is generic over the database (SQLite and PostgreSQL):
 //! a value is stored as the backend's text type.
 
-use d3il_protocol::{ObsType, ProtocolKind, TaskId};
+use d3il_protocol::{EndpointSecret, ObsType, ProtocolKind, TaskId};
 use sqlx::encode::IsNull;
 use sqlx::error::BoxDynError;
 use sqlx::{Database, Decode, Encode, Type};
@@ -122,6 +122,26 @@ text_enum!(
         Remote = "remote",
     }
 );
+
+/// A remote endpoint's shared secret as stored (`submissions.endpoint_secret`):
+/// text that decodes into the protocol's [`EndpointSecret`], whose `Debug`
+/// hides it, so a logged row cannot leak it.
+#[derive(Debug, Clone)]
+pub struct StoredSecret(pub EndpointSecret);
+
+text_type!([] StoredSecret);
+
+impl<'r, DB: Database> Decode<'r, DB> for StoredSecret
+where
+    &'r str: Decode<'r, DB>,
+{
+    fn decode(value: DB::ValueRef<'r>) -> Result<Self, BoxDynError> {
+        let text = <&str as Decode<DB>>::decode(value)?;
+        EndpointSecret::new(text)
+            .map(StoredSecret)
+            .map_err(|e| format!("stored data is corrupt: {e}").into())
+    }
+}
 
 /// A stored slug (`aligning`, `state`, `paper`) read as the protocol's enum
 /// `T` (`#[sqlx(try_from = "Stored<TaskId>")]`): text that names nothing

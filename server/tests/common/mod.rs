@@ -340,6 +340,7 @@ pub async fn queued_submission_of(
                 protocol,
                 policy: NewPolicy::Remote {
                     url: "ws://127.0.0.1:1/".into(),
+                    secret: None,
                 },
                 manifest_json: "{}".into(),
                 simulated_once: None,

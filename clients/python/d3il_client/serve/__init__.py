@@ -17,9 +17,11 @@ from .agent import AgentAdapter, BatchedAgentAdapter, agent_server, make_adapter
 from .policy import (
     DEMOS,
     PROTOCOL_VERSION,
+    SECRET_ENV,
     PolicyServer,
     Request,
     avoiding_policy,
+    check_secret,
     pack_array,
     packb,
     serve,
@@ -32,6 +34,7 @@ from .policy import (
 __all__ = [
     "DEMOS",
     "PROTOCOL_VERSION",
+    "SECRET_ENV",
     "AgentAdapter",
     "BatchedAgentAdapter",
     "PolicyServer",
@@ -39,6 +42,7 @@ __all__ = [
     "agent_server",
     "make_adapter",
     "avoiding_policy",
+    "check_secret",
     "pack_array",
     "packb",
     "serve",

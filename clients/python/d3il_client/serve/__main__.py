@@ -18,18 +18,21 @@ the default wall limit of an evaluation, with a loud warning when it will not fi
 (``--no-measure`` skips this). ``--policy MODULE:NAME`` names a batched
 callable ``policy(obs, request)`` served with ``--history/--horizon/--execute``.
 Prints ``listening on HOST:PORT`` once it accepts connections; submit it as
-``ws://HOST:PORT/`` (``wss://`` with ``--certfile``).
+``ws://HOST:PORT/`` (``wss://`` with ``--certfile``). ``--secret`` (or
+``$D3IL_ENDPOINT_SECRET``) serves only a client that sends the same secret: submit
+the endpoint with it (docs/remote-protocol.md, "Shared secret").
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 from typing import List, Optional
 
 from .. import tasks
 from ..objects import load_object, make_agent
 from .agent import make_adapter, startup_projection
-from .policy import DEMOS, serve
+from .policy import DEMOS, SECRET_ENV, check_secret, serve
 
 
 def main(argv: Optional[List[str]] = None) -> None:
@@ -61,7 +64,18 @@ def main(argv: Optional[List[str]] = None) -> None:
     ap.add_argument("--execute", type=int, default=1, help="actions executed per query (not with --agent)")
     ap.add_argument("--certfile", help="PEM certificate chain (leaf first): serve TLS (wss://)")
     ap.add_argument("--keyfile", help="PEM private key of --certfile (if not in the same file)")
+    ap.add_argument(
+        "--secret",
+        default=os.environ.get(SECRET_ENV) or None,
+        help=f"serve only a client that sends this shared secret (the evaluator, when the endpoint is "
+        f"submitted with it); default ${SECRET_ENV}, which, unlike this option, other users cannot see in ps",
+    )
     a = ap.parse_args(argv)
+    if a.secret is not None:
+        try:
+            check_secret(a.secret)
+        except ValueError as e:
+            ap.error(str(e))
     if a.keyfile and not a.certfile:
         ap.error("--keyfile needs --certfile")
     if a.checkpoint and not a.agent:
@@ -86,6 +100,7 @@ def main(argv: Optional[List[str]] = None) -> None:
             execute=1,
             reset=adapter.reset,
             forget=adapter.forget,
+            secret=a.secret,
         )
         return
     policy = load_object(a.policy) if a.policy else DEMOS[a.demo or "zeros"]
@@ -98,6 +113,7 @@ def main(argv: Optional[List[str]] = None) -> None:
         history=a.history,
         horizon=a.horizon,
         execute=a.execute,
+        secret=a.secret,
     )
 
 

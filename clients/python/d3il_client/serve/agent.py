@@ -428,9 +428,11 @@ def serve_agent(
     certfile: Optional[str] = None,
     keyfile: Optional[str] = None,
     predict_kwargs: Optional[Mapping[str, Any]] = None,
+    secret: Optional[str] = None,
 ) -> None:
     """Blocking: serve `agent` until interrupted (prints the bound port); batched
-    when its family is known (`make_adapter`).
+    when its family is known (`make_adapter`). With `secret`, only a client
+    that sends it is served (docs/remote-protocol.md, "Shared secret").
     """
     adapter = make_adapter(agent, predict_kwargs)
     serve(
@@ -444,4 +446,5 @@ def serve_agent(
         execute=1,
         reset=adapter.reset,
         forget=adapter.forget,
+        secret=secret,
     )

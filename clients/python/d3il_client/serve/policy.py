@@ -24,9 +24,11 @@ from __future__ import annotations
 
 import asyncio
 import dataclasses
+import hmac
 import ssl as ssl_module
 import sys
 import traceback
+from http import HTTPStatus
 from typing import IO, Any, Callable, Dict, Optional, Set
 
 import msgpack
@@ -103,12 +105,18 @@ class PolicyServer:
         forget: Optional[Callable[[np.ndarray], None]] = None,
         max_live_rollouts: int = 4096,
         max_frame_bytes: int = 64 << 20,
+        secret: Optional[str] = None,
         log: IO[str] = sys.stderr,
     ) -> None:
         if not (1 <= execute <= horizon) or history < 1:
             raise ValueError("need history >= 1 and 1 <= execute <= horizon")
         if max_live_rollouts < 1:
             raise ValueError("need max_live_rollouts >= 1")
+        if secret is not None:
+            check_secret(secret)
+        # With a secret, only a handshake that carries it (`Authorization:
+        # Bearer SECRET`, what the evaluator sends) gets a connection.
+        self.secret = secret
         self.policy = policy
         self.history, self.horizon, self.execute = history, horizon, execute
         self.reset_fn = reset
@@ -139,6 +147,27 @@ class PolicyServer:
                 f"{self.max_live_rollouts} (max_live_rollouts)"
             )
         state["live"] = live
+
+    def authorize(self, connection: Any, request: Any) -> Any:
+        """The handshake check (websockets' `process_request`): None lets a
+        request that carries the secret through; any other gets 401 and says why.
+        """
+        if self.secret is None:
+            return None
+        sent = request.headers.get("Authorization")
+        peer = getattr(connection, "remote_address", None)
+        if sent is None:
+            why = (
+                "this endpoint needs its shared secret: the handshake has no `Authorization: Bearer` header "
+                "(submit the endpoint with its secret, docs/remote-protocol.md)"
+            )
+        elif not (sent.startswith("Bearer ") and hmac.compare_digest(sent[7:].encode(), self.secret.encode())):
+            # compare_digest: the time taken does not tell how much of the secret matched.
+            why = "the shared secret sent does not match this endpoint's"
+        else:
+            return None
+        print(f"refused a connection from {peer}: {why}", file=self.log, flush=True)
+        return connection.respond(HTTPStatus.UNAUTHORIZED, why + "\n")
 
     def hello(self) -> Dict[str, Any]:
         """The first message of a connection: protocol version and k/H/E."""
@@ -223,11 +252,38 @@ class PolicyServer:
         """Serve until cancelled; with `ssl` (a server-side SSLContext) the
         endpoint is wss:// instead of ws://.
         """
-        async with ws_serve(self.connection, host, port, max_size=self.max_frame_bytes, ssl=ssl) as server:
+        async with ws_serve(
+            self.connection,
+            host,
+            port,
+            max_size=self.max_frame_bytes,
+            ssl=ssl,
+            process_request=self.authorize if self.secret is not None else None,
+        ) as server:
             bound = server.sockets[0].getsockname()[1]
             if ready is not None:
                 ready(bound)
             await server.serve_forever()
+
+
+#: Environment variable holding an endpoint's shared secret: read by
+#: ``python -m d3il_client.serve`` (when --secret is not given), by
+#: ``d3il-client submit --endpoint`` and by ``d3il submit`` / ``d3il eval``.
+SECRET_ENV = "D3IL_ENDPOINT_SECRET"
+
+#: Shortest and longest secret accepted (the server's `endpoint_secret` rule).
+SECRET_MIN_LEN, SECRET_MAX_LEN = 16, 256
+
+
+def check_secret(secret: str) -> None:
+    """Refuse a secret the leaderboard would refuse: 16-256 visible ASCII characters."""
+    if not (SECRET_MIN_LEN <= len(secret) <= SECRET_MAX_LEN):
+        raise ValueError(
+            f"the endpoint secret has {len(secret)} characters; give {SECRET_MIN_LEN} to {SECRET_MAX_LEN} "
+            "(e.g. python3 -c 'import secrets; print(secrets.token_urlsafe(32))')"
+        )
+    if not all("!" <= c <= "~" for c in secret):
+        raise ValueError("the endpoint secret must be visible ASCII characters only (no spaces)")
 
 
 def tls_context(certfile: str, keyfile: Optional[str] = None) -> ssl_module.SSLContext:
@@ -250,7 +306,9 @@ def serve(
 
     Binds 127.0.0.1 unless `host` says otherwise (``host="0.0.0.0"`` publishes
     it on every interface). With `certfile` (PEM chain, leaf first) and
-    `keyfile` the server speaks TLS, i.e. submit it as wss://host:port/.
+    `keyfile` the server speaks TLS, i.e. submit it as wss://host:port/. With
+    ``secret="..."`` it serves only a client that sends it (the evaluator, when
+    the endpoint was submitted with the same ``endpoint_secret``).
     """
     server = PolicyServer(policy, **kwargs)
     ctx = tls_context(certfile, keyfile) if certfile else None

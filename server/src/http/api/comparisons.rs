@@ -12,13 +12,15 @@ use axum::body::Bytes;
 use axum::extract::State;
 use axum::http::StatusCode;
 use axum::Json;
+use serde::Serialize;
+use utoipa::ToSchema;
 
 #[utoipa::path(post, path = "/comparisons", tag = "comparisons",
     summary = "Race two submissions sequentially: both policies on the same initial states in the same random order, stopping when the anytime-valid paired test decides",
     security(("bearer" = [])),
     request_body = ComparisonRequest,
     responses(
-        (status = 202, description = "Queued: poll GET /comparisons/{id} (or watch /comparisons/{id})", body = ComparisonView),
+        (status = 202, description = "Queued, with what is left of the racer's quota after it: poll GET /comparisons/{id} (or watch /comparisons/{id})", body = CreatedComparisonView),
         (status = 400, description = "A field is wrong (`field` names it): unknown, failed or withdrawn submission, a and b the same, different tasks or observation types, alpha or delta out of range, unknown protocol", body = ErrorBody),
         (status = 401, description = "Missing or wrong token", body = ErrorBody),
         (status = 429, description = "Rate limit or quota exceeded (`quota_exceeded`: neither submission is the racer's own, the race's 2 evaluations do not fit the quota, or the racer's races at once are at `--max-queued-races`; the message names the limit and when, with Retry-After)", body = ErrorBody)))]
@@ -26,11 +28,27 @@ pub async fn create_comparison(
     State(state): State<AppState>,
     Authed(who): Authed,
     body: Bytes,
-) -> Result<(StatusCode, Json<ComparisonView>), AppError> {
+) -> Result<(StatusCode, Json<CreatedComparisonView>), AppError> {
     let req: ComparisonRequest = json_body(&body, r#"{"a": 12, "b": 15, "alpha": 0.05}"#)?;
     let id = races::create(&state, &who, &req).await?;
     let row = state.store.comparison(id).await?;
-    Ok((StatusCode::ACCEPTED, Json(ComparisonView::of(&row))))
+    Ok((
+        StatusCode::ACCEPTED,
+        Json(CreatedComparisonView {
+            comparison: ComparisonView::of(&row),
+            quota: crate::quota::status(&state, &who).await?,
+        }),
+    ))
+}
+
+/// `POST /api/v1/comparisons`' answer: the queued race and what is left of
+/// the racer's quota after it (the race's evaluations counted), as a
+/// submission's answer carries it.
+#[derive(Debug, Serialize, ToSchema)]
+pub struct CreatedComparisonView {
+    #[serde(flatten)]
+    pub comparison: ComparisonView,
+    pub quota: crate::quota::QuotaView,
 }
 
 #[utoipa::path(get, path = "/comparisons/{id}", tag = "comparisons",

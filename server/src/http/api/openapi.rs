@@ -63,6 +63,7 @@ use utoipa::{Modify, OpenApi};
         crate::views::SubmissionList,
         WhoAmI,
         crate::views::CreatedView,
+        super::comparisons::CreatedComparisonView,
         crate::quota::QuotaView,
         crate::quota::QuotaCount,
         crate::store::Withdrawal,
@@ -177,6 +178,13 @@ pub struct NewSubmissionForm {
     manifest: Option<String>,
     /// ws(s)/http(s) URL of a remote policy (instead of `onnx`).
     endpoint_url: Option<String>,
+    /// With `endpoint_url`: a shared secret (16-256 visible ASCII characters)
+    /// the evaluator sends in the WebSocket handshake as `Authorization:
+    /// Bearer <secret>`, so that the endpoint can refuse everyone else
+    /// (docs/remote-protocol.md, "Shared secret"). Stored, and never shown
+    /// again by any page or answer, not even to its submitter.
+    #[schema(write_only)]
+    endpoint_secret: Option<String>,
     /// `robustness`: evaluate the task's perturbation suite too (level 0 is
     /// the plain result; `/submissions/{id}/robustness` has the rest).
     /// Refused for tasks and observation types without a suite.
