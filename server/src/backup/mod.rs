@@ -237,6 +237,10 @@ pub async fn restore(
         DbTarget::Sqlite(path) => sqlite::restore(&db_file, path, force).await?,
         DbTarget::Postgres(url) => postgres::restore(&db_file, url, force).await?,
     };
+    if let Err(refused) = check_policy_paths(&db, &manifest.source_policies_dir, input).await {
+        undo_restore(db, target).await?;
+        return Err(refused);
+    }
     let relocated = archive::place_policy_files(&work, &manifest, &policies)?;
     repoint_policy_paths(&db, &manifest.source_policies_dir, &policies).await?;
     let inv = match &db {
@@ -281,20 +285,102 @@ fn backend_name(postgres: bool) -> &'static str {
     }
 }
 
+/// The name of the file `path` names directly in the directory `dir`, or
+/// None when it names anything else (another directory, `..`, the directory
+/// itself). Paths are compared as written: a store's rows hold absolute paths.
+fn file_in(path: &Path, dir: &Path) -> Option<std::path::PathBuf> {
+    let rest = path.strip_prefix(dir).ok()?;
+    let mut parts = rest.components();
+    match (parts.next(), parts.next()) {
+        (Some(std::path::Component::Normal(name)), None) => Some(name.into()),
+        _ => None,
+    }
+}
+
+/// Refuses a restored database in which a submission's `onnx_path` is not a
+/// file directly in the backed-up store's policy directory (`source`): the
+/// archive holds only that directory's files, so such a row would point the
+/// restored store at a file of this host that no backup put there, which the
+/// worker would read as the policy and the store could delete. The message
+/// names the rows and what to do.
+async fn check_policy_paths(db: &Db, source: &str, input: &Path) -> Result<(), BackupError> {
+    let source_dir = Path::new(source);
+    let rows: Vec<(i64, String)> = crate::on_db!(db, pool => sqlx::query_as(
+        "SELECT id, onnx_path FROM submissions WHERE onnx_path IS NOT NULL ORDER BY id")
+        .fetch_all(pool).await?);
+    let outside: Vec<String> = rows
+        .iter()
+        .filter(|(_, path)| file_in(Path::new(path), source_dir).is_none())
+        .map(|(id, path)| format!("submission {id} (`{path}`)"))
+        .collect();
+    if outside.is_empty() {
+        return Ok(());
+    }
+    const SHOWN: usize = 20;
+    let more = match outside.len().saturating_sub(SHOWN) {
+        0 => String::new(),
+        n => format!(" and {n} more"),
+    };
+    Err(BackupError::Refused(format!(
+        "{} has {} submission(s) whose policy file is not in the backed-up store's policy directory {source}: \
+         {}{more}. The archive holds only that directory's files, so the restored store would read (and \
+         could delete) whatever those paths name on this host; nothing was restored. Fix the store that was \
+         backed up: move each file into {source} as <sha256>.onnx, set the submission's onnx_path to it \
+         (`d3il db check` lists what is still wrong), and take a new backup",
+        input.display(),
+        outside.len(),
+        outside.iter().take(SHOWN).cloned().collect::<Vec<_>>().join(", "),
+    )))
+}
+
+/// Takes back a database restore that was refused after it was loaded: the
+/// SQLite file (and its -wal and -shm) is removed, a PostgreSQL database's
+/// tables are dropped, so the target is empty as restore found it (or, with
+/// --force, as empty as the replaced contents left it).
+async fn undo_restore(db: Db, target: &DbTarget) -> Result<(), BackupError> {
+    match (db, target) {
+        (Db::Sqlite(pool), DbTarget::Sqlite(path)) => {
+            pool.close().await;
+            for suffix in ["", "-wal", "-shm"] {
+                let mut p = path.as_os_str().to_owned();
+                p.push(suffix);
+                let p = PathBuf::from(p);
+                if p.exists() {
+                    std::fs::remove_file(&p).map_err(io_err(&p))?;
+                }
+            }
+        }
+        (Db::Postgres(pool), _) => {
+            // Restore's own test of an empty database: no tables.
+            let tables: Vec<String> = sqlx::query_scalar(PG_TABLES).fetch_all(&pool).await?;
+            for t in tables {
+                sqlx::query(sqlx::AssertSqlSafe(format!(
+                    "DROP TABLE IF EXISTS \"{t}\" CASCADE"
+                )))
+                .execute(&pool)
+                .await?;
+            }
+            pool.close().await;
+        }
+        (Db::Sqlite(_), DbTarget::Postgres(_)) => {
+            return Err(BackupError::Refused(
+                "internal error: a SQLite pool for a PostgreSQL target".into(),
+            ))
+        }
+    }
+    Ok(())
+}
+
 /// Points every submission whose file lived in the backed-up store's
-/// policy directory at the same file name in `policies`.
+/// policy directory at the same file name in `policies` (after
+/// [`check_policy_paths`], that is every submission with a file).
 async fn repoint_policy_paths(db: &Db, old: &str, policies: &Path) -> Result<(), BackupError> {
     let old_dir = Path::new(old);
     let paths: Vec<String> = crate::on_db!(db, pool => sqlx::query_scalar(
         "SELECT DISTINCT onnx_path FROM submissions WHERE onnx_path IS NOT NULL")
         .fetch_all(pool).await?);
     for path in paths {
-        let p = Path::new(&path);
-        let Some(name) = p
-            .strip_prefix(old_dir)
-            .ok()
-            .filter(|rest| rest.components().count() == 1)
-        else {
+        let Some(name) = file_in(Path::new(&path), old_dir) else {
             continue;
         };
         let new = policies.join(name).to_string_lossy().into_owned();
