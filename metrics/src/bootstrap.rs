@@ -231,6 +231,28 @@ pub fn bootstrap_all(
         let [b, c] = values.map(|v| Estimate::without_interval(v, NoInterval::NoResamples));
         return Ok([success, b, c]);
     }
+    let stats = two_stage_resamples(outcomes, cfg, conv);
+    // Both entropies lie in [0, 1] (log base `n_behaviours`, at most 1 while
+    // the labels are the task's behaviours; the clip never excludes the
+    // estimate itself). The bias correction can push an upper end past 1
+    // (Aligning's quick protocol printed 0.492-1.492). The success rate's
+    // resamples (`stats[0]`) are drawn to keep the entropies' stream as it
+    // was, and not used.
+    let [_, mut sb, mut sc] = stats;
+    Ok([
+        success,
+        bias_corrected_interval(values[0], &mut sb, cfg.confidence, (0.0, 1.0)),
+        bias_corrected_interval(values[1], &mut sc, cfg.confidence, (0.0, 1.0)),
+    ])
+}
+
+/// The two-stage resamples (states, then rollouts within them) of the
+/// success rate, behaviour entropy and conditional entropy.
+fn two_stage_resamples(
+    outcomes: &[Outcome],
+    cfg: &Bootstrap,
+    conv: &EntropyConvention,
+) -> [Vec<f64>; 3] {
     let data = Compact::new(outcomes);
     let mut rng = ChaCha8Rng::seed_from_u64(cfg.seed);
     let mut tally = Tally::new(data.n_labels);
@@ -251,18 +273,20 @@ pub fn bootstrap_all(
             s.push(v);
         }
     }
-    // Both entropies lie in [0, 1] (log base `n_behaviours`, at most 1 while
-    // the labels are the task's behaviours; the clip never excludes the
-    // estimate itself). The bias correction can push an upper end past 1
-    // (Aligning's quick protocol printed 0.492-1.492). The success rate's
-    // resamples (`stats[0]`) are drawn to keep the entropies' stream as it
-    // was, and not used.
-    let [_, mut sb, mut sc] = stats;
-    Ok([
-        success,
-        bias_corrected_interval(values[0], &mut sb, cfg.confidence, (0.0, 1.0)),
-        bias_corrected_interval(values[1], &mut sc, cfg.confidence, (0.0, 1.0)),
-    ])
+    stats
+}
+
+/// The success-rate interval every result carried up to 0.4: the two-stage
+/// bootstrap's bias-corrected percentile interval. Kept only so that `d3il
+/// bench intervals` can show what it covered beside this version's rule.
+pub fn success_rate_before_0_5(outcomes: &[Outcome], cfg: &Bootstrap) -> Estimate {
+    let conv = EntropyConvention {
+        n_behaviours: 2,
+        empty_contexts: EmptyContexts::CountAsZero,
+        reference_guard: true,
+    };
+    let [mut sr, _, _] = two_stage_resamples(outcomes, cfg, &conv);
+    bias_corrected_interval(success_rate(outcomes), &mut sr, cfg.confidence, (0.0, 1.0))
 }
 
 /// Bootstrap interval of one statistic; see [`bootstrap_all`] for the method.

@@ -5,14 +5,19 @@
 //! entropy) is a mean over states of per-state differences, and the
 //! state-to-state variation that dominates an unpaired comparison cancels.
 //!
-//! * **Success rate** (and the conditional entropy of tasks that count a
-//!   state without a labelled success as 0: Avoiding, Aligning, Pushing):
-//!   the paired randomisation test, A and B swapped within each state (the
-//!   per-state difference sign-flipped), and its inversion as the interval
-//!   ([`crate::intervals::SignFlip`]): the p-value printed is the one of the
-//!   test whose inversion is the interval, so "0 outside" and "p < α" agree
-//!   by construction. No interval with 5 states or fewer (the test cannot
-//!   reject) or when every state shows the same difference.
+//! * **Success rate**: the test its design calls for and that test inverted
+//!   as the interval ([`crate::rate_difference::success_rate_difference`]):
+//!   the exact McNemar test with one rollout a state, a two-sample score
+//!   test of the rollouts with one initial state, the paired randomisation
+//!   (sign-flip) test otherwise. The p-value printed is the one of the test
+//!   whose inversion is the interval, so "0 outside" and "p ≤ α" agree by
+//!   construction. No interval with 5 states or fewer (except one: two
+//!   samples), or, for the sign-flip test, when every state shows the same
+//!   difference.
+//! * **Conditional entropy of Avoiding, Aligning, Pushing** (a state without
+//!   a labelled success counts as 0): the paired randomisation test, A and B
+//!   swapped within each state (the per-state difference sign-flipped), and
+//!   its inversion ([`crate::intervals::SignFlip`]).
 //! * **Conditional entropy of Sorting, Stacking, Inserting** (states without
 //!   a labelled success dropped, so the statistic is not a mean of per-state
 //!   differences): paired bootstrap over initial states (the same resampled
@@ -75,11 +80,13 @@ fn stats<'a>(states: impl Iterator<Item = &'a ContextSummary>, empty: EmptyConte
     ]
 }
 
-/// Paired comparison of per-state summaries `a[i]`, `b[i]` (same state i).
+/// Paired comparison of per-state summaries `a[i]`, `b[i]` (same state i),
+/// each state's success rate the share of `rollouts_per_state` rollouts.
 /// Returns (success rate, conditional entropy).
 pub fn compare_states(
     a: &[ContextSummary],
     b: &[ContextSummary],
+    rollouts_per_state: usize,
     empty: EmptyContexts,
     cfg: &Bootstrap,
 ) -> Result<[PairedDifference; 2], MetricsError> {
@@ -155,7 +162,14 @@ pub fn compare_states(
         )
     };
     let [b0, mut b1] = boot;
-    let rates = paired(|s| s.success_rate);
+    let rates = crate::rate_difference::success_rate_difference(
+        &a.iter().map(|s| s.success_rate).collect::<Vec<_>>(),
+        &b.iter().map(|s| s.success_rate).collect::<Vec<_>>(),
+        rollouts_per_state,
+        cfg.confidence,
+        cfg.resamples,
+        cfg.seed,
+    );
     let success_rate = PairedDifference {
         a: sa[0],
         b: sb[0],
@@ -236,7 +250,8 @@ pub fn compare_parts(
     let sa: Vec<ContextSummary> = pa.iter().map(ContextSummary::from_result).collect();
     let sb: Vec<ContextSummary> = pb.iter().map(ContextSummary::from_result).collect();
     let empty = EntropyConvention::for_task(ma.task).empty_contexts;
-    let [success_rate, conditional_entropy] = compare_states(&sa, &sb, empty, cfg)?;
+    let [success_rate, conditional_entropy] =
+        compare_states(&sa, &sb, ma.rollouts_per_context, empty, cfg)?;
     Ok(Comparison {
         task: ma.task,
         protocol: ma.protocol,
@@ -248,16 +263,7 @@ pub fn compare_parts(
         confidence: cfg.confidence,
         success_rate,
         conditional_entropy,
-        caveats: {
-            let mut c = caveats(ma, mb);
-            c.extend(crate::intervals::sparse_paired_note(
-                ma.n_contexts,
-                ma.rollouts_per_context,
-                success_rate.a,
-                success_rate.b,
-            ));
-            c
-        },
+        caveats: caveats(ma, mb),
     })
 }
 

@@ -6,12 +6,9 @@ use crate::compare::{compare_states, ContextSummary};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
-/// One kind of initial state: success probability and the behaviour
-/// distribution of its successes.
-struct Kind {
-    success: f64,
-    behaviours: Vec<f64>,
-}
+// The model (kinds of state, datasets and the values the estimates target)
+// is `d3il bench intervals`' too.
+use crate::interval_sim::{draw_index as draw, simulate, truth, Kind};
 
 fn h(p: &[f64], base: usize) -> f64 {
     -p.iter()
@@ -19,53 +16,6 @@ fn h(p: &[f64], base: usize) -> f64 {
         .map(|x| x * x.ln())
         .sum::<f64>()
         / (base as f64).ln()
-}
-
-fn draw(rng: &mut ChaCha8Rng, p: &[f64]) -> usize {
-    let u: f64 = rng.random();
-    let mut acc = 0.0;
-    for (i, x) in p.iter().enumerate() {
-        acc += x;
-        if u < acc {
-            return i;
-        }
-    }
-    p.len() - 1
-}
-
-/// A dataset: `n_ctx` states, each of a kind drawn uniformly, `per_ctx`
-/// rollouts each.
-fn simulate(rng: &mut ChaCha8Rng, kinds: &[Kind], n_ctx: usize, per_ctx: usize) -> Vec<Outcome> {
-    let mut v = Vec::with_capacity(n_ctx * per_ctx);
-    for c in 0..n_ctx {
-        let k = &kinds[rng.random_range(0..kinds.len() as u64) as usize];
-        for _ in 0..per_ctx {
-            let success = rng.random_bool(k.success);
-            let b = draw(rng, &k.behaviours).to_string();
-            v.push(Outcome::new(c, success, Some(&b)));
-        }
-    }
-    v
-}
-
-/// The values the estimates target: each statistic's expectation under the
-/// protocol (states drawn from the population, `per_ctx` rollouts each), by
-/// Monte Carlo over 4000 independent datasets. For the success rate it is the
-/// population rate; for an entropy it is what the reference's plug-in formula
-/// gives on average at this protocol size, the quantity the paper's numbers
-/// estimate too (it lies below the entropy of the behaviour distribution
-/// itself, which no protocol with 8–18 rollouts per state reports).
-fn truth(kinds: &[Kind], conv: &EntropyConvention, n_ctx: usize, per_ctx: usize) -> [f64; 3] {
-    let mut rng = ChaCha8Rng::seed_from_u64(1_000_003);
-    let runs = 4000;
-    let mut sum = [0.0; 3];
-    for _ in 0..runs {
-        let d = simulate(&mut rng, kinds, n_ctx, per_ctx);
-        sum[0] += success_rate(&d);
-        sum[1] += behaviour_entropy(&d, conv.n_behaviours).unwrap();
-        sum[2] += conditional_entropy(&d, conv).unwrap();
-    }
-    sum.map(|x| x / runs as f64)
 }
 
 /// The entropies of the behaviour distributions themselves (infinitely many
@@ -101,7 +51,7 @@ fn coverage(
     datasets: usize,
 ) -> [f64; 3] {
     let conv = EntropyConvention::for_task(task);
-    let t = truth(kinds, &conv, n_ctx, per_ctx);
+    let t = truth(kinds, &conv, n_ctx, per_ctx, 4000);
     let limit = limit_entropies(kinds, conv.n_behaviours);
     // The plug-in at this size sits below the limit (fewer distinct
     // behaviours seen), never above it.
@@ -341,7 +291,7 @@ fn identical_results_differ_by_zero_with_p_one() {
     let (a, _) = pair(&mut rng, 0.0, 60, 8);
     let conv = EntropyConvention::for_task(TaskId::Aligning);
     let s = summaries(&a, &conv);
-    let [sr, ce] = compare_states(&s, &s, conv.empty_contexts, &Bootstrap::default()).unwrap();
+    let [sr, ce] = compare_states(&s, &s, 8, conv.empty_contexts, &Bootstrap::default()).unwrap();
     for d in [sr, ce] {
         assert_eq!(d.difference.value, 0.0);
         assert_eq!((d.difference.ci_low, d.difference.ci_high), (0.0, 0.0));
@@ -364,6 +314,7 @@ fn a_success_gap_of_0_2_on_60_states_is_detected() {
     let [sr, _] = compare_states(
         &summaries(&a, &conv),
         &summaries(&b, &conv),
+        8,
         conv.empty_contexts,
         &cfg,
     )
@@ -395,6 +346,7 @@ fn with_no_true_gap_the_test_rejects_at_its_nominal_rate() {
         let d = compare_states(
             &summaries(&a, &conv),
             &summaries(&b, &conv),
+            8,
             conv.empty_contexts,
             &cfg,
         )

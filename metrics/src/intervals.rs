@@ -99,10 +99,11 @@
 //!   one sign and the test rejects once `2/2^n ≤ α`). With sparse binary
 //!   data, one rollout a state and rates near 0 or 1, most `d_s` are 0 and
 //!   the few others often fall on one side, so a small true difference of
-//!   the other sign is excluded: coverage drops well below nominal there
-//!   (docs/intervals.md lists the cells). Any interval that agrees with a
-//!   test of symmetry by construction shares this; a remedy needs another
-//!   test (e.g. an exact test on the discordant states).
+//!   the other sign is excluded: coverage dropped to 66 % there
+//!   (docs/intervals.md). Any interval that agrees with a test of symmetry
+//!   by construction shares this, so success rates measured with one
+//!   rollout a state are compared by another test, the exact McNemar test
+//!   on the discordant states (`crate::rate_difference`).
 
 use crate::quantile::{normal_quantile, percentile};
 use d3il_protocol::{Estimate, TaskId};
@@ -519,30 +520,6 @@ impl PairedInterval {
             Err(why) => Estimate::without_interval(self.estimate, why),
         }
     }
-}
-
-/// Where `d3il bench intervals` measured the paired (sign-flip) interval's
-/// coverage well below its nominal 95 % (docs/intervals.md, "Where it does
-/// not hold"): one rollout a state on fewer than 100 states, with 10 states
-/// or fewer or both success rates at most 0.2 or at least 0.8 (sparse binary
-/// differences). The note a comparison of such a design carries; `None`
-/// elsewhere.
-pub fn sparse_paired_note(
-    states: usize,
-    rollouts_per_state: usize,
-    a: f64,
-    b: f64,
-) -> Option<String> {
-    let sparse = rollouts_per_state == 1
-        && states < BOOTSTRAP_MIN_STATES
-        && (states <= 10 || a.max(b) <= 0.2 || a.min(b) >= 0.8);
-    sparse.then(|| {
-        format!(
-            "the interval of the success-rate difference covers less than its nominal 95 % with {states} initial \
-             states, one rollout each, and rates near 0 or 1 or at most 10 states: 66–93 % in d3il bench intervals \
-             (docs/intervals.md)"
-        )
-    })
 }
 
 /// [`PairedInterval`] of per-state rates `a[i]`, `b[i]` (same state i).

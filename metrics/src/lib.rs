@@ -30,6 +30,7 @@ pub mod interval_sim;
 pub mod intervals;
 pub mod order;
 mod quantile;
+pub mod rate_difference;
 pub mod recompute;
 pub mod robustness;
 pub mod sequential;

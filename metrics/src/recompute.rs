@@ -30,14 +30,30 @@ pub const RESAMPLES: usize = 1000;
 
 /// This version's interval rules (docs/intervals.md); stored next to results so that
 /// the server recomputes those made under an earlier rule.
-pub const RULES_VERSION: i64 = 1;
+pub const RULES_VERSION: i64 = 2;
 
-/// The interval rules `m` was computed under, as far as it says: builds
-/// from 0.5.0 on name the success rate's method or why it has none
-/// ([`RULES_VERSION`]); earlier ones never did (`None`: recompute).
-pub fn rules_of(m: &d3il_protocol::Metrics) -> Option<i64> {
-    (m.success_rate.method.is_some() || m.success_rate.no_interval.is_some())
-        .then_some(RULES_VERSION)
+/// The interval rules a result (its `manifest` and `metrics`) was computed
+/// under: builds before 0.5.0 never named a success rate's method or why it
+/// has none (`None`: recompute); 0.5 builds followed rules 1 (the sign-flip
+/// interval for every paired drop); later ones this build's
+/// [`RULES_VERSION`] (the exact McNemar and two-sample score intervals).
+pub fn rules_of(
+    manifest: &d3il_protocol::ProtocolManifest,
+    m: &d3il_protocol::Metrics,
+) -> Option<i64> {
+    if m.success_rate.method.is_none() && m.success_rate.no_interval.is_none() {
+        return None;
+    }
+    let mut parts = manifest
+        .evaluator_version
+        .split('.')
+        .map(|x| x.parse::<u64>().unwrap_or(0));
+    let (major, minor) = (parts.next().unwrap_or(0), parts.next().unwrap_or(0));
+    Some(if (major, minor) <= (0, 5) {
+        1
+    } else {
+        RULES_VERSION
+    })
 }
 
 fn entropy(e: &mut Estimate) {
@@ -175,7 +191,6 @@ pub fn recompute_robustness(doc: &mut RobustnessResult) -> Result<(), MetricsErr
 #[cfg(test)]
 mod tests {
     use super::*;
-    use d3il_protocol::NoInterval;
 
     fn read<T: serde::de::DeserializeOwned>(path: &str) -> T {
         let p = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
@@ -192,10 +207,15 @@ mod tests {
         // [0.001, 0.351] beside p 0.064.
         let old: RobustnessResult =
             read("docs/measurements/robustness-2026-11-29/pushing-v2_push_bc_noise_paper-2-per-state.json");
-        assert_eq!(rules_of(&old.control.metrics), None);
+        assert_eq!(rules_of(&old.control.manifest, &old.control.metrics), None);
         let mut doc = old.clone();
         recompute_robustness(&mut doc).unwrap();
-        assert_eq!(rules_of(&doc.control.metrics), Some(RULES_VERSION));
+        // Recomputed, it names its methods (the upgrade stores it under
+        // RULES_VERSION; its manifest keeps the 0.4 build that made it).
+        assert_eq!(
+            rules_of(&doc.control.manifest, &doc.control.metrics),
+            Some(1)
+        );
         assert_eq!(
             doc.control.metrics.success_rate.method,
             Some(IntervalMethod::KornGraubard)
@@ -224,26 +244,33 @@ mod tests {
     }
 
     #[test]
-    fn a_sparse_suites_drops_say_their_interval_covers_less() {
+    fn a_one_rollout_suites_drops_get_the_exact_mcnemar_interval() {
         // The scripted Pushing expert, 30 states × 1 rollout a level, rates
-        // near 1: where the bench measured the sign-flip interval below 95 %.
+        // near 1: where the sign-flip interval covered 66–93 % in the bench.
+        // Now the exact McNemar test and its interval, which agree, and an
+        // interval even where every state shows the same difference.
         let mut doc: RobustnessResult = read(
             "docs/measurements/robustness-2026-11-29/pushing-v2_scripted-pushing-all-modes_paper-1-per-state.json",
         );
         recompute_robustness(&mut doc).unwrap();
-        let mut labelled = 0;
+        assert!(!doc.levels.is_empty());
         for l in &doc.levels {
             let d = &l.paired.success_rate;
-            let sparse = d.a.min(d.b) >= 0.8 || d.a.max(d.b) <= 0.2;
-            let noted = l
-                .paired
-                .caveats
-                .iter()
-                .any(|c| c.contains("covers less than its nominal 95 %"));
-            assert_eq!(noted, sparse, "{:?} {d:?}", l.setting);
-            labelled += noted as usize;
+            assert_eq!(
+                d.difference.method,
+                Some(IntervalMethod::McNemarExact),
+                "{:?}",
+                l.setting
+            );
+            let (lo, hi) = d.difference.interval().expect("30 states: an interval");
+            assert!(hi > lo && lo <= d.difference.value && d.difference.value <= hi);
+            assert_eq!(
+                lo > 0.0 || hi < 0.0,
+                d.p_value <= 0.05,
+                "{:?} {d:?}",
+                l.setting
+            );
         }
-        assert!(labelled > 0);
     }
 
     #[test]
@@ -271,15 +298,29 @@ mod tests {
             b.behaviour_entropy.method,
             Some(IntervalMethod::BiasCorrectedBootstrap)
         );
-        // Its suite's drops: one initial state, no paired test, and it says so.
+        // Its suite's drops: one initial state, so the rollouts of level 0
+        // and of the level are two samples: the score test and its interval.
         let mut doc: RobustnessResult =
             read("server/tests/fixtures/zoo/avoiding/bc-mlp-s0/robustness.json");
         recompute_robustness(&mut doc).unwrap();
+        let m = doc.control.manifest.rollouts_per_context as u64;
+        let mut rejected = 0;
         for l in &doc.levels {
-            assert!(matches!(
-                l.paired.success_rate.difference.no_interval,
-                Some(NoInterval::TestCannotReject { states: 1, .. })
-            ));
+            let d = &l.paired.success_rate;
+            assert_eq!(d.difference.method, Some(IntervalMethod::ScoreTwoSample));
+            let k = |r: f64| (r * m as f64).round() as u64;
+            let t = crate::rate_difference::ScoreTwoSample::new(k(d.a), m, k(d.b), m);
+            assert_eq!(d.p_value, t.p_value(0.0), "{:?}", l.setting);
+            let (lo, hi) = d.difference.interval().expect("two samples: an interval");
+            assert!(hi > lo, "{:?} {d:?}", l.setting);
+            assert_eq!(
+                lo > 0.0 || hi < 0.0,
+                d.p_value <= 0.05,
+                "{:?} {d:?}",
+                l.setting
+            );
+            rejected += (d.p_value <= 0.05) as usize;
         }
+        eprintln!("{rejected} of {} levels differ at 5 %", doc.levels.len());
     }
 }

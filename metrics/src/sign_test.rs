@@ -3,7 +3,7 @@
 //! (exact McNemar), its critical values, exact power and the number of pairs
 //! it needs for a given power.
 
-use crate::compare::normal_quantile;
+use crate::quantile::normal_quantile;
 
 /// The exact two-sided sign test on discordant pairs (exact McNemar) at
 /// level α, for a fixed number of pairs: its critical values, power, and

@@ -29,6 +29,15 @@ pub enum IntervalMethod {
     SignFlipExact,
     /// Paired difference: the sign-flip test inverted, Monte Carlo over sign vectors.
     SignFlipMonteCarlo,
+    /// Paired difference, one rollout a state: the exact McNemar test
+    /// (conditional binomial on the discordant states) inverted through
+    /// Clopper–Pearson intervals of its two shares.
+    #[serde(rename = "mcnemar_exact")]
+    McNemarExact,
+    /// Difference on one initial state (Avoiding): the rollouts of each
+    /// side as two independent samples, the Miettinen–Nurminen score test
+    /// inverted.
+    ScoreTwoSample,
     /// Entropies and robustness scores: two-stage bootstrap (states, then
     /// rollouts within them), bias-corrected percentile interval.
     BiasCorrectedBootstrap,
@@ -54,6 +63,10 @@ impl IntervalMethod {
             IntervalMethod::KornGraubard => "Korn-Graubard (Clopper-Pearson, effective size)",
             IntervalMethod::SignFlipExact => "inverted sign-flip test (exact)",
             IntervalMethod::SignFlipMonteCarlo => "inverted sign-flip test (Monte Carlo)",
+            IntervalMethod::McNemarExact => "inverted exact McNemar test (one rollout per state)",
+            IntervalMethod::ScoreTwoSample => {
+                "Miettinen-Nurminen score, two-sample (rollouts of the one initial state)"
+            }
             IntervalMethod::BiasCorrectedBootstrap => "two-stage bootstrap, bias-corrected",
             IntervalMethod::PairedBootstrap => "paired bootstrap, bias-corrected",
         }
@@ -64,7 +77,10 @@ impl IntervalMethod {
     pub fn agrees_with_p_value(self) -> bool {
         matches!(
             self,
-            IntervalMethod::SignFlipExact | IntervalMethod::SignFlipMonteCarlo
+            IntervalMethod::SignFlipExact
+                | IntervalMethod::SignFlipMonteCarlo
+                | IntervalMethod::McNemarExact
+                | IntervalMethod::ScoreTwoSample
         )
     }
 }

@@ -41,7 +41,7 @@ macro_rules! insert_result {
         .bind(t)
         .bind(result.rollouts_ended_unstable as i64)
         .bind(to_json(&$crate::store::IntervalNotes::of(m)))
-        .bind(d3il_metrics::recompute::rules_of(m))
+        .bind(d3il_metrics::recompute::rules_of(&result.manifest, m))
         .execute($tx)
         .await?;
         for r in &result.rollouts {

@@ -38,7 +38,10 @@ macro_rules! insert_robustness {
         .bind(summary)
         .bind(document)
         .bind($crate::store::now())
-        .bind(d3il_metrics::recompute::rules_of(&doc.control.metrics))
+        .bind(d3il_metrics::recompute::rules_of(
+            &doc.control.manifest,
+            &doc.control.metrics,
+        ))
         .execute($exec)
         .await?;
     }};
