@@ -5,12 +5,13 @@ from __future__ import annotations
 import io
 import json
 import shutil
+import subprocess
 from pathlib import Path
 from typing import Any
 
 import pytest
 import tqdm.auto
-from conftest import FIXTURES, Pair, Server, run_server
+from conftest import FIXTURES, Pair, Server, d3il_bin, run_server
 
 import d3il_client
 from d3il_client import Client, errors
@@ -311,3 +312,55 @@ def test_race_returns_a_typed_comparison_and_refuses_a_submission_against_itself
     with pytest.raises(errors.ServerError) as e:
         client.race(evaluated.path, evaluated.path)
     assert e.value.field == "b" and "different submissions" in e.value.message
+
+
+def test_a_race_is_cancelled_by_its_starter_only_once_and_its_answer_carries_the_quota(tmp_path: Path) -> None:
+    """cancel_race (and cancel given the race) against a real server: the
+    race ends `cancelled`, by whom, its worker stopped; another submitter may
+    not cancel it, and a race that has ended cannot be cancelled again. The
+    race's answer carries the quota after it, as a submission's does (a
+    server with a daily quota, so that usage is counted)."""
+    with run_server(tmp_path, "--quota-per-day", "100", "--quota-total", "0", "--quota-concurrent", "0") as server:
+        client = Client(server.base, server.token)
+        a, b = (
+            client.wait(
+                client.submit(
+                    onnx=FIXTURES / f"avoiding_{name}.onnx",
+                    method=f"race-{name}",
+                    task="avoiding",
+                    training_seed=0,
+                    protocol="quick",
+                ),
+                timeout=900,
+                progress=False,
+            )
+            for name in ("path", "noise")
+        )
+        before = client.quota()
+        # The paper protocol's rollouts on both sides: still queued or running when cancelled.
+        race = client.race(a, b, protocol="paper", wait=False)
+        assert race.status in ("queued", "running"), race
+        quota = race.raw["quota"]
+        assert quota["per_day"]["used"] == before["per_day"]["used"] + 2, (before, quota)
+        assert quota["races"]["used"] == before["races"]["used"] + 1 == 1, (before, quota)
+        assert quota["exempt"] is False and set(quota) == set(before), quota
+
+        stranger = subprocess.run(
+            [d3il_bin(), "token", "create", "--name", "pytest-stranger", "--db", server.db],
+            check=True,
+            capture_output=True,
+            text=True,
+        ).stdout.strip()
+        with pytest.raises(errors.Forbidden) as refused:
+            Client(server.base, stranger).cancel_race(race.id)
+        assert refused.value.status == 403, refused.value
+
+        cancelled = client.cancel(race)  # a RaceComparison goes to cancel_race
+        assert cancelled.id == race.id and cancelled.status == "cancelled", cancelled
+        assert cancelled.cancelled_by == "pytest", cancelled
+        assert client.comparison(race.id).status == "cancelled"
+        with pytest.raises(errors.Conflict) as again:
+            client.cancel_race(race.id)
+        assert again.value.status == 409, again.value
+        # Cancelled, it no longer holds a race slot.
+        assert client.quota()["races"]["used"] == 0
