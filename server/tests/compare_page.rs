@@ -369,7 +369,10 @@ async fn the_race_page_names_the_rule_that_decided_and_draws_the_walk() {
         decided_at: Some(at as u64),
         e_value: e.e_value(),
         p_value: e.p_value(),
-        discordant: e.discordant(),
+        discordant: (
+            seen.matches('a').count() as u64,
+            seen.matches('b').count() as u64,
+        ),
         difference_interval: None,
         rate_a: 0.75,
         rate_b: 0.23,
@@ -407,4 +410,42 @@ async fn the_race_page_names_the_rule_that_decided_and_draws_the_walk() {
     );
     assert!(page.contains("id=\"race-walk\""), "{page}");
     assert!(!page.contains("http-equiv=\"refresh\""));
+    // The fixed-size comparison of the pairs used: the exact McNemar test
+    // and its inverted interval, on the page and in the race's JSON.
+    let (w, l) = report.discordant;
+    let fixed = d3il_metrics::rate_difference::ExactMcNemar::new(at, w, l).paired_interval(0.95);
+    let (lo, hi) = fixed
+        .interval
+        .map(|i| (i.low, i.high))
+        .expect("an interval");
+    assert!(lo > 0.0 && fixed.p_value <= 0.05, "{fixed:?}");
+    let line = &page[page
+        .find("id=\"fixed-comparison\"")
+        .expect("the fixed-size line")..];
+    assert!(
+        line.contains(&format!("Fixed-size comparison of the {at} pairs used"))
+            && line.contains(&format!("{lo:.3}–{hi:.3}"))
+            && line.contains("inverted exact McNemar test")
+            && line.contains(&format!("exact McNemar p-value {:.4}", fixed.p_value)),
+        "{line}"
+    );
+    let (s, api) = app.get_json(&format!("/api/v1/comparisons/{done}")).await;
+    assert_eq!(s, 200, "{api}");
+    let f = &api["fixed_comparison"];
+    assert_eq!(f["pairs"], at as u64, "{api}");
+    assert_eq!(f["p_value"].as_f64(), Some(fixed.p_value), "{api}");
+    assert_eq!(f["difference"]["method"], "mcnemar_exact", "{api}");
+    assert_eq!(
+        (
+            f["difference"]["ci_low"].as_f64(),
+            f["difference"]["ci_high"].as_f64()
+        ),
+        (Some(lo), Some(hi)),
+        "{api}"
+    );
+    // Not finished, no fixed-size comparison.
+    let (_, api) = app
+        .get_json(&format!("/api/v1/comparisons/{running}"))
+        .await;
+    assert!(api["fixed_comparison"].is_null(), "{api}");
 }

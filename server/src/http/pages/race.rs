@@ -28,6 +28,8 @@ struct Finished {
     rollouts_full: usize,
     ratio: String,
     fixed_note: String,
+    /// The fixed-size comparison of the pairs used: difference, interval, p.
+    fixed: String,
     rate_a: String,
     rate_b: String,
 }
@@ -85,6 +87,7 @@ pub(super) async fn race_page(
                 format!("at the discordance observed, the exact sign test needs {n} pairs for 90 % power")
             })
             .unwrap_or_default(),
+        fixed: fixed_comparison_line(&r),
         rate_a: format!("{:.3}", r.rate_a),
         rate_b: format!("{:.3}", r.rate_b),
     });
@@ -140,6 +143,26 @@ pub(super) async fn race_page(
         rule,
         walk_svg,
     })
+}
+
+/// The fixed-size comparison of a finished race's pairs in words
+/// ([`crate::races::fixed_comparison`]).
+fn fixed_comparison_line(r: &d3il_protocol::race::RaceReport) -> String {
+    let f = crate::races::fixed_comparison(r);
+    let d = &f.difference;
+    let interval = match d.interval() {
+        Some(_) => format!(
+            "{:.0} % interval {} ({})",
+            100.0 * (1.0 - r.alpha),
+            d.interval_text(3),
+            d.interval_note()
+        ),
+        None => d.interval_note(),
+    };
+    format!(
+        "Fixed-size comparison of the {} pairs used: A − B {:+.3}, {interval}, exact McNemar p-value {:.4} (0 lies outside the interval exactly when p ≤ {}; for reference: neither is valid after the race's data-dependent stop)",
+        f.pairs, d.value, f.p_value, r.alpha
+    )
 }
 
 /// The `/compare` page's "Race them" form: two submission ids, the
