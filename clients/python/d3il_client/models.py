@@ -582,6 +582,9 @@ class LeaderboardRow:
     robot_look: Optional[str] = None
     #: The method is marked a baseline by the instance's admins (docs/ops.md, Moderation).
     baseline: bool = False
+    #: Where a zoo row's training data came from ("trained here on d3il demos v1",
+    #: docs/zoo.md); None for submitted and reported rows.
+    data_source: Optional[str] = None
     raw: Dict[str, Any] = _raw()
 
 
@@ -598,7 +601,11 @@ class Leaderboard:
     raw: Dict[str, Any] = _raw()
 
     def frame(self) -> pd.DataFrame:
-        """One row per leaderboard row, with the columns of the server's CSV."""
+        """One row per leaderboard row, with the columns of the server's CSV
+        (``GET /api/v1/leaderboards/{task}/csv``, in its order, without the
+        board's own ``task`` and ``obs_type``) and then ``submission_ids``;
+        tests/test_csv_columns.py holds the two together.
+        """
         columns = [
             "method",
             "source",
@@ -615,6 +622,7 @@ class Leaderboard:
             "inference_ms",
             "initial_states",
             "robot_look",
+            "data_source",
             "submission_ids",
         ]
         rows = [
@@ -634,6 +642,7 @@ class Leaderboard:
                 "inference_ms": r.inference_ms,
                 "initial_states": r.initial_states,
                 "robot_look": r.robot_look,
+                "data_source": r.data_source,
                 "submission_ids": list(r.submission_ids),
             }
             for r in self.rows

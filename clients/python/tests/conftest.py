@@ -94,9 +94,9 @@ def run_server(tmp: Path, *extra: str) -> Iterator[Server]:
             "--no-verify",
             "--fidelity",
             "off",
-            # The client's tests read their own submissions' boards: no zoo (docs/zoo.md).
-            "--zoo",
-            "none",
+            # The client's tests read their own submissions' boards: no zoo
+            # (docs/zoo.md) unless the test names one.
+            *([] if "--zoo" in extra else ["--zoo", "none"]),
             # No submission quota unless the test sets one: the session submits many.
             *([] if any(str(e).startswith("--quota") for e in extra) else NO_QUOTA),
             *extra,
