@@ -1,6 +1,6 @@
 //! Who is calling: the bearer-token extractor and the one token check (with
-//! its rate limit) that the API and the HTML submit form share. Issue 52:
-//! the rate-limit layer checks the token of every request that carries one
+//! its rate limit) that the API and the HTML submit form share.
+//! The rate-limit layer checks the token of every request that carries one
 //! ([`verify_header`]): only a valid token lifts the anonymous rate limit; an
 //! unknown one is a 401 counted against the failed-auth limit. The caller
 //! it found ([`Verified`]) is what the extractors below then use.

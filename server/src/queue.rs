@@ -27,7 +27,7 @@ pub trait JobRunner: Send + Sync + 'static {
     fn run(&self, job: &Job, on_progress: &mut dyn FnMut(usize, usize)) -> RunReport;
 
     /// [`JobRunner::run`] that stops the run soon after `cancel` becomes true
-    /// (the evaluation was cancelled, issue 41). Runners that cannot stop a
+    /// (the evaluation was cancelled). Runners that cannot stop a
     /// run let it finish; its report is then ignored.
     /// Its `on_progress` gets every progress report whole, with the initial
     /// states newly finished in the evaluation's random order.
@@ -299,7 +299,7 @@ async fn run_claimed(
     let beat = Duration::from_secs((cfg.lease_seconds / 3).max(1) as u64);
     let mut ticker = tokio::time::interval(beat);
     let mut latest: Option<(usize, usize)> = None;
-    // The states reported so far (issue 41), written with the heartbeats.
+    // The states reported so far, written with the heartbeats.
     let mut reported = crate::live::Reported::default();
     let mut last_written = Instant::now() - beat;
     let report = loop {
@@ -510,7 +510,7 @@ async fn beat_or_warn(
     }
 }
 
-/// A lost lease may mean the evaluation was cancelled (issue 41): then the
+/// A lost lease may mean the evaluation was cancelled: then the
 /// run is stopped (its report is ignored: the job is no longer leased).
 async fn stop_if_cancelled(
     store: &Store,

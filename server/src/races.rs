@@ -1,10 +1,10 @@
-//! Sequential comparisons on the server (issue 41): `POST /api/v1/comparisons`
+//! Sequential comparisons on the server: `POST /api/v1/comparisons`
 //! races two submissions' policies in one race job (`d3il_protocol::race`);
 //! the comparison's row holds its live state while it runs and the race's
 //! report when it ends. The rule is `d3il_evaluator::eval::race` (the same
 //! as `d3il compare --sequential --task`); docs/sequential.md.
 //!
-//! Issue 52: a race is metered work. It needs one of the racer's own
+//! A race is metered work. It needs one of the racer's own
 //! submissions (against any public one), counts [`crate::quota::RACE_EVALUATIONS`]
 //! against the quota, and a submitter has at most `--max-queued-races`
 //! queued or running. It waits in the durable queue (the comparisons table)

@@ -1,4 +1,4 @@
-//! `d3il eval --suite robustness`: the robustness track of issue 40. Runs
+//! `d3il eval --suite robustness`: the robustness track (docs/robustness.md). Runs
 //! level 0 (the plain evaluation, the control arm) and every level of the
 //! task's perturbation suite on the same initial states, seed and rollout
 //! ids, then prints per axis and level the paired drop against level 0 (the

@@ -107,7 +107,7 @@ pub struct Args {
 }
 
 /// The checks the server would make that need no server, before anything is
-/// uploaded (a model can take minutes to upload; issue 43): the names of the
+/// uploaded (a model can take minutes to upload): the names of the
 /// task, observation type and protocol, the seed and data fraction, the
 /// policy file, the manifest against --task and --obs-type, the endpoint's
 /// scheme. The server checks all of it again, and more.

@@ -206,7 +206,7 @@ pub(super) fn unpack_and_verify(input: &Path, work: &WorkDir) -> Result<Manifest
     let mut seen = vec![];
     // The manifest comes first (`write`); every later entry is unpacked only
     // up to the size the manifest declares for it, so an archive cannot
-    // fill the disk before it is found out (issue 52).
+    // fill the disk before it is found out.
     let mut declared: Option<Manifest> = None;
     for entry in archive.entries().map_err(|e| not_backup(e.to_string()))? {
         let mut entry = entry.map_err(|e| not_backup(e.to_string()))?;
@@ -378,7 +378,7 @@ mod tests {
         path
     }
 
-    /// Issue 52: an entry larger than its manifest says is refused before
+    /// An entry larger than its manifest says is refused before
     /// more than the declared bytes are written, and unpacked files get the
     /// store's modes, not the archive's (no setuid, no world write).
     #[test]

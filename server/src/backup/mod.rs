@@ -1,4 +1,4 @@
-//! `d3il db backup` and `d3il db restore` (issue 42, item 3): one archive
+//! `d3il db backup` and `d3il db restore`: one archive
 //! (a gzipped tar) holding a consistent copy of the database, taken while the
 //! server serves (SQLite: `VACUUM INTO`, a read transaction; PostgreSQL:
 //! `pg_dump` on a snapshot exported from a repeatable-read transaction), the

@@ -23,7 +23,7 @@ pub use upload::{
 };
 
 /// Refuses a body whose declared length is over the limit before reading any
-/// of it (issue 7: oversized uploads refused before they are buffered).
+/// of it (oversized uploads refused before they are buffered).
 pub fn check_declared_length(headers: &HeaderMap, max: usize) -> Result<(), AppError> {
     if let Some(len) = headers
         .get(header::CONTENT_LENGTH)
@@ -56,7 +56,7 @@ pub struct ValidSubmission {
     pub protocol: ProtocolKind,
     pub manifest: PolicyManifest,
     pub policy: ValidPolicy,
-    /// The perturbation suite asked for (`robustness`, issue 40).
+    /// The perturbation suite asked for (`robustness`).
     pub suite: Option<String>,
 }
 

@@ -1,4 +1,4 @@
-//! The `suite` field of a submission (issue 40, docs/robustness.md): the
+//! The `suite` field of a submission (docs/robustness.md): the
 //! one suite name, and whether a task and observation type have a suite.
 
 use super::{opt, RawSubmission};

@@ -135,7 +135,7 @@ pub struct JobRow {
     pub started_at: Option<i64>,
     pub finished_at: Option<i64>,
     /// This row's shard (0-based) of `shard_count`: a paper-protocol job
-    /// may be split into shards of whole initial states (issue 19); a
+    /// may be split into shards of whole initial states; a
     /// plain job is shard 0 of 1.
     pub shard_index: i64,
     pub shard_count: i64,
@@ -201,7 +201,7 @@ pub struct ClaimedJob {
 /// What an evaluation's duration depends on, for queue estimates: task slug,
 /// observation type, protocol, whether each initial state's rollouts are
 /// simulated once (a deterministic policy; unknown counts as not), and the
-/// perturbation suite asked for (issue 40: a suite run is level 0 and every
+/// perturbation suite asked for (a suite run is level 0 and every
 /// level, each a whole evaluation).
 #[derive(Debug, Clone, PartialEq, Eq, Hash)]
 pub struct JobKind {
@@ -268,10 +268,9 @@ impl Store {
 
     /// Puts every leased job back in the queue. Called once at start-up: a
     /// single server owns the database file, so any lease left over belongs to
-    /// a process that died (issue 7: a killed server requeues on restart).
+    /// a process that died (a killed server requeues on restart).
     /// The interrupted attempt is given back: an operator's restart is not
-    /// the policy's fault and does not count against `--max-attempts`
-    /// (issue 17).
+    /// the policy's fault and does not count against `--max-attempts`.
     pub async fn requeue_abandoned(&self) -> Result<u64, StoreError> {
         on_db!(&self.db, pool => {
             let mut tx = pool.begin().await?;
@@ -422,7 +421,7 @@ impl Store {
         on_db!(&self.db, pool => {
             let mut tx = pool.begin().await?;
             // A cancelled evaluation stays cancelled (and unranked) even if
-            // its worker finished before it noticed (issue 41).
+            // its worker finished before it noticed.
             let cancelled: Option<i64> =
                 sqlx::query_scalar("SELECT cancelled_at FROM submissions WHERE id = $1")
                     .bind(submission_id)

@@ -269,7 +269,7 @@ impl Store {
         let data_dir = policy_store_dir(&sqlite_data_dir(path))?;
 
         // FULL synchronous: an accepted submission must survive a power cut
-        // once the response is sent (issue 7, "durable before the response").
+        // once the response is sent ("durable before the response").
         let opts = SqliteConnectOptions::new()
             .filename(path)
             .create_if_missing(true)

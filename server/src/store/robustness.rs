@@ -1,4 +1,4 @@
-//! Robustness results (issue 40, migration 0008): the robustness document of
+//! Robustness results (migration 0008): the robustness document of
 //! a submission that asked for the suite, stored whole for the API and as a
 //! summary without rollout records for the boards and tables.
 
@@ -140,7 +140,7 @@ impl Store {
         task: Option<TaskId>,
     ) -> Result<Vec<RobustnessRow>, StoreError> {
         // Public rows only: a withdrawn submission leaves this view and the
-        // tables drawn from it (issue 52).
+        // tables drawn from it.
         let sql = format!(
             "SELECT r.submission_id, CASE WHEN s.data_source IS NULL THEN m.name ELSE m.name || ' (zoo)' END AS method, s.task, s.obs_type, s.protocol, s.training_seed, \
              s.data_fraction, r.suite, r.suite_sha256, r.summary_json FROM robustness_results r \

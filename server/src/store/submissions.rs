@@ -70,7 +70,7 @@ pub struct SubmissionRow {
     #[serde(skip_serializing_if = "Option::is_none")]
     pub suite: Option<String>,
     /// Where the policy's training data came from, for the zoo's
-    /// submissions ("trained here on d3il demos v1", issue 50); None for
+    /// submissions ("trained here on d3il demos v1"); None for
     /// what submitters send.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub data_source: Option<String>,
@@ -157,7 +157,7 @@ macro_rules! submission_select {
 }
 const SUBMISSION_SELECT: &str = submission_select!("");
 
-/// What the public sees (issue 52), the one rule every list, board, view
+/// What the public sees, the one rule every list, board, view
 /// and table applies to the submissions it shows (alias `s`): a submission
 /// not withdrawn. Its own page and document still show it, with the reason.
 pub(crate) const PUBLIC: &str = "s.withdrawn_at IS NULL";
@@ -208,7 +208,7 @@ impl Store {
     }
 
     /// [`Store::create_submission_sharded`] of a submission asking for the
-    /// perturbation suite `suite` (issue 40): each shard runs level 0 and
+    /// perturbation suite `suite`: each shard runs level 0 and
     /// every level on its block of initial states, and the last one to
     /// finish merges the robustness document (`Store::complete_suite_shard`).
     pub async fn create_suite_submission(

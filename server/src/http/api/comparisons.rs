@@ -1,6 +1,6 @@
-//! `POST /api/v1/comparisons` and `GET /api/v1/comparisons/{id}` (issue 41):
+//! `POST /api/v1/comparisons` and `GET /api/v1/comparisons/{id}`:
 //! a sequential race of two submissions' policies on the server
-//! ([`crate::races`]); `POST /api/v1/comparisons/{id}/cancel` (issue 52).
+//! ([`crate::races`]); `POST /api/v1/comparisons/{id}/cancel`.
 
 use super::admin::json_body;
 use crate::auth::Authed;

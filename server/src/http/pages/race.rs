@@ -1,9 +1,9 @@
-//! `/comparisons/{id}` (issue 41): a sequential race of two submissions
+//! `/comparisons/{id}`: a sequential race of two submissions
 //! (`POST /api/v1/comparisons`, [`crate::races`]) as it runs: the two
 //! policies, the paired counts so far, the e-value and anytime-valid p-value,
 //! the decision when reached and the rollouts used against the fixed-size
 //! test. Refreshes every 2 seconds while queued or running, with a Cancel
-//! button (issue 52: its starter's or an admin's token).
+//! button (its starter's or an admin's token).
 
 use super::compare::parse_id;
 use super::render;
