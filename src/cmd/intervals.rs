@@ -164,7 +164,7 @@ pub fn recompute_file(path: &Path) -> anyhow::Result<(String, Vec<Change>)> {
 /// The changes as a Markdown table, largest first.
 pub fn table(changes: &[Change]) -> String {
     let mut s = String::from(
-        "| document | estimate | before (0.4) | after (0.5) | moved |\n|---|---|---|---|---|\n",
+        "| document | estimate | stored | this build | moved |\n|---|---|---|---|---|\n",
     );
     for c in changes {
         s += &format!(
