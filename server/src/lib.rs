@@ -12,8 +12,9 @@
 //! - [`error`] is the HTTP error type and depends only on the store's error;
 //!   [`schema`] describes the protocol's types for the OpenAPI document.
 //!
-//! [`app`] wires it together (router, `serve`); [`cli`] and [`client`] are what
-//! the `d3il` binary calls. [`cache`] keeps finished submissions' results
+//! [`app`] wires it together (router, `serve`); [`cli`], [`client`] and
+//! [`ops`] (the store's types the command-line tools use) are what the `d3il`
+//! binary calls. [`cache`] keeps finished submissions' results
 //! documents in memory; [`linger`] reads on a request body an early answer
 //! left unread, so the client gets the answer. [`rollouts`] shows what a
 //! policy did (the failure browser's filters, one rollout's record and trace,
@@ -42,6 +43,7 @@ pub mod intake;
 pub mod leaderboard;
 pub mod linger;
 pub mod live;
+pub mod ops;
 pub mod queue;
 pub mod quota;
 pub mod races;

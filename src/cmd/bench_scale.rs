@@ -13,7 +13,7 @@
 use super::bench_procs::{spawn_ready, Proc};
 use anyhow::{bail, ensure, Context};
 use d3il_protocol::{ObsType, ProtocolKind, TaskId};
-use d3il_server::store::{DbTarget, NewMethod, NewPolicy, NewSubmission, Store, SubmissionStatus};
+use d3il_server::ops::{DbTarget, NewMethod, NewPolicy, NewSubmission, Store, SubmissionStatus};
 use std::path::Path;
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};

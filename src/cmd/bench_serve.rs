@@ -155,7 +155,7 @@ async fn seed_database(state: &d3il_server::app::AppState) -> anyhow::Result<Str
         .context("the new token authenticates")?;
     let method = store
         .ensure_method(
-            &d3il_server::store::NewMethod {
+            &d3il_server::ops::NewMethod {
                 name: "BenchPolicy".into(),
                 history: Some(1),
                 backbone: None,
@@ -179,7 +179,7 @@ async fn seed_database(state: &d3il_server::app::AppState) -> anyhow::Result<Str
     };
     store
         .create_submission(
-            &d3il_server::store::NewSubmission {
+            &d3il_server::ops::NewSubmission {
                 method_id: method.id,
                 submitter_id: Some(who.id),
                 task: TaskId::Pushing,
@@ -187,7 +187,7 @@ async fn seed_database(state: &d3il_server::app::AppState) -> anyhow::Result<Str
                 training_seed: 0,
                 data_fraction: 1.0,
                 protocol: ProtocolKind::Paper,
-                policy: d3il_server::store::NewPolicy::Remote {
+                policy: d3il_server::ops::NewPolicy::Remote {
                     url: "wss://policy.example.org/".into(),
                     secret: None,
                 },

@@ -2,7 +2,7 @@
 //! the leaderboard's store (`serve`, `workers`, `token`, `tables`, `db`), and
 //! `d3il db backup|restore|check`.
 
-use d3il_server::store::DbTarget;
+use d3il_server::ops::DbTarget;
 use std::path::PathBuf;
 
 #[derive(clap::Args, Debug, Clone)]

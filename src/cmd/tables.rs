@@ -4,7 +4,7 @@
 
 use anyhow::Context;
 use d3il_protocol::ObsType;
-use d3il_server::store::Store;
+use d3il_server::ops::Store;
 use d3il_tables::{FigureKind, Format, SourceFilter, TableKind};
 use std::path::PathBuf;
 
@@ -264,7 +264,7 @@ mod tests {
     #[test]
     fn evaluated_stacking_levels_have_their_own_entropies_in_the_tables() {
         use d3il_protocol::*;
-        use d3il_server::store::{NewMethod, NewPolicy, NewSubmission};
+        use d3il_server::ops::{NewMethod, NewPolicy, NewSubmission};
         let dir = scratch("stacking");
         let db = dir.join("d3il.sqlite");
         // Context 0: gbr, rgb stacked; gb, bg two registered; r one; none.

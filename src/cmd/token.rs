@@ -76,7 +76,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             concurrent,
             db,
         } => {
-            let q = d3il_server::store::QuotaOverrides {
+            let q = d3il_server::ops::QuotaOverrides {
                 per_day: per_day.and_then(|v| v.0),
                 total: total.and_then(|v| v.0),
                 concurrent: concurrent.and_then(|v| v.0),
@@ -105,7 +105,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             )
             .with_context(|| format!("cannot create a token in {}", db.db))?;
             println!("{token}");
-            let prefix = &token[..d3il_server::store::TOKEN_PREFIX_LEN];
+            let prefix = &token[..d3il_server::ops::TOKEN_PREFIX_LEN];
             eprintln!(
                 "{} token for `{name}` created (prefix {prefix}, for `d3il token revoke`); it is shown only this once. \
                  Use it as `Authorization: Bearer <token>` or `d3il submit --token`.",

@@ -277,6 +277,28 @@ pub fn referenced_paths(text: &str, here: &[String]) -> BTreeSet<Vec<String>> {
     out
 }
 
+/// Every path `text` names in crate `krate` (`d3il_server::a::b`, and each
+/// leaf of `use d3il_server::{a, b::c}`), as its segments after the crate's
+/// name. Comments are skipped; inline test modules are read too, since what
+/// they import is part of the file.
+pub fn paths_into(text: &str, krate: &str) -> BTreeSet<Vec<String>> {
+    let code = text
+        .lines()
+        .map(|l| l.find("//").map_or(l, |i| &l[..i]))
+        .collect::<Vec<_>>()
+        .join("\n");
+    let needle = format!("{krate}::");
+    let mut out = BTreeSet::new();
+    for (i, _) in code.match_indices(&needle) {
+        let prev = code[..i].chars().next_back();
+        if prev.is_some_and(|c| c.is_alphanumeric() || c == '_' || c == '$') {
+            continue;
+        }
+        out.extend(use_tree(&code[i + needle.len()..]));
+    }
+    out
+}
+
 /// The module graph of the crate whose sources are under `src`: one node per
 /// file (`a::b`), edges to the modules its paths name.
 pub fn crate_graph(src: &Path) -> Graph {

@@ -1,14 +1,17 @@
 //! The layout rules hold in every crate of the workspace: no hand-written
 //! Rust file is over 700 lines (generated files are exempt by name, in
 //! `d3il_test_support::layout::GENERATED`), and no crate's modules refer to
-//! each other in a cycle. The checker itself is tested on synthetic input
-//! first, so that a rule that silently stopped looking would fail here.
+//! each other in a cycle; and the `d3il` binary (`src/`) does not reach into
+//! the server's store (it uses `d3il_server::ops`, the store's types the
+//! command-line tools need, and the server's `cli` functions). The checker
+//! itself is tested on synthetic input first, so that a rule that silently
+//! stopped looking would fail here.
 //! (server/tests/layout.rs adds the server's own rules: front ends apart,
 //! lower layers low.)
 
 use d3il_test_support::layout::{
-    crate_graph, cycles, graph_of, long_files, referenced_paths, rust_files, workspace_crates,
-    GENERATED, MAX_LINES,
+    crate_graph, cycles, graph_of, long_files, paths_into, referenced_paths, rust_files,
+    workspace_crates, GENERATED, MAX_LINES,
 };
 use d3il_test_support::{repo_dir, TempDir};
 use std::collections::BTreeSet;
@@ -157,6 +160,55 @@ fn no_crate_has_a_module_cycle() {
     assert!(
         found.is_empty(),
         "module cycles (move what both sides need into a module below them):\n{}",
+        found.join("\n")
+    );
+}
+
+#[test]
+fn the_checker_finds_every_way_of_naming_the_servers_store() {
+    let store = |text: &str| {
+        paths_into(text, "d3il_server")
+            .into_iter()
+            .filter(|p| p[0] == "store")
+            .map(|p| p.join("::"))
+            .collect::<Vec<_>>()
+    };
+    assert_eq!(store("use d3il_server::store::Store;"), ["store::Store"]);
+    assert_eq!(
+        store("use d3il_server::{cli, store::{DbTarget, sqlx}};"),
+        ["store::DbTarget", "store::sqlx"]
+    );
+    assert_eq!(store("use d3il_server::store;"), ["store"]);
+    assert_eq!(
+        store("fn f() { d3il_server::store::Store::connect(); }"),
+        ["store::Store::connect"]
+    );
+    assert_eq!(
+        store("#[cfg(test)]\nmod tests {\n    use d3il_server::store::NewMethod;\n}\n"),
+        ["store::NewMethod"]
+    );
+    assert!(store("use d3il_server::ops::Store; // not d3il_server::store").is_empty());
+    assert!(store("use my_d3il_server::store::X;").is_empty());
+}
+
+#[test]
+fn the_binary_does_not_import_the_servers_store() {
+    let root = repo_dir();
+    let mut found = vec![];
+    for file in rust_files(&root.join("src")) {
+        let text = std::fs::read_to_string(&file).unwrap();
+        for p in paths_into(&text, "d3il_server") {
+            if p[0] == "store" {
+                let rel = file.strip_prefix(&root).unwrap().display().to_string();
+                found.push(format!("{rel}: d3il_server::{}", p.join("::")));
+            }
+        }
+    }
+    assert!(
+        found.is_empty(),
+        "src/ names the server's store (use d3il_server::ops, which re-exports what the \
+         command-line tools need, or a d3il_server::cli function; add a re-export there if \
+         one is missing):\n{}",
         found.join("\n")
     );
 }

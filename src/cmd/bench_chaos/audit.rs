@@ -288,7 +288,7 @@ fn orphans(run: &PhaseRun, v: &mut Verdict) {
         })
         .collect();
     for f in &run.files {
-        if f.contains(d3il_server::store::TMP_MARKER) {
+        if f.contains(d3il_server::ops::TMP_MARKER) {
             v.problem(
                 |v| &mut v.orphans,
                 format!(

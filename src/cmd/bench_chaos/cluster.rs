@@ -335,7 +335,7 @@ impl Cluster {
 /// accepted submission among them (the first full run of this bench saw one
 /// vanish). A service's database keeps the default; so does this bench.
 fn durable_commits(url: &str) -> anyhow::Result<()> {
-    use d3il_server::store::sqlx;
+    use d3il_server::ops::sqlx;
     let name = url.rsplit('/').next().unwrap_or_default();
     anyhow::ensure!(
         !name.is_empty() && name.chars().all(|c| c.is_ascii_alphanumeric() || c == '_'),

@@ -8,7 +8,7 @@ use super::load::{self, Answer, Endpoint, Rng, Sent};
 use super::Plan;
 use anyhow::Context;
 use d3il_protocol::EvalResult;
-use d3il_server::store::sqlx;
+use d3il_server::ops::sqlx;
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -345,8 +345,8 @@ fn snapshot(cluster: &Cluster, name: &'static str) -> anyhow::Result<PhaseRun> {
         )
         .fetch_all(&db)
         .await?;
-        let store = d3il_server::store::Store::connect(
-            &d3il_server::store::DbTarget::Postgres(url.clone()),
+        let store = d3il_server::ops::Store::connect(
+            &d3il_server::ops::DbTarget::Postgres(url.clone()),
             Some(&cluster.store),
         )
         .await?;
