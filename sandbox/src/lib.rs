@@ -38,6 +38,6 @@ pub use child::{check_sandbox, check_sandbox_with, worker_main, WorkerOptions};
 pub use confine::{confine, SandboxError};
 pub use endpoint::{validate_endpoint, EndpointError};
 pub use parent::{
-    live_group_members, run_worker, run_worker_cancellable, run_worker_reporting, Outcome,
-    WorkerCommand, WorkerRun, DEFAULT_MAX_OUTPUT_BYTES,
+    live_group_members, run_worker, run_worker_cancellable, run_worker_reporting, suite_limits,
+    Outcome, WorkerCommand, WorkerRun, DEFAULT_MAX_OUTPUT_BYTES,
 };

@@ -56,6 +56,29 @@ impl WorkerCommand {
     }
 }
 
+/// The limits of `evaluations` evaluations in one worker, from those of one:
+/// the job's wall clock and CPU time, the supervisor's wall clock (the
+/// job's plus its margin) and output cap scaled by `evaluations`; memory,
+/// files and the remote endpoint's limits are per evaluation and stay. A
+/// server's suite job and `d3il robustness --sandbox` both scale by it.
+pub fn suite_limits(
+    one: &Limits,
+    cmd: &WorkerCommand,
+    evaluations: usize,
+) -> (Limits, WorkerCommand) {
+    let n = evaluations.max(1) as u64;
+    let mut limits = one.clone();
+    limits.wall_seconds = one.wall_seconds.saturating_mul(n);
+    limits.cpu_seconds = one.cpu_seconds.saturating_mul(n);
+    let margin = cmd
+        .wall_clock
+        .saturating_sub(Duration::from_secs(one.wall_seconds));
+    let mut cmd = cmd.clone();
+    cmd.wall_clock = Duration::from_secs(limits.wall_seconds) + margin;
+    cmd.max_output_bytes = cmd.max_output_bytes.saturating_mul(n as usize);
+    (limits, cmd)
+}
+
 #[derive(Debug, Clone, PartialEq)]
 pub enum Outcome {
     Completed(Box<EvalResult>),

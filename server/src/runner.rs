@@ -5,7 +5,7 @@
 use crate::queue::{JobRunner, RunReport, WorkerProcess};
 use d3il_protocol::Progress;
 use d3il_protocol::{Evaluated, Job, Limits, SandboxMechanism};
-use d3il_sandbox::{run_worker_reporting, Outcome, WorkerCommand};
+use d3il_sandbox::{run_worker_reporting, suite_limits, Outcome, WorkerCommand};
 use std::sync::atomic::AtomicBool;
 use std::sync::Arc;
 
@@ -88,8 +88,8 @@ impl JobRunner for SandboxRunner {
 /// runs level 0 and every level of its suite, each a whole evaluation (or,
 /// for a shard, each the shard's block of it), in one worker, so its wall
 /// clock, CPU time and output cap are those of one evaluation (or shard)
-/// times the number of evaluations (`suite_limits`); any other job runs as
-/// given.
+/// times the number of evaluations (`d3il_sandbox::suite_limits`); any
+/// other job runs as given.
 fn scaled_for_suite(job: &Job, cmd: &WorkerCommand) -> (Job, WorkerCommand) {
     let evaluations = match &job.suite {
         Some(_) => crate::intake::suite_evaluations(
@@ -104,28 +104,6 @@ fn scaled_for_suite(job: &Job, cmd: &WorkerCommand) -> (Job, WorkerCommand) {
     let mut job = job.clone();
     job.limits = limits;
     (job, cmd)
-}
-
-/// The limits of `evaluations` evaluations in one worker, from those of one:
-/// the job's wall clock and CPU time, the supervisor's wall clock (the
-/// job's plus its margin) and output cap scaled by `evaluations`; memory,
-/// files and the remote endpoint's limits are per evaluation and stay.
-pub fn suite_limits(
-    one: &Limits,
-    cmd: &WorkerCommand,
-    evaluations: usize,
-) -> (Limits, WorkerCommand) {
-    let n = evaluations.max(1) as u64;
-    let mut limits = one.clone();
-    limits.wall_seconds = one.wall_seconds.saturating_mul(n);
-    limits.cpu_seconds = one.cpu_seconds.saturating_mul(n);
-    let margin = cmd
-        .wall_clock
-        .saturating_sub(std::time::Duration::from_secs(one.wall_seconds));
-    let mut cmd = cmd.clone();
-    cmd.wall_clock = std::time::Duration::from_secs(limits.wall_seconds) + margin;
-    cmd.max_output_bytes = cmd.max_output_bytes.saturating_mul(n as usize);
-    (limits, cmd)
 }
 
 /// `--limits-json` for limits other than the defaults (a worker of an older

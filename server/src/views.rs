@@ -35,7 +35,7 @@ pub struct Progress {
 /// from) there is no estimate, never a guess and never "0 s". A suite run
 /// without history of its own counts as its plain kind's mean times the
 /// suite's number of evaluations (level 0 and every level), the factor its
-/// worker's limits are scaled by (`runner::suite_limits`). A queued job waits for the jobs ahead of it (each
+/// worker's limits are scaled by (`d3il_sandbox::suite_limits`). A queued job waits for the jobs ahead of it (each
 /// at its own kind's mean, spread over the slots: this front end's, or as
 /// many as jobs are running when worker hosts run more), then runs; a queued quick
 /// job has the pool's quick slot and waits only for quick jobs ahead of it.

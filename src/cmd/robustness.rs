@@ -46,8 +46,8 @@ pub fn run(args: &Args, suite_name: &str) -> anyhow::Result<()> {
 /// `--suite robustness --sandbox`: the whole suite (or its shard) in one
 /// sandboxed `d3il worker`, as a server's suite job runs it: the job with
 /// `suite` (and `shard`), the worker's limits those of one evaluation
-/// scaled to level 0 and every level (`d3il_server::runner::suite_limits`,
-/// the server's rule). The policy is loaded only in the worker.
+/// scaled to level 0 and every level (`d3il_sandbox::suite_limits`, the
+/// rule the server's suite jobs use too). The policy is loaded only in the worker.
 fn run_sandboxed(args: &Args, mut job: Job, name: &str, suite: &Suite) -> anyhow::Result<()> {
     let task = LoadedTask::load_obs(job.task, job.manifest.obs_type)?;
     let opts = EvalOptions {
@@ -61,7 +61,7 @@ fn run_sandboxed(args: &Args, mut job: Job, name: &str, suite: &Suite) -> anyhow
     job.suite = Some(name.into());
     job.shard = args.shard;
     job.build = Some(super::verify::this_build()?);
-    let (limits, cmd) = d3il_server::runner::suite_limits(
+    let (limits, cmd) = d3il_sandbox::suite_limits(
         &job.limits,
         &super::eval::worker_command(&job)?,
         plan.levels.len() + 1,
