@@ -36,7 +36,7 @@ enum Command {
     Eval(cmd::eval::Args),
     /// How closely this simulator follows the original D3IL one: the fidelity report (Markdown or JSON).
     Fidelity(cmd::fidelity::Args),
-    /// Recompute the intervals of result or robustness documents made before 0.5.0 and print what moved (docs/intervals.md).
+    /// Recompute the intervals of result or robustness documents made under earlier interval rules and print what moved (docs/intervals.md).
     Intervals(cmd::intervals::Args),
     /// Run an ONNX policy on given inputs after the evaluator's admission and print its raw actions as JSON (an exporter's check).
     Infer(cmd::infer::Args),

@@ -193,7 +193,7 @@ fn converse(url: &str) {
         remote_frame_bytes: 1024,
         ..Limits::default()
     };
-    let mut policy = match RemotePolicy::connect(url, &spec, ObsType::State, 0, &limits) {
+    let mut policy = match RemotePolicy::connect(url, None, &spec, ObsType::State, 0, &limits) {
         Ok(p) => p,
         Err(e) => return assert_described("connect", &e),
     };
