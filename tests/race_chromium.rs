@@ -12,7 +12,7 @@ use d3il_metrics::sequential::SequentialComparison;
 use d3il_protocol::race::{pairs_of, RaceReport};
 use d3il_protocol::{ObsType, ProtocolKind, TaskId};
 use d3il_server::store::{NewComparison, NewMethod, NewPolicy, NewSubmission, Store};
-use d3il_test_support::chromium::{chromium, dump_dom, serve_forever};
+use d3il_test_support::chromium::{chromium, dump_dom, serve_with_script};
 use server_support::*;
 
 /// The pairs of a race A wins (as server/tests/compare_page.rs's), its
@@ -199,14 +199,7 @@ fn chromium_draws_the_race_walk_against_its_boundary_and_the_e_value_path() {
         var r = document.createElement('pre'); r.id = 'race-report';
         r.textContent = 'FIG' + 'URE:' + JSON.stringify(out) + ':E' + 'ND';
         document.body.appendChild(r);});</script>"#;
-    let html = page
-        .replacen(
-            "<head>",
-            &format!("<head><base href=\"{}/\">", server.base),
-            1,
-        )
-        .replacen("</body>", &format!("{script}</body>"), 1);
-    let url = serve_forever(html);
+    let url = serve_with_script(&page, &server.base, script);
     let dom = dump_dom(
         &browser,
         &url,

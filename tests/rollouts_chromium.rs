@@ -7,7 +7,7 @@
 mod rollouts_support;
 mod server_support;
 
-use d3il_test_support::chromium::{chromium, dump_dom, serve_forever};
+use d3il_test_support::chromium::{chromium, dump_dom, serve_with_script};
 use rollouts_support::*;
 use server_support::{Server, TempDir};
 
@@ -60,15 +60,7 @@ fn chromium_plays_a_rollout_video_and_filters_rollouts() {
           })();\
         }, function (e) { report('play refused ' + e + ' end'); });\
         });</script>";
-    let html = page
-        .text()
-        .replacen(
-            "<head>",
-            &format!("<head><base href=\"{}/\">", server.base),
-            1,
-        )
-        .replacen("</body>", &format!("{script}</body>"), 1);
-    let url = serve_forever(html);
+    let url = serve_with_script(&page.text(), &server.base, script);
     let dom = dump_dom(
         &browser,
         &url,

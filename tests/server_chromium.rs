@@ -4,7 +4,7 @@
 //! Pareto plot.
 
 mod server_support;
-use d3il_test_support::chromium::{chromium, dump_dom, dump_dom_at, serve_forever};
+use d3il_test_support::chromium::{chromium, dump_dom, dump_dom_at, serve_with_script};
 use server_support::*;
 
 #[test]
@@ -75,14 +75,7 @@ fn layout_widths(
         var r = document.createElement('pre'); r.id = 'layout-report';\
         r.textContent = 'widths ' + Math.max(d.scrollWidth, document.body.scrollWidth) + ' ' + d.clientWidth + ' end';\
         document.body.appendChild(r);});</script>";
-    let html = page
-        .replacen(
-            "<head>",
-            &format!("<head><base href=\"{}/\">", server.base),
-            1,
-        )
-        .replacen("</body>", &format!("{script}</body>"), 1);
-    let url = serve_forever(html);
+    let url = serve_with_script(&page, &server.base, script);
     let dom = dump_dom_at(
         browser,
         &url,

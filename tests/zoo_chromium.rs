@@ -4,7 +4,7 @@
 //! visible (rendered with a size, not hidden by the stylesheet).
 
 mod server_support;
-use d3il_test_support::chromium::{chromium, dump_dom_at, serve_forever};
+use d3il_test_support::chromium::{chromium, dump_dom_at, serve_with_script};
 use server_support::*;
 
 #[test]
@@ -27,14 +27,7 @@ fn chromium_shows_the_zoo_rows_data_source_mark() {
             cs.visibility + ' ' + cs.display + ' [' + b.textContent + '] end'; }\
         else { r.textContent = 'mark none end'; }\
         document.body.appendChild(r);});</script>";
-    let html = page
-        .replacen(
-            "<head>",
-            &format!("<head><base href=\"{}/\">", server.base),
-            1,
-        )
-        .replacen("</body>", &format!("{script}</body>"), 1);
-    let url = serve_forever(html);
+    let url = serve_with_script(&page, &server.base, script);
     let dom = dump_dom_at(
         &browser,
         &url,

@@ -79,3 +79,15 @@ pub fn serve_forever(html: String) -> String {
     });
     format!("http://{addr}/")
 }
+
+/// Serves a page of the server at `base` (its text, `page`) as
+/// [`serve_forever`] does, wrapped the one way the Chromium tests wrap a
+/// page: a `<base>` pointing back at `base` (so that its styles, images
+/// and links load from the real server) and the test's own `script` at the
+/// end of the body. Returns the URL.
+pub fn serve_with_script(page: &str, base: &str, script: &str) -> String {
+    let html = page
+        .replacen("<head>", &format!("<head><base href=\"{base}/\">"), 1)
+        .replacen("</body>", &format!("{script}</body>"), 1);
+    serve_forever(html)
+}
