@@ -42,12 +42,7 @@ async fn race_as(app: &TestApp, token: &str, a: i64, b: i64) -> (u16, Value, Opt
         .send()
         .await
         .unwrap();
-    let status = r.status().as_u16();
-    let retry = r
-        .headers()
-        .get("retry-after")
-        .map(|v| v.to_str().unwrap().to_string());
-    (status, r.json().await.unwrap(), retry)
+    answer_with_retry(r).await
 }
 
 async fn cancel_race_as(app: &TestApp, token: &str, id: i64) -> (u16, Value) {

@@ -35,6 +35,11 @@ pub async fn submit_as(
         .send()
         .await
         .unwrap();
+    answer_with_retry(r).await
+}
+
+/// An answer's status, JSON body and `Retry-After` header (a 429 names when).
+pub async fn answer_with_retry(r: reqwest::Response) -> (u16, Value, Option<String>) {
     let status = r.status().as_u16();
     let retry = r
         .headers()
