@@ -4,10 +4,11 @@
 //! front ends (`http::api`, `http::pages`, `http::plots`) must not reference
 //! each other; `leaderboard` stays free of HTTP and SQL; `error` references
 //! nothing but the store's error. Also: no file under `server/` is over 700
-//! lines. References are read by the workspace's checker
-//! (`d3il_test_support::layout`, whose own tests and the workspace-wide rules
-//! are in test-support/tests/layout.rs); a file's inline test module is not
-//! part of the graph.
+//! lines, and store transactions begin through `begin_write!`. References
+//! are read by the workspace's checker (`d3il_test_support::layout`, whose
+//! own tests and the workspace-wide rules are in
+//! test-support/tests/layout.rs); a file's inline test module is not part of
+//! the graph.
 
 use d3il_test_support::layout::{module_of, referenced_paths};
 use std::collections::{BTreeMap, BTreeSet};
@@ -210,5 +211,30 @@ fn no_file_over_700_lines() {
     for f in files {
         let n = std::fs::read_to_string(&f).unwrap().lines().count();
         assert!(n <= 700, "{} has {n} lines; split it by job", f.display());
+    }
+}
+
+/// Every store transaction that writes begins through `begin_write!`: on
+/// SQLite a deferred transaction that reads and then writes fails with
+/// SQLITE_BUSY_SNAPSHOT when another connection wrote in between, which no
+/// busy timeout retries. Only PostgreSQL-only code (the advisory lock in
+/// files.rs, a PostgreSQL pool) may call `.begin()` itself.
+#[test]
+fn store_transactions_begin_through_begin_write() {
+    let mut files = vec![];
+    rust_files(&src_dir().join("store"), &mut files);
+    for f in files {
+        if f.ends_with("store/mod.rs") || f.ends_with("store/files.rs") {
+            continue;
+        }
+        let text = std::fs::read_to_string(&f).unwrap();
+        for (i, line) in text.lines().enumerate() {
+            assert!(
+                !line.contains(".begin()"),
+                "{}:{}: begin the transaction with begin_write!(self, pool)",
+                f.display(),
+                i + 1
+            );
+        }
     }
 }

@@ -273,7 +273,7 @@ impl Store {
     /// the policy's fault and does not count against `--max-attempts`.
     pub async fn requeue_abandoned(&self) -> Result<u64, StoreError> {
         on_db!(&self.db, pool => {
-            let mut tx = pool.begin().await?;
+            let mut tx = begin_write!(self, pool);
             let n = sqlx::query(
                 "UPDATE jobs SET state = 'queued', lease_owner = NULL, lease_expires_at = NULL, \
                  attempts = CASE WHEN attempts > 0 THEN attempts - 1 ELSE 0 END WHERE state = 'leased'",
@@ -419,7 +419,8 @@ impl Store {
         let t = now();
         let total = result.rollouts.len() as i64;
         on_db!(&self.db, pool => {
-            let mut tx = pool.begin().await?;
+            // Reads, then writes: the write lock is taken up front.
+            let mut tx = begin_write!(self, pool);
             // A cancelled evaluation stays cancelled (and unranked) even if
             // its worker finished before it noticed.
             let cancelled: Option<i64> =

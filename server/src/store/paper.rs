@@ -34,7 +34,7 @@ impl Store {
     /// left untouched, so this runs on every start.
     pub async fn load_paper(&self, paper: &PaperResults) -> Result<(), StoreError> {
         on_db!(&self.db, pool => {
-        let mut tx = pool.begin().await?;
+        let mut tx = begin_write!(self, pool);
         for (name, m) in &paper.methods {
             sqlx::query(
                 "INSERT INTO methods (name, history, backbone, prediction, diversity, paper_url, description, \

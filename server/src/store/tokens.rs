@@ -43,7 +43,7 @@ impl Store {
             .map_err(|e| StoreError::Corrupt(format!("no randomness available: {e}")))?;
         let token = format!("d3il_{}", hex::encode(raw));
         on_db!(&self.db, pool => {
-        let mut tx = pool.begin().await?;
+        let mut tx = begin_write!(self, pool);
         sqlx::query("INSERT INTO submitters (name) VALUES ($1) ON CONFLICT(name) DO NOTHING")
             .bind(name)
             .execute(&mut *tx)
