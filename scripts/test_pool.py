@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Runs the workspace's test binaries a few at a time (`./dev test`, issue 43 item 5).
+"""Runs the workspace's test binaries a few at a time (`./dev test`).
 
 `cargo test` runs its test binaries one after another. Most of ours wait on
 servers, workers, Chromium or PostgreSQL for much of their time, so on 2 cores
@@ -9,7 +9,7 @@ then runs them as cargo would (working directory the package's, CARGO_*
 variables set), JOBS at a time, longest first, each binary's output printed
 whole when it ends. The doc-tests run as one more job. At the end: every
 failed binary, then the ten slowest with their wall and CPU time (CI time
-stays visible: the budget of a clean-clone .ci/run is 40 minutes on 2 cores).
+stays visible: the budget of a clean-clone .ci/run is 35 minutes on 2 cores).
 
 Exits non-zero when the build or any binary fails; every binary runs either
 way (as cargo's --no-fail-fast). Arguments after `--` go to every test binary.
