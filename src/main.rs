@@ -24,7 +24,7 @@ struct Cli {
 enum Command {
     /// Benchmarks that print ratios (physics, eval, render).
     Bench(cmd::bench::Args),
-    /// Compare two `d3il eval --json` results on the same initial states (paired difference, interval, p-value).
+    /// Paired comparison of two `d3il eval --json` results on the same initial states (difference, interval, p-value).
     Compare(cmd::compare::Args),
     /// Generate or verify the fixed initial-state sets.
     Contexts(cmd::contexts::Args),
@@ -42,6 +42,8 @@ enum Command {
     Infer(cmd::infer::Args),
     /// Merge the part files of a sharded `d3il eval --shard K/N` into one result (docs/cluster.md).
     Merge(cmd::merge::Args),
+    /// Race two policies on a task (`--task`), stopping when the sequential paired test decides, or replay two results through that test (docs/sequential.md).
+    Race(cmd::race::Args),
     /// Render what an image policy sees (both 96x96 cameras) to a PNG.
     Render(cmd::render::Args),
     /// Replay an episode open-loop from policy-level actions and print JSON.
@@ -72,10 +74,12 @@ fn main() -> anyhow::Result<()> {
     let cli = Cli::parse();
     match cli.command {
         Command::Bench(a) => cmd::bench::run(a),
-        Command::Compare(a) => match a.task {
-            Some(task) => cmd::race::run(&a, task),
-            None => cmd::compare::run(a),
-        },
+        Command::Compare(a) if a.sequential => {
+            eprintln!("note: `d3il compare --sequential` is deprecated; it is `d3il race` (the same arguments without --sequential)");
+            cmd::race::run(&a.as_race())
+        }
+        Command::Compare(a) => cmd::compare::run(a),
+        Command::Race(a) => cmd::race::run(&a),
         Command::Contexts(a) => cmd::contexts::run(a),
         Command::Db(a) => cmd::db::run(a),
         Command::Demos(a) => cmd::demos::run(a),

@@ -185,7 +185,7 @@ async fn attack(
                 addr,
                 &ip,
                 "POST",
-                "/api/v1/comparisons",
+                "/api/v1/races",
                 Some(&token),
                 Some("application/json"),
                 race.as_bytes(),
@@ -474,13 +474,13 @@ fn a_flood_of_races_suites_uploads_trickles_and_bogus_tokens_does_not_stall_a_no
         races.extend(r.iter().copied());
     }
     for id in &races {
-        let v = client.comparison(*id).expect("an accepted race is there");
+        let v = client.get_race(*id).expect("an accepted race is there");
         if matches!(v["status"].as_str(), Some("queued" | "running")) {
             op.cancel_race(*id).expect("an admin cancels it");
         }
     }
     for id in &races {
-        let v = client.comparison(*id).unwrap();
+        let v = client.get_race(*id).unwrap();
         assert!(
             ["cancelled", "completed", "failed"].contains(&v["status"].as_str().unwrap()),
             "{v}"

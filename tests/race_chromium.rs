@@ -1,4 +1,4 @@
-//! Headless Chromium draws the race page (`/comparisons/{id}`) of the real
+//! Headless Chromium draws the race page (`/races/{id}`) of the real
 //! `d3il serve`: a finished Pushing race stored as a race slot stores it (the
 //! store's claim and completion), its report from the real sequential test.
 //! A script measures the figure as Chromium laid it out: the walk of wins
@@ -11,7 +11,7 @@ mod server_support;
 use d3il_metrics::sequential::SequentialComparison;
 use d3il_protocol::race::{pairs_of, RaceReport};
 use d3il_protocol::{ObsType, ProtocolKind, TaskId};
-use d3il_server::store::{NewComparison, NewMethod, NewPolicy, NewSubmission, Store};
+use d3il_server::store::{NewMethod, NewPolicy, NewRace, NewSubmission, Store};
 use d3il_test_support::chromium::{chromium, dump_dom, serve_with_script};
 use server_support::*;
 
@@ -115,12 +115,12 @@ fn seed(db: &std::path::Path, report: &RaceReport) -> i64 {
             ids.push(id);
         }
         let race = store
-            .create_comparison(&NewComparison {
+            .create_race(&NewRace {
                 submission_a: ids[0],
                 submission_b: ids[1],
                 submitter_id: who.id,
-                task: "pushing".into(),
-                protocol: "paper".into(),
+                task: d3il_protocol::TaskId::Pushing,
+                protocol: d3il_protocol::ProtocolKind::Paper,
                 seed: 0,
                 alpha: report.alpha,
                 delta: None,
@@ -134,7 +134,7 @@ fn seed(db: &std::path::Path, report: &RaceReport) -> i64 {
             .expect("the race waits");
         assert_eq!(claimed.id, race);
         store
-            .comparison_completed(race, &serde_json::to_string(report).unwrap())
+            .race_completed(race, &serde_json::to_string(report).unwrap())
             .await
             .expect("complete");
         race
@@ -168,7 +168,7 @@ fn chromium_draws_the_race_walk_against_its_boundary_and_the_e_value_path() {
     let (report, at) = report();
     let race = seed(&db, &report);
     let server = Server::start(&db, &["--workers", "0"]);
-    let (s, page) = server.get_text(&format!("/comparisons/{race}"));
+    let (s, page) = server.get_text(&format!("/races/{race}"));
     assert_eq!(s, 200, "{page}");
     assert!(
         page.contains(&format!("Fixed-size comparison of the {at} pairs used")),

@@ -1,8 +1,8 @@
 //! Issue 41 on the server, end to end through the real binary: `POST
-//! /api/v1/comparisons` races two submissions' policies in a real sandboxed
-//! `d3il worker` (MuJoCo, tract); `GET /api/v1/comparisons/{id}` shows the
+//! /api/v1/races` races two submissions' policies in a real sandboxed
+//! `d3il worker` (MuJoCo, tract); `GET /api/v1/races/{id}` shows the
 //! race so far and its report, which is the same, decision and counts, as
-//! `d3il compare --sequential --task` gives for the same pair (one rule, one
+//! `d3il race --task` gives for the same pair (one rule, one
 //! place: `d3il_evaluator::eval::race`); wrong requests are 400s naming the
 //! field. `--workers 0`: the submissions stay queued (a race needs their
 //! policies, not their results) and the race runs in the server's own slot.
@@ -74,7 +74,7 @@ fn a_trained_policy_against_an_untrained_one_is_decided_early_on_the_server() {
         .expect("race accepted");
     let id = started["id"].as_i64().unwrap();
     let done = client
-        .wait_comparison(id, Duration::from_secs(600), |_| {})
+        .wait_race(id, Duration::from_secs(600), |_| {})
         .unwrap();
     assert_eq!(done["status"], "completed", "{done}");
     let report = &done["report"];
@@ -91,7 +91,7 @@ fn a_trained_policy_against_an_untrained_one_is_decided_early_on_the_server() {
         "the untrained fixture never succeeds"
     );
 
-    let (status, page) = client.get_text(&format!("/comparisons/{id}")).unwrap();
+    let (status, page) = client.get_text(&format!("/races/{id}")).unwrap();
     assert_eq!(status, 200, "{page}");
     assert!(page.contains("Decision: <strong>A better"), "{page}");
 
@@ -112,7 +112,7 @@ fn a_trained_policy_against_an_untrained_one_is_decided_early_on_the_server() {
     }
 }
 
-/// The refusal of a comparison request: (status, field).
+/// The refusal of a race request: (status, field).
 fn refused(client: &d3il_server::client::Client, body: Value) -> (u16, Option<String>, String) {
     match client.race(&body) {
         Err(d3il_server::client::ClientError::Api {
@@ -145,7 +145,7 @@ fn a_race_on_the_server_reports_what_the_cli_race_reports_and_refuses_wrong_requ
     );
     assert_eq!(started["alpha"], 0.05);
     let done = client
-        .wait_comparison(id, Duration::from_secs(300), |_| {})
+        .wait_race(id, Duration::from_secs(300), |_| {})
         .unwrap();
     assert_eq!(done["status"], "completed", "{done}");
     let report = &done["report"];
@@ -164,7 +164,7 @@ fn a_race_on_the_server_reports_what_the_cli_race_reports_and_refuses_wrong_requ
 
     // The page shows the two policies, the paired counts, the evidence and
     // the outcome, and stops refreshing once finished.
-    let (status, page) = client.get_text(&format!("/comparisons/{id}")).unwrap();
+    let (status, page) = client.get_text(&format!("/races/{id}")).unwrap();
     assert_eq!(status, 200, "{page}");
     for want in [
         format!("href=\"/submissions/{a}\""),
@@ -221,7 +221,7 @@ fn a_race_on_the_server_reports_what_the_cli_race_reports_and_refuses_wrong_requ
     assert_eq!(report["states_full"], 3, "quick protocol: {report}");
 
     // `d3il submit --race A B --wait` (the CLI through the server): the same
-    // report, printed as `d3il compare --sequential --task` prints it.
+    // report, printed as `d3il race --task` prints it.
     let out = Command::new(EXE)
         .args(["submit", "--server", &server.base, "--token", &token])
         .args([
@@ -240,13 +240,24 @@ fn a_race_on_the_server_reports_what_the_cli_race_reports_and_refuses_wrong_requ
         "{text}{}",
         String::from_utf8_lossy(&out.stderr)
     );
-    assert!(text.starts_with("comparison "), "{text}");
+    assert!(text.starts_with("race "), "{text}");
     let e_line = format!(
         "e-value {:.3}, anytime-valid p-value {:.4}",
         cli["e_value"].as_f64().unwrap(),
         cli["p_value"].as_f64().unwrap()
     );
     assert!(text.contains(&e_line), "{e_line} in {text}");
+    // The race page's fixed-size comparison of the pairs used, word for word.
+    let fixed = d3il_metrics::rate_difference::fixed_size_comparison(
+        cli["pairs_used"].as_u64().unwrap(),
+        (
+            cli["discordant"][0].as_u64().unwrap(),
+            cli["discordant"][1].as_u64().unwrap(),
+        ),
+        cli["alpha"].as_f64().unwrap(),
+    )
+    .line();
+    assert!(text.contains(&fixed), "{fixed} in {text}");
 
     // The /compare page's form starts the same race and leads to its page.
     // (The submissions are queued: the fixed-size comparison is a 400 that
@@ -257,35 +268,27 @@ fn a_race_on_the_server_reports_what_the_cli_race_reports_and_refuses_wrong_requ
     assert!(compare.contains("only finished submissions"), "{compare}");
     assert!(compare.contains("id=\"race-form\""), "{compare}");
     let form = format!("a={a}&b={b}&protocol=quick&token={token}");
-    let (status, answer) = post_form(&server.base, "/comparisons", &form);
+    let (status, answer) = post_form(&server.base, "/races", &form);
     assert_eq!(status, 303, "{answer}");
     let location = answer
         .lines()
-        .find_map(|l| l.strip_prefix("location: /comparisons/"))
+        .find_map(|l| l.strip_prefix("location: /races/"))
         .unwrap_or_else(|| panic!("no location in {answer}"));
     let by_form: i64 = location.trim().parse().unwrap();
     let done = client
-        .wait_comparison(by_form, Duration::from_secs(300), |_| {})
+        .wait_race(by_form, Duration::from_secs(300), |_| {})
         .unwrap();
     assert_eq!(done["report"]["e_value"], cli["e_value"], "{done}");
-    let (status, answer) = post_form(
-        &server.base,
-        "/comparisons",
-        &format!("a=x&b={b}&token={token}"),
-    );
+    let (status, answer) = post_form(&server.base, "/races", &format!("a=x&b={b}&token={token}"));
     assert_eq!(status, 400, "{answer}");
     assert!(answer.contains("`a` must be a submission id"), "{answer}");
-    let (status, _) = post_form(
-        &server.base,
-        "/comparisons",
-        &format!("a={a}&b={b}&token=wrong"),
-    );
+    let (status, _) = post_form(&server.base, "/races", &format!("a={a}&b={b}&token=wrong"));
     assert_eq!(status, 401);
 
     // The document describes both routes.
     let doc = client.get("/api/v1/openapi.json").unwrap();
-    assert!(doc["paths"]["/comparisons"]["post"].is_object());
-    assert!(doc["paths"]["/comparisons/{id}"]["get"].is_object());
+    assert!(doc["paths"]["/races"]["post"].is_object());
+    assert!(doc["paths"]["/races/{id}"]["get"].is_object());
     assert!(doc["components"]["schemas"]["RaceLive"]["properties"]["only_a"].is_object());
 
     // Wrong requests: 400s naming the field.
@@ -342,9 +345,9 @@ fn a_race_on_the_server_reports_what_the_cli_race_reports_and_refuses_wrong_requ
         String::from_utf8_lossy(&out.stderr)
     );
     assert_eq!(client.submission(avoiding).unwrap()["status"], "failed");
-    // An unknown comparison: 404.
+    // An unknown race: 404.
     assert!(matches!(
-        client.comparison(id + 100),
+        client.get_race(id + 100),
         Err(d3il_server::client::ClientError::Api { status: 404, .. })
     ));
 }
@@ -373,11 +376,11 @@ fn post_form(base: &str, path: &str, body: &str) -> (u16, String) {
     (status, format!("{}\n\n{rest}", head.to_lowercase()))
 }
 
-/// `d3il compare --sequential --task aligning EXTRA --json A B`: the CLI's
+/// `d3il race --task aligning EXTRA --json A B`: the CLI's
 /// race report.
 fn cli_race(extra: &[&str], a: &std::path::Path, b: &std::path::Path) -> Value {
     let out = Command::new(EXE)
-        .args(["compare", "--sequential", "--task", "aligning"])
+        .args(["race", "--task", "aligning"])
         .args(extra)
         .arg("--json")
         .arg(a)
@@ -418,7 +421,7 @@ fn races_wait_in_the_queue_are_cancelled_and_a_restart_resumes_what_the_queue_sa
             .unwrap()
     };
     let (first, second, third) = (race(&client), race(&client), race(&client));
-    let status = |c: &d3il_server::client::Client, id: i64| c.comparison(id).unwrap();
+    let status = |c: &d3il_server::client::Client, id: i64| c.get_race(id).unwrap();
     let running_with_pairs = |c: &d3il_server::client::Client| {
         wait_for(Duration::from_secs(300), || {
             let v = status(c, first);
@@ -441,7 +444,7 @@ fn races_wait_in_the_queue_are_cancelled_and_a_restart_resumes_what_the_queue_sa
     );
     assert!(
         String::from_utf8_lossy(&out.stdout)
-            .contains(&format!("comparison {third} cancelled: status cancelled")),
+            .contains(&format!("race {third} cancelled: status cancelled")),
         "{}",
         String::from_utf8_lossy(&out.stdout)
     );

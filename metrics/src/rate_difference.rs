@@ -183,6 +183,68 @@ impl ExactMcNemar {
     }
 }
 
+/// A race's pairs (one a state, its rollout 0) compared as if their number
+/// had been fixed in advance: the exact McNemar test on the discordant pairs
+/// and its inverted interval at the race's level `alpha` ([`ExactMcNemar`]),
+/// so 0 lies outside the interval exactly when `p ≤ alpha`. For reference
+/// only: a race stops when its data say so, which neither allows for; the
+/// race's decision is the sequential test's. The one computation behind the
+/// race page, the race's JSON (`fixed_comparison`) and `d3il race`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FixedSizeComparison {
+    /// Pairs used.
+    pub pairs: u64,
+    /// The race's level.
+    pub alpha: f64,
+    /// A − B of the pairs' success rates, with its interval
+    /// (`mcnemar_exact`) or the reason there is none.
+    pub difference: d3il_protocol::Estimate,
+    /// The exact McNemar test's two-sided p-value.
+    pub p_value: f64,
+}
+
+/// [`FixedSizeComparison`] of `pairs_used` pairs with `discordant` (won by
+/// A, won by B) at level `alpha`.
+pub fn fixed_size_comparison(
+    pairs_used: u64,
+    discordant: (u64, u64),
+    alpha: f64,
+) -> FixedSizeComparison {
+    let (x, y) = discordant;
+    // A stored report's counts are the race's own; the max only keeps a
+    // corrupt one from asserting.
+    let pairs = pairs_used.max(x + y);
+    let paired = ExactMcNemar::new(pairs as usize, x, y).paired_interval(1.0 - alpha);
+    FixedSizeComparison {
+        pairs,
+        alpha,
+        difference: paired.to_estimate(),
+        p_value: paired.p_value,
+    }
+}
+
+impl FixedSizeComparison {
+    /// The comparison in words, with the note that neither the interval nor
+    /// the p-value holds after the race's data-dependent stop (the race page
+    /// and `d3il race` print this sentence).
+    pub fn line(&self) -> String {
+        let d = &self.difference;
+        let interval = match d.interval() {
+            Some(_) => format!(
+                "{:.0} % interval {} ({})",
+                100.0 * (1.0 - self.alpha),
+                d.interval_text(3),
+                d.interval_note()
+            ),
+            None => d.interval_note(),
+        };
+        format!(
+            "Fixed-size comparison of the {} pairs used: A − B {:+.3}, {interval}, exact McNemar p-value {:.4} (0 lies outside the interval exactly when p ≤ {}; for reference: neither is valid after the race's data-dependent stop)",
+            self.pairs, d.value, self.p_value, self.alpha
+        )
+    }
+}
+
 /// Two independent samples, `x1` successes of `n1` (A) and `x2` of `n2`
 /// (B): the Miettinen–Nurminen score test of `p1 − p2 = δ` and its
 /// inversion (see the module documentation).

@@ -23,7 +23,7 @@ pub enum ClientError {
         path: String,
         source: std::io::Error,
     },
-    /// What was waited for ("submission 12", "comparison 3") and for how long.
+    /// What was waited for ("submission 12", "race 3") and for how long.
     #[error("gave up waiting for {0} after {1:?}")]
     Timeout(String, Duration),
 }
@@ -133,40 +133,39 @@ impl Client {
         Self::decode(self.auth(rb).send()?)
     }
 
-    /// Starts a sequential race of two submissions (`POST
-    /// /api/v1/comparisons`); `body` is the request: `{"a", "b",
+    /// Starts a race of two submissions (`POST /api/v1/races`); `body` is the request: `{"a", "b",
     /// "alpha"?, "delta"?, "protocol"?, "seed"?, "task"?}`.
     pub fn race(&self, body: &Value) -> Result<Value, ClientError> {
         let rb = self
             .http
-            .post(format!("{}/api/v1/comparisons", self.base))
+            .post(format!("{}/api/v1/races", self.base))
             .json(body);
         Self::decode(self.auth(rb).send()?)
     }
 
     /// Cancels a queued or running race (`POST
-    /// /api/v1/comparisons/{id}/cancel`): its starter or an admin.
+    /// /api/v1/races/{id}/cancel`): its starter or an admin.
     pub fn cancel_race(&self, id: i64) -> Result<Value, ClientError> {
         let rb = self
             .http
-            .post(format!("{}/api/v1/comparisons/{id}/cancel", self.base));
+            .post(format!("{}/api/v1/races/{id}/cancel", self.base));
         Self::decode(self.auth(rb).send()?)
     }
 
-    /// A comparison (`GET /api/v1/comparisons/{id}`).
-    pub fn comparison(&self, id: i64) -> Result<Value, ClientError> {
-        self.get(&format!("/api/v1/comparisons/{id}"))
+    /// A race (`GET /api/v1/races/{id}`).
+    pub fn get_race(&self, id: i64) -> Result<Value, ClientError> {
+        self.get(&format!("/api/v1/races/{id}"))
     }
 
-    /// Polls a comparison until it is completed, failed or cancelled.
-    pub fn wait_comparison(
+    /// Polls a race until it is completed, failed or cancelled.
+    pub fn wait_race(
         &self,
         id: i64,
         timeout: Duration,
         on_update: impl FnMut(&Value),
     ) -> Result<Value, ClientError> {
-        let path = format!("/api/v1/comparisons/{id}");
-        let what = format!("comparison {id}");
+        let path = format!("/api/v1/races/{id}");
+        let what = format!("race {id}");
         self.poll_until_done(&path, &what, timeout, Duration::from_millis(300), on_update)
     }
 

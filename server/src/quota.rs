@@ -304,7 +304,7 @@ impl QuotaView {
         (self.races.remaining == Some(0)).then(|| AppError::QuotaExceeded {
             message: format!(
                 "{} races of yours are queued or running (limit {l} at once, --max-queued-races); another is \
-                 possible when one ends or you cancel one (POST /api/v1/comparisons/{{id}}/cancel)",
+                 possible when one ends or you cancel one (POST /api/v1/races/{{id}}/cancel)",
                 self.races.used
             ),
             retry_after: Some(60),

@@ -1,13 +1,15 @@
-//! Sequential comparisons on the server: `POST /api/v1/comparisons`
-//! races two submissions' policies in one race job (`d3il_protocol::race`);
-//! the comparison's row holds its live state while it runs and the race's
+//! Races on the server: `POST /api/v1/races` races two submissions'
+//! policies in one race job (`d3il_protocol::race`): both on the same
+//! initial states in the same random order, stopped by the sequential
+//! paired test; the race's row holds its live state while it runs and its
 //! report when it ends. The rule is `d3il_evaluator::eval::race` (the same
-//! as `d3il compare --sequential --task`); docs/sequential.md.
+//! as `d3il race --task`); docs/sequential.md. (A race is not a paired
+//! comparison: that is of two finished results, [`crate::comparison`].)
 //!
 //! A race is metered work. It needs one of the racer's own
 //! submissions (against any public one), counts [`crate::quota::RACE_EVALUATIONS`]
 //! against the quota, and a submitter has at most `--max-queued-races`
-//! queued or running. It waits in the durable queue (the comparisons table)
+//! queued or running. It waits in the durable queue (the races' table)
 //! holding nothing: the front end's race slot ([`start_race_slot`]) leases
 //! the oldest one, runs it in a sandboxed `d3il worker` through the shared
 //! worker slots, heartbeats, and stops its worker when the race is
@@ -17,19 +19,19 @@
 use crate::error::AppError;
 use crate::queue::policy_of;
 use crate::state::AppState;
-use crate::store::{ComparisonRow, NewComparison, RaceCancel, SubmissionStatus, Submitter};
+use crate::store::{NewRace, RaceCancel, RaceRow, RaceStatus, SubmissionStatus, Submitter};
 use d3il_protocol::race::{RaceJob, RaceProgress, RaceReport};
-use d3il_protocol::{Evaluated, Job, ProtocolKind};
+use d3il_protocol::{Evaluated, Job, ProtocolKind, TaskId};
 use serde::{Deserialize, Serialize};
 use utoipa::ToSchema;
 
-/// Rollouts simulated at once per policy (as `d3il compare --max-live`'s default).
+/// Rollouts simulated at once per policy (as `d3il race --max-live`'s default).
 pub const MAX_LIVE: usize = 8;
 
-/// `POST /api/v1/comparisons`: two submission ids and the test's options.
+/// `POST /api/v1/races`: two submission ids and the test's options.
 #[derive(Debug, Clone, Deserialize, ToSchema)]
 #[serde(deny_unknown_fields)]
-pub struct ComparisonRequest {
+pub struct RaceRequest {
     /// Submission id of policy A.
     pub a: i64,
     /// Submission id of policy B (another submission on the same task and observation type).
@@ -95,25 +97,26 @@ impl RaceLive {
     }
 }
 
-/// A comparison as the API shows it.
+/// A race as the API shows it.
 #[derive(Debug, Clone, Serialize, ToSchema)]
-pub struct ComparisonView {
+pub struct RaceView {
     pub id: i64,
     pub a: i64,
     pub b: i64,
-    pub task: String,
-    pub protocol: String,
+    #[schema(value_type = crate::schema::Task)]
+    pub task: TaskId,
+    #[schema(value_type = crate::schema::Protocol)]
+    pub protocol: ProtocolKind,
     pub seed: i64,
     pub alpha: f64,
     pub delta: Option<f64>,
-    /// queued | running | completed | failed | cancelled
-    pub status: String,
+    pub status: RaceStatus,
     /// Who cancelled it (its starter or an admin).
     pub cancelled_by: Option<String>,
     /// The race so far (null until its first pair).
     pub live: Option<RaceLive>,
-    /// The finished race: the same document as `d3il compare --sequential
-    /// --task T A B --json` (decision, decided_at, e_value, p_value,
+    /// The finished race: the same document as `d3il race --task T A B
+    /// --json` (decision, decided_at, e_value, p_value,
     /// discordant, rates, pairs/states/rollouts used and full, the
     /// fixed-size sign test's p-value and pairs for 90 % power).
     #[schema(value_type = Option<Object>)]
@@ -127,21 +130,21 @@ pub struct ComparisonView {
     pub updated_at: i64,
 }
 
-impl ComparisonView {
-    pub fn of(row: &ComparisonRow) -> ComparisonView {
+impl RaceView {
+    pub fn of(row: &RaceRow) -> RaceView {
         fn parse<T: serde::de::DeserializeOwned>(j: &Option<String>) -> Option<T> {
             j.as_deref().and_then(|j| serde_json::from_str(j).ok())
         }
-        ComparisonView {
+        RaceView {
             id: row.id,
             a: row.submission_a,
             b: row.submission_b,
-            task: row.task.clone(),
-            protocol: row.protocol.clone(),
+            task: row.task,
+            protocol: row.protocol,
             seed: row.seed,
             alpha: row.alpha,
             delta: row.delta,
-            status: row.status.clone(),
+            status: row.status,
             cancelled_by: row.cancelled_by.clone(),
             live: parse(&row.live_json),
             report: parse(&row.report_json),
@@ -181,18 +184,16 @@ pub struct FixedComparison {
     pub p_value: f64,
 }
 
-/// [`FixedComparison`] of a race's report.
+/// [`FixedComparison`] of a race's report
+/// (`d3il_metrics::rate_difference::fixed_size_comparison`, as `d3il race`
+/// prints it).
 pub fn fixed_comparison(r: &RaceReport) -> FixedComparison {
-    let (x, y) = r.discordant;
-    // A stored report's counts are the race's own; the max only keeps a
-    // corrupt one from asserting.
-    let pairs = r.pairs_used.max(x + y);
-    let test = d3il_metrics::rate_difference::ExactMcNemar::new(pairs as usize, x, y);
-    let paired = test.paired_interval(1.0 - r.alpha);
+    let f =
+        d3il_metrics::rate_difference::fixed_size_comparison(r.pairs_used, r.discordant, r.alpha);
     FixedComparison {
-        pairs,
-        difference: paired.to_estimate(),
-        p_value: paired.p_value,
+        pairs: f.pairs,
+        difference: f.difference,
+        p_value: f.p_value,
     }
 }
 
@@ -200,11 +201,7 @@ pub fn fixed_comparison(r: &RaceReport) -> FixedComparison {
 /// (one of `a` and `b` must be the racer's own, the other public; the race
 /// counts [`crate::quota::RACE_EVALUATIONS`] and must fit the quota and the
 /// cap on races at once: else 429 naming the limit and when) and queues it.
-pub async fn create(
-    state: &AppState,
-    who: &Submitter,
-    req: &ComparisonRequest,
-) -> Result<i64, AppError> {
+pub async fn create(state: &AppState, who: &Submitter, req: &RaceRequest) -> Result<i64, AppError> {
     let alpha = req.alpha.unwrap_or(d3il_protocol::race::DEFAULT_ALPHA);
     d3il_protocol::race::check_race_params(alpha, req.delta)
         .map_err(|e| AppError::invalid(e.field, e.message))?;
@@ -308,12 +305,12 @@ pub async fn create(
     }
     let id = state
         .store
-        .create_comparison(&NewComparison {
+        .create_race(&NewRace {
             submission_a: a.id,
             submission_b: b.id,
             submitter_id: who.id,
-            task: a.task.to_string(),
-            protocol: protocol.as_str().to_string(),
+            task: a.task,
+            protocol,
             seed: req.seed.unwrap_or(0).min(i64::MAX as u64) as i64,
             alpha,
             delta: req.delta,
@@ -327,14 +324,14 @@ pub async fn create(
 /// for the API and the race page's button). Audited in the same
 /// transaction; a running race's worker is stopped by its slot.
 pub async fn cancel_as(state: &AppState, id: i64, who: &Submitter) -> Result<(), AppError> {
-    let row = state.store.comparison(id).await?;
+    let row = state.store.race(id).await?;
     let starter = row.submitter_id == Some(who.id);
     if !who.is_admin && !starter {
         return Err(AppError::Forbidden(format!(
-            "comparison {id} was started by another submitter; only its starter or an admin may cancel it"
+            "race {id} was started by another submitter; only its starter or an admin may cancel it"
         )));
     }
-    let target = format!("comparison {id}");
+    let target = format!("race {id}");
     let detail = format!("cancelled a {} race", row.status);
     let audit = Some((
         who.name.as_str(),
@@ -344,20 +341,20 @@ pub async fn cancel_as(state: &AppState, id: i64, who: &Submitter) -> Result<(),
     ));
     match state.store.cancel_race(id, &who.name, audit).await? {
         RaceCancel::Cancelled => {
-            tracing::info!("comparison {id} cancelled by {}", who.name);
+            tracing::info!("race {id} cancelled by {}", who.name);
             Ok(())
         }
         RaceCancel::AlreadyFinished => Err(AppError::Conflict {
             field: None,
             message: format!(
-                "comparison {id} is {} already; only a queued or running race can be cancelled",
+                "race {id} is {} already; only a queued or running race can be cancelled",
                 row.status
             ),
         }),
     }
 }
 
-async fn job_of(state: &AppState, row: &ComparisonRow) -> Result<Job, String> {
+async fn job_of(state: &AppState, row: &RaceRow) -> Result<Job, String> {
     let a = state
         .store
         .submission(row.submission_a)
@@ -371,12 +368,9 @@ async fn job_of(state: &AppState, row: &ComparisonRow) -> Result<Job, String> {
     let (policy, manifest) = policy_of(&a)?;
     let (policy_b, manifest_b) = policy_of(&b)?;
     Ok(Job {
-        job_id: format!("comparison-{}", row.id),
-        task: a.task,
-        protocol: row
-            .protocol
-            .parse()
-            .map_err(|_| "stored protocol is invalid")?,
+        job_id: format!("race-{}", row.id),
+        task: row.task,
+        protocol: row.protocol,
         policy,
         manifest,
         seed: row.seed.max(0) as u64,
@@ -425,8 +419,8 @@ pub async fn start_race_slot(
                 Ok(Some(row)) => {
                     let id = row.id;
                     if let Err(e) = run(&state, &runner, &owner, row).await {
-                        tracing::warn!("comparison {id}: {e}");
-                        let _ = state.store.comparison_failed(id, &e).await;
+                        tracing::warn!("race {id}: {e}");
+                        let _ = state.store.race_failed(id, &e).await;
                     }
                 }
                 Ok(None) => {
@@ -447,7 +441,7 @@ async fn run(
     state: &AppState,
     runner: &std::sync::Arc<dyn crate::queue::JobRunner>,
     owner: &str,
-    row: ComparisonRow,
+    row: RaceRow,
 ) -> Result<(), String> {
     let id = row.id;
     let job = job_of(state, &row).await?;
@@ -480,8 +474,8 @@ async fn run(
                     live = newer;
                 }
                 if let Ok(j) = serde_json::to_string(&live) {
-                    if let Err(e) = state.store.comparison_live(id, &j).await {
-                        tracing::warn!("comparison {id}: live state not written: {e}");
+                    if let Err(e) = state.store.race_live(id, &j).await {
+                        tracing::warn!("race {id}: live state not written: {e}");
                     }
                 }
             }
@@ -490,7 +484,7 @@ async fn run(
                 // this slot stalled): its worker stops, its report is dropped.
                 if let Ok(false) = state.store.race_heartbeat(id, owner, lease).await {
                     if !cancel.swap(true, std::sync::atomic::Ordering::Relaxed) {
-                        tracing::info!("comparison {id}: lease lost (cancelled); stopping its worker");
+                        tracing::info!("race {id}: lease lost (cancelled); stopping its worker");
                     }
                 }
             }
@@ -505,11 +499,11 @@ async fn run(
             let j = serde_json::to_string(&r).map_err(|e| e.to_string())?;
             state
                 .store
-                .comparison_completed(id, &j)
+                .race_completed(id, &j)
                 .await
                 .map_err(|e| e.to_string())?;
             tracing::info!(
-                "comparison {id} completed: {}",
+                "race {id} completed: {}",
                 r.decision.as_deref().unwrap_or("no decision at full size")
             );
             Ok(())

@@ -159,7 +159,7 @@ async fn compare_page_shows_paired_differences_contexts_and_behaviours() {
             ("protocol", "quick".into()),
             ("token", app.token.clone()),
         ];
-        app.http.post(app.url("/comparisons")).form(&form).send()
+        app.http.post(app.url("/races")).form(&form).send()
     };
     let r = race(a.to_string(), "x".into()).await.unwrap();
     assert_eq!(r.status(), 400);
@@ -174,7 +174,24 @@ async fn compare_page_shows_paired_differences_contexts_and_behaviours() {
     assert_eq!(s, 200, "{page}");
     let r = race(format!("#{a}"), format!(" #{b} ")).await.unwrap();
     assert_eq!(r.status(), 200, "followed to the race's page");
-    assert!(r.url().path().starts_with("/comparisons/"), "{}", r.url());
+    assert!(r.url().path().starts_with("/races/"), "{}", r.url());
+    // The form's old address (`/comparisons`, before races had their own
+    // name) still races: a 308 sends the same POST to `/races`.
+    let form = [
+        ("a", a.to_string()),
+        ("b", b.to_string()),
+        ("protocol", "quick".into()),
+        ("token", app.token.clone()),
+    ];
+    let r = app
+        .http
+        .post(app.url("/comparisons"))
+        .form(&form)
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status(), 200, "followed to the race's page");
+    assert!(r.url().path().starts_with("/races/"), "{}", r.url());
     // Unfinished.
     let q = submit(&app, "Gamma", "pushing", "paper").await;
     let (s, page) = app.get_text(&format!("/compare?a={a}&b={q}")).await;
@@ -345,7 +362,7 @@ async fn the_race_page_names_the_rule_that_decided_and_draws_the_walk() {
     });
     // While it runs: the rule that will decide, and the walk so far.
     let running = race_row(&app, a, b, "running", &live, None).await;
-    let (s, page) = app.get_text(&format!("/comparisons/{running}")).await;
+    let (s, page) = app.get_text(&format!("/races/{running}")).await;
     assert_eq!(s, 200, "{page}");
     assert!(
         page.contains("Decides by the boundary calibrated to 30 pairs"),
@@ -398,7 +415,7 @@ async fn the_race_page_names_the_rule_that_decided_and_draws_the_walk() {
         Some(&serde_json::to_value(&report).unwrap()),
     )
     .await;
-    let (s, page) = app.get_text(&format!("/comparisons/{done}")).await;
+    let (s, page) = app.get_text(&format!("/races/{done}")).await;
     assert_eq!(s, 200, "{page}");
     assert!(
         page.contains("Decided by the boundary calibrated to 30 pairs")
@@ -429,7 +446,7 @@ async fn the_race_page_names_the_rule_that_decided_and_draws_the_walk() {
             && line.contains(&format!("exact McNemar p-value {:.4}", fixed.p_value)),
         "{line}"
     );
-    let (s, api) = app.get_json(&format!("/api/v1/comparisons/{done}")).await;
+    let (s, api) = app.get_json(&format!("/api/v1/races/{done}")).await;
     assert_eq!(s, 200, "{api}");
     let f = &api["fixed_comparison"];
     assert_eq!(f["pairs"], at as u64, "{api}");
@@ -444,8 +461,60 @@ async fn the_race_page_names_the_rule_that_decided_and_draws_the_walk() {
         "{api}"
     );
     // Not finished, no fixed-size comparison.
-    let (_, api) = app
-        .get_json(&format!("/api/v1/comparisons/{running}"))
-        .await;
+    let (_, api) = app.get_json(&format!("/api/v1/races/{running}")).await;
     assert!(api["fixed_comparison"].is_null(), "{api}");
+    // The old addresses: the page redirects (308) to its `/races` one, the
+    // API answers the same document with a deprecation note.
+    let no_follow = reqwest::Client::builder()
+        .redirect(reqwest::redirect::Policy::none())
+        .build()
+        .unwrap();
+    let r = no_follow
+        .get(app.url(&format!("/comparisons/{done}")))
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status(), 308);
+    assert_eq!(r.headers()["location"], format!("/races/{done}").as_str());
+    let r = app
+        .http
+        .get(app.url(&format!("/api/v1/comparisons/{done}")))
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status(), 200);
+    assert_eq!(r.headers()["deprecation"], "true");
+    assert_eq!(
+        r.headers()["link"],
+        format!("</api/v1/races/{done}>; rel=\"successor-version\"").as_str()
+    );
+    let old: serde_json::Value = r.json().await.unwrap();
+    let (_, new) = app.get_json(&format!("/api/v1/races/{done}")).await;
+    assert_eq!(old, new);
+    let r = app
+        .http
+        .get(app.url(&format!("/api/v1/races/{done}")))
+        .send()
+        .await
+        .unwrap();
+    assert!(
+        r.headers().get("deprecation").is_none(),
+        "the new route is not deprecated"
+    );
+    // A stored race whose task names nothing fails to decode, naming the
+    // column, instead of being read as text.
+    let pool = app.state.store.sqlite_pool().unwrap();
+    sqlx::query("UPDATE comparisons SET task = 'juggling' WHERE id = $1")
+        .bind(done)
+        .execute(pool)
+        .await
+        .unwrap();
+    let e = app
+        .state
+        .store
+        .race(done)
+        .await
+        .expect_err("a corrupt task");
+    assert!(e.to_string().contains("task"), "{e}");
+    assert!(e.to_string().contains("juggling"), "{e}");
 }

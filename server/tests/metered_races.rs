@@ -34,9 +34,20 @@ async fn app_with_endless_races(b: Backend, limits: QuotaLimits) -> (TestApp, te
 }
 
 async fn race_as(app: &TestApp, token: &str, a: i64, b: i64) -> (u16, Value, Option<String>) {
+    race_at(app, "/api/v1/races", token, a, b).await
+}
+
+/// `race_as` at `path`: `/api/v1/races`, or its deprecated alias.
+async fn race_at(
+    app: &TestApp,
+    path: &str,
+    token: &str,
+    a: i64,
+    b: i64,
+) -> (u16, Value, Option<String>) {
     let r = app
         .http
-        .post(app.url("/api/v1/comparisons"))
+        .post(app.url(path))
         .bearer_auth(token)
         .json(&json!({"a": a, "b": b, "protocol": "quick"}))
         .send()
@@ -48,11 +59,31 @@ async fn race_as(app: &TestApp, token: &str, a: i64, b: i64) -> (u16, Value, Opt
 async fn cancel_race_as(app: &TestApp, token: &str, id: i64) -> (u16, Value) {
     let r = app
         .http
+        .post(app.url(&format!("/api/v1/races/{id}/cancel")))
+        .bearer_auth(token)
+        .send()
+        .await
+        .unwrap();
+    assert!(r.headers().get("deprecation").is_none());
+    (r.status().as_u16(), r.json().await.unwrap())
+}
+
+/// Cancels race `id` through the deprecated alias
+/// `/api/v1/comparisons/{id}/cancel`: the same answer, with the
+/// deprecation note naming the successor.
+async fn cancel_race_by_old_route(app: &TestApp, token: &str, id: i64) -> (u16, Value) {
+    let r = app
+        .http
         .post(app.url(&format!("/api/v1/comparisons/{id}/cancel")))
         .bearer_auth(token)
         .send()
         .await
         .unwrap();
+    assert_eq!(r.headers()["deprecation"], "true");
+    assert_eq!(
+        r.headers()["link"],
+        format!("</api/v1/races/{id}/cancel>; rel=\"successor-version\"").as_str()
+    );
     (r.status().as_u16(), r.json().await.unwrap())
 }
 
@@ -155,7 +186,7 @@ async fn races_and_suites_are_metered_in_evaluations(b: Backend) {
         );
         tokio::time::sleep(std::time::Duration::from_millis(100)).await;
     }
-    let (_, running) = app.get_json(&format!("/api/v1/comparisons/{race}")).await;
+    let (_, running) = app.get_json(&format!("/api/v1/races/{race}")).await;
     assert_eq!(running["status"], "running", "{running}");
 
     // A second race at once is past the cap: 429 naming it, Retry-After.
@@ -209,8 +240,9 @@ async fn races_and_suites_are_metered_in_evaluations(b: Backend) {
         );
         tokio::time::sleep(std::time::Duration::from_millis(100)).await;
     }
-    let (s, body) = cancel_race_as(&app, &admin, second).await;
+    let (s, body) = cancel_race_by_old_route(&app, &admin, second).await;
     assert_eq!(s, 200, "{body}");
+    assert_eq!(body["status"], "cancelled", "{body}");
     workers_stop(&script).await;
     let log = store.audit_log(10).await.unwrap();
     let targets: Vec<(String, String, String)> = log
@@ -221,17 +253,13 @@ async fn races_and_suites_are_metered_in_evaluations(b: Backend) {
     assert!(
         targets.contains(&(
             "op52".into(),
-            format!("comparison {second}"),
+            format!("race {second}"),
             "cancel_race".into()
         )),
         "{log:?}"
     );
     assert!(
-        targets.contains(&(
-            "dave".into(),
-            format!("comparison {race}"),
-            "cancel_race".into()
-        )),
+        targets.contains(&("dave".into(), format!("race {race}"), "cancel_race".into())),
         "{log:?}"
     );
 
@@ -251,6 +279,9 @@ async fn races_and_suites_are_metered_in_evaluations(b: Backend) {
         (400, Some("b")),
         "{body}"
     );
+    // The deprecated alias of `POST /api/v1/races` checks the same way.
+    let (s, old, _) = race_at(&app, "/api/v1/comparisons", &dave, d1, e2).await;
+    assert_eq!((s, &old), (400, &body));
 
     // A robustness suite counts its level 0 and every level: Aligning's
     // state suite is 14. Used so far: 1 + 2 + 2 = 5 of 20 today.

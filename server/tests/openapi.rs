@@ -33,6 +33,9 @@ fn the_document_names_every_route_and_its_schemas() {
             "/leaderboards/{task}",
             "/leaderboards/{task}/csv",
             "/methods",
+            "/races",
+            "/races/{id}",
+            "/races/{id}/cancel",
             "/submissions",
             "/submissions/{id}",
             "/submissions/{id}/cancel",
@@ -56,11 +59,34 @@ fn the_document_names_every_route_and_its_schemas() {
         "RolloutList",
         "RolloutDetail",
         "Ending",
-        "ComparisonView",
+        "RaceView",
+        "RaceRequest",
+        "RaceStatus",
         "RaceLive",
     ] {
         assert!(schemas.get(name).is_some(), "schema {name} missing");
     }
+    // The races' routes before they had their own name: the same
+    // operations, deprecated, naming their successors; the new ones are not.
+    for (old, new, method) in [
+        ("/comparisons", "/races", "post"),
+        ("/comparisons/{id}", "/races/{id}", "get"),
+        ("/comparisons/{id}/cancel", "/races/{id}/cancel", "post"),
+    ] {
+        let (o, n) = (&doc["paths"][old][method], &doc["paths"][new][method]);
+        assert_eq!(o["deprecated"], true, "{old}");
+        assert!(n.get("deprecated").is_none(), "{new}");
+        assert_eq!(o["responses"], n["responses"], "{old}");
+        assert!(
+            o["description"]
+                .as_str()
+                .unwrap()
+                .contains(&format!("Deprecated alias of `{new}`")),
+            "{o}"
+        );
+        assert_eq!(n["tags"], serde_json::json!(["races"]));
+    }
+    assert!(schemas.get("ComparisonView").is_none());
     // The task enum is the protocol's list.
     let tasks: Vec<Value> = d3il_protocol::TaskId::ALL
         .iter()

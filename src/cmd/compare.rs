@@ -1,5 +1,7 @@
 //! `d3il compare a.json b.json`: paired comparison of two evaluation results
 //! (the `--json` outputs of `d3il eval`) on the same initial states.
+//! (`d3il compare --sequential` is a deprecated alias of `d3il race`, the
+//! sequential test: main.rs sends it there with a note.)
 
 use anyhow::Context;
 use d3il_metrics::Bootstrap;
@@ -8,46 +10,55 @@ use std::path::{Path, PathBuf};
 
 #[derive(clap::Args)]
 pub struct Args {
-    /// Result A (`d3il eval --json a.json`); with `--task`, policy A, as
-    /// `d3il eval --policy` takes it (ONNX file, `scripted:NAME`, `ws://…`).
+    /// Result A (`d3il eval --json a.json`).
     pub a: PathBuf,
-    /// Result B, on the same task, protocol and initial states; with
-    /// `--task`, policy B.
+    /// Result B, on the same task, protocol and initial states.
     pub b: PathBuf,
     /// Bootstrap resamples and randomisation-test permutations.
     #[arg(long, default_value_t = 2000)]
     pub resamples: usize,
-    /// Seed of the resampling (ChaCha8); with `--sequential`, of the random
-    /// order (and, with `--task`, of both evaluations: their noise).
+    /// Seed of the resampling (ChaCha8); with `--sequential`, of the race's
+    /// random order.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
     /// Print the comparison as JSON instead of a table.
     #[arg(long)]
     pub json: bool,
-    /// Replay the paired outcomes (by initial state and rollout) in a random
-    /// order seeded by `--seed` through the anytime-valid sequential test,
-    /// and report when it would have stopped (docs/sequential.md).
+    /// Deprecated: `d3il race` (the same arguments without `--sequential`).
     #[arg(long)]
     pub sequential: bool,
-    /// Level of the sequential test (two-sided).
+    /// With `--sequential` (deprecated): `d3il race --alpha`.
     #[arg(long, default_value_t = 0.05, requires = "sequential")]
     pub alpha: f64,
-    /// With `--sequential`: also stop with "no difference larger than δ"
-    /// when the confidence sequence of rate(A) − rate(B) lies inside (−δ, δ).
+    /// With `--sequential` (deprecated): `d3il race --delta`.
     #[arg(long, requires = "sequential")]
     pub delta: Option<f64>,
-    /// With `--sequential`: race policies A and B on this task instead of
-    /// replaying results: both run interleaved on the same initial states in
-    /// the same random order, stopping at the test's decision.
+    /// With `--sequential` (deprecated): `d3il race --task`.
     #[arg(long, requires = "sequential")]
     pub task: Option<d3il_protocol::TaskId>,
-    /// With `--task`: `paper` or `quick`.
+    /// With `--task` (deprecated): `d3il race --protocol`.
     #[arg(long, default_value = "paper", requires = "task")]
     pub protocol: d3il_protocol::ProtocolKind,
-    /// With `--task`: rollouts simulated at once per policy (fewer stop
-    /// sooner after a decision, more run faster).
+    /// With `--task` (deprecated): `d3il race --max-live`.
     #[arg(long, default_value_t = 8, requires = "task")]
     pub max_live: usize,
+}
+
+impl Args {
+    /// `d3il compare --sequential …` as the `d3il race …` it stands for.
+    pub fn as_race(&self) -> super::race::Args {
+        super::race::Args {
+            a: self.a.clone(),
+            b: self.b.clone(),
+            task: self.task,
+            alpha: self.alpha,
+            delta: self.delta,
+            seed: self.seed,
+            protocol: self.protocol,
+            max_live: self.max_live,
+            json: self.json,
+        }
+    }
 }
 
 fn load(path: &Path) -> anyhow::Result<EvalResult> {
@@ -61,14 +72,11 @@ fn load(path: &Path) -> anyhow::Result<EvalResult> {
     })
 }
 
-/// Compares two result files (main.rs sends `--task T A B`, a race of two
-/// policies, to `cmd::race`).
+/// Compares two result files (main.rs sends the deprecated `--sequential`
+/// to `cmd::race`).
 pub fn run(args: Args) -> anyhow::Result<()> {
     let a = load(&args.a)?;
     let b = load(&args.b)?;
-    if args.sequential {
-        return sequential(&a, &b, &args);
-    }
     let cfg = Bootstrap {
         resamples: args.resamples,
         confidence: 0.95,
@@ -125,104 +133,5 @@ pub fn paired_interval_text(e: &d3il_protocol::Estimate) -> String {
     match e.interval() {
         Some((lo, hi)) => format!("{lo:+.3} – {hi:+.3}"),
         None => e.interval_text(3),
-    }
-}
-
-fn sequential(a: &EvalResult, b: &EvalResult, args: &Args) -> anyhow::Result<()> {
-    d3il_protocol::race::check_race_params(args.alpha, args.delta)
-        .map_err(|e| anyhow::anyhow!("--{}", e.message))?;
-    let (pairs, per_state) = d3il_metrics::sequential::paired_outcomes_per_unit(a, b)?;
-    let r = d3il_metrics::sequential::replay(&pairs, args.alpha, args.delta, args.seed);
-    if args.json {
-        let mut v = serde_json::to_value(&r)?;
-        v["pair"] = (if per_state {
-            "initial state"
-        } else {
-            "rollout"
-        })
-        .into();
-        println!("{}", serde_json::to_string_pretty(&v)?);
-    } else {
-        if per_state {
-            println!(
-                "both policies did the same in every rollout of each initial state (deterministic): one pair per initial state"
-            );
-        }
-        print!("{}", render_sequential(&r));
-    }
-    Ok(())
-}
-
-/// The replay as plain text; its last line says what was saved.
-pub fn render_sequential(r: &d3il_metrics::sequential::Replay) -> String {
-    let mut s = format!(
-        "sequential paired comparison A vs B, replayed in random order (seed {}), alpha {}{}\n",
-        r.seed,
-        r.alpha,
-        r.delta
-            .map(|d| format!(", margin δ {d}"))
-            .unwrap_or_default()
-    );
-    s += &format!(
-        "success rate over all {} pairs: A {:.3}, B {:.3}\n",
-        r.pairs_total, r.rate_a, r.rate_b
-    );
-    match (&r.decision, r.decided_at) {
-        (Some(d), Some(at)) => s += &format!("decision: {d} at pair {at} of {}\n", r.pairs_total),
-        _ => {
-            s += &format!(
-                "decision: none after all {} pairs (the fixed-size test used the same pairs)\n",
-                r.pairs_total
-            )
-        }
-    }
-    s += &format!(
-        "e-value {:.3}, anytime-valid p-value {:.4}; discordant pairs so far: A won {}, B won {}\n",
-        r.e_value, r.p_value, r.discordant.0, r.discordant.1
-    );
-    s += &d3il_metrics::horizon::rule_line(r.alpha, r.pairs_total as usize);
-    s.push('\n');
-    s += &d3il_metrics::horizon::decided_by(r.alpha, r.pairs_total as usize, r.decision.as_deref());
-    s += ".\n";
-    if let Some((lo, hi)) = r.difference_interval {
-        s += &format!("confidence sequence of A − B: {lo:+.3} – {hi:+.3}\n");
-    }
-    s += &format!(
-        "fixed-size paired test (exact sign test on all {} pairs): p = {:.4}\n",
-        r.pairs_total, r.fixed_p_value
-    );
-    s += &format!(
-        "rollouts used: {} of {} ({} per policy), ratio {:.3} of the fixed-size test\n",
-        2 * r.pairs_used,
-        2 * r.pairs_total,
-        r.pairs_used,
-        r.pairs_used as f64 / r.pairs_total.max(1) as f64
-    );
-    s
-}
-
-#[cfg(test)]
-mod tests {
-    #[test]
-    fn the_sequential_report_says_when_and_what_it_decided_and_what_it_saved() {
-        let mut pairs = vec![(true, false); 40];
-        pairs.extend([(false, true); 5]);
-        pairs.extend([(true, true); 155]);
-        let r = d3il_metrics::sequential::replay(&pairs, 0.05, None, 3);
-        let text = super::render_sequential(&r);
-        let at = r.decided_at.unwrap();
-        assert!(
-            text.contains(&format!("decision: A better at pair {at} of 200")),
-            "{text}"
-        );
-        assert!(
-            text.contains(&format!("rollouts used: {} of 400", 2 * at)),
-            "{text}"
-        );
-        assert!(text.contains("anytime-valid p-value"), "{text}");
-        let none = d3il_metrics::sequential::replay(&[(true, true); 30], 0.05, Some(0.5), 0);
-        let text = super::render_sequential(&none);
-        assert!(text.contains("decision: "), "{text}");
-        assert!(text.contains("confidence sequence of A − B"), "{text}");
     }
 }

@@ -1,8 +1,8 @@
-//! `d3il submit --race A B`: a sequential race of two submissions on the
-//! server (`POST /api/v1/comparisons`). It talks to the server as
+//! `d3il submit --race A B`: a race of two submissions on the server
+//! (`POST /api/v1/races`). It talks to the server as
 //! `d3il submit` does (same --server, --token, --wait, --json); the race
 //! itself is `d3il_evaluator::eval::race`, run by a worker, the same rule as
-//! `d3il compare --sequential --task T A B`; the report prints the same way.
+//! `d3il race --task T A B`; the report prints the same way.
 
 use super::submit::Args;
 use anyhow::Context;
@@ -34,16 +34,16 @@ pub fn run(a: &Args, client: &Client, id_a: i64, id_b: i64) -> anyhow::Result<()
     let created = client.race(&body)?;
     let id = created["id"]
         .as_i64()
-        .context("the server's answer has no comparison id")?;
+        .context("the server's answer has no race id")?;
     println!(
-        "comparison {id} accepted: {}/comparisons/{id}",
+        "race {id} accepted: {}/races/{id}",
         a.server.trim_end_matches('/')
     );
     if !a.wait {
         return Ok(());
     }
     let mut last = String::new();
-    let done = client.wait_comparison(id, Duration::from_secs(a.timeout), |v| {
+    let done = client.wait_race(id, Duration::from_secs(a.timeout), |v| {
         let l = &v["live"];
         let line = format!(
             "{} pairs of {} states, e-value {:.2}, anytime p {:.3}",
@@ -62,7 +62,7 @@ pub fn run(a: &Args, client: &Client, id_a: i64, id_b: i64) -> anyhow::Result<()
     }
     if done["status"] != "completed" {
         anyhow::bail!(
-            "comparison {id} {}: {}",
+            "race {id} {}: {}",
             done["status"].as_str().unwrap_or("failed"),
             done["error"].as_str().unwrap_or("no reason given")
         );
@@ -72,7 +72,7 @@ pub fn run(a: &Args, client: &Client, id_a: i64, id_b: i64) -> anyhow::Result<()
         return Ok(());
     }
     let report: RaceReport = serde_json::from_value(done["report"].clone())
-        .context("the comparison's report is not a race report")?;
+        .context("the race's report is not a race report")?;
     print!(
         "{}",
         super::race::render(

@@ -96,7 +96,7 @@ pub struct Args {
     /// counts as its evaluations, a race as two); 0: no limit.
     #[arg(long, default_value_t = d3il_server::config::QuotaLimits::SERVE_DEFAULT.concurrent)]
     pub quota_concurrent: i64,
-    /// Races (`POST /api/v1/comparisons`) one submitter may have queued or
+    /// Races (`POST /api/v1/races`) one submitter may have queued or
     /// running at once; 0: no limit.
     #[arg(long, default_value_t = d3il_server::config::QuotaLimits::SERVE_DEFAULT.races)]
     pub max_queued_races: i64,

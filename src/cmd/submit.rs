@@ -87,12 +87,12 @@ pub struct Args {
     #[arg(long, value_name = "ID", conflicts_with_all = ["race", "onnx", "endpoint"])]
     pub cancel: Option<i64>,
     /// Cancel the queued or running race ID (`POST
-    /// /api/v1/comparisons/{id}/cancel`; its starter or an admin): its
+    /// /api/v1/races/{id}/cancel`; its starter or an admin): its
     /// worker is stopped.
     #[arg(long, value_name = "ID", conflicts_with_all = ["cancel", "race", "onnx", "endpoint"])]
     pub cancel_race: Option<i64>,
     /// Race submissions A and B sequentially on the server (`POST
-    /// /api/v1/comparisons`): both policies on the same initial states in
+    /// /api/v1/races`): both policies on the same initial states in
     /// the same random order, stopping when the anytime-valid paired test
     /// decides (docs/sequential.md). Uses --protocol, --alpha, --delta,
     /// --wait and --json.
@@ -184,7 +184,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     if let Some(id) = a.cancel_race {
         let v = client_of(&a)?.cancel_race(id)?;
         println!(
-            "comparison {id} cancelled: status {}",
+            "race {id} cancelled: status {}",
             v["status"].as_str().unwrap_or("?")
         );
         return Ok(());

@@ -1,4 +1,4 @@
-//! The race page's figure (`/comparisons/{id}`): a sequential race drawn
+//! The race page's figure (`/races/{id}`): a sequential race drawn
 //! pair by pair. Above, the walk of wins minus losses (discordant pairs A
 //! won minus those B won) against the boundary that decides it
 //! (`d3il_metrics::horizon::CalibratedBoundary`: `±⌈z √d⌉` after `d`

@@ -6,6 +6,7 @@ import os
 import re
 import secrets
 import time
+import warnings
 from pathlib import Path
 from typing import (
     TYPE_CHECKING,
@@ -42,7 +43,7 @@ from .models import (
     Leaderboard,
     LeaderboardLink,
     Method,
-    RaceComparison,
+    Race,
     Results,
     RolloutItem,
     RolloutPage,
@@ -514,33 +515,33 @@ class Client:
         return from_json(Submission, _json(resp))
 
     @overload
-    def cancel(self, work: RaceComparison) -> RaceComparison: ...
+    def cancel(self, work: Race) -> Race: ...
 
     @overload
     def cancel(self, work: SubmissionRef) -> Submission: ...
 
-    def cancel(self, work: Union[SubmissionRef, RaceComparison]) -> Union[Submission, RaceComparison]:
+    def cancel(self, work: Union[SubmissionRef, Race]) -> Union[Submission, Race]:
         """Cancel a queued or running evaluation or race (its submitter or an admin may).
 
         An evaluation: what ran is kept as a partial result (``progress.live``,
         ``partial`` true), never ranked; the submission is then ``failed``
-        with error kind ``cancelled``. A race (a :class:`RaceComparison`, as
+        with error kind ``cancelled``. A race (a :class:`Race`, as
         :meth:`race` returns it): ``cancelled``, its worker stopped
         (:meth:`cancel_race` takes its id).
         """
-        if isinstance(work, RaceComparison):
+        if isinstance(work, Race):
             return self.cancel_race(work.id)
         resp = self._send("POST", f"/api/v1/submissions/{_id(work)}/cancel", auth=True)
         return from_json(Submission, _json(resp))
 
-    def cancel_race(self, comparison: int) -> RaceComparison:
-        """Cancel a queued or running race (``POST /api/v1/comparisons/{id}/cancel``; its starter or an admin).
+    def cancel_race(self, race: int) -> Race:
+        """Cancel a queued or running race (``POST /api/v1/races/{id}/cancel``; its starter or an admin).
 
         The race ends ``cancelled`` (``cancelled_by`` says who) and its
         worker is stopped; a race that has ended is a 409 ``ServerError``.
         """
-        resp = self._send("POST", f"/api/v1/comparisons/{int(comparison)}/cancel", auth=True)
-        return from_json(RaceComparison, _json(resp))
+        resp = self._send("POST", f"/api/v1/races/{int(race)}/cancel", auth=True)
+        return from_json(Race, _json(resp))
 
     def submissions(
         self,
@@ -778,16 +779,16 @@ class Client:
         seed: Optional[int] = None,
         timeout: float = 7200.0,
         poll: float = 1.0,
-        on_update: Optional[Callable[[RaceComparison], None]] = None,
-    ) -> RaceComparison:
-        """Race submissions ``a`` and ``b`` sequentially on the server (issue 41).
+        on_update: Optional[Callable[[Race], None]] = None,
+    ) -> Race:
+        """Race submissions ``a`` and ``b`` on the server (``POST /api/v1/races``, issue 41).
 
         Both policies run interleaved on the same initial states in the same
         random order; the race stops as soon as the anytime-valid paired test
         decides at ``alpha`` ("A better", "B better", or with ``delta`` "no
         difference larger than δ"), or at the protocol's full size
         (``protocol``: ``paper``, the default, or ``quick``). With ``wait``
-        (default) returns the finished comparison (``decision``,
+        (default) returns the finished race (``decision``,
         ``report``), else the queued one, whose ``raw["quota"]`` is what is
         left of the quota after it (as :meth:`quota` shows it; a race counts
         as two evaluations); ``on_update`` sees every state
@@ -801,8 +802,8 @@ class Client:
         for k, v in (("delta", delta), ("protocol", protocol), ("seed", seed)):
             if v is not None:
                 body[k] = v
-        resp = self._send("POST", "/api/v1/comparisons", auth=True, json=body)
-        race = from_json(RaceComparison, _json(resp))
+        resp = self._send("POST", "/api/v1/races", auth=True, json=body)
+        race = from_json(Race, _json(resp))
         if not wait:
             return race
         deadline = time.monotonic() + timeout
@@ -812,18 +813,28 @@ class Client:
             if race.status == "completed":
                 return race
             if race.status in ("failed", "cancelled"):
-                raise RuntimeError(f"comparison {race.id} {race.status}: {race.error}")
+                raise RuntimeError(f"race {race.id} {race.status}: {race.error}")
             if time.monotonic() >= deadline:
                 raise errors.WaitTimeout(
-                    f"comparison {race.id} is still {race.status} after {timeout:.0f} s; "
-                    f"wait again with client.comparison({race.id})"
+                    f"race {race.id} is still {race.status} after {timeout:.0f} s; "
+                    f"wait again with client.get_race({race.id})"
                 )
             time.sleep(max(0.05, min(poll, deadline - time.monotonic())))
-            race = self.comparison(race.id)
+            race = self.get_race(race.id)
 
-    def comparison(self, comparison: int) -> RaceComparison:
-        """A sequential comparison (``GET /api/v1/comparisons/{id}``): status, live state, report."""
-        return from_json(RaceComparison, self._get_json(f"/api/v1/comparisons/{int(comparison)}"))
+    def get_race(self, race: int) -> Race:
+        """A race (``GET /api/v1/races/{id}``): status, live state, report."""
+        return from_json(Race, self._get_json(f"/api/v1/races/{int(race)}"))
+
+    def comparison(self, comparison: int) -> Race:
+        """Deprecated: :meth:`get_race` (a race was called a comparison before it had its own name)."""
+        warnings.warn(
+            "Client.comparison(id) is deprecated; use Client.get_race(id) (the paired comparison "
+            "of two finished results is Client.compare(a, b))",
+            DeprecationWarning,
+            stacklevel=2,
+        )
+        return self.get_race(comparison)
 
     def leaderboards(self) -> List[LeaderboardLink]:
         """Every leaderboard (task × observation type)."""

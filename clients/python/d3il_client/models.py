@@ -13,6 +13,7 @@ import dataclasses
 import functools
 import sys
 import typing
+import warnings
 from typing import TYPE_CHECKING, Any, ClassVar, Dict, List, Optional, Tuple, Type, TypeVar, Union
 
 if TYPE_CHECKING:  # pandas is imported when a table is asked for, not with the package
@@ -711,17 +712,20 @@ class RaceLive:
 
 
 @dataclasses.dataclass(frozen=True)
-class RaceComparison:
-    """A sequential race of two submissions (``POST /api/v1/comparisons``).
+class Race:
+    """A race of two submissions on the server (``POST /api/v1/races``).
 
-    ``report`` (when ``status`` is ``completed``) is the document ``d3il
-    compare --sequential --task T A B --json`` prints: ``decision`` ("A
-    better", "B better", "no difference larger than δ", or None at the
-    protocol's full size), ``e_value``, ``p_value``, ``rollouts_used`` of
-    ``rollouts_full``, ``fixed_pairs_for_power_90``, ...
+    Both policies run on the same initial states in the same random order,
+    and the race stops when the sequential paired test decides. (Not a
+    paired comparison: that is :class:`Comparison`, of two finished
+    results.) ``report`` (when ``status`` is ``completed``) is the document
+    ``d3il race --task T A B --json`` prints: ``decision`` ("A better", "B
+    better", "no difference larger than δ", or None at the protocol's full
+    size), ``e_value``, ``p_value``, ``rollouts_used`` of ``rollouts_full``,
+    ``fixed_pairs_for_power_90``, ...
     """
 
-    SCHEMA: ClassVar[str] = "ComparisonView"
+    SCHEMA: ClassVar[str] = "RaceView"
     id: int
     a: int
     b: int
@@ -767,10 +771,22 @@ MODELS: Tuple[Type[Any], ...] = (
     PairedDifference,
     Comparison,
     RaceLive,
-    RaceComparison,
+    Race,
     Stat,
     LeaderboardRow,
     Leaderboard,
     LeaderboardLink,
     Method,
 )
+
+
+def __getattr__(name: str) -> Any:
+    """``RaceComparison``, the name of :class:`Race` before races had their own: deprecated."""
+    if name == "RaceComparison":
+        warnings.warn(
+            "d3il_client.models.RaceComparison is deprecated; it is d3il_client.Race",
+            DeprecationWarning,
+            stacklevel=2,
+        )
+        return Race
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -293,11 +293,20 @@ def test_quota_left_and_a_refusal_that_says_when(tmp_path: Path) -> None:
         assert "daily evaluation quota reached" in str(refused.value), refused.value
 
 
-def test_race_returns_a_typed_comparison_and_refuses_a_submission_against_itself(
-    client: Client, evaluated: Pair
+def test_race_returns_a_typed_race_and_refuses_a_submission_against_itself(
+    client: Client, evaluated: Pair, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    seen: list[d3il_client.models.RaceComparison] = []
+    paths: list[str] = []
+    send = client._send
+
+    def recording(method: str, path: str, **kw: Any) -> Any:
+        paths.append(path)
+        return send(method, path, **kw)
+
+    monkeypatch.setattr(client, "_send", recording)
+    seen: list[d3il_client.Race] = []
     race = client.race(evaluated.path, evaluated.noise, protocol="quick", poll=0.2, on_update=seen.append)
+    assert isinstance(race, d3il_client.Race), race
     assert race.status == "completed" and race.report is not None, race
     assert (race.a, race.b, race.alpha, race.protocol) == (evaluated.path.id, evaluated.noise.id, 0.05, "quick")
     # Avoiding has one initial state: one pair, too few to decide at 5 %.
@@ -308,7 +317,15 @@ def test_race_returns_a_typed_comparison_and_refuses_a_submission_against_itself
     assert race.live.both + race.live.only_a + race.live.only_b + race.live.neither == 1
     assert (race.live.only_a, race.live.only_b) == tuple(race.report["discordant"])
     assert seen and seen[-1] == race
-    assert client.comparison(race.id) == race
+    assert client.get_race(race.id) == race
+    # The client speaks the races' own routes, not their deprecated aliases.
+    assert paths and all(p.startswith("/api/v1/races") for p in paths), paths
+    assert "/api/v1/races" in paths, paths
+    # The old names still work, with a DeprecationWarning.
+    with pytest.warns(DeprecationWarning, match="get_race"):
+        assert client.comparison(race.id) == race
+    with pytest.warns(DeprecationWarning, match="d3il_client.Race"):
+        assert d3il_client.models.RaceComparison is d3il_client.Race
     with pytest.raises(errors.ServerError) as e:
         client.race(evaluated.path, evaluated.path)
     assert e.value.field == "b" and "different submissions" in e.value.message
@@ -355,10 +372,10 @@ def test_a_race_is_cancelled_by_its_starter_only_once_and_its_answer_carries_the
             Client(server.base, stranger).cancel_race(race.id)
         assert refused.value.status == 403, refused.value
 
-        cancelled = client.cancel(race)  # a RaceComparison goes to cancel_race
+        cancelled = client.cancel(race)  # a Race goes to cancel_race
         assert cancelled.id == race.id and cancelled.status == "cancelled", cancelled
         assert cancelled.cancelled_by == "pytest", cancelled
-        assert client.comparison(race.id).status == "cancelled"
+        assert client.get_race(race.id).status == "cancelled"
         with pytest.raises(errors.Conflict) as again:
             client.cancel_race(race.id)
         assert again.value.status == 409, again.value

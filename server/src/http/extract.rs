@@ -3,7 +3,8 @@
 //! every part of the site (a JSON error under `/api/`, an HTML page elsewhere).
 //! The `?obs=` query is parsed here too, and every query string is read
 //! with [`Query`], whose refusal is the same error as any other (JSON under
-//! `/api/`, an HTML page elsewhere), not axum's plain-text one.
+//! `/api/`, an HTML page elsewhere), not axum's plain-text one; so is a JSON
+//! request body ([`parse_json_request`]).
 
 use crate::error::{AppError, PageError};
 use axum::extract::FromRequestParts;
@@ -132,4 +133,16 @@ pub fn obs_query(obs: Option<&str>) -> Result<ObsType, AppError> {
         None | Some("") => Ok(ObsType::State),
         Some(o) => ObsType::from_str(o).map_err(|e| AppError::invalid("obs", e)),
     }
+}
+
+/// A JSON request body read as `T`, refused with the same error format as
+/// the rest (a 400 that shows `example`, a body the endpoint takes).
+pub fn parse_json_request<T: serde::de::DeserializeOwned>(
+    body: &[u8],
+    example: &str,
+) -> Result<T, AppError> {
+    serde_json::from_slice(body).map_err(|e| AppError::Invalid {
+        field: None,
+        message: format!("expected a JSON body like {example}: {e}"),
+    })
 }

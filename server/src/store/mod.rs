@@ -3,7 +3,7 @@
 //! migrations/postgres, kept in step), one module per resource: the
 //! paper's reported results ([`paper`]), [`methods`], API [`tokens`],
 //! [`submissions`], the durable job queue ([`jobs`]), evaluation
-//! [`results`] and the [`zoo`]'s cells. Column types are in [`types`]: states, statuses and kinds are
+//! [`results`], [`races`] and the [`zoo`]'s cells. Column types are in [`types`]: states, statuses and kinds are
 //! enums and JSON columns are `sqlx::types::Json`, so a row holding bad data
 //! fails to decode (a `StoreError::Db` naming the column) rather than being
 //! read as an empty value.
@@ -42,7 +42,6 @@ macro_rules! begin_write {
     };
 }
 
-mod comparisons;
 mod files;
 mod intervals;
 #[macro_use]
@@ -51,6 +50,7 @@ mod live;
 mod methods;
 mod moderation;
 mod paper;
+mod races;
 mod results;
 #[macro_use]
 mod robustness;
@@ -60,7 +60,6 @@ mod tokens;
 pub mod types;
 mod zoo;
 
-pub use comparisons::{ComparisonRow, NewComparison, RaceCancel};
 pub use files::{PolicyFilesGuard, TMP_MARKER};
 pub use jobs::{ClaimedJob, JobKind, JobRow};
 pub use live::{CancelOutcome, Cancelled, StateOutcome, CANCELLED_KIND};
@@ -68,6 +67,7 @@ pub use methods::{MethodRow, NewMethod};
 pub use moderation::{
     AuditEntry, QuotaOverrides, QuotaUsage, QuotaWork, Withdrawal, WorkKind, DAY_S,
 };
+pub use races::{NewRace, RaceCancel, RaceRow};
 pub use results::{IntervalNote, IntervalNotes, ResultRow, RolloutRow, SeedSummary};
 pub use robustness::{summary_of, RobustnessRow};
 pub use shards::ShardPart;
@@ -78,7 +78,7 @@ pub use submissions::{
     NewPolicy, NewSubmission, SeedKey, SubmissionFilter, SubmissionRow, WithdrawnSubmission,
 };
 pub use tokens::{token_hash, Revoked, Submitter, LAST_USED_RESOLUTION_S, TOKEN_PREFIX_LEN};
-pub use types::{JobState, PolicyKind, StoredSecret, SubmissionStatus};
+pub use types::{JobState, PolicyKind, RaceStatus, StoredSecret, SubmissionStatus};
 pub use zoo::{NewZooCell, ZooCellRow, ZooLoad, ZOO_SUBMITTER};
 
 use sqlx::postgres::PgPoolOptions;

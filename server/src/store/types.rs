@@ -114,6 +114,27 @@ text_enum!(
 );
 
 text_enum!(
+    /// Where a race (`POST /api/v1/races`) stands.
+    RaceStatus {
+        /// Waiting for the race slot.
+        Queued = "queued",
+        /// A race slot holds its lease and runs it.
+        Running = "running",
+        Completed = "completed",
+        Failed = "failed",
+        /// Cancelled by its starter or an admin.
+        Cancelled = "cancelled",
+    }
+);
+
+impl RaceStatus {
+    /// Queued or running: it can still be cancelled.
+    pub fn is_active(self) -> bool {
+        matches!(self, RaceStatus::Queued | RaceStatus::Running)
+    }
+}
+
+text_enum!(
     /// How a submission's policy is run.
     PolicyKind {
         /// An uploaded ONNX file.

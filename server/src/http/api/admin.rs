@@ -4,7 +4,7 @@
 use crate::auth::Admin;
 use crate::cache::Rendered;
 use crate::error::{AppError, ErrorBody};
-use crate::http::extract::{Param, Query};
+use crate::http::extract::{parse_json_request, Param, Query};
 use crate::state::AppState;
 use crate::store::{AuditEntry, QuotaOverrides};
 use axum::body::Bytes;
@@ -53,17 +53,6 @@ async fn json_only(
     next.run(req).await
 }
 
-/// A JSON request body, refused with the same error format as the rest.
-pub(super) fn json_body<T: serde::de::DeserializeOwned>(
-    body: &Bytes,
-    example: &str,
-) -> Result<T, AppError> {
-    serde_json::from_slice(body).map_err(|e| AppError::Invalid {
-        field: None,
-        message: format!("expected a JSON body like {example}: {e}"),
-    })
-}
-
 /// `withdraw`'s body.
 #[derive(Debug, Deserialize, ToSchema)]
 pub struct WithdrawRequest {
@@ -99,7 +88,7 @@ pub async fn withdraw(
     Param(id): Param<i64>,
     body: Bytes,
 ) -> Result<Json<AdminDone>, AppError> {
-    let req: WithdrawRequest = json_body(&body, r#"{"reason": "duplicate of #12"}"#)?;
+    let req: WithdrawRequest = parse_json_request(&body, r#"{"reason": "duplicate of #12"}"#)?;
     let reason = req.reason.trim();
     if reason.is_empty() || reason.chars().count() > 500 {
         return Err(AppError::invalid(
@@ -156,7 +145,7 @@ pub async fn baseline(
     Path(name): Path<String>,
     body: Bytes,
 ) -> Result<Json<AdminDone>, AppError> {
-    let req: BaselineRequest = json_body(&body, r#"{"baseline": true}"#)?;
+    let req: BaselineRequest = parse_json_request(&body, r#"{"baseline": true}"#)?;
     let entry = state
         .store
         .set_baseline(&name, req.baseline, &admin.name)
@@ -210,7 +199,8 @@ pub async fn set_quota(
     Path(name): Path<String>,
     body: Bytes,
 ) -> Result<Json<AdminDone>, AppError> {
-    let req: QuotaRequest = json_body(&body, r#"{"per_day": 20, "total": null, "concurrent": 4}"#)?;
+    let req: QuotaRequest =
+        parse_json_request(&body, r#"{"per_day": 20, "total": null, "concurrent": 4}"#)?;
     let q = QuotaOverrides {
         per_day: req.per_day,
         total: req.total,

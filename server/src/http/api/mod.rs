@@ -5,8 +5,8 @@
 pub mod admin;
 pub mod cancel;
 pub mod compare;
-pub mod comparisons;
 pub mod openapi;
+pub mod races;
 pub mod robustness;
 pub mod rollouts;
 pub mod zoo;
@@ -70,18 +70,27 @@ pub fn router(max_upload: usize) -> Router<AppState> {
         .route("/leaderboards/{task}/csv", get(get_leaderboard_csv))
         .route("/methods", get(list_methods))
         .route("/compare", get(compare::compare))
-        .route("/comparisons", post(comparisons::create_comparison))
-        .route("/comparisons/{id}", get(comparisons::get_comparison))
-        .route(
-            "/comparisons/{id}/cancel",
-            post(comparisons::cancel_comparison),
-        )
+        .route("/races", post(races::create_race))
+        .route("/races/{id}", get(races::get_race))
+        .route("/races/{id}/cancel", post(races::cancel_race))
+        .merge(race_aliases())
         .route("/whoami", get(whoami))
         .nest("/admin", admin::router())
         .route("/build", get(get_build))
         .route("/openapi.json", get(openapi))
         .fallback(api_not_found)
         .method_not_allowed_fallback(api_method_not_allowed)
+}
+
+/// `/comparisons…`, the races' routes before they had their own name:
+/// deprecated aliases, answered by the same handlers with a deprecation
+/// note ([`races::deprecated_alias`]).
+fn race_aliases() -> Router<AppState> {
+    Router::new()
+        .route("/comparisons", post(races::create_race))
+        .route("/comparisons/{id}", get(races::get_race))
+        .route("/comparisons/{id}/cancel", post(races::cancel_race))
+        .route_layer(axum::middleware::from_fn(races::deprecated_alias))
 }
 
 async fn api_method_not_allowed(
@@ -188,20 +197,22 @@ async fn get_submission(
     // A completed submission never changes (its progress, attempts and
     // embedded results are final): render it once, as its results.
     if let Some(body) = state.finished.get(Rendered::Submission, id) {
-        return Ok(json_body(body));
+        return Ok(rendered_json_response(body));
     }
     let view = submission_view(&state, id).await?;
     let body = serde_json::to_string(&view)
         .map_err(|e| AppError::Internal(format!("submission encoding: {e}")))?;
-    Ok(json_body(if view.status == SubmissionStatus::Completed {
-        state.finished.put(Rendered::Submission, id, body)
-    } else {
-        body.into()
-    }))
+    Ok(rendered_json_response(
+        if view.status == SubmissionStatus::Completed {
+            state.finished.put(Rendered::Submission, id, body)
+        } else {
+            body.into()
+        },
+    ))
 }
 
-/// A JSON document rendered ahead (see [`crate::cache`]).
-fn json_body(body: std::sync::Arc<str>) -> Response {
+/// A JSON answer of a document rendered ahead (see [`crate::cache`]).
+fn rendered_json_response(body: std::sync::Arc<str>) -> Response {
     (
         [(header::CONTENT_TYPE, "application/json")],
         body.to_string(),
@@ -221,7 +232,7 @@ async fn get_results(
 ) -> Result<Response, AppError> {
     // A stored result never changes: render it once.
     if let Some(body) = state.finished.get(Rendered::Results, id) {
-        return Ok(json_body(body));
+        return Ok(rendered_json_response(body));
     }
     let s = state.store.submission(id).await?;
     let r = state.store.result_for(id).await?.ok_or_else(|| {
@@ -233,7 +244,11 @@ async fn get_results(
     let view = results_view(&state, r).await?;
     let body = serde_json::to_string(&view)
         .map_err(|e| AppError::Internal(format!("results encoding: {e}")))?;
-    Ok(json_body(state.finished.put(Rendered::Results, id, body)))
+    Ok(rendered_json_response(state.finished.put(
+        Rendered::Results,
+        id,
+        body,
+    )))
 }
 
 #[derive(Debug, Deserialize, Default, IntoParams)]

@@ -41,9 +41,9 @@ use utoipa::{Modify, OpenApi};
         super::admin::set_quota,
         super::admin::audit,
         super::compare::compare,
-        super::comparisons::create_comparison,
-        super::comparisons::get_comparison,
-        super::comparisons::cancel_comparison,
+        super::races::create_race,
+        super::races::get_race,
+        super::races::cancel_race,
         super::rollouts::list_rollouts,
         super::rollouts::get_rollout,
         super::rollouts::get_video,
@@ -63,7 +63,7 @@ use utoipa::{Modify, OpenApi};
         crate::views::SubmissionList,
         WhoAmI,
         crate::views::CreatedView,
-        super::comparisons::CreatedComparisonView,
+        super::races::CreatedRaceView,
         crate::quota::QuotaView,
         crate::quota::QuotaCount,
         crate::store::Withdrawal,
@@ -82,16 +82,17 @@ use utoipa::{Modify, OpenApi};
         crate::rollouts::RolloutList,
         crate::rollouts::RolloutItem,
         crate::rollouts::RolloutDetail,
-        crate::races::ComparisonRequest,
-        crate::races::ComparisonView,
+        crate::races::RaceRequest,
+        crate::races::RaceView,
+        crate::store::RaceStatus,
         crate::races::RaceLive,
     )),
-    modifiers(&BearerToken),
+    modifiers(&BearerToken, &RaceAliases),
     tags(
         (name = "submissions", description = "Submitting policies and following their evaluation"),
         (name = "leaderboards", description = "Reported and evaluated results"),
         (name = "rollouts", description = "What a policy did: rollouts by outcome and behaviour, records with their traces, videos and pictures"),
-        (name = "comparisons", description = "Sequential races of two submissions: decided as soon as the anytime-valid paired test can (docs/sequential.md)"),
+        (name = "races", description = "Races of two submissions: both policies on the same initial states, stopped as soon as the sequential paired test decides (docs/sequential.md). The same routes under /comparisons are deprecated aliases. (The paired comparison of two finished results is GET /compare.)"),
         (name = "admin", description = "Moderation and quotas, for admin tokens; every action is written to the audit log"),
     )
 )]
@@ -128,6 +129,37 @@ impl Modify for BearerToken {
                         .build(),
                 ),
             );
+    }
+}
+
+/// The deprecated `/comparisons…` aliases of the `/races…` routes
+/// (`super::race_aliases`): the same operations, marked deprecated, each
+/// naming its successor.
+struct RaceAliases;
+
+impl Modify for RaceAliases {
+    fn modify(&self, doc: &mut utoipa::openapi::OpenApi) {
+        use super::races::{OLD_PREFIX, PREFIX};
+        use utoipa::openapi::Deprecated;
+        let aliases: Vec<(String, utoipa::openapi::PathItem)> = doc
+            .paths
+            .paths
+            .iter()
+            .filter_map(|(path, item)| {
+                let rest = path.strip_prefix(PREFIX)?;
+                let mut item = item.clone();
+                for op in [&mut item.get, &mut item.post].into_iter().flatten() {
+                    op.deprecated = Some(Deprecated::True);
+                    op.operation_id = op.operation_id.as_ref().map(|id| format!("{id}_deprecated_alias"));
+                    op.description = Some(format!(
+                        "Deprecated alias of `{PREFIX}{rest}`, answered exactly as it is, with the headers \
+                         `Deprecation: true` and `Link: </api/v1{PREFIX}{rest}>; rel=\"successor-version\"`."
+                    ));
+                }
+                Some((format!("{OLD_PREFIX}{rest}"), item))
+            })
+            .collect();
+        doc.paths.paths.extend(aliases);
     }
 }
 

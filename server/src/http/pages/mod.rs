@@ -38,11 +38,18 @@ pub fn router(max_upload: usize) -> Router<AppState> {
         .route("/methods", get(methods_page))
         .route("/methods/{name}", get(method_page))
         .route("/compare", get(compare_page))
-        .route("/comparisons", axum::routing::post(race::race_post))
-        .route("/comparisons/{id}", get(race::race_page))
+        .route("/races", axum::routing::post(race::race_post))
+        .route("/races/{id}", get(race::race_page))
+        .route(
+            "/races/{id}/cancel",
+            axum::routing::post(race::race_cancel_post),
+        )
+        // The race pages' old addresses (`/comparisons…`): redirects.
+        .route("/comparisons", axum::routing::post(race::old_address))
+        .route("/comparisons/{id}", get(race::old_address))
         .route(
             "/comparisons/{id}/cancel",
-            axum::routing::post(race::race_cancel_post),
+            axum::routing::post(race::old_address),
         )
         .route("/submissions", get(submissions_page))
         .route("/submissions/{id}", get(submission_page))

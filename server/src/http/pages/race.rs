@@ -1,5 +1,5 @@
-//! `/comparisons/{id}`: a sequential race of two submissions
-//! (`POST /api/v1/comparisons`, [`crate::races`]) as it runs: the two
+//! `/races/{id}`: a race of two submissions (`POST /api/v1/races`,
+//! [`crate::races`]) as it runs: the two
 //! policies, the paired counts so far, the e-value and anytime-valid p-value,
 //! the decision when reached and the rollouts used against the fixed-size
 //! test. Refreshes every 2 seconds while queued or running, with a Cancel
@@ -9,7 +9,7 @@ use super::compare::parse_id;
 use super::render;
 use crate::error::PageError;
 use crate::http::extract::Param;
-use crate::races::{ComparisonView, RaceLive};
+use crate::races::{RaceLive, RaceView};
 use crate::state::AppState;
 use askama::Template;
 use axum::extract::State;
@@ -61,8 +61,8 @@ pub(super) async fn race_page(
     State(state): State<AppState>,
     Param(id): Param<i64>,
 ) -> Result<Html<String>, PageError> {
-    let row = state.store.comparison(id).await?;
-    let view = ComparisonView::of(&row);
+    let row = state.store.race(id).await?;
+    let view = RaceView::of(&row);
     let side = |s: crate::store::SubmissionRow| Side {
         id: s.id,
         method: s.method,
@@ -87,7 +87,8 @@ pub(super) async fn race_page(
                 format!("at the discordance observed, the exact sign test needs {n} pairs for 90 % power")
             })
             .unwrap_or_default(),
-        fixed: fixed_comparison_line(&r),
+        fixed: d3il_metrics::rate_difference::fixed_size_comparison(r.pairs_used, r.discordant, r.alpha)
+            .line(),
         rate_a: format!("{:.3}", r.rate_a),
         rate_b: format!("{:.3}", r.rate_b),
     });
@@ -126,15 +127,15 @@ pub(super) async fn race_page(
         id,
         a,
         b,
-        task: view.task.clone(),
-        protocol: view.protocol.clone(),
+        task: view.task.to_string(),
+        protocol: view.protocol.as_str().to_string(),
         alpha: view.alpha,
         delta: view
             .delta
             .map(|d| format!(", margin δ {d}"))
             .unwrap_or_default(),
-        running: matches!(view.status.as_str(), "queued" | "running"),
-        status: view.status.clone(),
+        running: view.status.is_active(),
+        status: view.status.to_string(),
         live: view.live.clone(),
         e_value,
         p_value,
@@ -143,26 +144,6 @@ pub(super) async fn race_page(
         rule,
         walk_svg,
     })
-}
-
-/// The fixed-size comparison of a finished race's pairs in words
-/// ([`crate::races::fixed_comparison`]).
-fn fixed_comparison_line(r: &d3il_protocol::race::RaceReport) -> String {
-    let f = crate::races::fixed_comparison(r);
-    let d = &f.difference;
-    let interval = match d.interval() {
-        Some(_) => format!(
-            "{:.0} % interval {} ({})",
-            100.0 * (1.0 - r.alpha),
-            d.interval_text(3),
-            d.interval_note()
-        ),
-        None => d.interval_note(),
-    };
-    format!(
-        "Fixed-size comparison of the {} pairs used: A − B {:+.3}, {interval}, exact McNemar p-value {:.4} (0 lies outside the interval exactly when p ≤ {}; for reference: neither is valid after the race's data-dependent stop)",
-        f.pairs, d.value, f.p_value, r.alpha
-    )
 }
 
 /// The `/compare` page's "Race them" form: two submission ids, the
@@ -177,7 +158,7 @@ pub(super) struct RaceForm {
     token: String,
 }
 
-/// `POST /comparisons` from the form: the API's checks and race
+/// `POST /races` from the form: the API's checks and race
 /// (`races::create`), then on to the live page.
 pub(super) async fn race_post(
     State(state): State<AppState>,
@@ -185,7 +166,7 @@ pub(super) async fn race_post(
 ) -> Result<axum::response::Response, PageError> {
     use axum::response::IntoResponse;
     let who = crate::auth::authenticate_token(&state, f.token.trim()).await?;
-    let req = crate::races::ComparisonRequest {
+    let req = crate::races::RaceRequest {
         a: parse_id("a", &f.a)?,
         b: parse_id("b", &f.b)?,
         task: None,
@@ -195,10 +176,10 @@ pub(super) async fn race_post(
         seed: None,
     };
     let race = crate::races::create(&state, &who, &req).await?;
-    Ok(axum::response::Redirect::to(&format!("/comparisons/{race}")).into_response())
+    Ok(axum::response::Redirect::to(&format!("/races/{race}")).into_response())
 }
 
-/// The race page's Cancel button: `POST /comparisons/{id}/cancel` with the
+/// The race page's Cancel button: `POST /races/{id}/cancel` with the
 /// starter's (or an admin's) token (`races::cancel_as`, the API's rule),
 /// then back to the page.
 pub(super) async fn race_cancel_post(
@@ -209,5 +190,18 @@ pub(super) async fn race_cancel_post(
     use axum::response::IntoResponse;
     let who = crate::auth::authenticate_token(&state, f.token.trim()).await?;
     crate::races::cancel_as(&state, id, &who).await?;
-    Ok(axum::response::Redirect::to(&format!("/comparisons/{id}")).into_response())
+    Ok(axum::response::Redirect::to(&format!("/races/{id}")).into_response())
+}
+
+/// The race pages' old addresses (`/comparisons…`, before races had their
+/// own name): a permanent redirect (308: a form's POST is sent again, with
+/// its body) to the same path under `/races`.
+pub(super) async fn old_address(
+    axum::extract::OriginalUri(uri): axum::extract::OriginalUri,
+) -> axum::response::Redirect {
+    let path = uri.path().replacen("/comparisons", "/races", 1);
+    axum::response::Redirect::permanent(&match uri.query() {
+        Some(q) => format!("{path}?{q}"),
+        None => path,
+    })
 }

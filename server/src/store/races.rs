@@ -1,25 +1,36 @@
-//! Sequential comparisons of two submissions (`comparisons`
-//! table, migration 0011): a race job's row, its live state while it runs
-//! and its report when it ends. (migration 0013): a race waits in
-//! this table as in a durable queue; a race slot leases it, heartbeats
-//! while it runs, and loses the lease when it is cancelled.
+//! Races: sequential tests of two submissions' policies run side by side
+//! (`POST /api/v1/races`, [`crate::races`]): a race job's row, its live
+//! state while it runs and its report when it ends. A race waits in its
+//! table as in a durable queue (migration 0013); a race slot leases it,
+//! heartbeats while it runs, and loses the lease when it is cancelled.
+//!
+//! The table is still called `comparisons` (migration 0011 created it when
+//! races were "sequential comparisons"): it holds races only. Renaming it
+//! would need a migration on SQLite and on PostgreSQL and would break
+//! backups and the upgrade fixtures made before it, for a name no user
+//! sees; the Rust side calls it what it holds. The paired comparison of two
+//! finished results (`GET /api/v1/compare`, [`crate::comparison`]) stores
+//! nothing.
 
+use super::types::{RaceStatus, Stored};
 use super::{now, Store, StoreError};
+use d3il_protocol::{ProtocolKind, TaskId};
 
-/// A comparison as stored.
+/// A race as stored.
 #[derive(Debug, Clone, sqlx::FromRow)]
-pub struct ComparisonRow {
+pub struct RaceRow {
     pub id: i64,
     pub submission_a: i64,
     pub submission_b: i64,
     pub submitter_id: Option<i64>,
-    pub task: String,
-    pub protocol: String,
+    #[sqlx(try_from = "Stored<TaskId>")]
+    pub task: TaskId,
+    #[sqlx(try_from = "Stored<ProtocolKind>")]
+    pub protocol: ProtocolKind,
     pub seed: i64,
     pub alpha: f64,
     pub delta: Option<f64>,
-    /// queued | running | completed | failed | cancelled
-    pub status: String,
+    pub status: RaceStatus,
     pub live_json: Option<String>,
     pub report_json: Option<String>,
     pub error_message: Option<String>,
@@ -41,22 +52,22 @@ pub enum RaceCancel {
 const COLUMNS: &str = "id, submission_a, submission_b, submitter_id, task, protocol, seed, alpha, \
      delta, status, live_json, report_json, error_message, created_at, updated_at, cancelled_by";
 
-/// What a new comparison records.
+/// What a new race records.
 #[derive(Debug, Clone)]
-pub struct NewComparison {
+pub struct NewRace {
     pub submission_a: i64,
     pub submission_b: i64,
     pub submitter_id: i64,
-    pub task: String,
-    pub protocol: String,
+    pub task: TaskId,
+    pub protocol: ProtocolKind,
     pub seed: i64,
     pub alpha: f64,
     pub delta: Option<f64>,
 }
 
 impl Store {
-    /// Records a queued comparison; returns its id.
-    pub async fn create_comparison(&self, c: &NewComparison) -> Result<i64, StoreError> {
+    /// Records a queued race; returns its id.
+    pub async fn create_race(&self, c: &NewRace) -> Result<i64, StoreError> {
         let t = now();
         let (id,): (i64,) = on_db!(&self.db, pool => sqlx::query_as(
             "INSERT INTO comparisons (submission_a, submission_b, submitter_id, task, protocol, \
@@ -66,8 +77,8 @@ impl Store {
         .bind(c.submission_a)
         .bind(c.submission_b)
         .bind(c.submitter_id)
-        .bind(&c.task)
-        .bind(&c.protocol)
+        .bind(c.task.slug())
+        .bind(c.protocol.as_str())
         .bind(c.seed)
         .bind(c.alpha)
         .bind(c.delta)
@@ -77,14 +88,14 @@ impl Store {
         Ok(id)
     }
 
-    /// The comparison `id` (404 when there is none).
-    pub async fn comparison(&self, id: i64) -> Result<ComparisonRow, StoreError> {
+    /// The race `id` (404 when there is none).
+    pub async fn race(&self, id: i64) -> Result<RaceRow, StoreError> {
         let q = format!("SELECT {COLUMNS} FROM comparisons WHERE id = $1");
-        let row: Option<ComparisonRow> = on_db!(&self.db, pool => sqlx::query_as(sqlx::AssertSqlSafe(q.as_str()))
+        let row: Option<RaceRow> = on_db!(&self.db, pool => sqlx::query_as(sqlx::AssertSqlSafe(q.as_str()))
             .bind(id)
             .fetch_optional(pool)
             .await)?;
-        row.ok_or_else(|| StoreError::NotFound(format!("comparison {id}")))
+        row.ok_or_else(|| StoreError::NotFound(format!("race {id}")))
     }
 
     /// Races this server's slots held when it stopped (SQLite: the one
@@ -104,11 +115,7 @@ impl Store {
     /// Leases the oldest runnable race (queued, or running under an expired
     /// lease: its slot died) to `owner` for `lease` seconds and marks it
     /// running, its live state afresh; None when none waits.
-    pub async fn claim_race(
-        &self,
-        owner: &str,
-        lease: i64,
-    ) -> Result<Option<ComparisonRow>, StoreError> {
+    pub async fn claim_race(&self, owner: &str, lease: i64) -> Result<Option<RaceRow>, StoreError> {
         const PICK: &str = "SELECT id FROM comparisons WHERE status = 'queued' \
              OR (status = 'running' AND lease_expires_at < $1) ORDER BY id LIMIT 1";
         let pick = if self.is_postgres() {
@@ -147,7 +154,7 @@ impl Store {
             id
         });
         match claimed {
-            Some(id) => Ok(Some(self.comparison(id).await?)),
+            Some(id) => Ok(Some(self.race(id).await?)),
             None => Ok(None),
         }
     }
@@ -229,7 +236,7 @@ impl Store {
     }
 
     /// Its live state after the latest pair.
-    pub async fn comparison_live(&self, id: i64, live_json: &str) -> Result<(), StoreError> {
+    pub async fn race_live(&self, id: i64, live_json: &str) -> Result<(), StoreError> {
         on_db!(&self.db, pool => sqlx::query(
             "UPDATE comparisons SET live_json = $3, updated_at = $2 WHERE id = $1 AND status = 'running'",
         )
@@ -243,7 +250,7 @@ impl Store {
     }
 
     /// The race's report: completed (unless it was cancelled meanwhile).
-    pub async fn comparison_completed(&self, id: i64, report_json: &str) -> Result<(), StoreError> {
+    pub async fn race_completed(&self, id: i64, report_json: &str) -> Result<(), StoreError> {
         on_db!(&self.db, pool => sqlx::query(
             "UPDATE comparisons SET status = 'completed', report_json = $3, updated_at = $2, lease_owner = NULL, \
              lease_expires_at = NULL WHERE id = $1 AND status = 'running'",
@@ -258,7 +265,7 @@ impl Store {
     }
 
     /// The race failed (a policy broke, or the worker did): the message says why.
-    pub async fn comparison_failed(&self, id: i64, message: &str) -> Result<(), StoreError> {
+    pub async fn race_failed(&self, id: i64, message: &str) -> Result<(), StoreError> {
         on_db!(&self.db, pool => sqlx::query(
             "UPDATE comparisons SET status = 'failed', error_message = $3, updated_at = $2, lease_owner = NULL, \
              lease_expires_at = NULL WHERE id = $1 AND status IN ('queued', 'running')",
