@@ -2,11 +2,15 @@
 //! results (written as a worker stores them): one table per suite version,
 //! ranked by overall score, methods aggregated over training seeds (mean ±
 //! std, as the boards) with the rows per seed after them, in Markdown, LaTeX
-//! and CSV; a database without any says what to do.
+//! and CSV; a database without any says what to do. A row whose scores come
+//! from fewer than 30 initial states is labelled with its intervals'
+//! measured coverage, in every format.
 
 mod robustness_support;
 mod server_support;
-use robustness_support::{seed, three_and_a_second_seed, OTHER_SHA256};
+use robustness_support::{
+    document, first_states, seed, seed_documents, three, three_and_a_second_seed, OTHER_SHA256,
+};
 use server_support::*;
 use std::process::Command;
 
@@ -145,4 +149,75 @@ fn an_unknown_table_names_robustness_among_the_choices() {
     assert!(!out.status.success());
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(err.contains("robustness") && err.contains("main"), "{err}");
+}
+
+/// The same method from 3 initial states and from Pushing's 30: the 3-state
+/// row carries its score intervals' label (`d3il bench intervals`: 66–74 %)
+/// in the per-seed tables and on its CSV score lines; the 30-state row none.
+#[test]
+fn rows_from_few_initial_states_carry_their_score_intervals_label() {
+    let dir = TempDir::new("robustness-tables-coverage");
+    let db = dir.path().join("lb.sqlite");
+    let full = document(&three()[0]);
+    let few = first_states(full.clone(), 3);
+    assert!(few.overall.and_then(|o| o.interval()).is_some());
+    let ids = seed_documents(&db, &[("Three-States", 0, few), ("Thirty-States", 0, full)]);
+    let label = "from 3 initial states: measured coverage 66–74 %, below the nominal 95 %";
+
+    let (ok, md, err) = tables(&db, "markdown");
+    assert!(ok, "{err}");
+    assert!(
+        md.contains("Score intervals' coverage |"),
+        "the column: {md}"
+    );
+    let row = |name: &str| {
+        md.lines()
+            .find(|l| l.contains(&format!("| {name} (seed 0) |")))
+            .unwrap_or_else(|| panic!("{name}'s row: {md}"))
+            .to_string()
+    };
+    assert!(
+        row("Three-States").ends_with(&format!("| {label} |")),
+        "{md}"
+    );
+    assert!(row("Thirty-States").ends_with("|  |"), "{md}");
+    assert_eq!(md.matches(label).count(), 1, "{md}");
+    assert!(
+        md.contains("fewer than 30 initial states are labelled"),
+        "the note: {md}"
+    );
+
+    let (ok, tex, err) = tables(&db, "latex");
+    assert!(ok, "{err}");
+    let tex_row = tex
+        .lines()
+        .find(|l| l.contains("Three-States (seed 0)"))
+        .expect("the 3-state row");
+    assert!(tex_row.contains("below the nominal 95"), "{tex_row}");
+    let tex_row = tex
+        .lines()
+        .find(|l| l.contains("Thirty-States (seed 0)"))
+        .expect("the 30-state row");
+    assert!(!tex_row.contains("measured coverage"), "{tex_row}");
+
+    let (ok, csv, err) = tables(&db, "csv");
+    assert!(ok, "{err}");
+    assert!(csv.lines().next().unwrap().ends_with(",score_coverage"));
+    // The label is the last column (quoted: it has a comma).
+    for (id, want) in [(ids[0], format!(",\"{label}\"")), (ids[1], ",".into())] {
+        let mine: Vec<&str> = csv
+            .lines()
+            .filter(|l| l.contains(&format!(",{id},")))
+            .collect();
+        let (scores, others): (Vec<&str>, Vec<&str>) =
+            mine.iter().partition(|l| l.contains(",score,"));
+        assert_eq!(scores.len(), 5, "four axes and overall: {csv}");
+        assert!(scores.iter().all(|l| l.ends_with(&want)), "{csv}");
+        assert!(
+            others
+                .iter()
+                .all(|l| l.ends_with(',') && !l.contains(label)),
+            "only score lines: {csv}"
+        );
+    }
 }

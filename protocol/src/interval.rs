@@ -156,3 +156,282 @@ impl NoInterval {
         }
     }
 }
+
+/// One cell of `d3il bench intervals`' robustness-score table: how often the
+/// score's 95 % paired bootstrap interval covered the score's expected value
+/// at this size, over [`SCORE_COVERAGE_REPLICATIONS`] simulated datasets.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct ScoreCoverageCell {
+    /// Level 0's success rate of the simulated policy, in percent.
+    pub rate_percent: u32,
+    pub states: usize,
+    pub rollouts: usize,
+    /// The coverage as the bench printed it, in per mille.
+    pub coverage_per_mille: u32,
+}
+
+impl ScoreCoverageCell {
+    pub fn coverage(&self) -> f64 {
+        self.coverage_per_mille as f64 / 1000.0
+    }
+}
+
+/// Simulated datasets per cell of the bench's score table.
+pub const SCORE_COVERAGE_REPLICATIONS: usize = 400;
+
+/// The nominal coverage of every interval the service prints.
+pub const NOMINAL_COVERAGE: f64 = 0.95;
+
+/// How many Monte-Carlo standard errors below [`NOMINAL_COVERAGE`] a cell may
+/// read and still count as covering: with some 100 cells of true coverage
+/// 95 % the lowest is expected near 92.5 %, 2.3 standard errors down
+/// (docs/intervals.md).
+pub const MONTE_CARLO_TOLERANCE: f64 = 3.0;
+
+/// The robustness scores' measured coverage: `d3il bench intervals`' score
+/// table as run for docs/intervals.md (one axis, three levels at 0.75^l of
+/// level 0's rate; 1000 resamples; fixed seeds). The bench runs exactly these
+/// cells, in this order, and says whether its run still gives these figures.
+/// Every label of a score's interval ([`score_coverage`]) is read off it.
+pub const SCORE_COVERAGE_MEASURED: [ScoreCoverageCell; 12] = {
+    const fn cell(rate: u32, states: usize, rollouts: usize, per_mille: u32) -> ScoreCoverageCell {
+        ScoreCoverageCell {
+            rate_percent: rate,
+            states,
+            rollouts,
+            coverage_per_mille: per_mille,
+        }
+    }
+    [
+        cell(80, 3, 2, 662),
+        cell(80, 3, 8, 735),
+        cell(80, 10, 2, 900),
+        cell(80, 10, 8, 907),
+        cell(80, 30, 2, 963),
+        cell(80, 30, 8, 938),
+        cell(80, 60, 2, 950),
+        cell(80, 60, 8, 943),
+        cell(50, 10, 8, 907),
+        cell(50, 30, 2, 955),
+        cell(20, 30, 8, 948),
+        cell(20, 60, 2, 927),
+    ]
+};
+
+/// The Monte-Carlo standard error of one cell's coverage at the nominal level.
+pub fn score_coverage_standard_error() -> f64 {
+    (NOMINAL_COVERAGE * (1.0 - NOMINAL_COVERAGE) / SCORE_COVERAGE_REPLICATIONS as f64).sqrt()
+}
+
+fn within_monte_carlo_error(c: &ScoreCoverageCell) -> bool {
+    c.coverage() >= NOMINAL_COVERAGE - MONTE_CARLO_TOLERANCE * score_coverage_standard_error()
+}
+
+/// The fewest initial states from which every measured cell (of as many
+/// states or more) covers within Monte-Carlo error of the nominal 95 %: 30
+/// with the figures of [`SCORE_COVERAGE_MEASURED`]. A score from fewer
+/// carries a [`ScoreCoverage`] label.
+pub fn score_coverage_min_states() -> usize {
+    let mut states: Vec<usize> = SCORE_COVERAGE_MEASURED.iter().map(|c| c.states).collect();
+    states.sort_unstable();
+    states.dedup();
+    states
+        .iter()
+        .copied()
+        .find(|&n| {
+            SCORE_COVERAGE_MEASURED
+                .iter()
+                .filter(|c| c.states >= n)
+                .all(within_monte_carlo_error)
+        })
+        .unwrap_or(usize::MAX)
+}
+
+/// A robustness score's interval whose measured coverage is below the
+/// nominal 95 %: the label its row carries on the pages, in the API and in
+/// the tables (docs/intervals.md).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ScoreCoverage {
+    /// Initial states behind the score.
+    pub states: usize,
+    /// The fewest and most initial states of the measured cells it is read
+    /// against (the measured state counts nearest to `states`).
+    pub measured_states: [usize; 2],
+    /// The lowest and highest coverage of those cells.
+    pub measured_coverage: [f64; 2],
+    pub nominal: f64,
+    /// The Monte-Carlo standard error of one measured cell.
+    pub monte_carlo_standard_error: f64,
+    /// From this many initial states on the measured coverage is within
+    /// Monte-Carlo error of the nominal: no label.
+    pub min_states: usize,
+    /// What pages and tables print.
+    pub label: String,
+}
+
+fn percent(c: f64) -> String {
+    format!("{:.0}", (c * 100.0).round())
+}
+
+fn percent_range(lo: f64, hi: f64) -> String {
+    if percent(lo) == percent(hi) {
+        format!("{} %", percent(lo))
+    } else {
+        format!("{}–{} %", percent(lo), percent(hi))
+    }
+}
+
+fn states_range(lo: usize, hi: usize) -> String {
+    if lo == hi {
+        format!("{lo}")
+    } else {
+        format!("{lo}–{hi}")
+    }
+}
+
+/// The label of a robustness score computed from `states` initial states, or
+/// None from [`score_coverage_min_states`] on. Its figures are those of the
+/// measured cells nearest to `states` below that threshold: the cells of
+/// `states` itself, of the measured counts on either side of it, or of the
+/// nearest one when `states` is outside them.
+pub fn score_coverage(states: usize) -> Option<ScoreCoverage> {
+    let min_states = score_coverage_min_states();
+    if states >= min_states {
+        return None;
+    }
+    let below: Vec<&ScoreCoverageCell> = SCORE_COVERAGE_MEASURED
+        .iter()
+        .filter(|c| c.states < min_states)
+        .collect();
+    let under = below
+        .iter()
+        .map(|c| c.states)
+        .filter(|&n| n <= states)
+        .max();
+    let over = below
+        .iter()
+        .map(|c| c.states)
+        .filter(|&n| n >= states)
+        .min();
+    let (lo_states, hi_states) = match (under, over) {
+        (Some(a), Some(b)) => (a, b),
+        (Some(a), None) => (a, a),
+        (None, Some(b)) => (b, b),
+        // No measured cell below the threshold: nothing to read it against.
+        (None, None) => return None,
+    };
+    let cells: Vec<f64> = below
+        .iter()
+        .filter(|c| (lo_states..=hi_states).contains(&c.states))
+        .map(|c| c.coverage())
+        .collect();
+    let lo = cells.iter().copied().fold(f64::INFINITY, f64::min);
+    let hi = cells.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+    let measured = percent_range(lo, hi);
+    let grid = states_range(lo_states, hi_states);
+    let place = match (under, over) {
+        (Some(a), Some(b)) if a == b => String::new(),
+        (Some(_), Some(_)) => format!(" with {grid} initial states"),
+        (None, _) => format!(" with {grid} initial states (fewer not measured)"),
+        (_, None) => format!(
+            " with {grid} initial states (within Monte-Carlo error of {} % from {min_states})",
+            percent(NOMINAL_COVERAGE)
+        ),
+    };
+    let label = format!(
+        "from {states} initial state{}: measured coverage {measured}{place}, below the nominal {} %",
+        if states == 1 { "" } else { "s" },
+        percent(NOMINAL_COVERAGE)
+    );
+    Some(ScoreCoverage {
+        states,
+        measured_states: [lo_states, hi_states],
+        measured_coverage: [lo, hi],
+        nominal: NOMINAL_COVERAGE,
+        monte_carlo_standard_error: score_coverage_standard_error(),
+        min_states,
+        label,
+    })
+}
+
+/// One sentence on the scores' measured coverage for the notes of the
+/// Robustness view and the tables: which rows are labelled and why.
+pub fn score_coverage_note() -> String {
+    let min_states = score_coverage_min_states();
+    let (below, above): (Vec<&ScoreCoverageCell>, Vec<&ScoreCoverageCell>) =
+        SCORE_COVERAGE_MEASURED
+            .iter()
+            .partition(|c| c.states < min_states);
+    let range = |cells: &[&ScoreCoverageCell]| {
+        let lo = cells
+            .iter()
+            .map(|c| c.coverage())
+            .fold(f64::INFINITY, f64::min);
+        let hi = cells
+            .iter()
+            .map(|c| c.coverage())
+            .fold(f64::NEG_INFINITY, f64::max);
+        let s_lo = cells.iter().map(|c| c.states).min().unwrap_or(0);
+        let s_hi = cells.iter().map(|c| c.states).max().unwrap_or(0);
+        format!(
+            "{} with {} initial states",
+            percent_range(lo, hi),
+            states_range(s_lo, s_hi)
+        )
+    };
+    format!(
+        "measured coverage (`d3il bench intervals`, {} datasets a cell, Monte-Carlo standard error {:.1} points): {}, {}; rows from fewer than {min_states} initial states are labelled with theirs",
+        SCORE_COVERAGE_REPLICATIONS,
+        score_coverage_standard_error() * 100.0,
+        range(&below),
+        range(&above),
+    )
+}
+
+#[cfg(test)]
+mod score_coverage_tests {
+    use super::*;
+
+    #[test]
+    fn scores_from_fewer_than_30_states_are_labelled_with_the_benchs_figures() {
+        assert_eq!(score_coverage_min_states(), 30);
+        assert_eq!(score_coverage(30), None);
+        assert_eq!(score_coverage(60), None);
+        assert_eq!(score_coverage(480), None);
+        let three = score_coverage(3).expect("3 states: labelled");
+        assert_eq!(
+            three.label,
+            "from 3 initial states: measured coverage 66–74 %, below the nominal 95 %"
+        );
+        assert_eq!(three.measured_coverage, [0.662, 0.735]);
+        let ten = score_coverage(10).unwrap();
+        assert_eq!(ten.measured_coverage, [0.9, 0.907]);
+        assert_eq!(
+            score_coverage(5).unwrap().label,
+            "from 5 initial states: measured coverage 66–91 % with 3–10 initial states, below the nominal 95 %"
+        );
+        assert_eq!(
+            score_coverage(1).unwrap().label,
+            "from 1 initial state: measured coverage 66–74 % with 3 initial states (fewer not measured), below the nominal 95 %"
+        );
+        let twenty = score_coverage(29).unwrap();
+        assert_eq!(twenty.measured_states, [10, 10]);
+        assert!(twenty.label.contains("from 30"), "{}", twenty.label);
+        // The threshold is where the figures say: every cell from 30 states
+        // within 3 standard errors (1.1 points each), every 10-state cell not.
+        assert!((score_coverage_standard_error() - 0.0109).abs() < 1e-4);
+        assert!(SCORE_COVERAGE_MEASURED
+            .iter()
+            .filter(|c| c.states == 10)
+            .all(|c| !within_monte_carlo_error(c)));
+    }
+
+    #[test]
+    fn the_note_names_both_ranges_and_the_threshold() {
+        let n = score_coverage_note();
+        assert!(n.contains("66–91 % with 3–10 initial states"), "{n}");
+        assert!(n.contains("93–96 % with 30–60 initial states"), "{n}");
+        assert!(n.contains("fewer than 30 initial states"), "{n}");
+        assert!(n.contains("1.1 points"), "{n}");
+    }
+}

@@ -19,7 +19,7 @@ pub mod shard;
 pub mod task;
 
 pub use behaviour::{behaviour_name, sorting_order};
-pub use interval::{IntervalMethod, NoInterval};
+pub use interval::{IntervalMethod, NoInterval, ScoreCoverage};
 pub use job::*;
 pub use progress::{Progress, StateOutcome};
 pub use results::*;

@@ -70,6 +70,23 @@ impl RobustnessResult {
             .find(|l| l.axis == axis && l.level == level)
             .map(|l| &l.result)
     }
+
+    /// The label of this document's score intervals when their measured
+    /// coverage is below the nominal 95 % (from the initial states of level
+    /// 0, which every level shares: [`crate::interval::score_coverage`]);
+    /// None from enough states, or when there is no score interval.
+    pub fn score_coverage(&self) -> Option<crate::interval::ScoreCoverage> {
+        let has_interval = self
+            .axes
+            .iter()
+            .filter_map(|a| a.score.as_ref())
+            .chain(self.overall.as_ref())
+            .any(|e| e.interval().is_some());
+        if !has_interval {
+            return None;
+        }
+        crate::interval::score_coverage(self.control.manifest.n_contexts)
+    }
 }
 
 /// Format tag of [`RobustnessPart`].

@@ -11,11 +11,18 @@
 //! rates and their differences (over the cells given an interval), the
 //! entropies, the scores, and the 0.4 methods, with the ratio of the first
 //! to the nominal 95 % (the 0.4 methods' minimum is 0: width-0 intervals).
+//! The score cells are those whose figures label the scores' intervals on
+//! the pages, the API and the tables (d3il_protocol::interval::
+//! SCORE_COVERAGE_MEASURED); a line after the tables says whether this run
+//! still gives them.
 
 use d3il_metrics::interval_sim::{
     simulate_cell, simulate_entropy_cell, simulate_score_cell, Cell, Design, Kind,
 };
 use d3il_metrics::EntropyConvention;
+use d3il_protocol::interval::{
+    score_coverage_min_states, SCORE_COVERAGE_MEASURED, SCORE_COVERAGE_REPLICATIONS,
+};
 use d3il_protocol::TaskId;
 
 const CONFIDENCE: f64 = 0.95;
@@ -243,23 +250,23 @@ pub fn run(smoke: bool) -> anyhow::Result<()> {
         "rate", "ratio", "states", "truth", "cov", "width", "w=0", "popul.", "pop cov"
     );
     let mut min_score = f64::INFINITY;
+    // The cells whose figures label the scores' intervals on the pages
+    // (d3il_protocol::interval::SCORE_COVERAGE_MEASURED), in its order.
     let score_cells: Vec<(f64, usize, usize)> = if smoke {
         vec![(0.8, 10, 2)]
     } else {
-        let mut v = Vec::new();
-        for &n in &[3, 10, 30, 60] {
-            for &m in &[2, 8] {
-                v.push((0.8, n, m));
-            }
-        }
-        v.extend([(0.5, 10, 8), (0.5, 30, 2), (0.2, 30, 8), (0.2, 60, 2)]);
-        v
+        SCORE_COVERAGE_MEASURED
+            .iter()
+            .map(|c| (c.rate_percent as f64 / 100.0, c.states, c.rollouts))
+            .collect()
     };
+    let mut label_figures = Vec::new();
     for (rate, n, m) in score_cells {
         seed += 1;
         let ratio = 0.75;
         let (cov, t) = simulate_score_cell(rate, ratio, 3, n, m, reps, resamples, truth_runs, seed);
         min_score = min_score.min(cov[0].coverage());
+        label_figures.push((rate, n, m, cov[0].coverage()));
         if cov[0].coverage() < 0.94 {
             below.push(format!(
                 "robustness score rate {rate} {n}x{m}: {:.3}",
@@ -280,6 +287,10 @@ pub fn run(smoke: bool) -> anyhow::Result<()> {
         );
     }
 
+    if !smoke {
+        println!("{}", compare_label_figures(&label_figures, reps));
+    }
+
     if below.is_empty() {
         println!("every coverage is at least 0.94");
     } else {
@@ -294,4 +305,42 @@ pub fn run(smoke: bool) -> anyhow::Result<()> {
         min_new / CONFIDENCE
     );
     Ok(())
+}
+
+/// Whether this run's score cells (rate, states, rollouts, coverage) give
+/// the figures the pages label score intervals with
+/// (`SCORE_COVERAGE_MEASURED`, as printed: three decimals).
+fn compare_label_figures(run: &[(f64, usize, usize, f64)], reps: usize) -> String {
+    let stored = &SCORE_COVERAGE_MEASURED;
+    let mut differ = Vec::new();
+    for (c, &(rate, n, m, cov)) in stored.iter().zip(run) {
+        let printed = format!("{cov:.3}");
+        if format!("{:.3}", c.coverage()) != printed
+            || (rate, n, m) != (c.rate_percent as f64 / 100.0, c.states, c.rollouts)
+        {
+            differ.push(format!(
+                "rate {rate} {n}x{m}: stored {:.3}, this run {printed}",
+                c.coverage()
+            ));
+        }
+    }
+    if run.len() != stored.len() || reps != SCORE_COVERAGE_REPLICATIONS {
+        differ.push(format!(
+            "{} cells of {reps} replications here, {} of {} stored",
+            run.len(),
+            stored.len(),
+            SCORE_COVERAGE_REPLICATIONS
+        ));
+    }
+    if differ.is_empty() {
+        format!(
+            "score interval labels (d3il_protocol::interval::SCORE_COVERAGE_MEASURED): this run gives the stored figures; labelled below {} initial states",
+            score_coverage_min_states()
+        )
+    } else {
+        format!(
+            "score interval labels (d3il_protocol::interval::SCORE_COVERAGE_MEASURED) differ from this run, update them: {}",
+            differ.join("; ")
+        )
+    }
 }

@@ -227,6 +227,9 @@ pub fn render(doc: &RobustnessResult) -> String {
         }
     }
     s += &format!("\noverall robustness score: {}\n", interval(&doc.overall));
+    if let Some(c) = doc.score_coverage() {
+        s += &format!("score intervals: {} (`d3il bench intervals`)\n", c.label);
+    }
     let mut notes: Vec<String> = doc
         .levels
         .iter()
@@ -244,9 +247,10 @@ pub fn render(doc: &RobustnessResult) -> String {
         s += &format!("drop: note: {c}\n");
     }
     s += &format!(
-        "drop: level 0 − level, paired by initial state (`d3il compare`, {} resamples); H: behaviour entropy; H|s0: conditional behaviour entropy; retained: share of level 0's successes kept, paired by initial state (Σ min(p0, p) / Σ p0, at most 1); score: retained averaged over the axis's levels (overall: over the axes), {:.0} % paired bootstrap interval (bias-corrected; for the score's expected value at this size, approximate, and not to be trusted with few initial states)\n",
+        "drop: level 0 − level, paired by initial state (`d3il compare`, {} resamples); H: behaviour entropy; H|s0: conditional behaviour entropy; retained: share of level 0's successes kept, paired by initial state (Σ min(p0, p) / Σ p0, at most 1); score: retained averaged over the axis's levels (overall: over the axes), {:.0} % paired bootstrap interval (bias-corrected; for the score's expected value at this size; {})\n",
         doc.resamples,
-        doc.confidence * 100.0
+        doc.confidence * 100.0,
+        d3il_protocol::interval::score_coverage_note()
     );
     s
 }

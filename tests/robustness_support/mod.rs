@@ -59,6 +59,29 @@ pub fn document(s: &Synth) -> RobustnessResult {
 /// Writes one finished robustness submission per `synths` entry; returns
 /// their ids.
 pub fn seed(db: &std::path::Path, synths: &[Synth]) -> Vec<i64> {
+    let docs: Vec<(&str, i64, RobustnessResult)> = synths
+        .iter()
+        .map(|s| (s.method, s.training_seed, document(s)))
+        .collect();
+    seed_documents(db, &docs)
+}
+
+/// `doc` cut to its first `states` initial states (every level keeps the
+/// same ones, with their rollout records), its intervals, drops and scores
+/// recomputed: a document as a run on that many states gives it.
+pub fn first_states(mut doc: RobustnessResult, states: usize) -> RobustnessResult {
+    for r in std::iter::once(&mut doc.control).chain(doc.levels.iter_mut().map(|l| &mut l.result)) {
+        r.per_context.truncate(states);
+        r.rollouts.retain(|x| x.context_index < states);
+        r.manifest.n_contexts = states;
+    }
+    d3il_metrics::recompute::recompute_robustness(&mut doc).expect("recompute");
+    doc
+}
+
+/// Writes one finished robustness submission per (method, training seed,
+/// document); returns their ids.
+pub fn seed_documents(db: &std::path::Path, docs: &[(&str, i64, RobustnessResult)]) -> Vec<i64> {
     let rt = tokio::runtime::Builder::new_current_thread()
         .enable_all()
         .build()
@@ -66,12 +89,11 @@ pub fn seed(db: &std::path::Path, synths: &[Synth]) -> Vec<i64> {
     rt.block_on(async {
         let store = Store::open(db).await.expect("open store");
         let mut ids = vec![];
-        for s in synths {
-            let doc = document(s);
+        for (method, training_seed, doc) in docs {
             let m = store
                 .ensure_method(
                     &NewMethod {
-                        name: s.method.into(),
+                        name: method.to_string(),
                         ..NewMethod::default()
                     },
                     None,
@@ -85,7 +107,7 @@ pub fn seed(db: &std::path::Path, synths: &[Synth]) -> Vec<i64> {
                         submitter_id: None,
                         task: TaskId::Pushing,
                         obs_type: ObsType::State,
-                        training_seed: s.training_seed,
+                        training_seed: *training_seed,
                         data_fraction: 1.0,
                         protocol: ProtocolKind::Paper,
                         policy: NewPolicy::Remote {
@@ -108,7 +130,7 @@ pub fn seed(db: &std::path::Path, synths: &[Synth]) -> Vec<i64> {
                 .expect("a job");
             assert_eq!(c.submission.id, id);
             assert_eq!(c.submission.suite.as_deref(), Some("robustness"));
-            store.save_robustness(id, &doc).await.expect("save");
+            store.save_robustness(id, doc).await.expect("save");
             store
                 .complete_job(c.job.id, id, &doc.control, &[])
                 .await

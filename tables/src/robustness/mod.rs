@@ -43,6 +43,15 @@ impl RobustnessEntry {
             .and_then(|a| a.score)
     }
 
+    /// The label of the row's score intervals when their measured coverage
+    /// is below the nominal 95 % (too few initial states), else empty.
+    pub fn score_coverage_text(&self) -> String {
+        self.doc
+            .score_coverage()
+            .map(|c| c.label)
+            .unwrap_or_default()
+    }
+
     /// Success rate (with interval) per level of `axis`, level 0 first.
     pub fn curve(&self, axis: Axis) -> Vec<(usize, Estimate)> {
         let mut c = vec![(0, self.doc.control.metrics.success_rate)];
@@ -299,8 +308,19 @@ fn ci_cells(e: &Estimate) -> [String; 2] {
     }
 }
 
-/// What the scores mean (every format prints it).
-pub const NOTE: &str = "Score: success retained (a level's success rate over level 0's), averaged over an axis's levels; overall: the mean of the axes' scores; scores carry 95 % paired bootstrap intervals over initial states (bias-corrected percentile: approximate, for the score's expected value at this size; measured coverage 94-96 % with 30-60 initial states but only 66-91 % with 3-10, so with fewer than 30 states read them as rough, `d3il bench intervals`, docs/intervals.md); success rates and drops the intervals of docs/intervals.md (none with fewer than 5 initial states, and the reason instead). Methods: mean ± sample standard deviation over training seeds, as on the boards; the rows per seed (with intervals) follow. Level 0 is the plain evaluation (the control arm); every level runs on the same initial states, seed and rollout ids. Rows of different suite files or protocols are never ranked together. – : no success at level 0 (nothing to retain).";
+/// What the scores mean (every format prints it); the scores' measured
+/// coverage and which rows carry a label come from
+/// [`d3il_protocol::interval::score_coverage_note`].
+pub fn note() -> String {
+    format!(
+        "Score: success retained (a level's success rate over level 0's), averaged over an axis's levels; overall: the mean of the axes' scores; scores carry 95 % paired bootstrap intervals over initial states (bias-corrected percentile, for the score's expected value at this size; {}: the per-seed rows' \"{SCORE_COVERAGE_COLUMN}\", docs/intervals.md); success rates and drops the intervals of docs/intervals.md (none with fewer than 5 initial states, and the reason instead). Methods: mean ± sample standard deviation over training seeds, as on the boards; the rows per seed (with intervals) follow. Level 0 is the plain evaluation (the control arm); every level runs on the same initial states, seed and rollout ids. Rows of different suite files or protocols are never ranked together. – : no success at level 0 (nothing to retain).",
+        d3il_protocol::interval::score_coverage_note()
+    )
+}
+
+/// The per-seed tables' last column: the row's score-interval label
+/// ([`RobustnessEntry::score_coverage_text`]).
+pub const SCORE_COVERAGE_COLUMN: &str = "Score intervals' coverage";
 
 fn header(g: &SuiteGroup<'_>) -> Vec<String> {
     let mut h = vec![
@@ -318,6 +338,13 @@ fn header(g: &SuiteGroup<'_>) -> Vec<String> {
 fn method_header(g: &SuiteGroup<'_>) -> Vec<String> {
     let mut h = header(g);
     h.insert(2, "Seeds".into());
+    h
+}
+
+/// [`header`] of the rows per seed: their intervals' label last.
+fn seed_header(g: &SuiteGroup<'_>) -> Vec<String> {
+    let mut h = header(g);
+    h.push(SCORE_COVERAGE_COLUMN.into());
     h
 }
 
@@ -345,6 +372,7 @@ fn cells(rank: usize, e: &RobustnessEntry, g: &SuiteGroup<'_>) -> Vec<String> {
     ];
     c.extend(g.axes.iter().map(|&a| interval_text(&e.axis_score(a))));
     c.push(interval_text(&e.doc.overall));
+    c.push(e.score_coverage_text());
     c
 }
 
@@ -368,7 +396,7 @@ pub fn render_robustness(
 }
 
 fn markdown(groups: &[SuiteGroup<'_>]) -> String {
-    let mut out = format!("**D3IL robustness.** {}\n", markdown_escape(NOTE));
+    let mut out = format!("**D3IL robustness.** {}\n", markdown_escape(&note()));
     for g in groups {
         let _ = writeln!(out, "\n**{}**\n", markdown_escape(&g.title()));
         let methods: Vec<Vec<String>> = g
@@ -385,7 +413,7 @@ fn markdown(groups: &[SuiteGroup<'_>]) -> String {
             .enumerate()
             .map(|(i, e)| cells(i + 1, e, g))
             .collect();
-        markdown_table(&mut out, &header(g), &seeds);
+        markdown_table(&mut out, &seed_header(g), &seeds);
     }
     out
 }
@@ -420,7 +448,7 @@ fn latex(groups: &[SuiteGroup<'_>]) -> String {
             .collect();
         latex_table(
             &mut out,
-            &format!("D3IL robustness, {}. {}", g.title(), NOTE),
+            &format!("D3IL robustness, {}. {}", g.title(), note()),
             &method_header(g),
             &methods,
         );
@@ -433,7 +461,7 @@ fn latex(groups: &[SuiteGroup<'_>]) -> String {
         latex_table(
             &mut out,
             &format!("D3IL robustness per training seed, {}.", g.title()),
-            &header(g),
+            &seed_header(g),
             &seeds,
         );
     }
@@ -461,7 +489,7 @@ fn latex_table(out: &mut String, caption: &str, h: &[String], rows: &[Vec<String
     let _ = writeln!(out, "\\bottomrule\n\\end{{tabular}}\n\\end{{table}}\n");
 }
 
-const CSV_HEADER: [&str; 21] = [
+const CSV_HEADER: [&str; 22] = [
     "task",
     "suite",
     "suite_sha256",
@@ -483,6 +511,7 @@ const CSV_HEADER: [&str; 21] = [
     "retained",
     "seeds_std",
     "n_seeds",
+    "score_coverage",
 ];
 
 /// One line per level of every axis (level 0 once, axis `control`), then a
@@ -492,7 +521,9 @@ const CSV_HEADER: [&str; 21] = [
 /// its seeds (`training_seed` `all`, level `seeds`): level 0's success rate
 /// and the scores as the mean in `success_rate` (control) or
 /// `retained` (scores), the sample standard deviation in `seeds_std` and the
-/// number of seeds with a value in `n_seeds`.
+/// number of seeds with a value in `n_seeds`. A submission's score lines
+/// carry in `score_coverage` the label of intervals whose measured coverage
+/// is below the nominal 95 % (empty otherwise, and on every other line).
 fn csv(groups: &[SuiteGroup<'_>]) -> Result<String, TablesError> {
     let f = |x: f64| format!("{x}");
     let mut rows: Vec<Vec<String>> = Vec::new();
@@ -529,6 +560,7 @@ fn csv(groups: &[SuiteGroup<'_>]) -> Result<String, TablesError> {
                     if control { String::new() } else { mean },
                     std,
                     n,
+                    String::new(),
                 ]);
             }
         }
@@ -558,7 +590,7 @@ fn csv(groups: &[SuiteGroup<'_>]) -> Result<String, TablesError> {
                 String::new(),
                 "1".into(),
             ]);
-            r.extend([String::new(), String::new()]);
+            r.extend([String::new(), String::new(), String::new()]);
             rows.push(r);
             for l in &e.doc.levels {
                 let s = l.result.metrics.success_rate;
@@ -577,7 +609,7 @@ fn csv(groups: &[SuiteGroup<'_>]) -> Result<String, TablesError> {
                     f(d.p_value),
                     l.retained.map(f).unwrap_or_default(),
                 ]);
-                r.extend([String::new(), String::new()]);
+                r.extend([String::new(), String::new(), String::new()]);
                 rows.push(r);
             }
             let scores = g
@@ -587,6 +619,11 @@ fn csv(groups: &[SuiteGroup<'_>]) -> Result<String, TablesError> {
                 .chain([("overall".to_string(), "score", e.doc.overall)]);
             for (axis, level, score) in scores {
                 let mut r = base.clone();
+                let label = if score.is_some() {
+                    e.score_coverage_text()
+                } else {
+                    String::new()
+                };
                 let (v, lo, hi) = match score {
                     Some(s) => {
                         let [lo, hi] = ci_cells(&s);
@@ -607,7 +644,7 @@ fn csv(groups: &[SuiteGroup<'_>]) -> Result<String, TablesError> {
                     String::new(),
                     v,
                 ]);
-                r.extend([String::new(), String::new()]);
+                r.extend([String::new(), String::new(), label]);
                 rows.push(r);
             }
         }

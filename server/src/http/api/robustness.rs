@@ -1,6 +1,8 @@
 //! A submission's robustness document (docs/robustness.md): what
 //! a submission with `suite=robustness` produced, level 0 and every level of
-//! the task's perturbation suite with paired drops and scores.
+//! the task's perturbation suite with paired drops and scores, served with
+//! the label of its score intervals when they come from too few initial
+//! states to cover as they say (`score_interval_coverage`).
 
 use crate::error::{AppError, ErrorBody};
 use crate::http::extract::{Param, Query};
@@ -56,6 +58,36 @@ pub struct RobustnessDocument {
     overall: (),
     resamples: usize,
     confidence: f64,
+    /// Served, not stored: when the scores' intervals come from fewer
+    /// initial states than their measured coverage reaches the nominal 95 %
+    /// from (`d3il bench intervals`, docs/intervals.md), what was measured
+    /// and the label the pages print; null from enough states (30) or
+    /// without a score interval.
+    score_interval_coverage: Option<ScoreIntervalCoverage>,
+}
+
+/// The label of a robustness document's score intervals
+/// (`d3il_protocol::interval::ScoreCoverage`).
+#[derive(utoipa::ToSchema)]
+#[allow(dead_code)] // a schema only: the handler serializes the protocol's type
+pub struct ScoreIntervalCoverage {
+    /// Initial states behind the scores (level 0's, which every level shares).
+    states: usize,
+    /// The fewest and most initial states of the measured cells the scores
+    /// are read against.
+    measured_states: [usize; 2],
+    /// The lowest and highest coverage measured in those cells.
+    measured_coverage: [f64; 2],
+    /// 0.95.
+    nominal: f64,
+    /// The Monte-Carlo standard error of one measured cell's coverage.
+    monte_carlo_standard_error: f64,
+    /// From this many initial states on, the measured coverage is within
+    /// Monte-Carlo error of the nominal: no label.
+    min_states: usize,
+    /// The label as the pages and tables print it, e.g. `from 3 initial
+    /// states: measured coverage 66–74 %, below the nominal 95 %`.
+    label: String,
 }
 
 #[utoipa::path(get, path = "/submissions/{id}/robustness", tag = "submissions",
@@ -81,20 +113,65 @@ pub async fn get_robustness(
             s.status
         ))
     };
-    let body = if q.rollouts.unwrap_or(true) {
+    let summary = state
+        .store
+        .robustness_summary(id)
+        .await?
+        .ok_or_else(missing)?;
+    let coverage = summary.score_coverage();
+    let document = if q.rollouts.unwrap_or(true) {
         state
             .store
             .robustness_document(id)
             .await?
             .ok_or_else(missing)?
     } else {
-        let summary = state
-            .store
-            .robustness_summary(id)
-            .await?
-            .ok_or_else(missing)?;
         serde_json::to_string(&summary)
             .map_err(|e| AppError::Internal(format!("robustness encoding: {e}")))?
     };
+    let body = with_score_coverage(&document, &coverage)?;
     Ok(([(header::CONTENT_TYPE, "application/json")], body).into_response())
+}
+
+/// The document with `score_interval_coverage` as its first member. The
+/// stored document (an object, as serde wrote it) is spliced rather than
+/// parsed again: with its rollout records it runs to megabytes.
+fn with_score_coverage(
+    document: &str,
+    coverage: &Option<d3il_protocol::ScoreCoverage>,
+) -> Result<String, AppError> {
+    let rest = document.trim_start().strip_prefix('{').ok_or_else(|| {
+        AppError::Internal("a stored robustness document is not an object".into())
+    })?;
+    let field = serde_json::to_string(coverage)
+        .map_err(|e| AppError::Internal(format!("robustness encoding: {e}")))?;
+    let sep = if rest.trim_start().starts_with('}') {
+        ""
+    } else {
+        ","
+    };
+    Ok(format!("{{\"score_interval_coverage\":{field}{sep}{rest}"))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::with_score_coverage;
+
+    #[test]
+    fn the_label_is_spliced_in_as_a_member() {
+        let c = d3il_protocol::interval::score_coverage(3);
+        for doc in [r#"{"format":"d3il-robustness-v1","levels":[]}"#, " {}"] {
+            let v: serde_json::Value =
+                serde_json::from_str(&with_score_coverage(doc, &c).unwrap()).unwrap();
+            assert_eq!(v["score_interval_coverage"]["states"], 3);
+            let plain: serde_json::Value = serde_json::from_str(doc).unwrap();
+            for (k, x) in plain.as_object().unwrap() {
+                assert_eq!(&v[k], x);
+            }
+        }
+        let v: serde_json::Value =
+            serde_json::from_str(&with_score_coverage("{}", &None).unwrap()).unwrap();
+        assert!(v["score_interval_coverage"].is_null());
+        assert!(with_score_coverage("[]", &None).is_err());
+    }
 }

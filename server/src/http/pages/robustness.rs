@@ -3,7 +3,9 @@
 //! intervals, per-axis degradation curves and robustness against
 //! conditional behaviour entropy. A method's training seeds are aggregated
 //! as on the boards (mean ± sample std, `SuiteGroup::methods`); the rows
-//! per seed, with their intervals, are in a table below it. Tables and
+//! per seed, with their intervals, are in a table below it; a row whose
+//! score intervals come from too few initial states to cover as they say
+//! is labelled with their measured coverage. Tables and
 //! figures come from `d3il_tables::robustness` (as `d3il tables --table
 //! robustness`).
 
@@ -17,7 +19,9 @@ use axum::extract::State;
 use axum::response::Html;
 use d3il_protocol::TaskId;
 use d3il_tables::robustness::figures::{degradation_svg, score_vs_entropy_svg};
-use d3il_tables::robustness::{group_by_suite, interval_text, seed_text, RobustnessEntry, NOTE};
+use d3il_tables::robustness::{
+    group_by_suite, interval_text, note, seed_text, RobustnessEntry, SCORE_COVERAGE_COLUMN,
+};
 
 /// A method over its training seeds.
 struct MethodRow {
@@ -41,6 +45,9 @@ struct Row {
     entropy: String,
     scores: Vec<String>,
     overall: String,
+    /// The label of its score intervals when their measured coverage is
+    /// below the nominal 95 % (too few initial states); empty otherwise.
+    coverage: String,
 }
 
 struct Figure {
@@ -54,6 +61,8 @@ struct Group {
     axes: Vec<String>,
     methods: Vec<MethodRow>,
     rows: Vec<Row>,
+    /// Rows whose score intervals carry a coverage label.
+    labelled: usize,
     figures: Vec<Figure>,
 }
 
@@ -63,7 +72,8 @@ struct RobustnessPage {
     title: &'static str,
     slug: &'static str,
     groups: Vec<Group>,
-    note: &'static str,
+    note: String,
+    coverage_column: &'static str,
 }
 
 pub(super) async fn robustness_page(
@@ -79,7 +89,7 @@ pub(super) async fn robustness_page(
         .collect();
     let mut groups = Vec::new();
     for (i, g) in group_by_suite(&entries).iter().enumerate() {
-        let rows = g
+        let rows: Vec<Row> = g
             .entries
             .iter()
             .enumerate()
@@ -97,6 +107,7 @@ pub(super) async fn robustness_page(
                     .map(|&a| interval_text(&e.axis_score(a)))
                     .collect(),
                 overall: interval_text(&e.doc.overall),
+                coverage: e.score_coverage_text(),
             })
             .collect();
         let methods = g
@@ -137,6 +148,7 @@ pub(super) async fn robustness_page(
             anchor: format!("suite-{}", i + 1),
             axes: g.axes.iter().map(|a| a.to_string()).collect(),
             methods,
+            labelled: rows.iter().filter(|r| !r.coverage.is_empty()).count(),
             rows,
             figures,
         });
@@ -145,7 +157,8 @@ pub(super) async fn robustness_page(
         title: task.title(),
         slug: task.slug(),
         groups,
-        note: NOTE,
+        note: note(),
+        coverage_column: SCORE_COVERAGE_COLUMN,
     })
 }
 

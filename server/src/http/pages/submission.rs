@@ -85,6 +85,31 @@ struct SubmissionPage {
     cancelled_by: Option<String>,
     /// (when, by whom, why) an admin withdrew it.
     withdrawn: Option<(String, String, String)>,
+    /// A suite submission's scores, once its robustness document is stored.
+    robustness: Option<RobustnessScores>,
+}
+
+/// A suite submission's robustness scores as its page shows them.
+struct RobustnessScores {
+    /// (axis, score with interval) in the suite's order.
+    axes: Vec<(String, String)>,
+    overall: String,
+    /// The label of the score intervals when their measured coverage is
+    /// below the nominal 95 % (too few initial states).
+    coverage: Option<String>,
+}
+
+fn robustness_scores(doc: &d3il_protocol::robustness::RobustnessResult) -> RobustnessScores {
+    use d3il_tables::robustness::interval_text;
+    RobustnessScores {
+        axes: doc
+            .axes
+            .iter()
+            .map(|a| (a.axis.to_string(), interval_text(&a.score)))
+            .collect(),
+        overall: interval_text(&doc.overall),
+        coverage: doc.score_coverage().map(|c| c.label),
+    }
 }
 
 /// The live estimate as the page shows it.
@@ -287,6 +312,13 @@ pub(super) async fn submission_page(
                 .to_string()
         }
     };
+    let robustness = match s.suite {
+        Some(_) => store
+            .robustness_summary(id)
+            .await?
+            .map(|doc| robustness_scores(&doc)),
+        None => None,
+    };
     let withdrawn = store
         .withdrawal(id)
         .await?
@@ -295,6 +327,7 @@ pub(super) async fn submission_page(
         so_far: live_estimate.as_ref().map(so_far),
         cancelled_by: cancelled.map(|c| c.by),
         withdrawn,
+        robustness,
         live: matches!(
             s.status,
             SubmissionStatus::Queued | SubmissionStatus::Running
