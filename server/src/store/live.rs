@@ -1,6 +1,7 @@
 //! The outcomes a running evaluation has reported so far (the
 //! basis of its live confidence sequence) and cancelling an evaluation.
 
+use super::moderation::audit_in;
 use super::{now, to_json, Store, StoreError};
 use serde::{Deserialize, Serialize};
 
@@ -174,16 +175,7 @@ impl Store {
             // The audit entry (an admin cancelling another's evaluation)
             // commits with the cancel.
             if let Some((actor, action, target, detail)) = audit {
-                sqlx::query(
-                    "INSERT INTO audit_log (at, actor, action, target, detail) VALUES ($1, $2, $3, $4, $5)",
-                )
-                .bind(t)
-                .bind(actor)
-                .bind(action)
-                .bind(target)
-                .bind(detail)
-                .execute(&mut *tx)
-                .await?;
+                audit_in!(&mut *tx, t, actor, action, target, detail);
             }
             tx.commit().await?;
             CancelOutcome::Cancelled

@@ -81,15 +81,17 @@ pub struct AuditEntry {
 /// The 24 hours of the per-day quota.
 pub const DAY_S: i64 = 86_400;
 
-/// Appends an audit entry inside the caller's transaction (the
-/// entry and the action commit together or not at all); its entry.
+/// Appends an audit entry at time `$at` inside the caller's transaction
+/// (the entry and the action commit together or not at all); its entry.
+/// The one insert into `audit_log`: moderation, cancels and race cancels
+/// all write through it.
 macro_rules! audit_in {
-    ($tx:expr, $actor:expr, $action:expr, $target:expr, $detail:expr) => {{
-        let e: AuditEntry = sqlx::query_as(
+    ($tx:expr, $at:expr, $actor:expr, $action:expr, $target:expr, $detail:expr) => {{
+        let e: $crate::store::AuditEntry = sqlx::query_as(
             "INSERT INTO audit_log (at, actor, action, target, detail) VALUES ($1, $2, $3, $4, $5) \
              RETURNING id, at, actor, action, target, detail",
         )
-        .bind(now())
+        .bind($at)
         .bind($actor)
         .bind($action)
         .bind($target)
@@ -99,6 +101,7 @@ macro_rules! audit_in {
         e
     }};
 }
+pub(super) use audit_in;
 
 impl Store {
     /// The quota overrides of submitter `id` (all None if it has none).
@@ -151,7 +154,7 @@ impl Store {
                     "a submitter `{name}` (tokens name one: `d3il token create --name {name}`)"
                 )));
             }
-            let e = audit_in!(&mut *tx, actor, "set_quota", format!("submitter {name}"), &detail);
+            let e = audit_in!(&mut *tx, now(), actor, "set_quota", format!("submitter {name}"), &detail);
             tx.commit().await?;
             Ok(e)
         })
@@ -225,7 +228,7 @@ impl Store {
             if n == 0 {
                 return Err(StoreError::NotFound(format!("submission {id}")));
             }
-            let e = audit_in!(&mut *tx, actor, "withdraw", format!("submission {id}"), reason);
+            let e = audit_in!(&mut *tx, now(), actor, "withdraw", format!("submission {id}"), reason);
             tx.commit().await?;
             Ok(e)
         })
@@ -249,7 +252,7 @@ impl Store {
             if n == 0 {
                 return Err(StoreError::NotFound(format!("submission {id}")));
             }
-            let e = audit_in!(&mut *tx, actor, "reinstate", format!("submission {id}"), "");
+            let e = audit_in!(&mut *tx, now(), actor, "reinstate", format!("submission {id}"), "");
             tx.commit().await?;
             Ok(e)
         })
@@ -293,7 +296,7 @@ impl Store {
             if n == 0 {
                 return Err(StoreError::NotFound(format!("method `{name}`")));
             }
-            let e = audit_in!(&mut *tx, actor, action, format!("method {name}"), "");
+            let e = audit_in!(&mut *tx, now(), actor, action, format!("method {name}"), "");
             tx.commit().await?;
             Ok(e)
         })

@@ -12,6 +12,7 @@
 //! finished results (`GET /api/v1/compare`, [`crate::comparison`]) stores
 //! nothing.
 
+use super::moderation::audit_in;
 use super::types::{RaceStatus, Stored};
 use super::{now, Store, StoreError};
 use d3il_protocol::{ProtocolKind, TaskId};
@@ -209,16 +210,7 @@ impl Store {
                 return Ok(RaceCancel::AlreadyFinished);
             }
             if let Some((actor, action, target, detail)) = audit {
-                sqlx::query(
-                    "INSERT INTO audit_log (at, actor, action, target, detail) VALUES ($1, $2, $3, $4, $5)",
-                )
-                .bind(t)
-                .bind(actor)
-                .bind(action)
-                .bind(target)
-                .bind(detail)
-                .execute(&mut *tx)
-                .await?;
+                audit_in!(&mut *tx, t, actor, action, target, detail);
             }
             tx.commit().await?;
             Ok(RaceCancel::Cancelled)
