@@ -89,8 +89,8 @@ fn main() -> anyhow::Result<()> {
         Command::Render(a) => cmd::render::run(a),
         Command::Replay(a) => cmd::replay::run(a),
         Command::Verify(a) => cmd::verify::run(a),
-        Command::Eval(a) => match a.suite.clone() {
-            Some(suite) => cmd::robustness::run(&a, &suite),
+        Command::Eval(a) => match a.suite {
+            Some(suite) => cmd::robustness::run(&a, suite),
             None => cmd::eval::run(a),
         },
         Command::Fidelity(a) => cmd::fidelity::run(a),

@@ -3,7 +3,7 @@
 //! accepted, a rollout whose simulation becomes unstable failing alone, the
 //! intervals `d3il eval` prints, and `d3il compare`.
 
-use d3il_evaluator::eval::{evaluate, EvalOptions, PolicyInfo};
+use d3il_evaluator::eval::{evaluate, EvalOptions, EvalRun, PolicyInfo};
 use d3il_evaluator::tasks::contexts::sha256_hex;
 use d3il_evaluator::tasks::LoadedTask;
 use d3il_policy::{ActionChunks, Policy, PolicyError, PolicyShape, Query};
@@ -377,7 +377,7 @@ fn an_unstable_rollout_fails_alone_and_the_evaluation_completes() {
         bootstrap_resamples: 100,
         ..EvalOptions::default()
     };
-    let (r, _) = evaluate(&task, &mut policy, &info, &opts, &mut |_, _| {}).unwrap();
+    let (r, _) = evaluate(&task, &mut policy, &info, &opts, EvalRun::all()).unwrap();
     assert_eq!(r.rollouts.len(), 6);
     assert_eq!(r.rollouts_ended_unstable, 1, "{:?}", r.rollouts);
     assert!(!r.mostly_unstable());

@@ -4,7 +4,7 @@
 //! batched call per window length, and its own previous outputs in
 //! `prev_actions`.
 
-use d3il_evaluator::eval::{evaluate, EvalOptions, PolicyInfo};
+use d3il_evaluator::eval::{evaluate, EvalOptions, EvalRun, PolicyInfo};
 use d3il_evaluator::tasks::LoadedTask;
 use d3il_policy::{ActionChunks, Policy, PolicyError, PolicyShape, Query, WindowMode};
 use d3il_protocol::{ObsType, ProtocolKind, TaskId};
@@ -106,7 +106,7 @@ fn run(mode: WindowMode, max_live: usize) -> Recorder {
         bootstrap_resamples: 10,
         ..EvalOptions::default()
     };
-    let (r, _) = evaluate(&task, &mut p, &info, &opts, &mut |_, _| {}).unwrap();
+    let (r, _) = evaluate(&task, &mut p, &info, &opts, EvalRun::all()).unwrap();
     assert_eq!(r.rollouts.len(), 6);
     p
 }

@@ -8,7 +8,7 @@
 //! policy with a `noise` input, or a script of several variants, is
 //! simulated rollout by rollout.
 
-use d3il_evaluator::eval::{evaluate, sha256_hex, EvalOptions, PolicyInfo, Timing};
+use d3il_evaluator::eval::{evaluate, sha256_hex, EvalOptions, EvalRun, PolicyInfo, Timing};
 use d3il_evaluator::scripted::ScriptedPolicy;
 use d3il_evaluator::tasks::LoadedTask;
 use d3il_policy::{OnnxPolicy, Policy};
@@ -50,7 +50,7 @@ fn evaluate_fixture(
         simulate_every_rollout: every_rollout,
         ..EvalOptions::default()
     };
-    evaluate(&task, policy.as_mut(), &info, &opts, &mut |_, _| {}).unwrap()
+    evaluate(&task, policy.as_mut(), &info, &opts, EvalRun::all()).unwrap()
 }
 
 /// Everything but the measured inference time and the manifest's record of

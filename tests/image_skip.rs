@@ -4,7 +4,7 @@
 //! are the same as rendering every frame, in every rollout record, and half
 //! the frames are drawn.
 
-use d3il_evaluator::eval::{evaluate, sha256_hex, EvalOptions, PolicyInfo};
+use d3il_evaluator::eval::{evaluate, sha256_hex, EvalOptions, EvalRun, PolicyInfo};
 use d3il_evaluator::tasks::LoadedTask;
 use d3il_policy::OnnxPolicy;
 use d3il_protocol::{ObsType, ProtocolKind, TaskId};
@@ -30,7 +30,7 @@ fn frames_the_policy_never_sees_are_not_rendered_and_change_nothing() {
             simulate_every_rollout: true,
             ..EvalOptions::default()
         };
-        evaluate(&task, &mut policy, &info, &opts, &mut |_, _| {}).unwrap()
+        evaluate(&task, &mut policy, &info, &opts, EvalRun::all()).unwrap()
     };
     let (all, t_all) = run(true);
     let (skipping, t_skip) = run(false);

@@ -6,7 +6,7 @@
 //! number of steps, a fractional one blending them (`latency.rs`: on
 //! Stacking the joint increments, the gripper value taken whole).
 
-use d3il_evaluator::eval::{evaluate, evaluate_perturbed, sha256_hex, EvalOptions, PolicyInfo};
+use d3il_evaluator::eval::{evaluate, sha256_hex, EvalOptions, EvalRun, PolicyInfo};
 use d3il_evaluator::perturb::{Active, Suite};
 use d3il_evaluator::robustness::{evaluate_suite, plan, SuiteObserver};
 use d3il_evaluator::scripted::ScriptedPolicy;
@@ -173,15 +173,21 @@ fn level_zero_of_every_axis_is_the_plain_evaluation_bit_for_bit() {
         let task = LoadedTask::load(id).unwrap();
         let mut policy = scripted(&task, name);
         let opts = capped(cap);
-        let (plain, _) = evaluate(&task, &mut policy, &info(), &opts, &mut |_, _| {}).unwrap();
+        let (plain, _) = evaluate(&task, &mut policy, &info(), &opts, EvalRun::all()).unwrap();
         // The axes of the task's suite (Avoiding's has no start_shift and
         // no dynamics: a fixed start, no movable object).
         let suite = Suite::for_task(id).unwrap();
         let has = |axis: &Axis| suite.file.axes.iter().any(|a| a.axis == *axis);
         for (axis, setting) in zero.iter().filter(|(axis, _)| has(axis)) {
             let p = perturbation(id, *axis, setting.clone());
-            let (r, _) =
-                evaluate_perturbed(&task, &mut policy, &info(), &opts, &p, &mut |_, _| {}).unwrap();
+            let (r, _) = evaluate(
+                &task,
+                &mut policy,
+                &info(),
+                &opts,
+                EvalRun::all().perturbed(&p),
+            )
+            .unwrap();
             assert_eq!(r.manifest.perturbation.as_ref(), Some(&p));
             assert_eq!(
                 comparable(&r),
@@ -200,13 +206,19 @@ fn level_zero_of_every_axis_is_the_plain_evaluation_bit_for_bit() {
         sha256: sha256_hex(&bytes),
         obs_type: ObsType::State,
     };
-    let (mut plain, _) = evaluate(&task, &mut policy, &info, &opts(), &mut |_, _| {}).unwrap();
+    let (mut plain, _) = evaluate(&task, &mut policy, &info, &opts(), EvalRun::all()).unwrap();
     assert!(plain.manifest.simulated_once);
     plain.resolve_traces();
     for (axis, setting) in &zero {
         let p = perturbation(TaskId::Aligning, *axis, setting.clone());
-        let (mut r, _) =
-            evaluate_perturbed(&task, &mut policy, &info, &opts(), &p, &mut |_, _| {}).unwrap();
+        let (mut r, _) = evaluate(
+            &task,
+            &mut policy,
+            &info,
+            &opts(),
+            EvalRun::all().perturbed(&p),
+        )
+        .unwrap();
         assert_eq!(r.manifest.simulated_once, *axis != Axis::ObsNoise);
         r.resolve_traces();
         let mut r = comparable(&r);
@@ -251,8 +263,14 @@ fn perturbed_rollouts_replay_bit_for_bit() {
                 .rev()
                 .find(|p| p.axis == axis)
                 .unwrap();
-            let (r, _) =
-                evaluate_perturbed(&task, &mut policy, &info(), &opts, &p, &mut |_, _| {}).unwrap();
+            let (r, _) = evaluate(
+                &task,
+                &mut policy,
+                &info(),
+                &opts,
+                EvalRun::all().perturbed(&p),
+            )
+            .unwrap();
             let replay_task = load_task(&r.manifest).unwrap();
             for record in &r.rollouts {
                 let trace = r.trace_of(record).unwrap();
@@ -278,7 +296,7 @@ fn perturbed_rollouts_replay_bit_for_bit() {
                 })
                 .collect();
             let plain = plain_steps.get_or_insert_with(|| {
-                let (pr, _) = evaluate(&task, &mut policy, &info(), &opts, &mut |_, _| {}).unwrap();
+                let (pr, _) = evaluate(&task, &mut policy, &info(), &opts, EvalRun::all()).unwrap();
                 pr.rollouts
                     .iter()
                     .map(|x| {
@@ -326,8 +344,14 @@ fn observation_noise_reaches_the_policy_and_only_the_environment_part() {
             log: log.clone(),
         };
         match p {
-            Some(p) => evaluate_perturbed(&task, &mut policy, &info(), &opts(), p, &mut |_, _| {}),
-            None => evaluate(&task, &mut policy, &info(), &opts(), &mut |_, _| {}),
+            Some(p) => evaluate(
+                &task,
+                &mut policy,
+                &info(),
+                &opts(),
+                EvalRun::all().perturbed(p),
+            ),
+            None => evaluate(&task, &mut policy, &info(), &opts(), EvalRun::all()),
         }
         .unwrap();
         let seen = log.lock().unwrap().clone();

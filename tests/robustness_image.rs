@@ -17,7 +17,7 @@
 //! states keep the rendering cheap.
 
 use d3il_evaluator::camera::{camera_ids, project, CAMERAS};
-use d3il_evaluator::eval::{evaluate, evaluate_perturbed, sha256_hex, EvalOptions, PolicyInfo};
+use d3il_evaluator::eval::{evaluate, sha256_hex, EvalOptions, EvalRun, PolicyInfo};
 use d3il_evaluator::fidelity::frames::our_frames;
 use d3il_evaluator::perturb::{Active, Suite};
 use d3il_evaluator::perturb_view::{quat_mat, tilt_about_y, turned_quat};
@@ -239,7 +239,7 @@ fn level_zero_of_the_image_axes_is_the_plain_evaluation_bit_for_bit() {
         let task = image_task(id);
         let plain_frames = our_frames(&task, 0, 96).unwrap();
         let (mut pol, info) = policy(&task);
-        let (plain, _) = evaluate(&task, &mut *pol, &info, &opts(), &mut |_, _| {}).unwrap();
+        let (plain, _) = evaluate(&task, &mut *pol, &info, &opts(), EvalRun::all()).unwrap();
         for (axis, setting) in [
             (
                 Axis::Camera,
@@ -269,8 +269,14 @@ fn level_zero_of_the_image_axes_is_the_plain_evaluation_bit_for_bit() {
                 plain_frames,
                 "{id} {axis}: level 0 drew other frames"
             );
-            let (r, _) =
-                evaluate_perturbed(&task, &mut *pol, &info, &opts(), &p, &mut |_, _| {}).unwrap();
+            let (r, _) = evaluate(
+                &task,
+                &mut *pol,
+                &info,
+                &opts(),
+                EvalRun::all().perturbed(&p),
+            )
+            .unwrap();
             assert_eq!(comparable(&r), comparable(&plain), "{id} {axis}");
         }
     }
@@ -478,8 +484,14 @@ fn perturbed_image_rollouts_of_sorting_and_stacking_replay_on_the_command_line()
                 .iter()
                 .find(|p| p.axis == axis && p.level == level)
                 .unwrap();
-            let (r, _) =
-                evaluate_perturbed(&task, &mut *pol, &info, &opts(), p, &mut |_, _| {}).unwrap();
+            let (r, _) = evaluate(
+                &task,
+                &mut *pol,
+                &info,
+                &opts(),
+                EvalRun::all().perturbed(p),
+            )
+            .unwrap();
             assert_eq!(r.manifest.perturbation.as_ref(), Some(p), "{id}");
             let file = dir.join(format!("{axis}.json"));
             std::fs::write(&file, serde_json::to_vec(&r).unwrap()).unwrap();

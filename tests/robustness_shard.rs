@@ -5,7 +5,7 @@
 //! and a perturbed rollout of every axis gets its video from `d3il replay
 //! --level AXIS/N --video`.
 
-use d3il_evaluator::eval::{evaluate_perturbed, EvalOptions, PolicyInfo};
+use d3il_evaluator::eval::{evaluate, EvalOptions, EvalRun, PolicyInfo};
 use d3il_evaluator::perturb::Suite;
 use d3il_evaluator::scripted::ScriptedPolicy;
 use d3il_evaluator::tasks::LoadedTask;
@@ -154,8 +154,14 @@ fn a_fractional_latency_applies_the_blend_of_the_two_late_actions() {
         obs_type: ObsType::State,
     };
     let mut policy = ScriptedPolicy::from_name("aligning:inside", task.spec()).unwrap();
-    let (late, _) =
-        evaluate_perturbed(&task, &mut policy, &info, &opts, &p, &mut |_, _| {}).unwrap();
+    let (late, _) = evaluate(
+        &task,
+        &mut policy,
+        &info,
+        &opts,
+        EvalRun::all().perturbed(&p),
+    )
+    .unwrap();
     let mut policy = ScriptedPolicy::from_name("aligning:inside", task.spec()).unwrap();
     let whole = Perturbation {
         setting: LevelSetting {
@@ -165,8 +171,14 @@ fn a_fractional_latency_applies_the_blend_of_the_two_late_actions() {
         },
         ..p.clone()
     };
-    let (one, _) =
-        evaluate_perturbed(&task, &mut policy, &info, &opts, &whole, &mut |_, _| {}).unwrap();
+    let (one, _) = evaluate(
+        &task,
+        &mut policy,
+        &info,
+        &opts,
+        EvalRun::all().perturbed(&whole),
+    )
+    .unwrap();
     for (a, b) in late.rollouts.iter().zip(&one.rollouts) {
         let a = late.trace_of(a).unwrap().unpack().unwrap().actions;
         let b = one.trace_of(b).unwrap().unpack().unwrap().actions;

@@ -16,7 +16,7 @@ use d3il_evaluator::suite_shard::evaluate_suite_shard;
 use d3il_evaluator::tasks::LoadedTask;
 use d3il_protocol::robustness::{RobustnessPart, RobustnessResult};
 use d3il_protocol::shard::Shard;
-use d3il_protocol::{ObsType, ProtocolKind, TaskId};
+use d3il_protocol::{ObsType, ProtocolKind, SuiteName, TaskId};
 use d3il_server::store::{
     DbTarget, NewMethod, NewPolicy, NewSubmission, Store, StoreError, SubmissionStatus,
 };
@@ -32,7 +32,8 @@ impl SuiteObserver for Quiet {
 /// as separate workers run them.
 fn whole_and_parts() -> (RobustnessResult, Vec<RobustnessPart>) {
     let task = LoadedTask::load(TaskId::Aligning).unwrap();
-    let suite = robustness::suite_for("robustness", TaskId::Aligning, ObsType::State).unwrap();
+    let suite =
+        robustness::suite_for(SuiteName::Robustness, TaskId::Aligning, ObsType::State).unwrap();
     let opts = EvalOptions {
         protocol: ProtocolKind::Quick,
         step_cap: Some(6),

@@ -97,11 +97,9 @@ fn progress_reports_the_states_in_the_seeded_order_with_their_outcomes() {
             ..EvalOptions::default()
         };
         let mut reports: Vec<Progress> = vec![];
-        let (result, _) =
-            eval::evaluate_reporting(&task, policy.as_mut(), &info, &opts, &mut |p| {
-                reports.push(p.clone())
-            })
-            .unwrap();
+        let mut on_progress = |p: &Progress| reports.push(p.clone());
+        let run = eval::EvalRun::all().reporting(&mut on_progress);
+        let (result, _) = eval::evaluate(&task, policy.as_mut(), &info, &opts, run).unwrap();
         let states: Vec<_> = reports.iter().flat_map(|p| p.states.clone()).collect();
         let n = result.manifest.n_contexts;
         let per = result.manifest.rollouts_per_context;

@@ -11,7 +11,7 @@
 //! at a number of steps (a drift shows within the first steps of contact;
 //! the cap keeps `d3il verify` under a minute on one machine).
 
-use crate::eval::{evaluate, sha256_hex, EvalOptions, PolicyInfo};
+use crate::eval::{evaluate, sha256_hex, EvalOptions, EvalRun, PolicyInfo};
 use crate::scripted::ScriptedPolicy;
 use crate::tasks::LoadedTask;
 use d3il_policy::{OnnxPolicy, Policy};
@@ -207,7 +207,7 @@ pub fn run_entry(e: &Entry, assets: &Path) -> Result<EntryOutcome, CanaryError> 
         max_live: e.max_live.unwrap_or(EvalOptions::default().max_live),
         ..EvalOptions::default()
     };
-    let (result, _) = evaluate(&task, policy.as_mut(), &info, &opts, &mut |_, _| {})
+    let (result, _) = evaluate(&task, policy.as_mut(), &info, &opts, EvalRun::all())
         .map_err(|x| err(x.to_string()))?;
     let per = result.manifest.rollouts_per_context;
     let rollouts = result

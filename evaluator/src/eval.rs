@@ -184,143 +184,213 @@ struct Slot {
     seed: u64,
 }
 
-/// Runs `policy` on `task` under the protocol and computes the D3IL metrics.
-pub fn evaluate(
+/// Which initial states an evaluation runs, and so what it gives: all of
+/// them ([`AllStates`]) give an [`EvalResult`], one shard ([`Shard`]) the
+/// [`EvalPart`] that [`crate::shard::merge`] joins with the other shards
+/// into the result of all of them.
+pub trait Coverage: Copy + sealed::Sealed {
+    /// What the evaluation gives.
+    type Output;
+    /// The shard, if the evaluation runs only one.
+    fn shard(self) -> Option<Shard>;
+    /// The output of the rollouts `run` ran (started at `t0`).
+    #[doc(hidden)]
+    fn finish(
+        self,
+        run: Rollouts,
+        opts: &EvalOptions,
+        t0: Instant,
+    ) -> Result<(Self::Output, Timing), EvalError>;
+}
+
+mod sealed {
+    pub trait Sealed {}
+    impl Sealed for super::AllStates {}
+    impl Sealed for super::Shard {}
+}
+
+/// Every initial state of the protocol: the evaluation gives its result.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct AllStates;
+
+impl Coverage for AllStates {
+    type Output = EvalResult;
+    fn shard(self) -> Option<Shard> {
+        None
+    }
+    fn finish(
+        self,
+        run: Rollouts,
+        opts: &EvalOptions,
+        t0: Instant,
+    ) -> Result<(EvalResult, Timing), EvalError> {
+        let mut timing = run.timing;
+        let result = assemble(
+            run.manifest,
+            run.rollouts,
+            &run.behaviour_keys,
+            inference_ms(timing.policy_s, timing.policy_calls),
+            opts.bootstrap_resamples,
+        )?;
+        // The total includes the metrics' bootstrap.
+        timing.total_s = t0.elapsed().as_secs_f64();
+        Ok((result, timing))
+    }
+}
+
+/// One shard of the protocol (a contiguous block of whole initial states,
+/// [`Shard::contexts`]): the evaluation gives the shard's part. Rollouts
+/// keep their global indices, so the policy sees the same rollout ids (and
+/// noise) as in an unsharded run.
+impl Coverage for Shard {
+    type Output = EvalPart;
+    fn shard(self) -> Option<Shard> {
+        Some(self)
+    }
+    fn finish(
+        self,
+        run: Rollouts,
+        opts: &EvalOptions,
+        _t0: Instant,
+    ) -> Result<(EvalPart, Timing), EvalError> {
+        Ok(run.into_part(self, opts))
+    }
+}
+
+/// Who hears an evaluation's progress.
+#[derive(Default)]
+pub enum Reporter<'a> {
+    /// Nobody.
+    #[default]
+    Silent,
+    /// Rollouts done and the total, after each lockstep step.
+    Counts(&'a mut dyn FnMut(usize, usize)),
+    /// The whole [`Progress`]: also the initial states newly finished, in
+    /// the evaluation's random order ([`Progress::states`];
+    /// docs/sequential.md; with a shard, the order of all states less those
+    /// of other shards).
+    Progress(&'a mut dyn FnMut(&Progress)),
+}
+
+impl Reporter<'_> {
+    fn report(&mut self, p: &Progress) {
+        match self {
+            Reporter::Silent => {}
+            Reporter::Counts(f) => f(p.rollouts_done, p.rollouts_total),
+            Reporter::Progress(f) => f(p),
+        }
+    }
+}
+
+/// What one evaluation runs besides its [`EvalOptions`]: which initial
+/// states ([`Coverage`]: all, or one shard), under which perturbation of
+/// the robustness track, reporting progress to whom. Built with
+/// [`EvalRun::all`] or [`EvalRun::shard`], then [`EvalRun::perturbed`],
+/// [`EvalRun::counting`] or [`EvalRun::reporting`].
+pub struct EvalRun<'a, C: Coverage = AllStates> {
+    pub states: C,
+    /// A perturbation of the robustness track ([`crate::perturb`]): the same
+    /// initial states (shifted for `start_shift`), seed and rollout ids,
+    /// hence the same policy noise, as the plain evaluation that is its
+    /// level 0; the manifest records the perturbation. Deterministic
+    /// policies are simulated once per initial state as in a plain
+    /// evaluation, except under observation noise, which differs from
+    /// rollout to rollout.
+    pub perturbation: Option<&'a d3il_protocol::perturbation::Perturbation>,
+    pub progress: Reporter<'a>,
+}
+
+impl<'a> EvalRun<'a> {
+    /// Every initial state of the protocol, unperturbed, silently.
+    pub fn all() -> Self {
+        EvalRun {
+            states: AllStates,
+            perturbation: None,
+            progress: Reporter::Silent,
+        }
+    }
+}
+
+impl<'a> EvalRun<'a, Shard> {
+    /// Shard `shard` only, unperturbed, silently (`d3il eval --shard K/N`).
+    pub fn shard(shard: Shard) -> Self {
+        EvalRun {
+            states: shard,
+            perturbation: None,
+            progress: Reporter::Silent,
+        }
+    }
+}
+
+impl<'a, C: Coverage> EvalRun<'a, C> {
+    /// The same run under `perturbation`.
+    pub fn perturbed(self, perturbation: &'a d3il_protocol::perturbation::Perturbation) -> Self {
+        EvalRun {
+            perturbation: Some(perturbation),
+            ..self
+        }
+    }
+
+    /// The same run, reporting `(done, total)` rollouts to `on_progress`.
+    pub fn counting(self, on_progress: &'a mut dyn FnMut(usize, usize)) -> Self {
+        EvalRun {
+            progress: Reporter::Counts(on_progress),
+            ..self
+        }
+    }
+
+    /// The same run, reporting every [`Progress`] to `on_progress`.
+    pub fn reporting(self, on_progress: &'a mut dyn FnMut(&Progress)) -> Self {
+        EvalRun {
+            progress: Reporter::Progress(on_progress),
+            ..self
+        }
+    }
+}
+
+/// Runs `policy` on `task` under `opts` and computes the D3IL metrics: of
+/// every initial state ([`EvalRun::all`], an [`EvalResult`]) or of one shard
+/// ([`EvalRun::shard`], its [`EvalPart`]), perturbed or not.
+pub fn evaluate<C: Coverage>(
     task: &LoadedTask,
     policy: &mut dyn Policy,
     info: &PolicyInfo,
     opts: &EvalOptions,
-    on_progress: &mut dyn FnMut(usize, usize),
-) -> Result<(EvalResult, Timing), EvalError> {
-    evaluate_reporting(task, policy, info, opts, &mut counts_only(on_progress))
-}
-
-/// Adapts a `(done, total)` progress callback to [`Progress`] reports.
-fn counts_only(on_progress: &mut dyn FnMut(usize, usize)) -> impl FnMut(&Progress) + '_ {
-    move |p: &Progress| on_progress(p.rollouts_done, p.rollouts_total)
-}
-
-/// [`evaluate`] whose `on_progress` also gets the outcomes of the initial
-/// states as they complete, in the evaluation's random order
-/// ([`Progress::states`]; docs/sequential.md).
-pub fn evaluate_reporting(
-    task: &LoadedTask,
-    policy: &mut dyn Policy,
-    info: &PolicyInfo,
-    opts: &EvalOptions,
-    on_progress: &mut dyn FnMut(&Progress),
-) -> Result<(EvalResult, Timing), EvalError> {
+    run: EvalRun<'_, C>,
+) -> Result<(C::Output, Timing), EvalError> {
     let t0 = Instant::now();
-    let run = run_rollouts(task, policy, info, opts, None, None, on_progress)?;
-    let mut timing = run.timing;
-    let result = assemble(
-        run.manifest,
-        run.rollouts,
-        &run.behaviour_keys,
-        inference_ms(timing.policy_s, timing.policy_calls),
-        opts.bootstrap_resamples,
-    )?;
-    // As before the split: the total includes the metrics' bootstrap.
-    timing.total_s = t0.elapsed().as_secs_f64();
-    Ok((result, timing))
-}
-
-/// Runs only shard `shard` of the protocol (a contiguous block of whole
-/// initial states, [`Shard::contexts`]) and returns the part that
-/// [`crate::shard::merge`] joins with the other shards into the result a
-/// plain [`evaluate`] gives. Rollouts keep their global indices, so the
-/// policy sees the same rollout ids (and noise) as in an unsharded run.
-pub fn evaluate_shard(
-    task: &LoadedTask,
-    policy: &mut dyn Policy,
-    info: &PolicyInfo,
-    opts: &EvalOptions,
-    shard: Shard,
-    on_progress: &mut dyn FnMut(usize, usize),
-) -> Result<(EvalPart, Timing), EvalError> {
-    let on_progress = &mut counts_only(on_progress);
-    evaluate_shard_reporting(task, policy, info, opts, shard, on_progress)
-}
-
-/// [`evaluate_shard`] reporting like [`evaluate_reporting`]: the shard's
-/// states in the evaluation's random order (the order of all states, less
-/// those of other shards).
-pub fn evaluate_shard_reporting(
-    task: &LoadedTask,
-    policy: &mut dyn Policy,
-    info: &PolicyInfo,
-    opts: &EvalOptions,
-    shard: Shard,
-    on_progress: &mut dyn FnMut(&Progress),
-) -> Result<(EvalPart, Timing), EvalError> {
-    let run = run_rollouts(task, policy, info, opts, Some(shard), None, on_progress)?;
-    Ok(run.into_part(shard, opts))
+    let EvalRun {
+        states,
+        perturbation,
+        mut progress,
+    } = run;
+    let rollouts = match perturbation {
+        None => run_rollouts(
+            task,
+            policy,
+            info,
+            opts,
+            states.shard(),
+            None,
+            &mut progress,
+        )?,
+        Some(p) => {
+            let (perturbed, active) = activate(task, p)?;
+            run_rollouts(
+                &perturbed,
+                policy,
+                info,
+                opts,
+                states.shard(),
+                Some(&active),
+                &mut progress,
+            )?
+        }
+    };
+    states.finish(rollouts, opts, t0)
 }
 
 pub use d3il_metrics::shard::{assemble, inference_ms};
-
-/// [`evaluate`] under one perturbation of the robustness track
-/// ([`crate::perturb`]): the same initial states (shifted for `start_shift`),
-/// seed and rollout ids, hence the same policy noise, as the plain
-/// evaluation that is its level 0; the manifest records the perturbation.
-/// Deterministic policies are simulated once per initial state as in a
-/// plain evaluation, except under observation noise, which differs from
-/// rollout to rollout.
-pub fn evaluate_perturbed(
-    task: &LoadedTask,
-    policy: &mut dyn Policy,
-    info: &PolicyInfo,
-    opts: &EvalOptions,
-    perturbation: &d3il_protocol::perturbation::Perturbation,
-    on_progress: &mut dyn FnMut(usize, usize),
-) -> Result<(EvalResult, Timing), EvalError> {
-    let t0 = Instant::now();
-    let (perturbed, active) = activate(task, perturbation)?;
-    let run = run_rollouts(
-        &perturbed,
-        policy,
-        info,
-        opts,
-        None,
-        Some(&active),
-        &mut counts_only(on_progress),
-    )?;
-    let mut timing = run.timing;
-    let result = assemble(
-        run.manifest,
-        run.rollouts,
-        &run.behaviour_keys,
-        inference_ms(timing.policy_s, timing.policy_calls),
-        opts.bootstrap_resamples,
-    )?;
-    timing.total_s = t0.elapsed().as_secs_f64();
-    Ok((result, timing))
-}
-
-/// [`evaluate_perturbed`] of shard `shard` only: the part that
-/// [`crate::shard::merge`] joins with the same level's other shards into the
-/// level's result (`d3il eval --suite robustness --shard K/N`).
-pub fn evaluate_perturbed_shard(
-    task: &LoadedTask,
-    policy: &mut dyn Policy,
-    info: &PolicyInfo,
-    opts: &EvalOptions,
-    perturbation: &d3il_protocol::perturbation::Perturbation,
-    shard: Shard,
-    on_progress: &mut dyn FnMut(usize, usize),
-) -> Result<(EvalPart, Timing), EvalError> {
-    let (perturbed, active) = activate(task, perturbation)?;
-    let run = run_rollouts(
-        &perturbed,
-        policy,
-        info,
-        opts,
-        Some(shard),
-        Some(&active),
-        &mut counts_only(on_progress),
-    )?;
-    Ok(run.into_part(shard, opts))
-}
 
 /// The task as `perturbation` simulates it, and the perturbation ready to act.
 fn activate(
@@ -336,7 +406,8 @@ fn activate(
 }
 
 /// The rollouts of one evaluation (or of one shard of it), before metrics.
-struct Run {
+#[doc(hidden)]
+pub struct Rollouts {
     manifest: ProtocolManifest,
     /// The initial states this run covered (all of them without a shard).
     contexts: std::ops::Range<usize>,
@@ -345,7 +416,7 @@ struct Run {
     timing: Timing,
 }
 
-impl Run {
+impl Rollouts {
     /// The part file of shard `shard` (`d3il merge` joins the parts).
     fn into_part(self, shard: Shard, opts: &EvalOptions) -> (EvalPart, Timing) {
         (
@@ -465,8 +536,8 @@ fn run_rollouts(
     opts: &EvalOptions,
     shard: Option<Shard>,
     perturb: Option<&std::sync::Arc<Active>>,
-    on_progress: &mut dyn FnMut(&Progress),
-) -> Result<Run, EvalError> {
+    progress: &mut Reporter,
+) -> Result<Rollouts, EvalError> {
     let t0 = Instant::now();
     let mut timing = Timing::default();
     let Prepared {
@@ -486,7 +557,7 @@ fn run_rollouts(
     policy.reset(&started)?;
     while lockstep.live() {
         lockstep.advance(policy, &mut timing)?;
-        on_progress(&Progress {
+        progress.report(&Progress {
             rollouts_done: lockstep.done,
             rollouts_total: lockstep.total(),
             states: lockstep.newly_complete(),
@@ -523,7 +594,7 @@ fn run_rollouts(
     timing.frames_rendered = slots.iter().map(|s| s.env.frames_rendered()).sum();
     timing.rollouts = total;
     timing.rollouts_simulated = sim_total;
-    Ok(Run {
+    Ok(Rollouts {
         manifest,
         contexts: ctx_range,
         rollouts,

@@ -3,15 +3,14 @@
 
 use crate::eval::race::{self, Contender, RaceOptions, RaceProgress, RaceReport};
 use crate::eval::{
-    evaluate_reporting, evaluate_shard_reporting, protocol_size, sha256_hex, EvalError,
-    EvalOptions, PolicyInfo,
+    evaluate, protocol_size, sha256_hex, EvalError, EvalOptions, EvalRun, PolicyInfo,
 };
 use crate::scripted::ScriptedPolicy;
 use crate::suite_shard::SuiteRun;
 use crate::tasks::{LoadedTask, TaskError};
 use d3il_policy::{OnnxPolicy, Policy, RemotePolicy};
 use d3il_protocol::{
-    race::RaceJob, ErrorKind, EvalResult, Evaluated, Job, ObsType, PolicySource, Progress,
+    race::RaceJob, ErrorKind, EvalResult, Evaluated, Job, JobKind, ObsType, PolicySource, Progress,
     WorkerError,
 };
 
@@ -110,8 +109,9 @@ pub fn run_job(
     }
 }
 
-/// [`run_job`] for any job: a job with [`Job::shard`] runs only that shard
-/// ([`evaluate_shard_reporting`]) and gives its part. `on_progress` gets the
+/// [`run_job`] for any job, by its [`JobKind`]: a shard job runs only that
+/// shard ([`EvalRun::shard`]) and gives its part, a suite job level 0 and
+/// every level, a race job the race. `on_progress` gets the
 /// initial states' outcomes as they complete, in the evaluation's random
 /// order ([`Progress::states`]).
 pub fn run_job_or_shard(
@@ -129,7 +129,7 @@ pub fn run_job_or_shard(
         },
         message: e.to_string(),
     })?;
-    let suite = match &job.suite {
+    let suite = match job.kind.suite() {
         Some(name) => {
             let suite = crate::robustness::suite_for(name, job.task, job.manifest.obs_type)
                 .map_err(to_worker)?;
@@ -143,7 +143,7 @@ pub fn run_job_or_shard(
     // query to running the rollouts, not to loading the policy.
     if let Ok(set) = task.def.context_set() {
         let (n_ctx, per_ctx) = protocol_size(&task, job.protocol, set.len());
-        let n = match job.shard.map(|s| s.contexts(n_ctx)) {
+        let n = match job.kind.shard().map(|s| s.contexts(n_ctx)) {
             Some(Ok(range)) => range.len(),
             _ => n_ctx,
         };
@@ -156,7 +156,7 @@ pub fn run_job_or_shard(
         build: job.build.clone(),
         ..EvalOptions::default()
     };
-    if let Some(race) = &job.race {
+    if let JobKind::Race(race) = &job.kind {
         return run_race(job, race, &task, policy.as_mut(), &info, &opts, on_progress)
             .map(|r| Evaluated::Race(Box::new(r)))
             .map_err(to_worker);
@@ -167,7 +167,7 @@ pub fn run_job_or_shard(
         let mut counts = |d: usize, t: usize| on_progress(&Progress::counts(d, t));
         // With a shard, the same block of whole initial states at level 0
         // and at every level (`d3il eval --suite robustness --shard K/N`).
-        let recorded = match job.shard {
+        let recorded = match job.kind.shard() {
             Some(shard) => {
                 let states = shard
                     .contexts(plan.n_contexts)
@@ -185,7 +185,7 @@ pub fn run_job_or_shard(
             &opts,
             &suite,
             &plan,
-            job.shard,
+            job.kind.shard(),
             &mut observer,
         )
         .map(|run| match run {
@@ -194,18 +194,26 @@ pub fn run_job_or_shard(
         })
         .map_err(to_worker);
     }
-    match job.shard {
+    // A plain job, a shard, or a suite's dry run (the plain evaluation or shard).
+    match job.kind.shard() {
         Some(shard) => {
-            evaluate_shard_reporting(&task, policy.as_mut(), &info, &opts, shard, on_progress)
+            let run = EvalRun::shard(shard).reporting(on_progress);
+            evaluate(&task, policy.as_mut(), &info, &opts, run)
                 .map(|(p, _)| Evaluated::Part(Box::new(p)))
         }
-        None => evaluate_reporting(&task, policy.as_mut(), &info, &opts, on_progress)
-            .map(|(r, _)| Evaluated::Result(Box::new(r))),
+        None => evaluate(
+            &task,
+            policy.as_mut(),
+            &info,
+            &opts,
+            EvalRun::all().reporting(on_progress),
+        )
+        .map(|(r, _)| Evaluated::Result(Box::new(r))),
     }
     .map_err(to_worker)
 }
 
-/// A race job ([`Job::race`]): the job's policy is A, the race's B, loaded
+/// A race job ([`JobKind::Race`]): the job's policy is A, the race's B, loaded
 /// the same way ([`load_policy`]) on the same task variant; one progress
 /// report per pair, carrying where the test stands.
 fn run_race(
@@ -217,11 +225,6 @@ fn run_race(
     opts: &EvalOptions,
     on_progress: &mut dyn FnMut(&Progress),
 ) -> Result<RaceReport, EvalError> {
-    if job.suite.is_some() || job.shard.is_some() {
-        return Err(EvalError::Setup(
-            "a race runs two whole plain evaluations: no suite, no shard".into(),
-        ));
-    }
     if race.manifest_b.obs_type != job.manifest.obs_type {
         return Err(EvalError::Setup(format!(
             "A takes {} observations and B {}: a race runs both on the same task variant",
@@ -231,7 +234,7 @@ fn run_race(
     let job_b = Job {
         policy: race.policy_b.clone(),
         manifest: race.manifest_b.clone(),
-        race: None,
+        kind: JobKind::Plain,
         ..job.clone()
     };
     let (mut policy_b, info_b) = load_policy(&job_b, task)?;

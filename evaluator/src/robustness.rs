@@ -5,39 +5,27 @@
 //! robustness scores. `d3il eval --suite robustness` and a worker's job with
 //! `suite` both run it.
 
-use crate::eval::{self, evaluate, evaluate_perturbed, EvalError, EvalOptions, PolicyInfo, Timing};
+use crate::eval::{self, evaluate, EvalError, EvalOptions, EvalRun, PolicyInfo, Timing};
 use crate::perturb::Suite;
 use crate::tasks::LoadedTask;
 use d3il_metrics::suite_shard::SuiteLevels;
 use d3il_policy::Policy;
 use d3il_protocol::perturbation::{Axis, Perturbation};
 use d3il_protocol::robustness::RobustnessResult;
-use d3il_protocol::{EvalResult, ObsType, TaskId};
+use d3il_protocol::{EvalResult, ObsType, SuiteName, TaskId};
 
 /// Resamples of the paired comparisons and of the scores' intervals (as
 /// `d3il compare`'s default).
 pub use d3il_metrics::suite_shard::RESAMPLES;
 
-/// The one suite name a job or `d3il eval --suite` takes.
-pub const SUITE_NAME: &str = "robustness";
-
-/// Checks a requested suite name.
-pub fn check_suite_name(name: &str) -> Result<(), EvalError> {
-    if name == SUITE_NAME {
-        Ok(())
-    } else {
-        Err(EvalError::Setup(format!(
-            "suite `{name}`: the one suite is `{SUITE_NAME}`"
-        )))
-    }
-}
-
 /// The suite a job or `d3il eval --suite NAME` asks for, for `task` and
 /// `obs`: every task has a state suite, and every image variant (Aligning,
 /// Sorting-4/6, Stacking) an image suite with the camera and lighting
 /// axes. The server checks the same before queueing, docs/robustness.md.
-pub fn suite_for(name: &str, task: TaskId, obs: ObsType) -> Result<Suite, EvalError> {
-    check_suite_name(name)?;
+pub fn suite_for(name: SuiteName, task: TaskId, obs: ObsType) -> Result<Suite, EvalError> {
+    match name {
+        SuiteName::Robustness => {}
+    }
     Suite::current(task, obs).map_err(|e| EvalError::Setup(e.to_string()))
 }
 
@@ -125,16 +113,21 @@ pub fn evaluate_suite(
     observer: &mut dyn SuiteObserver,
 ) -> Result<RobustnessResult, EvalError> {
     observer.level_started(None);
-    let (control, t) = evaluate(task, policy, info, opts, &mut |d, n| {
-        observer.progress(d, n)
-    })?;
+    let mut counts = |d, n| observer.progress(d, n);
+    let (control, t) = evaluate(
+        task,
+        policy,
+        info,
+        opts,
+        EvalRun::all().counting(&mut counts),
+    )?;
     observer.level_finished(&t);
     let mut results: Vec<(Perturbation, EvalResult)> = vec![];
     for p in &plan.levels {
         observer.level_started(Some(p));
-        let (r, t) = evaluate_perturbed(task, policy, info, opts, p, &mut |d, n| {
-            observer.progress(d, n)
-        })?;
+        let mut counts = |d, n| observer.progress(d, n);
+        let run = EvalRun::all().perturbed(p).counting(&mut counts);
+        let (r, t) = evaluate(task, policy, info, opts, run)?;
         observer.level_finished(&t);
         results.push((p.clone(), r));
     }

@@ -7,7 +7,7 @@
 //! unsharded run builds it: the merged document is the unsharded one bit for
 //! bit), which the server's sharded suite jobs use too.
 
-use crate::eval::{evaluate_perturbed_shard, evaluate_shard, EvalError, EvalOptions, PolicyInfo};
+use crate::eval::{evaluate, EvalError, EvalOptions, EvalRun, PolicyInfo};
 use crate::perturb::Suite;
 use crate::robustness::{suite_levels, SuiteObserver, SuitePlan};
 use crate::shard::Shard;
@@ -32,17 +32,16 @@ pub fn evaluate_suite_shard(
     observer: &mut dyn SuiteObserver,
 ) -> Result<RobustnessPart, EvalError> {
     observer.level_started(None);
-    let (control, t) = evaluate_shard(task, policy, info, opts, shard, &mut |d, n| {
-        observer.progress(d, n)
-    })?;
+    let mut counts = |d, n| observer.progress(d, n);
+    let run = EvalRun::shard(shard).counting(&mut counts);
+    let (control, t) = evaluate(task, policy, info, opts, run)?;
     observer.level_finished(&t);
     let mut levels = Vec::with_capacity(plan.levels.len());
     for p in &plan.levels {
         observer.level_started(Some(p));
-        let (part, t) =
-            evaluate_perturbed_shard(task, policy, info, opts, p, shard, &mut |d, n| {
-                observer.progress(d, n)
-            })?;
+        let mut counts = |d, n| observer.progress(d, n);
+        let run = EvalRun::shard(shard).perturbed(p).counting(&mut counts);
+        let (part, t) = evaluate(task, policy, info, opts, run)?;
         observer.level_finished(&t);
         levels.push(part);
     }

@@ -42,7 +42,7 @@ pub fn confine_like_worker() -> Result<Vec<SandboxMechanism>, String> {
     let manifest: PolicyManifest =
         serde_json::from_str(MANIFESTS[0]).map_err(|e| format!("fixture manifest: {e}"))?;
     let job = Job {
-        race: None,
+        kind: d3il_protocol::JobKind::Plain,
         job_id: "fuzz".into(),
         task: manifest.task,
         protocol: ProtocolKind::Quick,
@@ -55,8 +55,6 @@ pub fn confine_like_worker() -> Result<Vec<SandboxMechanism>, String> {
         limits: Limits::default(),
         assets_dir: concat!(env!("CARGO_MANIFEST_DIR"), "/../assets").into(),
         dry_run_steps: None,
-        shard: None,
-        suite: None,
         build: None,
     };
     d3il_sandbox::confine(&job, &[]).map_err(|e| e.to_string())

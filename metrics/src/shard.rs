@@ -1,5 +1,5 @@
 //! Sharded evaluations (docs/cluster.md): shard K of N evaluates a
-//! contiguous block of whole initial states, the evaluator's `evaluate_shard`
+//! contiguous block of whole initial states, the evaluator's `evaluate` of one shard
 //! writes it as an [`EvalPart`], and [`merge`] joins the N parts into the
 //! [`EvalResult`] a plain evaluation gives, bit for bit (every metric and
 //! rollout record; only the measured inference time differs). Rollout ids,

@@ -348,41 +348,276 @@ pub struct Job {
     /// discarded. `None` for real evaluations.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub dry_run_steps: Option<usize>,
-    /// Evaluate only this shard (whole initial states) and answer with its
-    /// [`crate::shard::EvalPart`] instead of a result: a server splits a
-    /// paper-protocol job into shards that any worker host runs.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub shard: Option<crate::shard::Shard>,
+    /// What the job evaluates and answers with: the whole protocol, one
+    /// shard, the perturbation suite, a shard of it, or a race. On the wire
+    /// its fields sit beside the job's own (`"kind": "suite_shard", "suite":
+    /// "robustness", "shard": {...}`), see [`JobKind`].
+    #[serde(flatten)]
+    pub kind: JobKind,
     /// The build identity the result's manifest records (the server and
     /// `d3il eval` know the fingerprint; a sandboxed worker cannot compute it).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub build: Option<crate::results::BuildIdentity>,
-    /// Evaluate the task's perturbation suite (`"robustness"`):
-    /// level 0 (the plain evaluation) and every level, answered with a
-    /// [`crate::robustness::RobustnessResult`]; with [`Job::shard`] too, the
-    /// shard's part of level 0 and of every level
-    /// ([`crate::robustness::RobustnessPart`]). A dry run with a suite only
-    /// checks that the suite exists, then runs as without it.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub suite: Option<String>,
-    /// A sequential race: this job's policy is A, the race's is
-    /// B; answered with a [`crate::race::RaceReport`].
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub race: Option<crate::race::RaceJob>,
 }
 
-/// What a worker's evaluation produced: a whole result, or the part of one
-/// shard ([`Job::shard`]).
+/// The perturbation suite a job, a submission (`suite=robustness`) or
+/// `d3il eval --suite` asks for (docs/robustness.md): which suite file that
+/// is depends on the task and observation type (the evaluator's
+/// `robustness::suite_for`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum SuiteName {
+    /// The robustness track: level 0 and every level of the task's suite.
+    Robustness,
+}
+
+impl SuiteName {
+    /// Every suite name there is.
+    pub const ALL: [SuiteName; 1] = [SuiteName::Robustness];
+
+    pub fn as_str(self) -> &'static str {
+        match self {
+            SuiteName::Robustness => "robustness",
+        }
+    }
+
+    /// The suite named `name`, or a message naming the ones there are.
+    pub fn parse(name: &str) -> Result<SuiteName, String> {
+        SuiteName::ALL
+            .into_iter()
+            .find(|s| s.as_str() == name)
+            .ok_or_else(|| {
+                let names: Vec<String> = SuiteName::ALL
+                    .iter()
+                    .map(|s| format!("`{}`", s.as_str()))
+                    .collect();
+                format!("suite `{name}`: the one suite is {}", names.join(", "))
+            })
+    }
+}
+
+impl std::fmt::Display for SuiteName {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.as_str())
+    }
+}
+
+impl std::str::FromStr for SuiteName {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        SuiteName::parse(s)
+    }
+}
+
+/// What a job evaluates, and so what the worker answers with
+/// ([`Evaluated`]). One variant per mode: a race of a suite, or a suite
+/// shard without its suite, cannot be written.
+///
+/// On the wire (inside the job's object) the tag `kind` and the variant's
+/// fields, named as before 0.6.1: `{"kind": "plain"}`, `{"kind": "shard",
+/// "shard": {"index": 2, "count": 3}}`, `{"kind": "suite", "suite":
+/// "robustness"}`, `{"kind": "suite_shard", "suite": ..., "shard": ...}`,
+/// `{"kind": "race", "race": {...}}`. A job written before `kind` existed
+/// (optional `shard`, `suite` and `race` fields) reads as the kind its
+/// fields make; fields that contradict the tag, or a race with a suite or a
+/// shard, are refused with a message saying so.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(try_from = "KindFields", into = "KindFields")]
+pub enum JobKind {
+    /// The whole protocol: an [`EvalResult`].
+    Plain,
+    /// One shard (whole initial states): its [`crate::shard::EvalPart`],
+    /// which a server joins with the other shards' (any worker host runs
+    /// one).
+    Shard(crate::shard::Shard),
+    /// The perturbation suite: level 0 (the plain evaluation) and every
+    /// level, a [`crate::robustness::RobustnessResult`]. A dry run with a
+    /// suite only checks that the suite exists, then runs as a plain one.
+    Suite(SuiteName),
+    /// The shard's part of level 0 and of every level of the suite
+    /// ([`crate::robustness::RobustnessPart`]); a dry run runs the plain shard.
+    SuiteShard {
+        suite: SuiteName,
+        shard: crate::shard::Shard,
+    },
+    /// A sequential race: the job's policy is A, the race's B; a
+    /// [`crate::race::RaceReport`].
+    Race(Box<crate::race::RaceJob>),
+}
+
+impl JobKind {
+    /// The kind of a suite or plain evaluation of all initial states or of
+    /// `shard`.
+    pub fn of(suite: Option<SuiteName>, shard: Option<crate::shard::Shard>) -> JobKind {
+        match (suite, shard) {
+            (None, None) => JobKind::Plain,
+            (None, Some(shard)) => JobKind::Shard(shard),
+            (Some(suite), None) => JobKind::Suite(suite),
+            (Some(suite), Some(shard)) => JobKind::SuiteShard { suite, shard },
+        }
+    }
+
+    /// The shard the job runs, if it runs one.
+    pub fn shard(&self) -> Option<crate::shard::Shard> {
+        match self {
+            JobKind::Shard(shard) | JobKind::SuiteShard { shard, .. } => Some(*shard),
+            _ => None,
+        }
+    }
+
+    /// The suite the job runs, if it runs one.
+    pub fn suite(&self) -> Option<SuiteName> {
+        match self {
+            JobKind::Suite(suite) | JobKind::SuiteShard { suite, .. } => Some(*suite),
+            _ => None,
+        }
+    }
+
+    /// The race, if the job is one.
+    pub fn race(&self) -> Option<&crate::race::RaceJob> {
+        match self {
+            JobKind::Race(race) => Some(race),
+            _ => None,
+        }
+    }
+
+    /// The wire tag (`kind`) of this kind.
+    pub fn tag(&self) -> &'static str {
+        self.wire_tag().as_str()
+    }
+
+    fn wire_tag(&self) -> KindTag {
+        match self {
+            JobKind::Plain => KindTag::Plain,
+            JobKind::Shard(_) => KindTag::Shard,
+            JobKind::Suite(_) => KindTag::Suite,
+            JobKind::SuiteShard { .. } => KindTag::SuiteShard,
+            JobKind::Race(_) => KindTag::Race,
+        }
+    }
+}
+
+/// The wire tag of a [`JobKind`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+enum KindTag {
+    Plain,
+    Shard,
+    Suite,
+    SuiteShard,
+    Race,
+}
+
+impl KindTag {
+    fn as_str(self) -> &'static str {
+        match self {
+            KindTag::Plain => "plain",
+            KindTag::Shard => "shard",
+            KindTag::Suite => "suite",
+            KindTag::SuiteShard => "suite_shard",
+            KindTag::Race => "race",
+        }
+    }
+}
+
+/// A [`JobKind`] as its fields sit in a job's JSON object.
+#[derive(Serialize, Deserialize)]
+struct KindFields {
+    /// Absent in jobs written before 0.6.1.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    kind: Option<KindTag>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    shard: Option<crate::shard::Shard>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    suite: Option<SuiteName>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    race: Option<Box<crate::race::RaceJob>>,
+}
+
+impl From<JobKind> for KindFields {
+    fn from(kind: JobKind) -> Self {
+        let mut fields = KindFields {
+            kind: Some(kind.wire_tag()),
+            shard: kind.shard(),
+            suite: kind.suite(),
+            race: None,
+        };
+        if let JobKind::Race(race) = kind {
+            fields.race = Some(race);
+        }
+        fields
+    }
+}
+
+impl TryFrom<KindFields> for JobKind {
+    type Error = String;
+
+    fn try_from(f: KindFields) -> Result<Self, String> {
+        let tag = match f.kind {
+            Some(tag) => tag,
+            // Written before 0.6.1: the fields say which kind it is.
+            None => match (&f.race, f.suite, f.shard) {
+                (Some(_), None, None) => KindTag::Race,
+                (Some(_), _, _) => {
+                    return Err(
+                        "the job has `race` together with `suite` or `shard`: a race runs two \
+                         whole plain evaluations; queue the race, or the suite or shard, alone"
+                            .into(),
+                    )
+                }
+                (None, suite, shard) => JobKind::of(suite, shard).wire_tag(),
+            },
+        };
+        let present = [
+            ("shard", f.shard.is_some()),
+            ("suite", f.suite.is_some()),
+            ("race", f.race.is_some()),
+        ];
+        let wanted: &[&str] = match tag {
+            KindTag::Plain => &[],
+            KindTag::Shard => &["shard"],
+            KindTag::Suite => &["suite"],
+            KindTag::SuiteShard => &["suite", "shard"],
+            KindTag::Race => &["race"],
+        };
+        for (field, is) in present {
+            if is != wanted.contains(&field) {
+                let (has, needs) = if is {
+                    ("has", "takes no")
+                } else {
+                    ("lacks", "needs")
+                };
+                return Err(format!(
+                    "a job of kind `{}` {has} `{field}`: that kind {needs} `{field}` \
+                     (kinds: plain, shard, suite, suite_shard, race)",
+                    tag.as_str()
+                ));
+            }
+        }
+        Ok(match (tag, f.suite, f.shard, f.race) {
+            (KindTag::Plain, ..) => JobKind::Plain,
+            (KindTag::Shard, _, Some(shard), _) => JobKind::Shard(shard),
+            (KindTag::Suite, Some(suite), ..) => JobKind::Suite(suite),
+            (KindTag::SuiteShard, Some(suite), Some(shard), _) => {
+                JobKind::SuiteShard { suite, shard }
+            }
+            (KindTag::Race, _, _, Some(race)) => JobKind::Race(race),
+            _ => unreachable!("the fields were checked against the kind"),
+        })
+    }
+}
+
+/// What a worker's evaluation produced, one variant per [`JobKind`].
 #[derive(Debug, Clone, PartialEq)]
 pub enum Evaluated {
     Result(Box<EvalResult>),
     Part(Box<crate::shard::EvalPart>),
-    /// A job with [`Job::suite`]: level 0 and every perturbed level.
+    /// A [`JobKind::Suite`] job: level 0 and every perturbed level.
     Robustness(Box<crate::robustness::RobustnessResult>),
-    /// A job with [`Job::suite`] and [`Job::shard`]: the shard's part of
-    /// level 0 and of every level.
+    /// A [`JobKind::SuiteShard`] job: the shard's part of level 0 and of
+    /// every level.
     SuitePart(Box<crate::robustness::RobustnessPart>),
-    /// A job with [`Job::race`]: the race's report.
+    /// A [`JobKind::Race`] job: the race's report.
     Race(Box<crate::race::RaceReport>),
 }
 
@@ -437,13 +672,13 @@ pub enum WorkerMessage {
     /// evaluation's random order ([`crate::progress::Progress`]).
     Progress(crate::progress::Progress),
     Result(Box<EvalResult>),
-    /// The part of one shard (a job with [`Job::shard`]).
+    /// The part of one shard (a [`JobKind::Shard`] job).
     Part(Box<crate::shard::EvalPart>),
-    /// The robustness document of a job with [`Job::suite`].
+    /// The robustness document of a [`JobKind::Suite`] job.
     Robustness(Box<crate::robustness::RobustnessResult>),
-    /// The part of one shard of a job with [`Job::suite`] and [`Job::shard`].
+    /// The part of one shard of a [`JobKind::SuiteShard`] job.
     SuitePart(Box<crate::robustness::RobustnessPart>),
-    /// The report of a job with [`Job::race`].
+    /// The report of a [`JobKind::Race`] job.
     Race(Box<crate::race::RaceReport>),
     Error(WorkerError),
 }
@@ -571,6 +806,159 @@ mod tests {
             ..spec
         };
         assert_eq!(m.validate_for(&other).unwrap_err().field, "task");
+    }
+
+    /// A job of each kind as JSON, with `kind_fields` beside the job's own.
+    fn job_json(kind_fields: &str) -> String {
+        let job = Job {
+            job_id: "7".into(),
+            task: TaskId::Aligning,
+            protocol: ProtocolKind::Quick,
+            policy: PolicySource::Scripted {
+                name: "aligning:inside".into(),
+            },
+            manifest: manifest(),
+            seed: 3,
+            limits: Limits::default(),
+            assets_dir: "assets".into(),
+            dry_run_steps: None,
+            build: None,
+            kind: JobKind::Plain,
+        };
+        let mut v = serde_json::to_value(&job).unwrap();
+        v.as_object_mut().unwrap().remove("kind");
+        let fields: serde_json::Value = serde_json::from_str(kind_fields).unwrap();
+        for (k, x) in fields.as_object().unwrap() {
+            v[k] = x.clone();
+        }
+        v.to_string()
+    }
+
+    fn race() -> crate::race::RaceJob {
+        crate::race::RaceJob {
+            policy_b: PolicySource::Scripted {
+                name: "aligning:outside".into(),
+            },
+            manifest_b: manifest(),
+            alpha: 0.05,
+            delta: None,
+            max_live: 4,
+        }
+    }
+
+    #[test]
+    fn each_job_kind_writes_its_tag_and_its_fields_and_reads_back() {
+        let shard = crate::shard::Shard { index: 2, count: 3 };
+        let suite = SuiteName::Robustness;
+        for (kind, fields) in [
+            (JobKind::Plain, r#"{"kind":"plain"}"#.to_string()),
+            (
+                JobKind::Shard(shard),
+                r#"{"kind":"shard","shard":{"index":2,"count":3}}"#.to_string(),
+            ),
+            (
+                JobKind::Suite(suite),
+                r#"{"kind":"suite","suite":"robustness"}"#.to_string(),
+            ),
+            (
+                JobKind::SuiteShard { suite, shard },
+                r#"{"kind":"suite_shard","shard":{"index":2,"count":3},"suite":"robustness"}"#
+                    .to_string(),
+            ),
+            (
+                JobKind::Race(Box::new(race())),
+                format!(
+                    r#"{{"kind":"race","race":{}}}"#,
+                    serde_json::to_string(&race()).unwrap()
+                ),
+            ),
+        ] {
+            let json = job_json(&fields);
+            let job: Job = serde_json::from_str(&json).unwrap();
+            assert_eq!(job.kind, kind, "{json}");
+            // The kind's fields sit beside the job's own, in this order.
+            let written = serde_json::to_string(&job).unwrap();
+            let tail = &fields[1..fields.len() - 1];
+            assert!(written.contains(tail), "{written} lacks {tail}");
+            assert_eq!(serde_json::from_str::<Job>(&written).unwrap(), job);
+            assert_eq!(kind.tag(), fields[9..].split('"').next().unwrap());
+        }
+    }
+
+    /// Jobs written before `kind` existed (by a server or `d3il eval` of
+    /// 0.6.0 and earlier) read as the kind their optional fields make.
+    #[test]
+    fn a_job_written_before_kinds_existed_reads_as_its_fields_say() {
+        let shard = crate::shard::Shard { index: 1, count: 2 };
+        let race_json = serde_json::to_string(&race()).unwrap();
+        for (fields, kind) in [
+            ("{}".to_string(), JobKind::Plain),
+            (
+                r#"{"shard":{"index":1,"count":2}}"#.to_string(),
+                JobKind::Shard(shard),
+            ),
+            (
+                r#"{"suite":"robustness"}"#.to_string(),
+                JobKind::Suite(SuiteName::Robustness),
+            ),
+            (
+                r#"{"suite":"robustness","shard":{"index":1,"count":2}}"#.to_string(),
+                JobKind::SuiteShard {
+                    suite: SuiteName::Robustness,
+                    shard,
+                },
+            ),
+            (
+                format!(r#"{{"race":{race_json}}}"#),
+                JobKind::Race(Box::new(race())),
+            ),
+        ] {
+            let job: Job = serde_json::from_str(&job_json(&fields)).unwrap();
+            assert_eq!(job.kind, kind, "{fields}");
+        }
+    }
+
+    #[test]
+    fn a_job_whose_fields_contradict_its_kind_is_refused_with_the_reason() {
+        let race_json = serde_json::to_string(&race()).unwrap();
+        let refused = |fields: &str| {
+            serde_json::from_str::<Job>(&job_json(fields))
+                .unwrap_err()
+                .to_string()
+        };
+        let e = refused(&format!(r#"{{"race":{race_json},"suite":"robustness"}}"#));
+        assert!(e.contains("a race runs two whole plain evaluations"), "{e}");
+        let e = refused(r#"{"kind":"plain","shard":{"index":1,"count":2}}"#);
+        assert!(
+            e.contains("a job of kind `plain` has `shard`: that kind takes no `shard`"),
+            "{e}"
+        );
+        let e = refused(r#"{"kind":"suite_shard","suite":"robustness"}"#);
+        assert!(
+            e.contains("a job of kind `suite_shard` lacks `shard`: that kind needs `shard`"),
+            "{e}"
+        );
+        let e = refused(r#"{"kind":"robustness"}"#);
+        assert!(e.contains("unknown variant `robustness`"), "{e}");
+        let e = refused(r#"{"suite":"fragility"}"#);
+        assert!(
+            e.contains("unknown variant `fragility`, expected `robustness`"),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn suite_names_parse_and_print_as_one_constant() {
+        assert_eq!(SuiteName::parse("robustness"), Ok(SuiteName::Robustness));
+        assert_eq!(SuiteName::Robustness.to_string(), "robustness");
+        assert_eq!(
+            serde_json::to_string(&SuiteName::Robustness).unwrap(),
+            r#""robustness""#
+        );
+        assert_eq!(
+            "fragility".parse::<SuiteName>().unwrap_err(),
+            "suite `fragility`: the one suite is `robustness`"
+        );
     }
 
     #[test]

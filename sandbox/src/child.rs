@@ -92,7 +92,7 @@ where
     };
     // A race job's second policy is read too.
     let policy_files: Vec<&Path> = std::iter::once(&job.policy)
-        .chain(job.race.as_ref().map(|r| &r.policy_b))
+        .chain(job.kind.race().map(|r| &r.policy_b))
         .filter_map(|p| match p {
             PolicySource::Onnx { path, .. } => Some(Path::new(path.as_str())),
             _ => None,
@@ -130,7 +130,7 @@ where
         out.error(ErrorKind::Internal, missing);
         return exit_code::SANDBOX_FAILED;
     }
-    for policy in std::iter::once(&job.policy).chain(job.race.as_ref().map(|r| &r.policy_b)) {
+    for policy in std::iter::once(&job.policy).chain(job.kind.race().map(|r| &r.policy_b)) {
         if let PolicySource::Remote { url, .. } = policy {
             if let Err(e) = validate_endpoint(url, job.limits.allow_private_endpoints) {
                 out.send(&WorkerMessage::Error(e.into()));
@@ -228,9 +228,8 @@ pub fn check_sandbox_with(
     limits: &d3il_protocol::Limits,
 ) -> Result<Vec<SandboxMechanism>, confine::SandboxError> {
     let job = Job {
-        race: None,
+        kind: d3il_protocol::JobKind::Plain,
         job_id: "check-sandbox".into(),
-        suite: None,
         task: d3il_protocol::TaskId::Avoiding,
         protocol: Default::default(),
         policy: PolicySource::Scripted {
@@ -249,7 +248,6 @@ pub fn check_sandbox_with(
         limits: limits.clone(),
         assets_dir: assets_dir.display().to_string(),
         dry_run_steps: None,
-        shard: None,
         build: None,
     };
     let mut mechanisms = confine::confine(&job, &[])?;

@@ -82,13 +82,13 @@ pub fn suite_limits(
 #[derive(Debug, Clone, PartialEq)]
 pub enum Outcome {
     Completed(Box<EvalResult>),
-    /// The part of one shard (a job with `Job::shard`).
+    /// The part of one shard (a `JobKind::Shard` job).
     Part(Box<d3il_protocol::shard::EvalPart>),
-    /// The robustness document of a job with `Job::suite`.
+    /// The robustness document of a `JobKind::Suite` job.
     Robustness(Box<d3il_protocol::robustness::RobustnessResult>),
-    /// The part of one shard of a job with `Job::suite` and `Job::shard`.
+    /// The part of one shard of a `JobKind::SuiteShard` job.
     SuitePart(Box<d3il_protocol::robustness::RobustnessPart>),
-    /// The report of a race job (`Job::race`).
+    /// The report of a race job (`JobKind::Race`).
     Race(Box<d3il_protocol::race::RaceReport>),
     Failed(WorkerError),
 }

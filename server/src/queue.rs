@@ -5,8 +5,8 @@
 
 use crate::store::{ClaimedJob, PolicyKind, Store, StoreError};
 use d3il_protocol::{
-    ErrorKind, Evaluated, Job, Limits, PolicyManifest, PolicySource, ProtocolKind,
-    SandboxMechanism, WorkerError,
+    ErrorKind, Evaluated, Job, JobKind, Limits, PolicyManifest, PolicySource, ProtocolKind,
+    SandboxMechanism, SuiteName, WorkerError,
 };
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -123,10 +123,12 @@ pub fn job_from_claim(
 ) -> Result<Job, String> {
     let s = &c.submission;
     let (policy, manifest) = policy_of(s)?;
+    // The store keeps the suite's name as text; a name this build does not
+    // know fails the job with the message of `SuiteName::parse`.
+    let suite = s.suite.as_deref().map(SuiteName::parse).transpose()?;
     Ok(Job {
-        race: None,
+        kind: JobKind::of(suite, c.job.shard()),
         job_id: c.job.id.to_string(),
-        suite: s.suite.clone(),
         task: s.task,
         protocol: s.protocol,
         policy,
@@ -137,7 +139,6 @@ pub fn job_from_claim(
         limits: limits.clone(),
         assets_dir: assets_dir.to_string_lossy().into_owned(),
         dry_run_steps: None,
-        shard: c.job.shard(),
         build: Some(build),
     })
 }

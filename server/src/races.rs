@@ -21,7 +21,7 @@ use crate::queue::policy_of;
 use crate::state::AppState;
 use crate::store::{NewRace, RaceCancel, RaceRow, RaceStatus, SubmissionStatus, Submitter};
 use d3il_protocol::race::{RaceJob, RaceProgress, RaceReport};
-use d3il_protocol::{Evaluated, Job, ProtocolKind, TaskId};
+use d3il_protocol::{Evaluated, Job, JobKind, ProtocolKind, TaskId};
 use serde::{Deserialize, Serialize};
 use utoipa::ToSchema;
 
@@ -377,16 +377,14 @@ async fn job_of(state: &AppState, row: &RaceRow) -> Result<Job, String> {
         limits: state.cfg.limits.clone(),
         assets_dir: state.cfg.assets_dir.to_string_lossy().into_owned(),
         dry_run_steps: None,
-        shard: None,
         build: None,
-        suite: None,
-        race: Some(RaceJob {
+        kind: JobKind::Race(Box::new(RaceJob {
             policy_b,
             manifest_b,
             alpha: row.alpha,
             delta: row.delta,
             max_live: MAX_LIVE,
-        }),
+        })),
     })
 }
 

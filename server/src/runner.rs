@@ -84,14 +84,14 @@ impl JobRunner for SandboxRunner {
     }
 }
 
-/// The job and worker command a job runs with: a suite job (`Job::suite`)
+/// The job and worker command a job runs with: a suite job (`JobKind::Suite`)
 /// runs level 0 and every level of its suite, each a whole evaluation (or,
 /// for a shard, each the shard's block of it), in one worker, so its wall
 /// clock, CPU time and output cap are those of one evaluation (or shard)
 /// times the number of evaluations (`d3il_sandbox::suite_limits`); any
 /// other job runs as given.
 fn scaled_for_suite(job: &Job, cmd: &WorkerCommand) -> (Job, WorkerCommand) {
-    let evaluations = match &job.suite {
+    let evaluations = match job.kind.suite() {
         Some(_) => crate::intake::suite_evaluations(
             std::path::Path::new(&job.assets_dir),
             job.task,
@@ -268,14 +268,17 @@ mod tests {
         let (plain, plain_cmd) = scaled_for_suite(&job, &cmd);
         assert_eq!(plain.limits, one);
         assert_eq!(plain_cmd.wall_clock, cmd.wall_clock);
-        job.suite = Some("robustness".into());
+        job.kind = d3il_protocol::JobKind::Suite(d3il_protocol::SuiteName::Robustness);
         let (suite_job, suite_cmd) = scaled_for_suite(&job, &cmd);
         assert_eq!(suite_job.limits, limits);
         assert_eq!(suite_cmd.wall_clock, scaled.wall_clock);
         // A shard of a suite job runs level 0 and every level too (on its
         // block of initial states): the same limits, as a plain shard gets
         // those of a plain job.
-        job.shard = Some(d3il_protocol::shard::Shard { index: 2, count: 2 });
+        job.kind = d3il_protocol::JobKind::SuiteShard {
+            suite: d3il_protocol::SuiteName::Robustness,
+            shard: d3il_protocol::shard::Shard { index: 2, count: 2 },
+        };
         let (shard_job, shard_cmd) = scaled_for_suite(&job, &cmd);
         assert_eq!(shard_job.limits, limits);
         assert_eq!(shard_cmd.wall_clock, scaled.wall_clock);

@@ -8,7 +8,7 @@ use crate::schema;
 use crate::state::AppState;
 use crate::store::MethodRow;
 use crate::store::{
-    now, JobKind, JobRow, JobState, PolicyKind, ResultRow, SubmissionRow, SubmissionStatus,
+    now, DurationClass, JobRow, JobState, PolicyKind, ResultRow, SubmissionRow, SubmissionStatus,
 };
 use d3il_protocol::{
     ContextResult, Estimate, IntervalMethod, NoInterval, ObsType, ProtocolKind, SandboxMechanism,
@@ -29,7 +29,7 @@ pub struct Progress {
 
 /// Estimated seconds until the result of submission `s`'s job.
 ///
-/// Past runs of the same [`JobKind`] (task, observation type, protocol,
+/// Past runs of the same [`DurationClass`] (task, observation type, protocol,
 /// whether each initial state is simulated once, and the perturbation suite)
 /// are the only basis: without them (and without progress to extrapolate
 /// from) there is no estimate, never a guess and never "0 s". A suite run
@@ -60,14 +60,14 @@ pub async fn progress(
         _ => None,
     };
     let pos = ahead.as_ref().map(|a| a.len() as i64);
-    let mut means: HashMap<JobKind, f64> = state
+    let mut means: HashMap<DurationClass, f64> = state
         .store
         .mean_job_seconds_by_kind()
         .await?
         .into_iter()
         .map(|(k, m)| (k, m.max(1.0)))
         .collect();
-    let own_kind = JobKind::new(
+    let own_kind = DurationClass::new(
         s.task.slug().to_string(),
         s.obs_type.as_str().to_string(),
         protocol_str(protocol).to_string(),
@@ -76,7 +76,7 @@ pub async fn progress(
     .with_suite(s.suite.clone());
     let kinds = std::iter::once(&own_kind).chain(ahead.iter().flatten());
     add_suite_means(&mut means, kinds, &state.cfg.assets_dir);
-    let mean_of = |k: &JobKind| means.get(k).copied();
+    let mean_of = |k: &DurationClass| means.get(k).copied();
     let own = mean_of(&own_kind);
     let workers = state.cfg.workers.max(1) as f64;
     let eta = match (job.state, &ahead) {
@@ -128,8 +128,8 @@ pub async fn progress(
 /// kind of `kinds` without runs of its own: its plain kind's mean times the
 /// suite's evaluations (the suite file is read once per kind, not per job).
 fn add_suite_means<'a>(
-    means: &mut HashMap<JobKind, f64>,
-    kinds: impl Iterator<Item = &'a JobKind>,
+    means: &mut HashMap<DurationClass, f64>,
+    kinds: impl Iterator<Item = &'a DurationClass>,
     assets_dir: &std::path::Path,
 ) {
     let mut tried = std::collections::HashSet::new();

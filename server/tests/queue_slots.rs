@@ -234,7 +234,7 @@ async fn etas_come_from_past_runs_of_the_same_task_and_protocol(b: Backend) {
     assert_eq!(
         means,
         vec![(
-            d3il_server::store::JobKind::new(
+            d3il_server::store::DurationClass::new(
                 "pushing".to_string(),
                 "state".to_string(),
                 "paper".to_string(),

@@ -194,7 +194,7 @@ fn eval_bench(
         } else {
             Box::new(RowByRow(policy))
         };
-        let (r, t) = eval::evaluate(&task, policy.as_mut(), &info, &opts, &mut |_, _| {})?;
+        let (r, t) = eval::evaluate(&task, policy.as_mut(), &info, &opts, eval::EvalRun::all())?;
         let n = r.rollouts.len();
         let steps: usize = r.rollouts.iter().map(|x| x.steps).sum();
         let other = t.total_s - t.physics_s - t.policy_s;
@@ -221,7 +221,7 @@ fn eval_bench(
         simulate_every_rollout: false,
         ..opts.clone()
     };
-    let (_, t) = eval::evaluate(&task, &mut policy, &info, &once, &mut |_, _| {})?;
+    let (_, t) = eval::evaluate(&task, &mut policy, &info, &once, eval::EvalRun::all())?;
     println!(
         "deterministic policy (no noise input), each initial state simulated once: {} of {} rollouts simulated, \
          {:.1} s ({:.1}x faster than batched, same results)",
@@ -357,7 +357,7 @@ fn render_bench(
         step_cap: smoke.then_some(SMOKE_EVAL_STEPS),
         ..EvalOptions::default()
     };
-    let (r, t) = eval::evaluate(&task, &mut policy, &info, &opts, &mut |_, _| {})?;
+    let (r, t) = eval::evaluate(&task, &mut policy, &info, &opts, eval::EvalRun::all())?;
     let steps: usize = r.rollouts.iter().map(|x| x.steps).sum();
     let physics = t.step_cpu_s - t.render_cpu_s;
     let physics_ms = 1000.0 * physics / steps as f64;
@@ -373,7 +373,7 @@ fn render_bench(
     // A policy that executes chunks of 4 actions with history 2: the frames
     // it never sees are not rendered (docs/images.md).
     let (mut chunked, info) = load_fixture(&task, "aligning_image_k2_h4", ObsType::Image)?;
-    let (rc, tc) = eval::evaluate(&task, &mut chunked, &info, &opts, &mut |_, _| {})?;
+    let (rc, tc) = eval::evaluate(&task, &mut chunked, &info, &opts, eval::EvalRun::all())?;
     let steps_c: usize = rc.rollouts.iter().map(|x| x.steps).sum();
     println!(
         "chunked image policy (history 2, chunks of 4, aligning_image_k2_h4): {} of {steps_c} env steps rendered, \

@@ -11,7 +11,7 @@ use d3il_evaluator::eval::{self, EvalOptions, PolicyInfo};
 use d3il_evaluator::robustness::{self, SuiteObserver};
 use d3il_evaluator::scripted::ScriptedPolicy;
 use d3il_evaluator::tasks::LoadedTask;
-use d3il_protocol::{EvalResult, ObsType, ProtocolKind, TaskId};
+use d3il_protocol::{EvalResult, ObsType, ProtocolKind, SuiteName, TaskId};
 use std::time::Instant;
 
 struct Quiet;
@@ -41,9 +41,9 @@ pub fn run(protocol: ProtocolKind, step_cap: Option<usize>) -> anyhow::Result<()
     };
     let mut policy = ScriptedPolicy::from_name("aligning:inside", task.spec())?;
     let t = Instant::now();
-    let (plain, _) = eval::evaluate(&task, &mut policy, &info, &opts, &mut |_, _| {})?;
+    let (plain, _) = eval::evaluate(&task, &mut policy, &info, &opts, eval::EvalRun::all())?;
     let plain_s = t.elapsed().as_secs_f64();
-    let suite = robustness::suite_for(robustness::SUITE_NAME, TaskId::Aligning, ObsType::State)?;
+    let suite = robustness::suite_for(SuiteName::Robustness, TaskId::Aligning, ObsType::State)?;
     let mut policy = ScriptedPolicy::from_name("aligning:inside", task.spec())?;
     let plan = robustness::plan(&task, &policy, &opts, &suite)?;
     println!(

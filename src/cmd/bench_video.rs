@@ -20,7 +20,7 @@ pub fn run(protocol: ProtocolKind) -> anyhow::Result<()> {
         ..EvalOptions::default()
     };
     let t0 = Instant::now();
-    let (result, _) = eval::evaluate(&task, &mut policy, &info, &opts, &mut |_, _| {})?;
+    let (result, _) = eval::evaluate(&task, &mut policy, &info, &opts, eval::EvalRun::all())?;
     let json = serde_json::to_vec(&result)?;
     let traces: Vec<usize> = result
         .rollouts

@@ -5,7 +5,9 @@ use anyhow::{bail, Context};
 use d3il_evaluator::eval::{self, EvalOptions, PolicyInfo};
 use d3il_evaluator::shard::Shard;
 use d3il_evaluator::tasks::LoadedTask;
-use d3il_protocol::{Job, ObsType, PolicyManifest, PolicySource, ProtocolKind, TaskId};
+use d3il_protocol::{
+    Job, JobKind, ObsType, PolicyManifest, PolicySource, ProtocolKind, SuiteName, TaskId,
+};
 use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -70,7 +72,7 @@ pub struct Args {
     /// (`assets/robustness/`) against level 0, the plain evaluation, and
     /// print the paired drops per axis and level (docs/robustness.md).
     #[arg(long, value_name = "robustness")]
-    pub suite: Option<String>,
+    pub suite: Option<SuiteName>,
     /// Accepted and ignored: `d3il eval` connects to loopback and private
     /// addresses without it (command lines of older versions keep working).
     #[arg(long, hide = true)]
@@ -271,9 +273,8 @@ pub fn build_job(args: &Args) -> anyhow::Result<Job> {
         );
     }
     Ok(Job {
-        race: None,
+        kind: JobKind::Plain,
         job_id: "cli".into(),
-        suite: None,
         task: args.task,
         protocol: args.protocol,
         policy,
@@ -283,7 +284,6 @@ pub fn build_job(args: &Args) -> anyhow::Result<Job> {
         limits: args.limits.limits(true)?,
         assets_dir: crate::cmd::assets_dir().to_string_lossy().into_owned(),
         dry_run_steps: None,
-        shard: None,
         build: None,
     })
 }
@@ -371,7 +371,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         }
     } else {
         let (task, mut policy, info, opts) = load_then_fingerprint(&args, &mut job)?;
-        let (r, t) = eval::evaluate(&task, policy.as_mut(), &info, &opts, &mut on_progress)?;
+        let run = eval::EvalRun::all().counting(&mut on_progress);
+        let (r, t) = eval::evaluate(&task, policy.as_mut(), &info, &opts, run)?;
         print_timing(&t);
         r
     };
@@ -392,10 +393,9 @@ pub fn run_shard(args: &Args, job: &mut Job, shard: Shard) -> anyhow::Result<()>
     let mut on_progress = progress_printer();
     let part = if args.sandbox {
         job.build = Some(super::verify::this_build()?);
-        // The worker runs the shard (`Job::shard`) and answers with its part.
+        // The worker runs the shard (`JobKind::Shard`) and answers with its part.
         let job = Job {
-            race: None,
-            shard: Some(shard),
+            kind: JobKind::Shard(shard),
             ..job.clone()
         };
         match sandboxed(&job, &mut on_progress)? {
@@ -404,14 +404,8 @@ pub fn run_shard(args: &Args, job: &mut Job, shard: Shard) -> anyhow::Result<()>
         }
     } else {
         let (task, mut policy, info, opts) = load_then_fingerprint(args, job)?;
-        let (part, t) = eval::evaluate_shard(
-            &task,
-            policy.as_mut(),
-            &info,
-            &opts,
-            shard,
-            &mut on_progress,
-        )?;
+        let run = eval::EvalRun::shard(shard).counting(&mut on_progress);
+        let (part, t) = eval::evaluate(&task, policy.as_mut(), &info, &opts, run)?;
         print_timing(&t);
         part
     };

@@ -14,9 +14,9 @@ use d3il_evaluator::suite_shard::SuiteRun;
 use d3il_evaluator::tasks::LoadedTask;
 use d3il_protocol::perturbation::{Axis, Perturbation};
 use d3il_protocol::robustness::{RobustnessPart, RobustnessResult};
-use d3il_protocol::{Estimate, Job};
+use d3il_protocol::{Estimate, Job, JobKind, SuiteName};
 
-pub fn run(args: &Args, suite_name: &str) -> anyhow::Result<()> {
+pub fn run(args: &Args, suite_name: SuiteName) -> anyhow::Result<()> {
     let mut job = super::eval::build_job(args)?;
     let suite = robustness::suite_for(suite_name, args.task, job.manifest.obs_type)?;
     if args.sandbox {
@@ -48,7 +48,7 @@ pub fn run(args: &Args, suite_name: &str) -> anyhow::Result<()> {
 /// `suite` (and `shard`), the worker's limits those of one evaluation
 /// scaled to level 0 and every level (`d3il_sandbox::suite_limits`, the
 /// rule the server's suite jobs use too). The policy is loaded only in the worker.
-fn run_sandboxed(args: &Args, mut job: Job, name: &str, suite: &Suite) -> anyhow::Result<()> {
+fn run_sandboxed(args: &Args, mut job: Job, name: SuiteName, suite: &Suite) -> anyhow::Result<()> {
     let task = LoadedTask::load_obs(job.task, job.manifest.obs_type)?;
     let opts = EvalOptions {
         protocol: job.protocol,
@@ -58,8 +58,7 @@ fn run_sandboxed(args: &Args, mut job: Job, name: &str, suite: &Suite) -> anyhow
     let plan = robustness::plan_for(&task, false, &opts, suite)?;
     let once = robustness::plan_for(&task, true, &opts, suite)?;
     println!("{}", plan_line(suite, &plan, &opts, Some(once.simulated)));
-    job.suite = Some(name.into());
-    job.shard = args.shard;
+    job.kind = JobKind::of(Some(name), args.shard);
     job.build = Some(super::verify::this_build()?);
     let (limits, cmd) = d3il_sandbox::suite_limits(
         &job.limits,

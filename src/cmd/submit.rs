@@ -36,7 +36,7 @@ pub struct Args {
     /// the plain result; docs/robustness.md). Every task for state
     /// policies; Aligning, Sorting-4/6 and Stacking for image policies.
     #[arg(long)]
-    pub suite: Option<String>,
+    pub suite: Option<d3il_protocol::SuiteName>,
     /// ONNX policy file.
     #[arg(long, conflicts_with = "endpoint")]
     pub onnx: Option<PathBuf>,
@@ -123,7 +123,7 @@ fn check_locally(a: &Args, task: &str, training_seed: i64) -> anyhow::Result<()>
         .parse::<d3il_protocol::ProtocolKind>()
         .map_err(|e| anyhow::anyhow!("--protocol {}: {e}", a.protocol))?;
     if let Some(suite) = &a.suite {
-        d3il_evaluator::robustness::suite_for(suite, task, obs_type)
+        d3il_evaluator::robustness::suite_for(*suite, task, obs_type)
             .map_err(|e| anyhow::anyhow!("--suite {suite}: {e}"))?;
     }
     anyhow::ensure!(
@@ -217,7 +217,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         ("paper_url", a.paper_url.clone()),
         ("description", a.description.clone()),
         ("endpoint_url", a.endpoint.clone()),
-        ("suite", a.suite.clone()),
+        ("suite", a.suite.map(|s| s.to_string())),
     ] {
         if let Some(v) = v {
             fields.push((k, v));

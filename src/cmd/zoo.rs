@@ -173,8 +173,8 @@ fn evaluate(c: &ZooCell, max_live: usize) -> anyhow::Result<EvalResult> {
     let mut job = eval::build_job(&args)?;
     let (task, mut policy, info, opts) = eval::load_then_fingerprint(&args, &mut job)?;
     let mut on_progress = eval::progress_printer();
-    let (r, t) =
-        d3il_evaluator::eval::evaluate(&task, policy.as_mut(), &info, &opts, &mut on_progress)?;
+    let run = d3il_evaluator::eval::EvalRun::all().counting(&mut on_progress);
+    let (r, t) = d3il_evaluator::eval::evaluate(&task, policy.as_mut(), &info, &opts, run)?;
     eval::print_timing(&t);
     Ok(r)
 }

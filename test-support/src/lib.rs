@@ -91,9 +91,8 @@ pub fn avoiding_manifest() -> PolicyManifest {
 /// assets; tests change the fields they care about.
 pub fn avoiding_job(policy: PolicySource, limits: Limits) -> Job {
     Job {
-        race: None,
+        kind: d3il_protocol::JobKind::Plain,
         job_id: "test".into(),
-        suite: None,
         task: TaskId::Avoiding,
         protocol: ProtocolKind::Quick,
         policy,
@@ -102,7 +101,6 @@ pub fn avoiding_job(policy: PolicySource, limits: Limits) -> Job {
         limits,
         assets_dir: assets_dir().display().to_string(),
         dry_run_steps: None,
-        shard: None,
         build: None,
     }
 }

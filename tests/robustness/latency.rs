@@ -31,13 +31,12 @@ fn a_scripted_expert_under_latency_acts_late_by_exactly_the_set_steps() {
                     ..Default::default()
                 },
             );
-            let (r, _) = evaluate_perturbed(
+            let (r, _) = evaluate(
                 &task,
                 &mut policy,
                 &info(),
                 &capped(cap),
-                &p,
-                &mut |_, _| {},
+                EvalRun::all().perturbed(&p),
             )
             .unwrap();
             let hold = Active::new(&p, id).unwrap().hold;
@@ -114,13 +113,12 @@ fn stacking_under_a_fractional_latency_blends_the_joints_and_keeps_the_gripper_w
                 ..Default::default()
             },
         );
-        let (r, _) = evaluate_perturbed(
+        let (r, _) = evaluate(
             &task,
             &mut policy,
             &info(),
             &capped(Some(16)),
-            &p,
-            &mut |_, _| {},
+            EvalRun::all().perturbed(&p),
         )
         .unwrap();
         let hold = Active::new(&p, id).unwrap().hold;
@@ -180,13 +178,12 @@ fn stacking_v1_latency_results_still_run_and_replay() {
         inner: scripted(&task, "stacking:order=g"),
         log: log.clone(),
     };
-    let (r, _) = evaluate_perturbed(
+    let (r, _) = evaluate(
         &task,
         &mut policy,
         &info(),
         &capped(Some(12)),
-        &p,
-        &mut |_, _| {},
+        EvalRun::all().perturbed(&p),
     )
     .unwrap();
     assert_eq!(r.manifest.perturbation.as_ref(), Some(&p));

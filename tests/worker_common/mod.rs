@@ -81,9 +81,8 @@ pub fn limits() -> Limits {
 
 pub fn avoiding_job(policy: PolicySource, limits: Limits) -> Job {
     Job {
-        race: None,
+        kind: d3il_protocol::JobKind::Plain,
         job_id: "worker-test".into(),
-        suite: None,
         ..d3il_test_support::avoiding_job(policy, limits)
     }
 }

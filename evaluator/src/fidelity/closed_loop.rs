@@ -6,7 +6,7 @@
 //! original's TCP path.
 
 use super::{actions, dist, read_json, rows, FidelityError};
-use crate::eval::{evaluate, sha256_hex, EvalOptions};
+use crate::eval::{evaluate, sha256_hex, EvalOptions, EvalRun};
 use crate::job::load_policy;
 use crate::open_loop::{replay_actions, OpenLoopOptions};
 use crate::tasks::LoadedTask;
@@ -102,9 +102,8 @@ pub fn evaluate_here(
     let manifest: PolicyManifest =
         serde_json::from_value(read_json(&mpath)?).map_err(|e| FidelityError::data(&mpath, e))?;
     let job = Job {
-        race: None,
+        kind: d3il_protocol::JobKind::Plain,
         job_id: format!("fidelity-{name}"),
-        suite: None,
         task,
         protocol,
         policy: PolicySource::Onnx {
@@ -116,7 +115,6 @@ pub fn evaluate_here(
         limits: Limits::default(),
         assets_dir: String::new(),
         dry_run_steps: None,
-        shard: None,
         build: None,
     };
     let loaded = LoadedTask::load_obs(task, job.manifest.obs_type)?;
@@ -126,7 +124,7 @@ pub fn evaluate_here(
         rollouts_per_state,
         ..EvalOptions::default()
     };
-    let (result, _) = evaluate(&loaded, policy.as_mut(), &info, &opts, &mut |_, _| {})?;
+    let (result, _) = evaluate(&loaded, policy.as_mut(), &info, &opts, EvalRun::all())?;
     Ok(result)
 }
 

@@ -119,7 +119,7 @@ pub fn confine(job: &Job, policy_files: &[&Path]) -> Result<Vec<SandboxMechanism
     // A race job has a second policy: B's endpoint needs the
     // network as A's would.
     let policies: Vec<&PolicySource> = std::iter::once(&job.policy)
-        .chain(job.race.as_ref().map(|r| &r.policy_b))
+        .chain(job.kind.race().map(|r| &r.policy_b))
         .collect();
     let network_allowed = policies
         .iter()

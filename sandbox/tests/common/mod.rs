@@ -25,9 +25,7 @@ pub fn limits() -> Limits {
 
 pub fn job(policy: PolicySource, limits: Limits) -> Job {
     Job {
-        race: None,
         job_id: "selftest".into(),
-        suite: None,
         protocol: Default::default(),
         seed: 7,
         ..d3il_test_support::avoiding_job(policy, limits)

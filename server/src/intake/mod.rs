@@ -12,16 +12,16 @@ use crate::state::AppState;
 use crate::store::{NewMethod, NewPolicy, NewSubmission, SeedKey, Submitter};
 use axum::http::{header, HeaderMap};
 use d3il_protocol::{
-    EndpointSecret, ErrorKind, Evaluated, Job, Limits, ObsType, PolicyManifest, PolicySource,
-    ProtocolKind, TaskId,
+    EndpointSecret, ErrorKind, Evaluated, Job, JobKind, Limits, ObsType, PolicyManifest,
+    PolicySource, ProtocolKind, SuiteName, TaskId,
 };
 use fields::{
     fraction_field, manifest_field, method_fields, opt, policy_fields, protocol_field, seed_field,
     task_fields,
 };
 use std::sync::Arc;
+pub use suite::check_suite_available;
 use suite::suite_field;
-pub use suite::{check_suite_available, SUITE};
 pub use upload::{
     disk_quota_error, read_multipart, Caller, Quota, RawSubmission, UploadedFile, TEXT_FIELDS,
 };
@@ -60,8 +60,8 @@ pub struct ValidSubmission {
     pub protocol: ProtocolKind,
     pub manifest: PolicyManifest,
     pub policy: ValidPolicy,
-    /// The perturbation suite asked for (`robustness`).
-    pub suite: Option<String>,
+    /// The perturbation suite asked for.
+    pub suite: Option<SuiteName>,
 }
 
 #[derive(Debug)]
@@ -222,9 +222,8 @@ pub async fn dry_run(
     limits.wall_seconds = limits.wall_seconds.min(120);
     let remote = matches!(policy, PolicySource::Remote { .. });
     let job = Job {
-        race: None,
+        kind: JobKind::of(v.suite, None),
         job_id: "dry-run".into(),
-        suite: v.suite.clone(),
         task: v.task,
         protocol: ProtocolKind::Quick,
         policy,
@@ -233,7 +232,6 @@ pub async fn dry_run(
         limits,
         assets_dir: state.cfg.assets_dir.to_string_lossy().into_owned(),
         dry_run_steps: (!remote).then(|| (2 * v.manifest.execute).max(DRY_RUN_MIN_STEPS)),
-        shard: None,
         build: None,
     };
     let report = tokio::task::spawn_blocking(move || runner.run(&job, &mut |_, _| {}))
@@ -401,10 +399,10 @@ pub async fn accept(
     };
     // A suite's job is sharded by the same rule: each shard runs level 0
     // and every level on its block of initial states.
-    let inserted = match &v.suite {
+    let inserted = match v.suite {
         Some(suite) => {
             store
-                .create_suite_submission(&new, state.cfg.max_attempts, suite, shards)
+                .create_suite_submission(&new, state.cfg.max_attempts, suite.as_str(), shards)
                 .await
         }
         None => {

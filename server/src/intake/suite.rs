@@ -1,22 +1,21 @@
-//! The `suite` field of a submission (docs/robustness.md): the
-//! one suite name, and whether a task and observation type have a suite.
+//! The `suite` field of a submission (docs/robustness.md): a
+//! [`SuiteName`], and whether a task and observation type have a suite.
 
 use super::{opt, RawSubmission};
 use crate::error::AppError;
-use d3il_protocol::{ObsType, TaskId};
+use d3il_protocol::{ObsType, SuiteName, TaskId};
 
-/// The one suite a submission can ask for (docs/robustness.md).
-pub const SUITE: &str = "robustness";
-
-pub(super) fn suite_field(raw: &RawSubmission) -> Result<Option<String>, AppError> {
-    match opt(raw, "suite") {
-        None => Ok(None),
-        Some(s) if s == SUITE => Ok(Some(s)),
-        Some(s) => Err(AppError::invalid(
-            "suite",
-            format!("`suite` is `{s}`; the one suite is `{SUITE}` (or leave it out for a plain evaluation)"),
-        )),
-    }
+pub(super) fn suite_field(raw: &RawSubmission) -> Result<Option<SuiteName>, AppError> {
+    opt(raw, "suite")
+        .map(|s| {
+            SuiteName::parse(&s).map_err(|e| {
+                AppError::invalid(
+                    "suite",
+                    format!("{e} (or leave `suite` out for a plain evaluation)"),
+                )
+            })
+        })
+        .transpose()
 }
 
 /// Whether `task` with `obs` observations has a robustness suite: a suite

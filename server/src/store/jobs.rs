@@ -198,13 +198,14 @@ pub struct ClaimedJob {
     pub submission: SubmissionRow,
 }
 
-/// What an evaluation's duration depends on, for queue estimates: task slug,
+/// What an evaluation's duration depends on, for queue estimates (not what
+/// a worker's job runs: that is `d3il_protocol::JobKind`): task slug,
 /// observation type, protocol, whether each initial state's rollouts are
 /// simulated once (a deterministic policy; unknown counts as not), and the
 /// perturbation suite asked for (a suite run is level 0 and every
 /// level, each a whole evaluation).
 #[derive(Debug, Clone, PartialEq, Eq, Hash)]
-pub struct JobKind {
+pub struct DurationClass {
     pub task: String,
     pub obs_type: String,
     pub protocol: String,
@@ -212,14 +213,14 @@ pub struct JobKind {
     pub suite: Option<String>,
 }
 
-impl JobKind {
+impl DurationClass {
     pub fn new(
         task: String,
         obs_type: String,
         protocol: String,
         simulated_once: Option<bool>,
     ) -> Self {
-        JobKind {
+        DurationClass {
             task,
             obs_type,
             protocol,
@@ -230,7 +231,7 @@ impl JobKind {
 
     /// The same kind with perturbation suite `suite` (None: a plain run).
     pub fn with_suite(self, suite: Option<String>) -> Self {
-        JobKind {
+        DurationClass {
             suite: suite.filter(|s| !s.is_empty()),
             ..self
         }
@@ -525,12 +526,12 @@ impl Store {
     }
 
     /// Mean wall time, in seconds, of the last 20 completed submissions of
-    /// each [`JobKind`], from the first shard's start to the last shard's
+    /// each [`DurationClass`], from the first shard's start to the last shard's
     /// finish: the basis of ETAs (a Stacking paper run and an Aligning smoke
     /// test take very different times, an image evaluation renders two
     /// cameras at every step, and a deterministic policy's evaluation
     /// simulates one rollout per initial state).
-    pub async fn mean_job_seconds_by_kind(&self) -> Result<Vec<(JobKind, f64)>, StoreError> {
+    pub async fn mean_job_seconds_by_kind(&self) -> Result<Vec<(DurationClass, f64)>, StoreError> {
         let rows: Vec<(String, String, String, bool, String, f64)> = on_db!(&self.db, pool => sqlx::query_as(
             "SELECT task, obs_type, protocol, once, suite, AVG(d) FROM (SELECT s.task AS task, \
              s.obs_type AS obs_type, s.protocol AS protocol, COALESCE(s.simulated_once, FALSE) AS once, \
@@ -549,7 +550,8 @@ impl Store {
             .into_iter()
             .map(|(task, obs_type, protocol, once, suite, d)| {
                 (
-                    JobKind::new(task, obs_type, protocol, Some(once)).with_suite(Some(suite)),
+                    DurationClass::new(task, obs_type, protocol, Some(once))
+                        .with_suite(Some(suite)),
                     d,
                 )
             })
@@ -558,7 +560,7 @@ impl Store {
 
     /// The kinds of the submissions with queued work ahead of job `job_id`
     /// (one entry per submission, however many shards), oldest first.
-    pub async fn queued_ahead(&self, job_id: i64) -> Result<Vec<JobKind>, StoreError> {
+    pub async fn queued_ahead(&self, job_id: i64) -> Result<Vec<DurationClass>, StoreError> {
         let rows: Vec<QueuedKind> = on_db!(&self.db, pool => sqlx::query_as(
             "SELECT s.task, s.obs_type, s.protocol, s.simulated_once, s.suite FROM submissions s WHERE s.id IN \
              (SELECT submission_id FROM jobs WHERE state = 'queued' AND id < $1) ORDER BY s.id",
@@ -569,7 +571,7 @@ impl Store {
         Ok(rows
             .into_iter()
             .map(|(task, obs_type, protocol, once, suite)| {
-                JobKind::new(task, obs_type, protocol, once).with_suite(suite)
+                DurationClass::new(task, obs_type, protocol, once).with_suite(suite)
             })
             .collect())
     }

@@ -61,7 +61,7 @@ pub mod types;
 mod zoo;
 
 pub use files::{PolicyFilesGuard, TMP_MARKER};
-pub use jobs::{ClaimedJob, JobKind, JobRow};
+pub use jobs::{ClaimedJob, DurationClass, JobRow};
 pub use live::{CancelOutcome, Cancelled, StateOutcome, CANCELLED_KIND};
 pub use methods::{MethodRow, NewMethod};
 pub use moderation::{
