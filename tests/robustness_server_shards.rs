@@ -194,9 +194,23 @@ fn a_sharded_robustness_submission_stores_the_unsharded_document_and_sandbox_run
 
     // The stored document is the unsharded one, bit for bit, and level 0
     // is the submission's plain result.
-    let doc = client
+    let mut doc = client
         .get(&format!("/api/v1/submissions/{id}/robustness"))
         .unwrap();
+    // The server adds the scores' coverage label to what it serves (the
+    // document's own rule, RobustnessResult::score_coverage); the rest is
+    // the document as stored.
+    let coverage = doc
+        .as_object_mut()
+        .unwrap()
+        .remove("score_interval_coverage")
+        .expect("the served document carries score_interval_coverage");
+    let stored: d3il_protocol::robustness::RobustnessResult =
+        serde_json::from_value(doc.clone()).unwrap();
+    assert_eq!(
+        coverage,
+        serde_json::to_value(stored.score_coverage()).unwrap()
+    );
     assert_eq!(timeless(doc.clone()), plain, "the merged document differs");
     let results = client
         .get(&format!("/api/v1/submissions/{id}/results"))
