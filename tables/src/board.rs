@@ -10,7 +10,7 @@
 //! showing empty axes.
 
 use crate::panels::{fraction_panel, pareto_panel, shape, FractionLine, PlanePoint, FRONT};
-use crate::plot::{hex, legend, pe, text_width, with_legend, Est, LegendEntry, Overlay};
+use crate::plot::{canvas, hex, legend, pe, text_width, with_legend, Est, LegendEntry, Overlay};
 use crate::rollouts::no_data_svg;
 use crate::TablesError;
 use d3il_protocol::TaskId;
@@ -60,10 +60,7 @@ pub fn pareto_svg(title: &str, points: &[ParetoPoint]) -> Result<String, TablesE
     let (plot_w, plot_h) = (640u32, 480u32);
     let (width, height, legend_x) = with_legend((plot_w, plot_h), None, &entries);
     let mut ov = Overlay::default();
-    let mut buf = String::new();
-    {
-        let root = SVGBackend::with_string(&mut buf, (width, height)).into_drawing_area();
-        root.fill(&WHITE).map_err(pe)?;
+    let buf = canvas((width, height), |root| {
         let (plot, _) = root.split_horizontally(plot_w);
         let (plot, _) = plot.split_vertically(plot_h);
         let plot = plot
@@ -86,8 +83,8 @@ pub fn pareto_svg(title: &str, points: &[ParetoPoint]) -> Result<String, TablesE
             .collect();
         pareto_panel(&plot, &mut ov, "", &points, true)?;
         legend(&mut ov, (legend_x, 40.0), None, &entries);
-        root.present().map_err(pe)?;
-    }
+        Ok(())
+    })?;
     Ok(ov.splice(buf))
 }
 
@@ -120,10 +117,7 @@ pub fn data_fraction_svg(title: &str, series: &[FractionSeries]) -> Result<Strin
     let (panel_w, plot_h) = (460u32, 420u32);
     let (width, height, legend_x) = with_legend((2 * panel_w, plot_h), None, &entries);
     let mut ov = Overlay::default();
-    let mut buf = String::new();
-    {
-        let root = SVGBackend::with_string(&mut buf, (width, height)).into_drawing_area();
-        root.fill(&WHITE).map_err(pe)?;
+    let buf = canvas((width, height), |root| {
         let (plots, _) = root.split_horizontally(2 * panel_w);
         let (plots, _) = plots.split_vertically(plot_h);
         let plots = plots
@@ -148,8 +142,8 @@ pub fn data_fraction_svg(title: &str, series: &[FractionSeries]) -> Result<Strin
         if !entries.is_empty() {
             legend(&mut ov, (legend_x, 40.0), None, &entries);
         }
-        root.present().map_err(pe)?;
-    }
+        Ok(())
+    })?;
     Ok(ov.splice(buf))
 }
 
@@ -174,10 +168,7 @@ pub fn behaviour_bars_svg(title: &str, counts: &[(String, usize)]) -> Result<Str
     let width = 720u32.max(name_w as u32 + 360);
     let height = (110.0 + ROW * counts.len().max(1) as f64) as u32;
     let mut ov = Overlay::default();
-    let mut buf = String::new();
-    {
-        let root = SVGBackend::with_string(&mut buf, (width, height)).into_drawing_area();
-        root.fill(&WHITE).map_err(pe)?;
+    let buf = canvas((width, height), |root| {
         let root = root
             .titled(title, ("sans-serif", 18).into_font())
             .map_err(pe)?;
@@ -233,8 +224,8 @@ pub fn behaviour_bars_svg(title: &str, counts: &[(String, usize)]) -> Result<Str
                 &c.to_string(),
             );
         }
-        root.present().map_err(pe)?;
-    }
+        Ok(())
+    })?;
     Ok(ov.splice(buf))
 }
 

@@ -10,7 +10,7 @@
 use crate::caption::Style;
 use crate::model::{build_table, Row, TableModel, Value};
 use crate::panels::{fraction_panel, pareto_panel, shape, FractionLine, PlanePoint, FRONT};
-use crate::plot::{legend, method_colour, pe, with_legend, Est, LegendEntry, Overlay};
+use crate::plot::{canvas, legend, method_colour, pe, with_legend, Est, LegendEntry, Overlay};
 use crate::{MethodInfo, SourceFilter, TableKind, TablesError};
 use d3il_protocol::behaviour::avoiding;
 use d3il_protocol::{behaviour_name, ObsType, ResultCell, Source, TaskId};
@@ -204,10 +204,7 @@ fn datasize(model: &TableModel) -> Result<String, TablesError> {
     let plots_h = 40 + panel_h * tasks.len() as u32;
     let (width, height, legend_x) = with_legend((2 * panel_w, plots_h), None, &legend_rows);
     let mut ov = Overlay::default();
-    let mut buf = String::new();
-    {
-        let root = SVGBackend::with_string(&mut buf, (width, height)).into_drawing_area();
-        root.fill(&WHITE).map_err(pe)?;
+    let buf = canvas((width, height), |root| {
         let (plots, _) = root.split_horizontally(2 * panel_w);
         let (plots, _) = plots.split_vertically(plots_h);
         let plots = plots
@@ -245,8 +242,8 @@ fn datasize(model: &TableModel) -> Result<String, TablesError> {
             }
         }
         legend(&mut ov, (legend_x, 40.0), None, &legend_rows);
-        root.present().map_err(pe)?;
-    }
+        Ok(())
+    })?;
     Ok(ov.splice(buf))
 }
 
@@ -268,10 +265,7 @@ fn pareto(model: &TableModel) -> Result<String, TablesError> {
     let (width, height, legend_x) =
         with_legend((cols as u32 * panel_w, plots_h), None, &legend_rows);
     let mut ov = Overlay::default();
-    let mut buf = String::new();
-    {
-        let root = SVGBackend::with_string(&mut buf, (width, height)).into_drawing_area();
-        root.fill(&WHITE).map_err(pe)?;
+    let buf = canvas((width, height), |root| {
         let (plots, _) = root.split_horizontally(cols as u32 * panel_w);
         let (plots, _) = plots.split_vertically(plots_h);
         let plots = plots
@@ -303,8 +297,8 @@ fn pareto(model: &TableModel) -> Result<String, TablesError> {
             pareto_panel(&panels[ti], &mut ov, task.as_str(), &pts, true)?;
         }
         legend(&mut ov, (legend_x, 40.0), None, &legend_rows);
-        root.present().map_err(pe)?;
-    }
+        Ok(())
+    })?;
     Ok(ov.splice(buf))
 }
 
@@ -410,10 +404,7 @@ pub fn render_avoiding_paths(
     );
     let mut layer = crate::rollouts::Layer::default();
     let mut ov = Overlay::default();
-    let mut buf = String::new();
-    {
-        let root = SVGBackend::with_string(&mut buf, (width, height)).into_drawing_area();
-        root.fill(&WHITE).map_err(pe)?;
+    let buf = canvas((width, height), |root| {
         let (plot, _) = root.split_horizontally(plot_w);
         let (plot, _) = plot.split_vertically(plot_h + 40);
         let plot = plot
@@ -485,8 +476,8 @@ pub fn render_avoiding_paths(
         }
         crate::rollouts::draw_caption(&mut layer, (10.0, f64::from(plot_h + 40) + 4.0), &lines);
         legend(&mut ov, (legend_x, 40.0), Some(LEGEND_TITLE), &entries);
-        root.present().map_err(pe)?;
-    }
+        Ok(())
+    })?;
     Ok(layer.finish(buf, ov))
 }
 

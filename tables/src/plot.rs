@@ -11,12 +11,32 @@
 
 use crate::TablesError;
 use d3il_protocol::paper::PAPER_METHOD_ORDER;
+use plotters::coord::Shift;
+use plotters::prelude::{DrawingArea, IntoDrawingArea, SVGBackend, WHITE};
 use plotters::style::RGBColor;
 use std::fmt::Write as _;
 use std::ops::Range;
 
 pub(crate) fn pe<E: std::fmt::Display>(e: E) -> TablesError {
     TablesError::Plot(e.to_string())
+}
+
+/// The one set-up of every figure: a white SVG canvas of `width` × `height`
+/// pixels on which `body` draws with plotters. Returns the document plotters
+/// wrote; the caller splices its marks into it ([`Overlay::splice`], and the
+/// rollout figures their layer first).
+pub(crate) fn canvas(
+    (width, height): (u32, u32),
+    body: impl FnOnce(&DrawingArea<SVGBackend<'_>, Shift>) -> Result<(), TablesError>,
+) -> Result<String, TablesError> {
+    let mut buf = String::new();
+    {
+        let root = SVGBackend::with_string(&mut buf, (width, height)).into_drawing_area();
+        root.fill(&WHITE).map_err(pe)?;
+        body(&root)?;
+        root.present().map_err(pe)?;
+    }
+    Ok(buf)
 }
 
 /// Colours of the paper's eleven methods, in [`PAPER_METHOD_ORDER`]: the seven

@@ -7,7 +7,7 @@
 //! log scale) against `1/α`, the rule when there is no horizon.
 
 use crate::panels::chart;
-use crate::plot::{pe, Overlay};
+use crate::plot::{canvas, Overlay};
 use crate::TablesError;
 use d3il_metrics::horizon::{CalibratedBoundary, MAX_HORIZON};
 use d3il_metrics::sequential::PairedEProcess;
@@ -89,10 +89,7 @@ pub fn race_svg(pairs: &[(bool, bool)], alpha: f64, horizon: usize) -> Result<St
         .fold(-1.0f64, f64::min);
     let (w, h) = (640u32, 520u32);
     let mut ov = Overlay::default();
-    let mut buf = String::new();
-    {
-        let root = SVGBackend::with_string(&mut buf, (w, h)).into_drawing_area();
-        root.fill(&WHITE).map_err(pe)?;
+    let buf = canvas((w, h), |root| {
         let (upper, lower) = root.split_vertically(300);
         let walk_chart = chart(
             &upper,
@@ -162,7 +159,7 @@ pub fn race_svg(pairs: &[(bool, bool)], alpha: f64, horizon: usize) -> Result<St
                 .map(|s| pe_(s.pair as f64, s.e_value.max(1e-300).log10())),
         );
         ov.polyline("lines", &epath, EVALUE, 2.0, false);
-        root.present().map_err(pe)?;
-    }
+        Ok(())
+    })?;
     Ok(ov.splice(buf))
 }

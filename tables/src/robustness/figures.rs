@@ -9,8 +9,8 @@
 use super::{RobustnessEntry, SuiteGroup};
 use crate::panels::{chart, shape, LABEL_FONT, POINT_R};
 use crate::plot::{
-    area_rect, draw_labels, fit_unit_axis, legend, method_colour, pe, place_labels, with_legend,
-    LegendEntry, Overlay,
+    area_rect, canvas, draw_labels, fit_unit_axis, legend, method_colour, pe, place_labels,
+    with_legend, LegendEntry, Overlay,
 };
 use crate::TablesError;
 use d3il_protocol::perturbation::Axis;
@@ -53,10 +53,7 @@ pub fn degradation_svg(group: &SuiteGroup<'_>, axis: Axis) -> Result<String, Tab
     );
     let n = levels.len().max(2) - 1;
     let mut ov = Overlay::default();
-    let mut buf = String::new();
-    {
-        let root = SVGBackend::with_string(&mut buf, (width, height)).into_drawing_area();
-        root.fill(&WHITE).map_err(pe)?;
+    let buf = canvas((width, height), |root| {
         let (plot, _) = root.split_horizontally(plot_w);
         let (plot, _) = plot.split_vertically(plot_h);
         let plot = plot
@@ -87,8 +84,8 @@ pub fn degradation_svg(group: &SuiteGroup<'_>, axis: Axis) -> Result<String, Tab
             }
         }
         legend(&mut ov, (legend_x, 40.0), None, &entries);
-        root.present().map_err(pe)?;
-    }
+        Ok(())
+    })?;
     Ok(ov.splice(buf))
 }
 
@@ -119,10 +116,7 @@ pub fn score_vs_entropy_svg(group: &SuiteGroup<'_>) -> Result<String, TablesErro
         });
     let yr = (lo - 0.05).max(lo.min(0.0))..hi + 0.05;
     let mut ov = Overlay::default();
-    let mut buf = String::new();
-    {
-        let root = SVGBackend::with_string(&mut buf, (width, height)).into_drawing_area();
-        root.fill(&WHITE).map_err(pe)?;
+    let buf = canvas((width, height), |root| {
         let (plot, _) = root.split_horizontally(plot_w);
         let (plot, _) = plot.split_vertically(plot_h);
         let plot = plot
@@ -163,7 +157,7 @@ pub fn score_vs_entropy_svg(group: &SuiteGroup<'_>) -> Result<String, TablesErro
         if !entries.is_empty() {
             legend(&mut ov, (legend_x, 40.0), None, &entries);
         }
-        root.present().map_err(pe)?;
-    }
+        Ok(())
+    })?;
     Ok(ov.splice(buf))
 }

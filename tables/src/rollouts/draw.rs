@@ -355,14 +355,9 @@ pub(super) fn figure(
 ) -> Result<String, TablesError> {
     let mut layer = Layer::default();
     let mut ov = Overlay::default();
-    let mut buf = String::new();
-    {
-        let root =
-            SVGBackend::with_string(&mut buf, (width as u32, height as u32)).into_drawing_area();
-        root.fill(&WHITE).map_err(pe)?;
-        body(&root, &mut layer, &mut ov)?;
-        root.present().map_err(pe)?;
-    }
+    let buf = crate::plot::canvas((width as u32, height as u32), |root| {
+        body(root, &mut layer, &mut ov)
+    })?;
     Ok(layer.finish(buf, ov))
 }
 
