@@ -1,6 +1,7 @@
-//! Properties of `crate::intervals` (issue 51): the paired interval agrees
-//! with its p-value, intervals shrink as states are added, contain their
-//! estimate, and are never of width 0 on non-degenerate small samples.
+//! Properties of `crate::intervals`, the intervals that must agree with their
+//! own p-values: the paired interval agrees with its p-value, intervals shrink
+//! as states are added, contain their estimate, and are never of width 0 on
+//! non-degenerate small samples.
 
 use crate::compare::{compare_states, ContextSummary};
 use crate::intervals::*;
