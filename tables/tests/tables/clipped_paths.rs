@@ -2,11 +2,8 @@
 //! view and the overlay, and the initial-state map's points, are clipped to
 //! the plotting area, and the caption says when a path left it.
 
-#[path = "rollout_pictures/support.rs"]
-#[allow(dead_code)]
-mod support;
-#[path = "svg_geometry/mod.rs"]
-mod svg_geometry;
+use crate::support;
+use crate::svg_geometry;
 
 use d3il_protocol::rollout::TraceBuilder;
 use d3il_protocol::{RolloutRecord, RolloutTrace, TaskId};

@@ -6,8 +6,7 @@
 //! names, integer counts and the Avoiding obstacles drawn from the task's
 //! definition.
 
-#[path = "svg_geometry/mod.rs"]
-mod svg_geometry;
+use crate::svg_geometry;
 
 use d3il_protocol::behaviour::avoiding;
 use d3il_protocol::paper::{self, PAPER_METHOD_ORDER};

@@ -1,6 +1,6 @@
 //! Golden-file snapshots of every table in every format, rendered from the
 //! paper data alone. Compared byte for byte; `UPDATE_GOLDEN=1 cargo test -p
-//! d3il-tables --test golden` rewrites them (review the diff before committing).
+//! d3il-tables --test tables golden` rewrites them (review the diff before committing).
 
 use d3il_protocol::{paper, ObsType};
 use d3il_tables::{render_table, Format, SourceFilter, TableKind};

@@ -9,10 +9,8 @@
 //! action dimension, the TCP speed and the distances, with the recorded
 //! values; corrupt traces are refused by name.
 
-#[path = "rollout_pictures/support.rs"]
-mod support;
-#[path = "svg_geometry/mod.rs"]
-mod svg_geometry;
+use crate::support;
+use crate::svg_geometry;
 
 use d3il_protocol::rollout::{pack_f32, TraceBuilder};
 use d3il_protocol::{
