@@ -1,11 +1,13 @@
 //! `d3il`: the one binary. Each subcommand lives in `src/cmd/<name>.rs` and
-//! exposes `Args` (clap) and `run(args) -> anyhow::Result<()>`.
+//! exposes `Args` (clap) and `run(args) -> anyhow::Result<()>`; what several
+//! of them share is in `src/common/`.
 
 #![forbid(unsafe_code)]
 
 use clap::{Parser, Subcommand};
 
 mod cmd;
+mod common;
 
 #[derive(Parser)]
 #[command(
@@ -76,7 +78,7 @@ fn main() -> anyhow::Result<()> {
         Command::Bench(a) => cmd::bench::run(a),
         Command::Compare(a) if a.sequential => {
             eprintln!("note: `d3il compare --sequential` is deprecated; it is `d3il race` (the same arguments without --sequential)");
-            cmd::race::run(&a.as_race())
+            cmd::race::run(&race_args_of(&a))
         }
         Command::Compare(a) => cmd::compare::run(a),
         Command::Race(a) => cmd::race::run(&a),
@@ -98,14 +100,29 @@ fn main() -> anyhow::Result<()> {
         Command::Serve(a) => cmd::serve::run(a),
         Command::Token(a) => cmd::token::run(a),
         // `d3il submit --race A B` races two submissions on the server
-        // (cmd::race_server, which reads submit's flags).
+        // (cmd::submit::race, which reads submit's flags).
         Command::Submit(a) => match a.race.clone() {
-            Some(pair) if a.cancel.is_none() => cmd::race_server::run_from_submit(&a, &pair),
+            Some(pair) if a.cancel.is_none() => cmd::submit::race::run_from_submit(&a, &pair),
             _ => cmd::submit::run(a),
         },
         Command::Worker(a) => cmd::worker::run(a),
         Command::Workers(a) => cmd::workers::run(a),
         Command::Zoo(a) => cmd::zoo::run(a),
+    }
+}
+
+/// `d3il compare --sequential …` as the `d3il race …` it stands for.
+fn race_args_of(c: &cmd::compare::Args) -> cmd::race::Args {
+    cmd::race::Args {
+        a: c.a.clone(),
+        b: c.b.clone(),
+        task: c.task,
+        alpha: c.alpha,
+        delta: c.delta,
+        seed: c.seed,
+        protocol: c.protocol,
+        max_live: c.max_live,
+        json: c.json,
     }
 }
 

@@ -70,8 +70,8 @@ pub struct Args {
     pub max_live: usize,
     /// Robot look in `render` (primitives: the scene the ratio goal is set
     /// for; meshes: the Panda meshes image evaluations use when present).
-    #[arg(long, value_enum, default_value_t = super::render::Look::Primitives)]
-    pub look: super::render::Look,
+    #[arg(long, value_enum, default_value_t = crate::common::flags::Look::Primitives)]
+    pub look: crate::common::flags::Look,
     /// Worker hosts of `scale` (each pinned to a core of its own).
     #[arg(long, default_value_t = 2)]
     pub hosts: usize,
@@ -289,7 +289,7 @@ fn render_bench(
     env_steps: usize,
     protocol: ProtocolKind,
     max_live: usize,
-    look: super::render::Look,
+    look: crate::common::flags::Look,
     smoke: bool,
 ) -> anyhow::Result<()> {
     let look = look.robot_look();
@@ -564,13 +564,13 @@ fn agents_bench(batch: usize, smoke: bool) -> anyhow::Result<()> {
         (AGENT_ROUNDS, AGENT_ROUND_S)
     };
     use std::io::{BufRead, Write};
-    let dir = super::assets_dir().join("fixtures").join("agents");
+    let dir = crate::common::assets_dir().join("fixtures").join("agents");
     let task = LoadedTask::load(TaskId::Aligning)?;
     let spec = task.spec();
     let paper = TaskId::Aligning.paper_protocol();
     let wall = d3il_protocol::Limits::default().wall_seconds as f64;
     let groups = (paper.contexts * paper.rollouts).div_ceil(batch.max(1));
-    let script = super::assets_dir()
+    let script = crate::common::assets_dir()
         .join("..")
         .join("clients")
         .join("python")

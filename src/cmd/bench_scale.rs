@@ -113,7 +113,7 @@ fn timed_run(
 /// Stores the fixture as an uploaded policy and queues its evaluation in
 /// `shards` shards.
 async fn queue(store: &Store, protocol: ProtocolKind, shards: usize) -> anyhow::Result<i64> {
-    let assets = super::assets_dir();
+    let assets = crate::common::assets_dir();
     let onnx = assets.join(format!("{FIXTURE}.onnx"));
     let bytes = std::fs::read(&onnx).with_context(|| format!("reading {}", onnx.display()))?;
     let manifest = std::fs::read_to_string(assets.join(format!("{FIXTURE}.json")))?;

@@ -32,7 +32,7 @@ pub fn run(smoke: bool, max_live: usize) -> anyhow::Result<()> {
             python.display()
         );
     }
-    let script = super::assets_dir()
+    let script = crate::common::assets_dir()
         .join("..")
         .join("clients")
         .join("python")

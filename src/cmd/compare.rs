@@ -3,6 +3,7 @@
 //! (`d3il compare --sequential` is a deprecated alias of `d3il race`, the
 //! sequential test: main.rs sends it there with a note.)
 
+use crate::common::text::paired_interval_text;
 use anyhow::Context;
 use d3il_metrics::Bootstrap;
 use d3il_protocol::{Comparison, EvalResult, PairedDifference};
@@ -42,23 +43,6 @@ pub struct Args {
     /// With `--task` (deprecated): `d3il race --max-live`.
     #[arg(long, default_value_t = 8, requires = "task")]
     pub max_live: usize,
-}
-
-impl Args {
-    /// `d3il compare --sequential …` as the `d3il race …` it stands for.
-    pub fn as_race(&self) -> super::race::Args {
-        super::race::Args {
-            a: self.a.clone(),
-            b: self.b.clone(),
-            task: self.task,
-            alpha: self.alpha,
-            delta: self.delta,
-            seed: self.seed,
-            protocol: self.protocol,
-            max_live: self.max_live,
-            json: self.json,
-        }
-    }
 }
 
 fn load(path: &Path) -> anyhow::Result<EvalResult> {
@@ -125,13 +109,4 @@ pub fn render(c: &Comparison) -> String {
     }
     s += "min. det.: the difference detected with 80 % power at the 5 % level at this size\n";
     s
-}
-
-/// A paired difference's interval as `+0.100 – +0.300` (signed), or the
-/// short reason there is none.
-pub fn paired_interval_text(e: &d3il_protocol::Estimate) -> String {
-    match e.interval() {
-        Some((lo, hi)) => format!("{lo:+.3} – {hi:+.3}"),
-        None => e.interval_text(3),
-    }
 }

@@ -1,24 +1,7 @@
-//! `--db` and `--policy-store`, defined once for every subcommand that opens
-//! the leaderboard's store (`serve`, `workers`, `token`, `tables`, `db`), and
-//! `d3il db backup|restore|check`.
+//! `d3il db backup|restore|check` (docs/ops.md).
 
-use d3il_server::ops::DbTarget;
+use crate::common::flags::DbArgs;
 use std::path::PathBuf;
-
-#[derive(clap::Args, Debug, Clone)]
-pub struct DbArgs {
-    /// The database: a SQLite file (created and migrated if missing; the
-    /// embedded default) or a PostgreSQL URL `postgres://user@host/db`
-    /// shared by several front ends and worker hosts (docs/cluster.md).
-    #[arg(long, default_value = "d3il.sqlite")]
-    pub db: DbTarget,
-    /// Directory of uploaded policies (they go in its `policies/`). Needed
-    /// with PostgreSQL: the same shared directory (e.g. NFS) on every host,
-    /// so any host can run any job. Default with SQLite: `<db stem>-data/`
-    /// next to the database file.
-    #[arg(long)]
-    pub policy_store: Option<PathBuf>,
-}
 
 /// `d3il db backup|restore|check` (docs/ops.md).
 #[derive(clap::Args, Debug)]
@@ -82,7 +65,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let rt = runtime()?;
     match args.action {
         Action::Backup { db, out } => {
-            super::check_output_path(&out, "--out")?;
+            crate::common::check_output_path(&out, "--out")?;
             let done = rt
                 .block_on(backup::backup(&db.db, db.policy_store.as_deref(), &out))
                 .with_context(|| format!("cannot back up {}", db.db))?;

@@ -112,7 +112,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 "d3il demos --task {} --episodes {} --seed {} --noise {} --speed-spread {}",
                 args.task.slug(), args.episodes, args.seed, args.noise, args.speed_spread
             ),
-            "git_commit": super::verify::GIT_COMMIT,
+            "git_commit": crate::common::build::GIT_COMMIT,
             "expert": demos::expert_name(args.task)?,
         },
         "options": opts,

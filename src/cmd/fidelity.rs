@@ -58,7 +58,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         data.root.display()
     );
     if let Some(out) = &args.out {
-        super::check_output_path(out, "--out")?;
+        crate::common::check_output_path(out, "--out")?;
     }
     let mode = if args.quick {
         FidelityMode::Quick

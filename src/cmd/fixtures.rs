@@ -13,7 +13,7 @@ pub(super) fn load_fixture(
     name: &str,
     obs_type: ObsType,
 ) -> anyhow::Result<(OnnxPolicy, PolicyInfo)> {
-    let dir = super::assets_dir().join("fixtures");
+    let dir = crate::common::assets_dir().join("fixtures");
     let onnx = dir.join(format!("{name}.onnx"));
     let bytes = std::fs::read(&onnx).with_context(|| format!("reading {}", onnx.display()))?;
     let manifest: PolicyManifest =

@@ -91,7 +91,7 @@ pub fn read_input(path: &Path) -> anyhow::Result<Input> {
 
 /// Admits the policy as an evaluation does and runs every case.
 pub fn infer(onnx: &Path, manifest: Option<&Path>, input: &Input) -> anyhow::Result<Outputs> {
-    let (mpath, _, man) = super::eval::read_manifest(onnx, manifest)?;
+    let (mpath, _, man) = crate::common::evaluation::read_manifest(onnx, manifest)?;
     if man.obs_type == ObsType::Image {
         bail!(
             "{} is an image policy's manifest; d3il infer runs state policies (inputs obs, prev_actions, noise)",
@@ -152,7 +152,7 @@ mod tests {
     use super::*;
 
     fn agent(name: &str) -> PathBuf {
-        super::super::assets_dir()
+        crate::common::assets_dir()
             .join("fixtures/agents")
             .join(format!("{name}.onnx"))
     }

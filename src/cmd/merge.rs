@@ -27,7 +27,7 @@ pub struct Args {
 
 pub fn run(args: Args) -> anyhow::Result<()> {
     if let Some(path) = &args.json {
-        super::check_output_path(path, "--json")?;
+        crate::common::check_output_path(path, "--json")?;
     }
     let mut parts = Vec::with_capacity(args.parts.len());
     let mut suite_parts = Vec::new();
@@ -55,7 +55,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             bail!("{file} is a plain evaluation's part but {} is a robustness evaluation's: merge the parts of one evaluation", suite_parts[0].0);
         }
         let doc = d3il_evaluator::suite_shard::merge_suite(suite_parts)?;
-        print!("{}", super::robustness::render(&doc));
+        print!("{}", crate::common::text::robustness(&doc));
         if let Some(path) = &args.json {
             std::fs::write(path, serde_json::to_vec_pretty(&doc)?)
                 .with_context(|| format!("writing {}", path.display()))?;

@@ -2,9 +2,10 @@
 //! (front `bp_cam`, in-hand `rgbd_rb0`) after resetting a task to one of its
 //! fixed initial states, and writes them side by side as a PNG.
 
+use crate::common::flags::Look;
 use anyhow::Context;
 use d3il_evaluator::camera;
-use d3il_evaluator::sim::scene::{best_look, RobotLook};
+use d3il_evaluator::sim::scene::RobotLook;
 use d3il_evaluator::tasks::LoadedTask;
 use d3il_protocol::{ObsType, TaskId};
 use std::path::PathBuf;
@@ -35,24 +36,6 @@ pub struct Args {
     pub look: Look,
 }
 
-/// `--look` of `d3il render` and `d3il bench render`.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
-pub enum Look {
-    Best,
-    Primitives,
-    Meshes,
-}
-
-impl Look {
-    pub fn robot_look(self) -> RobotLook {
-        match self {
-            Look::Best => best_look(),
-            Look::Primitives => RobotLook::Primitives,
-            Look::Meshes => RobotLook::Meshes,
-        }
-    }
-}
-
 pub fn run(args: Args) -> anyhow::Result<()> {
     if args.size == 0 || args.size > 2048 {
         anyhow::bail!("--size must be between 1 and 2048 pixels (policies see 96)");
@@ -62,7 +45,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     } else {
         ObsType::State
     };
-    super::check_output_path(&args.out, "--out")?;
+    crate::common::check_output_path(&args.out, "--out")?;
     // The initial state is looked up before the scene is compiled.
     let set = d3il_evaluator::tasks::task_def(args.task)?.context_set()?;
     let context = set.get(args.context).with_context(|| {

@@ -16,6 +16,8 @@ use d3il_evaluator::replay_input::{Episode, ReplayDoc};
 use d3il_evaluator::tasks::LoadedTask;
 use d3il_evaluator::trace::{load_task, replay as replay_trace, ReplayCheck};
 use d3il_evaluator::video::{render_video, VideoOptions};
+use d3il_protocol::perturbation::Axis;
+use d3il_protocol::robustness::RobustnessResult;
 use d3il_protocol::TaskId;
 use serde_json::{json, Value};
 use std::path::PathBuf;
@@ -69,14 +71,14 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         }
         (None, None, Some(result), Some(n)) => {
             if let Some(video) = &args.video {
-                super::check_output_path(video, "--video")?;
+                crate::common::check_output_path(video, "--video")?;
             }
             if args.video_size == 0 {
                 bail!("--video-size must be at least 1 pixel (default 320)");
             }
             let mut text = read(result)?;
             if let Some(level) = &args.level {
-                text = super::robustness::level_text(&text, level)?;
+                text = level_text(&text, level)?;
             }
             replay_record(&text, n, args.video.as_deref(), args.video_size, args.json)
         }
@@ -186,4 +188,29 @@ pub fn replay(task: TaskId, input_json: &str) -> anyhow::Result<Value> {
         "steps": run.steps,
         "done": run.done,
     }))
+}
+
+/// The evaluation of level `spec` (`AXIS/LEVEL`, e.g. `latency/2`; level 0
+/// is the control) of a robustness document, as JSON for `d3il replay`.
+pub fn level_text(text: &str, spec: &str) -> anyhow::Result<String> {
+    let (axis, level) = spec
+        .split_once('/')
+        .with_context(|| format!("--level {spec}: give AXIS/LEVEL, e.g. latency/2"))?;
+    let axis: Axis = axis.parse().map_err(|e: String| anyhow::anyhow!(e))?;
+    let level: usize = level
+        .parse()
+        .with_context(|| format!("--level {spec}: the level is a number (0 is the control)"))?;
+    let doc: RobustnessResult = serde_json::from_str(text)
+        .context("--level reads a robustness document (`d3il eval --suite robustness --json`)")?;
+    let result = doc.level(axis, level).with_context(|| {
+        format!(
+            "the document has no level {level} of {axis}; it has levels {}",
+            doc.levels
+                .iter()
+                .map(|l| format!("{}/{}", l.axis, l.level))
+                .collect::<Vec<_>>()
+                .join(", ")
+        )
+    })?;
+    Ok(serde_json::to_string(result)?)
 }

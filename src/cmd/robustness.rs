@@ -5,28 +5,33 @@
 //! machinery of `d3il compare`), the entropies and the success retained, and
 //! the robustness score per axis and overall (docs/robustness.md).
 
-use super::eval::Args;
+use crate::common::build::this_build;
+use crate::common::evaluation::{
+    build_job, load_then_fingerprint, print_timing, progress_printer, sandboxed_with,
+    worker_command, EvalArgs,
+};
+use crate::common::text;
 use anyhow::{bail, Context};
 use d3il_evaluator::eval::EvalOptions;
 use d3il_evaluator::perturb::Suite;
 use d3il_evaluator::robustness;
 use d3il_evaluator::suite_shard::SuiteRun;
 use d3il_evaluator::tasks::LoadedTask;
-use d3il_protocol::perturbation::{Axis, Perturbation};
+use d3il_protocol::perturbation::Perturbation;
 use d3il_protocol::robustness::{RobustnessPart, RobustnessResult};
-use d3il_protocol::{Estimate, Job, JobKind, SuiteName};
+use d3il_protocol::{Job, JobKind, SuiteName};
 
-pub fn run(args: &Args, suite_name: SuiteName) -> anyhow::Result<()> {
-    let mut job = super::eval::build_job(args)?;
+pub fn run(args: &EvalArgs, suite_name: SuiteName) -> anyhow::Result<()> {
+    let mut job = build_job(args)?;
     let suite = robustness::suite_for(suite_name, args.task, job.manifest.obs_type)?;
     if args.sandbox {
         return run_sandboxed(args, job, suite_name, &suite);
     }
-    let (task, mut policy, info, opts) = super::eval::load_then_fingerprint(args, &mut job)?;
+    let (task, mut policy, info, opts) = load_then_fingerprint(args, &mut job)?;
     let plan = robustness::plan(&task, policy.as_ref(), &opts, &suite)?;
     println!("{}", plan_line(&suite, &plan, &opts, None));
     let mut printer = Printer {
-        progress: Box::new(super::eval::progress_printer()),
+        progress: Box::new(progress_printer()),
     };
     match d3il_evaluator::suite_shard::evaluate_suite_or_shard(
         &task,
@@ -48,7 +53,12 @@ pub fn run(args: &Args, suite_name: SuiteName) -> anyhow::Result<()> {
 /// `suite` (and `shard`), the worker's limits those of one evaluation
 /// scaled to level 0 and every level (`d3il_sandbox::suite_limits`, the
 /// rule the server's suite jobs use too). The policy is loaded only in the worker.
-fn run_sandboxed(args: &Args, mut job: Job, name: SuiteName, suite: &Suite) -> anyhow::Result<()> {
+fn run_sandboxed(
+    args: &EvalArgs,
+    mut job: Job,
+    name: SuiteName,
+    suite: &Suite,
+) -> anyhow::Result<()> {
     let task = LoadedTask::load_obs(job.task, job.manifest.obs_type)?;
     let opts = EvalOptions {
         protocol: job.protocol,
@@ -59,15 +69,12 @@ fn run_sandboxed(args: &Args, mut job: Job, name: SuiteName, suite: &Suite) -> a
     let once = robustness::plan_for(&task, true, &opts, suite)?;
     println!("{}", plan_line(suite, &plan, &opts, Some(once.simulated)));
     job.kind = JobKind::of(Some(name), args.shard);
-    job.build = Some(super::verify::this_build()?);
-    let (limits, cmd) = d3il_sandbox::suite_limits(
-        &job.limits,
-        &super::eval::worker_command(&job)?,
-        plan.levels.len() + 1,
-    );
+    job.build = Some(this_build()?);
+    let (limits, cmd) =
+        d3il_sandbox::suite_limits(&job.limits, &worker_command(&job)?, plan.levels.len() + 1);
     job.limits = limits;
-    let mut on_progress = super::eval::progress_printer();
-    match super::eval::sandboxed_with(&cmd, &job, &mut on_progress)? {
+    let mut on_progress = progress_printer();
+    match sandboxed_with(&cmd, &job, &mut on_progress)? {
         d3il_sandbox::Outcome::SuitePart(part) if args.shard.is_some() => {
             write_part(args, &part, &plan)
         }
@@ -112,7 +119,7 @@ fn plan_line(
 
 /// Writes a shard's part file (`--shard K/N --json FILE`).
 fn write_part(
-    args: &Args,
+    args: &EvalArgs,
     part: &RobustnessPart,
     plan: &robustness::SuitePlan,
 ) -> anyhow::Result<()> {
@@ -134,8 +141,8 @@ fn write_part(
 }
 
 /// Prints the tables and writes the document to `--json`.
-fn write_document(args: &Args, doc: &RobustnessResult) -> anyhow::Result<()> {
-    print!("{}", render(doc));
+fn write_document(args: &EvalArgs, doc: &RobustnessResult) -> anyhow::Result<()> {
+    print!("{}", text::robustness(doc));
     if let Some(path) = &args.json {
         std::fs::write(path, serde_json::to_vec_pretty(doc)?)
             .with_context(|| format!("writing {}", path.display()))?;
@@ -156,125 +163,12 @@ impl robustness::SuiteObserver for Printer {
             None => eprintln!("level 0 (standard protocol, the control arm)"),
             Some(p) => eprintln!("{} level {} ({})", p.axis, p.level, p.setting.label),
         }
-        self.progress = Box::new(super::eval::progress_printer());
+        self.progress = Box::new(progress_printer());
     }
     fn progress(&mut self, done: usize, total: usize) {
         (self.progress)(done, total)
     }
     fn level_finished(&mut self, timing: &d3il_evaluator::eval::Timing) {
-        super::eval::print_timing(timing);
+        print_timing(timing);
     }
-}
-
-fn interval(e: &Option<Estimate>) -> String {
-    match e {
-        Some(e) => match e.interval() {
-            Some((lo, hi)) => format!("{:.3} [{lo:.3}, {hi:.3}]", e.value),
-            None => format!("{:.3} ({})", e.value, e.interval_text(3)),
-        },
-        None => "— (no success at level 0)".into(),
-    }
-}
-
-/// The tables: one per axis, a row per level (level 0 first).
-pub fn render(doc: &RobustnessResult) -> String {
-    let c = &doc.control;
-    let m = &c.manifest;
-    let mut s = format!(
-        "robustness of {} ({} × {} rollouts, {} protocol, seed {}); suite {} (sha256 {})\n",
-        m.task,
-        m.n_contexts,
-        m.rollouts_per_context,
-        m.protocol.as_str(),
-        m.seed,
-        doc.suite,
-        doc.suite_sha256
-    );
-    let head = format!(
-        "{:<18} {:>7} {:>8}   {:<32} {:>8} {:>7} {:>7} {:>8}\n",
-        "level", "success", "drop", "95% CI", "p", "H", "H|s0", "retained"
-    );
-    for a in &doc.axes {
-        s += &format!("\n{}: score {}\n", a.axis, interval(&a.score));
-        s += &head;
-        s += &format!(
-            "{:<18} {:>7.3} {:>8}   {:<32} {:>8} {:>7.3} {:>7.3} {:>8}\n",
-            "0 (standard)",
-            c.metrics.success_rate.value,
-            "",
-            "",
-            "",
-            c.metrics.behaviour_entropy.value,
-            c.metrics.conditional_entropy.value,
-            "1"
-        );
-        for l in doc.levels.iter().filter(|l| l.axis == a.axis) {
-            let d = &l.paired.success_rate;
-            s += &format!(
-                "{:<18} {:>7.3} {:>+8.3}   {:<32} {:>8.4} {:>7.3} {:>7.3} {:>8}\n",
-                format!("{} ({})", l.level, l.setting.label),
-                l.result.metrics.success_rate.value,
-                d.difference.value,
-                super::compare::paired_interval_text(&d.difference),
-                d.p_value,
-                l.result.metrics.behaviour_entropy.value,
-                l.result.metrics.conditional_entropy.value,
-                l.retained
-                    .map(|r| format!("{r:.3}"))
-                    .unwrap_or_else(|| "—".into())
-            );
-        }
-    }
-    s += &format!("\noverall robustness score: {}\n", interval(&doc.overall));
-    if let Some(c) = doc.score_coverage() {
-        s += &format!("score intervals: {} (`d3il bench intervals`)\n", c.label);
-    }
-    let mut notes: Vec<String> = doc
-        .levels
-        .iter()
-        .map(|l| l.paired.success_rate.interval_note())
-        .collect();
-    notes.sort();
-    notes.dedup();
-    for n in notes {
-        s += &format!("drop: {n}\n");
-    }
-    let mut caveats: Vec<&String> = doc.levels.iter().flat_map(|l| &l.paired.caveats).collect();
-    caveats.sort();
-    caveats.dedup();
-    for c in caveats {
-        s += &format!("drop: note: {c}\n");
-    }
-    s += &format!(
-        "drop: level 0 − level, paired by initial state (`d3il compare`, {} resamples); H: behaviour entropy; H|s0: conditional behaviour entropy; retained: share of level 0's successes kept, paired by initial state (Σ min(p0, p) / Σ p0, at most 1); score: retained averaged over the axis's levels (overall: over the axes), {:.0} % paired bootstrap interval (bias-corrected; for the score's expected value at this size; {})\n",
-        doc.resamples,
-        doc.confidence * 100.0,
-        d3il_protocol::interval::score_coverage_note()
-    );
-    s
-}
-
-/// The evaluation of level `spec` (`AXIS/LEVEL`, e.g. `latency/2`; level 0
-/// is the control) of a robustness document, as JSON for `d3il replay`.
-pub fn level_text(text: &str, spec: &str) -> anyhow::Result<String> {
-    let (axis, level) = spec
-        .split_once('/')
-        .with_context(|| format!("--level {spec}: give AXIS/LEVEL, e.g. latency/2"))?;
-    let axis: Axis = axis.parse().map_err(|e: String| anyhow::anyhow!(e))?;
-    let level: usize = level
-        .parse()
-        .with_context(|| format!("--level {spec}: the level is a number (0 is the control)"))?;
-    let doc: RobustnessResult = serde_json::from_str(text)
-        .context("--level reads a robustness document (`d3il eval --suite robustness --json`)")?;
-    let result = doc.level(axis, level).with_context(|| {
-        format!(
-            "the document has no level {level} of {axis}; it has levels {}",
-            doc.levels
-                .iter()
-                .map(|l| format!("{}/{}", l.axis, l.level))
-                .collect::<Vec<_>>()
-                .join(", ")
-        )
-    })?;
-    Ok(serde_json::to_string(result)?)
 }

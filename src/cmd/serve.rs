@@ -1,5 +1,7 @@
 //! `d3il serve`: the leaderboard web service (pages, plots, JSON API, worker pool).
 
+use crate::common::build::GIT_COMMIT;
+use crate::common::flags::{server_config, DbArgs, EndpointArgs, LimitArgs, ZooArg};
 use anyhow::Context;
 use std::net::SocketAddr;
 use std::path::PathBuf;
@@ -7,7 +9,7 @@ use std::path::PathBuf;
 #[derive(clap::Args, Debug)]
 pub struct Args {
     #[command(flatten)]
-    pub db: super::db::DbArgs,
+    pub db: DbArgs,
     /// Address to listen on (port 0 picks a free port).
     #[arg(long, default_value = "127.0.0.1:8080")]
     pub bind: SocketAddr,
@@ -101,9 +103,9 @@ pub struct Args {
     #[arg(long, default_value_t = d3il_server::config::QuotaLimits::SERVE_DEFAULT.races)]
     pub max_queued_races: i64,
     #[command(flatten)]
-    pub limits: super::limits::LimitArgs,
+    pub limits: LimitArgs,
     #[command(flatten)]
-    pub endpoints: super::limits::EndpointArgs,
+    pub endpoints: EndpointArgs,
     /// The fidelity report of /fidelity, computed at start in the background
     /// by `d3il fidelity` (one thread, lowest priority, cached per build):
     /// `full` (paper protocol for the closed-loop policies), `quick` or `off`.
@@ -126,7 +128,7 @@ pub struct Args {
     /// The zoo loaded at every start (docs/zoo.md): its cells
     /// show as evaluated rows marked with their data source.
     #[command(flatten)]
-    pub zoo: super::zoo::ZooArg,
+    pub zoo: ZooArg,
 }
 
 /// `d3il serve --fidelity`.
@@ -137,44 +139,8 @@ pub enum FidelityArg {
     Off,
 }
 
-/// The configuration `serve` and `workers` share: database and policy
-/// store, worker executable, slots, assets and worker limits.
-pub fn base_config(
-    db: super::db::DbArgs,
-    bind: SocketAddr,
-    worker_exe: Option<PathBuf>,
-    workers: Option<usize>,
-    assets: Option<PathBuf>,
-    limits: &super::limits::LimitArgs,
-    endpoints: &super::limits::EndpointArgs,
-) -> anyhow::Result<d3il_server::app::ServerConfig> {
-    let exe = match worker_exe {
-        Some(p) => p,
-        None => {
-            std::env::current_exe().context("cannot find the d3il executable to start workers")?
-        }
-    };
-    let mut cfg = d3il_server::app::ServerConfig::new(db.db, bind, exe);
-    cfg.policy_store = db.policy_store;
-    if let Some(w) = workers {
-        cfg.workers = w;
-    }
-    if let Some(a) = assets {
-        cfg.assets_dir = a;
-    }
-    anyhow::ensure!(
-        cfg.assets_dir.is_dir(),
-        "assets directory {} does not exist; pass --assets or set D3IL_ASSETS",
-        cfg.assets_dir.display()
-    );
-    cfg.assets_dir = cfg.assets_dir.canonicalize().unwrap_or(cfg.assets_dir);
-    cfg.limits = limits.limits(endpoints.allow_private_endpoints)?;
-    cfg.worker.wall_clock = std::time::Duration::from_secs(cfg.limits.wall_seconds + 30);
-    Ok(cfg)
-}
-
 pub fn run(args: Args) -> anyhow::Result<()> {
-    let mut cfg = base_config(
+    let mut cfg = server_config(
         args.db,
         args.bind,
         args.worker_exe,
@@ -229,7 +195,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     };
     cfg.fidelity.nice = args.fidelity_nice;
     cfg.canary.run = !args.no_verify;
-    cfg.canary.git_commit = super::verify::GIT_COMMIT.to_string();
+    cfg.canary.git_commit = GIT_COMMIT.to_string();
     cfg.videos.renders = args.video_renders.max(1);
     cfg.zoo = args.zoo.dir_in(&cfg.assets_dir);
     d3il_server::cli::serve_blocking(cfg).context("d3il serve failed")?;

@@ -30,7 +30,7 @@ pub struct Args {
     #[arg(long, default_value = "both")]
     pub source: SourceFilter,
     #[command(flatten)]
-    pub db: super::db::DbArgs,
+    pub db: crate::common::flags::DbArgs,
     /// Output file (default: standard output).
     #[arg(long)]
     pub out: Option<PathBuf>,
@@ -40,7 +40,7 @@ pub struct Args {
     /// `--table zoo` loads this zoo into the database first, as `d3il
     /// serve` does at start.
     #[command(flatten)]
-    pub zoo: super::zoo::ZooArg,
+    pub zoo: crate::common::flags::ZooArg,
 }
 
 /// `--table`: one of the paper's tables, or the robustness table.
@@ -69,7 +69,7 @@ impl std::str::FromStr for TableArg {
 pub fn run(args: Args) -> anyhow::Result<()> {
     // The arguments first, before the database is opened.
     if let Some(path) = &args.out {
-        super::check_output_path(path, "--out")?;
+        crate::common::check_output_path(path, "--out")?;
     }
     match (args.figure, args.submission) {
         (Some(FigureKind::AvoidingPaths), None) => anyhow::bail!(
@@ -190,13 +190,13 @@ mod tests {
             obs: ObsType::State,
             format: Format::Latex,
             source: SourceFilter::Both,
-            db: super::super::db::DbArgs {
+            db: crate::common::flags::DbArgs {
                 db: db.into(),
                 policy_store: None,
             },
             out: Some(out),
             submission: None,
-            zoo: super::super::zoo::ZooArg { zoo: None },
+            zoo: crate::common::flags::ZooArg { zoo: None },
         }
     }
 

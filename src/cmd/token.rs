@@ -22,7 +22,7 @@ pub enum Action {
         #[arg(long)]
         admin: bool,
         #[command(flatten)]
-        db: super::db::DbArgs,
+        db: crate::common::flags::DbArgs,
     },
     /// Set a submitter's quota overrides (all its tokens share them); a
     /// limit left out, or `default`, is the server's (`d3il serve
@@ -41,14 +41,14 @@ pub enum Action {
         #[arg(long, value_parser = quota_value)]
         concurrent: Option<QuotaValue>,
         #[command(flatten)]
-        db: super::db::DbArgs,
+        db: crate::common::flags::DbArgs,
     },
     /// Revoke a token: requests with it are refused from now on.
     Revoke {
         /// The whole token, or its first 13 characters (`d3il_` and 8 more).
         token: String,
         #[command(flatten)]
-        db: super::db::DbArgs,
+        db: crate::common::flags::DbArgs,
     },
 }
 

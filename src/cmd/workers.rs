@@ -8,7 +8,7 @@ use std::path::PathBuf;
 #[derive(clap::Args, Debug)]
 pub struct Args {
     #[command(flatten)]
-    pub db: super::db::DbArgs,
+    pub db: crate::common::flags::DbArgs,
     /// Concurrent evaluations on this host (sandboxed worker processes), plus
     /// one slot for quick-protocol jobs; default: number of cores.
     #[arg(long)]
@@ -25,9 +25,9 @@ pub struct Args {
     #[arg(long)]
     pub metrics_bind: Option<std::net::SocketAddr>,
     #[command(flatten)]
-    pub limits: super::limits::LimitArgs,
+    pub limits: crate::common::flags::LimitArgs,
     #[command(flatten)]
-    pub endpoints: super::limits::EndpointArgs,
+    pub endpoints: crate::common::flags::EndpointArgs,
     /// Do not run the drift canary (`d3il verify`) at start: this host's
     /// results then record no physics fingerprint and are kept apart from
     /// those that do (as for `d3il serve --no-verify`).
@@ -41,7 +41,7 @@ pub struct Args {
 pub fn run(args: Args) -> anyhow::Result<()> {
     // The bind address is unused: a worker host serves no HTTP.
     let unused = std::net::SocketAddr::from(([127, 0, 0, 1], 0));
-    let mut cfg = super::serve::base_config(
+    let mut cfg = crate::common::flags::server_config(
         args.db,
         unused,
         args.worker_exe,
@@ -59,7 +59,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     // The results are this host's: they record its build and the canary's
     // physics fingerprint, as those of `d3il serve`'s own slots do.
     cfg.canary.run = !args.no_verify;
-    cfg.canary.git_commit = super::verify::GIT_COMMIT.to_string();
+    cfg.canary.git_commit = crate::common::build::GIT_COMMIT.to_string();
     d3il_server::cli::workers_blocking(cfg).context("d3il workers failed")?;
     Ok(())
 }

@@ -6,7 +6,10 @@
 //! this build, under the protocol and evaluator seed its result recorded,
 //! and writes what moved: the version-drift record.
 
-use super::eval;
+use crate::common::evaluation::{
+    build_job, load_then_fingerprint, print_timing, progress_printer, EvalArgs,
+};
+use crate::common::flags::ZooArg;
 use anyhow::Context;
 use clap::Parser;
 use d3il_protocol::EvalResult;
@@ -43,31 +46,6 @@ pub enum Action {
     },
 }
 
-/// `--zoo DIR|none`, shared with `d3il serve` and `d3il tables`.
-#[derive(clap::Args, Debug, Clone)]
-pub struct ZooArg {
-    /// The zoo: a directory of cells `<task>/<method-slug>-s<seed>/`
-    /// (default: the assets' `zoo/`), or `none`.
-    #[arg(long = "zoo", value_name = "DIR|none")]
-    pub zoo: Option<String>,
-}
-
-impl ZooArg {
-    /// The zoo directory asked for (None: `--zoo none`).
-    pub fn dir(&self) -> Option<PathBuf> {
-        self.dir_in(&super::assets_dir())
-    }
-
-    /// [`ZooArg::dir`] with the assets at `assets`.
-    pub fn dir_in(&self, assets: &Path) -> Option<PathBuf> {
-        match self.zoo.as_deref() {
-            None => Some(assets.join("zoo")),
-            Some(s) if s.eq_ignore_ascii_case("none") => None,
-            Some(s) => Some(PathBuf::from(s)),
-        }
-    }
-}
-
 pub fn run(args: Args) -> anyhow::Result<()> {
     match args.action {
         Action::Check { zoo } => check(&zoo),
@@ -78,7 +56,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             max_live,
         } => {
             if let Some(path) = &out {
-                super::check_output_path(path, "--out")?;
+                crate::common::check_output_path(path, "--out")?;
             }
             let dir = zoo.dir().context("--zoo none: no zoo to re-evaluate")?;
             let table = reeval(&dir, cell.as_deref(), max_live)?;
@@ -130,10 +108,10 @@ fn check(zoo: &ZooArg) -> anyhow::Result<()> {
 #[derive(clap::Parser)]
 struct EvalCli {
     #[command(flatten)]
-    args: eval::Args,
+    args: EvalArgs,
 }
 
-fn eval_args(c: &ZooCell, max_live: usize) -> anyhow::Result<eval::Args> {
+fn eval_args(c: &ZooCell, max_live: usize) -> anyhow::Result<EvalArgs> {
     let m = &c.result.manifest;
     // A result of fewer rollouts per initial state than the protocol's (a
     // sample, `d3il eval --rollouts-per-state N`) is re-made as it was made.
@@ -170,12 +148,12 @@ fn eval_args(c: &ZooCell, max_live: usize) -> anyhow::Result<eval::Args> {
 /// Evaluates the cell again through `d3il eval`'s own entry points.
 fn evaluate(c: &ZooCell, max_live: usize) -> anyhow::Result<EvalResult> {
     let args = eval_args(c, max_live)?;
-    let mut job = eval::build_job(&args)?;
-    let (task, mut policy, info, opts) = eval::load_then_fingerprint(&args, &mut job)?;
-    let mut on_progress = eval::progress_printer();
+    let mut job = build_job(&args)?;
+    let (task, mut policy, info, opts) = load_then_fingerprint(&args, &mut job)?;
+    let mut on_progress = progress_printer();
     let run = d3il_evaluator::eval::EvalRun::all().counting(&mut on_progress);
     let (r, t) = d3il_evaluator::eval::evaluate(&task, policy.as_mut(), &info, &opts, run)?;
-    eval::print_timing(&t);
+    print_timing(&t);
     Ok(r)
 }
 
@@ -208,7 +186,7 @@ fn reeval(dir: &Path, only: Option<&str>, max_live: usize) -> anyhow::Result<Str
         dir.display(),
         only.map(|o| format!(" matching `{o}`")).unwrap_or_default()
     );
-    let build = super::verify::this_build()?;
+    let build = crate::common::build::this_build()?;
     let mut moved = vec![];
     let mut skipped = vec![];
     for (path, cell) in cells {

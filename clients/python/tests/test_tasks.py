@@ -42,7 +42,7 @@ def test_paper_protocols_are_the_evaluators() -> None:
 def test_max_live_wall_limit_and_deadline_are_the_evaluators() -> None:
     ev = block(rust("evaluator/src/eval.rs"), "impl Default for EvalOptions")
     assert int(re.search(r"max_live: (\d+),", ev).group(1)) == tasks.MAX_LIVE  # type: ignore[union-attr]
-    cli = rust("src/cmd/eval.rs")
+    cli = rust("src/common/evaluation.rs")
     assert re.search(r"default_value_t = (\d+)\)\]\s*pub max_live", cli).group(1) == str(tasks.MAX_LIVE)  # type: ignore[union-attr]
     lim = block(rust("protocol/src/job.rs"), "impl Default for Limits")
     assert int(re.search(r"wall_seconds: (\d+),", lim).group(1)) == tasks.WALL_SECONDS  # type: ignore[union-attr]

@@ -405,7 +405,7 @@ fn plain_eval(
         } else {
             "avoiding"
         };
-        let onnx = super::super::assets_dir()
+        let onnx = crate::common::assets_dir()
             .join("fixtures")
             .join(format!("{policy}.onnx"));
         cmd.args(["--task", task, "--policy"]).arg(onnx);

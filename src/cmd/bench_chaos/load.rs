@@ -52,7 +52,7 @@ pub struct Endpoint {
 
 impl Endpoint {
     pub fn start() -> anyhow::Result<Endpoint> {
-        let clients = super::super::assets_dir().join("../clients/python");
+        let clients = crate::common::assets_dir().join("../clients/python");
         let mut cmd = Command::new("python3");
         cmd.args(["-m", "d3il_client.serve.testing", "--mode", "ok"])
             .env("PYTHONPATH", &clients)
@@ -183,7 +183,7 @@ pub fn choose(rng: &mut Rng, endless: bool) -> (Kind, u32) {
 }
 
 fn fixture(stem: &str, ext: &str) -> PathBuf {
-    super::super::assets_dir()
+    crate::common::assets_dir()
         .join("fixtures")
         .join(format!("{stem}.{ext}"))
 }

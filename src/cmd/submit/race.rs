@@ -4,7 +4,7 @@
 //! itself is `d3il_evaluator::eval::race`, run by a worker, the same rule as
 //! `d3il race --task T A B`; the report prints the same way.
 
-use super::submit::Args;
+use super::Args;
 use anyhow::Context;
 use d3il_protocol::race::RaceReport;
 use d3il_server::client::Client;
@@ -15,7 +15,7 @@ pub fn run_from_submit(a: &Args, pair: &[i64]) -> anyhow::Result<()> {
     let [id_a, id_b] = pair else {
         anyhow::bail!("--race takes two submission ids: --race A B");
     };
-    run(a, &super::submit::client_of(a)?, *id_a, *id_b)
+    run(a, &super::client_of(a)?, *id_a, *id_b)
 }
 
 pub fn run(a: &Args, client: &Client, id_a: i64, id_b: i64) -> anyhow::Result<()> {
@@ -75,7 +75,7 @@ pub fn run(a: &Args, client: &Client, id_a: i64, id_b: i64) -> anyhow::Result<()
         .context("the race's report is not a race report")?;
     print!(
         "{}",
-        super::race::render(
+        crate::common::text::race(
             &report,
             std::path::Path::new(&format!("submission {id_a}")),
             std::path::Path::new(&format!("submission {id_b}"))

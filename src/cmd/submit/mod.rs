@@ -1,5 +1,7 @@
 //! `d3il submit`: submit a policy to a leaderboard server through its API.
 
+pub mod race;
+
 use anyhow::Context;
 use std::path::PathBuf;
 use std::time::Duration;
@@ -143,7 +145,8 @@ fn check_locally(a: &Args, task: &str, training_seed: i64) -> anyhow::Result<()>
     }
     if let Some(onnx) = &a.onnx {
         anyhow::ensure!(onnx.is_file(), "--onnx {}: no such file", onnx.display());
-        let (mpath, _, man) = super::eval::read_manifest(onnx, a.manifest.as_deref())?;
+        let (mpath, _, man) =
+            crate::common::evaluation::read_manifest(onnx, a.manifest.as_deref())?;
         anyhow::ensure!(
             man.task == task,
             "the manifest {} is for task `{}` but --task is `{task}`",
@@ -231,7 +234,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         }
     }
     if let Some(onnx) = &a.onnx {
-        let (_, text, _) = super::eval::read_manifest(onnx, a.manifest.as_deref())?;
+        let (_, text, _) = crate::common::evaluation::read_manifest(onnx, a.manifest.as_deref())?;
         fields.push(("manifest", text));
     } else if let Some(m) = &a.manifest {
         let text = std::fs::read_to_string(m)
@@ -281,7 +284,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             ))?;
             let doc: d3il_protocol::robustness::RobustnessResult = serde_json::from_value(doc)
                 .context("the server's robustness document does not parse")?;
-            print!("{}", super::robustness::render(&doc));
+            print!("{}", crate::common::text::robustness(&doc));
         }
     }
     Ok(())
