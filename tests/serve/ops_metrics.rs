@@ -7,7 +7,7 @@
 //! and started again). The sample Grafana dashboard and the alert rules of
 //! docs/ops/ query only metrics that `/metrics` has.
 
-mod server_support;
+use crate::server_support;
 use prometheus_parse::{Sample, Scrape, Value};
 use server_support::*;
 use std::collections::BTreeSet;

@@ -5,7 +5,7 @@
 //! invalid after it), a failed submission's file is deleted, and a restart
 //! removes temporary files a crash left behind.
 
-mod server_support;
+use crate::server_support;
 use serde_json::Value;
 use server_support::*;
 use std::io::{Read, Write};

@@ -10,8 +10,8 @@
 //!
 //! A migration without a fixture fails `every_schema_version_has_an_upgrade_fixture`.
 
-mod db_support;
-mod server_support;
+use crate::db_support;
+use crate::server_support;
 use d3il_server::store::sqlx::{self, migrate::Migrator, Executor};
 use d3il_server::store::{DbTarget, MIGRATOR, MIGRATOR_PG};
 use db_support::*;

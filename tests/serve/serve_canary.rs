@@ -3,7 +3,7 @@
 //! workers make records the build: the git commit and the physics
 //! fingerprint that `d3il verify` computes for this binary.
 
-mod server_support;
+use crate::server_support;
 use server_support::*;
 use std::process::Command;
 use std::time::Duration;

@@ -10,7 +10,7 @@
 //! observation type without a suite file in the server's assets is refused
 //! up front.
 
-mod server_support;
+use crate::server_support;
 use server_support::*;
 use std::process::Command;
 
@@ -186,7 +186,7 @@ fn submit_cli(
 /// lack a task's image suite refuses it by the field `suite`, naming the
 /// tasks that have one, and `d3il submit` refuses a task without an image
 /// variant before uploading. The image suites' evaluation itself is
-/// `tests/robustness_image.rs` (the worker runs the same
+/// `tests/eval/robustness_image.rs` (the worker runs the same
 /// `evaluate_suite`); here no worker runs (`--workers 0`) and the upload's
 /// dry run is off, so the stand-in model (Aligning's image fixture with
 /// each task's manifest) is only stored.

@@ -9,7 +9,7 @@
 //! machine is shared), nothing accepted may be lost, and every refusal must
 //! name its limit (its flag) or say what to fix.
 
-mod server_support;
+use crate::server_support;
 use serde_json::{json, Value};
 use server_support::*;
 use std::path::{Path, PathBuf};

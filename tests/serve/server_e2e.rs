@@ -3,7 +3,7 @@
 //! protocol (real `d3il worker`, tract, MuJoCo), then the result on the
 //! leaderboard page, in the CSV and on the submission page.
 
-mod server_support;
+use crate::server_support;
 use server_support::*;
 use std::process::Command;
 

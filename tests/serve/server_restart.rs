@@ -5,7 +5,7 @@
 //! protocol (3 initial states x 2 rollouts, every rollout runs to Aligning's
 //! step limit, several seconds) in the real sandboxed `d3il worker`.
 
-mod server_support;
+use crate::server_support;
 use d3il_test_support::pg::children;
 use server_support::*;
 use std::path::PathBuf;

@@ -6,7 +6,7 @@
 //! quick protocol (3 initial states x 2 rollouts, so 3 shards of one initial
 //! state each).
 
-mod server_support;
+use crate::server_support;
 use serde_json::Value;
 use server_support::*;
 use std::path::{Path, PathBuf};

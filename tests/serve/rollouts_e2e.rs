@@ -6,8 +6,8 @@
 //! serves byte ranges; an edited record is a 422 naming the step that
 //! differs, never a crash.
 
-mod rollouts_support;
-mod server_support;
+use crate::rollouts_support;
+use crate::server_support;
 
 use rollouts_support::*;
 use server_support::{Server, TempDir};

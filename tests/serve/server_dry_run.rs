@@ -8,7 +8,7 @@
 //!
 //! Needs python3 with numpy, websockets and msgpack (the `serve` extra of clients/python).
 
-mod server_support;
+use crate::server_support;
 use d3il_server::client::ClientError;
 use serde_json::Value;
 use server_support::*;

@@ -3,7 +3,7 @@
 //! (issue 6: "the server shows it on the admin page"), and only to an admin
 //! token (issue 17).
 
-mod server_support;
+use crate::server_support;
 use d3il_protocol::SandboxMechanism;
 use server_support::*;
 use std::process::{Command, Stdio};

@@ -10,8 +10,8 @@
 //! sha256, `d3il db check` passes, and a server on the restored store serves
 //! every restored result.
 
-mod db_support;
-mod server_support;
+use crate::db_support;
+use crate::server_support;
 use db_support::*;
 use server_support::*;
 use std::path::Path;

@@ -6,8 +6,8 @@
 //! from fewer than 30 initial states is labelled with its intervals'
 //! measured coverage, in every format.
 
-mod robustness_support;
-mod server_support;
+use crate::robustness_support;
+use crate::server_support;
 use robustness_support::{
     document, first_states, seed, seed_documents, three, three_and_a_second_seed, OTHER_SHA256,
 };
