@@ -3,7 +3,7 @@
 //! rendered: the table with the paper's eleven reported rows and the embedded
 //! Pareto plot.
 
-mod server_support;
+use crate::server_support;
 use d3il_test_support::chromium::{chromium, dump_dom, dump_dom_at, serve_with_script};
 use server_support::*;
 

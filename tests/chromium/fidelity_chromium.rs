@@ -7,9 +7,9 @@
 //! and the navigation links to it, labelled as the quick report. A restart
 //! of the same build shows the cached report at once; asked for the full
 //! report, it shows the cached quick one at once, labelled, while the full
-//! one is computed (tests/fidelity_first_minute.rs: the full one replaces it).
+//! one is computed (tests/eval/fidelity_first_minute.rs: the full one replaces it).
 
-mod server_support;
+use crate::server_support;
 use d3il_test_support::chromium::{chromium, dump_dom};
 use server_support::*;
 use std::time::Duration;

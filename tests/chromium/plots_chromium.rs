@@ -3,7 +3,7 @@
 //! method's colour of the one palette is drawn, once in the legend column and
 //! once among the data, and the leaderboard page at 1400 px shows the plot.
 
-mod server_support;
+use crate::server_support;
 use d3il_protocol::paper::PAPER_METHOD_ORDER;
 use d3il_tables::plot::method_colour;
 use d3il_test_support::chromium::{chromium, HEADLESS};

@@ -7,7 +7,7 @@
 //! the side of 1/α its value is on; every path is drawn with a size inside
 //! the figure. The fixed-size comparison's line is on the page.
 
-mod server_support;
+use crate::server_support;
 use d3il_metrics::sequential::SequentialComparison;
 use d3il_protocol::race::{pairs_of, RaceReport};
 use d3il_protocol::{ObsType, ProtocolKind, TaskId};
@@ -15,7 +15,7 @@ use d3il_server::store::{NewMethod, NewPolicy, NewRace, NewSubmission, Store};
 use d3il_test_support::chromium::{chromium, dump_dom, serve_with_script};
 use server_support::*;
 
-/// The pairs of a race A wins (as server/tests/compare_page.rs's), its
+/// The pairs of a race A wins (as server/tests/app/compare_page.rs's), its
 /// horizon 30 initial states.
 const CODES: &str = "a1a0aab1aa0aaa1aab0aaaa1aaaaaa";
 

@@ -6,8 +6,8 @@
 //! their intervals below, the per-axis degradation curves and robustness
 //! against conditional entropy; the task's board links the view.
 
-mod robustness_support;
-mod server_support;
+use crate::robustness_support;
+use crate::server_support;
 use d3il_test_support::chromium::{chromium, dump_dom};
 use robustness_support::{seed, three_and_a_second_seed, OTHER_SHA256};
 use server_support::*;

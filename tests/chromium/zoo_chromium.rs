@@ -3,7 +3,7 @@
 //! zoo's row is laid out in a table of its own, and its data-source mark is
 //! visible (rendered with a size, not hidden by the stylesheet).
 
-mod server_support;
+use crate::server_support;
 use d3il_test_support::chromium::{chromium, dump_dom_at, serve_with_script};
 use server_support::*;
 

@@ -4,8 +4,8 @@
 //! state, real time), the top-down picture holds the TCP's path, and the
 //! submission page's filters narrow its list of rollouts.
 
-mod rollouts_support;
-mod server_support;
+use crate::rollouts_support;
+use crate::server_support;
 
 use d3il_test_support::chromium::{chromium, dump_dom, serve_with_script};
 use rollouts_support::*;

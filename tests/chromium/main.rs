@@ -1,0 +1,18 @@
+//! Headless Chromium (d3il_test_support::chromium) on the pages of the real
+//! `d3il serve`: the board, plots, races, robustness, rollouts, the zoo and the
+//! fidelity view. One test binary; one module per former test file.
+
+#[path = "../robustness_support/mod.rs"]
+mod robustness_support;
+#[path = "../rollouts_support/mod.rs"]
+mod rollouts_support;
+#[path = "../server_support/mod.rs"]
+mod server_support;
+
+mod fidelity_chromium;
+mod plots_chromium;
+mod race_chromium;
+mod robustness_chromium;
+mod rollouts_chromium;
+mod server_chromium;
+mod zoo_chromium;
