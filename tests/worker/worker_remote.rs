@@ -7,7 +7,7 @@
 //! Needs python3 with numpy, websockets and msgpack
 //! (the `serve` extra of clients/python).
 
-mod worker_common;
+use crate::worker_common;
 
 use d3il_protocol::{ErrorKind, Limits, PolicySource};
 use d3il_sandbox::Outcome;

@@ -3,7 +3,7 @@
 //! Fixtures: assets/fixtures/hostile_*.onnx from scripts/make_fixtures.py, copied
 //! to a scratch directory as an uploaded file would be.
 
-mod worker_common;
+use crate::worker_common;
 
 use d3il_protocol::{ErrorKind, Limits, PolicyManifest};
 use d3il_sandbox::Outcome;

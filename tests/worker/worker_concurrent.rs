@@ -3,7 +3,7 @@
 //! job carry on, and nothing is left behind — no process in any worker's group,
 //! no file in the temp or working directory the workers inherited (issue 6).
 
-mod worker_common;
+use crate::worker_common;
 
 use d3il_protocol::{ErrorKind, Limits, PolicyManifest};
 use d3il_sandbox::Outcome;

@@ -1,4 +1,4 @@
-//! Shared by the tests/worker_*.rs tests: jobs for the real `d3il worker`,
+//! Shared by the tests of tests/worker/: jobs for the real `d3il worker`,
 //! fixture copies and leftover checks.
 #![allow(dead_code, unused_imports)] // each test file uses a subset
 

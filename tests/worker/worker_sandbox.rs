@@ -2,7 +2,7 @@
 //! that tries to reach a listener on 127.0.0.1, a worker killed by a signal, and
 //! the documented exit codes (issue 6).
 
-mod worker_common;
+use crate::worker_common;
 
 use d3il_protocol::{exit_code, ErrorKind, SandboxMechanism, WorkerMessage};
 use d3il_sandbox::WorkerCommand;
