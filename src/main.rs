@@ -1,11 +1,13 @@
 //! `d3il`: the one binary. Each subcommand lives in `src/cmd/<name>.rs` and
-//! exposes `Args` (clap) and `run(args) -> anyhow::Result<()>`; what several
-//! of them share is in `src/common/`.
+//! exposes `Args` (clap) and `run(args) -> anyhow::Result<()>`, except the
+//! benchmarks (`d3il bench`, `src/bench/`); what several of them share is in
+//! `src/common/`.
 
 #![forbid(unsafe_code)]
 
 use clap::{Parser, Subcommand};
 
+mod bench;
 mod cmd;
 mod common;
 
@@ -25,7 +27,7 @@ struct Cli {
 #[derive(Subcommand)]
 enum Command {
     /// Benchmarks that print ratios (physics, eval, render).
-    Bench(cmd::bench::Args),
+    Bench(bench::Args),
     /// Paired comparison of two `d3il eval --json` results on the same initial states (difference, interval, p-value).
     Compare(cmd::compare::Args),
     /// Generate or verify the fixed initial-state sets.
@@ -75,7 +77,7 @@ fn main() -> anyhow::Result<()> {
     d3il_evaluator::mujoco::set_llvmpipe_defaults();
     let cli = Cli::parse();
     match cli.command {
-        Command::Bench(a) => cmd::bench::run(a),
+        Command::Bench(a) => bench::run(a),
         Command::Compare(a) if a.sequential => {
             eprintln!("note: `d3il compare --sequential` is deprecated; it is `d3il race` (the same arguments without --sequential)");
             cmd::race::run(&race_args_of(&a))

@@ -3,7 +3,7 @@
 //! injected into them.
 
 use super::exe;
-use crate::cmd::bench_procs::{children, spawn_ready, Proc};
+use crate::bench::procs::{children, spawn_ready, Proc};
 use anyhow::Context;
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};

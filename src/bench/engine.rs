@@ -1,5 +1,7 @@
-//! `d3il bench <which>`: benchmarks that print rates and the ratio the issue
-//! tracks on their last line. Speed goals live here, never in tests.
+//! The in-process benchmarks of `d3il bench`: controlled stepping against raw
+//! `mj_step` (physics), a protocol's evaluation batched and row by row (eval),
+//! the cameras and an image evaluation (render), and every agent fixture at
+//! the evaluator's batch (agents).
 
 use super::fixtures::load_fixture;
 use anyhow::{bail, Context};
@@ -11,111 +13,6 @@ use d3il_policy::{ActionChunks, OnnxPolicy, Policy, PolicyError, PolicyShape, Qu
 use d3il_protocol::{ObsType, PolicyManifest, ProtocolKind, TaskId};
 use serde_json::Value;
 use std::time::Instant;
-
-/// Every benchmark `d3il bench` runs (its name on the command line is the
-/// variant's in kebab case: `served-agent`). `tests/bench_smoke.rs` reads
-/// this list from the binary and runs each one's smoke mode.
-#[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Bench {
-    /// Controlled env stepping against raw `mj_step` (Avoiding scene).
-    Physics,
-    /// A protocol's state evaluation with a BC-MLP-sized policy, batched and row by row.
-    Eval,
-    /// The two cameras' frames, and an image-based evaluation through the engine.
-    Render,
-    /// Every agent fixture (one per method family) at the evaluator's batch.
-    Agents,
-    /// The server under keep-alive readers while half-open connections attack it.
-    Serve,
-    /// A sharded paper-protocol evaluation on worker hosts and PostgreSQL.
-    Scale,
-    /// What replayable rollouts cost: traces' size, replay and video time.
-    Video,
-    /// Every scripted expert once per initial state of its task's fixed set.
-    Scripts,
-    /// The whole service under faults (workers and front ends killed).
-    Chaos,
-    /// The anytime-valid sequential paired test against the fixed-size one.
-    Sequential,
-    /// A reference agent served over the remote-endpoint protocol.
-    ServedAgent,
-    /// A robustness suite's cost per env step against a plain evaluation's.
-    Robustness,
-    /// Simulated coverage of every interval the service prints.
-    Intervals,
-}
-
-#[derive(clap::Args)]
-pub struct Args {
-    /// Which benchmark.
-    #[arg(value_enum)]
-    pub which: Bench,
-    /// A short run that only shows the bench still works (seconds, not
-    /// minutes; its numbers mean little). `tests/bench_smoke.rs` runs every
-    /// bench this way.
-    #[arg(long)]
-    pub smoke: bool,
-    /// Env steps to run (physics, render).
-    #[arg(long, default_value_t = 3000)]
-    pub steps: usize,
-    /// Protocol of `eval`, `scale` and `video` (paper: Aligning's 60 x 8 = 480 rollouts).
-    #[arg(long, default_value = "paper")]
-    pub protocol: ProtocolKind,
-    /// Protocol of the image evaluation in `render` (quick: 3 initial states x 2 rollouts).
-    #[arg(long, default_value = "quick")]
-    pub render_protocol: ProtocolKind,
-    /// Rollouts simulated at once in `eval` and `render` (the batch of `agents`
-    /// and `served-agent`).
-    #[arg(long, default_value_t = 96)]
-    pub max_live: usize,
-    /// Robot look in `render` (primitives: the scene the ratio goal is set
-    /// for; meshes: the Panda meshes image evaluations use when present).
-    #[arg(long, value_enum, default_value_t = crate::common::flags::Look::Primitives)]
-    pub look: crate::common::flags::Look,
-    /// Worker hosts of `scale` (each pinned to a core of its own).
-    #[arg(long, default_value_t = 2)]
-    pub hosts: usize,
-    /// Shards the evaluation of `scale` is split into.
-    #[arg(long, default_value_t = 6)]
-    pub shards: usize,
-}
-
-pub fn run(mut args: Args) -> anyhow::Result<()> {
-    if args.smoke {
-        // Every bench's smallest honest run: the quick protocol, few steps.
-        args.steps = args.steps.min(200);
-        args.protocol = ProtocolKind::Quick;
-        args.render_protocol = ProtocolKind::Quick;
-        args.shards = args.hosts;
-    }
-    match args.which {
-        Bench::Physics => physics(args.steps),
-        Bench::Eval => eval_bench(
-            args.protocol,
-            args.max_live,
-            args.smoke.then_some(SMOKE_EVAL_STEPS),
-        ),
-        Bench::Render => render_bench(
-            args.steps,
-            args.render_protocol,
-            args.max_live,
-            args.look,
-            args.smoke,
-        ),
-        Bench::Agents => agents_bench(args.max_live, args.smoke),
-        Bench::Serve => super::bench_serve::run(args.smoke),
-        Bench::Scale => super::bench_scale::run(args.protocol, args.hosts, args.shards),
-        Bench::Video => super::bench_video::run(args.protocol),
-        Bench::Scripts => super::bench_scripts::run(args.smoke),
-        Bench::Chaos => super::bench_chaos::run(args.smoke),
-        Bench::Sequential => super::bench_sequential::run(args.smoke),
-        Bench::ServedAgent => super::bench_served_agent::run(args.smoke, args.max_live),
-        Bench::Robustness => {
-            super::bench_robustness::run(args.protocol, args.smoke.then_some(SMOKE_EVAL_STEPS))
-        }
-        Bench::Intervals => super::bench_intervals::run(args.smoke),
-    }
-}
 
 /// Runs a policy one row at a time: the "unbatched" evaluation, with a model
 /// exported for a fixed batch of 1.
@@ -158,9 +55,9 @@ impl Policy for RowByRow {
 /// policy calls and the timing all run, at a fraction of a full episode
 /// (whole quick-protocol evaluations made these two smoke runs most of
 /// tests/bench_smoke.rs's time).
-const SMOKE_EVAL_STEPS: usize = 60;
+pub(super) const SMOKE_EVAL_STEPS: usize = 60;
 
-fn eval_bench(
+pub(super) fn eval_bench(
     protocol: ProtocolKind,
     max_live: usize,
     step_cap: Option<usize>,
@@ -285,7 +182,7 @@ fn raw_step_rate(task: &LoadedTask, threads: usize) -> anyhow::Result<f64> {
 /// camera, `aligning_resnet18` fixture) timed at the engine's batch of the
 /// quick and the paper protocol and at batch 480; last line: the ratio of
 /// rendering to physics time.
-fn render_bench(
+pub(super) fn render_bench(
     env_steps: usize,
     protocol: ProtocolKind,
     max_live: usize,
@@ -462,7 +359,7 @@ fn time_image_policy(policy: &mut OnnxPolicy, frame: &[f32], batch: usize) -> an
 
 /// Controlled stepping of the Avoiding scene (IK + PD + finger law every
 /// substep) versus raw `mj_step` replaying the same controls on the same model.
-fn physics(env_steps: usize) -> anyhow::Result<()> {
+pub(super) fn physics(env_steps: usize) -> anyhow::Result<()> {
     let task = LoadedTask::load(TaskId::Avoiding)?;
     let mut env = task.env()?;
     let paths: Vec<AvoidingScript> = (0..24).filter_map(AvoidingScript::new).collect();
@@ -557,7 +454,7 @@ fn physics(env_steps: usize) -> anyhow::Result<()> {
 /// rounds of [`AGENT_ROUND_S`] each per fixture, and each side's median round
 /// counts, so that both see the same load on a shared machine. Last line: the
 /// ratio of our total time to onnxruntime's.
-fn agents_bench(batch: usize, smoke: bool) -> anyhow::Result<()> {
+pub(super) fn agents_bench(batch: usize, smoke: bool) -> anyhow::Result<()> {
     let (rounds, round_s) = if smoke {
         (1, 0.05)
     } else {

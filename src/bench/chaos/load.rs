@@ -2,7 +2,7 @@
 //! end, and what each request was answered.
 
 use super::cluster::{Cluster, FRONT_ENDS};
-use crate::cmd::bench_procs::{spawn_ready, Proc};
+use crate::bench::procs::{spawn_ready, Proc};
 use anyhow::Context;
 use d3il_server::client::{reqwest, Client, ClientError};
 use std::io::Write;

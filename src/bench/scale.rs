@@ -10,7 +10,7 @@
 //! `d3il worker` processes. The time runs from queueing the submission to its
 //! merged result.
 
-use super::bench_procs::{spawn_ready, Proc};
+use super::procs::{spawn_ready, Proc};
 use anyhow::{bail, ensure, Context};
 use d3il_protocol::{ObsType, ProtocolKind, TaskId};
 use d3il_server::ops::{DbTarget, NewMethod, NewPolicy, NewSubmission, Store, SubmissionStatus};
