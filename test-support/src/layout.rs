@@ -9,7 +9,10 @@
 //! (comments and the trailing `#[cfg(test)] mod tests { … }` block skipped).
 //! A path names the longest known module it starts with. A module's
 //! references to itself, to its own submodules (declaring and re-exporting
-//! them) and to the crate root are not edges.
+//! them) and to the crate root are not edges. On that graph the checker also
+//! finds the edges that cross a boundary inside a crate: between the children
+//! of one module ([`sibling_imports`]) and between two parts of a crate
+//! ([`imports_between`]).
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
@@ -443,4 +446,52 @@ pub fn cycles(g: &Graph) -> Vec<Vec<String>> {
             path
         })
         .collect()
+}
+
+/// Whether module `m` is `root` or one of its submodules.
+fn is_under(m: &str, root: &str) -> bool {
+    m == root || m.strip_prefix(root).is_some_and(|r| r.starts_with("::"))
+}
+
+/// The child of `parent` that module `m` (under `parent`) belongs to:
+/// `cmd::submit` for `cmd::submit::race` under `cmd`.
+fn member_of<'a>(m: &'a str, parent: &str) -> &'a str {
+    let rest = &m[parent.len() + 2..];
+    &m[..parent.len() + 2 + rest.find("::").unwrap_or(rest.len())]
+}
+
+/// The edges of `g` between the children of `parent` that are to stay
+/// apart, as (from, to): from a module under one child of `parent` (the
+/// child or its submodules) to another child, or to `parent` itself. A
+/// child's references to its own submodules and theirs to it are not
+/// counted; what the children share goes outside `parent`.
+pub fn sibling_imports(g: &Graph, parent: &str) -> Vec<(String, String)> {
+    let mut out = vec![];
+    for (from, targets) in g {
+        if from == parent || !is_under(from, parent) {
+            continue;
+        }
+        let own = member_of(from, parent);
+        for to in targets {
+            if to == parent || (is_under(to, parent) && !is_under(to, own)) {
+                out.push((from.clone(), to.clone()));
+            }
+        }
+    }
+    out
+}
+
+/// The edges of `g` from a module under `a` to one under `b`, or from under
+/// `b` to under `a`, as (from, to): two parts of a crate that use neither
+/// the other.
+pub fn imports_between(g: &Graph, a: &str, b: &str) -> Vec<(String, String)> {
+    let mut out = vec![];
+    for (from, targets) in g {
+        for to in targets {
+            if (is_under(from, a) && is_under(to, b)) || (is_under(from, b) && is_under(to, a)) {
+                out.push((from.clone(), to.clone()));
+            }
+        }
+    }
+    out
 }

@@ -3,15 +3,17 @@
 //! `d3il_test_support::layout::GENERATED`), and no crate's modules refer to
 //! each other in a cycle; and the `d3il` binary (`src/`) does not reach into
 //! the server's store (it uses `d3il_server::ops`, the store's types the
-//! command-line tools need, and the server's `cli` functions). The checker
+//! command-line tools need, and the server's `cli` functions), and its
+//! command modules (`src/cmd/`) and benchmarks (`src/bench/`) use the common
+//! module (`src/common/`), never another command's module or each other. The checker
 //! itself is tested on synthetic input first, so that a rule that silently
 //! stopped looking would fail here.
 //! (server/tests/layout.rs adds the server's own rules: front ends apart,
 //! lower layers low.)
 
 use d3il_test_support::layout::{
-    crate_graph, cycles, graph_of, long_files, paths_into, referenced_paths, rust_files,
-    workspace_crates, GENERATED, MAX_LINES,
+    crate_graph, cycles, graph_of, imports_between, long_files, paths_into, referenced_paths,
+    rust_files, sibling_imports, workspace_crates, GENERATED, MAX_LINES,
 };
 use d3il_test_support::{repo_dir, TempDir};
 use std::collections::BTreeSet;
@@ -209,6 +211,129 @@ fn the_binary_does_not_import_the_servers_store() {
         "src/ names the server's store (use d3il_server::ops, which re-exports what the \
          command-line tools need, or a d3il_server::cli function; add a re-export there if \
          one is missing):\n{}",
+        found.join("\n")
+    );
+}
+
+/// The edges of the `d3il` binary's module graph `g` that break its shape:
+/// a command module naming another command's module (or `src/cmd/mod.rs`),
+/// and the commands and the benchmarks naming each other.
+fn shell_violations(g: &d3il_test_support::layout::Graph) -> Vec<String> {
+    let mut found = sibling_imports(g, "cmd");
+    found.extend(imports_between(g, "cmd", "bench"));
+    found
+        .into_iter()
+        .map(|(from, to)| format!("{from} -> {to}"))
+        .collect()
+}
+
+#[test]
+fn the_checker_finds_a_command_naming_another_command_or_a_benchmark() {
+    let files = |race: &str, submit_race: &str, chaos: &str| {
+        vec![
+            (
+                m("cmd"),
+                "pub mod eval; pub mod race; pub mod submit;".to_string(),
+            ),
+            (
+                m("cmd::eval"),
+                "use crate::common::evaluation::build_job;\n\
+                 #[cfg(test)]\nmod tests {\n    use super::*;\n}\n"
+                    .to_string(),
+            ),
+            (m("cmd::race"), race.to_string()),
+            (
+                m("cmd::submit"),
+                "pub mod race;\nuse self::race::run;".to_string(),
+            ),
+            (m("cmd::submit::race"), submit_race.to_string()),
+            (m("common"), "pub mod evaluation;".to_string()),
+            (
+                m("common::evaluation"),
+                "use super::assets_dir;".to_string(),
+            ),
+            (m("bench"), "mod chaos; mod procs;".to_string()),
+            (
+                m("bench::procs"),
+                "use crate::common::assets_dir;".to_string(),
+            ),
+            (m("bench::chaos"), chaos.to_string()),
+        ]
+    };
+    let found = |race: &str, submit_race: &str, chaos: &str| {
+        shell_violations(&graph_of(&files(race, submit_race, chaos)))
+    };
+    // Allowed: the common module, a command's own submodules and their
+    // parent, one benchmark using another.
+    assert_eq!(
+        found(
+            "use crate::common::{evaluation::{build_job, EvalArgs}, text};",
+            "use super::Args; fn f() { super::client_of(); crate::common::text::race(); }",
+            "use super::procs::spawn_ready; use crate::common::flags::Look;",
+        ),
+        Vec::<String>::new()
+    );
+    // Another command, by `super::` and by `crate::cmd::`, in a use line or in code.
+    assert_eq!(
+        found("use super::eval::build_job;", "", ""),
+        ["cmd::race -> cmd::eval"]
+    );
+    assert_eq!(
+        found("fn f() { crate::cmd::eval::run(); }", "", ""),
+        ["cmd::race -> cmd::eval"]
+    );
+    assert_eq!(
+        found("use super::{eval::EvalArgs, submit::race::run};", "", ""),
+        ["cmd::race -> cmd::eval", "cmd::race -> cmd::submit::race"]
+    );
+    // What `src/cmd/mod.rs` itself holds, and a command's submodule reaching
+    // past its command.
+    assert_eq!(
+        found("use super::check_output_path;", "", ""),
+        ["cmd::race -> cmd"]
+    );
+    assert_eq!(
+        found("", "use super::super::race::render;", ""),
+        ["cmd::submit::race -> cmd::race"]
+    );
+    assert_eq!(
+        found("", "fn f() { crate::cmd::eval::run(); }", ""),
+        ["cmd::submit::race -> cmd::eval"]
+    );
+    // The commands and the benchmarks, either way.
+    assert_eq!(
+        found("use crate::bench::procs::spawn_ready;", "", ""),
+        ["cmd::race -> bench::procs"]
+    );
+    assert_eq!(
+        found("", "", "use crate::cmd::eval::EvalArgs;"),
+        ["bench::chaos -> cmd::eval"]
+    );
+    assert_eq!(
+        found("", "", "fn f() { super::super::cmd::race::run(); }"),
+        ["bench::chaos -> cmd::race"]
+    );
+}
+
+#[test]
+fn the_binarys_commands_use_only_the_common_module_and_the_benchmarks_stand_apart() {
+    let g = crate_graph(&repo_dir().join("src"));
+    // The checker sees the crate as it is laid out (a renamed folder would
+    // make this test pass vacuously).
+    for module in ["cmd::eval", "cmd::race", "common", "bench", "bench::chaos"] {
+        assert!(
+            g.contains_key(module),
+            "no module {module} in {:?}",
+            g.keys()
+        );
+    }
+    assert!(g["cmd::race"].contains("common::evaluation"), "{g:?}");
+    let found = shell_violations(&g);
+    assert!(
+        found.is_empty(),
+        "in src/, a command module names another command's module or src/cmd/mod.rs, or the \
+         commands and the benchmarks name each other (move what both need into src/common/, \
+         or into a library crate when it is a rule of the domain):\n{}",
         found.join("\n")
     );
 }
