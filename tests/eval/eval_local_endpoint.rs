@@ -3,7 +3,7 @@
 //! reference policy server (`python3 -m d3il_client.serve --demo avoiding`)
 //! without any flag; a user's own evaluation connects to whatever address
 //! they name, private ones included. Only a server refuses loopback and
-//! private endpoints of submissions (tests/server_dry_run.rs).
+//! private endpoints of submissions (tests/serve/server_dry_run.rs).
 //!
 //! Needs python3 with numpy, websockets and msgpack (the `serve` extra of
 //! clients/python).

@@ -8,7 +8,7 @@
 //! tens of minutes on two cores, so here `d3il fidelity` is called through a
 //! wrapper whose full run waits for the test's go and then writes the quick
 //! report relabelled `full`: what is tested is the order of the states and
-//! the replacement, not the full report's numbers (tests/fidelity_chromium.rs
+//! the replacement, not the full report's numbers (tests/chromium/fidelity_chromium.rs
 //! renders a real report; `d3il fidelity` itself makes the full one).
 
 use d3il_protocol::fidelity::FidelityMode;
