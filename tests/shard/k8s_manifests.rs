@@ -6,7 +6,7 @@
 //! `d3il` on PATH, the results volume at a temporary directory), give the
 //! result of a plain `d3il eval`.
 
-mod shard_support;
+use crate::shard_support;
 
 use serde_json::Value;
 use shard_support::assert_same_result;

@@ -7,7 +7,7 @@
 //! from the rollout id (id mod 4): a shard that numbered its rollouts from 0
 //! instead of globally would push in other modes and change the behaviours.
 
-mod shard_support;
+use crate::shard_support;
 
 use serde_json::Value;
 use shard_support::{assert_same_result, table};
