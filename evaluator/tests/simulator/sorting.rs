@@ -1,6 +1,6 @@
 //! Sorting-2/4/6 end to end in real MuJoCo (docs/original-d3il.md §11.1).
 
-mod common;
+use crate::common;
 
 use d3il_evaluator::tasks::sorting::{
     is_sequence_code, pack_code, parse_order, Colour, SortingScript,

@@ -1,6 +1,6 @@
 //! Pushing end to end in real MuJoCo (docs/original-d3il.md §10.4).
 
-mod common;
+use crate::common;
 
 use d3il_evaluator::tasks::pushing::{detect_mode, PushingScript};
 use d3il_evaluator::tasks::{LoadedTask, TaskError};

@@ -1,6 +1,6 @@
 //! Inserting end to end in real MuJoCo (docs/original-d3il.md §11.3).
 
-mod common;
+use crate::common;
 
 use d3il_evaluator::tasks::inserting::{mode_code, InsertingScript, TARGETS};
 use d3il_evaluator::tasks::LoadedTask;

@@ -1,6 +1,6 @@
 //! Aligning end to end in real MuJoCo (docs/original-d3il.md §10.3).
 
-mod common;
+use crate::common;
 
 use d3il_evaluator::tasks::aligning::{AligningScript, AligningStyle};
 use d3il_evaluator::tasks::{LoadedTask, TaskError};

@@ -1,6 +1,6 @@
 //! Avoiding end to end in real MuJoCo (docs/original-d3il.md §10.2).
 
-mod common;
+use crate::common;
 
 use d3il_evaluator::tasks::avoiding::{path_code, AvoidingScript};
 use d3il_evaluator::tasks::{LoadedTask, TaskError};

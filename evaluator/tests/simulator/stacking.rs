@@ -1,6 +1,6 @@
 //! Stacking end to end in real MuJoCo (docs/original-d3il.md §11.2).
 
-mod common;
+use crate::common;
 
 use d3il_evaluator::tasks::stacking::StackingScript;
 use d3il_evaluator::tasks::{Env, LoadedTask};
