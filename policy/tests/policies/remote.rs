@@ -2,7 +2,7 @@
 //! started as a real process on 127.0.0.1. Needs python3 with numpy, websockets
 //! and msgpack (the `serve` extra of clients/python).
 
-mod common;
+use crate::common;
 
 use common::{repo, spec};
 use d3il_policy::{validate_actions, Policy, PolicyError, Query, RemotePolicy};

@@ -3,7 +3,7 @@
 //! torch.onnx.export) load, pass the admission test inference, and give the
 //! actions onnxruntime gave on the same inputs (recorded in NAME.ort.json).
 
-mod common;
+use crate::common;
 use common::spec;
 use d3il_policy::{OnnxPolicy, Policy, Query, WindowMode};
 use d3il_protocol::{PolicyManifest, TaskId};

@@ -3,7 +3,7 @@
 //! 127.0.0.1, with a CA and certificates generated here by rcgen. Needs python3
 //! with numpy, websockets and msgpack (the `serve` extra of clients/python).
 
-mod common;
+use crate::common;
 
 use common::{repo, spec};
 use d3il_policy::{validate_actions, Policy, PolicyError, Query, RemotePolicy};

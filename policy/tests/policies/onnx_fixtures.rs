@@ -1,6 +1,6 @@
 //! The committed ONNX fixtures (scripts/make_fixtures.py) loaded and run with tract.
 
-mod common;
+use crate::common;
 
 use common::{fixture, spec};
 use d3il_policy::{
