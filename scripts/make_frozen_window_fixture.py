@@ -9,7 +9,7 @@ A tiny Aligning policy (obs [B, T, 20] -> actions [B, 3], manifest k = 5, window
 that int to the example window (5), so the exported Reshape asks for
 `[B, 5, 20]` whatever the window: onnxruntime accepts the file and runs it at the
 example window, tract's analysis with a symbolic window refuses it. The Rust
-test (policy/tests/onnx_fixtures.rs) checks that the refusal names this cause
+test (policy/tests/policies/onnx_fixtures.rs) checks that the refusal names this cause
 and its fix. Weights are random (fixed seed): the file tests admission only.
 """
 

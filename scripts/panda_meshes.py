@@ -33,7 +33,7 @@ REQUIREMENTS with explicit parameters, so every machine gets the same
 vertices); docs/images.md gives the measured difference to the original's
 frames and to frames drawn with the full meshes, which are written too, to
 outdir/full/, for the test that keeps that difference small
-(evaluator/tests/panda_meshes.rs).
+(evaluator/tests/simulator/panda_meshes.rs).
 
 Exits with status 2 and a message naming the packages when the pinned versions
 are not installed.
@@ -51,7 +51,7 @@ PARTS = [f"link{i}" for i in range(8)] + ["hand", "finger"]
 BUDGET = {"hand": 3000}
 LINK_BUDGET = 2000
 # The packages the meshes come from, pinned: the committed meshed frames
-# (tests/render_golden.rs) depend on the exact vertices. ./dev installs these.
+# (tests/cli/render_golden.rs) depend on the exact vertices. ./dev installs these.
 REQUIREMENTS = {"example-robot-data": "6.0.0", "pymeshlab": "2025.7.post1"}
 # MeshLab's quadric edge collapse, every parameter given (its defaults), so a
 # change of defaults in another version cannot change the vertices silently.

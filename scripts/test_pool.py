@@ -8,8 +8,18 @@ test binary once (`cargo test --workspace --no-run --message-format=json`),
 then runs them as cargo would (working directory the package's, CARGO_*
 variables set), JOBS at a time, longest first, each binary's output printed
 whole when it ends. The doc-tests run as one more job. At the end: every
-failed binary, then the ten slowest with their wall and CPU time (CI time
-stays visible: the budget of a clean-clone .ci/run is 35 minutes on 2 cores).
+failed binary, then the ten slowest with their wall and CPU time, and the ten
+slowest tests (CI time stays visible: the budget of a clean-clone .ci/run is 35
+minutes on 2 cores).
+
+Per-test times: the test binaries fold many test files each (tests/cli,
+tests/serve, server/tests/app, ...), so a binary's time says little about
+which test is slow. libtest measures each test with `--report-time`, which is
+gated behind `-Z unstable-options`; a test binary accepts that on stable when
+RUSTC_BOOTSTRAP is set in its environment (libtest reads it at run time), so
+the binaries run with RUSTC_BOOTSTRAP=1 and print `test name ... ok <2.345s>`.
+The variable reaches what the tests start (d3il, Python, Chromium), none of
+which reads it; no test starts cargo or rustc. D3IL_TEST_TIMES=0 turns it off.
 
 Exits non-zero when the build or any binary fails; every binary runs either
 way (as cargo's --no-fail-fast). Arguments after `--` go to every test binary.
@@ -19,6 +29,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import subprocess
 import sys
 import tempfile
@@ -27,34 +38,34 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-# Wall seconds of the slowest binaries on an idle 2-core machine (clean-clone
-# .ci/run of 2026-11-29, three at a time), so that they start first; others
+# Wall seconds of the slowest binaries on a 2-core machine (the ./dev test run
+# of 2026-12-06, three at a time; a binary folded from several test files
+# counts the sum of its files' seconds), so that they start first; others
 # count as short. Only the order depends on these.
 KNOWN_SECONDS = {
-    "replay_records": 419,
-    "robustness": 363,
-    "closed_loop": 304,
-    "bench_smoke": 231,
-    "agents_torch": 221,
-    "robustness_server_shards": 213,
-    "demos": 150,
-    "race_server": 142,
-    "container_image": 141,
-    "eval_engine": 128,
-    "python_client": 115,
-    "robustness_shard": 112,
-    "cancel_live": 92,
-    "agents_cli": 74,
-    "sequential_race": 71,
-    "identical_rollouts": 56,
-    "robustness_server": 56,
-    "remote_image": 54,
-    "robustness_image": 48,
-    "fidelity_chromium": 50,
-    "verify": 40,
-    "replay_cli": 40,
-    "fidelity_first_minute": 39,
-    "rollouts_e2e": 30,
+    "replay_records": 367,
+    "robustness": 340,
+    "robustness_server_shards": 336,
+    "closed_loop": 283,
+    "cli": 265,  # tests/cli/: the d3il command line
+    "serve": 249,  # tests/serve/: the real d3il serve
+    "eval": 244,  # tests/eval/: evaluations end to end
+    "agents_torch": 237,
+    "demos": 208,
+    "bench_smoke": 204,
+    "race_server": 148,
+    "python_client": 127,
+    "robustness_shard": 115,
+    "simulator": 109,  # evaluator/tests/simulator/: the tasks in MuJoCo
+    "chromium": 108,  # tests/chromium/
+    "eval_engine": 106,
+    "cancel_live": 95,
+    "sequential_race": 76,
+    "agents_cli": 66,
+    "app": 62,  # server/tests/app/: the server in-process
+    "shard": 56,  # tests/shard/
+    "worker": 54,  # tests/worker/
+    "container_image": 48,
 }
 
 
@@ -70,6 +81,12 @@ class Binary:
     status: int = 0
     output: str = ""
     argv: list[str] = field(default_factory=list)
+    tests: list[tuple[float, str]] = field(default_factory=list)  # (seconds, test name)
+
+
+# libtest's line for a finished test under --report-time.
+TEST_TIME = re.compile(r"^test (\S+) \.\.\. .*<([0-9.]+)s>\s*$", re.MULTILINE)
+REPORT_TIME = os.environ.get("D3IL_TEST_TIMES", "1") != "0"
 
 
 def build(cargo_args: list[str]) -> list[Binary]:
@@ -121,6 +138,9 @@ def run(b: Binary, test_args: list[str], lock: threading.Lock) -> None:
     deps = str(Path(b.executable).parent)
     env["LD_LIBRARY_PATH"] = deps + (":" + env["LD_LIBRARY_PATH"] if env.get("LD_LIBRARY_PATH") else "")
     b.argv = [b.executable, *test_args]
+    if REPORT_TIME:
+        env["RUSTC_BOOTSTRAP"] = "1"
+        b.argv += ["-Z", "unstable-options", "--report-time"]
     with tempfile.TemporaryFile(mode="w+") as out:
         t0 = time.monotonic()
         proc = subprocess.Popen(b.argv, cwd=b.cwd, env=env, stdout=out, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL)
@@ -131,6 +151,7 @@ def run(b: Binary, test_args: list[str], lock: threading.Lock) -> None:
         b.status = proc.returncode
         out.seek(0)
         b.output = out.read()
+    b.tests = [(float(s), name) for name, s in TEST_TIME.findall(b.output)]
     with lock:
         print(f"     Running {b.name} ({b.executable})", flush=True)
         sys.stdout.write(b.output)
@@ -194,10 +215,18 @@ def main() -> int:
     if failed:
         print(f"{len(failed)} failed:")
         for b in failed:
-            print(f"  {b.name} (exit {b.status}): {' '.join(b.argv) or 'cargo test --workspace --doc'}")
+            again = " ".join(b.argv) if b.argv else "cargo test --workspace --doc"
+            if b.argv and REPORT_TIME:
+                again = f"RUSTC_BOOTSTRAP=1 {again}"
+            print(f"  {b.name} (exit {b.status}): {again}")
     print("\nslowest test binaries (wall, CPU):")
     for b in sorted(bins, key=lambda b: -b.wall)[:10]:
         print(f"{b.wall:10.1f} s {b.cpu:8.1f} s CPU  {b.name}")
+    tests = sorted(((s, b.key, name) for b in bins for s, name in b.tests), reverse=True)
+    if tests:
+        print("\nslowest tests (wall, binary, test):")
+        for s, key, name in tests[:10]:
+            print(f"{s:10.1f} s  {key}  {name}")
     return 1 if failed else 0
 
 

@@ -84,7 +84,7 @@ const EXPERTS: &[(TaskId, &str, Option<usize>)] = &[
 ];
 
 /// The tests' options with a step cap. A one-variant script is
-/// deterministic (simulated once per initial state, `tests/identical_rollouts.rs`);
+/// deterministic (simulated once per initial state, `tests/eval/identical_rollouts.rs`);
 /// these tests read every rollout's own trace and policy queries, so every
 /// rollout is simulated.
 fn capped(cap: Option<usize>) -> EvalOptions {
@@ -252,7 +252,7 @@ fn perturbed_rollouts_replay_bit_for_bit() {
         let suite = Suite::for_task(id).unwrap();
         let mut plain_steps = None;
         // The state suite's axes (the image axes are in the image suite,
-        // tests/robustness_image.rs; Avoiding has no start_shift and no
+        // tests/eval/robustness_image.rs; Avoiding has no start_shift and no
         // dynamics).
         let axes: Vec<Axis> = suite.file.axes.iter().map(|a| a.axis).collect();
         assert_eq!(axes.len(), if id == TaskId::Avoiding { 2 } else { 4 });

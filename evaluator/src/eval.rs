@@ -99,7 +99,7 @@ pub struct EvalOptions {
     /// ([`Policy::deterministic`]). By default the rollouts of one initial
     /// state of a deterministic policy are one computation, simulated once and
     /// recorded for each rollout index: the results are the same bit for bit
-    /// (`tests/identical_rollouts.rs`). For checking that, and for benchmarks
+    /// (`tests/eval/identical_rollouts.rs`). For checking that, and for benchmarks
     /// of the full protocol.
     pub simulate_every_rollout: bool,
     /// The build identity the manifest records (the evaluator cannot know

@@ -312,7 +312,7 @@ impl Policy for ScriptedPolicy {
     /// A script is a function of the observations it was given (no random
     /// numbers, no clock), so with one variant every rollout of an initial
     /// state is the same computation and the engine simulates it once (the
-    /// results are the same bit for bit, `tests/identical_rollouts.rs`).
+    /// results are the same bit for bit, `tests/eval/identical_rollouts.rs`).
     /// Several variants are chosen by rollout id: the rollouts of a state
     /// differ.
     fn deterministic(&self) -> bool {

@@ -99,7 +99,7 @@ impl TaskId {
 
     /// The leaderboard's evaluation protocol for this task, as shown on its
     /// pages. The evaluator's task definitions must agree (tested in
-    /// evaluator/tests/context_sets.rs).
+    /// evaluator/tests/simulator/context_sets.rs).
     pub fn paper_protocol(self) -> PaperProtocol {
         let (contexts, rollouts, max_steps) = match self {
             TaskId::Avoiding => (1, 480, 250),

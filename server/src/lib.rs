@@ -1,6 +1,6 @@
 //! d3il-server: the leaderboard service behind `d3il serve`.
 //!
-//! Dependencies point one way (a test, `tests/layout.rs`, refuses cycles):
+//! Dependencies point one way (a test, `tests/app/layout.rs`, refuses cycles):
 //!
 //! - [`http`] (`api`, `pages`, `plots`; never importing each other) sits on
 //!   [`views`] (what the API shows), [`comparison`] (pairing two finished

@@ -14,7 +14,7 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 /// A reference object has moved (contact has begun) past this xy distance
-/// from its start (m); the free-motion checks of tests/replay_cli.rs use it.
+/// from its start (m); the free-motion checks of tests/cli/replay_cli.rs use it.
 pub const CONTACT_MOTION_M: f64 = 1e-5;
 /// Two runs are together while every TCP and object position is this
 /// close (m): the scale at which docs/original-d3il.md §01.7.10 watched a

@@ -91,7 +91,7 @@ async fn results_of_different_fingerprints_are_never_ranked_together() {
     assert!(page.contains("physics fingerprint bbbbbbbbbbbbbbbb"));
 
     // d3il tables keeps the cells apart, with the reason in the row's
-    // annotation (tables/tests/evaluated.rs: separate rows).
+    // annotation (tables/tests/tables/evaluated.rs: separate rows).
     let cells = app.state.store.result_cells(None).await.expect("cells");
     let mine: Vec<&ResultCell> = cells.iter().filter(|c| c.method == "Mine").collect();
     assert_eq!(mine.len(), 3);

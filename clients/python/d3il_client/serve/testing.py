@@ -1,5 +1,5 @@
 """A deliberately misbehaving variant of the reference server, for testing clients
-of the remote protocol (the evaluator's: policy/tests/remote.rs, tests/worker_remote.rs).
+of the remote protocol (the evaluator's: policy/tests/policies/remote.rs, tests/worker/worker_remote.rs).
 
     python -m d3il_client.serve.testing --mode MODE [--horizon H]
 
