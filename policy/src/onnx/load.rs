@@ -42,7 +42,7 @@ pub(super) struct Model {
 /// alone (the only rollout querying at that step, or the last row of a call
 /// split across threads, which depends on the host's core count) would get
 /// other actions than in company, so a single row runs padded to two and a
-/// row's actions depend only on its inputs (`tests/agent_fixtures.rs`).
+/// row's actions depend only on its inputs (`tests/policies/agent_fixtures.rs`).
 pub(super) fn bucket(b: usize) -> usize {
     const SMALL: [usize; 10] = [2, 3, 4, 6, 8, 12, 16, 24, 32, 48];
     if let Some(&s) = SMALL.iter().find(|&&s| s >= b) {
