@@ -107,10 +107,49 @@ pub fn robustness(doc: &RobustnessResult) -> String {
     s
 }
 
-/// The fixed-size comparison of the pairs a race (or replay) used, as the
-/// race page shows it (`d3il_metrics::rate_difference::fixed_size_comparison`).
-fn fixed_size_line(pairs_used: u64, discordant: (u64, u64), alpha: f64) -> String {
-    d3il_metrics::rate_difference::fixed_size_comparison(pairs_used, discordant, alpha).line()
+/// What the sequential test saw and how it stops, as a race and its replay
+/// both print it: the e-value and anytime-valid p-value with the discordant
+/// pairs (`discordant_label` says when they were counted), then the rule the
+/// test stops by at this size (`pairs`, the most it could use) and what
+/// decided it.
+fn sequential_test_lines(
+    discordant_label: &str,
+    e_value: f64,
+    p_value: f64,
+    discordant: (u64, u64),
+    alpha: f64,
+    pairs: usize,
+    decision: Option<&str>,
+) -> String {
+    let mut s = format!(
+        "e-value {e_value:.3}, anytime-valid p-value {p_value:.4}; {discordant_label}: A won {}, B won {}\n",
+        discordant.0, discordant.1
+    );
+    s += &d3il_metrics::horizon::rule_line(alpha, pairs);
+    s.push('\n');
+    s += &d3il_metrics::horizon::decided_by(alpha, pairs, decision);
+    s += ".\n";
+    s
+}
+
+/// The intervals of the pairs a race (or replay) used: the confidence
+/// sequence of A − B when there is one, and the fixed-size comparison as
+/// the race page shows it
+/// (`d3il_metrics::rate_difference::fixed_size_comparison`).
+fn used_pairs_lines(
+    difference_interval: Option<(f64, f64)>,
+    pairs_used: u64,
+    discordant: (u64, u64),
+    alpha: f64,
+) -> String {
+    let mut s = String::new();
+    if let Some((lo, hi)) = difference_interval {
+        s += &format!("confidence sequence of A − B: {lo:+.3} – {hi:+.3}\n");
+    }
+    s +=
+        &d3il_metrics::rate_difference::fixed_size_comparison(pairs_used, discordant, alpha).line();
+    s += ".\n";
+    s
 }
 
 /// A race of two policies (`d3il race --task`, or a server's race that
@@ -143,23 +182,20 @@ pub fn race(r: &RaceReport, a: &Path, b: &Path) -> String {
             )
         }
     }
-    s += &format!(
-        "e-value {:.3}, anytime-valid p-value {:.4}; discordant pairs: A won {}, B won {}\n",
-        r.e_value, r.p_value, r.discordant.0, r.discordant.1
+    s += &sequential_test_lines(
+        "discordant pairs",
+        r.e_value,
+        r.p_value,
+        r.discordant,
+        r.alpha,
+        r.pairs_full as usize,
+        r.decision.as_deref(),
     );
-    s += &d3il_metrics::horizon::rule_line(r.alpha, r.pairs_full as usize);
-    s.push('\n');
-    s += &d3il_metrics::horizon::decided_by(r.alpha, r.pairs_full as usize, r.decision.as_deref());
-    s += ".\n";
     s += &format!(
         "success rate on the states used: A {:.3}, B {:.3}\n",
         r.rate_a, r.rate_b
     );
-    if let Some((lo, hi)) = r.difference_interval {
-        s += &format!("confidence sequence of A − B: {lo:+.3} – {hi:+.3}\n");
-    }
-    s += &fixed_size_line(r.pairs_used, r.discordant, r.alpha);
-    s += ".\n";
+    s += &used_pairs_lines(r.difference_interval, r.pairs_used, r.discordant, r.alpha);
     s += &format!(
         "fixed-size paired test: the protocol's {} rollouts ({} pairs){}\n",
         r.rollouts_full,
@@ -206,19 +242,16 @@ pub fn race_replay(r: &d3il_metrics::sequential::Replay) -> String {
             )
         }
     }
-    s += &format!(
-        "e-value {:.3}, anytime-valid p-value {:.4}; discordant pairs so far: A won {}, B won {}\n",
-        r.e_value, r.p_value, r.discordant.0, r.discordant.1
+    s += &sequential_test_lines(
+        "discordant pairs so far",
+        r.e_value,
+        r.p_value,
+        r.discordant,
+        r.alpha,
+        r.pairs_total as usize,
+        r.decision.as_deref(),
     );
-    s += &d3il_metrics::horizon::rule_line(r.alpha, r.pairs_total as usize);
-    s.push('\n');
-    s += &d3il_metrics::horizon::decided_by(r.alpha, r.pairs_total as usize, r.decision.as_deref());
-    s += ".\n";
-    if let Some((lo, hi)) = r.difference_interval {
-        s += &format!("confidence sequence of A − B: {lo:+.3} – {hi:+.3}\n");
-    }
-    s += &fixed_size_line(r.pairs_used, r.discordant, r.alpha);
-    s += ".\n";
+    s += &used_pairs_lines(r.difference_interval, r.pairs_used, r.discordant, r.alpha);
     s += &format!(
         "fixed-size paired test (exact sign test on all {} pairs): p = {:.4}\n",
         r.pairs_total, r.fixed_p_value
