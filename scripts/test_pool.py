@@ -19,7 +19,8 @@ gated behind `-Z unstable-options`; a test binary accepts that on stable when
 RUSTC_BOOTSTRAP is set in its environment (libtest reads it at run time), so
 the binaries run with RUSTC_BOOTSTRAP=1 and print `test name ... ok <2.345s>`.
 The variable reaches what the tests start (d3il, Python, Chromium), none of
-which reads it; no test starts cargo or rustc. D3IL_TEST_TIMES=0 turns it off.
+which reads it; no test starts cargo or rustc. D3IL_TEST_TIMES=0 turns it off,
+and so does a libtest that refuses it (one binary's --list is tried first).
 
 Exits non-zero when the build or any binary fails; every binary runs either
 way (as cargo's --no-fail-fast). Arguments after `--` go to every test binary.
@@ -87,6 +88,17 @@ class Binary:
 # libtest's line for a finished test under --report-time.
 TEST_TIME = re.compile(r"^test (\S+) \.\.\. .*<([0-9.]+)s>\s*$", re.MULTILINE)
 REPORT_TIME = os.environ.get("D3IL_TEST_TIMES", "1") != "0"
+TIMING_ARGS = ["-Z", "unstable-options", "--report-time"]
+
+
+def timing_works(b: Binary) -> bool:
+    """Whether this toolchain's libtest still takes --report-time under
+    RUSTC_BOOTSTRAP (a listing, no test runs); if not, the pool runs without."""
+    env = {**os.environ, **b.env, "RUSTC_BOOTSTRAP": "1"}
+    probe = subprocess.run(
+        [b.executable, *TIMING_ARGS, "--list"], cwd=b.cwd, env=env, capture_output=True, check=False
+    )
+    return probe.returncode == 0
 
 
 def build(cargo_args: list[str]) -> list[Binary]:
@@ -140,7 +152,7 @@ def run(b: Binary, test_args: list[str], lock: threading.Lock) -> None:
     b.argv = [b.executable, *test_args]
     if REPORT_TIME:
         env["RUSTC_BOOTSTRAP"] = "1"
-        b.argv += ["-Z", "unstable-options", "--report-time"]
+        b.argv += TIMING_ARGS
     with tempfile.TemporaryFile(mode="w+") as out:
         t0 = time.monotonic()
         proc = subprocess.Popen(b.argv, cwd=b.cwd, env=env, stdout=out, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL)
@@ -170,6 +182,10 @@ def main() -> int:
     cargo_args = [a for a in cargo_args if a != "--no-fail-fast"]
     t_build = time.monotonic()
     bins = build(cargo_args)
+    global REPORT_TIME
+    if REPORT_TIME and bins and not timing_works(bins[0]):
+        print("test_pool: this libtest refuses --report-time; no per-test times", flush=True)
+        REPORT_TIME = False
     print(f"test_pool: {len(bins)} test binaries built in {time.monotonic() - t_build:.0f} s; running {jobs} at a time", flush=True)
     doc = Binary(
         name="doc-tests",
