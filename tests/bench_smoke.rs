@@ -19,7 +19,7 @@ fn d3il() -> Command {
 #[test]
 fn every_bench_names_itself_and_runs_its_smoke_mode_to_the_end() {
     // The benches are the binary's own list (`d3il bench`'s possible
-    // values, src/cmd/bench.rs `Bench`), so a bench added there runs here
+    // values, src/bench/mod.rs `Bench`), so a bench added there runs here
     // without being named twice; an unknown name is refused with that list.
     let out = d3il().args(["bench", "no-such-bench"]).output().unwrap();
     assert!(!out.status.success());

@@ -46,10 +46,6 @@ impl Policy for RowByRow {
     }
 }
 
-/// The full Aligning protocol with a BC-MLP-sized ONNX policy (20 -> 6 x 128
-/// -> 3), batched (one call per lockstep step) and unbatched (one call per
-/// rollout and step). Physics time is the wall time of the parallel stepping
-/// phases of the same run.
 /// `--smoke` ends every rollout of the eval and render benches' evaluations
 /// after this many env steps (the dry run's step cap): the engine, the
 /// policy calls and the timing all run, at a fraction of a full episode
@@ -57,6 +53,10 @@ impl Policy for RowByRow {
 /// tests/bench_smoke.rs's time).
 pub(super) const SMOKE_EVAL_STEPS: usize = 60;
 
+/// The full Aligning protocol with a BC-MLP-sized ONNX policy (20 -> 6 x 128
+/// -> 3), batched (one call per lockstep step) and unbatched (one call per
+/// rollout and step). Physics time is the wall time of the parallel stepping
+/// phases of the same run.
 pub(super) fn eval_bench(
     protocol: ProtocolKind,
     max_live: usize,

@@ -199,7 +199,7 @@ mod tests {
             assert_eq!(got.shape[2], 3, "Aligning acts in 3 dimensions");
             assert_eq!(got.actions.len(), got.shape.iter().product::<usize>());
             assert_eq!(got.actions.len(), want.len());
-            // The tolerance of policy/tests/agent_fixtures.rs.
+            // The tolerance of policy/tests/policies/agent_fixtures.rs.
             let worst = got
                 .actions
                 .iter()

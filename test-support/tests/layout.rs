@@ -8,7 +8,7 @@
 //! module (`src/common/`), never another command's module or each other. The checker
 //! itself is tested on synthetic input first, so that a rule that silently
 //! stopped looking would fail here.
-//! (server/tests/layout.rs adds the server's own rules: front ends apart,
+//! (server/tests/app/layout.rs adds the server's own rules: front ends apart,
 //! lower layers low.)
 
 use d3il_test_support::layout::{
