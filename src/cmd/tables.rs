@@ -268,25 +268,8 @@ mod tests {
         let dir = scratch("stacking");
         let db = dir.join("d3il.sqlite");
         // Context 0: gbr, rgb stacked; gb, bg two registered; r one; none.
-        // Context 1: rbg, rbg stacked; gr two; b one.
-        let rollouts = [
-            (0, "gbr", true),
-            (0, "rgb", true),
-            (0, "gb", false),
-            (0, "bg", false),
-            (0, "r", false),
-            (0, "", false),
-            (1, "rbg", true),
-            (1, "rbg", true),
-            (1, "gr", false),
-            (1, "b", false),
-        ];
-        let outcomes: Vec<d3il_metrics::Outcome> = rollouts
-            .iter()
-            .map(|&(c, order, full)| {
-                d3il_metrics::Outcome::new(c, full, (!order.is_empty()).then_some(order))
-            })
-            .collect();
+        // Context 1: rbg, rbg stacked; gr two; b one (the fixture's rollouts).
+        let outcomes = d3il_test_support::stacking_outcomes();
         let ev = d3il_metrics::evaluate(
             TaskId::Stacking,
             &outcomes,

@@ -188,6 +188,34 @@ pub fn pushing_result(
     }
 }
 
+/// Ten Stacking rollouts from two initial states: (initial state, the order in
+/// which the boxes registered, whether the full stack stood). The three levels
+/// see different data: Stacking-1 the first letters, Stacking-2 the first two,
+/// Stacking-3 the full stacks, so each level has its own success and entropies.
+pub const STACKING_ROLLOUTS: [(usize, &str, bool); 10] = [
+    (0, "gbr", true),
+    (0, "rgb", true),
+    (0, "gb", false),
+    (0, "bg", false),
+    (0, "r", false),
+    (0, "", false),
+    (1, "rbg", true),
+    (1, "rbg", true),
+    (1, "gr", false),
+    (1, "b", false),
+];
+
+/// [`STACKING_ROLLOUTS`] as the outcomes d3il-metrics counts (a rollout in
+/// which no box registered has no behaviour).
+pub fn stacking_outcomes() -> Vec<d3il_metrics::Outcome> {
+    STACKING_ROLLOUTS
+        .iter()
+        .map(|&(c, order, full)| {
+            d3il_metrics::Outcome::new(c, full, (!order.is_empty()).then_some(order))
+        })
+        .collect()
+}
+
 /// The protocol manifest of a synthetic result: placeholder hashes and
 /// versions, one initial state of one rollout, k = H = E = 1, 10 steps.
 /// Tests set the fields they care about with struct update syntax.

@@ -233,27 +233,9 @@ async fn policy_errors_fail_at_once_and_garbage_output_is_a_protocol_violation(b
 }
 
 async fn stacking_levels_are_stored_and_shown_each_with_its_own_numbers(b: Backend) {
-    // Two initial states; per rollout the registration order and whether the
-    // full stack stood. The levels see different data: Stacking-1 the first
-    // letters, Stacking-2 the first two, Stacking-3 the full stacks.
-    let rollouts = [
-        (0, "gbr", true),
-        (0, "rgb", true),
-        (0, "gb", false),
-        (0, "bg", false),
-        (0, "r", false),
-        (0, "", false),
-        (1, "rbg", true),
-        (1, "rbg", true),
-        (1, "gr", false),
-        (1, "b", false),
-    ];
-    let outcomes: Vec<d3il_metrics::Outcome> = rollouts
-        .iter()
-        .map(|&(c, order, full)| {
-            d3il_metrics::Outcome::new(c, full, (!order.is_empty()).then_some(order))
-        })
-        .collect();
+    // Two initial states, levels that see different data (the fixture's doc).
+    let rollouts = d3il_test_support::STACKING_ROLLOUTS;
+    let outcomes = d3il_test_support::stacking_outcomes();
     let ev = d3il_metrics::evaluate(
         TaskId::Stacking,
         &outcomes,
