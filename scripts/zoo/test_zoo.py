@@ -35,6 +35,18 @@ def test_script_overrides_are_read_from_the_checkout():
     assert not any(w.startswith("seed=") or w.startswith("--") for w in got)
 
 
+def test_budgets_rename_a_scripts_keys_and_replace_its_values():
+    script = train_cell.script_overrides(Path(REFERENCE), "avoiding", "ddpm_encdec")
+    assert "agents=ddpm_encdec" in script  # a config the checkout does not have
+    assert not Path(REFERENCE, "configs", "agents", "ddpm_encdec.yaml").exists()
+    budgets = json.loads((HERE / "budgets.json").read_text())
+    cell = budgets["methods"]["ddpm_encdec"]
+    got = train_cell.rename_keys(script, cell.get("script_renames", {}), cell["script_values"])
+    assert "agents=ddpm_encdec_agent" in got and "agents=ddpm_encdec" not in got
+    assert Path(REFERENCE, "configs", "agents", "ddpm_encdec_agent.yaml").is_file()
+    assert train_cell.rename_keys(["a.b=1", "c=2"], {"a.b": "a.x.b"}) == ["a.x.b=1", "c=2"]
+
+
 def test_mirror_points_the_data_dir_at_the_demos_and_leaves_the_checkout_alone(tmp_path):
     demos = synth_demos.write("aligning", 4, 20, tmp_path / "demos")
     before = subprocess.run(["git", "-C", REFERENCE, "status", "--porcelain"], capture_output=True, text=True).stdout

@@ -134,14 +134,20 @@ def script_overrides(reference: Path, task: str, method: str) -> list[str]:
     return out
 
 
-def rename_keys(overrides: list[str], renames: dict) -> list[str]:
+def rename_keys(overrides: list[str], renames: dict, values: dict | None = None) -> list[str]:
     """The script's overrides with keys renamed as budgets.json's "script_renames"
     says: for a benchmark script that names a key its own agent config does not
-    have at that path (Hydra refuses it), the key where the config has it. Every
-    rename is listed in the provenance's budget.changes with its reason."""
+    have at that path (Hydra refuses it), the key where the config has it; and
+    values replaced as its "script_values" says: for a script that names a config
+    the checkout does not have (e.g. `agents=ddpm_encdec`, whose file is
+    ddpm_encdec_agent.yaml), the one it has. Every rename and value is listed in the
+    provenance's budget.changes with its reason."""
+    values = values or {}
     out = []
     for o in overrides:
         key, sep, value = o.partition("=")
+        if sep and key in values:
+            value = values[key]
         out.append(f"{renames.get(key, key)}{sep}{value}" if sep else o)
     return out
 
@@ -329,7 +335,8 @@ def stage_train(a, work: Path, shadow: Path, tmp: Path):
     # budgets.json may add overrides of its own to a cell (e.g. fewer sampling steps where
     # the method's own would not evaluate within the session; "why" says so): applied after
     # the benchmark script's (before the training set is sized), listed in budget.changes
-    script = rename_keys(script_overrides(a.reference, a.task, a.method), cell.get("script_renames", {}))
+    script = rename_keys(script_overrides(a.reference, a.task, a.method), cell.get("script_renames", {}),
+                         cell.get("script_values", {}))
     extra = list(cell.get("overrides", []))
     base = [f"seed={a.seed}", "device=cpu", "num_workers=1", f"train_batch_size={batch}"]
     recorder = reference_env(shadow, a.threads)
@@ -340,7 +347,10 @@ def stage_train(a, work: Path, shadow: Path, tmp: Path):
         # the training set's size (windows of window_size steps) decides a samples budget
         windows = len(hydra.utils.instantiate(compose(shadow, a.task, script + extra + base).trainset))
         epochs, why = budget_epochs(cell, windows)
-    eval_every = a.eval_every or max(1, round(epochs * paper["eval_every_n_epochs"] / paper["epoch"]))
+    # the paper evaluates 10 times in a training (every 50 of 500 epochs); a budget may
+    # ask for fewer ("evaluations"), where one evaluation costs many epochs (IBC's)
+    evaluations = int(cell.get("evaluations", paper["epoch"] // paper["eval_every_n_epochs"]))
+    eval_every = a.eval_every or max(1, round(epochs / evaluations))
     ours = base + [f"epoch={epochs}", f"eval_every_n_epochs={eval_every}"]
     overrides = script + extra + ours
     cfg = compose(shadow, a.task, overrides)
@@ -561,7 +571,8 @@ def finish(a, work: Path, out: Path):
             "changes": [
                 f"epoch {train['epochs']} instead of the paper's {paper['epoch']}",
                 f"eval_every_n_epochs {train['eval_every_n_epochs']} instead of {paper['eval_every_n_epochs']} "
-                "(scaled with the epochs so that the checkpoint best on the evaluation split exists)",
+                f"({train['epochs'] // train['eval_every_n_epochs']} evaluations on the evaluation split in training, "
+                f"the paper {paper['epoch'] // paper['eval_every_n_epochs']}; the checkpoint best there is the policy)",
                 *([f"train_batch_size {train['train_batch_size']} instead of {paper['train_batch_size']}"]
                   if train["train_batch_size"] != paper["train_batch_size"] else []),
                 f"{train['train_samples']} training windows x {train['epochs']} epochs = "
@@ -572,6 +583,9 @@ def finish(a, work: Path, out: Path):
                 *[f"the benchmark script's {old} applied as {new} "
                   f"(budgets.json: {train['budget'].get('why', 'no reason given')})"
                   for old, new in train["budget"].get("script_renames", {}).items()],
+                *[f"the benchmark script's {key} applied as {key}={value} "
+                  f"(budgets.json: {train['budget'].get('why', 'no reason given')})"
+                  for key, value in train["budget"].get("script_values", {}).items()],
                 "device cpu and num_workers 1 (the loaders need >= 1)",
                 "demonstrations recorded from our tasks by `d3il demos` (see demos), "
                 "not the paper's recorded data",
