@@ -16,6 +16,27 @@ use sha2::{Digest, Sha256};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
+/// The zoo's stated size budget: the bytes of every file under the shipped
+/// zoo (assets/zoo), what a clone carries (docs/zoo.md, "Size"). Git keeps
+/// every replaced cell's blobs besides, so the repository grows faster.
+/// `d3il zoo check` refuses a zoo over it.
+pub const SIZE_BUDGET_BYTES: u64 = 110_000_000;
+
+/// The bytes of every file under `zoo`, its subdirectories included.
+pub fn size_bytes(zoo: &Path) -> std::io::Result<u64> {
+    let mut total = 0;
+    for e in std::fs::read_dir(zoo)? {
+        let e = e?;
+        let t = e.file_type()?;
+        if t.is_dir() {
+            total += size_bytes(&e.path())?;
+        } else if t.is_file() {
+            total += e.metadata()?.len();
+        }
+    }
+    Ok(total)
+}
+
 /// The files of a cell, as the provenance's `sha256` map names them. The
 /// ONNX, the result and the policy manifest must be there; the training
 /// files (checkpoint, scaler, config) are checked when they are shipped.

@@ -94,12 +94,24 @@ fn check(zoo: &ZooArg) -> anyhow::Result<()> {
             }
         }
     }
+    let bytes = d3il_server::zoo::size_bytes(&dir)
+        .with_context(|| format!("reading the sizes of the files under {}", dir.display()))?;
+    let mb = |b: u64| b as f64 / 1e6;
     println!(
-        "{} cells under {}, {bad} skipped",
+        "{} cells under {}, {bad} skipped; {:.1} MB of the zoo's size budget of {:.0} MB",
         cells.len(),
-        dir.display()
+        dir.display(),
+        mb(bytes),
+        mb(d3il_server::zoo::SIZE_BUDGET_BYTES)
     );
     anyhow::ensure!(bad == 0, "{bad} zoo cells fail their checks");
+    anyhow::ensure!(
+        bytes <= d3il_server::zoo::SIZE_BUDGET_BYTES,
+        "the zoo is {:.1} MB, over its size budget of {:.0} MB (docs/zoo.md, Size): \
+         ship fewer or smaller cells, or state a new budget with its reason",
+        mb(bytes),
+        mb(d3il_server::zoo::SIZE_BUDGET_BYTES)
+    );
     Ok(())
 }
 

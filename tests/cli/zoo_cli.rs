@@ -77,6 +77,46 @@ fn tables_prints_the_zoo_in_a_table_of_its_own() {
     assert!(!main.contains(",evaluated,"), "{main}");
 }
 
+/// The shipped zoo passes `d3il zoo check` (every cell's files are the ones
+/// its provenance names) and keeps within its stated size budget, which the
+/// check prints.
+#[test]
+fn the_shipped_zoo_checks_and_keeps_within_its_size_budget() {
+    let assets = Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/zoo");
+    let out = d3il(&["zoo", "check", "--zoo", assets.to_str().unwrap()]);
+    let text = stdout(&out);
+    assert!(out.status.success(), "{text}");
+    assert!(text.contains(", 0 skipped; "), "{text}");
+    assert!(
+        text.contains("MB of the zoo's size budget of 110 MB"),
+        "{text}"
+    );
+    let bytes = d3il_server::zoo::size_bytes(&assets).unwrap();
+    assert!(bytes <= d3il_server::zoo::SIZE_BUDGET_BYTES, "{bytes}");
+}
+
+/// A zoo over its size budget is refused, saying by how much and what to do
+/// (a sparse file makes the bytes without writing them).
+#[test]
+fn check_refuses_a_zoo_over_its_size_budget() {
+    let dir = scratch("over-budget");
+    let cell = dir.join(CELL);
+    std::fs::create_dir_all(&cell).unwrap();
+    for e in std::fs::read_dir(fixture().join(CELL)).unwrap() {
+        let p = e.unwrap().path();
+        std::fs::copy(&p, cell.join(p.file_name().unwrap())).unwrap();
+    }
+    let pad = std::fs::File::create(dir.join("padding.bin")).unwrap();
+    pad.set_len(d3il_server::zoo::SIZE_BUDGET_BYTES).unwrap();
+    let out = d3il(&["zoo", "check", "--zoo", dir.to_str().unwrap()]);
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("over its size budget of 110 MB") && err.contains("state a new budget"),
+        "{err}"
+    );
+}
+
 #[test]
 fn check_reads_every_cell_and_names_a_tampered_one() {
     let ok = stdout(&d3il(&[
