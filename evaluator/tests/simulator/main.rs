@@ -2,7 +2,9 @@
 //! whole stack, so a few large ones build much faster than one per file): every
 //! task in real MuJoCo (resets, rollouts traced twice, scripted experts, the
 //! reference values), rendering and screens, the Panda meshes, context sets and
-//! behaviour names. One module per former test file.
+//! behaviour names. One module per former test file. The display-counting
+//! test stays a binary of its own (tests/render_screens.rs): other tests'
+//! renderers in the same process would hold displays it counts.
 
 mod common;
 
@@ -15,6 +17,5 @@ mod panda_meshes;
 mod pushing;
 mod reference_avoiding;
 mod render;
-mod render_screens;
 mod sorting;
 mod stacking;

@@ -1,7 +1,7 @@
 //! Renderers that exist at the same time draw on EGL displays of their own,
 //! one llvmpipe screen each (a screen rasterizes one frame at a time, so
 //! worker threads sharing one would take turns; docs/images.md), and every
-//! display gives the same pixels. Alone in its file: the test counts the
+//! display gives the same pixels. Alone in its binary: the test counts the
 //! process's displays, which other tests' renderers would hold.
 
 use d3il_evaluator::camera::{camera_ids, SIZE};
