@@ -66,15 +66,17 @@ fn contract(task: &str, dir: &Path) {
 /// their experts fail or run past `max_len_data` about half the time, so
 /// covering their 6 and 20 orders takes minutes of tries; a few episodes
 /// there check the format and the contract, and their coverage is measured
-/// by hand (docs/demos.md). The same-seed check runs on two tasks: the
+/// by hand (docs/demos.md). Stacking's six orders take six episodes (its
+/// joint-space files, tests/demos_contract.py). The same-seed check runs on two tasks: the
 /// recorder's code path is the same for all.
-const TASKS: [(&str, usize, bool, bool); 6] = [
+const TASKS: [(&str, usize, bool, bool); 7] = [
     ("avoiding", 24, true, false),
     ("aligning", 4, true, true),
     ("pushing", 8, true, true),
     ("sorting-2", 4, true, false),
     ("sorting-4", 3, false, false),
     ("sorting-6", 2, false, false),
+    ("stacking", 6, true, false),
 ];
 
 #[test]

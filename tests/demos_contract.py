@@ -8,6 +8,10 @@ and configs/<task>_config.yaml; read, not copied):
   robot/des_c_pos, robot/c_pos and the task's objects (Pushing and Sorting
   take xy and tan(yaw) of each box from pos and a wxyz quaternion), rows 0..T-1;
 * the action is des_c_pos[t + 1] - des_c_pos[t], cast to float32;
+* Stacking is joint space: its observation is robot/des_j_pos, robot/gripper_width
+  (one-dimensional, expanded) and x, y, z, tan(yaw) of the red, green and blue
+  boxes; its action des_j_pos[t + 1] - des_j_pos[t] and gripper_width[t + 1]; it
+  also reads des_j_vel, des_c_pos, des_c_quat, c_pos, c_quat, j_pos and j_vel;
 * an episode must fit the config's max_len_data.
 
 Then the contract with our simulator: every episode's actions, rebuilt as the
@@ -37,7 +41,15 @@ CONFIG = {
     "sorting-2": (10, 600),
     "sorting-4": (16, 600),
     "sorting-6": (22, 1200),
+    "stacking": (20, 1000),
 }
+
+# Width of the previous command at the start of the observation (and of the
+# action): what the replay's environment observations are compared after.
+COMMAND = {"aligning": 3, "stacking": 8}
+
+STACKING_ROBOT = ("des_j_pos", "des_j_vel", "des_c_pos", "des_c_quat", "c_pos", "c_quat",
+                  "j_pos", "j_vel", "gripper_width")
 
 
 def tan_yaw(quat):
@@ -62,6 +74,12 @@ def observation(task, ep):
         parts += planar_box(ep, "red-box") + planar_box(ep, "green-box")
         for name in ("red-target", "green-target"):
             assert ep[name]["pos"].shape[1] >= 2, f"{name}/pos must have x and y"
+    elif task == "stacking":
+        for key in STACKING_ROBOT:
+            assert len(robot[key]) == len(robot["des_j_pos"]), f"robot/{key} has another length"
+        parts = [robot["des_j_pos"], robot["gripper_width"][:, None]]
+        for name in ("red-box", "green-box", "blue-box"):
+            parts += [ep[name]["pos"], tan_yaw(ep[name]["quat"])]
     else:
         k = int(task.split("-")[1]) // 2
         parts = [robot["des_c_pos"][:, :2], robot["c_pos"][:, :2]]
@@ -102,9 +120,14 @@ def main(d3il, task, root):
         with open(os.path.join(ep_dir, name), "rb") as f:
             ep = pickle.load(f)
         full = observation(task, ep)
-        des = ep["robot"]["des_c_pos"]
+        cmd = COMMAND.get(task, 2)
         obs = full[:-1].astype(np.float32)
-        act = (des[1:] - des[:-1]).astype(np.float32)
+        if task == "stacking":
+            q, grip = ep["robot"]["des_j_pos"], ep["robot"]["gripper_width"][:, None]
+            act = np.concatenate([q[1:] - q[:-1], grip[1:]], axis=-1).astype(np.float32)
+        else:
+            des = ep["robot"]["des_c_pos"]
+            act = (des[1:] - des[:-1]).astype(np.float32)[:, :cmd]
         if obs.shape[1] != obs_dim:
             fail(f"{name}: observation width {obs.shape[1]}, the config says {obs_dim}")
         if len(act) > max_len:
@@ -112,8 +135,7 @@ def main(d3il, task, root):
         entry = listed[name]
         if len(act) != entry["steps"]:
             fail(f"{name}: {len(act)} actions, manifest says {entry['steps']}")
-        act_dim = 3 if task == "aligning" else 2
-        episode = {"context": entry["context"], "actions": act[:, :act_dim].tolist()}
+        episode = {"context": entry["context"], "actions": act.tolist()}
         out = subprocess.run(
             [d3il, "replay", "--task", task, "--input", "/dev/stdin"],
             input=json.dumps(episode).encode(),
@@ -126,7 +148,6 @@ def main(d3il, task, root):
         if not rep["success"]:
             fail(f"{name}: the replayed actions do not succeed (the expert's episode did)")
         env_obs = np.asarray(rep["observations"], dtype=np.float32)[: len(obs)]
-        cmd = 3 if task == "aligning" else 2
         # Where tan(yaw) is large (a box turned near 90 degrees) compare the
         # angles: a quaternion holds the yaw, and tan near the pole keeps only
         # about 1e-16 / (pi/2 - yaw) of relative precision (none at 1e15).

@@ -10,7 +10,7 @@ use std::path::PathBuf;
 
 #[derive(clap::Args)]
 pub struct Args {
-    /// Task: avoiding, aligning, pushing, sorting-2, sorting-4, sorting-6.
+    /// Task: avoiding, aligning, pushing, sorting-2, sorting-4, sorting-6, stacking.
     #[arg(long)]
     pub task: TaskId,
     /// Successful episodes to write (behaviours in turn, so every one the task counts is covered).

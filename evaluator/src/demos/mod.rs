@@ -22,8 +22,9 @@
 
 pub mod pickle;
 
+use crate::robot::kinematics::PandaKinematics;
 use crate::scripted::ScriptedPolicy;
-use crate::tasks::{Env, LoadedTask, TaskError};
+use crate::tasks::{CommandKind, Env, LoadedTask, TaskError};
 use d3il_protocol::TaskId;
 use pickle::Py;
 use rand::{Rng, SeedableRng};
@@ -103,6 +104,10 @@ pub enum ObsField {
     /// `pos` = (obs[i], obs[i+1], 0), `quat` = the yaw rotation whose tangent
     /// is obs[i+2] (the reference reads `tan(quat2euler(quat)[-1])`).
     XyTanYaw(usize),
+    /// `pos` = obs[i..i+3], `quat` = the yaw rotation whose tangent is
+    /// obs[i+3] (Stacking's blocks: their height matters, their tilt is not
+    /// observed).
+    XyzTanYaw(usize),
 }
 
 /// The reference's layout for `task` (docs/zoo.md; read from
@@ -178,12 +183,28 @@ pub fn layout(task: TaskId) -> Result<Layout, DemoError> {
             ("6_boxes_train_files.pkl", "6_boxes_eval_files.pkl"),
             1200,
         ),
-        TaskId::Stacking | TaskId::Inserting => {
-            return Err(DemoError::Setup(format!(
-                "d3il demos does not write {task} yet: its reference dataset reads joint-space \
-                 entries (des_j_pos, j_vel, gripper_width, ...) that the recorder does not keep; \
-                 the state tasks it writes are avoiding, aligning, pushing, sorting-2, sorting-4, sorting-6"
-            )))
+        // The observation is the previous joint command and gripper width
+        // (8, see `episode_pickle`), then x, y, z and tan(yaw) of each block.
+        TaskId::Stacking => Layout {
+            root: "stacking",
+            episode_dir: "all_data",
+            lists: Some(("train_files.pkl", "eval_files.pkl")),
+            max_len_data: 1000,
+            objects: ["red-box", "green-box", "blue-box"]
+                .iter()
+                .enumerate()
+                .map(|(k, n)| (n.to_string(), ObsField::XyzTanYaw(c + 4 * k)))
+                .collect(),
+            unused: vec![],
+        },
+        TaskId::Inserting => {
+            return Err(DemoError::Setup(
+                "d3il demos does not write inserting: the reference code has no dataset class \
+                 or task config for it (environments/dataset, configs), so there is no format \
+                 its training reads; the state tasks it writes are avoiding, aligning, pushing, \
+                 sorting-2, sorting-4, sorting-6, stacking"
+                    .into(),
+            ))
         }
     })
 }
@@ -220,7 +241,22 @@ pub struct Episode {
     pub des: Vec<f64>,
     /// Policy observation at steps 0..=T (float32, obs_dim each).
     pub obs: Vec<f32>,
+    /// Joint-space tasks only (empty otherwise): the measured arm at steps
+    /// 0..=T, [`MEASURED`] values each (joints, joint velocities, TCP
+    /// position and quaternion), which the reference's Stacking dataset
+    /// reads but does not put into its observation.
+    pub measured: Vec<f64>,
     pub fixed_z: f64,
+}
+
+/// Width of one row of [`Episode::measured`]: j_pos 7, j_vel 7, c_pos 3, c_quat 4.
+pub const MEASURED: usize = 21;
+
+fn measure(env: &Env, out: &mut Vec<f64>) {
+    out.extend(env.sim.joint_pos());
+    out.extend(env.sim.joint_vel());
+    out.extend(env.sim.tcp_pos());
+    out.extend(env.sim.tcp_quat());
 }
 
 /// Tries made and why they were dropped.
@@ -284,26 +320,33 @@ fn try_episode(
     let mut env = Env::new(task)?;
     env.reset(&context)?;
     let mut script = expert.script(variant);
-    let act_dim = task.def.act_dim();
-    let mut noise = vec![0.0f64; act_dim];
+    let kind = task.def.command_kind();
+    let joint = kind == CommandKind::JointDelta;
+    // Speed and noise change the increments only: an absolute entry
+    // (Stacking's gripper width) scaled or jittered is another command.
+    let increments = kind.increments();
+    let mut noise = vec![0.0f64; increments];
     let rho = opts.noise_correlation;
     let innovation = (1.0 - rho * rho).sqrt();
-    let (mut des, mut obs) = (Vec::new(), Vec::new());
+    let (mut des, mut obs, mut measured) = (Vec::new(), Vec::new(), Vec::new());
     let mut steps = 0;
     while !env.is_done() {
         let o = env.policy_obs();
         des.extend_from_slice(env.prev_command());
         obs.extend_from_slice(&o);
-        let a = script.act(&o);
-        let norm = a.iter().map(|&v| (v as f64).powi(2)).sum::<f64>().sqrt();
-        let action: Vec<f32> = a
+        if joint {
+            measure(&env, &mut measured);
+        }
+        let mut action = script.act(&o);
+        let norm = action[..increments]
             .iter()
-            .zip(noise.iter_mut())
-            .map(|(&v, n)| {
-                *n = rho * *n + innovation * standard_normal(&mut rng);
-                (v as f64 * speed + opts.noise * norm * *n) as f32
-            })
-            .collect();
+            .map(|&v| (v as f64).powi(2))
+            .sum::<f64>()
+            .sqrt();
+        for (v, n) in action.iter_mut().zip(noise.iter_mut()) {
+            *n = rho * *n + innovation * standard_normal(&mut rng);
+            *v = (*v as f64 * speed + opts.noise * norm * *n) as f32;
+        }
         env.step(&action)?;
         steps += 1;
     }
@@ -334,6 +377,9 @@ fn try_episode(
     }
     des.extend_from_slice(env.prev_command());
     obs.extend_from_slice(&env.policy_obs());
+    if joint {
+        measure(&env, &mut measured);
+    }
     Ok((
         Some(Episode {
             index,
@@ -345,6 +391,7 @@ fn try_episode(
             context,
             des,
             obs,
+            measured,
             fixed_z: env.fixed_z(),
         }),
         tried,
@@ -395,9 +442,11 @@ pub fn record(
 }
 
 /// The per-episode pickle: `{"robot": {"des_c_pos", "c_pos"}, <object>: {"pos", "quat"}, ...}`
-/// as the reference's dataset class reads it.
+/// as the reference's dataset class reads it (Stacking's robot: the joint-space
+/// entries of [`joint_robot`]).
 pub fn episode_pickle(task: TaskId, ep: &Episode) -> Result<Vec<u8>, DemoError> {
     let lay = layout(task)?;
+    let joint = crate::tasks::task_def(task)?.command_kind() == CommandKind::JointDelta;
     let rows = ep.steps + 1;
     let c = ep.des.len() / rows;
     let obs_dim = ep.obs.len() / rows;
@@ -420,10 +469,12 @@ pub fn episode_pickle(task: TaskId, ep: &Episode) -> Result<Vec<u8>, DemoError> 
         }
     });
     let cpos = array(3, &|t, j| if j < c { o(t, c + j) } else { ep.fixed_z });
-    let mut entries = vec![(
-        "robot".to_string(),
-        Py::Dict(vec![("des_c_pos".into(), des), ("c_pos".into(), cpos)]),
-    )];
+    let robot = if joint {
+        joint_robot(ep, rows, &array)
+    } else {
+        vec![("des_c_pos".into(), des), ("c_pos".into(), cpos)]
+    };
+    let mut entries = vec![("robot".to_string(), Py::Dict(robot))];
     for (name, field) in &lay.objects {
         let (pos, quat) = match *field {
             ObsField::PosQuat(i) => (
@@ -432,14 +483,11 @@ pub fn episode_pickle(task: TaskId, ep: &Episode) -> Result<Vec<u8>, DemoError> 
             ),
             ObsField::XyTanYaw(i) => (
                 array(3, &|t, j| if j < 2 { o(t, i + j) } else { 0.0 }),
-                array(4, &|t, j| {
-                    let half = o(t, i + 2).atan() / 2.0;
-                    match j {
-                        0 => half.cos(),
-                        3 => half.sin(),
-                        _ => 0.0,
-                    }
-                }),
+                array(4, &|t, j| yaw_quat(o(t, i + 2), j)),
+            ),
+            ObsField::XyzTanYaw(i) => (
+                array(3, &|t, j| o(t, i + j)),
+                array(4, &|t, j| yaw_quat(o(t, i + 3), j)),
             ),
         };
         entries.push((
@@ -454,6 +502,57 @@ pub fn episode_pickle(task: TaskId, ep: &Episode) -> Result<Vec<u8>, DemoError> 
         ));
     }
     Ok(pickle::dumps(&Py::Dict(entries)))
+}
+
+/// Entry `j` (w, x, y, z) of the yaw-only quaternion whose yaw has tangent
+/// `tan_yaw`: the reference reads `tan(quat2euler(quat)[-1])` back.
+fn yaw_quat(tan_yaw: f64, j: usize) -> f64 {
+    let half = tan_yaw.atan() / 2.0;
+    match j {
+        0 => half.cos(),
+        3 => half.sin(),
+        _ => 0.0,
+    }
+}
+
+/// Stacking's robot entries (ALRhub/d3il `Stacking_Dataset`): it builds the
+/// observation from `des_j_pos` and `gripper_width` and the action from
+/// `des_j_pos[t + 1] − des_j_pos[t]` and `gripper_width[t + 1]`; the others it
+/// reads and leaves out. `des_j_pos` and `gripper_width` are therefore the
+/// evaluator's previous command (the 7 desired joints, float32 sums, and the
+/// gripper width the policy last asked for, docs/original-d3il.md §11.2.3),
+/// so that the policy sees at evaluation what it saw in training;
+/// `gripper_width` is one-dimensional, as the dataset expands it. `j_pos`,
+/// `j_vel`, `c_pos` and `c_quat` are measured at the row's step;
+/// `des_c_pos` and `des_c_quat` are the forward kinematics of `des_j_pos`; the
+/// joint command carries no desired velocity, so `des_j_vel` is zeros.
+fn joint_robot(
+    ep: &Episode,
+    rows: usize,
+    array: &dyn Fn(usize, &dyn Fn(usize, usize) -> f64) -> Py,
+) -> Vec<(String, Py)> {
+    let c = ep.des.len() / rows;
+    let q = |t: usize| -> [f64; 7] { std::array::from_fn(|j| ep.des[t * c + j]) };
+    let kin = PandaKinematics::new();
+    let fk: Vec<_> = (0..rows).map(|t| kin.fk(&q(t))).collect();
+    let m = |t: usize, j: usize| ep.measured[t * MEASURED + j];
+    vec![
+        ("des_j_pos".into(), array(7, &|t, j| q(t)[j])),
+        ("des_j_vel".into(), array(7, &|_, _| 0.0)),
+        ("des_c_pos".into(), array(3, &|t, j| fk[t].pos[j])),
+        ("des_c_quat".into(), array(4, &|t, j| fk[t].quat_wxyz()[j])),
+        ("c_pos".into(), array(3, &|t, j| m(t, 14 + j))),
+        ("c_quat".into(), array(4, &|t, j| m(t, 17 + j))),
+        ("j_pos".into(), array(7, &|t, j| m(t, j))),
+        ("j_vel".into(), array(7, &|t, j| m(t, 7 + j))),
+        (
+            "gripper_width".into(),
+            Py::Array {
+                shape: vec![rows],
+                data: (0..rows).map(|t| ep.des[t * c + 7]).collect(),
+            },
+        ),
+    ]
 }
 
 /// Behaviour histogram of the episodes (label -> count), labels sorted.

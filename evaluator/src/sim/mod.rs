@@ -113,6 +113,11 @@ impl Sim {
         self.data.xpos(self.ids.tcp_body)
     }
 
+    /// `data.xquat` of `tcp_rb0` (w, x, y, z), as stale as [`Sim::tcp_pos`].
+    pub fn tcp_quat(&self) -> [f64; 4] {
+        self.data.xquat(self.ids.tcp_body)
+    }
+
     /// Controller -> ctrl, then one `mj_step` (docs/original-d3il.md §01.4.1).
     pub fn substep(&mut self) -> Result<(), MjError> {
         let q = self.joint_pos();

@@ -37,6 +37,16 @@ impl CommandKind {
         }
     }
 
+    /// How many leading entries of an action are increments; the rest
+    /// (Stacking's gripper width) are absolute values, which scaling or
+    /// adding noise would turn into another command (0.08 × 0.9 closes).
+    pub fn increments(self) -> usize {
+        match self {
+            CommandKind::JointDelta => 7,
+            k => k.dim(),
+        }
+    }
+
     /// What an action means, for error messages.
     pub fn meaning(self) -> &'static str {
         match self {
