@@ -5,6 +5,17 @@ provenance.json gets the shipped files' sha256 (`sha256.result`,
 `sha256.robustness`; the plain file's sha256 is kept under `sha256_unpacked`).
 The server and `d3il zoo` read either form. Idempotent.
 
+A result ships with the traces of a sample of its rollouts: the first
+ceil(60 / states) rollouts of every initial state (rollout 0 of each of Aligning's
+60 states, the first 2 of each of Pushing's 30, the first 60 of Avoiding's one
+start), 60 traces whatever the protocol. The traces of the other rollouts are 7/8
+of a stochastic cell's bytes; the metrics, per-state outcomes, behaviours and paths
+of every rollout stay, and so does every state's rollout 0, which the copies of a
+policy simulated once per state share. The rollouts without a trace say so on their
+pages ("this rollout's trace was not stored"); the provenance's command re-runs the
+evaluation to the whole document (`sha256_unpacked.result`), and `shipped_traces`
+records the rule and the count.
+
 A robustness document ships without the traces of its perturbed levels' rollouts
 (`--keep-suite-traces` keeps them): they are 97 % of its bytes (about 6 MB gzipped for
 an Aligning suite, already-deflated data that gzip cannot shrink), the Robustness view
@@ -45,6 +56,27 @@ def strip_suite_traces(raw: bytes) -> bytes:
     return json.dumps(doc, separators=(",", ":")).encode()
 
 
+SAMPLED_TRACES = 60
+
+
+def sample_result_traces(doc: dict) -> dict:
+    """Drops the traces of every rollout but the first ceil(SAMPLED_TRACES / states)
+    of each initial state; returns what `shipped_traces` records."""
+    rollouts = doc["rollouts"]
+    states = len({r["context_index"] for r in rollouts}) or 1
+    per_state = -(-SAMPLED_TRACES // states)
+    for r in rollouts:
+        if r["rollout_index"] >= per_state:
+            r.pop("trace", None)
+    return {
+        "rule": f"the first {per_state} rollouts of each of the {states} initial states keep their traces "
+        "(scripts/zoo/pack.py); the others' were dropped for shipping",
+        "rollouts_per_state": per_state,
+        "with_trace": sum(1 for r in rollouts if r.get("trace")),
+        "rollouts": len(rollouts),
+    }
+
+
 def pack_cell(cell: Path, keep_suite_traces: bool = False) -> int:
     prov_path = cell / "provenance.json"
     prov = json.loads(prov_path.read_text())
@@ -56,7 +88,12 @@ def pack_cell(cell: Path, keep_suite_traces: bool = False) -> int:
         raw = plain.read_bytes()
         if hashlib.sha256(raw).hexdigest() != prov["sha256"].get(kind):
             raise SystemExit(f"{plain}: sha256 differs from its provenance; not packing a changed file")
-        body = raw if kind == "result" or keep_suite_traces else strip_suite_traces(raw)
+        if kind == "result":
+            doc = json.loads(raw)
+            prov["shipped_traces"] = sample_result_traces(doc)
+            body = json.dumps(doc, separators=(",", ":")).encode()
+        else:
+            body = raw if keep_suite_traces else strip_suite_traces(raw)
         packed = gzip.compress(body, compresslevel=9, mtime=0)
         tmp = cell / f".{name}.gz.tmp"
         tmp.write_bytes(packed)
@@ -68,7 +105,30 @@ def pack_cell(cell: Path, keep_suite_traces: bool = False) -> int:
         tmpp.write_text(json.dumps(prov, indent=2) + "\n")
         os.replace(tmpp, prov_path)
         plain.unlink()
+    saved += sample_packed_result(cell, prov)
     return saved
+
+
+def sample_packed_result(cell: Path, prov: dict) -> int:
+    """A cell packed before results shipped sampled traces: samples its gzipped
+    result in place (its sha256_unpacked, the document as evaluated, stays)."""
+    gz = cell / "result.json.gz"
+    if "shipped_traces" in prov or not gz.is_file():
+        return 0
+    packed = gz.read_bytes()
+    if hashlib.sha256(packed).hexdigest() != prov["sha256"]["result"]:
+        raise SystemExit(f"{gz}: sha256 differs from its provenance; not packing a changed file")
+    doc = json.loads(gzip.decompress(packed))
+    prov["shipped_traces"] = sample_result_traces(doc)
+    new = gzip.compress(json.dumps(doc, separators=(",", ":")).encode(), compresslevel=9, mtime=0)
+    tmp = cell / ".result.json.gz.tmp"
+    tmp.write_bytes(new)
+    os.replace(tmp, gz)
+    prov["sha256"]["result"] = hashlib.sha256(new).hexdigest()
+    tmpp = cell / ".provenance.json.tmp"
+    tmpp.write_text(json.dumps(prov, indent=2) + "\n")
+    os.replace(tmpp, cell / "provenance.json")
+    return len(packed) - len(new)
 
 
 def main() -> None:

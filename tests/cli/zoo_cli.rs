@@ -193,8 +193,23 @@ fn a_sampled_rollout_of_every_zoo_cell_replays_bit_for_bit() {
         let result = tmp.path().join("result.json");
         std::fs::write(&result, &text).unwrap();
         let doc: serde_json::Value = serde_json::from_slice(&text).unwrap();
-        let n = doc["rollouts"].as_array().map_or(0, Vec::len);
-        assert!(n > 0, "{}: no rollouts", cell.display());
+        let rollouts = doc["rollouts"].as_array().cloned().unwrap_or_default();
+        assert!(!rollouts.is_empty(), "{}: no rollouts", cell.display());
+        // A shipped result keeps the traces of a sample of its rollouts
+        // (scripts/zoo/pack.py: the first of each initial state, 60 in all;
+        // a policy simulated once per state has one trace per state): the
+        // choice is among those.
+        let traced: Vec<usize> = (0..rollouts.len())
+            .filter(|&i| !rollouts[i]["trace"].is_null())
+            .collect();
+        for r in &rollouts {
+            assert!(
+                r["rollout_index"] != 0 || !r["trace"].is_null(),
+                "{}: rollout 0 of state {} has no trace",
+                cell.display(),
+                r["context_index"]
+            );
+        }
         // A fixed choice per cell (FNV-1a of `<task>/<dir>`).
         let name = cell
             .iter()
@@ -206,7 +221,7 @@ fn a_sampled_rollout_of_every_zoo_cell_replays_bit_for_bit() {
         let h = name.bytes().fold(0xcbf29ce484222325u64, |h, b| {
             (h ^ b as u64).wrapping_mul(0x100000001b3)
         });
-        let k = (h % n as u64).to_string();
+        let k = traced[(h % traced.len() as u64) as usize].to_string();
         let out = stdout(&d3il(&[
             "replay",
             "--result",
