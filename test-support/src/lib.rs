@@ -5,9 +5,13 @@
 //! scratch directory removed on drop.
 //!
 //! It also re-exports the throw-away PostgreSQL of the store tests ([`pg`]).
+//! With the feature `server` it holds the test server harness ([`server`]:
+//! the server in-process or as the `d3il` binary, and store seeding).
 //!
 //! Its dependencies stay minimal (protocol, serde_json, rcgen, pgtemp) so
-//! every crate of the workspace can dev-depend on it without a cycle.
+//! every crate of the workspace can dev-depend on it without a cycle; the
+//! `server` feature adds the server, tokio, reqwest and tempfile, for the
+//! crates whose tests start a server (d3il-server's and the root crate's).
 #![forbid(unsafe_code)]
 
 pub use d3il_pgtemp as pg;
@@ -16,6 +20,8 @@ pub use d3il_pgtemp::free_port;
 pub mod chromium;
 pub mod layout;
 pub mod listening;
+#[cfg(feature = "server")]
+pub mod server;
 
 use d3il_protocol::{
     EvalResult, FailureReason, Job, Limits, ObsType, PolicyManifest, PolicySource, ProtocolKind,
