@@ -1,8 +1,7 @@
 //! The admin page against a real server on 127.0.0.1 (port 0): what it says
 //! about the sandbox mechanisms the kernel offers and lacks.
 
-use crate::common;
-use common::*;
+use d3il_test_support::server::*;
 
 #[tokio::test]
 async fn admin_page_says_when_the_sandbox_check_cannot_run() {

@@ -2,15 +2,14 @@
 //! server on 127.0.0.1 with a fresh SQLite file: ranking groups, number
 //! format, lists and progress.
 
-use crate::common;
-use common::*;
 use d3il_protocol::*;
+use d3il_test_support::server::*;
 
 /// Stores a completed evaluation of `method` on Aligning (state) as the worker
 /// would, and returns the submission id.
 #[allow(clippy::too_many_arguments)]
 async fn evaluated(
-    app: &TestApp,
+    app: &TestServer,
     method: &str,
     protocol: ProtocolKind,
     training_seed: i64,
@@ -18,7 +17,7 @@ async fn evaluated(
     cond: f64,
     initial_states: &str,
 ) -> i64 {
-    let store = &app.state.store;
+    let store = &app.state().store;
     let id = queued_submission(store, method, TaskId::Aligning, protocol, training_seed, 1).await;
     let job = store.job_for(id).await.expect("job");
     let result = aligning_result(protocol, success, cond, initial_states);
@@ -132,8 +131,13 @@ async fn quick_runs_evaluated_and_reported_rows_and_other_sets_are_ranked_apart(
 
 /// Stores a completed image evaluation of `method` on Aligning whose manifest
 /// records `look`, and returns the submission id.
-async fn evaluated_image(app: &TestApp, method: &str, seed: i64, look: Option<RobotLook>) -> i64 {
-    let store = &app.state.store;
+async fn evaluated_image(
+    app: &TestServer,
+    method: &str,
+    seed: i64,
+    look: Option<RobotLook>,
+) -> i64 {
+    let store = &app.state().store;
     let (task, obs, protocol) = (TaskId::Aligning, ObsType::Image, ProtocolKind::Paper);
     let id = queued_submission_of(store, method, task, obs, protocol, seed, 1).await;
     let job = store.job_for(id).await.expect("job");
@@ -303,7 +307,7 @@ async fn spread_only_over_two_seeds_and_three_decimals_everywhere() {
 }
 
 /// Submits through the API (token "tester"); the job stays queued (no workers).
-async fn queued(app: &TestApp, method: &str, task: &str) -> i64 {
+async fn queued(app: &TestServer, method: &str, task: &str) -> i64 {
     let m = manifest(task);
     let r = app
         .submit(
@@ -412,7 +416,7 @@ async fn a_queued_job_shows_its_place_and_no_made_up_estimate() {
 #[tokio::test]
 async fn the_wait_estimate_counts_the_jobs_worker_hosts_run() {
     let app = spawn_app().await; // no local workers: one slot assumed
-    let store = &app.state.store;
+    let store = &app.state().store;
     let submit = |seed| {
         queued_submission(
             store,

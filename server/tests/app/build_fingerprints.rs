@@ -3,9 +3,8 @@
 //! own, headed with the fingerprint, the API names each row's fingerprint
 //! and `d3il tables`' cells keep them apart with the reason.
 
-use crate::common;
-use common::*;
 use d3il_protocol::*;
+use d3il_test_support::server::*;
 
 /// An Aligning result made by a build with `fingerprint` (None: before
 /// builds were identified).
@@ -19,8 +18,8 @@ fn result(success: f64, fingerprint: Option<&str>) -> EvalResult {
     r
 }
 
-async fn evaluated(app: &TestApp, seed: i64, success: f64, fingerprint: Option<&str>) {
-    let store = &app.state.store;
+async fn evaluated(app: &TestServer, seed: i64, success: f64, fingerprint: Option<&str>) {
+    let store = &app.state().store;
     let id = queued_submission(
         store,
         "Mine",
@@ -92,7 +91,7 @@ async fn results_of_different_fingerprints_are_never_ranked_together() {
 
     // d3il tables keeps the cells apart, with the reason in the row's
     // annotation (tables/tests/tables/evaluated.rs: separate rows).
-    let cells = app.state.store.result_cells(None).await.expect("cells");
+    let cells = app.state().store.result_cells(None).await.expect("cells");
     let mine: Vec<&ResultCell> = cells.iter().filter(|c| c.method == "Mine").collect();
     assert_eq!(mine.len(), 3);
     let builds: Vec<Option<&str>> = mine.iter().map(|c| c.build.as_deref()).collect();

@@ -3,8 +3,7 @@
 //! `If-None-Match` gets 304 without a body; requests with credentials and
 //! `/admin` get none. A real server on 127.0.0.1 with a fresh SQLite file.
 
-use crate::common;
-use common::*;
+use d3il_test_support::server::*;
 
 #[tokio::test]
 async fn pages_plots_and_json_answer_304_to_a_matching_etag() {
@@ -85,7 +84,7 @@ async fn a_change_changes_the_etag_and_private_answers_get_none() {
     let r = app
         .http
         .get(app.url("/api/v1/whoami"))
-        .bearer_auth(&app.token)
+        .bearer_auth(app.token())
         .send()
         .await
         .unwrap();

@@ -2,9 +2,8 @@
 //! results API naming the initial-state set and counting rollouts that ended
 //! with an unstable simulation. Real SQLite, real HTTP on 127.0.0.1.
 
-use crate::common;
-use common::*;
 use d3il_protocol::*;
+use d3il_test_support::server::*;
 use d3il_test_support::{pushing_result, SynthRollout};
 use serde_json::Value;
 
@@ -19,7 +18,7 @@ fn result(k: impl Fn(usize) -> usize, unstable: usize) -> EvalResult {
     })
 }
 
-async fn submit(app: &TestApp, method: &str, task: &str) -> i64 {
+async fn submit(app: &TestServer, method: &str, task: &str) -> i64 {
     let m = manifest(task);
     let r = app
         .submit(
@@ -38,8 +37,8 @@ async fn submit(app: &TestApp, method: &str, task: &str) -> i64 {
 }
 
 /// Completes the oldest queued job with `result`, as a worker would.
-async fn complete(app: &TestApp, result: &EvalResult) -> i64 {
-    let store = &app.state.store;
+async fn complete(app: &TestServer, result: &EvalResult) -> i64 {
+    let store = &app.state().store;
     let claimed = store.claim_job("test", 60).await.unwrap().unwrap();
     store
         .complete_job(claimed.job.id, claimed.submission.id, result, &[])
@@ -176,7 +175,7 @@ async fn status_of_a_completed_submission_is_served_from_memory() {
     let v: Value = serde_json::from_str(&queued).unwrap();
     assert_eq!(v["status"], "queued", "{v}");
     assert_eq!(
-        app.state.finished.len(),
+        app.state().finished.len(),
         0,
         "a queued submission is not cached"
     );
@@ -191,14 +190,14 @@ async fn status_of_a_completed_submission_is_served_from_memory() {
 
 /// Changes submission `id`'s stored result behind the server's back; `path`
 /// must still answer `first`, from the one cached document.
-async fn assert_served_from_memory(app: &TestApp, id: i64, path: &str, first: &str) {
+async fn assert_served_from_memory(app: &TestServer, id: i64, path: &str, first: &str) {
     sqlx::query("UPDATE results SET success_rate = 0.5 WHERE submission_id = ?")
         .bind(id)
-        .execute(app.state.store.sqlite_pool().expect("a SQLite store"))
+        .execute(app.state().store.sqlite_pool().expect("a SQLite store"))
         .await
         .unwrap();
     let (s, again) = app.get_text(path).await;
     assert_eq!(s, 200);
     assert_eq!(again, first, "served from memory");
-    assert_eq!(app.state.finished.len(), 1);
+    assert_eq!(app.state().finished.len(), 1);
 }

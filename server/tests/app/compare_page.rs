@@ -2,9 +2,8 @@
 //! page's main table with evaluated rows. Real server on 127.0.0.1 port 0,
 //! real SQLite; results are written through the store as a worker would.
 
-use crate::common;
-use common::*;
 use d3il_protocol::*;
+use d3il_test_support::server::*;
 use d3il_test_support::{pushing_result, SynthRollout};
 use serde_json::Value;
 
@@ -19,7 +18,7 @@ fn result(protocol: ProtocolKind, k: impl Fn(usize) -> usize, ones: usize) -> Ev
     })
 }
 
-async fn submit(app: &TestApp, method: &str, task: &str, protocol: &str) -> i64 {
+async fn submit(app: &TestServer, method: &str, task: &str, protocol: &str) -> i64 {
     let m = manifest(task);
     let r = app
         .submit(
@@ -38,8 +37,8 @@ async fn submit(app: &TestApp, method: &str, task: &str, protocol: &str) -> i64 
 }
 
 /// Completes the oldest queued job with `result`, as a worker would.
-async fn complete(app: &TestApp, result: &EvalResult) -> i64 {
-    let store = &app.state.store;
+async fn complete(app: &TestServer, result: &EvalResult) -> i64 {
+    let store = &app.state().store;
     let claimed = store.claim_job("test", 60).await.unwrap().unwrap();
     store
         .complete_job(claimed.job.id, claimed.submission.id, result, &[])
@@ -157,7 +156,7 @@ async fn compare_page_shows_paired_differences_contexts_and_behaviours() {
             ("a", a),
             ("b", b),
             ("protocol", "quick".into()),
-            ("token", app.token.clone()),
+            ("token", app.token().to_string()),
         ];
         app.http.post(app.url("/races")).form(&form).send()
     };
@@ -181,7 +180,7 @@ async fn compare_page_shows_paired_differences_contexts_and_behaviours() {
         ("a", a.to_string()),
         ("b", b.to_string()),
         ("protocol", "quick".into()),
-        ("token", app.token.clone()),
+        ("token", app.token().to_string()),
     ];
     let r = app
         .http
@@ -307,7 +306,7 @@ async fn home_page_shows_evaluated_rows_next_to_reported_ones_but_not_quick_runs
 /// A race row as the race slot leaves it (written directly: the test app's
 /// worker is /bin/false, so the slot itself would fail any race it ran).
 async fn race_row(
-    app: &TestApp,
+    app: &TestServer,
     a: i64,
     b: i64,
     status: &str,
@@ -315,7 +314,7 @@ async fn race_row(
     report: Option<&Value>,
 ) -> i64 {
     let pool = app
-        .state
+        .state()
         .store
         .sqlite_pool()
         .expect("the test app is on SQLite");
@@ -503,14 +502,14 @@ async fn the_race_page_names_the_rule_that_decided_and_draws_the_walk() {
     );
     // A stored race whose task names nothing fails to decode, naming the
     // column, instead of being read as text.
-    let pool = app.state.store.sqlite_pool().unwrap();
+    let pool = app.state().store.sqlite_pool().unwrap();
     sqlx::query("UPDATE comparisons SET task = 'juggling' WHERE id = $1")
         .bind(done)
         .execute(pool)
         .await
         .unwrap();
     let e = app
-        .state
+        .state()
         .store
         .race(done)
         .await

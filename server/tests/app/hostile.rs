@@ -1,8 +1,7 @@
 //! The server under hostile use (issue 17), against a real server on
 //! 127.0.0.1 (port 0) with a fresh SQLite file.
 
-use crate::common;
-use common::*;
+use d3il_test_support::server::*;
 
 /// Every response carries the security headers: pages, API, plots, the
 /// stylesheet, errors and the fallback 404.
@@ -49,15 +48,15 @@ async fn every_response_carries_the_security_headers() {
     assert_eq!(r.headers()["x-frame-options"], "DENY");
 }
 
-async fn last_used(app: &TestApp, token: &str) -> Option<i64> {
+async fn last_used(app: &TestServer, token: &str) -> Option<i64> {
     sqlx::query_scalar("SELECT last_used_at FROM api_tokens WHERE prefix = ?")
         .bind(&token[..d3il_server::store::TOKEN_PREFIX_LEN])
-        .fetch_one(app.state.store.sqlite_pool().expect("a SQLite store"))
+        .fetch_one(app.state().store.sqlite_pool().expect("a SQLite store"))
         .await
         .unwrap()
 }
 
-async fn whoami(app: &TestApp, token: &str) -> u16 {
+async fn whoami(app: &TestServer, token: &str) -> u16 {
     app.http
         .get(app.url("/api/v1/whoami"))
         .bearer_auth(token)
@@ -75,7 +74,7 @@ async fn whoami(app: &TestApp, token: &str) -> u16 {
 #[tokio::test]
 async fn last_used_is_written_once_a_minute_and_a_held_write_lock_does_not_fail_requests() {
     let app = spawn_app().await;
-    let token = app.token.clone();
+    let token = app.token().to_string();
     assert_eq!(last_used(&app, &token).await, None);
     assert_eq!(whoami(&app, &token).await, 200);
     let first = wait_until(|| async { last_used(&app, &token).await }).await;
@@ -83,7 +82,7 @@ async fn last_used_is_written_once_a_minute_and_a_held_write_lock_does_not_fail_
     sqlx::query("UPDATE api_tokens SET last_used_at = ? WHERE prefix = ?")
         .bind(first - 30)
         .bind(&token[..d3il_server::store::TOKEN_PREFIX_LEN])
-        .execute(app.state.store.sqlite_pool().expect("a SQLite store"))
+        .execute(app.state().store.sqlite_pool().expect("a SQLite store"))
         .await
         .unwrap();
     assert_eq!(whoami(&app, &token).await, 200);
@@ -96,7 +95,7 @@ async fn last_used_is_written_once_a_minute_and_a_held_write_lock_does_not_fail_
 
     // Another connection (as another process would) takes the write lock; a
     // token used for the first time now has its write pending meanwhile.
-    let fresh = app.state.store.create_token("newcomer").await.unwrap();
+    let fresh = app.state().store.create_token("newcomer").await.unwrap();
     let opts = sqlx::sqlite::SqliteConnectOptions::new().filename(&app.db);
     let mut other = sqlx::ConnectOptions::connect(&opts).await.unwrap();
     sqlx::query("BEGIN IMMEDIATE")

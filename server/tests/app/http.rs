@@ -1,8 +1,7 @@
 //! The HTTP layer against a real server on 127.0.0.1 (port 0) with a fresh
 //! SQLite file: validation, auth, rate limits, pages, CSV, plots.
 
-use crate::common;
-use common::*;
+use d3il_test_support::server::*;
 use serde_json::Value;
 
 fn err(v: &Value) -> (&str, Option<&str>) {
@@ -41,7 +40,7 @@ async fn auth_is_required_and_errors_share_one_format() {
     let r = app
         .http
         .get(app.url("/api/v1/whoami"))
-        .bearer_auth(&app.token)
+        .bearer_auth(app.token())
         .send()
         .await
         .unwrap();
@@ -168,7 +167,7 @@ async fn every_bad_field_is_named() {
     );
     // Nothing was stored by any of the refused requests.
     let n: i64 = sqlx::query_scalar("SELECT COUNT(*) FROM submissions")
-        .fetch_one(app.state.store.sqlite_pool().expect("a SQLite store"))
+        .fetch_one(app.state().store.sqlite_pool().expect("a SQLite store"))
         .await
         .unwrap();
     assert_eq!(n, 0);
@@ -198,7 +197,7 @@ async fn accepted_submission_is_durable_queued_and_duplicate_seed_conflicts() {
     // The file is stored under its hash.
     let sha = v["policy"]["sha256"].as_str().unwrap();
     assert!(app
-        .state
+        .state()
         .store
         .data_dir()
         .join(format!("policies/{sha}.onnx"))
@@ -213,7 +212,12 @@ async fn accepted_submission_is_durable_queued_and_duplicate_seed_conflicts() {
     assert!(page.contains("Waiting (position 1 in the queue"), "{page}");
     assert!(page.contains("http-equiv=\"refresh\""));
     // Another submitter may not use this method name.
-    let other = app.state.store.create_token("someone-else").await.unwrap();
+    let other = app
+        .state()
+        .store
+        .create_token("someone-else")
+        .await
+        .unwrap();
     let mut form = reqwest::multipart::Form::new();
     for (k, v) in [
         ("method", "QueuePolicy"),
@@ -261,7 +265,7 @@ async fn oversized_uploads_are_refused() {
     let r = app
         .http
         .post(app.url("/api/v1/submissions"))
-        .bearer_auth(&app.token)
+        .bearer_auth(app.token())
         .header("content-type", "multipart/form-data; boundary=x")
         .header("content-length", (64u64 << 20).to_string())
         .body(vec![0u8; 16])
@@ -285,7 +289,7 @@ async fn rate_limit_answers_429_with_retry_after() {
         let r = app
             .http
             .get(app.url("/api/v1/whoami"))
-            .bearer_auth(&app.token)
+            .bearer_auth(app.token())
             .send()
             .await
             .unwrap();
@@ -294,7 +298,7 @@ async fn rate_limit_answers_429_with_retry_after() {
     let r = app
         .http
         .get(app.url("/api/v1/whoami"))
-        .bearer_auth(&app.token)
+        .bearer_auth(app.token())
         .send()
         .await
         .unwrap();
@@ -500,7 +504,7 @@ async fn html_form_submits_and_reports_field_errors() {
     let m = manifest("pushing");
     let mk = |seed: &str| {
         reqwest::multipart::Form::new()
-            .text("token", app.token.clone())
+            .text("token", app.token().to_string())
             .text("method", "FormPolicy")
             .text("task", "pushing")
             .text("training_seed", seed.to_string())
@@ -545,7 +549,7 @@ async fn html_form_submits_and_reports_field_errors() {
         page.contains("&#34;task&#34;: &#34;pushing&#34;"),
         "manifest kept, escaped: {page}"
     );
-    assert!(!page.contains(&app.token), "the token is never echoed");
+    assert!(!page.contains(app.token()), "the token is never echoed");
 }
 
 #[tokio::test]

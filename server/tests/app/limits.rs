@@ -5,13 +5,15 @@
 //! the worker slots, and a busy database answered with 503 + Retry-After
 //! rather than 500.
 
-use crate::limits_support;
-use limits_support::*;
+use d3il_test_support::server::*;
+use std::sync::atomic::Ordering;
+use std::sync::Arc;
+use std::time::Duration;
 
 #[tokio::test]
 async fn anonymous_requests_are_limited_per_client_address() {
-    let app = spawn(|c| c.anonymous_rate_limit_per_minute = 5, idle_runner()).await;
-    let token = app.state.store.create_token("alice").await.unwrap();
+    let app = spawn_app_configured(|c| c.anonymous_rate_limit_per_minute = 5, idle_runner()).await;
+    let token = app.state().store.create_token("alice").await.unwrap();
     let a = client_from("127.0.0.1");
     for _ in 0..5 {
         let r = a.get(app.url("/api/v1/leaderboards")).send().await.unwrap();
@@ -47,8 +49,8 @@ async fn anonymous_requests_are_limited_per_client_address() {
 
 #[tokio::test]
 async fn failed_token_checks_are_limited_per_client_address() {
-    let app = spawn(|c| c.failed_auth_per_minute = 3, idle_runner()).await;
-    let token = app.state.store.create_token("alice").await.unwrap();
+    let app = spawn_app_configured(|c| c.failed_auth_per_minute = 3, idle_runner()).await;
+    let token = app.state().store.create_token("alice").await.unwrap();
     let a = client_from("127.0.0.1");
     for i in 0..3 {
         let r = a
@@ -91,7 +93,7 @@ async fn failed_token_checks_are_limited_per_client_address() {
 /// the proxy's connections are not capped per address.
 #[tokio::test]
 async fn behind_a_trusted_proxy_the_limits_key_on_the_forwarded_client() {
-    let app = spawn(
+    let app = spawn_app_configured(
         |c| {
             c.anonymous_rate_limit_per_minute = 3;
             c.failed_auth_per_minute = 2;
@@ -101,7 +103,7 @@ async fn behind_a_trusted_proxy_the_limits_key_on_the_forwarded_client() {
         idle_runner(),
     )
     .await;
-    let token = app.state.store.create_token("alice").await.unwrap();
+    let token = app.state().store.create_token("alice").await.unwrap();
     let board = app.url("/api/v1/leaderboards");
     let whoami = app.url("/api/v1/whoami");
     let proxy = client_from("127.0.0.2");
@@ -177,8 +179,8 @@ async fn behind_a_trusted_proxy_the_limits_key_on_the_forwarded_client() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn endpoint_dry_runs_share_the_worker_slots() {
     let counting = Arc::new(Counting::default());
-    let app = spawn(|c| c.workers = 1, counting.clone()).await;
-    let token = app.state.store.create_token("alice").await.unwrap();
+    let app = spawn_app_configured(|c| c.workers = 1, counting.clone()).await;
+    let token = app.state().store.create_token("alice").await.unwrap();
     let http = reqwest::Client::new();
     let mut tasks = Vec::new();
     for seed in 0..6 {
@@ -215,8 +217,8 @@ async fn a_busy_database_is_retried_then_answered_with_503() {
     use d3il_server::error::AppError;
     use d3il_server::store::StoreError;
     use sqlx::ConnectOptions;
-    let app = spawn(|_| {}, idle_runner()).await;
-    let d3il_server::store::DbTarget::Sqlite(db) = app.state.cfg.db.clone() else {
+    let app = spawn_app_configured(|_| {}, idle_runner()).await;
+    let d3il_server::store::DbTarget::Sqlite(db) = app.state().cfg.db.clone() else {
         panic!("this test holds SQLite's write lock")
     };
     let opts = sqlx::sqlite::SqliteConnectOptions::new()
@@ -241,7 +243,7 @@ async fn a_busy_database_is_retried_then_answered_with_503() {
 
     // A submission while another process holds the write lock for 2 s: it
     // waits (busy timeout) and is accepted, never a 500.
-    let token = app.state.store.create_token("alice").await.unwrap();
+    let token = app.state().store.create_token("alice").await.unwrap();
     sqlx::query("BEGIN IMMEDIATE")
         .execute(&mut holder)
         .await
@@ -279,7 +281,7 @@ async fn a_busy_database_is_retried_then_answered_with_503() {
 /// with its flag.
 #[tokio::test]
 async fn the_admin_page_shows_the_configured_limits() {
-    let app = spawn(
+    let app = spawn_app_configured(
         |c| {
             c.max_upload_bytes = 7 << 20;
             c.max_disk_bytes_per_submitter = Some(33 << 20);
@@ -299,7 +301,7 @@ async fn the_admin_page_shows_the_configured_limits() {
     )
     .await;
     let admin = app
-        .state
+        .state()
         .store
         .create_token_with("ops", true)
         .await
@@ -358,7 +360,13 @@ struct RawUpload {
 const BOUNDARY: &str = "limitsBoundary42";
 
 impl RawUpload {
-    async fn start(app: &App, token: &str, seed: u32, file: usize, first: usize) -> RawUpload {
+    async fn start(
+        app: &TestServer,
+        token: &str,
+        seed: u32,
+        file: usize,
+        first: usize,
+    ) -> RawUpload {
         use tokio::io::AsyncWriteExt;
         let mut head = String::new();
         for (k, v) in [
@@ -408,8 +416,8 @@ impl RawUpload {
     }
 }
 
-fn temp_uploads(app: &App) -> usize {
-    std::fs::read_dir(app.state.store.policies_dir())
+fn temp_uploads(app: &TestServer) -> usize {
+    std::fs::read_dir(app.state().store.policies_dir())
         .unwrap()
         .flatten()
         .filter(|e| e.file_name().to_string_lossy().contains(".tmp"))
@@ -420,8 +428,8 @@ fn temp_uploads(app: &App) -> usize {
 /// until the first is stored; then it streams in too.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn concurrent_uploads_are_capped() {
-    let app = spawn(|c| c.max_concurrent_uploads = 1, idle_runner()).await;
-    let token = app.state.store.create_token("alice").await.unwrap();
+    let app = spawn_app_configured(|c| c.max_concurrent_uploads = 1, idle_runner()).await;
+    let token = app.state().store.create_token("alice").await.unwrap();
     let a = RawUpload::start(&app, &token, 1, 512 << 10, 256 << 10).await;
     for _ in 0..100 {
         if temp_uploads(&app) == 1 {
@@ -446,7 +454,7 @@ async fn concurrent_uploads_are_capped() {
 /// browses past it.
 #[tokio::test]
 async fn only_a_valid_token_lifts_the_anonymous_limit() {
-    let app = spawn(
+    let app = spawn_app_configured(
         |c| {
             c.anonymous_rate_limit_per_minute = 3;
             c.failed_auth_per_minute = 3;
@@ -454,7 +462,7 @@ async fn only_a_valid_token_lifts_the_anonymous_limit() {
         idle_runner(),
     )
     .await;
-    let token = app.state.store.create_token("alice").await.unwrap();
+    let token = app.state().store.create_token("alice").await.unwrap();
     let a = client_from("127.0.0.3");
     for _ in 0..3 {
         assert_eq!(
@@ -536,7 +544,7 @@ async fn only_a_valid_token_lifts_the_anonymous_limit() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_trickled_unread_body_is_cut_off_at_the_linger_deadline() {
     use tokio::io::{AsyncReadExt, AsyncWriteExt};
-    let app = spawn(
+    let app = spawn_app_configured(
         |c| {
             c.connections.header_read_timeout = Duration::from_secs(2);
             c.connections.linger_deadline = Duration::from_secs(3);
@@ -616,7 +624,7 @@ async fn a_trickled_unread_body_is_cut_off_at_the_linger_deadline() {
         "read on for a while first"
     );
     // The operator sees both limits at work in /metrics.
-    let metrics = app.state.telemetry.scrape().await;
+    let metrics = app.state().telemetry.scrape().await;
     for want in [
         "d3il_rate_limit_refusals_total{limit=\"linger_deadline\"} 2",
         "d3il_rate_limit_refusals_total{limit=\"client_connections\"} 1",
@@ -645,14 +653,14 @@ async fn a_trickled_unread_body_is_cut_off_at_the_linger_deadline() {
 /// to an admin token; the metrics listener shows it (tests/serve/ops_metrics.rs).
 #[tokio::test]
 async fn public_readyz_shows_its_detail_only_to_an_admin() {
-    let app = spawn(|_| {}, idle_runner()).await;
+    let app = spawn_app_configured(|_| {}, idle_runner()).await;
     let admin = app
-        .state
+        .state()
         .store
         .create_token_with("ready-op", true)
         .await
         .unwrap();
-    let user = app.state.store.create_token("ready-user").await.unwrap();
+    let user = app.state().store.create_token("ready-user").await.unwrap();
     let c = reqwest::Client::new();
     let get = |token: Option<String>| {
         let mut r = c.get(app.url("/readyz"));

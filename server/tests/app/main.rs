@@ -1,11 +1,9 @@
 //! The server's integration tests, one test binary (each binary links the whole
 //! stack, so a few large ones build much faster than one per file): the app
 //! in-process on 127.0.0.1 port 0 with a fresh SQLite file or PostgreSQL
-//! database (common::spawn_app), the store, queue and fair-use limits, pages,
+//! database (d3il_test_support::server::spawn_app), the store, queue and fair-use limits, pages,
 //! plots, snapshots and the module layout. One module per former test file.
 
-mod common;
-mod limits_support;
 mod rollout_support;
 #[path = "../../../tables/tests/svg_geometry/mod.rs"]
 mod svg_geometry;

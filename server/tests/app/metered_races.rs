@@ -3,15 +3,16 @@
 //! at once are capped, and a race is cancelled by its starter or an admin
 //! (audited), its running worker stopped.
 
-use crate::common;
-use common::quotas::*;
-use common::*;
 use d3il_server::config::QuotaLimits;
+use d3il_test_support::server::*;
 use serde_json::{json, Value};
 
 /// An app with quotas `limits` whose race slot's worker runs until it is
 /// killed (a race stays running until it is cancelled).
-async fn app_with_endless_races(b: Backend, limits: QuotaLimits) -> (TestApp, tempfile::TempDir) {
+async fn app_with_endless_races(
+    b: Backend,
+    limits: QuotaLimits,
+) -> (TestServer, tempfile::TempDir) {
     let dir = tempfile::tempdir().unwrap();
     let worker = dir.path().join("endless.sh");
     std::fs::write(
@@ -33,13 +34,13 @@ async fn app_with_endless_races(b: Backend, limits: QuotaLimits) -> (TestApp, te
     (with_quotas(app, limits).await, dir)
 }
 
-async fn race_as(app: &TestApp, token: &str, a: i64, b: i64) -> (u16, Value, Option<String>) {
+async fn race_as(app: &TestServer, token: &str, a: i64, b: i64) -> (u16, Value, Option<String>) {
     race_at(app, "/api/v1/races", token, a, b).await
 }
 
 /// `race_as` at `path`: `/api/v1/races`, or its deprecated alias.
 async fn race_at(
-    app: &TestApp,
+    app: &TestServer,
     path: &str,
     token: &str,
     a: i64,
@@ -56,7 +57,7 @@ async fn race_at(
     answer_with_retry(r).await
 }
 
-async fn cancel_race_as(app: &TestApp, token: &str, id: i64) -> (u16, Value) {
+async fn cancel_race_as(app: &TestServer, token: &str, id: i64) -> (u16, Value) {
     let r = app
         .http
         .post(app.url(&format!("/api/v1/races/{id}/cancel")))
@@ -71,7 +72,7 @@ async fn cancel_race_as(app: &TestApp, token: &str, id: i64) -> (u16, Value) {
 /// Cancels race `id` through the deprecated alias
 /// `/api/v1/comparisons/{id}/cancel`: the same answer, with the
 /// deprecation note naming the successor.
-async fn cancel_race_by_old_route(app: &TestApp, token: &str, id: i64) -> (u16, Value) {
+async fn cancel_race_by_old_route(app: &TestServer, token: &str, id: i64) -> (u16, Value) {
     let r = app
         .http
         .post(app.url(&format!("/api/v1/comparisons/{id}/cancel")))
@@ -122,7 +123,7 @@ async fn races_and_suites_are_metered_in_evaluations(b: Backend) {
         },
     )
     .await;
-    let store = &app.state.store;
+    let store = &app.state().store;
     let erin = store.create_token("erin").await.unwrap();
     let dave = store.create_token("dave").await.unwrap();
     let admin = store.create_token_with("op52", true).await.unwrap();

@@ -4,26 +4,25 @@
 //! per method as `d3il tables --figure` and readable behaviour names, against
 //! the real server on 127.0.0.1 over the paper's rows.
 
-use crate::common;
 use crate::svg_geometry;
 
-use common::*;
 use d3il_protocol::*;
 use d3il_tables::plot::{hex, method_colour};
 use d3il_tables::{render_figure, FigureKind, SourceFilter};
+use d3il_test_support::server::*;
 use std::collections::BTreeMap;
 use svg_geometry::{assert_readable, parse};
 
 /// Stores a completed paper-protocol evaluation as the worker would.
 async fn evaluated(
-    app: &TestApp,
+    app: &TestServer,
     method: &str,
     task: TaskId,
     training_seed: i64,
     success: f64,
     rollouts: Vec<RolloutRecord>,
 ) -> i64 {
-    let store = &app.state.store;
+    let store = &app.state().store;
     let id = queued_submission(store, method, task, ProtocolKind::Paper, training_seed, 1).await;
     let job = store.job_for(id).await.expect("job");
     let est = |v: f64| {
@@ -124,7 +123,7 @@ async fn served_plots_are_readable_and_colour_methods_as_the_cli_does() {
         "evaluated rows keep the method's colour"
     );
     // The CLI figure from the same database (what `d3il tables --figure` draws).
-    let cells = app.state.store.result_cells(None).await.unwrap();
+    let cells = app.state().store.result_cells(None).await.unwrap();
     let cli = parse(
         &render_figure(
             &cells,

@@ -3,9 +3,8 @@
 //! tests cover the server's side: leasing, progress, retries, typed errors and
 //! result storage.
 
-use crate::common;
-use common::*;
 use d3il_protocol::*;
+use d3il_test_support::server::*;
 use serde_json::Value;
 use std::path::{Path, PathBuf};
 use std::time::Duration;
@@ -83,7 +82,7 @@ fn result_line(task: TaskId) -> String {
     serde_json::to_string(&WorkerMessage::Result(Box::new(r))).unwrap()
 }
 
-async fn wait_final(app: &TestApp, id: i64) -> Value {
+async fn wait_final(app: &TestServer, id: i64) -> Value {
     for _ in 0..300 {
         let (_, v) = app.get_json(&format!("/api/v1/submissions/{id}")).await;
         if v["status"] == "completed" || v["status"] == "failed" {
@@ -94,7 +93,7 @@ async fn wait_final(app: &TestApp, id: i64) -> Value {
     panic!("submission {id} did not finish");
 }
 
-async fn submit_one(app: &TestApp, method: &str, task: &str) -> i64 {
+async fn submit_one(app: &TestServer, method: &str, task: &str) -> i64 {
     let m = manifest(task);
     let r = app
         .submit(
@@ -159,7 +158,7 @@ async fn completed_job_is_stored_and_shown(b: Backend) {
     assert_eq!(s, 200);
     assert!(svg.contains("<svg"));
     // The tables' cells exclude quick-protocol runs.
-    let cells = app.state.store.result_cells(None).await.unwrap();
+    let cells = app.state().store.result_cells(None).await.unwrap();
     assert!(cells.iter().all(|c| c.method != "Fixture"));
 }
 
@@ -397,7 +396,7 @@ async fn stacking_levels_are_stored_and_shown_each_with_its_own_numbers(b: Backe
     }
 }
 
-common::on_both_backends!(
+d3il_test_support::on_both_backends!(
     completed_job_is_stored_and_shown,
     crashing_worker_is_retried_then_fails_with_a_typed_error,
     policy_errors_fail_at_once_and_garbage_output_is_a_protocol_violation,

@@ -4,9 +4,8 @@
 //! 127.0.0.1 port 0, real SQLite, real worker processes (shell fixtures
 //! speaking the worker's JSON lines).
 
-use crate::common;
-use common::*;
 use d3il_protocol::*;
+use d3il_test_support::server::*;
 use serde_json::Value;
 use std::path::{Path, PathBuf};
 use std::time::Duration;
@@ -80,21 +79,21 @@ fn result_line_once(once: bool) -> String {
     serde_json::to_string(&WorkerMessage::Result(Box::new(r))).unwrap()
 }
 
-async fn submit(app: &TestApp, method: &str, task: &str, protocol: &str) -> i64 {
+async fn submit(app: &TestServer, method: &str, task: &str, protocol: &str) -> i64 {
     submit_obs(app, method, task, "state", protocol).await
 }
 
-async fn submit_obs(app: &TestApp, method: &str, task: &str, obs: &str, protocol: &str) -> i64 {
+async fn submit_obs(app: &TestServer, method: &str, task: &str, obs: &str, protocol: &str) -> i64 {
     submit_fields(app, method, task, obs, protocol, 1, &[]).await
 }
 
 /// A state Aligning quick submission whose manifest declares `history`.
-async fn submit_history(app: &TestApp, method: &str, history: usize) -> i64 {
+async fn submit_history(app: &TestServer, method: &str, history: usize) -> i64 {
     submit_fields(app, method, "aligning", "state", "quick", history, &[]).await
 }
 
 /// A state Aligning quick submission asking for the robustness suite.
-async fn submit_suite(app: &TestApp, method: &str) -> i64 {
+async fn submit_suite(app: &TestServer, method: &str) -> i64 {
     let suite = [("suite", "robustness")];
     submit_fields(app, method, "aligning", "state", "quick", 1, &suite).await
 }
@@ -102,7 +101,7 @@ async fn submit_suite(app: &TestApp, method: &str) -> i64 {
 /// A submission of `task` with the manifest declaring `history`, and the
 /// form fields `extra` besides the usual ones.
 async fn submit_fields(
-    app: &TestApp,
+    app: &TestServer,
     method: &str,
     task: &str,
     obs: &str,
@@ -131,13 +130,13 @@ async fn submit_fields(
 
 /// Claims the next queued job, which must be submission `id`'s, and
 /// completes it at once with [`result_line`]'s result.
-async fn complete_next(app: &TestApp, id: i64) {
+async fn complete_next(app: &TestServer, id: i64) {
     complete_next_once(app, id, false).await
 }
 
 /// [`complete_next`] with [`result_line_once`]'s result.
-async fn complete_next_once(app: &TestApp, id: i64, once: bool) {
-    let store = &app.state.store;
+async fn complete_next_once(app: &TestServer, id: i64, once: bool) {
+    let store = &app.state().store;
     let c = store.claim_job("test", 60).await.unwrap().unwrap();
     assert_eq!(c.submission.id, id);
     let WorkerMessage::Result(r) = serde_json::from_str(&result_line_once(once)).unwrap() else {
@@ -148,8 +147,8 @@ async fn complete_next_once(app: &TestApp, id: i64, once: bool) {
 
 /// Claims the next queued job, which must be submission `id`'s, and fails
 /// it for good (a bad model: not retried).
-async fn fail_next(app: &TestApp, id: i64) {
-    let store = &app.state.store;
+async fn fail_next(app: &TestServer, id: i64) {
+    let store = &app.state().store;
     let c = store.claim_job("test", 60).await.unwrap().unwrap();
     assert_eq!(c.submission.id, id);
     let e = WorkerError {
@@ -162,7 +161,7 @@ async fn fail_next(app: &TestApp, id: i64) {
         .unwrap();
 }
 
-async fn status(app: &TestApp, id: i64) -> Value {
+async fn status(app: &TestServer, id: i64) -> Value {
     app.get_json(&format!("/api/v1/submissions/{id}")).await.1
 }
 
@@ -224,7 +223,7 @@ async fn etas_come_from_past_runs_of_the_same_task_and_protocol(b: Backend) {
     assert!(page.contains("Waiting (position 1 in the queue, 0 ahead)"));
     assert!(!page.contains("Attempt 0"));
     // One finished Pushing paper run (it took under a second: counted as 1 s).
-    let store = &app.state.store;
+    let store = &app.state().store;
     fail_next(&app, first).await;
     let means = store.mean_job_seconds_by_kind().await.unwrap();
     assert!(means.is_empty(), "a failed job is no basis: {means:?}");
@@ -336,7 +335,7 @@ async fn etas_scale_suite_runs_by_their_evaluations(b: Backend) {
     })
     .await; // no worker slots: jobs stay queued
     let evaluations = d3il_server::intake::suite_evaluations(
-        &app.state.cfg.assets_dir,
+        &app.state().cfg.assets_dir,
         TaskId::Aligning,
         ObsType::State,
     )
@@ -346,7 +345,7 @@ async fn etas_scale_suite_runs_by_their_evaluations(b: Backend) {
     let early = submit_suite(&app, "Early").await;
     assert_eq!(status(&app, early).await["eta_seconds"], Value::Null);
     let plain = submit(&app, "Plain", "aligning", "quick").await;
-    let store = &app.state.store;
+    let store = &app.state().store;
     fail_next(&app, early).await;
     complete_next(&app, plain).await;
     // One plain run of 1 s: the suite run is estimated at 14 s; the plain
@@ -363,7 +362,7 @@ async fn etas_scale_suite_runs_by_their_evaluations(b: Backend) {
     );
 }
 
-common::on_both_backends!(
+d3il_test_support::on_both_backends!(
     etas_scale_suite_runs_by_their_evaluations,
     a_quick_job_runs_on_its_own_slot_while_paper_runs_hold_every_other_slot,
     etas_come_from_past_runs_of_the_same_task_and_protocol,

@@ -9,14 +9,12 @@
 //! own submission and is capped at `races` at once, and is cancelled by its
 //! starter or an admin (audited), its running worker stopped.
 
-use crate::common;
-use common::quotas::*;
-use common::*;
 use d3il_server::config::QuotaLimits;
+use d3il_test_support::server::*;
 use serde_json::{json, Value};
 
 /// An app with quotas `limits` and no workers (submissions stay queued).
-async fn app_with(b: Backend, limits: QuotaLimits, dry_run: bool) -> TestApp {
+async fn app_with(b: Backend, limits: QuotaLimits, dry_run: bool) -> TestServer {
     let app = spawn_app_with(Options {
         backend: b,
         dry_run_uploads: dry_run,
@@ -29,7 +27,7 @@ async fn app_with(b: Backend, limits: QuotaLimits, dry_run: bool) -> TestApp {
 /// Whether submission `id` of `method` is listed by the public lists: the
 /// API list (unfiltered and filtered by method), `/submissions`, the home
 /// page's latest and the method's page.
-async fn publicly_listed(app: &TestApp, id: i64, method: &str) -> [bool; 5] {
+async fn publicly_listed(app: &TestServer, id: i64, method: &str) -> [bool; 5] {
     let api = |v: Value| {
         v["submissions"]
             .as_array()
@@ -69,7 +67,7 @@ async fn counted_refused_with_the_time_and_admin_exempt(b: Backend) {
         false,
     )
     .await;
-    let store = &app.state.store;
+    let store = &app.state().store;
     let alice = store.create_token("alice").await.unwrap();
     let (s, who) = get_json_as(&app, &alice, "/api/v1/whoami").await;
     assert_eq!(s, 200, "{who}");
@@ -176,7 +174,7 @@ async fn dry_run_refusals_are_not_counted(b: Backend) {
         true,
     )
     .await;
-    let bob = app.state.store.create_token("bob").await.unwrap();
+    let bob = app.state().store.create_token("bob").await.unwrap();
     for seed in 0..3 {
         let (s, body, _) = submit_as(&app, &bob, &fields("D", seed)).await;
         assert_eq!(s, 400, "the dry run refuses it: {body}");
@@ -189,7 +187,7 @@ async fn dry_run_refusals_are_not_counted(b: Backend) {
 
 async fn moderation_and_the_audit_log(b: Backend) {
     let app = app_with(b, QuotaLimits::NONE, false).await;
-    let store = &app.state.store;
+    let store = &app.state().store;
     let result = aligning_result(
         d3il_protocol::ProtocolKind::Paper,
         0.8,
@@ -447,7 +445,7 @@ on_both_backends!(
 async fn an_ambiguous_revoke_prefix_is_refused_naming_the_matches() {
     use sqlx::{ConnectOptions, Executor};
     let app = spawn_app().await;
-    let store = &app.state.store;
+    let store = &app.state().store;
     let first = store.create_token("ann").await.unwrap();
     let second = store.create_token("bob").await.unwrap();
     let prefix = &first[..13];
@@ -486,7 +484,7 @@ async fn an_ambiguous_revoke_prefix_is_refused_naming_the_matches() {
 #[tokio::test]
 async fn admin_actions_need_a_json_content_type() {
     let app = spawn_app().await;
-    let store = &app.state.store;
+    let store = &app.state().store;
     let admin = store.create_token_with("csrf-op", true).await.unwrap();
     let victim = store.create_token("victim").await.unwrap();
     let prefix = &victim[..13];
@@ -531,7 +529,7 @@ async fn admin_actions_need_a_json_content_type() {
 async fn an_endpoint_url_is_shown_only_to_its_submitter_and_admins() {
     use d3il_server::store::{NewMethod, NewPolicy, NewSubmission};
     let app = spawn_app().await;
-    let store = &app.state.store;
+    let store = &app.state().store;
     let owner = store.create_token("endpoint-owner").await.unwrap();
     let other = store.create_token("someone").await.unwrap();
     let admin = store.create_token_with("endpoint-op", true).await.unwrap();
@@ -590,7 +588,7 @@ async fn an_endpoint_url_is_shown_only_to_its_submitter_and_admins() {
 #[tokio::test]
 async fn an_admins_cancel_is_audited_with_the_cancel() {
     let app = spawn_app().await;
-    let store = &app.state.store;
+    let store = &app.state().store;
     let owner = store.create_token("canceller").await.unwrap();
     let admin = store.create_token_with("cancel-op", true).await.unwrap();
     let (s, a, _) = submit_as(&app, &owner, &fields("CancelA", 0)).await;

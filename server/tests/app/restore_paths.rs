@@ -5,10 +5,9 @@
 //! target empty; once the source is fixed, the new backup restores. Real
 //! SQLite files and a real PostgreSQL database, real archives.
 
-use crate::common;
-use common::*;
 use d3il_server::backup;
 use d3il_server::store::{sqlx, NewMethod, NewPolicy, NewSubmission, Store};
+use d3il_test_support::server::*;
 use sha2::{Digest, Sha256};
 use std::path::{Path, PathBuf};
 

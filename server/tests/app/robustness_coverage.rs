@@ -8,11 +8,8 @@
 //! (Pushing BC, paper protocol, 30 states × 2 rollouts a level): the whole
 //! document, and the same document cut to its first 3 initial states.
 
-use crate::common;
-use common::*;
 use d3il_protocol::robustness::RobustnessResult;
-use d3il_protocol::{ObsType, ProtocolKind, TaskId};
-use d3il_server::store::{NewMethod, NewPolicy, NewSubmission, Store};
+use d3il_test_support::server::*;
 
 const THREE_STATES: &str =
     "from 3 initial states: measured coverage 66–74 %, below the nominal 95 %";
@@ -33,56 +30,6 @@ fn first_states(mut doc: RobustnessResult, states: usize) -> RobustnessResult {
     }
     d3il_metrics::recompute::recompute_robustness(&mut doc).expect("recompute");
     doc
-}
-
-/// Stores `doc` as a finished robustness submission of `method`, as the
-/// worker's path does (claim, save, complete); returns its id.
-async fn store_suite(store: &Store, method: &str, doc: &RobustnessResult) -> i64 {
-    let m = store
-        .ensure_method(
-            &NewMethod {
-                name: method.into(),
-                ..NewMethod::default()
-            },
-            None,
-        )
-        .await
-        .expect("method");
-    let id = store
-        .create_suite_submission(
-            &NewSubmission {
-                method_id: m.id,
-                submitter_id: None,
-                task: TaskId::Pushing,
-                obs_type: ObsType::State,
-                training_seed: 0,
-                data_fraction: 1.0,
-                protocol: ProtocolKind::Paper,
-                policy: NewPolicy::Remote {
-                    url: "http://127.0.0.1:9/".into(),
-                    secret: None,
-                },
-                manifest_json: manifest("pushing"),
-                simulated_once: None,
-            },
-            3,
-            "robustness",
-            1,
-        )
-        .await
-        .expect("submission");
-    let c = store
-        .claim_job("test", 60)
-        .await
-        .expect("claim")
-        .expect("a job");
-    assert_eq!(c.submission.id, id);
-    store.save_robustness(id, doc).await.expect("save");
-    store
-        .complete_job(c.job.id, id, &doc.control, &[])
-        .await
-        .expect("complete");
-    id
 }
 
 /// The per-seed row of `method` on the Robustness view.
@@ -107,9 +54,9 @@ async fn score_intervals_from_few_states_are_labelled_row_by_row() {
         few.overall.and_then(|o| o.interval()).is_some(),
         "3 states still give the score an interval"
     );
-    let store = &app.state.store;
-    let few_id = store_suite(store, "Few-States", &few).await;
-    let full_id = store_suite(store, "Thirty-States", &full).await;
+    let store = &app.state().store;
+    let few_id = finished_pushing(store, "Few-States", 0, Finished::Robustness(&few)).await;
+    let full_id = finished_pushing(store, "Thirty-States", 0, Finished::Robustness(&full)).await;
 
     // The Robustness view: the label on the 3-state row, none on the other.
     let (s, page) = app.get_text("/tasks/pushing/robustness").await;

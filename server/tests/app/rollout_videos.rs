@@ -6,10 +6,9 @@
 //! replay`'s arguments (`--result DOC --rollout N --video OUT`); the real
 //! binary is tested end to end in the root crate (tests/rollout_videos_e2e.rs).
 
-use crate::common;
 use crate::rollout_support;
 
-use common::*;
+use d3il_test_support::server::*;
 use rollout_support::*;
 use std::path::{Path, PathBuf};
 
@@ -61,7 +60,7 @@ fn events(dir: &Path) -> Vec<String> {
         .collect()
 }
 
-async fn app_with_script(seconds: &str) -> (TestApp, tempfile::TempDir) {
+async fn app_with_script(seconds: &str) -> (TestServer, tempfile::TempDir) {
     let scripts = tempfile::tempdir().unwrap();
     let app = spawn_app_with(Options {
         video_exe: Some(script(scripts.path(), seconds)),
@@ -75,7 +74,7 @@ async fn app_with_script(seconds: &str) -> (TestApp, tempfile::TempDir) {
 #[tokio::test]
 async fn one_render_slot_renders_one_video_at_a_time() {
     let (app, scripts) = app_with_script("1").await;
-    let id = finished_submission(&app.state.store, "Tracer", &traced_result(false)).await;
+    let id = finished_submission(&app.state().store, "Tracer", &traced_result(false)).await;
     let get = |n: usize| {
         app.http
             .get(app.url(&format!("/api/v1/submissions/{id}/rollouts/{n}/video")))
@@ -103,7 +102,7 @@ async fn one_render_slot_renders_one_video_at_a_time() {
         ev[2].starts_with("start") && ev[3].starts_with("end"),
         "{ev:?}"
     );
-    assert_eq!(app.state.videos.renders_started(), 2);
+    assert_eq!(app.state().videos.renders_started(), 2);
     // What the replay was given: the manifest and the one record with its trace.
     let doc: serde_json::Value =
         serde_json::from_slice(&std::fs::read(scripts.path().join("renders/doc-2.json")).unwrap())
@@ -130,7 +129,7 @@ async fn two_render_slots_render_two_videos_at_once() {
         ..Options::default()
     })
     .await;
-    let id = finished_submission(&app.state.store, "Tracer", &traced_result(false)).await;
+    let id = finished_submission(&app.state().store, "Tracer", &traced_result(false)).await;
     let get = |n: usize| {
         app.http
             .get(app.url(&format!("/api/v1/submissions/{id}/rollouts/{n}/video")))
@@ -152,13 +151,13 @@ async fn two_render_slots_render_two_videos_at_once() {
 #[tokio::test]
 async fn one_video_asked_twice_is_rendered_once_and_then_cached() {
     let (app, scripts) = app_with_script("1").await;
-    let id = finished_submission(&app.state.store, "Tracer", &traced_result(false)).await;
+    let id = finished_submission(&app.state().store, "Tracer", &traced_result(false)).await;
     let url = app.url(&format!("/api/v1/submissions/{id}/rollouts/3/video"));
     let (a, b) = tokio::join!(app.http.get(&url).send(), app.http.get(&url).send());
     assert_eq!(a.unwrap().status(), 200);
     assert_eq!(b.unwrap().status(), 200);
     assert_eq!(
-        app.state.videos.renders_started(),
+        app.state().videos.renders_started(),
         1,
         "{:?}",
         events(scripts.path())
@@ -166,7 +165,7 @@ async fn one_video_asked_twice_is_rendered_once_and_then_cached() {
     // Cached under <submission>-<N>-<version>-<scene>.mp4: no render again,
     // also from the page's route.
     let cached = app
-        .state
+        .state()
         .videos
         .dir()
         .join(format!("{id}-3-{}-m.mp4", env!("CARGO_PKG_VERSION")));
@@ -181,9 +180,9 @@ async fn one_video_asked_twice_is_rendered_once_and_then_cached() {
         .unwrap();
     assert_eq!(r.status(), 200);
     assert_eq!(r.bytes().await.unwrap().len(), VIDEO_BYTES);
-    assert_eq!(app.state.videos.renders_started(), 1);
+    assert_eq!(app.state().videos.renders_started(), 1);
     // No temporary files are left.
-    let names: Vec<String> = std::fs::read_dir(app.state.videos.dir())
+    let names: Vec<String> = std::fs::read_dir(app.state().videos.dir())
         .unwrap()
         .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
         .collect();
@@ -196,7 +195,7 @@ async fn one_video_asked_twice_is_rendered_once_and_then_cached() {
 #[tokio::test]
 async fn a_range_request_gets_206_and_those_bytes() {
     let (app, _scripts) = app_with_script("0").await;
-    let id = finished_submission(&app.state.store, "Tracer", &traced_result(false)).await;
+    let id = finished_submission(&app.state().store, "Tracer", &traced_result(false)).await;
     let url = app.url(&format!("/api/v1/submissions/{id}/rollouts/5/video"));
     let r = app
         .http
@@ -251,7 +250,7 @@ async fn a_range_request_gets_206_and_those_bytes() {
 #[tokio::test]
 async fn a_record_that_does_not_replay_is_a_clear_error() {
     let (app, _scripts) = app_with_script("0").await;
-    let id = finished_submission(&app.state.store, "Tracer", &traced_result(false)).await;
+    let id = finished_submission(&app.state().store, "Tracer", &traced_result(false)).await;
     let (s, v) = app
         .get_json(&format!("/api/v1/submissions/{id}/rollouts/7/video"))
         .await;
@@ -274,10 +273,10 @@ async fn a_record_that_does_not_replay_is_a_clear_error() {
         "{page}"
     );
     // A failure is not cached: asking again replays again.
-    assert_eq!(app.state.videos.renders_started(), 2);
+    assert_eq!(app.state().videos.renders_started(), 2);
     // Nothing was left behind.
     assert_eq!(
-        std::fs::read_dir(app.state.videos.dir()).unwrap().count(),
+        std::fs::read_dir(app.state().videos.dir()).unwrap().count(),
         0
     );
 }
@@ -289,7 +288,7 @@ async fn a_renderer_that_cannot_start_is_our_fault_not_the_viewers() {
         ..Options::default()
     })
     .await;
-    let id = finished_submission(&app.state.store, "Tracer", &traced_result(false)).await;
+    let id = finished_submission(&app.state().store, "Tracer", &traced_result(false)).await;
     let (s, v) = app
         .get_json(&format!("/api/v1/submissions/{id}/rollouts/1/video"))
         .await;

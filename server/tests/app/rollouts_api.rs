@@ -4,10 +4,9 @@
 //! listed, saying what was not recorded), and the failure browser and
 //! rollout page of the HTML front end.
 
-use crate::common;
 use crate::rollout_support;
 
-use common::*;
+use d3il_test_support::server::*;
 use rollout_support::*;
 use serde_json::Value;
 
@@ -20,7 +19,7 @@ fn numbers(list: &Value) -> Vec<u64> {
         .collect()
 }
 
-async fn bad(app: &TestApp, path: &str, field: &str, says: &[&str]) {
+async fn bad(app: &TestServer, path: &str, field: &str, says: &[&str]) {
     let (s, v) = app.get_json(path).await;
     assert_eq!(s, 400, "{path}: {v}");
     assert_eq!(v["error"]["code"], "invalid_field", "{path}");
@@ -35,7 +34,7 @@ async fn bad(app: &TestApp, path: &str, field: &str, says: &[&str]) {
 async fn filters_narrow_the_list_and_pages_split_it() {
     let app = spawn_app().await;
     let result = traced_result(false);
-    let id = finished_submission(&app.state.store, "Tracer", &result).await;
+    let id = finished_submission(&app.state().store, "Tracer", &result).await;
     let base = format!("/api/v1/submissions/{id}/rollouts");
 
     let (s, all) = app.get_json(&base).await;
@@ -196,7 +195,7 @@ async fn filters_narrow_the_list_and_pages_split_it() {
 #[tokio::test]
 async fn a_record_comes_with_its_trace_and_actions() {
     let app = spawn_app().await;
-    let id = finished_submission(&app.state.store, "Tracer", &traced_result(false)).await;
+    let id = finished_submission(&app.state().store, "Tracer", &traced_result(false)).await;
     let (s, v) = app
         .get_json(&format!("/api/v1/submissions/{id}/rollouts/37"))
         .await;
@@ -248,9 +247,9 @@ fn trace_of(c: usize, i: usize, steps: usize) -> d3il_protocol::RolloutTrace {
 async fn copies_of_a_rollout_simulated_once_share_its_trace() {
     let app = spawn_app().await;
     let result = traced_result(true);
-    let id = finished_submission(&app.state.store, "Once", &result).await;
+    let id = finished_submission(&app.state().store, "Once", &result).await;
     // Only each state's rollout 0 stored a trace.
-    let stored = app.state.store.rollout_traces(id, false).await.unwrap();
+    let stored = app.state().store.rollout_traces(id, false).await.unwrap();
     assert_eq!(stored.len(), 30);
     let (_, list) = app
         .get_json(&format!("/api/v1/submissions/{id}/rollouts?per_page=500"))
@@ -283,7 +282,7 @@ async fn copies_of_a_rollout_simulated_once_share_its_trace() {
 #[tokio::test]
 async fn results_stored_before_traces_are_still_listed() {
     let app = spawn_app().await;
-    let id = finished_submission(&app.state.store, "Elder", &old_result()).await;
+    let id = finished_submission(&app.state().store, "Elder", &old_result()).await;
     let base = format!("/api/v1/submissions/{id}/rollouts");
     let (s, v) = app.get_json(&base).await;
     assert_eq!(s, 200, "{v}");
@@ -360,7 +359,7 @@ async fn results_stored_before_traces_are_still_listed() {
 async fn the_failure_browser_filters_with_a_plain_form() {
     let app = spawn_app().await;
     let result = traced_result(false);
-    let id = finished_submission(&app.state.store, "Tracer", &result).await;
+    let id = finished_submission(&app.state().store, "Tracer", &result).await;
     let rows = |page: &str| page.matches("class=\"rollout-row\"").count();
 
     let (s, page) = app.get_text(&format!("/submissions/{id}")).await;

@@ -3,8 +3,7 @@
 //! by a marker: plots are covered by their own tests, the snapshots watch the
 //! HTML structure, escaping and numbers.
 
-use crate::common;
-use common::*;
+use d3il_test_support::server::*;
 
 fn strip_svg(html: &str) -> String {
     let mut out = String::new();

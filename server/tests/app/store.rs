@@ -1,8 +1,7 @@
 //! Store tests, each on both backends: a real SQLite file and a real
 //! PostgreSQL database (a throw-away cluster, `d3il_test_support::pg`).
 
-use crate::common;
-use common::{queued_submission_of, submit, Backend, TestDb};
+use d3il_test_support::server::{queued_submission_of, submit, Backend, TestDb};
 
 use d3il_protocol::*;
 use d3il_server::on_db;
@@ -653,7 +652,7 @@ async fn a_stored_result_reads_back_bit_for_bit(b: Backend) {
     assert_eq!(store.eval_result(sub + 1000).await.unwrap(), None);
 }
 
-common::on_both_backends!(
+d3il_test_support::on_both_backends!(
     paper_rows_load_once_and_match_the_embedded_cells,
     evaluated_rows_aggregate_over_seeds_with_sample_std,
     image_rows_keep_the_robot_look_their_manifests_record,

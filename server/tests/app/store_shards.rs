@@ -2,8 +2,7 @@
 //! SQLite file and a real PostgreSQL database (a throw-away cluster,
 //! `d3il_test_support::pg`).
 
-use crate::common;
-use common::{submit, submit_sharded, Backend, TestDb};
+use d3il_test_support::server::{submit, submit_sharded, Backend, TestDb};
 
 use d3il_protocol::*;
 use d3il_server::store::{JobState, StoreError};
@@ -120,7 +119,7 @@ async fn queue_counts_submissions_once_and_jobs_per_shard(b: Backend) {
     assert_eq!(c.job.shard().map(|s| s.count), Some(3));
 }
 
-common::on_both_backends!(
+d3il_test_support::on_both_backends!(
     queue_counts_submissions_once_and_jobs_per_shard,
     concurrent_pools_never_take_a_shard_twice,
     a_failed_shard_ends_its_siblings,

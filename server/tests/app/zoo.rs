@@ -9,8 +9,7 @@
 //! `d3il eval --protocol paper --json` of assets/fixtures/avoiding_path.onnx
 //! with a provenance record written by hand.
 
-use crate::common;
-use common::*;
+use d3il_test_support::server::*;
 use serde_json::Value;
 use sha2::{Digest, Sha256};
 use std::path::{Path, PathBuf};
@@ -63,7 +62,7 @@ fn recorded_fingerprint() -> String {
         .to_string()
 }
 
-async fn zoo_app(zoo: &Path, db: Option<PathBuf>, fingerprint: Option<&str>) -> TestApp {
+async fn zoo_app(zoo: &Path, db: Option<PathBuf>, fingerprint: Option<&str>) -> TestServer {
     spawn_app_with(Options {
         zoo: Some(zoo.to_path_buf()),
         db,
@@ -74,7 +73,7 @@ async fn zoo_app(zoo: &Path, db: Option<PathBuf>, fingerprint: Option<&str>) -> 
 }
 
 /// The board's rows of the zoo on Avoiding (API).
-async fn zoo_rows(app: &TestApp) -> Vec<Value> {
+async fn zoo_rows(app: &TestServer) -> Vec<Value> {
     let (s, board) = app.get_json("/api/v1/leaderboards/avoiding").await;
     assert_eq!(s, 200, "{board}");
     board["rows"]
@@ -108,12 +107,15 @@ async fn a_fresh_server_shows_the_zoo_marked_with_its_provenance_and_a_restart_d
     assert_eq!(s, 200, "{sub}");
     assert_eq!(sub["status"], "completed", "{sub}");
     assert_eq!(sub["data_source"], SOURCE, "{sub}");
-    let stored = app.state.store.submission(id).await.unwrap();
+    let stored = app.state().store.submission(id).await.unwrap();
     assert_eq!(stored.submitter.as_deref(), Some("zoo"));
     assert_eq!(stored.data_source.as_deref(), Some(SOURCE));
     // Its ONNX is in the policy store.
     let onnx = std::path::PathBuf::from(stored.onnx_path.expect("an ONNX path"));
-    assert!(onnx.starts_with(app.state.store.policies_dir()), "{onnx:?}");
+    assert!(
+        onnx.starts_with(app.state().store.policies_dir()),
+        "{onnx:?}"
+    );
     assert_eq!(
         sha256(&onnx),
         sha256(&fixture().join(CELL).join("policy.onnx"))
@@ -186,7 +188,7 @@ async fn a_fresh_server_shows_the_zoo_marked_with_its_provenance_and_a_restart_d
     assert_eq!(s, 200, "{one}");
 
     // Never in the paper's tables: the result cells leave it out.
-    let cells = app.state.store.result_cells(None).await.unwrap();
+    let cells = app.state().store.result_cells(None).await.unwrap();
     assert!(
         cells
             .iter()
@@ -201,7 +203,7 @@ async fn a_fresh_server_shows_the_zoo_marked_with_its_provenance_and_a_restart_d
     assert_eq!(rows.len(), 1, "{rows:?}");
     assert_eq!(rows[0]["submission_ids"], serde_json::json!([id]));
     let zoo_subs = again
-        .state
+        .state()
         .store
         .list_submissions(
             &d3il_server::store::SubmissionFilter {
@@ -432,7 +434,7 @@ async fn a_cells_robustness_document_is_on_the_robustness_view() {
     assert!(page.contains("id=\"robustness\""), "the page links it");
     // Queue ETAs are made from this server's own runs only.
     assert!(app
-        .state
+        .state()
         .store
         .mean_job_seconds_by_kind()
         .await
@@ -447,7 +449,7 @@ async fn a_cells_robustness_document_is_on_the_robustness_view() {
 async fn a_withdrawn_submission_leaves_the_robustness_view_and_its_tables() {
     let zoo = zoo_copy();
     let app = zoo_app(zoo.path(), None, None).await;
-    let store = &app.state.store;
+    let store = &app.state().store;
     let id = zoo_rows(&app).await[0]["submission_ids"][0]
         .as_i64()
         .unwrap();
