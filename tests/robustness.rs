@@ -17,7 +17,7 @@ use d3il_protocol::perturbation::{Axis, LevelSetting, Perturbation};
 use d3il_protocol::{EvalResult, ObsType, ProtocolKind, TaskId};
 use d3il_test_support::{fixture_manifest, fixtures_dir};
 use std::collections::BTreeMap;
-use std::sync::{Arc, Mutex};
+use std::sync::{Arc, Mutex, OnceLock};
 
 #[path = "robustness/latency.rs"]
 mod latency;
@@ -106,6 +106,36 @@ fn scripted(task: &LoadedTask, name: &str) -> ScriptedPolicy {
     ScriptedPolicy::from_name(name, task.spec()).unwrap()
 }
 
+/// The plain evaluation of the scripted expert `name` on `task` under
+/// [`capped`]`(cap)`, simulated once for the tests of this file: the
+/// level-0 test compares every axis's level 0 with it, the replay test its
+/// top levels' traces (both run at once, so the second to ask waits for the
+/// first). A fresh policy: the level-0 test shows that an evaluation does
+/// not depend on what the policy ran before.
+fn plain_evaluation(
+    id: TaskId,
+    task: &LoadedTask,
+    name: &'static str,
+    cap: Option<usize>,
+) -> Arc<EvalResult> {
+    type Key = (String, &'static str, Option<usize>);
+    type Slot = Arc<OnceLock<Arc<EvalResult>>>;
+    static PLAIN: OnceLock<Mutex<BTreeMap<Key, Slot>>> = OnceLock::new();
+    let slot = PLAIN
+        .get_or_init(Default::default)
+        .lock()
+        .unwrap()
+        .entry((id.to_string(), name, cap))
+        .or_default()
+        .clone();
+    slot.get_or_init(|| {
+        let mut policy = scripted(task, name);
+        let (r, _) = evaluate(task, &mut policy, &info(), &capped(cap), EvalRun::all()).unwrap();
+        Arc::new(r)
+    })
+    .clone()
+}
+
 /// A perturbation of `axis` with `setting`, against the task's committed suite.
 fn perturbation(task: TaskId, axis: Axis, setting: LevelSetting) -> Perturbation {
     let suite = Suite::for_task(task).unwrap();
@@ -173,7 +203,7 @@ fn level_zero_of_every_axis_is_the_plain_evaluation_bit_for_bit() {
         let task = LoadedTask::load(id).unwrap();
         let mut policy = scripted(&task, name);
         let opts = capped(cap);
-        let (plain, _) = evaluate(&task, &mut policy, &info(), &opts, EvalRun::all()).unwrap();
+        let plain = plain_evaluation(id, &task, name, cap);
         // The axes of the task's suite (Avoiding's has no start_shift and
         // no dynamics: a fixed start, no movable object).
         let suite = Suite::for_task(id).unwrap();
@@ -296,8 +326,8 @@ fn perturbed_rollouts_replay_bit_for_bit() {
                 })
                 .collect();
             let plain = plain_steps.get_or_insert_with(|| {
-                let (pr, _) = evaluate(&task, &mut policy, &info(), &opts, EvalRun::all()).unwrap();
-                pr.rollouts
+                plain_evaluation(id, &task, name, cap)
+                    .rollouts
                     .iter()
                     .map(|x| {
                         x.trace
