@@ -5,9 +5,11 @@
 //! kept and marked partial, the submission is never ranked; another token
 //! may not cancel, a second cancel is a conflict.
 
-mod server_support;
-use server_support::*;
+use d3il_test_support::server::*;
 use std::time::Duration;
+
+/// The `d3il` binary under test (the server harness starts it, the tests run its other commands).
+const D3IL: Binary = Binary(env!("CARGO_BIN_EXE_d3il"));
 
 fn fixture(name: &str) -> std::path::PathBuf {
     std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
@@ -19,10 +21,10 @@ fn fixture(name: &str) -> std::path::PathBuf {
 fn running_evaluation_shows_a_confidence_sequence_and_cancels_to_a_partial_result() {
     let dir = TempDir::new("cancel-live");
     let db = dir.path().join("lb.sqlite");
-    let token = create_token(&db, "owner");
-    let other = create_token(&db, "someone-else");
-    let admin = create_admin_token(&db, "operator");
-    let server = Server::start(&db, &["--workers", "1"]);
+    let token = D3IL.create_token(&db, "owner");
+    let other = D3IL.create_token(&db, "someone-else");
+    let admin = D3IL.create_admin_token(&db, "operator");
+    let server = D3IL.serve(&db, &["--workers", "1"]);
     let client = server.client(Some(&token));
     let manifest = std::fs::read_to_string(fixture("aligning_mlp_noise.json")).unwrap();
     let created = client
@@ -80,7 +82,7 @@ fn running_evaluation_shows_a_confidence_sequence_and_cancels_to_a_partial_resul
             .is_object()
     );
     // The page shows it, labelled.
-    let (status, page) = server.get_text(&format!("/submissions/{id}"));
+    let (status, page) = server.get_text_blocking(&format!("/submissions/{id}"));
     assert_eq!(status, 200);
     assert!(
         page.contains("id=\"so-far\"") && page.contains("valid at every look"),
@@ -117,7 +119,7 @@ fn running_evaluation_shows_a_confidence_sequence_and_cancels_to_a_partial_resul
     assert!(after["result"].is_null(), "{after}");
     assert_eq!(after["progress"]["live"]["states"].as_u64().unwrap(), kept);
     let ps = std::process::Command::new("pgrep")
-        .args(["-f", "d3il worker", "-P", &server.child.id().to_string()])
+        .args(["-f", "d3il worker", "-P", &server.pid().to_string()])
         .output()
         .unwrap();
     assert!(
@@ -128,7 +130,7 @@ fn running_evaluation_shows_a_confidence_sequence_and_cancels_to_a_partial_resul
     // Never ranked: the board has no row of it.
     let board = client.get("/api/v1/leaderboards/aligning").unwrap();
     assert!(!board.to_string().contains("Noisy-Cancel"), "{board}");
-    let (_, page) = server.get_text(&format!("/submissions/{id}"));
+    let (_, page) = server.get_text_blocking(&format!("/submissions/{id}"));
     assert!(
         page.contains("Partial result (cancelled by owner; never ranked)"),
         "{page}"
@@ -137,7 +139,7 @@ fn running_evaluation_shows_a_confidence_sequence_and_cancels_to_a_partial_resul
 
     // A restart leaves the same state (nothing is requeued).
     drop(server);
-    let server = Server::start(&db, &["--workers", "1"]);
+    let server = D3IL.serve(&db, &["--workers", "1"]);
     std::thread::sleep(Duration::from_secs(3));
     let again = server.client(Some(&token)).submission(id).unwrap();
     assert_eq!(again["status"], "failed");

@@ -7,12 +7,15 @@
 //! field. `--workers 0`: the submissions stay queued (a race needs their
 //! policies, not their results) and the race runs in the server's own slot.
 
-mod server_support;
+use d3il_test_support::server::*;
 use serde_json::{json, Value};
-use server_support::*;
 use std::path::PathBuf;
 use std::process::Command;
 use std::time::Duration;
+
+/// The `d3il` binary under test (the server harness starts it, the tests run its other commands).
+const D3IL: Binary = Binary(env!("CARGO_BIN_EXE_d3il"));
+const EXE: &str = D3IL.0;
 
 fn fixture(name: &str) -> PathBuf {
     std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
@@ -61,8 +64,8 @@ fn submit_file(
 fn a_trained_policy_against_an_untrained_one_is_decided_early_on_the_server() {
     let dir = TempDir::new("race-server-early");
     let db = dir.path().join("lb.sqlite");
-    let token = create_token(&db, "racer");
-    let server = Server::start(&db, &["--workers", "0"]);
+    let token = D3IL.create_token(&db, "racer");
+    let server = D3IL.serve(&db, &["--workers", "0"]);
     let client = server.client(Some(&token));
     let trained = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
         .join("tests/data/reference-closed-loop/align_bc");
@@ -129,8 +132,8 @@ fn refused(client: &d3il_server::client::Client, body: Value) -> (u16, Option<St
 fn a_race_on_the_server_reports_what_the_cli_race_reports_and_refuses_wrong_requests() {
     let dir = TempDir::new("race-server");
     let db = dir.path().join("lb.sqlite");
-    let token = create_token(&db, "racer");
-    let server = Server::start(&db, &["--workers", "0"]);
+    let token = D3IL.create_token(&db, "racer");
+    let server = D3IL.serve(&db, &["--workers", "0"]);
     let client = server.client(Some(&token));
     let a = submit(&client, "aligning_mlp", "aligning", 0);
     let b = submit(&client, "aligning_mlp_noise", "aligning", 1);
@@ -408,9 +411,9 @@ fn cli_race(extra: &[&str], a: &std::path::Path, b: &std::path::Path) -> Value {
 fn races_wait_in_the_queue_are_cancelled_and_a_restart_resumes_what_the_queue_says() {
     let dir = TempDir::new("race-queue");
     let db = dir.path().join("lb.sqlite");
-    let token = create_token(&db, "racer");
-    let admin = create_admin_token(&db, "op");
-    let server = Server::start(&db, &["--workers", "0"]);
+    let token = D3IL.create_token(&db, "racer");
+    let admin = D3IL.create_admin_token(&db, "op");
+    let server = D3IL.serve(&db, &["--workers", "0"]);
     let client = server.client(Some(&token));
     let a = submit(&client, "aligning_mlp", "aligning", 0);
     let b = submit(&client, "aligning_mlp_noise", "aligning", 1);
@@ -451,7 +454,7 @@ fn races_wait_in_the_queue_are_cancelled_and_a_restart_resumes_what_the_queue_sa
 
     // SIGKILL and restart on the same database.
     server.kill();
-    let server = Server::start(&db, &["--workers", "0"]);
+    let server = D3IL.serve(&db, &["--workers", "0"]);
     let client = server.client(Some(&token));
     let again = running_with_pairs(&client);
     assert_eq!(again["status"], "running", "{again}");
@@ -478,7 +481,7 @@ fn races_wait_in_the_queue_are_cancelled_and_a_restart_resumes_what_the_queue_sa
     .expect("the waiting race runs once the slot is free");
     assert_eq!(status(&client, first)["status"], "cancelled");
     // Another submitter may not cancel it.
-    let other = create_token(&db, "someone-else");
+    let other = D3IL.create_token(&db, "someone-else");
     let err = server.client(Some(&other)).cancel_race(second).unwrap_err();
     assert!(
         matches!(

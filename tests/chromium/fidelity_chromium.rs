@@ -9,9 +9,9 @@
 //! report, it shows the cached quick one at once, labelled, while the full
 //! one is computed (tests/eval/fidelity_first_minute.rs: the full one replaces it).
 
-use crate::server_support;
+use crate::D3IL;
 use d3il_test_support::chromium::{chromium, dump_dom};
-use server_support::*;
+use d3il_test_support::server::*;
 use std::time::Duration;
 
 /// The text of the element that starts with `start` (up to `end`).
@@ -37,9 +37,9 @@ fn chromium_renders_the_fidelity_report_computed_in_the_background() {
         "--fidelity-nice",
         "0",
     ];
-    let server = Server::start(&db, &args);
+    let server = D3IL.serve(&db, &args);
 
-    let (status, first) = server.get_text("/fidelity");
+    let (status, first) = server.get_text_blocking("/fidelity");
     assert_eq!(status, 200);
     assert!(
         first.contains("id=\"fidelity-computing\"") && first.contains("being computed"),
@@ -49,11 +49,11 @@ fn chromium_renders_the_fidelity_report_computed_in_the_background() {
         first.contains("<a href=\"/fidelity\">Fidelity</a>"),
         "in the navigation"
     );
-    let (status, _) = server.get_text("/fidelity/json");
+    let (status, _) = server.get_text_blocking("/fidelity/json");
     assert_eq!(status, 503, "no report yet");
 
     let ready = wait_for(Duration::from_secs(300), || {
-        let (_, page) = server.get_text("/fidelity");
+        let (_, page) = server.get_text_blocking("/fidelity");
         assert!(!page.contains("id=\"fidelity-failed\""), "{page}");
         page.contains("id=\"fidelity-build\"").then_some(())
     });
@@ -150,7 +150,7 @@ fn chromium_renders_the_fidelity_report_computed_in_the_background() {
     assert!(devs.matches("<li>").count() >= 10, "{devs}");
     assert!(devs.contains("MuJoCo 2.2.2 here, 2.3.2 in the original"));
 
-    let (status, json) = server.get_text("/fidelity/json");
+    let (status, json) = server.get_text_blocking("/fidelity/json");
     assert_eq!(status, 200);
     let report: d3il_protocol::fidelity::FidelityReport =
         serde_json::from_str(&json).expect("report");
@@ -167,9 +167,9 @@ fn chromium_renders_the_fidelity_report_computed_in_the_background() {
     assert_eq!(cache.len(), 1, "{cache:?}");
     assert!(cache[0].to_string_lossy().ends_with("-quick.json"));
     let written = std::fs::metadata(&cache[0]).unwrap().modified().unwrap();
-    let server = Server::start(&db, &args);
+    let server = D3IL.serve(&db, &args);
     let shown = wait_for(Duration::from_secs(60), || {
-        let (_, page) = server.get_text("/fidelity");
+        let (_, page) = server.get_text_blocking("/fidelity");
         page.contains("id=\"fidelity-build\"").then_some(())
     });
     assert!(shown.is_some(), "cached report shown after a restart");
@@ -183,14 +183,14 @@ fn chromium_renders_the_fidelity_report_computed_in_the_background() {
     // The full report asked of a build that has only the quick one: the
     // quick one at once, labelled, while the full one is computed.
     let full_args = ["--workers", "0", "--fidelity", "full"];
-    let server = Server::start(&db, &full_args);
-    let (status, page) = server.get_text("/fidelity");
+    let server = D3IL.serve(&db, &full_args);
+    let (status, page) = server.get_text_blocking("/fidelity");
     assert_eq!(status, 200);
     let page = if page.contains("id=\"fidelity-build\"") {
         page
     } else {
         wait_for(Duration::from_secs(30), || {
-            let (_, page) = server.get_text("/fidelity");
+            let (_, page) = server.get_text_blocking("/fidelity");
             page.contains("id=\"fidelity-build\"").then_some(page)
         })
         .expect("the cached quick report within 30 s")
@@ -208,7 +208,7 @@ fn chromium_renders_the_fidelity_report_computed_in_the_background() {
         page.contains("<meta http-equiv=\"refresh\""),
         "reloads until the full one"
     );
-    let (status, json) = server.get_text("/fidelity/json");
+    let (status, json) = server.get_text_blocking("/fidelity/json");
     assert_eq!(status, 200);
     assert!(
         json.contains("\"mode\": \"quick\""),

@@ -2,12 +2,15 @@
 //! `d3il serve`: the board, plots, races, robustness, rollouts, the zoo and the
 //! fidelity view. One test binary; one module per former test file.
 
+/// The `d3il` binary under test (the server harness starts it, the tests run its other commands).
+pub const D3IL: d3il_test_support::server::Binary =
+    d3il_test_support::server::Binary(env!("CARGO_BIN_EXE_d3il"));
+pub const EXE: &str = D3IL.0;
+
 #[path = "../robustness_support/mod.rs"]
 mod robustness_support;
 #[path = "../rollouts_support/mod.rs"]
 mod rollouts_support;
-#[path = "../server_support/mod.rs"]
-mod server_support;
 
 mod fidelity_chromium;
 mod plots_chromium;

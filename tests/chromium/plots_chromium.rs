@@ -3,11 +3,11 @@
 //! method's colour of the one palette is drawn, once in the legend column and
 //! once among the data, and the leaderboard page at 1400 px shows the plot.
 
-use crate::server_support;
+use crate::D3IL;
 use d3il_protocol::paper::PAPER_METHOD_ORDER;
 use d3il_tables::plot::method_colour;
 use d3il_test_support::chromium::{chromium, HEADLESS};
-use server_support::*;
+use d3il_test_support::server::*;
 use std::path::Path;
 use std::process::Command;
 
@@ -57,8 +57,8 @@ fn columns_of(w: usize, rgba: &[u8], c: (u8, u8, u8)) -> Vec<usize> {
 #[test]
 fn chromium_draws_each_method_in_its_colour_with_the_legend_beside_the_data() {
     let dir = TempDir::new("plots-chromium");
-    let server = Server::start(&dir.path().join("lb.sqlite"), &["--workers", "0"]);
-    let (s, svg) = server.get_text("/plots/tasks/avoiding/pareto.svg?obs=state");
+    let server = D3IL.serve(&dir.path().join("lb.sqlite"), &["--workers", "0"]);
+    let (s, svg) = server.get_text_blocking("/plots/tasks/avoiding/pareto.svg?obs=state");
     assert_eq!(s, 200);
     // Where the legend column starts, from the SVG's legend frame.
     let legend_x: f64 = svg

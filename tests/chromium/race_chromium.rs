@@ -7,13 +7,13 @@
 //! the side of 1/α its value is on; every path is drawn with a size inside
 //! the figure. The fixed-size comparison's line is on the page.
 
-use crate::server_support;
+use crate::D3IL;
 use d3il_metrics::sequential::SequentialComparison;
 use d3il_protocol::race::{pairs_of, RaceReport};
 use d3il_protocol::{ObsType, ProtocolKind, TaskId};
 use d3il_server::store::{NewMethod, NewPolicy, NewRace, NewSubmission, Store};
 use d3il_test_support::chromium::{chromium, dump_dom, serve_with_script};
-use server_support::*;
+use d3il_test_support::server::*;
 
 /// The pairs of a race A wins (as server/tests/app/compare_page.rs's), its
 /// horizon 30 initial states.
@@ -167,8 +167,8 @@ fn chromium_draws_the_race_walk_against_its_boundary_and_the_e_value_path() {
     let db = dir.path().join("lb.sqlite");
     let (report, at) = report();
     let race = seed(&db, &report);
-    let server = Server::start(&db, &["--workers", "0"]);
-    let (s, page) = server.get_text(&format!("/races/{race}"));
+    let server = D3IL.serve(&db, &["--workers", "0"]);
+    let (s, page) = server.get_text_blocking(&format!("/races/{race}"));
     assert_eq!(s, 200, "{page}");
     assert!(
         page.contains(&format!("Fixed-size comparison of the {at} pairs used")),

@@ -7,10 +7,10 @@
 //! against conditional entropy; the task's board links the view.
 
 use crate::robustness_support;
-use crate::server_support;
+use crate::D3IL;
 use d3il_test_support::chromium::{chromium, dump_dom};
+use d3il_test_support::server::*;
 use robustness_support::{seed, three_and_a_second_seed, OTHER_SHA256};
-use server_support::*;
 
 #[test]
 fn chromium_renders_the_robustness_view() {
@@ -18,7 +18,7 @@ fn chromium_renders_the_robustness_view() {
     let dir = TempDir::new("robustness-chromium");
     let db = dir.path().join("lb.sqlite");
     let ids = seed(&db, &three_and_a_second_seed());
-    let server = Server::start(&db, &["--workers", "0"]);
+    let server = D3IL.serve(&db, &["--workers", "0"]);
     let dom = dump_dom(
         &browser,
         &format!("{}/tasks/pushing/robustness", server.base),
@@ -134,7 +134,7 @@ fn chromium_renders_the_robustness_view() {
     assert!(sub.contains("href=\"/tasks/pushing/robustness\""));
 
     // A task without results says so.
-    let (s, empty) = server.get_text("/tasks/aligning/robustness");
+    let (s, empty) = server.get_text_blocking("/tasks/aligning/robustness");
     assert_eq!(s, 200);
     assert!(empty.contains("id=\"no-robustness\""));
     server.kill();

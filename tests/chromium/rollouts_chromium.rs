@@ -5,11 +5,11 @@
 //! submission page's filters narrow its list of rollouts.
 
 use crate::rollouts_support;
-use crate::server_support;
 
+use crate::D3IL;
 use d3il_test_support::chromium::{chromium, dump_dom, serve_with_script};
+use d3il_test_support::server::TempDir;
 use rollouts_support::*;
-use server_support::{Server, TempDir};
 
 /// Rows of the failure browser in a DOM.
 fn rollout_rows(dom: &str) -> usize {
@@ -27,7 +27,7 @@ fn chromium_plays_a_rollout_video_and_filters_rollouts() {
     let result = eval(dir.path(), "aligning", "scripted:aligning:both");
     let db = dir.path().join("lb.sqlite");
     let id = store_finished(&db, &[("Expert", &result)])[0];
-    let server = Server::start(&db, &["--workers", "0"]);
+    let server = D3IL.serve(&db, &["--workers", "0"]);
     let n = 3;
     let steps = result.rollout(n).expect("rollout 3").steps;
 

@@ -3,16 +3,16 @@
 //! rendered: the table with the paper's eleven reported rows and the embedded
 //! Pareto plot.
 
-use crate::server_support;
+use crate::D3IL;
 use d3il_test_support::chromium::{chromium, dump_dom, dump_dom_at, serve_with_script};
-use server_support::*;
+use d3il_test_support::server::*;
 
 #[test]
 fn chromium_renders_the_leaderboard_table_and_plot() {
     let browser = chromium();
     let dir = TempDir::new("chromium");
     let db = dir.path().join("lb.sqlite");
-    let server = Server::start(&db, &["--workers", "0"]);
+    let server = D3IL.serve(&db, &["--workers", "0"]);
     let dom = dump_dom(
         &browser,
         &format!("{}/tasks/aligning?sort=success&dir=desc", server.base),
@@ -63,12 +63,12 @@ fn chromium_renders_the_leaderboard_table_and_plot() {
 /// measurement into the DOM once everything has loaded.
 fn layout_widths(
     browser: &str,
-    server: &Server,
+    server: &TestServer,
     path: &str,
     width: u32,
     profile: &std::path::Path,
 ) -> (i64, i64) {
-    let (s, page) = server.get_text(path);
+    let (s, page) = server.get_text_blocking(path);
     assert_eq!(s, 200, "{path}");
     let script = "<script>window.addEventListener('load', function () {\
         var d = document.documentElement;\
@@ -100,7 +100,7 @@ fn pages_have_no_horizontal_overflow_at_1400_and_760_px() {
     let browser = chromium();
     let dir = TempDir::new("chromium-layout");
     let db = dir.path().join("lb.sqlite");
-    let server = Server::start(&db, &["--workers", "0"]);
+    let server = D3IL.serve(&db, &["--workers", "0"]);
     for width in [1400, 760] {
         for path in [
             "/",
@@ -141,7 +141,7 @@ fn chromium_renders_the_home_page_main_table_at_1400_and_760_px() {
     let browser = chromium();
     let dir = TempDir::new("chromium-home");
     let db = dir.path().join("lb.sqlite");
-    let server = Server::start(&db, &["--workers", "0"]);
+    let server = D3IL.serve(&db, &["--workers", "0"]);
     for width in [1400, 760] {
         let profile = dir.path().join(format!("profile-home-{width}"));
         let dom = dump_dom_at(&browser, &format!("{}/", server.base), &profile, width, &[]);
@@ -182,7 +182,6 @@ fn chromium_renders_the_home_page_main_table_at_1400_and_760_px() {
 /// would (the store's claim and completion), before the server starts.
 fn two_finished_submissions(db: &std::path::Path) -> (i64, i64) {
     use d3il_protocol::*;
-    use d3il_server::store::{NewMethod, NewPolicy, NewSubmission, Store};
     let result = |k: usize| {
         d3il_test_support::pushing_result(ProtocolKind::Paper, |c, r| {
             d3il_test_support::SynthRollout {
@@ -192,52 +191,11 @@ fn two_finished_submissions(db: &std::path::Path) -> (i64, i64) {
             }
         })
     };
-    let rt = tokio::runtime::Builder::new_current_thread()
-        .enable_all()
-        .build()
-        .expect("runtime");
-    rt.block_on(async {
-        let store = Store::open(db).await.expect("open store");
+    with_sqlite_store(db, async |store| {
         let mut ids = vec![];
         for (name, k) in [("Alpha", 12), ("Beta", 6)] {
-            let m = store
-                .ensure_method(
-                    &NewMethod {
-                        name: name.into(),
-                        ..NewMethod::default()
-                    },
-                    None,
-                )
-                .await
-                .expect("method");
-            let id = store
-                .create_submission(
-                    &NewSubmission {
-                        method_id: m.id,
-                        submitter_id: None,
-                        task: TaskId::Pushing,
-                        obs_type: ObsType::State,
-                        training_seed: 0,
-                        data_fraction: 1.0,
-                        protocol: ProtocolKind::Paper,
-                        policy: NewPolicy::Remote {
-                            url: "http://127.0.0.1:9/".into(),
-                            secret: None,
-                        },
-                        manifest_json: r#"{"task": "pushing", "obs_type": "state", "history": 1, "horizon": 1, "execute": 1}"#.into(),
-                        simulated_once: None,
-                    },
-                    3,
-                )
-                .await
-                .expect("submission");
-            let c = store.claim_job("test", 60).await.expect("claim").expect("a job");
-            assert_eq!(c.submission.id, id);
-            store
-                .complete_job(c.job.id, id, &result(k), &[])
-                .await
-                .expect("complete");
-            ids.push(id);
+            let done = Finished::Evaluation(&result(k));
+            ids.push(finished_pushing(store, name, 0, done).await);
         }
         (ids[0], ids[1])
     })
@@ -252,7 +210,7 @@ fn chromium_renders_the_compare_page_for_two_finished_submissions() {
     let dir = TempDir::new("chromium-compare");
     let db = dir.path().join("lb.sqlite");
     let (a, b) = two_finished_submissions(&db);
-    let server = Server::start(&db, &["--workers", "0"]);
+    let server = D3IL.serve(&db, &["--workers", "0"]);
     let path = format!("/compare?a={a}&b={b}");
     for width in [1400, 760] {
         let profile = dir.path().join(format!("profile-compare-{width}"));

@@ -3,9 +3,9 @@
 //! zoo's row is laid out in a table of its own, and its data-source mark is
 //! visible (rendered with a size, not hidden by the stylesheet).
 
-use crate::server_support;
+use crate::D3IL;
 use d3il_test_support::chromium::{chromium, dump_dom_at, serve_with_script};
-use server_support::*;
+use d3il_test_support::server::*;
 
 #[test]
 fn chromium_shows_the_zoo_rows_data_source_mark() {
@@ -13,8 +13,8 @@ fn chromium_shows_the_zoo_rows_data_source_mark() {
     let dir = TempDir::new("zoo-chromium");
     let db = dir.path().join("lb.sqlite");
     let zoo = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("server/tests/fixtures/zoo");
-    let server = Server::start(&db, &["--workers", "0", "--zoo", zoo.to_str().unwrap()]);
-    let (s, page) = server.get_text("/tasks/avoiding");
+    let server = D3IL.serve(&db, &["--workers", "0", "--zoo", zoo.to_str().unwrap()]);
+    let (s, page) = server.get_text_blocking("/tasks/avoiding");
     assert_eq!(s, 200);
     // The page, its stylesheet from the server, and a script that measures
     // the mark once everything has loaded (the site's pages run no script).

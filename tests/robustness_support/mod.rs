@@ -1,5 +1,6 @@
 //! Robustness results written into a database as a worker would store them
-//! (the store's claim, `save_robustness` and completion), for the tests of
+//! (the harness's `finished_pushing`: the store's claim, `save_robustness`
+//! and completion), for the tests of
 //! the Robustness view and `d3il tables --table robustness`. The documents
 //! are assembled by the evaluator's own `robustness::assemble` from
 //! synthetic Pushing results (30 initial states × 16 rollouts per level).
@@ -7,8 +8,8 @@
 
 use d3il_evaluator::perturb::Suite;
 use d3il_protocol::robustness::RobustnessResult;
-use d3il_protocol::{ObsType, ProtocolKind, TaskId};
-use d3il_server::store::{NewMethod, NewPolicy, NewSubmission, Store};
+use d3il_protocol::{ProtocolKind, TaskId};
+use d3il_test_support::server::{finished_pushing, with_sqlite_store, Finished};
 use d3il_test_support::{pushing_result, SynthRollout};
 
 /// A method's synthetic behaviour: successes per initial state at level 0
@@ -82,60 +83,11 @@ pub fn first_states(mut doc: RobustnessResult, states: usize) -> RobustnessResul
 /// Writes one finished robustness submission per (method, training seed,
 /// document); returns their ids.
 pub fn seed_documents(db: &std::path::Path, docs: &[(&str, i64, RobustnessResult)]) -> Vec<i64> {
-    let rt = tokio::runtime::Builder::new_current_thread()
-        .enable_all()
-        .build()
-        .expect("runtime");
-    rt.block_on(async {
-        let store = Store::open(db).await.expect("open store");
+    with_sqlite_store(db, async |store| {
         let mut ids = vec![];
         for (method, training_seed, doc) in docs {
-            let m = store
-                .ensure_method(
-                    &NewMethod {
-                        name: method.to_string(),
-                        ..NewMethod::default()
-                    },
-                    None,
-                )
-                .await
-                .expect("method");
-            let id = store
-                .create_suite_submission(
-                    &NewSubmission {
-                        method_id: m.id,
-                        submitter_id: None,
-                        task: TaskId::Pushing,
-                        obs_type: ObsType::State,
-                        training_seed: *training_seed,
-                        data_fraction: 1.0,
-                        protocol: ProtocolKind::Paper,
-                        policy: NewPolicy::Remote {
-                            url: "http://127.0.0.1:9/".into(),
-                            secret: None,
-                        },
-                        manifest_json: r#"{"task": "pushing", "obs_type": "state", "history": 1, "horizon": 1, "execute": 1}"#.into(),
-                        simulated_once: None,
-                    },
-                    3,
-                    "robustness",
-                    1,
-                )
-                .await
-                .expect("submission");
-            let c = store
-                .claim_job("test", 60)
-                .await
-                .expect("claim")
-                .expect("a job");
-            assert_eq!(c.submission.id, id);
-            assert_eq!(c.submission.suite.as_deref(), Some("robustness"));
-            store.save_robustness(id, doc).await.expect("save");
-            store
-                .complete_job(c.job.id, id, &doc.control, &[])
-                .await
-                .expect("complete");
-            ids.push(id);
+            let done = Finished::Robustness(doc);
+            ids.push(finished_pushing(store, method, *training_seed, done).await);
         }
         ids
     })

@@ -9,9 +9,9 @@
 //! machine is shared), nothing accepted may be lost, and every refusal must
 //! name its limit (its flag) or say what to fix.
 
-use crate::server_support;
+use crate::D3IL;
+use d3il_test_support::server::*;
 use serde_json::{json, Value};
-use server_support::*;
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
@@ -326,12 +326,12 @@ async fn trickle(addr: std::net::SocketAddr, connections: usize) -> Vec<f64> {
 fn a_flood_of_races_suites_uploads_trickles_and_bogus_tokens_does_not_stall_a_normal_submitter() {
     let dir = TempDir::new("abuse");
     let db = dir.path().join("lb.sqlite");
-    let alice = create_token(&db, "alice");
-    let admin = create_admin_token(&db, "op");
+    let alice = D3IL.create_token(&db, "alice");
+    let admin = D3IL.create_admin_token(&db, "op");
     let attackers: Vec<String> = (0..ATTACKERS)
-        .map(|i| create_token(&db, &format!("mallory{i}")))
+        .map(|i| D3IL.create_token(&db, &format!("mallory{i}")))
         .collect();
-    let server = Server::start(
+    let server = D3IL.serve(
         &db,
         &[
             "--workers",

@@ -11,9 +11,9 @@
 //! every restored result.
 
 use crate::db_support;
-use crate::server_support;
+use crate::D3IL;
+use d3il_test_support::server::*;
 use db_support::*;
-use server_support::*;
 use std::path::Path;
 use std::time::Duration;
 
@@ -52,10 +52,10 @@ fn round_trip(dir: &Path, source: StoreArgs, restored: StoreArgs) {
     // An operator's token: four evaluations at once, whatever the quotas.
     let mut token_args = source.args();
     token_args.push("--admin");
-    let token = create_token_on("backup-tester", &token_args);
+    let token = D3IL.create_token_on("backup-tester", &token_args);
     let mut serve_args = source.args()[2..].to_vec();
     serve_args.extend(["--workers", "2", "--no-upload-dry-run"]);
-    let server = Server::start_on(source.db.as_ref(), &serve_args);
+    let server = D3IL.serve_on(source.db.as_ref(), &serve_args);
     let client = server.client(Some(&token));
     let mut ids = vec![];
     for (stem, seed) in SUBMISSIONS {
@@ -223,13 +223,13 @@ fn round_trip(dir: &Path, source: StoreArgs, restored: StoreArgs) {
     // The restored store serves every restored result.
     let mut serve_args = restored.args()[2..].to_vec();
     serve_args.extend(["--workers", "1", "--no-upload-dry-run"]);
-    let server = Server::start_on(restored.db.as_ref(), &serve_args);
-    let (_, csv) = server.get_text("/tasks/aligning/csv");
+    let server = D3IL.serve_on(restored.db.as_ref(), &serve_args);
+    let (_, csv) = server.get_text_blocking("/tasks/aligning/csv");
     for (key, sub) in subs {
         if sub["status"] != "completed" {
             continue;
         }
-        let (s, page) = server.get_text(&format!("/submissions/{key}"));
+        let (s, page) = server.get_text_blocking(&format!("/submissions/{key}"));
         assert_eq!(s, 200);
         assert!(
             page.contains("id=\"metrics\""),

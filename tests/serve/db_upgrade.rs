@@ -11,11 +11,11 @@
 //! A migration without a fixture fails `every_schema_version_has_an_upgrade_fixture`.
 
 use crate::db_support;
-use crate::server_support;
+use crate::D3IL;
 use d3il_server::store::sqlx::{self, migrate::Migrator, Executor};
 use d3il_server::store::{DbTarget, MIGRATOR, MIGRATOR_PG};
+use d3il_test_support::server::*;
 use db_support::*;
-use server_support::*;
 use std::path::{Path, PathBuf};
 
 /// Placeholder in fixtures for the store's policy directory.
@@ -170,7 +170,7 @@ fn upgrade_from_every_level(pg: bool, dir: &Path) {
         assert!(!report.contains("PROBLEM"), "level {k}: {report}");
 
         // Every old result renders: its page, its row on the board.
-        let server = Server::start_on(
+        let server = D3IL.serve_on(
             target_s.as_ref(),
             &["--policy-store", store_s, "--workers", "0"],
         );
@@ -180,7 +180,7 @@ fn upgrade_from_every_level(pg: bool, dir: &Path) {
             if sub["status"] != "completed" {
                 continue;
             }
-            let (s, page) = server.get_text(&format!("/submissions/{id}"));
+            let (s, page) = server.get_text_blocking(&format!("/submissions/{id}"));
             assert_eq!(s, 200, "level {k}: submission {id}: {page}");
             assert!(
                 page.contains("id=\"metrics\""),
@@ -216,7 +216,7 @@ fn upgrade_from_every_level(pg: bool, dir: &Path) {
                 .as_str()
                 .unwrap();
             let task = sub["task"].as_str().unwrap();
-            let (s, csv) = server.get_text(&format!("/tasks/{task}/csv"));
+            let (s, csv) = server.get_text_blocking(&format!("/tasks/{task}/csv"));
             assert_eq!(s, 200);
             // A withdrawn submission is hidden, but its method may be shown
             // through another one.

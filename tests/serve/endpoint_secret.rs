@@ -8,10 +8,10 @@
 //!
 //! Needs python3 with numpy, websockets and msgpack (the `serve` extra of clients/python).
 
-use crate::server_support;
+use crate::D3IL;
 use d3il_server::client::ClientError;
+use d3il_test_support::server::*;
 use serde_json::Value;
-use server_support::*;
 use std::process::{Child, Command, Stdio};
 use std::time::Duration;
 
@@ -87,9 +87,9 @@ fn refusal(r: Result<Value, ClientError>) -> (u16, String, Option<String>, Strin
 fn an_endpoint_with_a_secret_serves_the_evaluator_that_sends_it_and_no_page_shows_it() {
     let dir = TempDir::new("endpoint-secret");
     let db = dir.path().join("lb.sqlite");
-    let token = create_token(&db, "secret-keeper");
-    let admin = create_admin_token(&db, "operator");
-    let server = Server::start(&db, &["--workers", "1", "--allow-private-endpoints"]);
+    let token = D3IL.create_token(&db, "secret-keeper");
+    let admin = D3IL.create_admin_token(&db, "operator");
+    let server = D3IL.serve(&db, &["--workers", "1", "--allow-private-endpoints"]);
     let policy = policy_server_with_secret();
     let client = server.client(Some(&token));
 

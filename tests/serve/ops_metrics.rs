@@ -7,9 +7,9 @@
 //! and started again). The sample Grafana dashboard and the alert rules of
 //! docs/ops/ query only metrics that `/metrics` has.
 
-use crate::server_support;
+use crate::{D3IL, EXE};
+use d3il_test_support::server::*;
 use prometheus_parse::{Sample, Scrape, Value};
-use server_support::*;
 use std::collections::BTreeSet;
 use std::path::PathBuf;
 use std::process::{Command, Stdio};
@@ -144,7 +144,7 @@ fn assert_documented_metrics_exist(s: &Scrape) {
     }
 }
 
-fn submit(server: &Server, token: &str, seed: u32) -> i64 {
+fn submit(server: &TestServer, token: &str, seed: u32) -> i64 {
     let manifest = std::fs::read_to_string(fixture("aligning_mlp.json")).unwrap();
     let created = server
         .client(Some(token))
@@ -162,7 +162,7 @@ fn submit(server: &Server, token: &str, seed: u32) -> i64 {
     created["id"].as_i64().unwrap()
 }
 
-fn wait_done(server: &Server, token: &str, id: i64) {
+fn wait_done(server: &TestServer, token: &str, id: i64) {
     let done = server
         .client(Some(token))
         .wait(id, Duration::from_secs(600), |_| {})
@@ -193,10 +193,10 @@ fn wait_ready(base: &str, want: u16) -> serde_json::Value {
 fn metrics_count_a_quick_evaluation_on_sqlite() {
     let dir = TempDir::new("ops-metrics-sqlite");
     let db = dir.path().join("lb.sqlite");
-    let token = create_token(&db, "metrics-tester");
-    let noisy = create_token(&db, "noisy");
-    let admin = create_admin_token(&db, "operator");
-    let server = Server::start(
+    let token = D3IL.create_token(&db, "metrics-tester");
+    let noisy = D3IL.create_token(&db, "noisy");
+    let admin = D3IL.create_admin_token(&db, "operator");
+    let server = D3IL.serve(
         &db,
         &["--workers", "1", "--no-upload-dry-run", "--rate-limit", "5"],
     );
@@ -327,7 +327,7 @@ fn readyz_follows_worker_hosts_and_the_database_on_postgresql() {
         "--policy-store",
         store.to_str().unwrap(),
     ];
-    let token = create_token_on("metrics-tester", &db_args);
+    let token = D3IL.create_token_on("metrics-tester", &db_args);
     let front_metrics = format!("127.0.0.1:{}", d3il_test_support::free_port());
     let mut args = db_args[2..].to_vec();
     args.extend([
@@ -337,7 +337,7 @@ fn readyz_follows_worker_hosts_and_the_database_on_postgresql() {
         "--metrics-bind",
         front_metrics.as_str(),
     ]);
-    let front = Server::start_on(url.as_ref(), &args);
+    let front = D3IL.serve_on(url.as_ref(), &args);
     let private = format!("http://{front_metrics}");
 
     // A front end alone has nobody to run jobs.

@@ -10,8 +10,8 @@
 //! observation type without a suite file in the server's assets is refused
 //! up front.
 
-use crate::server_support;
-use server_support::*;
+use crate::{D3IL, EXE};
+use d3il_test_support::server::*;
 use std::process::Command;
 
 fn fixture(name: &str) -> std::path::PathBuf {
@@ -24,8 +24,8 @@ fn fixture(name: &str) -> std::path::PathBuf {
 fn a_robustness_submission_is_evaluated_stored_and_served() {
     let dir = TempDir::new("robustness-e2e");
     let db = dir.path().join("lb.sqlite");
-    let token = create_token(&db, "robustness-tester");
-    let server = Server::start(&db, &["--workers", "1"]);
+    let token = D3IL.create_token(&db, "robustness-tester");
+    let server = D3IL.serve(&db, &["--workers", "1"]);
     let client = server.client(Some(&token));
 
     // The suite, quick protocol, through a real worker.
@@ -78,7 +78,7 @@ fn a_robustness_submission_is_evaluated_stored_and_served() {
     for m in ["success_rate", "conditional_entropy", "behaviour_entropy"] {
         assert_eq!(
             doc["control"]["metrics"][m],
-            server_support::document_estimate(&results["metrics"][m]),
+            document_estimate(&results["metrics"][m]),
             "{m}"
         );
     }
@@ -113,7 +113,7 @@ fn a_robustness_submission_is_evaluated_stored_and_served() {
         .iter()
         .all(|l| l["result"]["rollouts"].as_array().unwrap().is_empty()));
     // A plain submission has no robustness part.
-    let (s, body) = server.get_text("/api/v1/submissions/999/robustness");
+    let (s, body) = server.get_text_blocking("/api/v1/submissions/999/robustness");
     assert_eq!(s, 404, "{body}");
 
     // A perturbed rollout of the served document replays bit for bit.
@@ -135,13 +135,13 @@ fn a_robustness_submission_is_evaluated_stored_and_served() {
     // OpenAPI, the board (level 0 as a quick row), the view, the submission page.
     let openapi = client.get("/api/v1/openapi.json").unwrap();
     assert!(openapi["paths"]["/submissions/{id}/robustness"]["get"].is_object());
-    let (_, board) = server.get_text("/tasks/aligning");
+    let (_, board) = server.get_text_blocking("/tasks/aligning");
     assert!(board.contains("Robust-MLP") && board.contains("/tasks/aligning/robustness"));
-    let (s, view) = server.get_text("/tasks/aligning/robustness");
+    let (s, view) = server.get_text_blocking("/tasks/aligning/robustness");
     assert_eq!(s, 200);
     assert!(view.contains("Robust-MLP") && view.contains(&suite.name));
     assert!(view.contains("smoke test"), "quick runs are labelled");
-    let (_, page) = server.get_text(&format!("/submissions/{id}"));
+    let (_, page) = server.get_text_blocking(&format!("/submissions/{id}"));
     assert!(page.contains(&format!("/api/v1/submissions/{id}/robustness")));
     server.kill();
 }
@@ -149,7 +149,7 @@ fn a_robustness_submission_is_evaluated_stored_and_served() {
 /// `d3il submit --suite robustness` to `server` of Aligning's image fixture
 /// with a manifest (written in `dir`) for `task` and `obs` observations.
 fn submit_cli(
-    server: &Server,
+    server: &TestServer,
     token: &str,
     dir: &std::path::Path,
     task: &str,
@@ -194,8 +194,8 @@ fn submit_cli(
 fn image_suites_are_accepted_and_a_missing_suite_file_is_refused() {
     let dir = TempDir::new("robustness-image-intake");
     let db = dir.path().join("lb.sqlite");
-    let token = create_token(&db, "robustness-tester");
-    let server = Server::start(&db, &["--workers", "0", "--no-upload-dry-run"]);
+    let token = D3IL.create_token(&db, "robustness-tester");
+    let server = D3IL.serve(&db, &["--workers", "0", "--no-upload-dry-run"]);
     let client = server.client(Some(&token));
     let fields = |task: &str, seed: &str| {
         vec![
@@ -225,7 +225,7 @@ fn image_suites_are_accepted_and_a_missing_suite_file_is_refused() {
             (&"queued".into(), &task.into(), &"image".into()),
             "{s}"
         );
-        let (_, page) = server.get_text(&format!("/submissions/{id}"));
+        let (_, page) = server.get_text_blocking(&format!("/submissions/{id}"));
         assert!(
             page.contains("Evaluated with the robustness suite"),
             "{task}"
@@ -271,9 +271,9 @@ fn image_suites_are_accepted_and_a_missing_suite_file_is_refused() {
         }
     }
     let db = dir.path().join("lb2.sqlite");
-    let token = create_token(&db, "robustness-tester");
+    let token = D3IL.create_token(&db, "robustness-tester");
     let assets_arg = assets.to_str().unwrap();
-    let server = Server::start(
+    let server = D3IL.serve(
         &db,
         &[
             "--workers",

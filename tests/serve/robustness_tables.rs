@@ -7,11 +7,11 @@
 //! measured coverage, in every format.
 
 use crate::robustness_support;
-use crate::server_support;
+use crate::EXE;
+use d3il_test_support::server::*;
 use robustness_support::{
     document, first_states, seed, seed_documents, three, three_and_a_second_seed, OTHER_SHA256,
 };
-use server_support::*;
 use std::process::Command;
 
 fn tables(db: &std::path::Path, format: &str) -> (bool, String, String) {

@@ -7,10 +7,10 @@
 //! differs, never a crash.
 
 use crate::rollouts_support;
-use crate::server_support;
 
+use crate::D3IL;
+use d3il_test_support::server::TempDir;
 use rollouts_support::*;
-use server_support::{Server, TempDir};
 use std::process::Command;
 
 #[test]
@@ -25,7 +25,7 @@ fn a_stored_rollout_replays_into_a_video_through_the_server() {
     let db = dir.path().join("lb.sqlite");
     let ids = store_finished(&db, &[("Expert", &result), ("Edited", &broken)]);
     let (id, bad) = (ids[0], ids[1]);
-    let server = Server::start(&db, &["--workers", "0"]);
+    let server = D3IL.serve(&db, &["--workers", "0"]);
     let get = |path: &str| http_get(&server.base, path, &[]);
 
     // The list: every rollout with its ending and a trace.

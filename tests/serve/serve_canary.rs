@@ -3,8 +3,8 @@
 //! workers make records the build: the git commit and the physics
 //! fingerprint that `d3il verify` computes for this binary.
 
-use crate::server_support;
-use server_support::*;
+use crate::{D3IL, EXE};
+use d3il_test_support::server::*;
 use std::process::Command;
 use std::time::Duration;
 
@@ -12,8 +12,8 @@ use std::time::Duration;
 fn serve_runs_the_canary_and_stamps_every_result_with_the_build() {
     let dir = TempDir::new("serve-canary");
     let db = dir.path().join("lb.sqlite");
-    let token = create_token(&db, "canary-tester");
-    let server = Server::start_with_canary(&db, &["--workers", "1"]);
+    let token = D3IL.create_token(&db, "canary-tester");
+    let server = D3IL.serve_with_canary(&db, &["--workers", "1"]);
 
     let fixtures = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/fixtures");
     let out = Command::new(EXE)
@@ -68,7 +68,7 @@ fn serve_runs_the_canary_and_stamps_every_result_with_the_build() {
 
     // The home page says the canary passed, with the fingerprint.
     let page = wait_for(Duration::from_secs(60), || {
-        let (s, page) = server.get_text("/");
+        let (s, page) = server.get_text_blocking("/");
         (s == 200 && page.contains("drift canary passed")).then_some(page)
     })
     .expect("the home page shows the canary's outcome");

@@ -3,9 +3,9 @@
 //! (issue 6: "the server shows it on the admin page"), and only to an admin
 //! token (issue 17).
 
-use crate::server_support;
+use crate::{D3IL, EXE};
 use d3il_protocol::SandboxMechanism;
-use server_support::*;
+use d3il_test_support::server::*;
 use std::process::{Command, Stdio};
 
 /// askama's HTML escaping.
@@ -42,9 +42,9 @@ fn admin_page_lists_the_sandbox_mechanisms_the_worker_reports() {
     let dir = TempDir::new("admin");
     let db = dir.path().join("lb.sqlite");
     let assets_s = assets.to_string_lossy().to_string();
-    let admin = create_admin_token(&db, "operator");
-    let submitter = create_token(&db, "submitter");
-    let server = Server::start(
+    let admin = D3IL.create_admin_token(&db, "operator");
+    let submitter = D3IL.create_token(&db, "submitter");
+    let server = D3IL.serve(
         &db,
         &[
             "--workers",
@@ -55,7 +55,7 @@ fn admin_page_lists_the_sandbox_mechanisms_the_worker_reports() {
             "777",
         ],
     );
-    let (status, page) = server.get_text("/admin");
+    let (status, page) = server.get_text_blocking("/admin");
     assert_eq!(status, 401, "anonymous: {page}");
     assert!(page.contains("token create --admin"), "{page}");
     let (status, page) = server.client(Some(&submitter)).get_text("/admin").unwrap();

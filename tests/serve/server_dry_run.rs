@@ -8,10 +8,10 @@
 //!
 //! Needs python3 with numpy, websockets and msgpack (the `serve` extra of clients/python).
 
-use crate::server_support;
+use crate::D3IL;
 use d3il_server::client::ClientError;
+use d3il_test_support::server::*;
 use serde_json::Value;
-use server_support::*;
 use std::io::{BufRead, BufReader};
 use std::process::{Child, Command, Stdio};
 
@@ -70,7 +70,7 @@ fn fields(method: &str, url: &str) -> Vec<(&'static str, String)> {
 }
 
 /// "N jobs waiting" from the admin page's queue line.
-fn queue_line(server: &Server, admin: &str) -> String {
+fn queue_line(server: &TestServer, admin: &str) -> String {
     let (s, page) = server.client(Some(admin)).get_text("/admin").unwrap();
     assert_eq!(s, 200);
     page.split("<p id=\"queue\">")
@@ -82,7 +82,7 @@ fn queue_line(server: &Server, admin: &str) -> String {
 
 /// Submits `url` and expects the dry-run to refuse it: 422, the one JSON error
 /// format naming the `endpoint_url` field, a message that says what failed.
-fn expect_refused(server: &Server, token: &str, method: &str, url: &str) -> String {
+fn expect_refused(server: &TestServer, token: &str, method: &str, url: &str) -> String {
     let client = server.client(Some(token));
     match client.submit(&fields(method, url), None) {
         Err(ClientError::Api {
@@ -101,7 +101,7 @@ fn expect_refused(server: &Server, token: &str, method: &str, url: &str) -> Stri
                 "{message}"
             );
             // Nothing stored: not even the method.
-            let (s, _) = server.get_text(&format!("/methods/{method}"));
+            let (s, _) = server.get_text_blocking(&format!("/methods/{method}"));
             assert_eq!(s, 404, "method {method} was created");
             message
         }
@@ -113,9 +113,9 @@ fn expect_refused(server: &Server, token: &str, method: &str, url: &str) -> Stri
 fn a_conforming_endpoint_is_queued_and_non_conforming_ones_are_refused() {
     let dir = TempDir::new("dry-run");
     let db = dir.path().join("lb.sqlite");
-    let token = create_token(&db, "dry-run-tester");
-    let admin = create_admin_token(&db, "operator");
-    let server = Server::start(&db, &["--workers", "0", "--allow-private-endpoints"]);
+    let token = D3IL.create_token(&db, "dry-run-tester");
+    let admin = D3IL.create_admin_token(&db, "operator");
+    let server = D3IL.serve(&db, &["--workers", "0", "--allow-private-endpoints"]);
     assert_eq!(queue_line(&server, &admin), "0 job(s) waiting");
 
     // Conforming: accepted after its dry run and queued.
@@ -187,9 +187,9 @@ fn a_conforming_endpoint_is_queued_and_non_conforming_ones_are_refused() {
 fn loopback_endpoints_are_refused_without_the_explicit_setting() {
     let dir = TempDir::new("dry-run-ssrf");
     let db = dir.path().join("lb.sqlite");
-    let token = create_token(&db, "ssrf-tester");
-    let admin = create_admin_token(&db, "operator");
-    let server = Server::start(&db, &["--workers", "0"]);
+    let token = D3IL.create_token(&db, "ssrf-tester");
+    let admin = D3IL.create_admin_token(&db, "operator");
+    let server = D3IL.serve(&db, &["--workers", "0"]);
     let ok = policy_server("ok");
     match server
         .client(Some(&token))
@@ -212,7 +212,7 @@ fn loopback_endpoints_are_refused_without_the_explicit_setting() {
         }
         other => panic!("expected a refusal, got {other:?}"),
     }
-    let (s, _) = server.get_text("/methods/Remote-Loopback");
+    let (s, _) = server.get_text_blocking("/methods/Remote-Loopback");
     assert_eq!(s, 404);
     assert_eq!(queue_line(&server, &admin), "0 job(s) waiting");
     server.kill();

@@ -3,8 +3,8 @@
 //! protocol (real `d3il worker`, tract, MuJoCo), then the result on the
 //! leaderboard page, in the CSV and on the submission page.
 
-use crate::server_support;
-use server_support::*;
+use crate::{D3IL, EXE};
+use d3il_test_support::server::*;
 use std::process::Command;
 
 fn fixture(name: &str) -> std::path::PathBuf {
@@ -17,8 +17,8 @@ fn fixture(name: &str) -> std::path::PathBuf {
 fn onnx_submission_is_evaluated_and_published() {
     let dir = TempDir::new("e2e");
     let db = dir.path().join("lb.sqlite");
-    let token = create_token(&db, "e2e-tester");
-    let server = Server::start(&db, &["--workers", "1"]);
+    let token = D3IL.create_token(&db, "e2e-tester");
+    let server = D3IL.serve(&db, &["--workers", "1"]);
 
     let out = Command::new(EXE)
         .arg("submit")
@@ -80,7 +80,7 @@ fn onnx_submission_is_evaluated_and_published() {
         .is_some_and(|m| !m.is_empty()));
 
     // On the leaderboard page, marked evaluated and quick, linked to the submission.
-    let (s, page) = server.get_text("/tasks/avoiding");
+    let (s, page) = server.get_text_blocking("/tasks/avoiding");
     assert_eq!(s, 200);
     let row = page
         .split("<tr class=\"evaluated\">")
@@ -90,7 +90,7 @@ fn onnx_submission_is_evaluated_and_published() {
     assert!(row.contains("badge-quick"));
     assert!(row.contains(&format!("href=\"/submissions/{id}\"")));
     // In the CSV with its numbers.
-    let (s, csv) = server.get_text("/api/v1/leaderboards/avoiding/csv");
+    let (s, csv) = server.get_text_blocking("/api/v1/leaderboards/avoiding/csv");
     assert_eq!(s, 200);
     let line = csv
         .lines()
@@ -102,18 +102,18 @@ fn onnx_submission_is_evaluated_and_published() {
         "{line} vs {success}"
     );
     // The method page shows the description given to `d3il submit`, escaped.
-    let (s, page) = server.get_text("/methods/E2E-Path");
+    let (s, page) = server.get_text_blocking("/methods/E2E-Path");
     assert_eq!(s, 200);
     assert!(
         page.contains("Follows one path &#60;between&#62; the obstacles"),
         "{page}"
     );
     // The submission page shows results and the Avoiding path figure.
-    let (s, page) = server.get_text(&format!("/submissions/{id}"));
+    let (s, page) = server.get_text_blocking(&format!("/submissions/{id}"));
     assert_eq!(s, 200);
     assert!(page.contains("id=\"metrics\""));
     assert!(page.contains("id=\"paths-plot\""));
-    let (s, svg) = server.get_text(&format!("/plots/submissions/{id}/paths.svg"));
+    let (s, svg) = server.get_text_blocking(&format!("/plots/submissions/{id}/paths.svg"));
     assert_eq!(s, 200);
     assert!(
         svg.contains("<polyline") || svg.contains("<path"),

@@ -5,9 +5,9 @@
 //! protocol (3 initial states x 2 rollouts, every rollout runs to Aligning's
 //! step limit, several seconds) in the real sandboxed `d3il worker`.
 
-use crate::server_support;
+use crate::D3IL;
 use d3il_test_support::pg::children;
-use server_support::*;
+use d3il_test_support::server::*;
 use std::path::PathBuf;
 use std::time::Duration;
 
@@ -33,8 +33,8 @@ fn server_killed_twice_mid_evaluation_finishes_it_after_restarts() {
     let dir = TempDir::new("restart");
     let db = dir.path().join("lb.sqlite");
     let args = ["--workers", "1", "--max-attempts", "2"];
-    let token = create_token(&db, "restart-tester");
-    let mut server = Server::start(&db, &args);
+    let token = D3IL.create_token(&db, "restart-tester");
+    let mut server = D3IL.serve(&db, &args);
     let client = server.client(Some(&token));
     let manifest = std::fs::read_to_string(fixture("aligning_mlp.json")).unwrap();
     let created = client
@@ -65,7 +65,7 @@ fn server_killed_twice_mid_evaluation_finishes_it_after_restarts() {
         .expect("the evaluation started");
         // "running" is stored as the job is leased, a moment before its
         // worker process is started: wait for it to appear.
-        let pid = server.child.id();
+        let pid = server.pid();
         let workers = wait_for(Duration::from_secs(10), || {
             let w = children(pid);
             (!w.is_empty()).then_some(w)
@@ -79,7 +79,7 @@ fn server_killed_twice_mid_evaluation_finishes_it_after_restarts() {
         wait_for(Duration::from_secs(30), || (!alive(worker)).then_some(()))
             .unwrap_or_else(|| panic!("worker {worker} outlived the killed server"));
         // Restart on the same database: the interrupted job is requeued.
-        server = Server::start(&db, &args);
+        server = D3IL.serve(&db, &args);
     }
     let client = server.client(Some(&token));
     let done = client
@@ -114,18 +114,18 @@ fn server_killed_twice_mid_evaluation_finishes_it_after_restarts() {
     // rollout.
     assert_same_result(
         &done,
-        &plain_eval(dir.path(), &fixture("aligning_mlp.onnx"), 0),
+        &D3IL.plain_eval(dir.path(), &fixture("aligning_mlp.onnx"), 0),
     );
 
     // Exactly one evaluated row: nothing lost, nothing doubled.
-    let (_, csv) = server.get_text("/tasks/aligning/csv");
+    let (_, csv) = server.get_text_blocking("/tasks/aligning/csv");
     let mine: Vec<&str> = csv
         .lines()
         .filter(|l| l.contains(",Durable-MLP,"))
         .collect();
     assert_eq!(mine.len(), 1, "{csv}");
     assert!(mine[0].contains(",evaluated,quick,1,"), "{}", mine[0]);
-    let (s, page) = server.get_text(&format!("/submissions/{id}"));
+    let (s, page) = server.get_text_blocking(&format!("/submissions/{id}"));
     assert_eq!(s, 200);
     assert!(page.contains("id=\"metrics\""));
     server.kill();

@@ -5,9 +5,9 @@
 //! invalid after it), a failed submission's file is deleted, and a restart
 //! removes temporary files a crash left behind.
 
-use crate::server_support;
+use crate::{D3IL, EXE};
+use d3il_test_support::server::*;
 use serde_json::Value;
-use server_support::*;
 use std::io::{Read, Write};
 use std::net::TcpStream;
 use std::path::{Path, PathBuf};
@@ -171,11 +171,11 @@ fn proc_kb(pid: u32, key: &str) -> u64 {
 fn a_200_mib_upload_is_streamed_to_disk_in_bounded_memory() {
     let dir = TempDir::new("upload-rss");
     let db = dir.path().join("lb.sqlite");
-    let token = create_token(&db, "alice");
-    let server = Server::start(&db, &["--workers", "0", "--no-upload-dry-run"]);
-    let pid = server.child.id();
+    let token = D3IL.create_token(&db, "alice");
+    let server = D3IL.serve(&db, &["--workers", "0", "--no-upload-dry-run"]);
+    let pid = server.pid();
     // Warm up every path a submission takes (pages, API, a small upload).
-    assert_eq!(server.get_text("/").0, 200);
+    assert_eq!(server.get_text_blocking("/").0, 200);
     let (s, body) = post_streamed(&server.base, &token, &fields("Warm", 1), 4096, 4096);
     assert_eq!(s, 201, "{body}");
     std::thread::sleep(Duration::from_millis(300));
@@ -222,9 +222,9 @@ fn a_200_mib_upload_is_streamed_to_disk_in_bounded_memory() {
 fn refused_uploads_leave_no_file() {
     let dir = TempDir::new("upload-refused");
     let db = dir.path().join("lb.sqlite");
-    let alice = create_token(&db, "alice");
-    let bob = create_token(&db, "bob");
-    let server = Server::start(
+    let alice = D3IL.create_token(&db, "alice");
+    let bob = D3IL.create_token(&db, "bob");
+    let server = D3IL.serve(
         &db,
         &[
             "--workers",
@@ -280,9 +280,9 @@ fn refused_uploads_leave_no_file() {
 fn failed_submissions_and_crash_debris_leave_no_files() {
     let dir = TempDir::new("upload-debris");
     let db = dir.path().join("lb.sqlite");
-    let token = create_token(&db, "alice");
+    let token = D3IL.create_token(&db, "alice");
     let policies = policies_dir(&db);
-    let server = Server::start(&db, &["--workers", "1", "--no-upload-dry-run"]);
+    let server = D3IL.serve(&db, &["--workers", "1", "--no-upload-dry-run"]);
     // 4 kB of filler is no ONNX model: the real worker fails it.
     let (s, body) = post_streamed(&server.base, &token, &fields("Junk", 1), 4096, 4096);
     assert_eq!(s, 201, "{body}");
@@ -303,7 +303,7 @@ fn failed_submissions_and_crash_debris_leave_no_files() {
     server.kill();
 
     // A queued submission's file (no worker runs it).
-    let server = Server::start(&db, &["--workers", "0", "--no-upload-dry-run"]);
+    let server = D3IL.serve(&db, &["--workers", "0", "--no-upload-dry-run"]);
     let (s, body) = post_streamed(&server.base, &token, &fields("Kept", 1), 8192, 8192);
     assert_eq!(s, 201, "{body}");
     let kept = files_in(&policies);
@@ -318,13 +318,13 @@ fn failed_submissions_and_crash_debris_leave_no_files() {
     std::fs::write(&other, b"half a file").unwrap();
     let orphan = policies.join(format!("{}.onnx", "e".repeat(64)));
     std::fs::write(&orphan, b"nobody's file").unwrap();
-    let server = Server::start(&db, &["--workers", "0", "--no-upload-dry-run"]);
+    let server = D3IL.serve(&db, &["--workers", "0", "--no-upload-dry-run"]);
     assert_eq!(
         files_in(&policies),
         kept,
         "only the queued submission's file is left"
     );
-    assert_eq!(server.get_text("/").0, 200);
+    assert_eq!(server.get_text_blocking("/").0, 200);
 }
 
 /// By default an uploaded model runs a few sandboxed steps of the quick
@@ -337,9 +337,9 @@ fn failed_submissions_and_crash_debris_leave_no_files() {
 fn an_upload_that_cannot_run_is_refused_at_submission() {
     let dir = TempDir::new("upload-dry-run");
     let db = dir.path().join("lb.sqlite");
-    let token = create_token(&db, "alice");
+    let token = D3IL.create_token(&db, "alice");
     let policies = policies_dir(&db);
-    let server = Server::start(&db, &["--workers", "0"]);
+    let server = D3IL.serve(&db, &["--workers", "0"]);
     let client = server.client(Some(&token));
     let fixtures = d3il_test_support::fixtures_dir();
     let manifest = std::fs::read_to_string(fixtures.join("aligning_mlp.json")).unwrap();
@@ -392,8 +392,8 @@ fn an_upload_that_cannot_run_is_refused_at_submission() {
 fn a_quota_refusal_reaches_d3il_submit_during_a_large_upload() {
     let dir = TempDir::new("upload-quota");
     let db = dir.path().join("lb.sqlite");
-    let token = create_token(&db, "alice");
-    let server = Server::start(
+    let token = D3IL.create_token(&db, "alice");
+    let server = D3IL.serve(
         &db,
         &[
             "--workers",
@@ -459,5 +459,5 @@ fn a_quota_refusal_reaches_d3il_submit_during_a_large_upload() {
     let err = String::from_utf8_lossy(&wrong.stderr);
     assert!(err.contains("the server refused the request (401"), "{err}");
     // The server still serves.
-    assert_eq!(server.get_text("/healthz").0, 200);
+    assert_eq!(server.get_text_blocking("/healthz").0, 200);
 }

@@ -6,9 +6,9 @@
 //! quick protocol (3 initial states x 2 rollouts, so 3 shards of one initial
 //! state each).
 
-use crate::server_support;
+use crate::{D3IL, EXE};
+use d3il_test_support::server::*;
 use serde_json::Value;
-use server_support::*;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::time::Duration;
@@ -77,7 +77,7 @@ struct Cluster {
     store: PathBuf,
     dir: TempDir,
     token: String,
-    front: Server,
+    front: TestServer,
 }
 
 impl Cluster {
@@ -91,10 +91,10 @@ impl Cluster {
             "--policy-store",
             store.to_str().unwrap(),
         ];
-        let token = create_token_on("hosts-tester", &db_args);
+        let token = D3IL.create_token_on("hosts-tester", &db_args);
         let mut front_args = db_args[2..].to_vec();
         front_args.extend(["--workers", "0", "--shards", "3", "--no-upload-dry-run"]);
-        let front = Server::start_on(url.as_ref(), &front_args);
+        let front = D3IL.serve_on(url.as_ref(), &front_args);
         Cluster {
             url,
             store,
@@ -187,7 +187,7 @@ fn two_hosts_share_one_queue_run_each_shard_once_and_merge_bit_for_bit() {
     );
 
     for (seed, d) in done.iter().enumerate() {
-        let plain = plain_eval(c.dir.path(), &fixture("aligning_mlp.onnx"), seed as u32);
+        let plain = D3IL.plain_eval(c.dir.path(), &fixture("aligning_mlp.onnx"), seed as u32);
         assert_same_result(d, &plain);
         // The hosts record the build that evaluated, with the drift
         // canary's fingerprint, as `d3il eval` does (they recorded
@@ -240,6 +240,6 @@ fn a_host_killed_mid_shard_loses_only_its_lease_and_another_finishes() {
     }
     assert_same_result(
         &done,
-        &plain_eval(c.dir.path(), &fixture("aligning_mlp.onnx"), 0),
+        &D3IL.plain_eval(c.dir.path(), &fixture("aligning_mlp.onnx"), 0),
     );
 }

@@ -10,7 +10,7 @@ use std::collections::BTreeMap;
 use std::path::PathBuf;
 use std::process::{Command, Output};
 
-pub use super::server_support::EXE;
+pub use super::EXE;
 
 /// Rows of one table by key.
 pub type Rows = BTreeMap<String, Value>;
