@@ -6,8 +6,10 @@
 
 use d3il_protocol::rollout::{pack_f32, unpack_f32};
 use serde_json::Value;
+use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
+use std::sync::{Arc, Mutex, OnceLock};
 
 const EXE: &str = env!("CARGO_BIN_EXE_d3il");
 
@@ -51,6 +53,34 @@ fn eval_quick(dir: &Path, task: &str, policy: &str, extra: &[&str], out: &str) {
         d3il(&args, dir),
         &format!("eval {policy} {}", extra.join(" ")),
     );
+}
+
+/// The quick evaluations more than one test reads (`d3il eval --protocol
+/// quick` of a scripted expert), each run once for the tests of this file
+/// into a directory of its own: the scripted test replays them, the refusal
+/// and video tests edit copies of them. Returns the result file.
+fn shared_quick(task: &'static str, policy: &'static str) -> PathBuf {
+    type Key = (&'static str, &'static str);
+    type Slot = Arc<OnceLock<PathBuf>>;
+    static SHARED: OnceLock<Mutex<BTreeMap<Key, Slot>>> = OnceLock::new();
+    let slot = SHARED
+        .get_or_init(Default::default)
+        .lock()
+        .unwrap()
+        .entry((task, policy))
+        .or_default()
+        .clone();
+    slot.get_or_init(|| {
+        let dir = scratch(&format!("shared-{task}"));
+        eval_quick(&dir, task, policy, &[], "r.json");
+        dir.join("r.json")
+    })
+    .clone()
+}
+
+/// [`shared_quick`]'s result copied into `dir` as `r.json`.
+fn quick_into(dir: &Path, task: &'static str, policy: &'static str) {
+    std::fs::copy(shared_quick(task, policy), dir.join("r.json")).unwrap();
 }
 
 fn ok(out: Output, what: &str) -> String {
@@ -183,7 +213,7 @@ fn scripted_rollouts_of_every_task_replay_bit_for_bit() {
     ];
     for (task, policy) in scripts {
         let dir = scratch(&format!("scripted-{task}"));
-        eval_quick(&dir, task, policy, &[], "r.json");
+        quick_into(&dir, task, policy);
         // Sorting-6, Stacking and Inserting run 1000-2000 steps: their
         // first and last rollouts; an edited record (replayed to its end)
         // on the shorter tasks only (the check does not depend on the task).
@@ -260,7 +290,7 @@ fn rollouts_of_a_sharded_run_replay_from_the_parts_and_the_merged_result() {
 #[test]
 fn records_that_cannot_replay_say_why() {
     let dir = scratch("bad");
-    eval_quick(&dir, "aligning", "scripted:aligning:both", &[], "r.json");
+    quick_into(&dir, "aligning", "scripted:aligning:both");
     let doc = read_json(&dir.join("r.json"));
     let refused = |edit: &dyn Fn(&mut Value), n: &str, expect: &str| {
         let mut d = doc.clone();
@@ -315,7 +345,7 @@ fn records_that_cannot_replay_say_why() {
 #[test]
 fn a_video_is_written_only_for_a_record_that_replays() {
     let dir = scratch("video");
-    eval_quick(&dir, "pushing", "scripted:pushing:all-modes", &[], "r.json");
+    quick_into(&dir, "pushing", "scripted:pushing:all-modes");
     ok(
         d3il(
             &[
