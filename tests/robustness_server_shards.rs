@@ -12,13 +12,16 @@
 //! the shards' rollouts over every level, and a cancelled sharded suite
 //! stops both workers and stores nothing.
 
-mod server_support;
 use d3il_server::store::{sqlx, Store};
+use d3il_test_support::server::*;
 use serde_json::Value;
-use server_support::*;
 use std::path::Path;
 use std::process::Command;
 use std::time::Duration;
+
+/// The `d3il` binary under test (the server harness starts it, the tests run its other commands).
+const D3IL: Binary = Binary(env!("CARGO_BIN_EXE_d3il"));
+const EXE: &str = D3IL.0;
 
 fn fixture(name: &str) -> std::path::PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR"))
@@ -80,7 +83,7 @@ fn shard_rows(db: &Path, submission: i64) -> Vec<ShardRow> {
         })
 }
 
-fn submit(server: &Server, token: &str, seed: u32) -> i64 {
+fn submit(server: &TestServer, token: &str, seed: u32) -> i64 {
     let created = server
         .client(Some(token))
         .submit(
@@ -147,8 +150,8 @@ fn a_sharded_robustness_submission_stores_the_unsharded_document_and_sandbox_run
     // The server: two worker slots, every job in two shards (the drift
     // canary runs, so results record this build as `d3il eval` does).
     let db = dir.path().join("lb.sqlite");
-    let token = create_token(&db, "shards-tester");
-    let server = Server::start_with_canary(
+    let token = D3IL.create_token(&db, "shards-tester");
+    let server = D3IL.serve_with_canary(
         &db,
         &["--workers", "2", "--shards", "2", "--no-upload-dry-run"],
     );
@@ -217,10 +220,10 @@ fn a_sharded_robustness_submission_stores_the_unsharded_document_and_sandbox_run
         .unwrap();
     assert_eq!(results["per_context"], plain["control"]["per_context"]);
     assert_eq!(
-        server_support::document_estimate(&results["metrics"]["success_rate"]),
+        document_estimate(&results["metrics"]["success_rate"]),
         plain["control"]["metrics"]["success_rate"]
     );
-    let (status, view) = server.get_text("/tasks/aligning/robustness");
+    let (status, view) = server.get_text_blocking("/tasks/aligning/robustness");
     assert_eq!(status, 200);
     assert!(view.contains("Sharded-Robust-MLP"), "{view}");
 
@@ -239,7 +242,7 @@ fn a_sharded_robustness_submission_stores_the_unsharded_document_and_sandbox_run
     assert_eq!(v["error"]["kind"], "cancelled", "{v}");
     let stopped = wait_for(Duration::from_secs(30), || {
         let ps = Command::new("pgrep")
-            .args(["-f", "d3il worker", "-P", &server.child.id().to_string()])
+            .args(["-f", "d3il worker", "-P", &server.pid().to_string()])
             .output()
             .unwrap();
         ps.stdout.is_empty().then_some(())
@@ -250,7 +253,7 @@ fn a_sharded_robustness_submission_stores_the_unsharded_document_and_sandbox_run
     );
     let rows = shard_rows(&db, id);
     assert!(rows.iter().all(|r| r.2 == "failed"), "{rows:?}");
-    let (s, body) = server.get_text(&format!("/api/v1/submissions/{id}/robustness"));
+    let (s, body) = server.get_text_blocking(&format!("/api/v1/submissions/{id}/robustness"));
     assert_eq!(s, 404, "a cancelled suite has no document: {body}");
     let after = client.submission(id).unwrap();
     assert_eq!(after["status"], "failed");
