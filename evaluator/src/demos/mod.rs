@@ -515,6 +515,9 @@ fn yaw_quat(tan_yaw: f64, j: usize) -> f64 {
     }
 }
 
+/// Builds a `[rows, cols]` array from `f(row, col)`.
+type ArrayOf = dyn Fn(usize, &dyn Fn(usize, usize) -> f64) -> Py;
+
 /// Stacking's robot entries (ALRhub/d3il `Stacking_Dataset`): it builds the
 /// observation from `des_j_pos` and `gripper_width` and the action from
 /// `des_j_pos[t + 1] − des_j_pos[t]` and `gripper_width[t + 1]`; the others it
@@ -526,11 +529,7 @@ fn yaw_quat(tan_yaw: f64, j: usize) -> f64 {
 /// `j_vel`, `c_pos` and `c_quat` are measured at the row's step;
 /// `des_c_pos` and `des_c_quat` are the forward kinematics of `des_j_pos`; the
 /// joint command carries no desired velocity, so `des_j_vel` is zeros.
-fn joint_robot(
-    ep: &Episode,
-    rows: usize,
-    array: &dyn Fn(usize, &dyn Fn(usize, usize) -> f64) -> Py,
-) -> Vec<(String, Py)> {
+fn joint_robot(ep: &Episode, rows: usize, array: &ArrayOf) -> Vec<(String, Py)> {
     let c = ep.des.len() / rows;
     let q = |t: usize| -> [f64; 7] { std::array::from_fn(|j| ep.des[t * c + j]) };
     let kin = PandaKinematics::new();
