@@ -239,6 +239,9 @@ impl Drop for TestServer {
     }
 }
 
+/// A last change to an in-process server's config ([`Options::configure`]).
+pub type Configure = Box<dyn FnOnce(&mut ServerConfig) + Send>;
+
 /// How an in-process server is set up.
 pub struct Options {
     pub workers: usize,
@@ -266,7 +269,7 @@ pub struct Options {
     /// supervisor running `worker_exe`).
     pub runner: Option<Arc<dyn JobRunner>>,
     /// Last changes to the config, after the fields above.
-    pub configure: Option<Box<dyn FnOnce(&mut ServerConfig) + Send>>,
+    pub configure: Option<Configure>,
 }
 
 impl Default for Options {
