@@ -11,7 +11,9 @@
 //! Its dependencies stay minimal (protocol, serde_json, rcgen, pgtemp) so
 //! every crate of the workspace can dev-depend on it without a cycle; the
 //! `server` feature adds the server, tokio, reqwest and tempfile, for the
-//! crates whose tests start a server (d3il-server's and the root crate's).
+//! crates whose tests start a server (the root crate's, and d3il-server's:
+//! a dev-dependency cycle, which Cargo allows; the server's own unit tests
+//! would see a second copy of the server crate in the harness).
 #![forbid(unsafe_code)]
 
 pub use d3il_pgtemp as pg;
