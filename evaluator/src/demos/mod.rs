@@ -451,7 +451,7 @@ pub fn episode_pickle(task: TaskId, ep: &Episode) -> Result<Vec<u8>, DemoError> 
     let c = ep.des.len() / rows;
     let obs_dim = ep.obs.len() / rows;
     let o = |t: usize, i: usize| ep.obs[t * obs_dim + i] as f64;
-    let array = |cols: usize, f: &dyn Fn(usize, usize) -> f64| Py::Array {
+    let array = move |cols: usize, f: &dyn Fn(usize, usize) -> f64| Py::Array {
         shape: vec![rows, cols],
         data: (0..rows)
             .flat_map(|t| (0..cols).map(move |j| (t, j)))
