@@ -11,7 +11,7 @@ use crate::D3IL;
 use d3il_metrics::sequential::SequentialComparison;
 use d3il_protocol::race::{pairs_of, RaceReport};
 use d3il_protocol::{ObsType, ProtocolKind, TaskId};
-use d3il_server::store::{NewMethod, NewPolicy, NewRace, NewSubmission, Store};
+use d3il_server::store::{NewPolicy, NewRace, NewSubmission, Store};
 use d3il_test_support::chromium::{chromium, dump_dom, serve_with_script};
 use d3il_test_support::server::*;
 
@@ -81,20 +81,11 @@ fn seed(db: &std::path::Path, report: &RaceReport) -> i64 {
             .expect("the racer");
         let mut ids = vec![];
         for name in ["Alpha", "Beta"] {
-            let m = store
-                .ensure_method(
-                    &NewMethod {
-                        name: name.into(),
-                        ..NewMethod::default()
-                    },
-                    None,
-                )
-                .await
-                .expect("method");
+            let method_id = d3il_test_support::server::method_id(&store, name).await;
             let id = store
                 .create_submission(
                     &NewSubmission {
-                        method_id: m.id,
+                        method_id,
                         submitter_id: Some(who.id),
                         task: TaskId::Pushing,
                         obs_type: ObsType::State,

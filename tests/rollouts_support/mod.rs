@@ -56,7 +56,7 @@ pub fn nudged(result: &EvalResult, number: usize, step: usize) -> EvalResult {
 /// Completed submissions of `(method, result)` written into the SQLite
 /// store `db` (the store's claim and completion), before a server starts.
 pub fn store_finished(db: &Path, results: &[(&str, &EvalResult)]) -> Vec<i64> {
-    use d3il_server::store::{NewMethod, NewPolicy, NewSubmission, Store};
+    use d3il_server::store::{NewPolicy, NewSubmission, Store};
     let rt = tokio::runtime::Builder::new_current_thread()
         .enable_all()
         .build()
@@ -65,21 +65,12 @@ pub fn store_finished(db: &Path, results: &[(&str, &EvalResult)]) -> Vec<i64> {
         let store = Store::open(db).await.expect("open store");
         let mut ids = vec![];
         for (method, result) in results {
-            let m = store
-                .ensure_method(
-                    &NewMethod {
-                        name: method.to_string(),
-                        ..NewMethod::default()
-                    },
-                    None,
-                )
-                .await
-                .expect("method");
+            let method_id = d3il_test_support::server::method_id(&store, method).await;
             let man = &result.manifest;
             let id = store
                 .create_submission(
                     &NewSubmission {
-                        method_id: m.id,
+                        method_id,
                         submitter_id: None,
                         task: man.task,
                         obs_type: man.obs_type,

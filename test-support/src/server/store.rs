@@ -131,7 +131,8 @@ pub async fn queued_submission(
     queued_submission_of(store, method, task, obs, protocol, training_seed, shards).await
 }
 
-async fn method_id(store: &Store, method: &str) -> i64 {
+/// The id of the method named `method`, created if the store has none.
+pub async fn method_id(store: &Store, method: &str) -> i64 {
     let m = store
         .ensure_method(
             &NewMethod {
