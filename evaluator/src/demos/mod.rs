@@ -458,20 +458,20 @@ pub fn episode_pickle(task: TaskId, ep: &Episode) -> Result<Vec<u8>, DemoError> 
             .map(|(t, j)| f(t, j))
             .collect(),
     };
-    // Robot: the desired TCP is the previous command (float64); the measured
-    // TCP is the observation's. Tasks whose command is planar get the
-    // frozen height as z (the reference reads [:, :2] there).
-    let des = array(3, &|t, j| {
-        if j < c {
-            ep.des[t * c + j]
-        } else {
-            ep.fixed_z
-        }
-    });
-    let cpos = array(3, &|t, j| if j < c { o(t, c + j) } else { ep.fixed_z });
     let robot = if joint {
         joint_robot(ep, rows, &array)
     } else {
+        // The desired TCP is the previous command (float64); the measured
+        // TCP is the observation's. Tasks whose command is planar get the
+        // frozen height as z (the reference reads [:, :2] there).
+        let des = array(3, &|t, j| {
+            if j < c {
+                ep.des[t * c + j]
+            } else {
+                ep.fixed_z
+            }
+        });
+        let cpos = array(3, &|t, j| if j < c { o(t, c + j) } else { ep.fixed_z });
         vec![("des_c_pos".into(), des), ("c_pos".into(), cpos)]
     };
     let mut entries = vec![("robot".to_string(), Py::Dict(robot))];
@@ -533,13 +533,18 @@ fn joint_robot(ep: &Episode, rows: usize, array: &ArrayOf) -> Vec<(String, Py)> 
     let c = ep.des.len() / rows;
     let q = |t: usize| -> [f64; 7] { std::array::from_fn(|j| ep.des[t * c + j]) };
     let kin = PandaKinematics::new();
-    let fk: Vec<_> = (0..rows).map(|t| kin.fk(&q(t))).collect();
+    let fk: Vec<_> = (0..rows)
+        .map(|t| {
+            let fk = kin.fk(&q(t));
+            (fk.pos, fk.quat_wxyz())
+        })
+        .collect();
     let m = |t: usize, j: usize| ep.measured[t * MEASURED + j];
     vec![
         ("des_j_pos".into(), array(7, &|t, j| q(t)[j])),
         ("des_j_vel".into(), array(7, &|_, _| 0.0)),
-        ("des_c_pos".into(), array(3, &|t, j| fk[t].pos[j])),
-        ("des_c_quat".into(), array(4, &|t, j| fk[t].quat_wxyz()[j])),
+        ("des_c_pos".into(), array(3, &|t, j| fk[t].0[j])),
+        ("des_c_quat".into(), array(4, &|t, j| fk[t].1[j])),
         ("c_pos".into(), array(3, &|t, j| m(t, 14 + j))),
         ("c_quat".into(), array(4, &|t, j| m(t, 17 + j))),
         ("j_pos".into(), array(7, &|t, j| m(t, j))),
