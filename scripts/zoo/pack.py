@@ -59,6 +59,17 @@ def strip_suite_traces(raw: bytes) -> bytes:
 SAMPLED_TRACES = 60
 
 
+def replace_file(path: Path, data: bytes) -> None:
+    """Writes `data` to `path` atomically (a temporary file beside it, then a rename)."""
+    tmp = path.with_name(f".{path.name}.tmp")
+    tmp.write_bytes(data)
+    os.replace(tmp, path)
+
+
+def write_provenance(cell: Path, prov: dict) -> None:
+    replace_file(cell / "provenance.json", (json.dumps(prov, indent=2) + "\n").encode())
+
+
 def sample_result_traces(doc: dict) -> dict:
     """Drops the traces of every rollout but the first ceil(SAMPLED_TRACES / states)
     of each initial state; returns what `shipped_traces` records."""
@@ -95,15 +106,11 @@ def pack_cell(cell: Path, keep_suite_traces: bool = False) -> int:
         else:
             body = raw if keep_suite_traces else strip_suite_traces(raw)
         packed = gzip.compress(body, compresslevel=9, mtime=0)
-        tmp = cell / f".{name}.gz.tmp"
-        tmp.write_bytes(packed)
-        os.replace(tmp, cell / f"{name}.gz")
+        replace_file(cell / f"{name}.gz", packed)
         prov.setdefault("sha256_unpacked", {})[kind] = prov["sha256"][kind]
         prov["sha256"][kind] = hashlib.sha256(packed).hexdigest()
         saved += len(raw) - len(packed)
-        tmpp = cell / ".provenance.json.tmp"
-        tmpp.write_text(json.dumps(prov, indent=2) + "\n")
-        os.replace(tmpp, prov_path)
+        write_provenance(cell, prov)
         plain.unlink()
     saved += sample_packed_result(cell, prov)
     return saved
@@ -121,13 +128,9 @@ def sample_packed_result(cell: Path, prov: dict) -> int:
     doc = json.loads(gzip.decompress(packed))
     prov["shipped_traces"] = sample_result_traces(doc)
     new = gzip.compress(json.dumps(doc, separators=(",", ":")).encode(), compresslevel=9, mtime=0)
-    tmp = cell / ".result.json.gz.tmp"
-    tmp.write_bytes(new)
-    os.replace(tmp, gz)
+    replace_file(gz, new)
     prov["sha256"]["result"] = hashlib.sha256(new).hexdigest()
-    tmpp = cell / ".provenance.json.tmp"
-    tmpp.write_text(json.dumps(prov, indent=2) + "\n")
-    os.replace(tmpp, cell / "provenance.json")
+    write_provenance(cell, prov)
     return len(packed) - len(new)
 
 
