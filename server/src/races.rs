@@ -471,11 +471,7 @@ async fn run(
                 while let Ok(newer) = rx.try_recv() {
                     live = newer;
                 }
-                if let Ok(j) = serde_json::to_string(&live) {
-                    if let Err(e) = state.store.race_live(id, &j).await {
-                        tracing::warn!("race {id}: live state not written: {e}");
-                    }
-                }
+                write_live(state, id, &live).await;
             }
             _ = ticker.tick() => {
                 // A lost lease: the race was cancelled (or taken over after
@@ -488,6 +484,16 @@ async fn run(
             }
         }
     };
+    // The last pairs' states can arrive with the end of the run, and the
+    // select above may take the end first: the newest one still waiting is
+    // written before the report (a one-pair race had none written at all).
+    let mut newest = None;
+    while let Ok(newer) = rx.try_recv() {
+        newest = Some(newer);
+    }
+    if let Some(live) = newest {
+        write_live(state, id, &live).await;
+    }
     let report = report.map_err(|e| format!("the race panicked: {e}"))?;
     if cancel.load(std::sync::atomic::Ordering::Relaxed) {
         return Ok(());
@@ -510,5 +516,15 @@ async fn run(
             Err("the worker answered a race job with something else than a race report".into())
         }
         Err(e) => Err(e.message),
+    }
+}
+
+/// Stores a race's live state (pairs so far, paired counts, e-value); a
+/// failed write is logged and the race goes on.
+async fn write_live(state: &AppState, id: i64, live: &RaceLive) {
+    if let Ok(j) = serde_json::to_string(live) {
+        if let Err(e) = state.store.race_live(id, &j).await {
+            tracing::warn!("race {id}: live state not written: {e}");
+        }
     }
 }
