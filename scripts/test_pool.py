@@ -10,7 +10,8 @@ variables set), JOBS at a time, longest first, each binary's output printed
 whole when it ends. The doc-tests run as one more job. At the end: every
 failed binary, then the ten slowest with their wall and CPU time, and the ten
 slowest tests (CI time stays visible: the budget of a clean-clone .ci/run is 35
-minutes on 2 cores).
+minutes on 2 cores), and, when `./dev test` built with `--timings`, the ten
+crates that took longest to compile.
 
 Per-test times: the test binaries fold many test files each (tests/cli,
 tests/serve, server/tests/app, ...), so a binary's time says little about
@@ -180,6 +181,9 @@ def main() -> int:
     else:
         cargo_args, test_args = args, []
     cargo_args = [a for a in cargo_args if a != "--no-fail-fast"]
+    # When `./dev test` started its build (with --timings): a timings report
+    # older than that is another build's.
+    t_start = float(os.environ.get("D3IL_BUILD_STARTED", time.time()))
     t_build = time.monotonic()
     bins = build(cargo_args)
     global REPORT_TIME
@@ -243,7 +247,40 @@ def main() -> int:
         print("\nslowest tests (wall, binary, test):")
         for s, key, name in tests[:10]:
             print(f"{s:10.1f} s  {key}  {name}")
+    slowest_build_units(Path("target/cargo-timings/cargo-timing.html"), t_start)
     return 1 if failed else 0
+
+
+def build_units(html: str) -> list[dict]:
+    """The units of a `cargo build --timings` report (its `const UNIT_DATA = [...];`)."""
+    start = html.find("const UNIT_DATA = ")
+    if start < 0:
+        return []
+    start = html.index("[", start)
+    end = html.index("\n];", start) + 2
+    return json.loads(html[start:end])
+
+
+def slowest_build_units(report: Path, since: float) -> None:
+    """The ten units that took longest to compile in the build this run made
+    (`./dev test` builds with `--timings`), so that build time is as visible as
+    test time; nothing when the report is older than this run (nothing was
+    rebuilt) or missing."""
+    try:
+        if not report.exists() or report.stat().st_mtime < since:
+            return
+        units = build_units(report.read_text())
+        if not units:
+            return
+        total = sum(u["duration"] for u in units)
+        span = max(u["start"] + u["duration"] for u in units)
+    except (OSError, ValueError, KeyError) as e:
+        # Another cargo's report format: the tests' verdict does not depend on it.
+        print(f"\ntest_pool: no build timings ({report}: {e!r})")
+        return
+    print(f"\nslowest build units ({len(units)} units, {total:.0f} s of compiling in {span:.0f} s; {report}):")
+    for u in sorted(units, key=lambda u: -u["duration"])[:10]:
+        print(f"{u['duration']:10.1f} s  {u['name']} {u['version']}{u['target']}")
 
 
 if __name__ == "__main__":

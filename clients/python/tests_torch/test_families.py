@@ -3,8 +3,9 @@
 Per family: the reference-like agent (tests_torch/reference_like) is recognised,
 exported with ``export_agent`` — which checks the graph against the agent's own
 ``predict()`` fed the same draws, onnxruntime and ``d3il infer`` (tract, the
-evaluator's runtime) — and the file is evaluated by ``d3il eval --protocol quick``;
-then the agent object itself is served (``python -m d3il_client.serve --agent``) and
+evaluator's runtime) — and the file is evaluated by ``d3il eval --protocol quick``
+on the quick protocol's first initial state (``--shard 1/3``); then the agent object
+itself is served (``python -m d3il_client.serve --agent``) and
 evaluated by ``d3il eval`` over the remote protocol with no flag (a local endpoint; the
 quick protocol's first initial state), its first actions equal to the exported
 graph's where the policy is deterministic. That served actions equal ``predict()``
@@ -106,7 +107,10 @@ def test_export_check_evaluate_and_serve(family: str, tmp_path: Path):
     manifest = json.loads(report.manifest.read_text())
     assert (manifest["history"], manifest["horizon"], manifest["execute"]) == (s.history, s.horizon, s.execute)
 
-    exported = evaluate(str(report.onnx), tmp_path / "exported.json")
+    # The exported file and the served agent are evaluated on the first of the
+    # quick protocol's three initial states (a shard: CI time), the state whose
+    # first actions are compared below; the other two are the same evaluation.
+    exported = evaluate(str(report.onnx), tmp_path / "exported.json", "--shard", "1/3")
     assert exported["rollouts"], "the quick protocol ran no rollout"
 
     server = subprocess.Popen(
@@ -122,7 +126,6 @@ def test_export_check_evaluate_and_serve(family: str, tmp_path: Path):
                 break
         assert line.startswith("listening on"), f"the server did not start: {line!r}"
         port = int(line.rsplit(":", 1)[1])
-        # The first of the quick protocol's three initial states (a shard: CI time).
         served = evaluate(f"ws://127.0.0.1:{port}", tmp_path / "served.json", "--shard", "1/3")
     finally:
         server.terminate()
