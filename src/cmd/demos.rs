@@ -26,9 +26,13 @@ pub struct Args {
     /// Action noise: standard deviation relative to the expert action's norm.
     #[arg(long, default_value_t = DemoOptions::default().noise)]
     pub noise: f64,
-    /// Speed factors are uniform in [1 - s, 1 + s].
+    /// Speed factors are uniform in [c (1 - s), c (1 + s)] with c = --speed.
     #[arg(long, default_value_t = 0.15)]
     pub speed_spread: f64,
+    /// Centre c of the speed factors: above 1 where the expert at its own
+    /// pace runs longer than the reference config's `max_len_data` (Sorting-4).
+    #[arg(long, default_value_t = 1.0)]
+    pub speed: f64,
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
@@ -39,6 +43,12 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         anyhow::bail!(
             "--speed-spread {} must be in [0, 1): speeds are drawn from [1 - s, 1 + s]",
             args.speed_spread
+        );
+    }
+    if !(0.5..=2.0).contains(&args.speed) {
+        anyhow::bail!(
+            "--speed {} must be in [0.5, 2]: it scales the expert's actions",
+            args.speed
         );
     }
     if !(0.0..=1.0).contains(&args.noise) {
@@ -60,7 +70,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let opts = DemoOptions {
         episodes: args.episodes,
         seed: args.seed,
-        speed: (1.0 - args.speed_spread, 1.0 + args.speed_spread),
+        speed: (
+            args.speed * (1.0 - args.speed_spread),
+            args.speed * (1.0 + args.speed_spread),
+        ),
         noise: args.noise,
         ..DemoOptions::default()
     };
@@ -109,8 +122,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         "task_version": task.def.version(),
         "generator": {
             "command": format!(
-                "d3il demos --task {} --episodes {} --seed {} --noise {} --speed-spread {}",
-                args.task.slug(), args.episodes, args.seed, args.noise, args.speed_spread
+                "d3il demos --task {} --episodes {} --seed {} --noise {} --speed-spread {}{}",
+                args.task.slug(), args.episodes, args.seed, args.noise, args.speed_spread,
+                if args.speed == 1.0 { String::new() } else { format!(" --speed {}", args.speed) }
             ),
             "git_commit": crate::common::build::GIT_COMMIT,
             "expert": demos::expert_name(args.task)?,

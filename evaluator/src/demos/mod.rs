@@ -424,21 +424,40 @@ pub fn record(
         .collect();
     let mut episodes = Vec::new();
     let mut total = Attempts::default();
-    for r in results {
+    for (index, r) in results.into_iter().enumerate() {
         let (ep, a) = r?;
         total.add(&a);
         match ep {
             Some(e) => episodes.push(e),
-            None => {
-                return Err(DemoError::Setup(format!(
-                    "the {id} expert did not succeed in {} tries of one episode; \
-                     lower --noise or narrow --speed",
-                    opts.max_attempts
-                )))
-            }
+            None => return Err(gave_up(id, opts, max_len, index, &a)),
         }
     }
     Ok((episodes, total))
+}
+
+/// The error of an episode none of whose tries made a demonstration: what
+/// went wrong, and the option that addresses it.
+fn gave_up(
+    id: TaskId,
+    opts: &DemoOptions,
+    max_len: usize,
+    index: usize,
+    a: &Attempts,
+) -> DemoError {
+    let hint = if a.too_long * 2 >= a.tried {
+        format!(
+            "most ran longer than the reference config's max_len_data of {max_len} steps: \
+             raise --speed (the expert's pace; now {:.2}..{:.2})",
+            opts.speed.0, opts.speed.1
+        )
+    } else {
+        "lower --noise or narrow --speed-spread".to_string()
+    };
+    DemoError::Setup(format!(
+        "the {id} expert did not make episode {index} in {} tries ({} failed, {} longer than \
+         {max_len} steps, {} without a behaviour label); {hint}; nothing was written",
+        a.tried, a.failed, a.too_long, a.unlabeled
+    ))
 }
 
 /// The per-episode pickle: `{"robot": {"des_c_pos", "c_pos"}, <object>: {"pos", "quat"}, ...}`
@@ -571,4 +590,40 @@ pub fn histogram(episodes: &[Episode]) -> BTreeMap<String, usize> {
 /// A pickled list of file names, as the reference's `np.load(..., allow_pickle=True)` reads it.
 pub fn file_list_pickle(names: &[String]) -> Vec<u8> {
     pickle::dumps(&Py::List(names.iter().cloned().map(Py::Str).collect()))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// An episode whose tries all failed names how they failed, and the
+    /// option that addresses it: the pace when most ran too long (Sorting-4
+    /// at its own pace), the noise otherwise.
+    #[test]
+    fn giving_up_says_how_the_tries_failed_and_what_to_change() {
+        let opts = DemoOptions::default();
+        let long = Attempts {
+            tried: 20,
+            failed: 3,
+            too_long: 17,
+            unlabeled: 0,
+        };
+        let e = gave_up(TaskId::Sorting4, &opts, 600, 5, &long).to_string();
+        assert!(
+            e.contains("episode 5 in 20 tries (3 failed, 17 longer than 600 steps")
+                && e.contains("raise --speed (the expert's pace; now 0.85..1.15)")
+                && e.contains("nothing was written"),
+            "{e}"
+        );
+        let failing = Attempts {
+            failed: 17,
+            too_long: 3,
+            ..long
+        };
+        let e = gave_up(TaskId::Sorting4, &opts, 600, 5, &failing).to_string();
+        assert!(
+            e.contains("lower --noise or narrow --speed-spread") && !e.contains("raise --speed"),
+            "{e}"
+        );
+    }
 }
