@@ -7,7 +7,6 @@ use super::types::{JobState, SubmissionStatus};
 use super::{now, to_json, Store, StoreError};
 use crate::leaderboard::protocol_str;
 use d3il_protocol::{EvalResult, ProtocolKind, SandboxMechanism, WorkerError};
-use sqlx::FromRow;
 
 /// Writes a submission's result and rollouts and marks it completed, inside
 /// the caller's transaction (idempotent: an existing result is kept).
@@ -114,7 +113,7 @@ macro_rules! finish_failed {
     }};
 }
 
-#[derive(Debug, Clone, FromRow, serde::Serialize)]
+#[derive(Debug, Clone, serde::Serialize)]
 pub struct JobRow {
     pub id: i64,
     pub submission_id: i64,
@@ -140,6 +139,27 @@ pub struct JobRow {
     pub shard_index: i64,
     pub shard_count: i64,
 }
+
+from_row!(JobRow {
+    id,
+    submission_id,
+    state,
+    attempts,
+    max_attempts,
+    lease_owner,
+    lease_expires_at,
+    heartbeat_at,
+    rollouts_done,
+    rollouts_total,
+    error_kind,
+    error_message,
+    sandbox_json,
+    created_at,
+    started_at,
+    finished_at,
+    shard_index,
+    shard_count
+});
 
 impl JobRow {
     /// The shard this row runs (1-based, as `d3il eval --shard` writes it),

@@ -1,10 +1,9 @@
 //! Methods: the paper's baselines and those created by submissions.
 
 use super::{Store, StoreError};
-use sqlx::FromRow;
 
 /// A method and its properties (as the paper lists them for its baselines).
-#[derive(Debug, Clone, FromRow, serde::Serialize, utoipa::ToSchema)]
+#[derive(Debug, Clone, serde::Serialize, utoipa::ToSchema)]
 pub struct MethodRow {
     pub id: i64,
     pub name: String,
@@ -20,6 +19,22 @@ pub struct MethodRow {
     pub image_inference_ms: Option<f64>,
     pub submitter_id: Option<i64>,
 }
+
+from_row!(MethodRow {
+    id,
+    name,
+    history,
+    backbone,
+    prediction,
+    diversity,
+    code_url,
+    paper_url,
+    description,
+    from_paper,
+    state_inference_ms,
+    image_inference_ms,
+    submitter_id
+});
 
 /// Metadata for a new method created by a submission.
 #[derive(Debug, Clone, Default)]

@@ -42,6 +42,36 @@ macro_rules! begin_write {
     };
 }
 
+/// `FromRow` for both backends' rows: each named field is read from the
+/// column of its name (`field: Via` reads the column as `Via` and converts,
+/// as `Stored<TaskId>` into `TaskId`, an error naming the column), and each
+/// field after `flatten` is read from the same row by its own `FromRow`.
+/// Written out rather than derived: sqlx's derive crate compiles both
+/// database drivers, bundled SQLite included, a second time for the host.
+macro_rules! from_row {
+    ($name:ident { $($field:ident $(: $via:ty)?),* $(,)? } $(flatten { $($flat:ident),* $(,)? })?) => {
+        from_row!(@impl sqlx::sqlite::SqliteRow, $name { $($field $(: $via)?),* } $({ $($flat),* })?);
+        from_row!(@impl sqlx::postgres::PgRow, $name { $($field $(: $via)?),* } $({ $($flat),* })?);
+    };
+    (@impl $row:ty, $name:ident { $($field:ident $(: $via:ty)?),* } $({ $($flat:ident),* })?) => {
+        impl<'r> sqlx::FromRow<'r, $row> for $name {
+            fn from_row(row: &'r $row) -> Result<Self, sqlx::Error> {
+                Ok($name {
+                    $($field: from_row!(@get row, $field $(: $via)?),)*
+                    $($($flat: sqlx::FromRow::from_row(row)?,)*)?
+                })
+            }
+        }
+    };
+    (@get $row:ident, $field:ident) => {
+        sqlx::Row::try_get($row, stringify!($field))?
+    };
+    (@get $row:ident, $field:ident : $via:ty) => {{
+        let stored: $via = sqlx::Row::try_get($row, stringify!($field))?;
+        stored.into()
+    }};
+}
+
 mod files;
 mod intervals;
 #[macro_use]
@@ -81,16 +111,42 @@ pub use tokens::{token_hash, Revoked, Submitter, LAST_USED_RESOLUTION_S, TOKEN_P
 pub use types::{JobState, PolicyKind, RaceStatus, StoredSecret, SubmissionStatus};
 pub use zoo::{NewZooCell, ZooCellRow, ZooLoad, ZOO_SUBMITTER};
 
+use sqlx::migrate::{Migration, MigrationType, Migrator};
 use sqlx::postgres::PgPoolOptions;
 use sqlx::sqlite::{SqliteConnectOptions, SqliteJournalMode, SqlitePoolOptions, SqliteSynchronous};
-use sqlx::{PgPool, SqlitePool};
+use sqlx::{PgPool, SqlStr, SqlitePool};
+use std::borrow::Cow;
 use std::path::{Path, PathBuf};
+use std::sync::LazyLock;
 use std::time::Duration;
 
-/// Migrations embedded at compile time (server/build.rs reruns on change).
-pub static MIGRATOR: sqlx::migrate::Migrator = sqlx::migrate!("../migrations/sqlite");
+// (version, description, SQL) of every migration file, embedded by server/build.rs.
+include!(concat!(env!("OUT_DIR"), "/migrations.rs"));
+
+/// The SQLite schema's migrations (migrations/sqlite), embedded at compile time.
+pub static MIGRATOR: LazyLock<Migrator> = LazyLock::new(|| migrator(SQLITE_MIGRATIONS));
 /// The same schema for PostgreSQL (one file per SQLite migration).
-pub static MIGRATOR_PG: sqlx::migrate::Migrator = sqlx::migrate!("../migrations/postgres");
+pub static MIGRATOR_PG: LazyLock<Migrator> = LazyLock::new(|| migrator(POSTGRES_MIGRATIONS));
+
+/// A migrator of embedded files, as sqlx's `migrate!` makes one: plain
+/// (not reversible) migrations, checksummed over their SQL, in a transaction
+/// unless the file starts with `-- no-transaction`.
+fn migrator(files: &[(i64, &'static str, &'static str)]) -> Migrator {
+    Migrator::with_migrations(
+        files
+            .iter()
+            .map(|&(version, description, sql)| {
+                Migration::new(
+                    version,
+                    Cow::Borrowed(description),
+                    MigrationType::Simple,
+                    SqlStr::from_static(sql),
+                    sql.starts_with("-- no-transaction"),
+                )
+            })
+            .collect(),
+    )
+}
 
 /// The database a store lives in, as `--db` gives it: a PostgreSQL URL
 /// (`postgres://…` or `postgresql://…`), else a SQLite file path (an optional
@@ -380,4 +436,40 @@ fn policy_store_dir(dir: &Path) -> Result<PathBuf, StoreError> {
 /// JSON encoding of plain data (these types always serialise).
 fn to_json<T: serde::Serialize + ?Sized>(v: &T) -> String {
     serde_json::to_string(v).unwrap_or_else(|_| "null".into())
+}
+
+#[cfg(test)]
+mod migration_tests {
+    use super::{MIGRATOR, MIGRATOR_PG};
+    use sha2::{Digest, Sha384};
+    use std::path::Path;
+
+    /// The embedded migrations are what `sqlx::migrate!` embedded in earlier
+    /// builds, so that a database they migrated opens here: every file of the
+    /// directory in version order, its description the file name's rest with
+    /// `_` read as a space, and its checksum the SHA-384 of its bytes (sqlx
+    /// refuses a database whose applied checksums differ).
+    #[test]
+    fn embedded_migrations_are_the_files_as_sqlx_names_and_checksums_them() {
+        let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../migrations");
+        for (backend, migrator) in [("sqlite", &*MIGRATOR), ("postgres", &*MIGRATOR_PG)] {
+            let mut files: Vec<_> = std::fs::read_dir(root.join(backend))
+                .unwrap()
+                .map(|e| e.unwrap().path())
+                .filter(|p| p.extension().is_some_and(|x| x == "sql"))
+                .collect();
+            files.sort();
+            let embedded: Vec<_> = migrator.iter().collect();
+            assert_eq!(embedded.len(), files.len(), "{backend}");
+            for (m, file) in embedded.iter().zip(&files) {
+                let name = file.file_stem().unwrap().to_str().unwrap();
+                let (version, description) = name.split_once('_').unwrap();
+                assert_eq!(m.version, version.parse::<i64>().unwrap(), "{name}");
+                assert_eq!(m.description, description.replace('_', " "), "{name}");
+                let bytes = std::fs::read(file).unwrap();
+                assert_eq!(&*m.checksum, Sha384::digest(&bytes).as_slice(), "{name}");
+                assert!(!m.no_tx, "{name}");
+            }
+        }
+    }
 }

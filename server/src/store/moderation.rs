@@ -3,18 +3,21 @@
 //! marked as baselines, and the audit log of every admin action.
 
 use super::{now, Store, StoreError};
-use sqlx::FromRow;
 
 /// A submitter's quota overrides (NULL in the database: the server's
 /// default; 0: no limit).
-#[derive(
-    Debug, Clone, Copy, Default, PartialEq, Eq, FromRow, serde::Serialize, serde::Deserialize,
-)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 pub struct QuotaOverrides {
     pub per_day: Option<i64>,
     pub total: Option<i64>,
     pub concurrent: Option<i64>,
 }
+
+from_row!(QuotaOverrides {
+    per_day,
+    total,
+    concurrent
+});
 
 /// What a submitter has used, in evaluations (`crate::quota`
 /// counts them): accepted work (refused requests never get a row) in the
@@ -54,7 +57,7 @@ pub struct QuotaWork {
 }
 
 /// Why and when a submission was withdrawn.
-#[derive(Debug, Clone, PartialEq, Eq, FromRow, serde::Serialize, utoipa::ToSchema)]
+#[derive(Debug, Clone, PartialEq, Eq, serde::Serialize, utoipa::ToSchema)]
 pub struct Withdrawal {
     /// Unix seconds.
     pub at: i64,
@@ -63,8 +66,10 @@ pub struct Withdrawal {
     pub by: String,
 }
 
+from_row!(Withdrawal { at, reason, by });
+
 /// One admin action.
-#[derive(Debug, Clone, PartialEq, Eq, FromRow, serde::Serialize, utoipa::ToSchema)]
+#[derive(Debug, Clone, PartialEq, Eq, serde::Serialize, utoipa::ToSchema)]
 pub struct AuditEntry {
     pub id: i64,
     /// Unix seconds.
@@ -77,6 +82,15 @@ pub struct AuditEntry {
     pub target: String,
     pub detail: String,
 }
+
+from_row!(AuditEntry {
+    id,
+    at,
+    actor,
+    action,
+    target,
+    detail
+});
 
 /// The 24 hours of the per-day quota.
 pub const DAY_S: i64 = 86_400;

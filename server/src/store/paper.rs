@@ -6,15 +6,12 @@ use super::{Store, StoreError};
 use crate::leaderboard::{task_for_title, BoardRow};
 use d3il_protocol::paper::PaperResults;
 use d3il_protocol::{ObsType, Source, Stat};
-use sqlx::FromRow;
 
-#[derive(FromRow)]
 struct ReportedDbRow {
     paper_table: String,
     method: String,
     method_id: i64,
     task_title: String,
-    #[sqlx(try_from = "Stored<ObsType>")]
     obs_type: ObsType,
     data_fraction: f64,
     control: String,
@@ -28,6 +25,8 @@ struct ReportedDbRow {
     state_inference_ms: Option<f64>,
     image_inference_ms: Option<f64>,
 }
+
+from_row!(ReportedDbRow { paper_table, method, method_id, task_title, obs_type: Stored<ObsType>, data_fraction, control, success_mean, success_std, success_bold, entropy_mean, entropy_std, entropy_bold, n_seeds, state_inference_ms, image_inference_ms });
 
 impl Store {
     /// Inserts the paper's methods and reported rows; rows already present are

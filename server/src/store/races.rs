@@ -18,15 +18,13 @@ use super::{now, Store, StoreError};
 use d3il_protocol::{ProtocolKind, TaskId};
 
 /// A race as stored.
-#[derive(Debug, Clone, sqlx::FromRow)]
+#[derive(Debug, Clone)]
 pub struct RaceRow {
     pub id: i64,
     pub submission_a: i64,
     pub submission_b: i64,
     pub submitter_id: Option<i64>,
-    #[sqlx(try_from = "Stored<TaskId>")]
     pub task: TaskId,
-    #[sqlx(try_from = "Stored<ProtocolKind>")]
     pub protocol: ProtocolKind,
     pub seed: i64,
     pub alpha: f64,
@@ -40,6 +38,8 @@ pub struct RaceRow {
     /// Who cancelled it (its starter or an admin).
     pub cancelled_by: Option<String>,
 }
+
+from_row!(RaceRow { id, submission_a, submission_b, submitter_id, task: Stored<TaskId>, protocol: Stored<ProtocolKind>, seed, alpha, delta, status, live_json, report_json, error_message, created_at, updated_at, cancelled_by });
 
 /// What cancelling a race did.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

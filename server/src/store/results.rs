@@ -12,9 +12,8 @@ use d3il_protocol::{
     ProtocolKind, ProtocolManifest, ResultCell, RobotLook, RolloutFailure, RolloutRecord,
     RolloutTrace, Source, StackingLevel, TaskId,
 };
-use sqlx::FromRow;
 
-#[derive(Debug, Clone, FromRow, serde::Serialize)]
+#[derive(Debug, Clone, serde::Serialize)]
 pub struct ResultRow {
     pub submission_id: i64,
     pub success_rate: f64,
@@ -44,6 +43,28 @@ pub struct ResultRow {
     /// (`d3il_metrics::recompute::RULES_VERSION`); NULL before 0.5.0.
     pub intervals_rules: Option<i64>,
 }
+
+from_row!(ResultRow {
+    submission_id,
+    success_rate,
+    success_ci_low,
+    success_ci_high,
+    behaviour_entropy,
+    behaviour_ci_low,
+    behaviour_ci_high,
+    conditional_entropy,
+    conditional_ci_low,
+    conditional_ci_high,
+    stacking_json,
+    stacking_levels_json,
+    inference_ms,
+    manifest_json,
+    per_context_json,
+    created_at,
+    rollouts_ended_unstable,
+    intervals_json,
+    intervals_rules
+});
 
 /// What an [`Estimate`] says about its interval besides its ends.
 #[derive(Debug, Clone, Copy, Default, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -122,7 +143,7 @@ impl ResultRow {
     }
 }
 
-#[derive(Debug, Clone, FromRow, serde::Serialize)]
+#[derive(Debug, Clone, serde::Serialize)]
 pub struct RolloutRow {
     pub context_index: i64,
     pub rollout_index: i64,
@@ -143,6 +164,18 @@ pub struct RolloutRow {
     pub has_trace: bool,
 }
 
+from_row!(RolloutRow {
+    context_index,
+    rollout_index,
+    success,
+    behaviour,
+    steps,
+    path_json,
+    failure,
+    ending,
+    has_trace
+});
+
 impl RolloutRow {
     pub fn ending(&self) -> Option<Ending> {
         self.ending.map(|e| e.0)
@@ -153,7 +186,6 @@ impl RolloutRow {
 type XyPath = Vec<[f32; 2]>;
 
 /// A rollout row with everything it stores, trace included.
-#[derive(FromRow)]
 struct StoredRollout {
     context_index: i64,
     rollout_index: i64,
@@ -165,6 +197,18 @@ struct StoredRollout {
     ending: Option<Stored<Ending>>,
     trace_json: Option<Json<RolloutTrace>>,
 }
+
+from_row!(StoredRollout {
+    context_index,
+    rollout_index,
+    success,
+    behaviour_json,
+    steps,
+    path_json,
+    failure_json,
+    ending,
+    trace_json
+});
 
 impl From<StoredRollout> for RolloutRecord {
     fn from(r: StoredRollout) -> RolloutRecord {
@@ -183,7 +227,7 @@ impl From<StoredRollout> for RolloutRecord {
 }
 
 /// One training seed of a leaderboard row (the submission page's seed list).
-#[derive(Debug, Clone, FromRow)]
+#[derive(Debug, Clone)]
 pub struct SeedSummary {
     pub id: i64,
     pub training_seed: i64,
@@ -192,19 +236,22 @@ pub struct SeedSummary {
     pub success_rate: Option<f64>,
 }
 
+from_row!(SeedSummary {
+    id,
+    training_seed,
+    status,
+    success_rate
+});
+
 /// A completed submission's result as the leaderboard query reads it.
-#[derive(FromRow)]
 struct SeedDbRow {
     submission_id: i64,
     method: String,
     method_id: i64,
-    #[sqlx(try_from = "Stored<TaskId>")]
     task: TaskId,
-    #[sqlx(try_from = "Stored<ObsType>")]
     obs_type: ObsType,
     training_seed: i64,
     data_fraction: f64,
-    #[sqlx(try_from = "Stored<ProtocolKind>")]
     protocol: ProtocolKind,
     success_rate: f64,
     behaviour_entropy: f64,
@@ -222,6 +269,8 @@ struct SeedDbRow {
     /// The zoo's data source (NULL: a submitted policy).
     data_source: Option<String>,
 }
+
+from_row!(SeedDbRow { submission_id, method, method_id, task: Stored<TaskId>, obs_type: Stored<ObsType>, training_seed, data_fraction, protocol: Stored<ProtocolKind>, success_rate, behaviour_entropy, conditional_entropy, stacking_json, stacking_levels_json, inference_ms, initial_states, robot_look, physics_fingerprint, data_source });
 
 impl SeedDbRow {
     fn into_seed(self) -> EvaluatedSeed {

@@ -8,7 +8,6 @@ use super::{Store, StoreError};
 use d3il_protocol::robustness::RobustnessResult;
 use d3il_protocol::{ObsType, ProtocolKind, TaskId};
 use d3il_tables::robustness::RobustnessEntry;
-use sqlx::FromRow;
 
 /// Writes a submission's robustness document and its summary (idempotent:
 /// a document already stored for the submission is kept), on a pool or
@@ -48,15 +47,12 @@ macro_rules! insert_robustness {
 }
 
 /// One evaluated submission's robustness, as the board and tables read it.
-#[derive(Debug, Clone, FromRow)]
+#[derive(Debug, Clone)]
 pub struct RobustnessRow {
     pub submission_id: i64,
     pub method: String,
-    #[sqlx(try_from = "Stored<TaskId>")]
     pub task: TaskId,
-    #[sqlx(try_from = "Stored<ObsType>")]
     pub obs_type: ObsType,
-    #[sqlx(try_from = "Stored<ProtocolKind>")]
     pub protocol: ProtocolKind,
     pub training_seed: i64,
     pub data_fraction: f64,
@@ -66,6 +62,8 @@ pub struct RobustnessRow {
     /// metrics, paired drops and scores are all there).
     pub summary_json: Json<RobustnessResult>,
 }
+
+from_row!(RobustnessRow { submission_id, method, task: Stored<TaskId>, obs_type: Stored<ObsType>, protocol: Stored<ProtocolKind>, training_seed, data_fraction, suite, suite_sha256, summary_json });
 
 impl RobustnessRow {
     /// The row as the robustness tables and figures take it.

@@ -6,7 +6,6 @@ use super::types::{JobState, PolicyKind, Stored, StoredSecret, SubmissionStatus}
 use super::{now, Store, StoreError};
 use crate::leaderboard::protocol_str;
 use d3il_protocol::{EndpointSecret, ObsType, ProtocolKind, TaskId};
-use sqlx::FromRow;
 use std::path::PathBuf;
 
 /// The id of the live submission holding this seed, if any, read through
@@ -30,19 +29,16 @@ macro_rules! duplicate_seed {
     }};
 }
 
-#[derive(Debug, Clone, FromRow, serde::Serialize)]
+#[derive(Debug, Clone, serde::Serialize)]
 pub struct SubmissionRow {
     pub id: i64,
     pub method_id: i64,
     pub method: String,
     pub submitter: Option<String>,
-    #[sqlx(try_from = "Stored<TaskId>")]
     pub task: TaskId,
-    #[sqlx(try_from = "Stored<ObsType>")]
     pub obs_type: ObsType,
     pub training_seed: i64,
     pub data_fraction: f64,
-    #[sqlx(try_from = "Stored<ProtocolKind>")]
     pub protocol: ProtocolKind,
     pub policy_kind: PolicyKind,
     pub onnx_sha256: Option<String>,
@@ -75,6 +71,8 @@ pub struct SubmissionRow {
     #[serde(skip_serializing_if = "Option::is_none")]
     pub data_source: Option<String>,
 }
+
+from_row!(SubmissionRow { id, method_id, method, submitter, task: Stored<TaskId>, obs_type: Stored<ObsType>, training_seed, data_fraction, protocol: Stored<ProtocolKind>, policy_kind, onnx_sha256, onnx_bytes, onnx_path, endpoint_url, endpoint_secret, manifest_json, status, error_kind, error_message, created_at, updated_at, simulated_once, suite, data_source });
 
 /// What a new submission needs; validated by the HTTP layer before it gets here.
 #[derive(Debug, Clone)]
@@ -163,13 +161,13 @@ const SUBMISSION_SELECT: &str = submission_select!("");
 pub(crate) const PUBLIC: &str = "s.withdrawn_at IS NULL";
 
 /// A withdrawn submission and why (the list on `/admin`).
-#[derive(Debug, Clone, FromRow)]
+#[derive(Debug, Clone)]
 pub struct WithdrawnSubmission {
-    #[sqlx(flatten)]
     pub submission: SubmissionRow,
-    #[sqlx(flatten)]
     pub withdrawal: super::Withdrawal,
 }
+
+from_row!(WithdrawnSubmission {  } flatten { submission, withdrawal });
 
 impl Store {
     /// The submission that already holds this seed, if any (checked before an

@@ -3,9 +3,8 @@
 
 use super::{now, Store, StoreError};
 use sha2::{Digest, Sha256};
-use sqlx::FromRow;
 
-#[derive(Debug, Clone, FromRow)]
+#[derive(Debug, Clone)]
 pub struct Submitter {
     pub id: i64,
     pub name: String,
@@ -16,6 +15,14 @@ pub struct Submitter {
     /// When the token was last used (as recorded: at most once a minute).
     pub last_used_at: Option<i64>,
 }
+
+from_row!(Submitter {
+    id,
+    name,
+    token_id,
+    is_admin,
+    last_used_at
+});
 
 /// `last_used_at` is written at most this often per token.
 pub const LAST_USED_RESOLUTION_S: i64 = 60;

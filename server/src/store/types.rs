@@ -165,7 +165,7 @@ where
 }
 
 /// A stored slug (`aligning`, `state`, `paper`) read as the protocol's enum
-/// `T` (`#[sqlx(try_from = "Stored<TaskId>")]`): text that names nothing
+/// `T` (`task: Stored<TaskId>` in a `from_row!`): text that names nothing
 /// fails to decode, with an error naming the column and the value.
 #[derive(Debug, Clone, Copy)]
 pub struct Stored<T>(pub T);

@@ -61,7 +61,7 @@ impl ZooLoad {
 }
 
 /// A zoo cell as stored: its submission and provenance record.
-#[derive(Debug, Clone, sqlx::FromRow)]
+#[derive(Debug, Clone)]
 pub struct ZooCellRow {
     pub cell: String,
     pub submission_id: i64,
@@ -69,6 +69,14 @@ pub struct ZooCellRow {
     pub provenance_json: String,
     pub loaded_at: i64,
 }
+
+from_row!(ZooCellRow {
+    cell,
+    submission_id,
+    result_sha256,
+    provenance_json,
+    loaded_at
+});
 
 impl ZooCellRow {
     /// The provenance record (the raw text when it does not parse, which a
