@@ -40,34 +40,32 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-# Wall seconds of the slowest binaries on a 2-core machine (the ./dev test run
-# of 2026-12-06, three at a time; a binary folded from several test files
-# counts the sum of its files' seconds), so that they start first; others
-# count as short. Only the order depends on these.
+# Wall seconds of the slowest binaries on a 2-core machine (a clean clone's
+# CI run of 2026-12-06, three at a time; a binary folded from several test
+# files counts as one), so that they start first; others count as short. Only the order depends on these.
 KNOWN_SECONDS = {
-    "replay_records": 367,
-    "robustness": 340,
-    "robustness_server_shards": 336,
-    "closed_loop": 283,
-    "cli": 265,  # tests/cli/: the d3il command line
-    "serve": 249,  # tests/serve/: the real d3il serve
-    "eval": 244,  # tests/eval/: evaluations end to end
-    "agents_torch": 237,
-    "demos": 208,
-    "bench_smoke": 204,
-    "race_server": 148,
-    "python_client": 127,
-    "robustness_shard": 115,
-    "simulator": 109,  # evaluator/tests/simulator/: the tasks in MuJoCo
-    "chromium": 108,  # tests/chromium/
-    "eval_engine": 106,
-    "cancel_live": 95,
-    "sequential_race": 76,
-    "agents_cli": 66,
-    "app": 62,  # server/tests/app/: the server in-process
-    "shard": 56,  # tests/shard/
-    "worker": 54,  # tests/worker/
-    "container_image": 48,
+    "agents_torch": 385,
+    "closed_loop": 326,
+    "cli": 319,  # tests/cli/: the d3il command line
+    "replay_records": 308,
+    "robustness_server_shards": 306,
+    "robustness": 266,
+    "serve": 227,  # tests/serve/: the real d3il serve
+    "eval": 200,  # tests/eval/: evaluations end to end
+    "demos": 200,
+    "bench_smoke": 187,
+    "python_client": 156,
+    "eval_engine": 151,
+    "race_server": 143,
+    "robustness_shard": 141,
+    "cancel_live": 126,
+    "simulator": 94,  # evaluator/tests/simulator/: the tasks in MuJoCo
+    "sequential_race": 84,
+    "chromium": 79,  # tests/chromium/
+    "agents_cli": 69,
+    "container_image": 64,
+    "app": 58,  # server/tests/app/: the server in-process
+    "shard": 41,  # tests/shard/
 }
 
 
