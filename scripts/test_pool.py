@@ -42,7 +42,8 @@ from pathlib import Path
 
 # Wall seconds of the slowest binaries on a 2-core machine (a clean clone's
 # CI run of 2026-12-06, three at a time; a binary folded from several test
-# files counts as one), so that they start first; others count as short. Only the order depends on these.
+# files counts as one), so that they start first; others count as short.
+# Only the order depends on these.
 KNOWN_SECONDS = {
     "agents_torch": 385,
     "closed_loop": 326,
