@@ -101,7 +101,9 @@ def timing_works(b: Binary) -> bool:
     return probe.returncode == 0
 
 
-def build(cargo_args: list[str]) -> list[Binary]:
+def build(cargo_args: list[str]) -> tuple[list[Binary], Path]:
+    """The test binaries of the workspace, built, and cargo's target directory
+    (CARGO_TARGET_DIR or the configured one, as cargo metadata reports it)."""
     meta = json.loads(
         subprocess.run(
             ["cargo", "metadata", "--format-version=1", "--no-deps"], check=True, capture_output=True, text=True
@@ -141,7 +143,7 @@ def build(cargo_args: list[str]) -> list[Binary]:
         bins.append(Binary(name=name, key=target["name"], executable=msg["executable"], cwd=manifest_dir, env=env))
     if proc.wait() != 0:
         sys.exit(f"test_pool: `{' '.join(cmd)}` failed (exit {proc.returncode}): the build errors are above")
-    return bins
+    return bins, Path(meta["target_directory"])
 
 
 def run(b: Binary, test_args: list[str], lock: threading.Lock) -> None:
@@ -184,7 +186,7 @@ def main() -> int:
     # older than that is another build's.
     t_start = float(os.environ.get("D3IL_BUILD_STARTED", time.time()))
     t_build = time.monotonic()
-    bins = build(cargo_args)
+    bins, target_dir = build(cargo_args)
     global REPORT_TIME
     if REPORT_TIME and bins and not timing_works(bins[0]):
         print("test_pool: this libtest refuses --report-time; no per-test times", flush=True)
@@ -246,7 +248,7 @@ def main() -> int:
         print("\nslowest tests (wall, binary, test):")
         for s, key, name in tests[:10]:
             print(f"{s:10.1f} s  {key}  {name}")
-    slowest_build_units(Path("target/cargo-timings/cargo-timing.html"), t_start)
+    slowest_build_units(target_dir / "cargo-timings" / "cargo-timing.html", t_start)
     return 1 if failed else 0
 
 

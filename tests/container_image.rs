@@ -56,12 +56,7 @@ fn run(cmd: &mut Command, what: &str) -> Output {
     let out = cmd.output().unwrap_or_else(|e| {
         panic!("{what}: {e} (./dev test installs podman, runc and mmdebstrap)")
     });
-    assert!(
-        out.status.success(),
-        "{what} failed: {}\n{}",
-        String::from_utf8_lossy(&out.stdout),
-        String::from_utf8_lossy(&out.stderr)
-    );
+    d3il_test_support::succeeded(&out, what);
     out
 }
 

@@ -5,6 +5,7 @@
 //! first step that differs, and never crashes anything.
 
 use d3il_protocol::rollout::{pack_f32, unpack_f32};
+use d3il_test_support::succeeded;
 use serde_json::Value;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -49,8 +50,8 @@ fn eval_quick(dir: &Path, task: &str, policy: &str, extra: &[&str], out: &str) {
     ];
     args.extend_from_slice(extra);
     args.extend(["--json", out]);
-    ok(
-        d3il(&args, dir),
+    succeeded(
+        &d3il(&args, dir),
         &format!("eval {policy} {}", extra.join(" ")),
     );
 }
@@ -81,16 +82,6 @@ fn shared_quick(task: &'static str, policy: &'static str) -> PathBuf {
 /// [`shared_quick`]'s result copied into `dir` as `r.json`.
 fn quick_into(dir: &Path, task: &'static str, policy: &'static str) {
     std::fs::copy(shared_quick(task, policy), dir.join("r.json")).unwrap();
-}
-
-fn ok(out: Output, what: &str) -> String {
-    assert!(
-        out.status.success(),
-        "{what} failed\nstdout: {}\nstderr: {}",
-        String::from_utf8_lossy(&out.stdout),
-        String::from_utf8_lossy(&out.stderr)
-    );
-    String::from_utf8_lossy(&out.stdout).into_owned()
 }
 
 fn read_json(path: &Path) -> Value {
@@ -132,8 +123,8 @@ fn rollouts_replay(dir: &Path, file: &str, at_most: usize) -> Value {
         if i >= at_most && i != last {
             continue;
         }
-        let stdout = ok(
-            d3il(
+        let stdout = succeeded(
+            &d3il(
                 &[
                     "replay",
                     "--result",
@@ -277,8 +268,8 @@ fn rollouts_of_a_sharded_run_replay_from_the_parts_and_the_merged_result() {
         let file = format!("part{k}.json");
         eval_quick(&dir, "aligning", &path, &["--shard", &shard], &file);
     }
-    ok(
-        d3il(
+    succeeded(
+        &d3il(
             &["merge", "part1.json", "part2.json", "--json", "merged.json"],
             &dir,
         ),
@@ -348,8 +339,8 @@ fn records_that_cannot_replay_say_why() {
 fn a_video_is_written_only_for_a_record_that_replays() {
     let dir = scratch("video");
     quick_into(&dir, "pushing", "scripted:pushing:all-modes");
-    ok(
-        d3il(
+    succeeded(
+        &d3il(
             &[
                 "replay",
                 "--result",

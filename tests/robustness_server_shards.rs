@@ -6,9 +6,7 @@
 //! its two worker slots run at once, each a sandboxed `d3il worker` running
 //! level 0 and every level on its block of states; the last one merges, and
 //! the stored document is the one `d3il eval --suite robustness` gives
-//! unsharded, bit for bit (but for the measured inference times), as is
-//! the merge (`d3il merge`) of its two sandboxed shards
-//! (`--sandbox --shard 1/2`, `2/2`). Progress sums
+//! unsharded, bit for bit (but for the measured inference times). Progress sums
 //! the shards' rollouts over every level, and a cancelled sharded suite
 //! stops both workers and stores nothing.
 
@@ -29,9 +27,9 @@ fn fixture(name: &str) -> std::path::PathBuf {
         .join(name)
 }
 
-/// `d3il eval --suite robustness` of the fixture (quick protocol, seed 0)
-/// with `extra` arguments; returns the document it wrote.
-fn cli_suite(dir: &Path, name: &str, extra: &[&str]) -> Value {
+/// `d3il eval --suite robustness` of the fixture (quick protocol, seed 0);
+/// returns the document it wrote.
+fn cli_suite(dir: &Path, name: &str) -> Value {
     let path = dir.join(name);
     let out = Command::new(EXE)
         .args(["eval", "--task", "aligning", "--protocol", "quick"])
@@ -39,15 +37,9 @@ fn cli_suite(dir: &Path, name: &str, extra: &[&str]) -> Value {
         .arg(fixture("aligning_mlp.onnx"))
         .arg("--json")
         .arg(&path)
-        .args(extra)
         .output()
         .expect("run d3il eval");
-    assert!(
-        out.status.success(),
-        "d3il eval --suite robustness {extra:?}: {}{}",
-        String::from_utf8_lossy(&out.stdout),
-        String::from_utf8_lossy(&out.stderr)
-    );
+    d3il_test_support::succeeded(&out, "d3il eval --suite robustness");
     serde_json::from_slice(&std::fs::read(&path).unwrap()).unwrap()
 }
 
@@ -105,40 +97,11 @@ fn submit(server: &TestServer, token: &str, seed: u32) -> i64 {
 }
 
 #[test]
-fn a_sharded_robustness_submission_stores_the_unsharded_document_and_sandbox_runs_agree() {
+fn a_sharded_robustness_submission_stores_the_unsharded_document() {
     let dir = TempDir::new("robustness-shards");
-    // The command line in process; then in the sandboxed worker, in two
-    // shards that `d3il merge` joins into the same document (an unsharded
-    // `--sandbox` run would repeat the whole suite to show what the two
-    // sandboxed shards already show).
-    let plain = timeless(cli_suite(dir.path(), "plain.json", &[]));
-    for k in 1..=2 {
-        let shard = format!("{k}/2");
-        cli_suite(
-            dir.path(),
-            &format!("part{k}.json"),
-            &["--sandbox", "--shard", &shard],
-        );
-    }
-    let out = Command::new(EXE)
-        .arg("merge")
-        .args(["part1.json", "part2.json", "--json", "merged.json"])
-        .current_dir(dir.path())
-        .output()
-        .expect("run d3il merge");
-    assert!(
-        out.status.success(),
-        "d3il merge of the sandboxed suite parts: {}{}",
-        String::from_utf8_lossy(&out.stdout),
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let merged: Value =
-        serde_json::from_slice(&std::fs::read(dir.path().join("merged.json")).unwrap()).unwrap();
-    assert_eq!(
-        timeless(merged),
-        plain,
-        "sandboxed shards merge into another robustness document"
-    );
+    // The command line, unsharded and in process (its sandboxed shards
+    // merge into the same document: tests/robustness_shard.rs).
+    let plain = timeless(cli_suite(dir.path(), "plain.json"));
     // Quick protocol: 3 states × 2 rollouts at level 0 and 13 levels.
     let levels = plain["levels"].as_array().unwrap().len();
     assert_eq!(levels, 13);

@@ -1,6 +1,6 @@
 //! The robustness track's cost and records on the command line (issue 40):
-//! `d3il eval --suite robustness --shard K/N` parts merged by `d3il merge`
-//! give the unsharded document bit for bit (but for the measured inference
+//! `d3il eval --suite robustness --shard K/N` parts (one of them run in the
+//! sandboxed worker) merged by `d3il merge` give the unsharded document bit for bit (but for the measured inference
 //! time), a fractional latency applies the blend of the two late actions,
 //! and a perturbed rollout of every axis gets its video from `d3il replay
 //! --level AXIS/N --video`.
@@ -11,6 +11,7 @@ use d3il_evaluator::scripted::ScriptedPolicy;
 use d3il_evaluator::tasks::LoadedTask;
 use d3il_protocol::perturbation::{Axis, LevelSetting, Perturbation};
 use d3il_protocol::{ObsType, ProtocolKind, TaskId};
+use d3il_test_support::succeeded;
 use serde_json::Value;
 use std::path::Path;
 use std::process::Command;
@@ -21,16 +22,6 @@ fn d3il(args: &[&str], dir: &Path) -> std::process::Output {
         .current_dir(dir)
         .output()
         .unwrap()
-}
-
-fn ok(out: std::process::Output, what: &str) -> String {
-    let stdout = String::from_utf8_lossy(&out.stdout).into_owned();
-    assert!(
-        out.status.success(),
-        "{what}: {stdout}\n{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    stdout
 }
 
 /// The document without the measured inference times (wall clock).
@@ -58,15 +49,18 @@ fn sharded_suite_merges_to_the_whole_document_and_every_axis_has_videos() {
         "--suite",
         "robustness",
     ];
-    let whole = ok(
-        d3il(&[&common[..], &["--json", "whole.json"]].concat(), &dir),
+    let whole = succeeded(
+        &d3il(&[&common[..], &["--json", "whole.json"]].concat(), &dir),
         "whole",
     );
-    for k in ["1/2", "2/2"] {
+    // The first part in the sandboxed worker (`--sandbox`, the job a
+    // server's worker slot runs for a suite's shard), the second in process:
+    // they merge into the same document.
+    for (k, sandbox) in [("1/2", &["--sandbox"][..]), ("2/2", &[][..])] {
         let part = format!("part{}.json", &k[..1]);
-        let out = ok(
-            d3il(
-                &[&common[..], &["--shard", k, "--json", &part]].concat(),
+        let out = succeeded(
+            &d3il(
+                &[&common[..], sandbox, &["--shard", k, "--json", &part]].concat(),
                 &dir,
             ),
             k,
@@ -74,8 +68,8 @@ fn sharded_suite_merges_to_the_whole_document_and_every_axis_has_videos() {
         assert!(out.contains(&format!("shard {k}: initial states")), "{out}");
     }
     // Any order of the parts.
-    let merged = ok(
-        d3il(
+    let merged = succeeded(
+        &d3il(
             &["merge", "part2.json", "part1.json", "--json", "merged.json"],
             &dir,
         ),
@@ -118,7 +112,7 @@ fn sharded_suite_merges_to_the_whole_document_and_every_axis_has_videos() {
             ],
             &dir,
         );
-        ok(out, &level);
+        succeeded(&out, &level);
         let bytes = std::fs::metadata(dir.join(&video)).unwrap().len();
         assert!(bytes > 1000, "{level}: a {bytes}-byte video");
     }

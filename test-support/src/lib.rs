@@ -295,6 +295,48 @@ impl Pki {
     }
 }
 
+/// `doc` cut to its first `states` initial states (every level keeps the
+/// same ones, with their rollout records), its intervals, drops and scores
+/// recomputed: a document as a run on that many states gives it.
+pub fn first_states(
+    mut doc: d3il_protocol::robustness::RobustnessResult,
+    states: usize,
+) -> d3il_protocol::robustness::RobustnessResult {
+    for r in std::iter::once(&mut doc.control).chain(doc.levels.iter_mut().map(|l| &mut l.result)) {
+        r.per_context.truncate(states);
+        r.rollouts.retain(|x| x.context_index < states);
+        r.manifest.n_contexts = states;
+    }
+    d3il_metrics::recompute::recompute_robustness(&mut doc).expect("recompute");
+    doc
+}
+
+/// The standard output, as text, of a command the test needs to have
+/// succeeded; otherwise the test fails naming `what`, the exit status and
+/// both outputs.
+pub fn succeeded(out: &std::process::Output, what: &str) -> String {
+    assert!(
+        out.status.success(),
+        "{what} failed ({}):\nstdout: {}\nstderr: {}",
+        out.status,
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    String::from_utf8_lossy(&out.stdout).into_owned()
+}
+
+/// The standard error, as text, of a command the test needs to have been
+/// refused (a non-zero exit); otherwise the test fails naming `what`.
+pub fn refused(out: &std::process::Output, what: &str) -> String {
+    assert!(
+        !out.status.success(),
+        "{what} was accepted:\nstdout: {}\nstderr: {}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    String::from_utf8_lossy(&out.stderr).into_owned()
+}
+
 /// A fresh directory under the system temp dir, removed on drop.
 pub struct TempDir(pub PathBuf);
 

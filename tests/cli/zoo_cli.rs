@@ -5,6 +5,7 @@
 //! cell again with this build and writes the version-drift table.
 //! The fixture cell is server/tests/fixtures/zoo/avoiding/bc-mlp-s0.
 
+use d3il_test_support::succeeded;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
@@ -30,49 +31,52 @@ fn d3il(args: &[&str]) -> Output {
         .expect("run d3il")
 }
 
-fn stdout(o: &Output) -> String {
-    assert!(
-        o.status.success(),
-        "{}\n{}",
-        String::from_utf8_lossy(&o.stdout),
-        String::from_utf8_lossy(&o.stderr)
-    );
-    String::from_utf8_lossy(&o.stdout).into_owned()
-}
-
 #[test]
 fn tables_prints_the_zoo_in_a_table_of_its_own() {
     let dir = scratch("tables");
     let db = dir.join("lb.sqlite");
     let (db, zoo) = (db.to_str().unwrap(), fixture());
     let zoo = zoo.to_str().unwrap();
-    let md = stdout(&d3il(&[
-        "tables", "--table", "zoo", "--format", "markdown", "--db", db, "--zoo", zoo,
-    ]));
+    let md = succeeded(
+        &d3il(&[
+            "tables", "--table", "zoo", "--format", "markdown", "--db", db, "--zoo", zoo,
+        ]),
+        "d3il tables",
+    );
     assert!(
         md.contains("D3IL zoo: trained here on d3il demos v1"),
         "{md}"
     );
     assert!(md.contains("| Avoiding (T1) | BC-MLP |"), "{md}");
     // Twice: loaded once, the same table.
-    let again = stdout(&d3il(&[
-        "tables", "--table", "zoo", "--format", "markdown", "--db", db, "--zoo", zoo,
-    ]));
+    let again = succeeded(
+        &d3il(&[
+            "tables", "--table", "zoo", "--format", "markdown", "--db", db, "--zoo", zoo,
+        ]),
+        "d3il tables",
+    );
     assert_eq!(md, again);
-    let csv = stdout(&d3il(&[
-        "tables", "--table", "zoo", "--format", "csv", "--db", db, "--zoo", zoo,
-    ]));
+    let csv = succeeded(
+        &d3il(&[
+            "tables", "--table", "zoo", "--format", "csv", "--db", db, "--zoo", zoo,
+        ]),
+        "d3il tables",
+    );
     assert_eq!(csv.lines().count(), 2, "{csv}");
     assert!(csv.contains("trained here on d3il demos v1,Avoiding (T1),BC-MLP,paper"));
-    let tex = stdout(&d3il(&[
-        "tables", "--table", "zoo", "--format", "latex", "--db", db, "--zoo", zoo,
-    ]));
+    let tex = succeeded(
+        &d3il(&[
+            "tables", "--table", "zoo", "--format", "latex", "--db", db, "--zoo", zoo,
+        ]),
+        "d3il tables",
+    );
     assert!(tex.contains("\\caption{D3IL zoo: trained here on d3il demos v1."));
 
     // The paper's main table is the paper's alone: no zoo row in it.
-    let main = stdout(&d3il(&[
-        "tables", "--table", "main", "--format", "csv", "--db", db,
-    ]));
+    let main = succeeded(
+        &d3il(&["tables", "--table", "main", "--format", "csv", "--db", db]),
+        "d3il tables",
+    );
     assert!(main.contains(",BC-MLP,reported,"), "{main}");
     assert!(!main.contains(",evaluated,"), "{main}");
 }
@@ -84,8 +88,7 @@ fn tables_prints_the_zoo_in_a_table_of_its_own() {
 fn the_shipped_zoo_checks_and_keeps_within_its_size_budget() {
     let assets = Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/zoo");
     let out = d3il(&["zoo", "check", "--zoo", assets.to_str().unwrap()]);
-    let text = stdout(&out);
-    assert!(out.status.success(), "{text}");
+    let text = succeeded(&out, "d3il zoo check");
     assert!(text.contains(", 0 skipped; "), "{text}");
     assert!(
         text.contains("MB of the zoo's size budget of 110 MB"),
@@ -119,12 +122,10 @@ fn check_refuses_a_zoo_over_its_size_budget() {
 
 #[test]
 fn check_reads_every_cell_and_names_a_tampered_one() {
-    let ok = stdout(&d3il(&[
-        "zoo",
-        "check",
-        "--zoo",
-        fixture().to_str().unwrap(),
-    ]));
+    let ok = succeeded(
+        &d3il(&["zoo", "check", "--zoo", fixture().to_str().unwrap()]),
+        "d3il zoo check",
+    );
     assert!(
         ok.contains(&format!("ok      {CELL}: BC-MLP seed 0")),
         "{ok}"
@@ -161,7 +162,7 @@ fn reeval_writes_what_moved() {
         "--out",
         out.to_str().unwrap(),
     ]);
-    stdout(&o);
+    succeeded(&o, "d3il zoo reeval");
     let md = std::fs::read_to_string(&out).unwrap();
     assert!(md.starts_with("# Zoo version drift"), "{md}");
     let line = md
@@ -222,13 +223,16 @@ fn a_sampled_rollout_of_every_zoo_cell_replays_bit_for_bit() {
             (h ^ b as u64).wrapping_mul(0x100000001b3)
         });
         let k = traced[(h % traced.len() as u64) as usize].to_string();
-        let out = stdout(&d3il(&[
-            "replay",
-            "--result",
-            result.to_str().unwrap(),
-            "--rollout",
-            &k,
-        ]));
+        let out = succeeded(
+            &d3il(&[
+                "replay",
+                "--result",
+                result.to_str().unwrap(),
+                "--rollout",
+                &k,
+            ]),
+            "d3il replay",
+        );
         assert!(
             out.contains("replays bit for bit"),
             "{}: rollout {k}: {out}",
@@ -256,14 +260,17 @@ fn replay_of_a_robustness_document_asks_for_a_level() {
         "{err}"
     );
     assert!(!err.contains("missing field"), "{err}");
-    let out = stdout(&d3il(&[
-        "replay",
-        "--result",
-        doc,
-        "--level",
-        "latency/0",
-        "--rollout",
-        "0",
-    ]));
+    let out = succeeded(
+        &d3il(&[
+            "replay",
+            "--result",
+            doc,
+            "--level",
+            "latency/0",
+            "--rollout",
+            "0",
+        ]),
+        "d3il replay",
+    );
     assert!(out.contains("replays bit for bit"), "{out}");
 }

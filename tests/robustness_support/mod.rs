@@ -67,19 +67,6 @@ pub fn seed(db: &std::path::Path, synths: &[Synth]) -> Vec<i64> {
     seed_documents(db, &docs)
 }
 
-/// `doc` cut to its first `states` initial states (every level keeps the
-/// same ones, with their rollout records), its intervals, drops and scores
-/// recomputed: a document as a run on that many states gives it.
-pub fn first_states(mut doc: RobustnessResult, states: usize) -> RobustnessResult {
-    for r in std::iter::once(&mut doc.control).chain(doc.levels.iter_mut().map(|l| &mut l.result)) {
-        r.per_context.truncate(states);
-        r.rollouts.retain(|x| x.context_index < states);
-        r.manifest.n_contexts = states;
-    }
-    d3il_metrics::recompute::recompute_robustness(&mut doc).expect("recompute");
-    doc
-}
-
 /// Writes one finished robustness submission per (method, training seed,
 /// document); returns their ids.
 pub fn seed_documents(db: &std::path::Path, docs: &[(&str, i64, RobustnessResult)]) -> Vec<i64> {

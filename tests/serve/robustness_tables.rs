@@ -8,9 +8,10 @@
 
 use crate::robustness_support;
 use crate::EXE;
+use d3il_test_support::first_states;
 use d3il_test_support::server::*;
 use robustness_support::{
-    document, first_states, seed, seed_documents, three, three_and_a_second_seed, OTHER_SHA256,
+    document, seed, seed_documents, three, three_and_a_second_seed, OTHER_SHA256,
 };
 use std::process::Command;
 

@@ -9,6 +9,7 @@
 
 use crate::shard_support;
 
+use d3il_test_support::{refused, succeeded};
 use serde_json::Value;
 use shard_support::{assert_same_result, table};
 use std::path::{Path, PathBuf};
@@ -24,25 +25,6 @@ fn d3il(args: &[&str], dir: &Path) -> Output {
         .env("RUST_BACKTRACE", "0")
         .output()
         .unwrap()
-}
-
-fn ok(out: Output, what: &str) -> String {
-    assert!(
-        out.status.success(),
-        "{what} failed: {}\n{}",
-        String::from_utf8_lossy(&out.stdout),
-        String::from_utf8_lossy(&out.stderr)
-    );
-    String::from_utf8(out.stdout).unwrap()
-}
-
-fn refused(out: Output, what: &str) -> String {
-    assert!(
-        !out.status.success(),
-        "{what} was accepted: {}",
-        String::from_utf8_lossy(&out.stdout)
-    );
-    String::from_utf8(out.stderr).unwrap()
 }
 
 fn eval_args<'a>(policy: &'a str, extra: &[&'a str]) -> Vec<&'a str> {
@@ -75,15 +57,15 @@ fn fixture() -> &'static Fixture {
         let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("shard-cli");
         let _ = std::fs::remove_dir_all(&dir);
         std::fs::create_dir_all(&dir).unwrap();
-        let plain_stdout = ok(
-            d3il(&eval_args(POLICY, &["--json", "plain.json"]), &dir),
+        let plain_stdout = succeeded(
+            &d3il(&eval_args(POLICY, &["--json", "plain.json"]), &dir),
             "plain eval",
         );
         for k in 1..=3 {
             let shard = format!("{k}/3");
             let file = format!("part{k}.json");
-            ok(
-                d3il(
+            succeeded(
+                &d3il(
                     &eval_args(POLICY, &["--shard", &shard, "--json", &file]),
                     &dir,
                 ),
@@ -98,8 +80,8 @@ fn fixture() -> &'static Fixture {
 fn three_shards_merge_to_the_plain_evaluation() {
     let f = fixture();
     // Any order of the part files.
-    let stdout = ok(
-        d3il(
+    let stdout = succeeded(
+        &d3il(
             &[
                 "merge",
                 "part3.json",
@@ -126,8 +108,8 @@ fn two_uneven_shards_merge_to_the_plain_evaluation() {
     for k in 1..=2 {
         let shard = format!("{k}/2");
         let file = format!("half{k}.json");
-        let out = ok(
-            d3il(
+        let out = succeeded(
+            &d3il(
                 &eval_args(POLICY, &["--shard", &shard, "--json", &file]),
                 &dir,
             ),
@@ -140,8 +122,8 @@ fn two_uneven_shards_merge_to_the_plain_evaluation() {
         serde_json::from_slice(&std::fs::read(dir.join("half2.json")).unwrap()).unwrap();
     assert_eq!(half2["contexts"], serde_json::json!([1, 3]));
     assert_eq!(half2["manifest"]["n_contexts"], 3);
-    ok(
-        d3il(
+    succeeded(
+        &d3il(
             &["merge", "half1.json", "half2.json", "--json", "merged.json"],
             &dir,
         ),
@@ -157,8 +139,8 @@ fn a_sandboxed_shard_writes_the_same_part() {
     let f = fixture();
     let dir = f.dir.join("sandboxed");
     std::fs::create_dir_all(&dir).unwrap();
-    ok(
-        d3il(
+    succeeded(
+        &d3il(
             &eval_args(
                 POLICY,
                 &["--shard", "2/3", "--sandbox", "--json", "part2.json"],
@@ -192,7 +174,7 @@ fn merge_refuses_parts_that_do_not_make_one_evaluation() {
     let merge = |files: &[&str]| {
         let mut a = vec!["merge"];
         a.extend_from_slice(files);
-        refused(d3il(&a, dir), &format!("merge {files:?}"))
+        refused(&d3il(&a, dir), &format!("merge {files:?}"))
     };
 
     let e = merge(&["part1.json", "part3.json"]);
@@ -201,8 +183,8 @@ fn merge_refuses_parts_that_do_not_make_one_evaluation() {
     assert!(e.contains("shard 2/3 is given twice"), "{e}");
 
     // A shard of another policy (really evaluated).
-    ok(
-        d3il(
+    succeeded(
+        &d3il(
             &eval_args(
                 "scripted:pushing:mode=0",
                 &["--shard", "2/3", "--json", "other-policy.json"],
@@ -258,7 +240,7 @@ fn merge_refuses_parts_that_do_not_make_one_evaluation() {
 fn eval_refuses_bad_shards() {
     let dir = std::env::temp_dir();
     let e = refused(
-        d3il(
+        &d3il(
             &eval_args(POLICY, &["--shard", "4/4", "--json", "x.json"]),
             &dir,
         ),
@@ -266,7 +248,7 @@ fn eval_refuses_bad_shards() {
     );
     assert!(e.contains("at most 3 shards"), "{e}");
     let e = refused(
-        d3il(
+        &d3il(
             &eval_args(POLICY, &["--shard", "0/3", "--json", "x.json"]),
             &dir,
         ),
@@ -274,7 +256,7 @@ fn eval_refuses_bad_shards() {
     );
     assert!(e.contains("K/N with 1 <= K <= N"), "{e}");
     let e = refused(
-        d3il(&eval_args(POLICY, &["--shard", "1/3"]), &dir),
+        &d3il(&eval_args(POLICY, &["--shard", "1/3"]), &dir),
         "no --json",
     );
     assert!(e.contains("needs --json"), "{e}");

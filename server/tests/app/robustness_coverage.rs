@@ -9,6 +9,7 @@
 //! document, and the same document cut to its first 3 initial states.
 
 use d3il_protocol::robustness::RobustnessResult;
+use d3il_test_support::first_states;
 use d3il_test_support::server::*;
 
 const THREE_STATES: &str =
@@ -19,17 +20,6 @@ fn measured() -> RobustnessResult {
         "../docs/measurements/robustness-2026-11-29/pushing-v2_push_bc_noise_paper-2-per-state.json",
     );
     serde_json::from_slice(&std::fs::read(path).expect("the measurement")).expect("a document")
-}
-
-/// `doc` cut to its first `states` initial states (every level keeps the
-/// same ones), its intervals, drops and scores recomputed.
-fn first_states(mut doc: RobustnessResult, states: usize) -> RobustnessResult {
-    for r in std::iter::once(&mut doc.control).chain(doc.levels.iter_mut().map(|l| &mut l.result)) {
-        r.per_context.truncate(states);
-        r.manifest.n_contexts = states;
-    }
-    d3il_metrics::recompute::recompute_robustness(&mut doc).expect("recompute");
-    doc
 }
 
 /// The per-seed row of `method` on the Robustness view.

@@ -186,17 +186,31 @@ pub async fn queued_submission_of(
 pub async fn finished_submission(store: &Store, method: &str, result: &EvalResult) -> i64 {
     let m = &result.manifest;
     let id = queued_submission_of(store, method, m.task, m.obs_type, m.protocol, 0, 1).await;
+    complete_as_worker(store, id, Finished::Evaluation(result)).await;
+    id
+}
+
+/// Claims the one queued job, which must be submission `id`'s, and completes
+/// it with `finished` as a worker does (a suite's document saved first).
+async fn complete_as_worker(store: &Store, id: i64, finished: Finished<'_>) {
     let c = store
         .claim_job("test", 60)
         .await
         .expect("claim")
         .expect("a queued job");
     assert_eq!(c.submission.id, id, "the job of the new submission");
+    let result = match finished {
+        Finished::Evaluation(result) => result,
+        Finished::Robustness(doc) => {
+            assert_eq!(c.submission.suite.as_deref(), Some("robustness"));
+            store.save_robustness(id, doc).await.expect("save");
+            &doc.control
+        }
+    };
     store
         .complete_job(c.job.id, id, result, &[])
         .await
         .expect("complete");
-    id
 }
 
 /// What a finished Pushing submission ([`finished_pushing`]) ran.
@@ -241,24 +255,7 @@ pub async fn finished_pushing(
         }
     }
     .expect("submission");
-    let c = store
-        .claim_job("test", 60)
-        .await
-        .expect("claim")
-        .expect("a job");
-    assert_eq!(c.submission.id, id);
-    let result = match finished {
-        Finished::Evaluation(result) => result,
-        Finished::Robustness(doc) => {
-            assert_eq!(c.submission.suite.as_deref(), Some("robustness"));
-            store.save_robustness(id, doc).await.expect("save");
-            &doc.control
-        }
-    };
-    store
-        .complete_job(c.job.id, id, result, &[])
-        .await
-        .expect("complete");
+    complete_as_worker(store, id, finished).await;
     id
 }
 

@@ -26,14 +26,7 @@ pub fn d3il_db(args: &[&str]) -> Output {
 
 /// `d3il db ARGS...`, which must succeed; returns stdout.
 pub fn d3il_db_ok(args: &[&str]) -> String {
-    let out = d3il_db(args);
-    assert!(
-        out.status.success(),
-        "d3il db {args:?} failed:\n{}\n{}",
-        String::from_utf8_lossy(&out.stdout),
-        String::from_utf8_lossy(&out.stderr)
-    );
-    String::from_utf8_lossy(&out.stdout).into_owned()
+    d3il_test_support::succeeded(&d3il_db(args), &format!("d3il db {args:?}"))
 }
 
 pub fn runtime() -> tokio::runtime::Runtime {
