@@ -260,7 +260,7 @@ pub struct Options {
     /// script taking the same arguments), and how many at once.
     pub video_exe: Option<PathBuf>,
     pub video_renders: usize,
-    /// The zoo loaded at start (issue 50); default none.
+    /// The zoo of trained reference agents loaded at start; default none.
     pub zoo: Option<PathBuf>,
     /// This build's physics fingerprint as the server is told it (its
     /// canary is not run in tests); default unknown.
@@ -444,12 +444,12 @@ impl Binary {
         if !extra.contains(&"--fidelity") {
             args.extend(["--fidelity", "off"]);
         }
-        // The zoo (issue 50) only where a test asks for it: the boards of
+        // The zoo only where a test asks for it: the boards of
         // the other tests hold their own submissions and the paper's rows.
         if !extra.contains(&"--zoo") {
             args.extend(["--zoo", "none"]);
         }
-        // No submission quota (issue 42) unless asked: tests submit many
+        // No submission quota unless asked: tests submit many
         // evaluations with one token to measure other things.
         if !extra.iter().any(|a| a.starts_with("--quota")) {
             args.extend([

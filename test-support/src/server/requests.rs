@@ -71,7 +71,8 @@ pub async fn admin_post(
     let mut req = app.http.request(method, app.url(path)).bearer_auth(admin);
     req = match body {
         Some(b) => req.json(&b),
-        // Admin actions say they send JSON even without a body (issue 52).
+        // Admin actions must say they send JSON even without a body (the
+        // server's guard against cross-site forms: http/api/admin.rs).
         None => req.header("content-type", "application/json"),
     };
     let r = req.send().await.unwrap();
