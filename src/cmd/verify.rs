@@ -127,11 +127,29 @@ fn finish(report: &VerifyReport, json: bool, table: &str) -> anyhow::Result<()> 
             })
             .collect();
         bail!(
-            "the simulator drifted from the committed canary outcomes: {}",
-            drifted.join("; ")
+            "{}",
+            drift_message(&drifted, d3il_evaluator::sim::scene::meshes_available())
         );
     }
     Ok(())
+}
+
+/// The error of a failed check: what drifted, and where image entries
+/// drifted in a build without the Panda meshes, that the build is the likely
+/// cause (its frames draw the primitive robot, not the committed outcomes').
+fn drift_message(drifted: &[String], meshes: bool) -> String {
+    let mut message = format!(
+        "the simulator drifted from the committed canary outcomes: {}",
+        drifted.join("; ")
+    );
+    if !meshes && drifted.iter().any(|d| d.contains("/image/")) {
+        message.push_str(
+            ". This build has no Panda meshes (assets/meshes/ was missing when it was \
+             compiled), so image observations show the primitive robot: build with \
+             `./dev`, which converts them first (scripts/panda_meshes.py)",
+        );
+    }
+    message
 }
 
 fn table(checks: &[EntryCheck]) -> String {
@@ -155,4 +173,22 @@ fn table(checks: &[EntryCheck]) -> String {
         ));
     }
     s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::drift_message;
+
+    #[test]
+    fn image_drift_in_a_build_without_meshes_names_the_meshes() {
+        let image = vec!["aligning/image/aligning_image: rollout 0: differs".to_string()];
+        let state =
+            vec!["pushing/state/scripted:pushing:all-modes: rollout 0: differs".to_string()];
+        assert!(drift_message(&image, false).contains("no Panda meshes"));
+        assert!(!drift_message(&image, true).contains("meshes"));
+        assert!(!drift_message(&state, false).contains("meshes"));
+        assert!(drift_message(&state, false).starts_with(
+            "the simulator drifted from the committed canary outcomes: pushing/state/"
+        ));
+    }
 }
