@@ -20,11 +20,7 @@ fn demos(task: &str, episodes: usize, seed: u64, out: &Path) {
         .args(speed(task))
         .output()
         .unwrap();
-    assert!(
-        o.status.success(),
-        "d3il demos --task {task} failed: {}",
-        String::from_utf8_lossy(&o.stderr)
-    );
+    d3il_test_support::succeeded(&o, &format!("d3il demos --task {task}"));
 }
 
 fn tree(dir: &Path) -> Vec<(String, Vec<u8>)> {
@@ -53,12 +49,7 @@ fn contract(task: &str, dir: &Path) {
         .arg(dir)
         .output()
         .unwrap();
-    assert!(
-        o.status.success(),
-        "{task}: {}{}",
-        String::from_utf8_lossy(&o.stdout),
-        String::from_utf8_lossy(&o.stderr)
-    );
+    d3il_test_support::succeeded(&o, &format!("tests/demos_contract.py on {task}"));
 }
 
 /// The expert's pace for `task`: Sorting-4's expert at its own pace runs

@@ -532,13 +532,7 @@ fn replay_level(file: &std::path::Path, level: &str, rollout: usize) -> std::pro
 
 /// Rollout `rollout` of `level` in `file` replays bit for bit.
 fn replays(file: &std::path::Path, level: &str, rollout: usize) {
-    let out = replay_level(file, level, rollout);
-    assert!(
-        out.status.success(),
-        "{level}: {}{}",
-        String::from_utf8_lossy(&out.stdout),
-        String::from_utf8_lossy(&out.stderr)
-    );
+    d3il_test_support::succeeded(&replay_level(file, level, rollout), level);
 }
 
 struct Quiet;

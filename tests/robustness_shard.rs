@@ -1,7 +1,7 @@
 //! The robustness track's cost and records on the command line (issue 40):
 //! `d3il eval --suite robustness --shard K/N` parts (one of them run in the
-//! sandboxed worker) merged by `d3il merge` give the unsharded document bit for bit (but for the measured inference
-//! time), a fractional latency applies the blend of the two late actions,
+//! sandboxed worker) merged by `d3il merge` give the unsharded document bit
+//! for bit (but for the measured inference time), a fractional latency applies the blend of the two late actions,
 //! and a perturbed rollout of every axis gets its video from `d3il replay
 //! --level AXIS/N --video`.
 

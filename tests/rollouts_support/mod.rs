@@ -28,11 +28,7 @@ pub fn eval(dir: &Path, task: &str, policy: &str) -> EvalResult {
         .arg(&out)
         .output()
         .expect("run d3il eval");
-    assert!(
-        run.status.success(),
-        "d3il eval failed: {}",
-        String::from_utf8_lossy(&run.stderr)
-    );
+    d3il_test_support::succeeded(&run, "d3il eval");
     serde_json::from_slice(&std::fs::read(&out).expect("eval JSON")).expect("an EvalResult")
 }
 
@@ -118,12 +114,7 @@ pub fn duration_seconds(mp4: &Path) -> f64 {
         .arg(mp4)
         .output()
         .expect("ffprobe (Debian's ffmpeg) is required: apt-get install -y ffmpeg");
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    String::from_utf8_lossy(&out.stdout)
+    d3il_test_support::succeeded(&out, "ffprobe")
         .trim()
         .parse()
         .expect("a duration")

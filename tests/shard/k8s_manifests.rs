@@ -25,13 +25,8 @@ fn load(name: &str) -> Value {
         .arg(&path)
         .output()
         .expect("python3 (./dev test installs python3-yaml)");
-    assert!(
-        out.status.success(),
-        "{} does not parse: {}",
-        path.display(),
-        String::from_utf8_lossy(&out.stderr)
-    );
-    serde_json::from_slice(&out.stdout).unwrap()
+    let json = d3il_test_support::succeeded(&out, &format!("parsing {}", path.display()));
+    serde_json::from_str(&json).unwrap()
 }
 
 fn container(job: &Value) -> &Value {
